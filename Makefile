@@ -1,0 +1,45 @@
+# ubake: the two README commands (make demo, make test) and the rest.
+BUILD ?= build
+JOBS ?= 2
+LEVEL ?= ../shared/levels/real/oa_dm4/oa_dm4.gltf
+SHARED_LEVELS := $(firstword $(wildcard ../shared/levels/real) $(wildcard shared/levels/real))
+
+.PHONY: all deps build demo test test-sanitize bench fuzz clean
+
+all: build
+
+deps:
+	@bash scripts/install-deps.sh
+
+$(BUILD)/CMakeCache.txt:
+	cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
+
+build: deps $(BUILD)/CMakeCache.txt
+	cmake --build $(BUILD) -j $(JOBS)
+
+demo: build
+	@mkdir -p out/demo
+	$(BUILD)/ubake bake $(LEVEL) -o out/demo --quality fast
+	@echo "demo: outputs in out/demo/ (.ubk, EXR lightmaps, PNG previews, report.json)"
+	@ls -l out/demo
+
+test: build
+	cd $(BUILD) && ctest --output-on-failure -j $(JOBS) --timeout 900
+
+test-sanitize: deps
+	cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=Debug -DUB_SANITIZE=ON >/dev/null
+	cmake --build build-asan -j $(JOBS)
+	cd build-asan && ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 ctest --output-on-failure -j $(JOBS) --timeout 1800
+
+bench: build
+	@for b in $(BUILD)/bench_*; do echo "== $$b"; $$b || exit 1; done
+
+FUZZ_SECONDS ?= 60
+fuzz: deps
+	CC=clang CXX=clang++ cmake -S . -B build-fuzz -DCMAKE_BUILD_TYPE=RelWithDebInfo -DUB_FUZZ=ON >/dev/null
+	cmake --build build-fuzz -j $(JOBS)
+	@for f in build-fuzz/fuzz_*; do n=$$(basename $$f); mkdir -p build-fuzz/corpus-$$n; \
+	  $$f -max_total_time=$(FUZZ_SECONDS) build-fuzz/corpus-$$n tests/fuzz/corpus-$$n || exit 1; done
+
+clean:
+	rm -rf $(BUILD) build-asan build-fuzz

@@ -1,0 +1,38 @@
+/* ubake/ahd.h — ambient/highlight/direction lightmap encoding (Sloan & Silvennoinen 2018).
+ *
+ * A texel's incident radiance is baked as SH L1 (4 coefficients per channel, real
+ * orthonormal, order Y00, Y1-1, Y10, Y11 = (y, z, x) with the usual constants). AHD keeps
+ * an RGB ambient C_a, a unit direction d and an RGB directional colour C_d, chosen so the
+ * irradiance along the surface normal n is exact:
+ *   E(n') = C_a + C_d · max(0, d·n')   (both C_a, C_d ≥ 0)
+ *   with I_z = E_SH(n) and C_d = (I_z − C_a) / (d·n), d·n guarded.
+ * Pure functions; thread safe.
+ */
+#ifndef UBAKE_AHD_H
+#define UBAKE_AHD_H
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct ub_ahd {
+  float ambient[3];   /* W/m² */
+  float direction[3]; /* unit */
+  float directional[3]; /* W/m² */
+} ub_ahd;
+
+/* sh: 4 × 3 floats, coefficient-major: sh[k*3 + c] for coefficient k, channel c.
+ * Radiance SH, W/(m²·sr). normal: unit surface normal. */
+void ub_ahd_encode(const float sh[12], const float normal[3], ub_ahd *out_ahd);
+/* Irradiance (W/m²) for any unit normal n'. */
+void ub_ahd_irradiance(const ub_ahd *ahd, const float n[3], float out_rgb[3]);
+/* Irradiance from the SH L1 directly (cosine convolution), W/m², never negative. */
+void ub_sh1_irradiance(const float sh[12], const float n[3], float out_rgb[3]);
+/* Adds radiance L (W/(m²·sr)) arriving from unit direction w (pointing away from the
+ * receiver) with weight wt into sh (projection estimator: sh += wt·L·Y(w)). */
+void ub_sh1_add(float sh[12], const float w[3], const float L[3], float wt);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

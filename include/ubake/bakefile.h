@@ -1,0 +1,68 @@
+/* ubake/bakefile.h — the .ubk bake file: what the run-time needs, in memory and on disk.
+ *
+ * On disk (docs/FORMAT.md): little-endian, a fixed header with magic "UBK\0" and a format
+ * version, a section table, and sections each with its own CRC-32. Writing goes to
+ * "PATH.tmp" and is renamed into place, so a failed write leaves no file behind.
+ * Reading validates every length, count, index and float before anything trusts it: a
+ * truncated, corrupted or hostile file gives UB_ERR_INVALID_DATA (or
+ * UB_ERR_UNSUPPORTED_VERSION) and a message naming the file and the section.
+ *
+ * Lifecycle: ub_bakefile_read*() allocate a ub_bakefile; ub_bakefile_free() releases it
+ * (NULL-safe). A ub_bakefile built by the baker for writing is owned by the baker.
+ * Thread safety: a read bakefile is immutable and may be shared.
+ */
+#ifndef UBAKE_BAKEFILE_H
+#define UBAKE_BAKEFILE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "ubake/error.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define UB_BAKEFILE_VERSION 1u
+#define UB_SH1_FLOATS 12 /* SH L1 × RGB, coefficient-major: [k*3 + c] */
+
+typedef struct ub_bakefile_atlas {
+  uint32_t width, height;
+  /* width × height × UB_SH1_FLOATS floats: base radiance SH L1 per texel (W/(m²·sr)),
+   * padding texels dilated from their neighbours. */
+  float *sh;
+  /* width × height: 0 = empty, 1 = covered by a surface, 2 = dilated padding. */
+  uint8_t *coverage;
+  /* width × height × 3: unit surface normal per covered texel (0 elsewhere). */
+  float *normal;
+} ub_bakefile_atlas;
+
+typedef struct ub_bakefile {
+  char level_name[64];      /* NUL-terminated */
+  uint32_t seed;
+  uint32_t bounces;         /* bounces baked */
+
+  /* Lightmapped geometry, for lightmap queries and rendering (world space, metres). */
+  uint32_t vertex_count;
+  float *positions;         /* vertex_count × 3 */
+  uint32_t triangle_count;
+  uint32_t *indices;        /* triangle_count × 3, each < vertex_count */
+  int32_t *tri_atlas;       /* triangle_count: atlas index or -1 */
+  float *tri_uv;            /* triangle_count × 6: lightmap UV per corner, [0,1] */
+  float *tri_albedo;        /* triangle_count × 3: diffuse albedo, for rendering */
+
+  uint32_t atlas_count;
+  ub_bakefile_atlas *atlases;
+} ub_bakefile;
+
+ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_log *log);
+ub_result ub_bakefile_read(const char *path, const ub_log *log, ub_bakefile **out_bf);
+/* name: used in messages only (e.g. the file name). */
+ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *name,
+                                  const ub_log *log, ub_bakefile **out_bf);
+void ub_bakefile_free(ub_bakefile *bf);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

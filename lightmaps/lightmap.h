@@ -1,0 +1,61 @@
+/* lightmaps/lightmap.h — lightmap atlases, texel receivers and their sample points.
+ *
+ * ub_lightmap_build() decides every lightmapped triangle's atlas and lightmap UV
+ * (TEXCOORD_1 where the triangle has it, else generated charts packed with padding at the
+ * node's texel size), rasterises triangles conservatively into texels, and places up to
+ * UB_TEXEL_SAMPLES sample points inside each covered texel's footprint, moved off back
+ * faces (a texel at a wall/floor junction never sees through the wall).
+ * Lifecycle: build → use → ub_lightmap_free (NULL-safe). Read-only after build; any
+ * number of threads may read it.
+ */
+#ifndef UBAKE_LIGHTMAPS_LIGHTMAP_H
+#define UBAKE_LIGHTMAPS_LIGHTMAP_H
+
+#include <stdint.h>
+
+#include "ubake/scene.h"
+#include "bake/rt.h"
+
+#define UB_TEXEL_SAMPLES 4
+#define UB_ATLAS_MAX_SIZE 4096
+
+typedef struct ub_atlas {
+  uint32_t width, height;   /* texels */
+  int generated;            /* 0: authored TEXCOORD_1, 1: generated charts */
+  uint32_t first_texel;     /* texels of this atlas are [first_texel, first_texel+texel_count) */
+  uint32_t texel_count;
+  int32_t *texel_of;        /* width × height: index of the covered texel there, -1 = empty */
+} ub_atlas;
+
+typedef struct ub_lightmap {
+  uint32_t atlas_count;
+  ub_atlas *atlases;
+
+  int32_t *tri_atlas;       /* triangle_count: atlas index, -1 = not lightmapped */
+  float *tri_uv;            /* triangle_count × 3 × 2: lightmap UV per corner in [0,1] of its atlas */
+
+  /* Covered texels (receivers), atlas by atlas, row-major inside an atlas. */
+  uint32_t texel_count;
+  uint32_t *texel_atlas;    /* texel_count */
+  uint32_t *texel_xy;       /* texel_count × 2: x, y in the atlas */
+  uint32_t *texel_tri;      /* texel_count: triangle giving the texel's normal/material */
+  float *texel_pos;         /* texel_count × 3: centre of the texel on the surface, world */
+  float *texel_normal;      /* texel_count × 3: unit shading normal */
+  float *sample_pos;        /* texel_count × UB_TEXEL_SAMPLES × 3: sample points, world,
+                               already off back faces; unused slots repeat earlier ones */
+  uint32_t backface_fixes;  /* sample points moved off a back face */
+  uint32_t overlap_texels;  /* texels claimed by triangles of different planes (warned) */
+} ub_lightmap;
+
+/* default_texel_size: metres per texel where neither node nor level says (e.g. 0.25). */
+ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float default_texel_size,
+                            const ub_log *log, ub_lightmap **out_lightmap);
+void ub_lightmap_free(ub_lightmap *lm);
+
+/* Fills padding texels (texel_of == -1) of a per-texel-of-atlas image from their covered
+ * neighbours, `passes` rings deep, so bilinear filtering shows no dark seams.
+ * image: width × height × channels floats; covered: width × height (non-zero = covered). */
+void ub_lightmap_dilate(float *image, const uint8_t *covered, uint32_t width, uint32_t height,
+                        uint32_t channels, uint32_t passes);
+
+#endif
