@@ -1,0 +1,51 @@
+/* bake/lights.h — light evaluation shared by the baker and the reference path tracer.
+ *
+ * Units (DESIGN §3): point/spot intensity W/sr, directional W/m² at normal incidence,
+ * emission W/(m²·sr). Spot cones and range windowing per KHR_lights_punctual.
+ * ub_emitters is built once from a scene (emissive triangles with a power CDF);
+ * it is read-only afterwards and thread safe. Free with ub_emitters_free (NULL-safe).
+ */
+#ifndef UBAKE_BAKE_LIGHTS_H
+#define UBAKE_BAKE_LIGHTS_H
+
+#include <stdint.h>
+
+#include "ubake/scene.h"
+
+/* Incident light at point p from a punctual light (ignoring visibility).
+ * out_dir: unit direction from p toward the light; out_dist: distance to the light
+ * (INFINITY for directional); out_e: irradiance (W/m²) on a surface facing the light
+ * (cosine NOT applied). Returns 0 when the light cannot reach p (outside the cone or
+ * range), 1 otherwise. Near-zero distances are guarded: the result is finite. */
+int ub_light_incident(const ub_light *light, const float p[3], float out_dir[3],
+                      float *out_dist, float out_e[3]);
+
+typedef struct ub_emitters {
+  uint32_t count;
+  uint32_t *tri;     /* emissive triangle indices */
+  float *cdf;        /* count: cumulative power, last = 1 */
+  float *area;       /* count: m² */
+  double total_power; /* Σ area × luminance(emission) × π, W (luminance-weighted) */
+} ub_emitters;
+
+ub_result ub_emitters_build(const ub_scene *scene, ub_emitters **out_em);
+void ub_emitters_free(ub_emitters *em);
+
+/* Samples a point on an emissive triangle with probability ∝ power.
+ * u0 picks the triangle, (u1, u2) the point. out_pdf_area: pdf w.r.t. area (1/m²)
+ * for the chosen point (i.e. p(tri) / area(tri)). out_n: unit geometric normal (the
+ * emitting side), out_le: emitted radiance. */
+void ub_emitters_sample(const ub_emitters *em, const ub_scene *scene, float u0, float u1,
+                        float u2, float out_p[3], float out_n[3], float out_le[3],
+                        float *out_pdf_area);
+
+/* Hash-based random numbers (DESIGN §3): a pure function of its inputs. */
+uint32_t ub_hash4(uint32_t a, uint32_t b, uint32_t c, uint32_t d);
+/* Uniform float in [0, 1) from a hash. */
+static inline float ub_u01(uint32_t h) { return (float)(h >> 8) * (1.0f / 16777216.0f); }
+
+/* Sampling helpers. */
+void ub_sample_cosine(const float n[3], float u1, float u2, float out_dir[3]);
+void ub_onb(const float n[3], float out_t[3], float out_b[3]);
+
+#endif
