@@ -1,0 +1,228 @@
+/* The bake, as a script: load → rays → receivers → plan → passes → encode → write. */
+#include "ubake/bake.h"
+
+#include <errno.h>
+#include <math.h>
+#include <omp.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "bake/lights.h"
+#include "bake/output.h"
+#include "bake/pass.h"
+#include "bake/plan.h"
+#include "bake/rt.h"
+#include "lightmaps/lightmap.h"
+#include "ubake/scene.h"
+
+void ub_bake_options_default(ub_bake_options *o)
+{
+  memset(o, 0, sizeof *o);
+  o->quality = UB_QUALITY_FAST;
+  o->bounces = -1;
+  o->seed = 1;
+}
+
+const char *ub_quality_name(ub_quality q)
+{
+  switch (q) {
+  case UB_QUALITY_DRAFT: return "draft";
+  case UB_QUALITY_FAST: return "fast";
+  case UB_QUALITY_HIGH: return "high";
+  }
+  return "?";
+}
+
+static double now_seconds(void)
+{
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+long ub_peak_rss_kb(void)
+{
+  struct rusage ru;
+  if (getrusage(RUSAGE_SELF, &ru) != 0)
+    return 0;
+  return ru.ru_maxrss;
+}
+
+typedef struct stage_clock {
+  ub_bake_stats *stats;
+  const ub_log *log;
+  double t0;
+} stage_clock;
+
+static void stage_begin(stage_clock *sc, const char *name)
+{
+  ub_bake_stats *st = sc->stats;
+  if (st->stage_count < UB_BAKE_MAX_STAGES) {
+    snprintf(st->stage_name[st->stage_count], sizeof st->stage_name[0], "%s", name);
+    st->stage_seconds[st->stage_count] = 0.0;
+  }
+  sc->t0 = now_seconds();
+}
+
+static void stage_end(stage_clock *sc, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void stage_end(stage_clock *sc, const char *fmt, ...)
+{
+  ub_bake_stats *st = sc->stats;
+  double dt = now_seconds() - sc->t0;
+  const char *name = "?";
+  if (st->stage_count < UB_BAKE_MAX_STAGES) {
+    st->stage_seconds[st->stage_count] = dt;
+    name = st->stage_name[st->stage_count];
+    st->stage_count++;
+  }
+  char msg[512];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(msg, sizeof msg, fmt, ap);
+  va_end(ap);
+  ub_log_printf(sc->log, UB_LOG_INFO, "[%-9s] %6.2f s  %s", name, dt, msg);
+}
+
+static void level_name_of(const char *path, char *out, size_t cap)
+{
+  const char *base = strrchr(path, '/');
+  base = base ? base + 1 : path;
+  snprintf(out, cap, "%s", base);
+  char *dot = strrchr(out, '.');
+  if (dot && dot != out)
+    *dot = '\0';
+}
+
+ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, const ub_log *log,
+                        ub_bake_stats *out_stats)
+{
+  ub_bake_stats stats;
+  memset(&stats, 0, sizeof stats);
+  double t_start = now_seconds();
+  stage_clock sc = {&stats, log, 0.0};
+  if (opt->threads > 0)
+    omp_set_num_threads(opt->threads);
+  level_name_of(level_path, stats.level_name, sizeof stats.level_name);
+
+  ub_scene *scene = NULL;
+  ub_rt *rt = NULL;
+  ub_lightmap *lm = NULL;
+  ub_emitters *em = NULL;
+  ub_plan plan;
+  memset(&plan, 0, sizeof plan);
+  ub_pass_result base;
+  memset(&base, 0, sizeof base);
+  ub_result r;
+
+  /* load */
+  stage_begin(&sc, "load");
+  r = ub_scene_load(level_path, log, &scene);
+  if (r != UB_OK)
+    goto fail;
+  stats.triangles = scene->triangle_count;
+  stats.lights = scene->light_count;
+  stage_end(&sc, "%u triangles (%u degenerate), %u materials, %u lights, %u nodes",
+            scene->triangle_count, scene->degenerate_count, scene->material_count,
+            scene->light_count, scene->node_count);
+
+  /* rays */
+  stage_begin(&sc, "rays");
+  r = ub_rt_create(scene, NULL, log, &rt);
+  if (r != UB_OK)
+    goto fail;
+  r = ub_emitters_build(scene, &em);
+  if (r != UB_OK)
+    goto fail;
+  stats.emissive_triangles = em->count;
+  stage_end(&sc, "Embree BVH over %u triangles, %u emissive", scene->triangle_count, em->count);
+
+  /* receivers */
+  stage_begin(&sc, "receivers");
+  float texel = opt->texel_size > 0.0f ? opt->texel_size : 0.0f;
+  r = ub_lightmap_build(scene, rt, texel > 0.0f ? texel : scene->texel_size, log, &lm);
+  if (r != UB_OK)
+    goto fail;
+  stats.atlases = lm->atlas_count;
+  stats.texels = lm->texel_count;
+  stats.backface_fixes = lm->backface_fixes;
+  stage_end(&sc, "%u atlases, %u texels, %u sample points moved off back faces",
+            lm->atlas_count, lm->texel_count, lm->backface_fixes);
+
+  /* plan */
+  stage_begin(&sc, "plan");
+  r = ub_plan_build(scene, rt, em, lm, opt, log, &plan);
+  if (r != UB_OK)
+    goto fail;
+  stage_end(&sc, "%u pass(es), %u of %u lights in the base pass, sky %s, emissive %s",
+            plan.pass_count, plan.base_lights, scene->light_count, plan.sky ? "yes" : "no",
+            plan.emissive ? "yes" : "no");
+
+  /* passes */
+  stage_begin(&sc, "base pass");
+  ub_pass_desc pd;
+  memset(&pd, 0, sizeof pd);
+  pd.scene = scene;
+  pd.rt = rt;
+  pd.emitters = em;
+  pd.lightmap = lm;
+  pd.light_enabled = plan.base_light_enabled;
+  pd.emissive = plan.emissive;
+  pd.sky = plan.sky;
+  pd.gather_rays = plan.gather_rays;
+  pd.emissive_samples = plan.emissive_samples;
+  pd.shadow_samples = plan.shadow_samples;
+  pd.bounces = opt->bounces;
+  pd.stop_fraction = 0.005;
+  pd.seed = opt->seed;
+  pd.pass_id = 0;
+  pd.progress = opt->progress;
+  pd.progress_user = opt->progress_user;
+  pd.progress_base = 0.0;
+  pd.progress_span = 1.0;
+  double tg = now_seconds();
+  r = ub_pass_run(&pd, log, &base);
+  stats.gather_seconds = now_seconds() - tg;
+  if (r != UB_OK)
+    goto fail;
+  stats.bounces = base.bounces;
+  memcpy(stats.bounce_energy, base.bounce_energy, sizeof stats.bounce_energy);
+  stats.rays_gather = base.rays_gather;
+  stats.rays_shadow = base.rays_shadow;
+  stats.rays_total = ub_rt_rays_traced(rt);
+  stats.clamped_values += base.clamped;
+  stats.backface_hits = base.backface_hits;
+  stats.unlit_hits = base.unlit_hits;
+  stage_end(&sc, "%u bounces, %.1f M gather + %.1f M shadow rays, %.2f M rays/s",
+            base.bounces, base.rays_gather * 1e-6, base.rays_shadow * 1e-6,
+            stats.gather_seconds > 0 ? (base.rays_gather + base.rays_shadow) * 1e-6 /
+                                           stats.gather_seconds
+                                     : 0.0);
+
+  /* encode + write */
+  stage_begin(&sc, "write");
+  stats.peak_rss_kb = ub_peak_rss_kb();
+  stats.total_seconds = now_seconds() - t_start;
+  r = ub_output_write(scene, lm, &plan, &base, opt, &stats, log);
+  if (r != UB_OK)
+    goto fail;
+  stage_end(&sc, "%s", stats.ubk_path);
+  stats.total_seconds = now_seconds() - t_start;
+  stats.peak_rss_kb = ub_peak_rss_kb();
+
+fail:
+  ub_pass_result_free(&base);
+  ub_plan_free(&plan);
+  ub_lightmap_free(lm);
+  ub_emitters_free(em);
+  ub_rt_free(rt);
+  ub_scene_free(scene);
+  if (out_stats)
+    *out_stats = stats;
+  return r;
+}

@@ -1,0 +1,335 @@
+/* Encode + write: atlases (dilated SH, AHD EXR, PNG preview), the .ubk and the report.
+ * Everything is written into a staging folder inside the output folder and renamed into
+ * place only when all of it succeeded, so a failed bake leaves no partial outputs. */
+#include "bake/output.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "lightmaps/image.h"
+#include "ubake/ahd.h"
+#include "ubake/bakefile.h"
+
+#define UB_DILATE_RINGS 4
+#define UB_MAX_OUTPUTS 64
+
+typedef struct out_files {
+  char staged[UB_MAX_OUTPUTS][1024];
+  char final[UB_MAX_OUTPUTS][1024];
+  uint32_t count;
+} out_files;
+
+static int add_file(out_files *f, const char *staging, const char *dir, const char *name)
+{
+  if (f->count >= UB_MAX_OUTPUTS)
+    return 0;
+  int a = snprintf(f->staged[f->count], sizeof f->staged[0], "%s/%s", staging, name);
+  int b = snprintf(f->final[f->count], sizeof f->final[0], "%s/%s", dir, name);
+  if (a < 0 || b < 0 || (size_t)a >= sizeof f->staged[0] || (size_t)b >= sizeof f->final[0])
+    return 0;
+  f->count++;
+  return 1;
+}
+
+static ub_result mkdir_p(const char *dir, const ub_log *log)
+{
+  char buf[1024];
+  snprintf(buf, sizeof buf, "%s", dir);
+  for (char *p = buf + 1; *p; p++) {
+    if (*p != '/')
+      continue;
+    *p = '\0';
+    if (mkdir(buf, 0777) != 0 && errno != EEXIST) {
+      ub_log_printf(log, UB_LOG_ERROR, "%s: cannot create folder: %s", buf, strerror(errno));
+      return UB_ERR_IO;
+    }
+    *p = '/';
+  }
+  if (mkdir(buf, 0777) != 0 && errno != EEXIST) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: cannot create folder: %s", buf, strerror(errno));
+    return UB_ERR_IO;
+  }
+  return UB_OK;
+}
+
+static void json_str(FILE *f, const char *s)
+{
+  fputc('"', f);
+  for (; s && *s; s++) {
+    unsigned char c = (unsigned char)*s;
+    if (c == '"' || c == '\\')
+      fprintf(f, "\\%c", c);
+    else if (c < 0x20)
+      fprintf(f, "\\u%04x", c);
+    else
+      fputc(c, f);
+  }
+  fputc('"', f);
+}
+
+static ub_result write_report(const char *path, const ub_scene *scene, const ub_lightmap *lm,
+                              const ub_plan *plan, const ub_pass_result *base,
+                              const ub_bake_options *opt, const ub_bake_stats *st,
+                              const ub_log *log)
+{
+  FILE *f = fopen(path, "w");
+  if (!f) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: cannot write: %s", path, strerror(errno));
+    return UB_ERR_IO;
+  }
+  fprintf(f, "{\n  \"level\": ");
+  json_str(f, scene->path);
+  fprintf(f, ",\n  \"name\": ");
+  json_str(f, st->level_name);
+  fprintf(f, ",\n  \"quality\": \"%s\",\n  \"seed\": %u,\n  \"threads\": %d,\n",
+          ub_quality_name(opt->quality), opt->seed, opt->threads);
+  fprintf(f, "  \"scene\": {\"triangles\": %u, \"degenerate_triangles\": %u, \"materials\": %u, "
+             "\"lights\": %u, \"emissive_triangles\": %u, \"nodes\": %u, \"sky\": %s},\n",
+          scene->triangle_count, scene->degenerate_count, scene->material_count,
+          scene->light_count, st->emissive_triangles, scene->node_count,
+          scene->has_sky ? "true" : "false");
+  fprintf(f, "  \"plan\": {\n    \"passes\": [{\"name\": \"base\", \"lights\": %u, "
+             "\"static_lights\": %u, \"primary_lights\": %u, \"sky\": %s, \"emissive\": %s, "
+             "\"gather_rays\": %u, \"emissive_samples\": %u, \"shadow_samples\": %u, "
+             "\"estimated_rays\": %.0f, \"actual_rays\": %llu}],\n",
+          plan->base_lights, plan->static_lights, plan->primary_lights,
+          plan->sky ? "true" : "false", plan->emissive ? "true" : "false", plan->gather_rays,
+          plan->emissive_samples, plan->shadow_samples, plan->est_rays,
+          (unsigned long long)(base->rays_gather + base->rays_shadow));
+  fprintf(f, "    \"dls_lights_not_baked\": %u,\n    \"lights\": [", plan->dls_lights);
+  for (uint32_t l = 0; l < scene->light_count; l++) {
+    const ub_light *L = &scene->lights[l];
+    static const char *types[] = {"point", "spot", "directional"};
+    fprintf(f, "%s\n      {\"index\": %u, \"node\": ", l ? "," : "", l);
+    json_str(f, L->node >= 0 && (uint32_t)L->node < scene->node_count
+                    ? scene->nodes[L->node].name
+                    : "");
+    fprintf(f, ", \"type\": \"%s\", \"class\": \"%s\", \"status\": ", types[L->type],
+            L->cls == UB_LIGHT_PRIMARY ? "primary" : "static");
+    json_str(f, ub_light_skip_reason((ub_light_skip)plan->light_skip[l]));
+    fputc('}', f);
+  }
+  fprintf(f, "\n    ]\n  },\n");
+  fprintf(f, "  \"receivers\": {\"atlases\": [");
+  for (uint32_t a = 0; a < lm->atlas_count; a++)
+    fprintf(f, "%s{\"width\": %u, \"height\": %u, \"texels\": %u, \"generated\": %s}",
+            a ? ", " : "", lm->atlases[a].width, lm->atlases[a].height,
+            lm->atlases[a].texel_count, lm->atlases[a].generated ? "true" : "false");
+  fprintf(f, "], \"texels\": %u, \"backface_fixes\": %u, \"overlap_texels\": %u},\n",
+          lm->texel_count, lm->backface_fixes, lm->overlap_texels);
+  fprintf(f, "  \"bounces\": %u,\n  \"bounce_energy\": [", st->bounces);
+  for (uint32_t b = 0; b <= st->bounces && b <= UB_BAKE_MAX_BOUNCES; b++)
+    fprintf(f, "%s%.6g", b ? ", " : "", st->bounce_energy[b]);
+  fprintf(f, "],\n  \"stages\": [");
+  for (uint32_t s = 0; s < st->stage_count; s++) {
+    fprintf(f, "%s{\"name\": ", s ? ", " : "");
+    json_str(f, st->stage_name[s]);
+    fprintf(f, ", \"seconds\": %.4f}", st->stage_seconds[s]);
+  }
+  double rps = st->gather_seconds > 0
+                   ? (double)(st->rays_gather + st->rays_shadow) / st->gather_seconds
+                   : 0.0;
+  fprintf(f, "],\n  \"seconds\": %.4f,\n", st->total_seconds);
+  fprintf(f, "  \"rays\": {\"total\": %llu, \"gather\": %llu, \"shadow\": %llu, "
+             "\"pass_seconds\": %.4f, \"rays_per_second\": %.0f},\n",
+          (unsigned long long)st->rays_total, (unsigned long long)st->rays_gather,
+          (unsigned long long)st->rays_shadow, st->gather_seconds, rps);
+  fprintf(f, "  \"clamped_values\": %llu,\n  \"backface_hits\": %llu,\n  \"unlit_hits\": %llu,\n",
+          (unsigned long long)st->clamped_values, (unsigned long long)st->backface_hits,
+          (unsigned long long)st->unlit_hits);
+  fprintf(f, "  \"peak_rss_mb\": %.1f\n}\n", st->peak_rss_kb / 1024.0);
+  int bad = ferror(f);
+  if (fclose(f) != 0 || bad) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: write failed", path);
+    return UB_ERR_IO;
+  }
+  return UB_OK;
+}
+
+/* Per atlas: dilated SH + normals + coverage for the .ubk, AHD for the EXR, irradiance
+ * along the normal for the PNG. */
+static ub_result encode_atlas(const ub_lightmap *lm, const ub_pass_result *base, uint32_t a,
+                              ub_bakefile_atlas *out, float **out_ahd, float **out_irr)
+{
+  const ub_atlas *at = &lm->atlases[a];
+  size_t npx = (size_t)at->width * at->height;
+  float *img = calloc(npx * 16, sizeof(float)); /* 12 SH + 3 normal + 1 filled */
+  uint8_t *cov = calloc(npx, 1);
+  out->sh = malloc(npx * UB_SH1_FLOATS * sizeof(float));
+  out->normal = malloc(npx * 3 * sizeof(float));
+  out->coverage = calloc(npx, 1);
+  *out_ahd = calloc(npx * 9, sizeof(float));
+  *out_irr = calloc(npx * 3, sizeof(float));
+  if (!img || !cov || !out->sh || !out->normal || !out->coverage || !*out_ahd || !*out_irr) {
+    free(img);
+    free(cov);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  out->width = at->width;
+  out->height = at->height;
+  for (uint32_t i = 0; i < at->texel_count; i++) {
+    uint32_t t = at->first_texel + i;
+    size_t px = (size_t)lm->texel_xy[2 * t + 1] * at->width + lm->texel_xy[2 * t];
+    memcpy(img + 16 * px, base->sh + 12 * (size_t)t, 12 * sizeof(float));
+    memcpy(img + 16 * px + 12, lm->texel_normal + 3 * (size_t)t, 3 * sizeof(float));
+    img[16 * px + 15] = 1.0f;
+    cov[px] = 1;
+  }
+  ub_lightmap_dilate(img, cov, at->width, at->height, 16, UB_DILATE_RINGS);
+  for (size_t px = 0; px < npx; px++) {
+    float *p = img + 16 * px;
+    float *n = p + 12;
+    if (cov[px]) {
+      out->coverage[px] = 1;
+    } else if (p[15] > 0.0f) {
+      out->coverage[px] = 2;
+    } else {
+      memset(out->sh + UB_SH1_FLOATS * px, 0, UB_SH1_FLOATS * sizeof(float));
+      memset(out->normal + 3 * px, 0, 3 * sizeof(float));
+      continue;
+    }
+    float len = sqrtf(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    for (int k = 0; k < 3; k++)
+      n[k] = len > 1e-6f ? n[k] / len : (k == 1 ? 1.0f : 0.0f);
+    memcpy(out->sh + UB_SH1_FLOATS * px, p, UB_SH1_FLOATS * sizeof(float));
+    memcpy(out->normal + 3 * px, n, 3 * sizeof(float));
+    ub_ahd ahd;
+    ub_ahd_encode(p, n, &ahd);
+    float *o = *out_ahd + 9 * px;
+    memcpy(o, ahd.ambient, 3 * sizeof(float));
+    memcpy(o + 3, ahd.direction, 3 * sizeof(float));
+    memcpy(o + 6, ahd.directional, 3 * sizeof(float));
+    ub_ahd_irradiance(&ahd, n, *out_irr + 3 * px);
+  }
+  free(img);
+  free(cov);
+  return UB_OK;
+}
+
+static void remove_staging(out_files *files, const char *staging)
+{
+  for (uint32_t i = 0; i < files->count; i++)
+    unlink(files->staged[i]);
+  rmdir(staging);
+}
+
+ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub_plan *plan,
+                          const ub_pass_result *base, const ub_bake_options *opt,
+                          ub_bake_stats *stats, const ub_log *log)
+{
+  const char *dir = opt->out_dir ? opt->out_dir : ".";
+  ub_result r = mkdir_p(dir, log);
+  if (r != UB_OK)
+    return r;
+  char staging[1024];
+  snprintf(staging, sizeof staging, "%s/.%s.staging-%ld", dir, stats->level_name,
+           (long)getpid());
+  if (mkdir(staging, 0777) != 0) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: cannot create folder: %s", staging, strerror(errno));
+    return UB_ERR_IO;
+  }
+  out_files files;
+  memset(&files, 0, sizeof files);
+
+  ub_bakefile bf;
+  memset(&bf, 0, sizeof bf);
+  snprintf(bf.level_name, sizeof bf.level_name, "%s", stats->level_name);
+  bf.seed = opt->seed;
+  bf.bounces = base->bounces;
+  bf.vertex_count = scene->vertex_count;
+  bf.positions = scene->positions;
+  bf.triangle_count = scene->triangle_count;
+  bf.indices = scene->indices;
+  bf.tri_atlas = lm->tri_atlas;
+  bf.tri_uv = lm->tri_uv;
+  bf.tri_albedo = malloc((size_t)scene->triangle_count * 3 * sizeof(float) + 1);
+  bf.atlas_count = lm->atlas_count;
+  bf.atlases = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *bf.atlases);
+  if (!bf.tri_albedo || !bf.atlases) {
+    r = UB_ERR_OUT_OF_MEMORY;
+    goto done;
+  }
+  for (uint32_t t = 0; t < scene->triangle_count; t++)
+    memcpy(bf.tri_albedo + 3 * (size_t)t, scene->materials[scene->tri_material[t]].albedo,
+           3 * sizeof(float));
+
+  for (uint32_t a = 0; a < lm->atlas_count; a++) {
+    float *ahd = NULL, *irr = NULL;
+    r = encode_atlas(lm, base, a, &bf.atlases[a], &ahd, &irr);
+    char name[256];
+    if (r == UB_OK) {
+      snprintf(name, sizeof name, "%s_lm%u.exr", stats->level_name, a);
+      if (!add_file(&files, staging, dir, name))
+        r = UB_ERR_INVALID_ARGUMENT;
+      else
+        r = ub_image_write_exr(files.staged[files.count - 1], lm->atlases[a].width,
+                             lm->atlases[a].height, UB_AHD_EXR_CHANNELS,
+                             ub_ahd_exr_channel_names, ahd, log);
+    }
+    if (r == UB_OK) {
+      snprintf(name, sizeof name, "%s_lm%u.png", stats->level_name, a);
+      if (!add_file(&files, staging, dir, name))
+        r = UB_ERR_INVALID_ARGUMENT;
+      else
+        r = ub_image_write_png_preview(files.staged[files.count - 1], lm->atlases[a].width,
+                                     lm->atlases[a].height, irr, 1.0f, log);
+    }
+    free(ahd);
+    free(irr);
+    if (r != UB_OK)
+      goto done;
+  }
+
+  char name[256];
+  snprintf(name, sizeof name, "%s.ubk", stats->level_name);
+  if (!add_file(&files, staging, dir, name)) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: output path too long", dir);
+    r = UB_ERR_INVALID_ARGUMENT;
+    goto done;
+  }
+  r = ub_bakefile_write(&bf, files.staged[files.count - 1], log);
+  if (r != UB_OK)
+    goto done;
+  snprintf(stats->ubk_path, sizeof stats->ubk_path, "%s", files.final[files.count - 1]);
+
+  /* The report last: it records the time and memory of everything before it. */
+  char report_final[1024];
+  if (opt->json_path)
+    snprintf(report_final, sizeof report_final, "%s", opt->json_path);
+  else
+    snprintf(report_final, sizeof report_final, "%s/%s.report.json", dir, stats->level_name);
+  if (!add_file(&files, staging, dir, "report.json")) {
+    r = UB_ERR_INVALID_ARGUMENT;
+    goto done;
+  }
+  snprintf(files.final[files.count - 1], sizeof files.final[0], "%s", report_final);
+  r = write_report(files.staged[files.count - 1], scene, lm, plan, base, opt, stats, log);
+  if (r != UB_OK)
+    goto done;
+
+  for (uint32_t i = 0; i < files.count; i++) {
+    if (rename(files.staged[i], files.final[i]) != 0) {
+      ub_log_printf(log, UB_LOG_ERROR, "%s: cannot move into place: %s", files.final[i],
+                    strerror(errno));
+      r = UB_ERR_IO;
+      goto done;
+    }
+  }
+done:
+  /* Renamed files are gone from staging already; this removes what a failure left. */
+  remove_staging(&files, staging);
+  if (bf.atlases)
+    for (uint32_t a = 0; a < bf.atlas_count; a++) {
+      free(bf.atlases[a].sh);
+      free(bf.atlases[a].normal);
+      free(bf.atlases[a].coverage);
+    }
+  free(bf.atlases);
+  free(bf.tri_albedo);
+  return r;
+}

@@ -1,0 +1,641 @@
+/* Series-expansion pass over lightmap texels (see pass.h). */
+#include "bake/pass.h"
+
+#include <math.h>
+#include <omp.h>
+#include <stdio.h>
+#include <stdatomic.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "ubake/ahd.h"
+
+/* Rays traced per block: large enough to sort into coherent streams, small enough that
+ * a block's scratch stays in cache-friendly megabytes. */
+#define UB_BLOCK_RAYS 16384
+#define UB_DIR_BUCKETS 64
+#define UB_SHADOW_PER_TEXEL_MAX 4096
+
+static const float UB_Y0 = 0.282094792f;
+static const float UB_Y1 = 0.488602512f;
+
+typedef struct pass_ctx {
+  const ub_pass_desc *d;
+  const ub_scene *s;
+  const ub_lightmap *lm;
+  int32_t *emitter_of;        /* triangle → emitter index, -1 (bounce 0 MIS) */
+  float **img;                /* per atlas: w×h×4 (irradiance rgb, filled) of bounce k-1 */
+  /* per texel accumulators */
+  double *acc_sh;             /* texel × 12, this bounce */
+  double *acc_iz;             /* texel × 3, this bounce (stored result) */
+  double *acc_src;            /* texel × 3, bounce 0 only: irradiance incl. primary lights */
+  uint32_t bounce;
+  _Atomic uint64_t rays_gather, rays_shadow, clamped, backface, unlit;
+  _Atomic uint32_t blocks_done;
+  _Atomic int cancelled;
+} pass_ctx;
+
+static inline float dot3(const float a[3], const float b[3])
+{
+  return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+static inline void sh_accum(double sh[12], const float w[3], const float L[3], double wt)
+{
+  const float y[4] = {UB_Y0, UB_Y1 * w[1], UB_Y1 * w[2], UB_Y1 * w[0]};
+  for (int k = 0; k < 4; k++)
+    for (int c = 0; c < 3; c++)
+      sh[k * 3 + c] += (double)y[k] * L[c] * wt;
+}
+
+static inline int finite3(const float v[3])
+{
+  return isfinite(v[0]) && isfinite(v[1]) && isfinite(v[2]);
+}
+
+/* Direction bucket for sorting gather rays into coherent streams: octahedral 8×8. */
+static inline uint32_t dir_bucket(const float w[3])
+{
+  float a = fabsf(w[0]) + fabsf(w[1]) + fabsf(w[2]);
+  float u = w[0] / a, v = w[2] / a;
+  if (w[1] < 0.0f) {
+    float tu = (1.0f - fabsf(v)) * copysignf(1.0f, u);
+    float tv = (1.0f - fabsf(u)) * copysignf(1.0f, v);
+    u = tu;
+    v = tv;
+  }
+  int iu = (int)((u * 0.5f + 0.5f) * 8.0f), iv = (int)((v * 0.5f + 0.5f) * 8.0f);
+  iu = iu < 0 ? 0 : (iu > 7 ? 7 : iu);
+  iv = iv < 0 ? 0 : (iv > 7 ? 7 : iv);
+  return (uint32_t)(iv * 8 + iu);
+}
+
+/* Bilinear lookup of bounce k-1 irradiance at lightmap uv, over filled texels only. */
+static void sample_image(const pass_ctx *c, uint32_t atlas, float u, float v, float out[3])
+{
+  const ub_atlas *a = &c->lm->atlases[atlas];
+  const float *img = c->img[atlas];
+  float x = u * (float)a->width - 0.5f, y = v * (float)a->height - 0.5f;
+  float fx = floorf(x), fy = floorf(y);
+  float tx = x - fx, ty = y - fy;
+  int x0 = (int)fx, y0 = (int)fy;
+  double sum[3] = {0, 0, 0}, wsum = 0.0;
+  for (int j = 0; j < 2; j++)
+    for (int i = 0; i < 2; i++) {
+      int xi = x0 + i, yj = y0 + j;
+      xi = xi < 0 ? 0 : (xi >= (int)a->width ? (int)a->width - 1 : xi);
+      yj = yj < 0 ? 0 : (yj >= (int)a->height ? (int)a->height - 1 : yj);
+      float w = (i ? tx : 1.0f - tx) * (j ? ty : 1.0f - ty);
+      const float *p = img + 4 * ((size_t)yj * a->width + (size_t)xi);
+      w *= p[3];
+      sum[0] += w * p[0];
+      sum[1] += w * p[1];
+      sum[2] += w * p[2];
+      wsum += w;
+    }
+  if (wsum > 1e-6) {
+    out[0] = (float)(sum[0] / wsum);
+    out[1] = (float)(sum[1] / wsum);
+    out[2] = (float)(sum[2] / wsum);
+  } else {
+    out[0] = out[1] = out[2] = 0.0f;
+  }
+}
+
+static void tri_normal(const ub_scene *s, uint32_t t, float out[3])
+{
+  const float *a = s->positions + 3 * s->indices[3 * t];
+  const float *b = s->positions + 3 * s->indices[3 * t + 1];
+  const float *q = s->positions + 3 * s->indices[3 * t + 2];
+  float e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+  float e2[3] = {q[0] - a[0], q[1] - a[1], q[2] - a[2]};
+  float n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                e1[0] * e2[1] - e1[1] * e2[0]};
+  float l = sqrtf(dot3(n, n));
+  for (int i = 0; i < 3; i++)
+    out[i] = l > 0.0f ? n[i] / l : 0.0f;
+}
+
+typedef struct shadow_rec {
+  uint32_t texel;   /* local index in block */
+  uint8_t primary;  /* 1 = counts only toward the next bounce's source */
+  float dir[3];
+  float e[3];       /* contribution weights already applied: sh uses e·Y(dir), iz uses e·cos */
+  float cos;
+} shadow_rec;
+
+/* Bounce 0: punctual lights and emissive area samples with shadow rays. */
+static void direct_block(pass_ctx *c, uint32_t t0, uint32_t nt)
+{
+  const ub_pass_desc *d = c->d;
+  const ub_scene *s = c->s;
+  const ub_lightmap *lm = c->lm;
+  uint32_t nlights = 0;
+  for (uint32_t l = 0; l < s->light_count; l++)
+    nlights += d->light_enabled[l] != 0;
+  uint32_t ns = d->shadow_samples ? d->shadow_samples : 1;
+  if (ns > UB_TEXEL_SAMPLES)
+    ns = UB_TEXEL_SAMPLES;
+  uint32_t ne = (d->emissive && d->emitters && d->emitters->count) ? d->emissive_samples : 0;
+  size_t per = (size_t)nlights * ns + ne;
+  if (per == 0)
+    return;
+  size_t cap = per * nt;
+  ub_ray *rays = malloc(cap * sizeof *rays);
+  shadow_rec *rec = malloc(cap * sizeof *rec);
+  uint8_t *occ = malloc(cap);
+  if (!rays || !rec || !occ) {
+    free(rays);
+    free(rec);
+    free(occ);
+    atomic_store(&c->cancelled, 2);
+    return;
+  }
+  size_t n = 0;
+  uint32_t N = d->gather_rays;
+  int mis_gather = d->sky || ne; /* gather rays also see emitters in bounce 0 */
+  for (uint32_t i = 0; i < nt; i++) {
+    uint32_t t = t0 + i;
+    const float *nrm = lm->texel_normal + 3 * (size_t)t;
+    for (uint32_t l = 0; l < s->light_count; l++) {
+      if (!d->light_enabled[l])
+        continue;
+      const ub_light *L = &s->lights[l];
+      for (uint32_t k = 0; k < ns; k++) {
+        const float *p = lm->sample_pos + ((size_t)t * UB_TEXEL_SAMPLES + k) * 3;
+        float dir[3], dist, e[3];
+        if (!ub_light_incident(L, p, dir, &dist, e))
+          continue;
+        float cs = dot3(nrm, dir);
+        if (cs <= 0.0f)
+          continue;
+        shadow_rec *r = &rec[n];
+        r->texel = i;
+        r->primary = L->cls == UB_LIGHT_PRIMARY;
+        memcpy(r->dir, dir, sizeof dir);
+        for (int ch = 0; ch < 3; ch++)
+          r->e[ch] = e[ch] / (float)ns;
+        r->cos = cs;
+        ub_ray *ray = &rays[n];
+        memcpy(ray->org, p, sizeof ray->org);
+        memcpy(ray->dir, dir, sizeof dir);
+        ray->tnear = 0.0f;
+        ray->tfar = isfinite(dist) ? dist * (1.0f - 1e-4f) : INFINITY;
+        n++;
+      }
+    }
+    for (uint32_t k = 0; k < ne; k++) {
+      uint32_t h = ub_hash4(d->seed, d->pass_id * 0x10000u + 0x8000u, t, k);
+      float u0 = ub_u01(h), u1 = ub_u01(ub_hash4(h, 1, 0, 0)), u2 = ub_u01(ub_hash4(h, 2, 0, 0));
+      const float *p = lm->sample_pos + ((size_t)t * UB_TEXEL_SAMPLES + k % UB_TEXEL_SAMPLES) * 3;
+      float q[3], qn[3], le[3], pdf_area;
+      ub_emitters_sample(d->emitters, s, u0, u1, u2, q, qn, le, &pdf_area);
+      float w[3] = {q[0] - p[0], q[1] - p[1], q[2] - p[2]};
+      float d2 = dot3(w, w);
+      if (!(d2 > 0.0f) || !(pdf_area > 0.0f))
+        continue;
+      float dist = sqrtf(d2);
+      for (int ch = 0; ch < 3; ch++)
+        w[ch] /= dist;
+      float cs = dot3(nrm, w), ce = -dot3(qn, w);
+      if (cs <= 0.0f || ce <= 0.0f)
+        continue;
+      double pdf_sa = (double)pdf_area * d2 / ce;
+      /* Balance heuristic with the cosine gather rays of bounce 0 (counts ne and N). */
+      double denom = ne * pdf_sa + (mis_gather ? N * (cs / M_PI) : 0.0);
+      shadow_rec *r = &rec[n];
+      r->texel = i;
+      r->primary = 0;
+      memcpy(r->dir, w, sizeof w);
+      for (int ch = 0; ch < 3; ch++)
+        r->e[ch] = (float)(le[ch] / denom);
+      r->cos = cs;
+      if (!finite3(r->e)) {
+        atomic_fetch_add(&c->clamped, 1);
+        continue;
+      }
+      ub_ray *ray = &rays[n];
+      memcpy(ray->org, p, sizeof ray->org);
+      memcpy(ray->dir, w, sizeof w);
+      ray->tnear = 0.0f;
+      ray->tfar = dist - 2.0f * ub_rt_epsilon(d->rt, q);
+      n++;
+    }
+  }
+  ub_rt_occluded(d->rt, rays, (uint32_t)n, occ);
+  atomic_fetch_add(&c->rays_shadow, n);
+  for (size_t j = 0; j < n; j++) {
+    if (occ[j])
+      continue;
+    const shadow_rec *r = &rec[j];
+    uint32_t t = t0 + r->texel;
+    double *src = c->acc_src + 3 * (size_t)t;
+    for (int ch = 0; ch < 3; ch++)
+      src[ch] += (double)r->e[ch] * r->cos;
+    if (r->primary)
+      continue;
+    double *iz = c->acc_iz + 3 * (size_t)t;
+    for (int ch = 0; ch < 3; ch++)
+      iz[ch] += (double)r->e[ch] * r->cos;
+    sh_accum(c->acc_sh + 12 * (size_t)t, r->dir, r->e, 1.0);
+  }
+  free(rays);
+  free(rec);
+  free(occ);
+}
+
+/* Gather rays: bounce 0 sees the sky and emitters (MIS), bounce k reads bounce k-1. */
+static void gather_block(pass_ctx *c, uint32_t t0, uint32_t nt)
+{
+  const ub_pass_desc *d = c->d;
+  const ub_scene *s = c->s;
+  const ub_lightmap *lm = c->lm;
+  uint32_t N = d->gather_rays;
+  size_t n = (size_t)nt * N;
+  ub_ray *rays = malloc(n * sizeof *rays);
+  ub_ray *sorted = malloc(n * sizeof *sorted);
+  ub_hit *hits = malloc(n * sizeof *hits);
+  uint32_t *order = malloc(n * sizeof *order);
+  uint32_t *bucket = malloc(n * sizeof *bucket);
+  if (!rays || !sorted || !hits || !order || !bucket) {
+    free(rays);
+    free(sorted);
+    free(hits);
+    free(order);
+    free(bucket);
+    atomic_store(&c->cancelled, 2);
+    return;
+  }
+  /* Stratified cosine directions: a jittered k×k grid when N is a square. */
+  uint32_t k = (uint32_t)sqrtf((float)N);
+  int strat = k * k == N;
+  for (uint32_t i = 0; i < nt; i++) {
+    uint32_t t = t0 + i;
+    const float *nrm = lm->texel_normal + 3 * (size_t)t;
+    for (uint32_t j = 0; j < N; j++) {
+      uint32_t h = ub_hash4(d->seed, d->pass_id * 0x10000u + c->bounce, t, j);
+      float u1 = ub_u01(h), u2 = ub_u01(ub_hash4(h, 7, 0, 0));
+      if (strat) {
+        u1 = ((float)(j % k) + u1) / (float)k;
+        u2 = ((float)(j / k) + u2) / (float)k;
+      }
+      ub_ray *r = &rays[(size_t)i * N + j];
+      const float *p = lm->sample_pos + ((size_t)t * UB_TEXEL_SAMPLES + j % UB_TEXEL_SAMPLES) * 3;
+      memcpy(r->org, p, sizeof r->org);
+      ub_sample_cosine(nrm, u1, u2, r->dir);
+      r->tnear = 0.0f;
+      r->tfar = INFINITY;
+    }
+  }
+  /* Stable counting sort by direction bucket: rays of a block start close together, so
+   * equal directions make coherent streams. */
+  uint32_t count[UB_DIR_BUCKETS + 1] = {0};
+  for (size_t j = 0; j < n; j++) {
+    bucket[j] = dir_bucket(rays[j].dir);
+    count[bucket[j] + 1]++;
+  }
+  for (int b = 0; b < UB_DIR_BUCKETS; b++)
+    count[b + 1] += count[b];
+  for (size_t j = 0; j < n; j++) {
+    uint32_t dst = count[bucket[j]]++;
+    order[dst] = (uint32_t)j;
+    sorted[dst] = rays[j];
+  }
+  ub_rt_intersect(d->rt, sorted, (uint32_t)n, hits);
+  atomic_fetch_add(&c->rays_gather, n);
+  /* Scatter hits back to ray order (bucket reused as the inverse permutation). */
+  for (size_t j = 0; j < n; j++)
+    bucket[order[j]] = (uint32_t)j;
+
+  uint64_t backface = 0, unlit = 0, clamped = 0;
+  uint32_t ne = (d->emissive && d->emitters) ? d->emitters->count : 0;
+  for (uint32_t i = 0; i < nt; i++) {
+    uint32_t t = t0 + i;
+    const float *nrm = lm->texel_normal + 3 * (size_t)t;
+    double *sh = c->acc_sh + 12 * (size_t)t;
+    double *iz = c->acc_iz + 3 * (size_t)t;
+    double *src = c->acc_src ? c->acc_src + 3 * (size_t)t : NULL;
+    for (uint32_t j = 0; j < N; j++) {
+      const ub_ray *r = &rays[(size_t)i * N + j];
+      const ub_hit *h = &hits[bucket[(size_t)i * N + j]];
+      float L[3] = {0, 0, 0};
+      float cs = dot3(nrm, r->dir);
+      if (cs <= 1e-4f)
+        continue;
+      double wt = M_PI / N;
+      if (h->tri == UB_RT_MISS) {
+        if (c->bounce == 0 && d->sky)
+          memcpy(L, s->sky, sizeof L);
+        else
+          continue;
+      } else {
+        int front = dot3(h->ng, r->dir) < 0.0f;
+        if (c->bounce == 0) {
+          if (!front || !ne || c->emitter_of[h->tri] < 0)
+            continue;
+          /* Emitter seen by a gather ray: balance heuristic against area sampling. */
+          const ub_emitters *em = d->emitters;
+          int32_t ei = c->emitter_of[h->tri];
+          float p_tri = em->cdf[ei] - (ei ? em->cdf[ei - 1] : 0.0f);
+          float en[3];
+          tri_normal(s, h->tri, en);
+          float ce = -dot3(en, r->dir);
+          float dl = sqrtf(dot3(r->dir, r->dir));
+          float dist = h->t * dl;
+          if (ce <= 0.0f)
+            continue;
+          double pdf_sa = (double)p_tri / em->area[ei] * dist * dist / ce;
+          double pdf_c = cs / M_PI;
+          double denom = d->emissive_samples * pdf_sa + N * pdf_c;
+          memcpy(L, s->materials[s->tri_material[h->tri]].emission, sizeof L);
+          wt = 1.0 / denom; /* estimator: L·cos/denom (iz), L·Y/denom (SH) */
+        } else {
+          if (!front) {
+            backface++;
+            continue;
+          }
+          int32_t a = lm->tri_atlas[h->tri];
+          if (a < 0) {
+            unlit++;
+            continue;
+          }
+          const float *uv = lm->tri_uv + 6 * (size_t)h->tri;
+          float b0 = 1.0f - h->u - h->v;
+          float u = b0 * uv[0] + h->u * uv[2] + h->v * uv[4];
+          float v = b0 * uv[1] + h->u * uv[3] + h->v * uv[5];
+          float e[3];
+          sample_image(c, (uint32_t)a, u, v, e);
+          const float *alb = s->materials[s->tri_material[h->tri]].albedo;
+          for (int ch = 0; ch < 3; ch++)
+            L[ch] = alb[ch] * (float)M_1_PI * e[ch];
+        }
+      }
+      if (!finite3(L)) {
+        clamped++;
+        continue;
+      }
+      /* iz estimator: with cosine sampling, E = π/N Σ L (wt for MIS-weighted emitters is
+       * 1/denom applied to L·cos). */
+      double wiz, wsh;
+      if (c->bounce == 0 && h->tri != UB_RT_MISS) {
+        wiz = wt * cs;           /* L·cos/denom */
+        wsh = wt;                /* L·Y/denom */
+      } else {
+        wiz = M_PI / N;
+        wsh = M_PI / ((double)N * cs);
+      }
+      for (int ch = 0; ch < 3; ch++) {
+        iz[ch] += L[ch] * wiz;
+        if (src)
+          src[ch] += L[ch] * wiz;
+      }
+      sh_accum(sh, r->dir, L, wsh);
+    }
+  }
+  atomic_fetch_add(&c->backface, backface);
+  atomic_fetch_add(&c->unlit, unlit);
+  atomic_fetch_add(&c->clamped, clamped);
+  free(rays);
+  free(sorted);
+  free(hits);
+  free(order);
+  free(bucket);
+}
+
+/* Builds the per-atlas image of the irradiance a later bounce reads, dilated. */
+static void build_images(pass_ctx *c, const double *iz)
+{
+  const ub_lightmap *lm = c->lm;
+  for (uint32_t a = 0; a < lm->atlas_count; a++) {
+    const ub_atlas *at = &lm->atlases[a];
+    size_t npx = (size_t)at->width * at->height;
+    float *img = c->img[a];
+    uint8_t *cov = calloc(npx, 1);
+    memset(img, 0, npx * 4 * sizeof(float));
+    for (uint32_t i = 0; i < at->texel_count; i++) {
+      uint32_t t = at->first_texel + i;
+      size_t px = (size_t)lm->texel_xy[2 * t + 1] * at->width + lm->texel_xy[2 * t];
+      for (int ch = 0; ch < 3; ch++)
+        img[4 * px + ch] = (float)iz[3 * (size_t)t + ch];
+      img[4 * px + 3] = 1.0f;
+      if (cov)
+        cov[px] = 1;
+    }
+    if (cov)
+      ub_lightmap_dilate(img, cov, at->width, at->height, 4, 2);
+    free(cov);
+  }
+}
+
+static double energy_of(const double *iz, uint32_t count)
+{
+  double e = 0.0;
+  for (uint32_t t = 0; t < count; t++)
+    e += 0.2126 * iz[3 * t] + 0.7152 * iz[3 * t + 1] + 0.0722 * iz[3 * t + 2];
+  return e;
+}
+
+static int report(pass_ctx *c, const char *stage, double frac, double bounce_share)
+{
+  const ub_pass_desc *d = c->d;
+  if (!d->progress)
+    return 0;
+  double total = d->progress_base + d->progress_span * fmin(1.0, bounce_share);
+  return d->progress(d->progress_user, stage, frac, total);
+}
+
+static void run_blocks(pass_ctx *c, uint32_t texels_per_block, int direct, int gather,
+                       const char *stage, double share0, double share1)
+{
+  uint32_t T = c->lm->texel_count;
+  uint32_t nblocks = (T + texels_per_block - 1) / texels_per_block;
+  atomic_store(&c->blocks_done, 0);
+#pragma omp parallel for schedule(dynamic, 1)
+  for (uint32_t b = 0; b < nblocks; b++) {
+    if (atomic_load(&c->cancelled))
+      continue;
+    uint32_t t0 = b * texels_per_block;
+    uint32_t nt = T - t0 < texels_per_block ? T - t0 : texels_per_block;
+    if (direct)
+      direct_block(c, t0, nt);
+    if (gather)
+      gather_block(c, t0, nt);
+    uint32_t done = atomic_fetch_add(&c->blocks_done, 1) + 1;
+    if (omp_get_thread_num() == 0) {
+      double f = (double)done / nblocks;
+      if (report(c, stage, f, share0 + (share1 - share0) * f))
+        atomic_store(&c->cancelled, 1);
+    }
+  }
+}
+
+ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *out)
+{
+  const ub_scene *s = d->scene;
+  const ub_lightmap *lm = d->lightmap;
+  uint32_t T = lm->texel_count;
+  memset(out, 0, sizeof *out);
+  pass_ctx c;
+  memset(&c, 0, sizeof c);
+  c.d = d;
+  c.s = s;
+  c.lm = lm;
+  atomic_init(&c.cancelled, 0);
+
+  double *sh_total = calloc((size_t)T * 12, sizeof(double));
+  double *iz_total = calloc((size_t)T * 3, sizeof(double));
+  c.acc_sh = calloc((size_t)T * 12, sizeof(double));
+  c.acc_iz = calloc((size_t)T * 3, sizeof(double));
+  c.acc_src = calloc((size_t)T * 3, sizeof(double));
+  c.img = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *c.img);
+  c.emitter_of = malloc((size_t)(s->triangle_count ? s->triangle_count : 1) * sizeof(int32_t));
+  int oom = !sh_total || !iz_total || !c.acc_sh || !c.acc_iz || !c.acc_src || !c.img ||
+            !c.emitter_of;
+  for (uint32_t a = 0; !oom && a < lm->atlas_count; a++) {
+    c.img[a] = malloc((size_t)lm->atlases[a].width * lm->atlases[a].height * 4 * sizeof(float));
+    oom = !c.img[a];
+  }
+  ub_result res = UB_OK;
+  if (oom) {
+    res = UB_ERR_OUT_OF_MEMORY;
+    goto done;
+  }
+  for (uint32_t t = 0; t < s->triangle_count; t++)
+    c.emitter_of[t] = -1;
+  if (d->emitters)
+    for (uint32_t i = 0; i < d->emitters->count; i++)
+      c.emitter_of[d->emitters->tri[i]] = (int32_t)i;
+
+  uint32_t N = d->gather_rays ? d->gather_rays : 1;
+  uint32_t tpb = UB_BLOCK_RAYS / N;
+  if (tpb < 1)
+    tpb = 1;
+  if (tpb > 256)
+    tpb = 256;
+
+  /* Bounce 0: direct light (+ sky and emitters through gather rays). */
+  int gather0 = d->sky || (d->emissive && d->emitters && d->emitters->count);
+  c.bounce = 0;
+  run_blocks(&c, tpb, 1, gather0, "direct", 0.0, 0.25);
+  if (atomic_load(&c.cancelled)) {
+    res = atomic_load(&c.cancelled) == 2 ? UB_ERR_OUT_OF_MEMORY : UB_ERR_CANCELLED;
+    goto done;
+  }
+  double total_energy = energy_of(c.acc_iz, T);
+  double src_energy = energy_of(c.acc_src, T);
+  out->bounce_energy[0] = total_energy;
+  for (size_t i = 0; i < (size_t)T * 12; i++)
+    sh_total[i] = c.acc_sh[i];
+  for (size_t i = 0; i < (size_t)T * 3; i++)
+    iz_total[i] = c.acc_iz[i];
+  build_images(&c, c.acc_src);
+  free(c.acc_src);
+  c.acc_src = NULL;
+
+  int max_b = d->bounces < 0 ? UB_BAKE_MAX_BOUNCES : d->bounces;
+  if (max_b > UB_BAKE_MAX_BOUNCES)
+    max_b = UB_BAKE_MAX_BOUNCES;
+  uint32_t b;
+  for (b = 1; b <= (uint32_t)max_b; b++) {
+    if (src_energy <= 0.0)
+      break; /* nothing to bounce */
+    memset(c.acc_sh, 0, (size_t)T * 12 * sizeof(double));
+    memset(c.acc_iz, 0, (size_t)T * 3 * sizeof(double));
+    c.bounce = b;
+    char stage[32];
+    snprintf(stage, sizeof stage, "bounce %u", b);
+    double sh0 = 0.25 + 0.75 * (1.0 - pow(0.5, b - 1));
+    double sh1 = 0.25 + 0.75 * (1.0 - pow(0.5, b));
+    run_blocks(&c, tpb, 0, 1, stage, sh0, sh1);
+    if (atomic_load(&c.cancelled)) {
+      res = atomic_load(&c.cancelled) == 2 ? UB_ERR_OUT_OF_MEMORY : UB_ERR_CANCELLED;
+      goto done;
+    }
+    double e = energy_of(c.acc_iz, T);
+    out->bounce_energy[b] = e;
+    for (size_t i = 0; i < (size_t)T * 12; i++)
+      sh_total[i] += c.acc_sh[i];
+    for (size_t i = 0; i < (size_t)T * 3; i++)
+      iz_total[i] += c.acc_iz[i];
+    total_energy += e;
+    ub_log_printf(log, UB_LOG_INFO, "  bounce %u: +%.3f%% energy", b,
+                  total_energy > 0 ? 100.0 * e / total_energy : 0.0);
+    if (d->bounces < 0 && e <= d->stop_fraction * total_energy) {
+      b++;
+      break;
+    }
+    build_images(&c, c.acc_iz);
+  }
+  out->bounces = b - 1;
+
+  /* Store: SH corrected so that its irradiance along the normal is the exact I_z. */
+  out->sh = malloc((size_t)T * 12 * sizeof(float));
+  out->iz = malloc((size_t)T * 3 * sizeof(float));
+  if (!out->sh || !out->iz) {
+    res = UB_ERR_OUT_OF_MEMORY;
+    goto done;
+  }
+  /* Cosine lobe about n normalised to unit irradiance along n: E_h(n) = 1. */
+  const double K = M_PI * M_PI * (UB_Y0 * UB_Y0) + (2.0 * M_PI / 3.0) * (2.0 * M_PI / 3.0) *
+                                                     (UB_Y1 * UB_Y1);
+  const double h0 = UB_Y0 * M_PI / K, h1 = UB_Y1 * (2.0 * M_PI / 3.0) / K;
+  uint64_t clamped = 0;
+  for (uint32_t t = 0; t < T; t++) {
+    const float *n = lm->texel_normal + 3 * (size_t)t;
+    double *sh = sh_total + 12 * (size_t)t;
+    for (int ch = 0; ch < 3; ch++) {
+      double e_sh = M_PI * UB_Y0 * sh[ch] +
+                    (2.0 * M_PI / 3.0) * UB_Y1 *
+                        (sh[3 + ch] * n[1] + sh[6 + ch] * n[2] + sh[9 + ch] * n[0]);
+      double iz = iz_total[3 * (size_t)t + ch];
+      if (!(iz >= 0.0) || !isfinite(iz)) {
+        iz = 0.0;
+        clamped++;
+      }
+      double delta = iz - e_sh;
+      sh[ch] += delta * h0;
+      sh[3 + ch] += delta * h1 * n[1];
+      sh[6 + ch] += delta * h1 * n[2];
+      sh[9 + ch] += delta * h1 * n[0];
+      out->iz[3 * (size_t)t + ch] = (float)iz;
+    }
+    for (int i = 0; i < 12; i++) {
+      float v = (float)sh[i];
+      if (!isfinite(v)) {
+        v = 0.0f;
+        clamped++;
+      }
+      out->sh[12 * (size_t)t + i] = v;
+    }
+  }
+  out->rays_gather = atomic_load(&c.rays_gather);
+  out->rays_shadow = atomic_load(&c.rays_shadow);
+  out->clamped = atomic_load(&c.clamped) + clamped;
+  out->backface_hits = atomic_load(&c.backface);
+  out->unlit_hits = atomic_load(&c.unlit);
+
+done:
+  if (res != UB_OK)
+    ub_pass_result_free(out);
+  free(sh_total);
+  free(iz_total);
+  free(c.acc_sh);
+  free(c.acc_iz);
+  free(c.acc_src);
+  if (c.img)
+    for (uint32_t a = 0; a < lm->atlas_count; a++)
+      free(c.img[a]);
+  free(c.img);
+  free(c.emitter_of);
+  return res;
+}
+
+void ub_pass_result_free(ub_pass_result *r)
+{
+  if (!r)
+    return;
+  free(r->sh);
+  free(r->iz);
+  r->sh = NULL;
+  r->iz = NULL;
+}

@@ -1,0 +1,62 @@
+/* bake/pass.h — one bake pass: a set of emitters over one geometry state, run as the
+ * series expansion of UberBake §2.3 over every receiver.
+ *
+ * Bounce 0 is direct light at every receiver (punctual lights with shadow rays and spot
+ * cones, emissive triangles by area sampling, the sky by cosine rays). Bounce k is a
+ * final gather from every receiver whose hits read bounce k-1 where it is stored: the
+ * lightmap texel at the hit's UV (bilinear), times albedo/π. Stored data changes only
+ * between bounces, so no locks. `primary` lights feed bounce 1 but are not part of the
+ * stored result (UberBake eq. 1).
+ *
+ * Receivers are lightmap texels (with a surface normal): each accumulates radiance SH L1
+ * and the exact irradiance along its normal I_z. At the end the SH is corrected with a
+ * cosine lobe about the normal so that its irradiance along the normal equals I_z exactly
+ * (linear in the light, so records stay additive; see Sloan & Silvennoinen 2018).
+ *
+ * Random numbers are hash(seed, pass, receiver, bounce, sample); receivers are processed
+ * in fixed blocks, so results are bit-identical for any thread count.
+ */
+#ifndef UBAKE_BAKE_PASS_H
+#define UBAKE_BAKE_PASS_H
+
+#include <stdint.h>
+
+#include "bake/lights.h"
+#include "bake/rt.h"
+#include "lightmaps/lightmap.h"
+#include "ubake/bake.h"
+
+typedef struct ub_pass_desc {
+  const ub_scene *scene;
+  const ub_rt *rt;
+  const ub_emitters *emitters;   /* may be NULL or empty */
+  const ub_lightmap *lightmap;
+  const uint8_t *light_enabled;  /* light_count bytes: non-zero = the light emits in this pass */
+  int emissive;                  /* emissive triangles emit */
+  int sky;                       /* the sky emits */
+  uint32_t gather_rays;          /* per receiver per bounce */
+  uint32_t emissive_samples;     /* per receiver */
+  uint32_t shadow_samples;       /* per receiver per punctual light, ≤ UB_TEXEL_SAMPLES */
+  int bounces;                   /* -1 = until a bounce adds < stop_fraction of the total */
+  double stop_fraction;          /* e.g. 0.005 */
+  uint32_t seed;
+  uint32_t pass_id;
+  ub_progress_fn progress;
+  void *progress_user;
+  double progress_base, progress_span; /* this pass's share of the whole bake */
+} ub_pass_desc;
+
+typedef struct ub_pass_result {
+  float *sh;                     /* texel_count × 12: radiance SH L1 (W/(m²·sr)), I_z-exact */
+  float *iz;                     /* texel_count × 3: irradiance along the normal (W/m²) */
+  uint32_t bounces;
+  double bounce_energy[UB_BAKE_MAX_BOUNCES + 1];
+  uint64_t rays_gather, rays_shadow;
+  uint64_t clamped, backface_hits, unlit_hits;
+  double gather_seconds;
+} ub_pass_result;
+
+ub_result ub_pass_run(const ub_pass_desc *desc, const ub_log *log, ub_pass_result *out_result);
+void ub_pass_result_free(ub_pass_result *r);
+
+#endif

@@ -1,0 +1,42 @@
+/* bake/plan.h — what the bake simulates, decided before any gather ray is traced.
+ *
+ * The plan lists the light classes present (sky, emissive triangles, static and primary
+ * punctual lights), the passes to run and their sample budgets, and every light it skips
+ * with the reason. It is printed and written to the report. Owned by the caller:
+ * ub_plan_free() releases its arrays (safe on a zeroed plan).
+ */
+#ifndef UBAKE_BAKE_PLAN_H
+#define UBAKE_BAKE_PLAN_H
+
+#include <stdint.h>
+
+#include "bake/lights.h"
+#include "bake/rt.h"
+#include "lightmaps/lightmap.h"
+#include "ubake/bake.h"
+
+typedef enum ub_light_skip {
+  UB_SKIP_NONE = 0,
+  UB_SKIP_DARK,          /* zero intensity */
+  UB_SKIP_OUT_OF_RANGE,  /* no receiver inside its range / cone */
+  UB_SKIP_DLS_PENDING    /* belongs to a dynamic light set (not in the base pass) */
+} ub_light_skip;
+
+typedef struct ub_plan {
+  uint32_t pass_count;
+  uint8_t *base_light_enabled; /* light_count */
+  uint8_t *light_skip;         /* light_count: ub_light_skip */
+  uint32_t base_lights;
+  uint32_t static_lights, primary_lights, dls_lights;
+  int sky, emissive;
+  uint32_t gather_rays, emissive_samples, shadow_samples;
+  double est_rays;             /* estimated rays of the base pass (direct + 3 bounces) */
+} ub_plan;
+
+ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitters *em,
+                        const ub_lightmap *lm, const ub_bake_options *opt, const ub_log *log,
+                        ub_plan *out_plan);
+void ub_plan_free(ub_plan *plan);
+const char *ub_light_skip_reason(ub_light_skip s);
+
+#endif

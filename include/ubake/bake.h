@@ -1,0 +1,77 @@
+/* ubake/bake.h — bake a glTF level into DIR/NAME.ubk, lightmap EXRs/PNGs and a report.
+ *
+ * ub_bake_level() runs the whole bake as a script of named stages:
+ *   load → rays → receivers → plan → passes (series expansion) → encode → write
+ * Each stage reports progress through the callback (which may cancel) and its counters
+ * in ub_bake_stats. Outputs are written to temporary names and renamed, so a failed or
+ * cancelled bake leaves no partial output files.
+ * Thread safety: one bake per call; the bake itself is multi-threaded (OpenMP). The
+ * progress and log callbacks are called from one thread at a time.
+ */
+#ifndef UBAKE_BAKE_H
+#define UBAKE_BAKE_H
+
+#include <stdint.h>
+
+#include "ubake/error.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef enum ub_quality {
+  UB_QUALITY_DRAFT = 0,
+  UB_QUALITY_FAST,
+  UB_QUALITY_HIGH
+} ub_quality;
+
+/* Progress: stage name ("direct", "bounce 2", ...), fraction of the stage done in [0,1],
+ * and of the whole bake (estimated). Return non-zero to cancel (UB_ERR_CANCELLED). */
+typedef int (*ub_progress_fn)(void *user, const char *stage, double stage_fraction,
+                              double total_fraction);
+
+typedef struct ub_bake_options {
+  ub_quality quality;
+  int bounces;            /* indirect bounces; -1 = until a bounce adds < 0.5% energy */
+  int threads;            /* 0 = all cores */
+  uint32_t seed;
+  const char *out_dir;    /* created if missing */
+  const char *json_path;  /* report path; NULL = DIR/NAME.report.json */
+  uint32_t gather_rays;   /* 0 = from quality: rays per receiver per bounce */
+  float texel_size;       /* 0 = from the level (metres per texel) */
+  ub_progress_fn progress;
+  void *progress_user;
+} ub_bake_options;
+
+#define UB_BAKE_MAX_BOUNCES 64
+#define UB_BAKE_MAX_STAGES 16
+
+typedef struct ub_bake_stats {
+  char level_name[64];
+  uint32_t triangles, lights, emissive_triangles;
+  uint32_t atlases, texels, backface_fixes;
+  uint32_t bounces;                      /* indirect bounces baked */
+  double bounce_energy[UB_BAKE_MAX_BOUNCES + 1]; /* Σ luminance(E) per bounce, 0 = direct */
+  uint64_t rays_total, rays_gather, rays_shadow;
+  double gather_seconds;                 /* wall seconds spent in gather passes */
+  uint32_t stage_count;
+  char stage_name[UB_BAKE_MAX_STAGES][24];
+  double stage_seconds[UB_BAKE_MAX_STAGES];
+  double total_seconds;
+  uint64_t clamped_values;               /* non-finite or negative values clamped */
+  uint64_t backface_hits;                /* gather rays that hit the back of a surface */
+  uint64_t unlit_hits;                   /* gather rays that hit a surface with no receiver */
+  long peak_rss_kb;
+  char ubk_path[1024];
+} ub_bake_stats;
+
+void ub_bake_options_default(ub_bake_options *out_options);
+const char *ub_quality_name(ub_quality q);
+
+ub_result ub_bake_level(const char *level_path, const ub_bake_options *options,
+                        const ub_log *log, ub_bake_stats *out_stats);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

@@ -1,0 +1,488 @@
+/* ubake — the command-line program (thin: parses flags, calls the library). */
+#include <errno.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "bake/lights.h"
+#include "bake/reference.h"
+#include "bake/rt.h"
+#include "ubake/bake.h"
+#include "ubake/bakefile.h"
+#include "ubake/runtime.h"
+#include "ubake/scene.h"
+
+typedef struct cli_log_state {
+  int errors;
+  int quiet_info;
+  int progress_line_open;
+} cli_log_state;
+
+static void cli_log(void *user, ub_log_level level, const char *msg)
+{
+  cli_log_state *st = user;
+  if (st->progress_line_open) {
+    fputs("\r\033[K", stderr);
+    st->progress_line_open = 0;
+  }
+  if (level == UB_LOG_ERROR) {
+    if (st->errors == 0)
+      fprintf(stderr, "ubake: %s\n", msg);
+    st->errors++;
+  } else if (level == UB_LOG_WARNING) {
+    fprintf(stderr, "ubake: warning: %s\n", msg);
+  } else if (!st->quiet_info) {
+    printf("%s\n", msg);
+    fflush(stdout);
+  }
+}
+
+static int fail(cli_log_state *st, ub_result r, const char *what)
+{
+  if (st->errors == 0)
+    fprintf(stderr, "ubake: %s: %s\n", what, ub_result_string(r));
+  return 1;
+}
+
+static int usage_error(const char *cmd, const char *msg)
+{
+  fprintf(stderr, "ubake %s: %s (see 'ubake %s --help')\n", cmd, msg, cmd);
+  return 1;
+}
+
+static int parse_vec3(const char *s, float out[3])
+{
+  char *end;
+  for (int i = 0; i < 3; i++) {
+    errno = 0;
+    double v = strtod(s, &end);
+    if (end == s || errno || !isfinite(v))
+      return 0;
+    out[i] = (float)v;
+    if (i < 2) {
+      if (*end != ',')
+        return 0;
+      s = end + 1;
+    }
+  }
+  return *end == '\0';
+}
+
+static int parse_uint(const char *s, long max, long *out)
+{
+  char *end;
+  errno = 0;
+  long v = strtol(s, &end, 10);
+  if (end == s || *end || errno || v < 0 || v > max)
+    return 0;
+  *out = v;
+  return 1;
+}
+
+/* ---- progress ---------------------------------------------------------------------- */
+
+typedef struct progress_state {
+  cli_log_state *log;
+  int tty;
+  int enabled;
+  double t0;
+  char last_stage[32];
+  int last_decile;
+} progress_state;
+
+static double now_s(void)
+{
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static int on_progress(void *user, const char *stage, double sf, double tf)
+{
+  progress_state *p = user;
+  if (!p->enabled)
+    return 0;
+  double el = now_s() - p->t0;
+  if (p->tty) {
+    int w = 30, fill = (int)(sf * w + 0.5);
+    char bar[40];
+    for (int i = 0; i < w; i++)
+      bar[i] = i < fill ? '#' : '.';
+    bar[w] = '\0';
+    double eta = tf > 0.01 ? el * (1.0 - tf) / tf : -1.0;
+    if (eta >= 0)
+      fprintf(stderr, "\r\033[K%-10s [%s] %3.0f%%  total %3.0f%%  ETA %.0f s", stage, bar,
+              100 * sf, 100 * tf, eta);
+    else
+      fprintf(stderr, "\r\033[K%-10s [%s] %3.0f%%", stage, bar, 100 * sf);
+    p->log->progress_line_open = 1;
+  } else {
+    int dec = (int)(sf * 4);
+    if (strcmp(stage, p->last_stage) != 0 || dec != p->last_decile) {
+      snprintf(p->last_stage, sizeof p->last_stage, "%s", stage);
+      p->last_decile = dec;
+      fprintf(stderr, "progress: %s %3.0f%% (total %3.0f%%, %.1f s)\n", stage, 100 * sf,
+              100 * tf, el);
+    }
+  }
+  return 0;
+}
+
+/* ---- bake -------------------------------------------------------------------------- */
+
+static const char *BAKE_HELP =
+    "usage: ubake bake LEVEL.gltf|.glb -o DIR [options]\n"
+    "Bakes the level: DIR/NAME.ubk, DIR/NAME_lm<i>.exr (AHD lightmaps, half float),\n"
+    "DIR/NAME_lm<i>.png (irradiance preview) and DIR/NAME.report.json.\n"
+    "  -o DIR                  output folder (created if missing)\n"
+    "  --quality draft|fast|high  sample budget (default fast)\n"
+    "  --bounces N             indirect bounces (default: until a bounce adds < 0.5%)\n"
+    "  --threads N             worker threads (default: all cores)\n"
+    "  --seed N                random seed (default 1)\n"
+    "  --gather-rays N         override gather rays per texel per bounce\n"
+    "  --texel-size M          override metres per lightmap texel\n"
+    "  --json FILE             write the report here instead of DIR/NAME.report.json\n"
+    "  --no-progress           no progress output\n";
+
+static int cmd_bake(int argc, char **argv)
+{
+  ub_bake_options opt;
+  ub_bake_options_default(&opt);
+  const char *level = NULL;
+  int progress = 1;
+  for (int i = 0; i < argc; i++) {
+    const char *a = argv[i];
+    const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+    long n;
+    if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
+      fputs(BAKE_HELP, stdout);
+      return 0;
+    } else if (!strcmp(a, "-o") && v) {
+      opt.out_dir = v;
+      i++;
+    } else if (!strcmp(a, "--quality") && v) {
+      if (!strcmp(v, "draft"))
+        opt.quality = UB_QUALITY_DRAFT;
+      else if (!strcmp(v, "fast"))
+        opt.quality = UB_QUALITY_FAST;
+      else if (!strcmp(v, "high"))
+        opt.quality = UB_QUALITY_HIGH;
+      else
+        return usage_error("bake", "--quality takes draft, fast or high");
+      i++;
+    } else if (!strcmp(a, "--bounces") && v) {
+      if (!parse_uint(v, UB_BAKE_MAX_BOUNCES, &n))
+        return usage_error("bake", "--bounces takes 0..64");
+      opt.bounces = (int)n;
+      i++;
+    } else if (!strcmp(a, "--threads") && v) {
+      if (!parse_uint(v, 1024, &n) || n < 1)
+        return usage_error("bake", "--threads takes 1..1024");
+      opt.threads = (int)n;
+      i++;
+    } else if (!strcmp(a, "--seed") && v) {
+      if (!parse_uint(v, 0xFFFFFFFFL, &n))
+        return usage_error("bake", "--seed takes 0..4294967295");
+      opt.seed = (uint32_t)n;
+      i++;
+    } else if (!strcmp(a, "--gather-rays") && v) {
+      if (!parse_uint(v, 1 << 20, &n) || n < 1)
+        return usage_error("bake", "--gather-rays takes 1..1048576");
+      opt.gather_rays = (uint32_t)n;
+      i++;
+    } else if (!strcmp(a, "--texel-size") && v) {
+      char *end;
+      double t = strtod(v, &end);
+      if (end == v || *end || !(t > 0.0) || !isfinite(t))
+        return usage_error("bake", "--texel-size takes a positive number of metres");
+      opt.texel_size = (float)t;
+      i++;
+    } else if (!strcmp(a, "--json") && v) {
+      opt.json_path = v;
+      i++;
+    } else if (!strcmp(a, "--no-progress")) {
+      progress = 0;
+    } else if (a[0] == '-') {
+      return usage_error("bake", "unknown option or missing value");
+    } else if (!level) {
+      level = a;
+    } else {
+      return usage_error("bake", "more than one level given");
+    }
+  }
+  if (!level)
+    return usage_error("bake", "no level given");
+  if (!opt.out_dir)
+    return usage_error("bake", "no output folder given (-o DIR)");
+  cli_log_state ls = {0, 0, 0};
+  ub_log log = {cli_log, &ls};
+  progress_state ps = {&ls, isatty(2), progress, now_s(), "", -1};
+  opt.progress = on_progress;
+  opt.progress_user = &ps;
+  printf("ubake bake %s (quality %s, seed %u)\n", level, ub_quality_name(opt.quality), opt.seed);
+  ub_bake_stats st;
+  ub_result r = ub_bake_level(level, &opt, &log, &st);
+  if (ls.progress_line_open)
+    fputs("\r\033[K", stderr);
+  if (r != UB_OK)
+    return fail(&ls, r, level);
+  double rps = st.gather_seconds > 0 ? (st.rays_gather + st.rays_shadow) / st.gather_seconds : 0;
+  printf("baked %s: %u texels, %u bounces, %.2f M rays at %.2f M rays/s, %.2f s, peak RSS "
+         "%.1f MB, %llu clamped\n",
+         st.level_name, st.texels, st.bounces, (st.rays_gather + st.rays_shadow) * 1e-6,
+         rps * 1e-6, st.total_seconds, st.peak_rss_kb / 1024.0,
+         (unsigned long long)st.clamped_values);
+  printf("wrote %s\n", st.ubk_path);
+  return 0;
+}
+
+/* ---- info -------------------------------------------------------------------------- */
+
+static const char *INFO_HELP = "usage: ubake info DIR/NAME.ubk [--json]\n"
+                               "Prints what the bake file holds: geometry, atlases, texels, bytes.\n";
+
+static int cmd_info(int argc, char **argv)
+{
+  const char *path = NULL;
+  int json = 0;
+  for (int i = 0; i < argc; i++) {
+    if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
+      fputs(INFO_HELP, stdout);
+      return 0;
+    } else if (!strcmp(argv[i], "--json")) {
+      json = 1;
+    } else if (argv[i][0] == '-') {
+      return usage_error("info", "unknown option");
+    } else {
+      path = argv[i];
+    }
+  }
+  if (!path)
+    return usage_error("info", "no .ubk given");
+  cli_log_state ls = {0, 0, 0};
+  ub_log log = {cli_log, &ls};
+  ub_bakefile *bf = NULL;
+  ub_result r = ub_bakefile_read(path, &log, &bf);
+  if (r != UB_OK)
+    return fail(&ls, r, path);
+  struct stat sb;
+  long long bytes = stat(path, &sb) == 0 ? (long long)sb.st_size : -1;
+  uint64_t covered = 0, dilated = 0, total = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    size_t npx = (size_t)bf->atlases[a].width * bf->atlases[a].height;
+    total += npx;
+    for (size_t p = 0; p < npx; p++) {
+      covered += bf->atlases[a].coverage[p] == 1;
+      dilated += bf->atlases[a].coverage[p] == 2;
+    }
+  }
+  if (json) {
+    printf("{\"level\": \"%s\", \"bytes\": %lld, \"seed\": %u, \"bounces\": %u, "
+           "\"vertices\": %u, \"triangles\": %u, \"atlases\": [",
+           bf->level_name, bytes, bf->seed, bf->bounces, bf->vertex_count, bf->triangle_count);
+    for (uint32_t a = 0; a < bf->atlas_count; a++)
+      printf("%s{\"width\": %u, \"height\": %u}", a ? ", " : "", bf->atlases[a].width,
+             bf->atlases[a].height);
+    printf("], \"texels\": %llu, \"covered_texels\": %llu, \"dilated_texels\": %llu, "
+           "\"glg_probes\": 0, \"llg_probes\": 0, \"dls\": 0}\n",
+           (unsigned long long)total, (unsigned long long)covered,
+           (unsigned long long)dilated);
+  } else {
+    printf("%s: level %s, %lld bytes, seed %u, %u bounces\n", path, bf->level_name, bytes,
+           bf->seed, bf->bounces);
+    printf("  geometry: %u vertices, %u triangles\n", bf->vertex_count, bf->triangle_count);
+    for (uint32_t a = 0; a < bf->atlas_count; a++)
+      printf("  atlas %u: %u x %u\n", a, bf->atlases[a].width, bf->atlases[a].height);
+    printf("  texels: %llu (%llu covered, %llu dilated padding)\n", (unsigned long long)total,
+           (unsigned long long)covered, (unsigned long long)dilated);
+    printf("  probes: none baked (GLG/LLG not implemented yet); dynamic light sets: none\n");
+  }
+  ub_bakefile_free(bf);
+  return 0;
+}
+
+/* ---- query ------------------------------------------------------------------------- */
+
+static const char *QUERY_HELP =
+    "usage: ubake query DIR/NAME.ubk --at X,Y,Z --normal X,Y,Z [--source auto|glg|llg|lightmap]\n"
+    "Prints the baked irradiance \"R G B\" (W/m², linear) the run-time uses there.\n"
+    "  --source lightmap   the lightmap of the closest lightmapped surface point\n"
+    "  --source glg|llg    probes (not baked yet: reports an error)\n"
+    "  --source auto       glg for a point in space (falls back to lightmap while probes are\n"
+    "                      not baked)\n";
+
+static int cmd_query(int argc, char **argv)
+{
+  const char *path = NULL, *source = "auto";
+  float at[3], nrm[3];
+  int have_at = 0, have_n = 0;
+  for (int i = 0; i < argc; i++) {
+    const char *a = argv[i];
+    const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+    if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
+      fputs(QUERY_HELP, stdout);
+      return 0;
+    } else if (!strcmp(a, "--at") && v) {
+      if (!parse_vec3(v, at))
+        return usage_error("query", "--at takes X,Y,Z");
+      have_at = 1;
+      i++;
+    } else if (!strcmp(a, "--normal") && v) {
+      if (!parse_vec3(v, nrm))
+        return usage_error("query", "--normal takes X,Y,Z");
+      have_n = 1;
+      i++;
+    } else if (!strcmp(a, "--source") && v) {
+      source = v;
+      i++;
+    } else if (a[0] == '-') {
+      return usage_error("query", "unknown option or missing value");
+    } else {
+      path = a;
+    }
+  }
+  if (!path || !have_at || !have_n)
+    return usage_error("query", "need DIR/NAME.ubk, --at and --normal");
+  float len = sqrtf(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
+  if (!(len > 0.0f))
+    return usage_error("query", "--normal must be non-zero");
+  for (int i = 0; i < 3; i++)
+    nrm[i] /= len;
+  if (strcmp(source, "auto") && strcmp(source, "lightmap") && strcmp(source, "glg") &&
+      strcmp(source, "llg"))
+    return usage_error("query", "--source takes auto, glg, llg or lightmap");
+  cli_log_state ls = {0, 0, 0};
+  ub_log log = {cli_log, &ls};
+  if (!strcmp(source, "glg") || !strcmp(source, "llg")) {
+    fprintf(stderr, "ubake: %s: %s probes are not baked in this file (probes are not "
+                    "implemented yet)\n",
+            path, source);
+    return 1;
+  }
+  ub_runtime *rt = NULL;
+  ub_result r = ub_runtime_load(path, &log, &rt);
+  if (r != UB_OK)
+    return fail(&ls, r, path);
+  float rgb[3], dist;
+  r = ub_runtime_query_lightmap(rt, at, nrm, rgb, &dist);
+  ub_runtime_free(rt);
+  if (r != UB_OK)
+    return fail(&ls, r, path);
+  printf("%.6g %.6g %.6g\n", rgb[0], rgb[1], rgb[2]);
+  return 0;
+}
+
+/* ---- reference --------------------------------------------------------------------- */
+
+static const char *REFERENCE_HELP =
+    "usage: ubake reference LEVEL.gltf --at X,Y,Z --normal X,Y,Z [--spp N] [--seed N]\n"
+    "          [--bounces N] [--threads N]\n"
+    "Brute-force path-traced irradiance (W/m², linear RGB) for the same path classes as the\n"
+    "bake. Prints \"R G B\" on the first line and \"se R G B\" (standard error) on the second.\n";
+
+static int cmd_reference(int argc, char **argv)
+{
+  const char *level = NULL;
+  ub_reference_params rp;
+  ub_reference_params_init(&rp);
+  int have_at = 0, have_n = 0;
+  for (int i = 0; i < argc; i++) {
+    const char *a = argv[i];
+    const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+    long n;
+    if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
+      fputs(REFERENCE_HELP, stdout);
+      return 0;
+    } else if (!strcmp(a, "--at") && v) {
+      if (!parse_vec3(v, rp.position))
+        return usage_error("reference", "--at takes X,Y,Z");
+      have_at = 1;
+      i++;
+    } else if (!strcmp(a, "--normal") && v) {
+      if (!parse_vec3(v, rp.normal))
+        return usage_error("reference", "--normal takes X,Y,Z");
+      have_n = 1;
+      i++;
+    } else if (!strcmp(a, "--spp") && v) {
+      if (!parse_uint(v, 1L << 30, &n) || n < 1)
+        return usage_error("reference", "--spp takes 1..2^30");
+      rp.spp = (uint32_t)n;
+      i++;
+    } else if (!strcmp(a, "--seed") && v) {
+      if (!parse_uint(v, 0xFFFFFFFFL, &n))
+        return usage_error("reference", "--seed takes 0..4294967295");
+      rp.seed = (uint32_t)n;
+      i++;
+    } else if (!strcmp(a, "--bounces") && v) {
+      if (!parse_uint(v, 1 << 20, &n))
+        return usage_error("reference", "--bounces takes a count");
+      rp.max_bounces = (uint32_t)n;
+      i++;
+    } else if (!strcmp(a, "--threads") && v) {
+      if (!parse_uint(v, 1024, &n) || n < 1)
+        return usage_error("reference", "--threads takes 1..1024");
+      rp.threads = (int)n;
+      i++;
+    } else if (a[0] == '-') {
+      return usage_error("reference", "unknown option or missing value");
+    } else {
+      level = a;
+    }
+  }
+  if (!level || !have_at || !have_n)
+    return usage_error("reference", "need LEVEL, --at and --normal");
+  cli_log_state ls = {0, 1, 0};
+  ub_log log = {cli_log, &ls};
+  ub_scene *scene = NULL;
+  ub_rt *rt = NULL;
+  ub_emitters *em = NULL;
+  ub_result r = ub_scene_load(level, &log, &scene);
+  if (r == UB_OK)
+    r = ub_rt_create(scene, NULL, &log, &rt);
+  if (r == UB_OK)
+    r = ub_emitters_build(scene, &em);
+  float rgb[3], se[3];
+  if (r == UB_OK)
+    r = ub_reference_irradiance(scene, rt, em, &rp, rgb, se, &log);
+  ub_emitters_free(em);
+  ub_rt_free(rt);
+  ub_scene_free(scene);
+  if (r != UB_OK)
+    return fail(&ls, r, level);
+  printf("%.6g %.6g %.6g\nse %.6g %.6g %.6g\n", rgb[0], rgb[1], rgb[2], se[0], se[1], se[2]);
+  return 0;
+}
+
+/* ---- main -------------------------------------------------------------------------- */
+
+static const char *MAIN_HELP =
+    "usage: ubake COMMAND [options]   (ubake COMMAND --help for each)\n"
+    "  bake       bake a glTF level into DIR/NAME.ubk + lightmaps + report\n"
+    "  info       describe a .ubk\n"
+    "  query      baked irradiance at a point and normal\n"
+    "  reference  path-traced ground truth at a point and normal\n";
+
+int main(int argc, char **argv)
+{
+  if (argc < 2 || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h") ||
+      !strcmp(argv[1], "help")) {
+    fputs(MAIN_HELP, argc < 2 ? stderr : stdout);
+    return argc < 2 ? 1 : 0;
+  }
+  const char *cmd = argv[1];
+  if (!strcmp(cmd, "bake"))
+    return cmd_bake(argc - 2, argv + 2);
+  if (!strcmp(cmd, "info"))
+    return cmd_info(argc - 2, argv + 2);
+  if (!strcmp(cmd, "query"))
+    return cmd_query(argc - 2, argv + 2);
+  if (!strcmp(cmd, "reference"))
+    return cmd_reference(argc - 2, argv + 2);
+  fprintf(stderr, "ubake: unknown command '%s' (see 'ubake --help')\n", cmd);
+  return 1;
+}
