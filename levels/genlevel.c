@@ -1,0 +1,1157 @@
+/* ubake-genlevel: synthetic test levels for ubake, written as glTF 2.0
+ * (.gltf JSON + external .bin buffer).
+ *
+ *   ubake-genlevel --all -o DIR
+ *   ubake-genlevel NAME -o DIR [--param key=value ...] [--name BASE]
+ *   ubake-genlevel --list | --help | NAME --help
+ *
+ * Conventions (docs: levels/README.md, /DESIGN.md §3-4): metres, Y-up,
+ * right-handed, counter-clockwise front faces, flat per-face normals (every
+ * quad owns its 4 vertices), uint32 indices, one mesh (one primitive) per
+ * node. Every surface is built from planar rectangles ("quads"). Lights use
+ * KHR_lights_punctual (point: W/sr, directional: W/m^2, shining down the
+ * node's local -Z); emission uses emissiveFactor x
+ * KHR_materials_emissive_strength; tags are flat `extras` keys.
+ *
+ * Standalone C11, links only libm. Output is deterministic.
+ */
+#define _POSIX_C_SOURCE 200809L
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/types.h>
+
+#ifndef M_PI
+#define M_PI 3.14159265358979323846
+#endif
+
+/* ------------------------------------------------------------------------ */
+/* Small utilities                                                           */
+
+static const char *g_prog = "ubake-genlevel";
+
+static void die(const char *fmt, ...)
+{
+    va_list ap;
+    fprintf(stderr, "%s: ", g_prog);
+    va_start(ap, fmt);
+    vfprintf(stderr, fmt, ap);
+    va_end(ap);
+    fputc('\n', stderr);
+    exit(1);
+}
+
+static void *xrealloc(void *p, size_t n)
+{
+    void *q = realloc(p, n ? n : 1);
+    if (!q) die("out of memory");
+    return q;
+}
+
+static void copy_str(char *dst, size_t cap, const char *src)
+{
+    size_t n = strlen(src);
+    if (n >= cap) die("internal: name too long: %s", src);
+    memcpy(dst, src, n + 1);
+}
+
+typedef struct { double x, y, z; } V3;
+
+static V3 v3(double x, double y, double z) { V3 r = { x, y, z }; return r; }
+static V3 vadd(V3 a, V3 b) { return v3(a.x + b.x, a.y + b.y, a.z + b.z); }
+static V3 vsub(V3 a, V3 b) { return v3(a.x - b.x, a.y - b.y, a.z - b.z); }
+static V3 vscale(V3 a, double s) { return v3(a.x * s, a.y * s, a.z * s); }
+static double vdot(V3 a, V3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+static V3 vcross(V3 a, V3 b)
+{
+    return v3(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
+}
+static V3 vnorm(V3 a)
+{
+    double l = sqrt(vdot(a, a));
+    if (!(l > 0.0)) die("internal: degenerate vector");
+    return vscale(a, 1.0 / l);
+}
+static double vget(V3 a, int i) { return i == 0 ? a.x : (i == 1 ? a.y : a.z); }
+static void vset(V3 *a, int i, double v)
+{
+    if (i == 0) a->x = v; else if (i == 1) a->y = v; else a->z = v;
+}
+/* Rotation about +Y by angle t (radians), right-handed: +X turns toward -Z.
+ * Same convention as a glTF quaternion (0, sin(t/2), 0, cos(t/2)). */
+static V3 rot_y(V3 p, double t)
+{
+    double c = cos(t), s = sin(t);
+    return v3(c * p.x + s * p.z, p.y, -s * p.x + c * p.z);
+}
+static double deg2rad(double d) { return d * M_PI / 180.0; }
+
+/* ------------------------------------------------------------------------ */
+/* Scene being built                                                         */
+
+typedef struct {
+    char name[64];
+    float *pos, *nrm, *uv;
+    uint32_t *idx;
+    int nv, ni, capv, capi;
+    int mat;
+} Mesh;
+
+typedef struct {
+    char name[64];
+    double base[3];
+    double emis_strength; /* radiance = (1,1,1) x strength; 0: not emissive */
+    double emis_color[3];
+} Material;
+
+enum { LIGHT_POINT, LIGHT_DIRECTIONAL };
+typedef struct {
+    char name[64];
+    int type;
+    double color[3];
+    double intensity;
+} Light;
+
+typedef struct { char key[32]; char val[64]; } Extra;
+
+typedef struct {
+    char name[64];
+    int mesh, light;
+    int has_t, has_r;
+    double t[3], r[4];
+    Extra ex[8];
+    int nex;
+} Node;
+
+typedef struct {
+    Mesh *meshes; int nmesh, capmesh;
+    Material *mats; int nmat, capmat;
+    Light *lights; int nlight, caplight;
+    Node *nodes; int nnode, capnode;
+    int has_sky; double sky[3];
+} Scene;
+
+static Scene S;
+
+static void scene_reset(void)
+{
+    for (int i = 0; i < S.nmesh; i++) {
+        free(S.meshes[i].pos); free(S.meshes[i].nrm);
+        free(S.meshes[i].uv); free(S.meshes[i].idx);
+    }
+    free(S.meshes); free(S.mats); free(S.lights); free(S.nodes);
+    memset(&S, 0, sizeof S);
+}
+
+/* Material by name; re-adding the same name returns the existing one. */
+static int material(const char *name, double r, double g, double b, double emis)
+{
+    for (int i = 0; i < S.nmat; i++)
+        if (!strcmp(S.mats[i].name, name)) return i;
+    if (S.nmat == S.capmat) {
+        S.capmat = S.capmat ? 2 * S.capmat : 8;
+        S.mats = xrealloc(S.mats, (size_t)S.capmat * sizeof *S.mats);
+    }
+    Material *m = &S.mats[S.nmat];
+    memset(m, 0, sizeof *m);
+    copy_str(m->name, sizeof m->name, name);
+    m->base[0] = r; m->base[1] = g; m->base[2] = b;
+    m->emis_strength = emis;
+    m->emis_color[0] = m->emis_color[1] = m->emis_color[2] = 1.0;
+    return S.nmat++;
+}
+
+static int mesh_new(const char *name, int mat)
+{
+    if (S.nmesh == S.capmesh) {
+        S.capmesh = S.capmesh ? 2 * S.capmesh : 16;
+        S.meshes = xrealloc(S.meshes, (size_t)S.capmesh * sizeof *S.meshes);
+    }
+    Mesh *m = &S.meshes[S.nmesh];
+    memset(m, 0, sizeof *m);
+    copy_str(m->name, sizeof m->name, name);
+    m->mat = mat;
+    return S.nmesh++;
+}
+
+static Node *node_new(const char *name)
+{
+    for (int i = 0; i < S.nnode; i++)
+        if (!strcmp(S.nodes[i].name, name)) die("internal: duplicate node name %s", name);
+    if (S.nnode == S.capnode) {
+        S.capnode = S.capnode ? 2 * S.capnode : 16;
+        S.nodes = xrealloc(S.nodes, (size_t)S.capnode * sizeof *S.nodes);
+    }
+    Node *n = &S.nodes[S.nnode++];
+    memset(n, 0, sizeof *n);
+    copy_str(n->name, sizeof n->name, name);
+    n->mesh = -1;
+    n->light = -1;
+    return n;
+}
+
+static void node_extra(Node *n, const char *key, const char *val)
+{
+    if (n->nex == (int)(sizeof n->ex / sizeof n->ex[0])) die("internal: too many extras");
+    copy_str(n->ex[n->nex].key, sizeof n->ex[0].key, key);
+    copy_str(n->ex[n->nex].val, sizeof n->ex[0].val, val);
+    n->nex++;
+}
+
+static void node_translate(Node *n, V3 t)
+{
+    n->has_t = 1;
+    n->t[0] = t.x; n->t[1] = t.y; n->t[2] = t.z;
+}
+
+/* A node holding mesh `mesh` (vertices already in world space unless a
+ * transform is set afterwards). */
+static Node *mesh_node(const char *name, int mesh)
+{
+    Node *n = node_new(name);
+    n->mesh = mesh;
+    return n;
+}
+
+static Node *light_node(const char *name, int type, double intensity,
+                        double r, double g, double b, V3 pos)
+{
+    if (S.nlight == S.caplight) {
+        S.caplight = S.caplight ? 2 * S.caplight : 8;
+        S.lights = xrealloc(S.lights, (size_t)S.caplight * sizeof *S.lights);
+    }
+    Light *l = &S.lights[S.nlight];
+    memset(l, 0, sizeof *l);
+    copy_str(l->name, sizeof l->name, name);
+    l->type = type;
+    l->color[0] = r; l->color[1] = g; l->color[2] = b;
+    l->intensity = intensity;
+    Node *n = node_new(name);
+    n->light = S.nlight++;
+    node_translate(n, pos);
+    return n;
+}
+
+/* Set node rotation so that its local -Z axis points along direction d. */
+static void node_aim(Node *n, V3 d)
+{
+    V3 a = v3(0, 0, -1), b = vnorm(d);
+    double c = vdot(a, b);
+    double q[4];
+    if (c < -1.0 + 1e-12) { /* opposite: 180 degrees about +Y */
+        q[0] = 0; q[1] = 1; q[2] = 0; q[3] = 0;
+    } else {
+        V3 x = vcross(a, b);
+        q[0] = x.x; q[1] = x.y; q[2] = x.z; q[3] = 1.0 + c;
+        double l = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+        for (int i = 0; i < 4; i++) q[i] /= l;
+    }
+    n->has_r = 1;
+    memcpy(n->r, q, sizeof q);
+}
+
+/* ------------------------------------------------------------------------ */
+/* Geometry: everything is planar rectangles with their own 4 vertices       */
+
+static void mesh_reserve(Mesh *m, int addv, int addi)
+{
+    if (m->nv + addv > m->capv) {
+        while (m->nv + addv > m->capv) m->capv = m->capv ? 2 * m->capv : 64;
+        m->pos = xrealloc(m->pos, (size_t)m->capv * 3 * sizeof(float));
+        m->nrm = xrealloc(m->nrm, (size_t)m->capv * 3 * sizeof(float));
+    }
+    if (m->ni + addi > m->capi) {
+        while (m->ni + addi > m->capi) m->capi = m->capi ? 2 * m->capi : 96;
+        m->idx = xrealloc(m->idx, (size_t)m->capi * sizeof(uint32_t));
+    }
+}
+
+/* Add the planar quad p[0..3] whose front face points along n_expected.
+ * The winding is flipped if needed so that it is counter-clockwise seen from
+ * the front; the stored normal is the exact geometric one. */
+static void add_face(int mi, const V3 p_in[4], V3 n_expected)
+{
+    Mesh *m = &S.meshes[mi];
+    V3 p[4] = { p_in[0], p_in[1], p_in[2], p_in[3] };
+    V3 n = vcross(vsub(p[1], p[0]), vsub(p[2], p[0]));
+    if (vdot(n, n_expected) < 0) {
+        V3 t = p[1]; p[1] = p[3]; p[3] = t;
+        n = vscale(n, -1.0);
+    }
+    n = vnorm(n);
+    if (vdot(n, vnorm(n_expected)) < 0.999) die("internal: face normal mismatch in %s", m->name);
+    mesh_reserve(m, 4, 6);
+    uint32_t b = (uint32_t)m->nv;
+    for (int k = 0; k < 4; k++) {
+        float *P = m->pos + 3 * (m->nv + k), *N = m->nrm + 3 * (m->nv + k);
+        P[0] = (float)p[k].x; P[1] = (float)p[k].y; P[2] = (float)p[k].z;
+        N[0] = (float)n.x; N[1] = (float)n.y; N[2] = (float)n.z;
+    }
+    m->nv += 4;
+    uint32_t t[6] = { b, b + 1, b + 2, b, b + 2, b + 3 };
+    memcpy(m->idx + m->ni, t, sizeof t);
+    m->ni += 6;
+}
+
+/* Rectangle o + [0,1]eu + [0,1]ev split into nu x nv quads, facing n. */
+static void add_grid(int mi, V3 o, V3 eu, V3 ev, int nu, int nv, V3 n)
+{
+    for (int j = 0; j < nv; j++)
+        for (int i = 0; i < nu; i++) {
+            V3 a = vadd(o, vadd(vscale(eu, (double)i / nu), vscale(ev, (double)j / nv)));
+            V3 bu = vscale(eu, 1.0 / nu), bv = vscale(ev, 1.0 / nv);
+            V3 p[4] = { a, vadd(a, bu), vadd(vadd(a, bu), bv), vadd(a, bv) };
+            add_face(mi, p, n);
+        }
+}
+
+/* Axis-aligned rectangle: coordinate `axis` = c; the other two axes span
+ * [lo,hi] (given as full V3s, the `axis` component ignored). Faces along
+ * +axis if sign > 0, else -axis. Subdivided n x n. */
+static void add_rect(int mi, int axis, double c, V3 lo, V3 hi, int sign, int nsub)
+{
+    int b = (axis + 1) % 3, d = (axis + 2) % 3;
+    V3 o = lo, eu = v3(0, 0, 0), ev = v3(0, 0, 0), n = v3(0, 0, 0);
+    vset(&o, axis, c);
+    vset(&eu, b, vget(hi, b) - vget(lo, b));
+    vset(&ev, d, vget(hi, d) - vget(lo, d));
+    vset(&n, axis, sign > 0 ? 1.0 : -1.0);
+    add_grid(mi, o, eu, ev, nsub, nsub, n);
+}
+
+/* Closed box [mn,mx] with outward normals (6 faces), turned by `yaw` radians
+ * about the vertical axis through `pivot` (rot_y convention). */
+static void add_box_yaw(int mi, V3 mn, V3 mx, double yaw, V3 pivot)
+{
+    for (int a = 0; a < 3; a++)
+        for (int s = 0; s < 2; s++) {
+            int b = (a + 1) % 3, c = (a + 2) % 3;
+            V3 p[4], n = v3(0, 0, 0);
+            for (int k = 0; k < 4; k++) {
+                V3 q = mn;
+                vset(&q, a, s ? vget(mx, a) : vget(mn, a));
+                vset(&q, b, (k == 1 || k == 2) ? vget(mx, b) : vget(mn, b));
+                vset(&q, c, (k >= 2) ? vget(mx, c) : vget(mn, c));
+                p[k] = vadd(rot_y(vsub(q, pivot), yaw), pivot);
+            }
+            vset(&n, a, s ? 1.0 : -1.0);
+            add_face(mi, p, rot_y(n, yaw));
+        }
+}
+
+static void add_box(int mi, V3 mn, V3 mx) { add_box_yaw(mi, mn, mx, 0.0, v3(0, 0, 0)); }
+
+/* One node with one closed axis-aligned box. */
+static void box_node(const char *name, int mat, V3 mn, V3 mx)
+{
+    int m = mesh_new(name, mat);
+    add_box(m, mn, mx);
+    mesh_node(name, m);
+}
+
+/* ------------------------------------------------------------------------ */
+/* Parameters                                                                */
+
+#define MAXP 16
+typedef struct {
+    const char *key;
+    int n;          /* components: 1 or 3 */
+    double def[3];
+    const char *help;
+} ParamDef;
+
+typedef struct {
+    const char *name;
+    const char *purpose;
+    void (*build)(void);
+    ParamDef p[MAXP];
+} LevelDef;
+
+/* Parameters every level accepts. */
+static const ParamDef common_params[] = {
+    { "uv1", 1, { 0 }, "1: write TEXCOORD_1 (and the same accessor as TEXCOORD_0): one grid cell per quad in a single atlas" },
+    { "uv1_res", 1, { 64 }, "atlas resolution in texels used to lay out the uv1 grid" },
+    { "uv1_pad", 1, { 4 }, "texels of padding between uv1 rectangles and around the atlas border" },
+    { "texel_size", 1, { 0 }, ">0: write scene extras ubake_texel_size (m per texel)" },
+    { "glg_spacing", 1, { 0 }, ">0: write scene extras ubake_glg_spacing (m)" },
+};
+#define NCOMMON ((int)(sizeof common_params / sizeof common_params[0]))
+
+static const LevelDef *g_level;
+static double g_val[MAXP + NCOMMON][3];
+static int g_set[MAXP + NCOMMON];
+
+static int level_nparams(const LevelDef *L)
+{
+    int n = 0;
+    while (n < MAXP && L->p[n].key) n++;
+    return n;
+}
+
+static const ParamDef *param_def(const LevelDef *L, int i)
+{
+    int n = level_nparams(L);
+    return i < n ? &L->p[i] : &common_params[i - n];
+}
+
+static int param_index(const LevelDef *L, const char *key)
+{
+    int n = level_nparams(L) + NCOMMON;
+    for (int i = 0; i < n; i++)
+        if (!strcmp(param_def(L, i)->key, key)) return i;
+    return -1;
+}
+
+static const double *pv(const char *key)
+{
+    int i = param_index(g_level, key);
+    if (i < 0) die("internal: level %s has no param %s", g_level->name, key);
+    return g_val[i];
+}
+static double P(const char *key) { return pv(key)[0]; }
+static int PI_(const char *key) { return (int)lround(P(key)); }
+
+static void params_defaults(const LevelDef *L)
+{
+    int n = level_nparams(L) + NCOMMON;
+    for (int i = 0; i < n; i++) {
+        memcpy(g_val[i], param_def(L, i)->def, sizeof g_val[i]);
+        g_set[i] = 0;
+    }
+}
+
+static void params_set(const LevelDef *L, const char *kv)
+{
+    const char *eq = strchr(kv, '=');
+    if (!eq || eq == kv) die("bad --param '%s' (want key=value)", kv);
+    char key[64];
+    size_t kl = (size_t)(eq - kv);
+    if (kl >= sizeof key) die("bad --param '%s' (key too long)", kv);
+    memcpy(key, kv, kl);
+    key[kl] = 0;
+    int i = param_index(L, key);
+    if (i < 0) die("level %s has no parameter '%s' (see %s %s --help)", L->name, key, g_prog, L->name);
+    const ParamDef *d = param_def(L, i);
+    const char *s = eq + 1;
+    for (int c = 0; c < d->n; c++) {
+        char *end;
+        errno = 0;
+        double v = strtod(s, &end);
+        if (end == s || errno || !isfinite(v))
+            die("bad value for %s: '%s' (want %d number%s)", key, eq + 1, d->n, d->n > 1 ? "s, comma-separated" : "");
+        g_val[i][c] = v;
+        s = end;
+        if (c + 1 < d->n) {
+            if (*s != ',') die("bad value for %s: '%s' (want %d comma-separated numbers)", key, eq + 1, d->n);
+            s++;
+        }
+    }
+    if (*s) die("bad value for %s: '%s' (trailing characters)", key, eq + 1);
+    g_set[i] = 1;
+}
+
+static void require(int ok, const char *what)
+{
+    if (!ok) die("level %s: invalid parameters: %s", g_level->name, what);
+}
+
+/* ------------------------------------------------------------------------ */
+/* Levels                                                                    */
+
+/* cornell: 2 m Cornell box, x,z in [-1,1], y in [0,2], inward single-sided
+ * quads, two white closed boxes, point light or emissive ceiling patch. */
+static void build_cornell(void)
+{
+    int open = PI_("open"), emissive = PI_("emissive");
+    double I = P("light"), ly = P("light_y"), le = P("le"), ps = P("patch");
+    require(I >= 0 && le >= 0 && ps > 0 && ps < 2 && ly > 0 && ly < 2, "light>=0, le>=0, 0<patch<2, 0<light_y<2");
+    int white = material("white", 0.73, 0.73, 0.73, 0);
+    int red = material("red", 0.63, 0.065, 0.05, 0);
+    int green = material("green", 0.14, 0.45, 0.091, 0);
+    int m;
+    m = mesh_new("floor", white);
+    add_rect(m, 1, 0.0, v3(-1, 0, -1), v3(1, 0, 1), +1, 1);
+    mesh_node("floor", m);
+    m = mesh_new("ceiling", white);
+    add_rect(m, 1, 2.0, v3(-1, 0, -1), v3(1, 0, 1), -1, 1);
+    mesh_node("ceiling", m);
+    m = mesh_new("back_wall", white);
+    add_rect(m, 2, -1.0, v3(-1, 0, 0), v3(1, 2, 0), +1, 1);
+    mesh_node("back_wall", m);
+    m = mesh_new("left_wall", red);
+    add_rect(m, 0, -1.0, v3(0, 0, -1), v3(0, 2, 1), +1, 1);
+    mesh_node("left_wall", m);
+    m = mesh_new("right_wall", green);
+    add_rect(m, 0, 1.0, v3(0, 0, -1), v3(0, 2, 1), -1, 1);
+    mesh_node("right_wall", m);
+    if (!open) {
+        m = mesh_new("front_wall", white);
+        add_rect(m, 2, 1.0, v3(-1, 0, 0), v3(1, 2, 0), -1, 1);
+        mesh_node("front_wall", m);
+    }
+    /* Short box: 0.6 m cube at the front right; tall box: 0.6x1.2x0.6 at
+     * the back left (the classic layout mapped to this frame). */
+    V3 sc = v3(0.33, 0.0, 0.39), tc = v3(-0.33, 0.0, -0.27);
+    m = mesh_new("short_box", white);
+    add_box_yaw(m, v3(sc.x - 0.3, 0, sc.z - 0.3), v3(sc.x + 0.3, 0.6, sc.z + 0.3), deg2rad(-18), sc);
+    mesh_node("short_box", m);
+    m = mesh_new("tall_box", white);
+    add_box_yaw(m, v3(tc.x - 0.3, 0, tc.z - 0.3), v3(tc.x + 0.3, 1.2, tc.z + 0.3), deg2rad(18), tc);
+    mesh_node("tall_box", m);
+    if (emissive) {
+        int em = material("emitter", 0.73, 0.73, 0.73, le);
+        m = mesh_new("light_patch", em);
+        double h = 0.5 * ps;
+        add_rect(m, 1, 1.999, v3(-h, 0, -h), v3(h, 0, h), -1, 1);
+        mesh_node("light_patch", m);
+    } else {
+        Node *n = light_node("light", LIGHT_POINT, I, 1, 1, 1, v3(0, ly, 0));
+        node_extra(n, "ubake_light", "static");
+    }
+}
+
+/* furnace: closed 2 m cube (x,z in [-1,1], y in [0,2]), inward faces,
+ * uniform albedo rho and emission Le everywhere. */
+static void build_furnace(void)
+{
+    double rho = P("rho"), le = P("le"), sz = P("size");
+    int n = PI_("n");
+    require(rho >= 0 && rho < 1 && le >= 0 && n >= 1 && n <= 64 && sz > 0, "0<=rho<1, le>=0, 1<=n<=64, size>0");
+    int mat = material("furnace", rho, rho, rho, le);
+    double h = 0.5 * sz;
+    static const char *names[6] = { "furnace_wall_xneg", "furnace_wall_xpos", "furnace_floor",
+                                    "furnace_ceiling", "furnace_wall_zneg", "furnace_wall_zpos" };
+    for (int a = 0; a < 3; a++)
+        for (int s = 0; s < 2; s++) {
+            const char *nm = names[2 * a + s];
+            int m = mesh_new(nm, mat);
+            V3 lo = v3(-h, 0, -h), hi = v3(h, sz, h);
+            double c = s ? vget(hi, a) : vget(lo, a);
+            add_rect(m, a, c, lo, hi, s ? -1 : +1, n); /* inward */
+            mesh_node(nm, m);
+        }
+}
+
+/* plane_point: black 20x20 plane at y=0 facing +y, point light above origin. */
+static void build_plane_point(void)
+{
+    double h = P("h"), I = P("intensity"), sz = P("size");
+    int n = PI_("n");
+    require(h > 0 && I >= 0 && sz > 0 && n >= 1 && n <= 256, "h>0, intensity>=0, size>0, 1<=n<=256");
+    int mat = material("black", 0, 0, 0, 0);
+    int m = mesh_new("plane", mat);
+    add_rect(m, 1, 0.0, v3(-sz / 2, 0, -sz / 2), v3(sz / 2, 0, sz / 2), +1, n);
+    mesh_node("plane", m);
+    Node *l = light_node("light", LIGHT_POINT, I, 1, 1, 1, v3(0, h, 0));
+    node_extra(l, "ubake_light", "static");
+}
+
+/* sky_plane: the same black plane lit only by a constant sky. */
+static void build_sky_plane(void)
+{
+    double sz = P("size");
+    const double *sky = pv("sky");
+    int n = PI_("n");
+    require(sz > 0 && n >= 1 && n <= 256 && sky[0] >= 0 && sky[1] >= 0 && sky[2] >= 0, "size>0, 1<=n<=256, sky>=0");
+    int mat = material("black", 0, 0, 0, 0);
+    int m = mesh_new("plane", mat);
+    add_rect(m, 1, 0.0, v3(-sz / 2, 0, -sz / 2), v3(sz / 2, 0, sz / 2), +1, n);
+    mesh_node("plane", m);
+    S.has_sky = 1;
+    memcpy(S.sky, sky, sizeof S.sky);
+}
+
+/* two_rooms: rooms A (x<0) and B (x>0), 4x3x4 m interiors, sharing one closed
+ * wall of thickness t centred on x=0. All other walls: closed slabs. */
+static void build_two_rooms(void)
+{
+    double t = P("t"), w = P("wall"), alb = P("albedo"), I = P("intensity"), ly = P("light_y");
+    require(t > 0 && t < 1 && w > 0 && alb >= 0 && alb < 1 && I >= 0 && ly > 0 && ly < 3,
+            "0<t<1, wall>0, 0<=albedo<1, intensity>=0, 0<light_y<3");
+    int mat = material("grey", alb, alb, alb, 0);
+    double ht = 0.5 * t;
+    double xa0 = -4.0 - ht, xa1 = -ht; /* room A interior */
+    double xb0 = ht, xb1 = 4.0 + ht;   /* room B interior */
+    const double H = 3.0, Z = 2.0;
+    box_node("shared_wall", mat, v3(-ht, 0, -Z), v3(ht, H, Z));
+    /* Room A */
+    box_node("room_a_floor", mat, v3(xa0 - w, -w, -Z - w), v3(0, 0, Z + w));
+    box_node("room_a_ceiling", mat, v3(xa0 - w, H, -Z - w), v3(0, H + w, Z + w));
+    box_node("room_a_wall_west", mat, v3(xa0 - w, 0, -Z - w), v3(xa0, H, Z + w));
+    box_node("room_a_wall_north", mat, v3(xa0, 0, -Z - w), v3(0, H, -Z));
+    box_node("room_a_wall_south", mat, v3(xa0, 0, Z), v3(0, H, Z + w));
+    /* Room B */
+    box_node("room_b_floor", mat, v3(0, -w, -Z - w), v3(xb1 + w, 0, Z + w));
+    box_node("room_b_ceiling", mat, v3(0, H, -Z - w), v3(xb1 + w, H + w, Z + w));
+    box_node("room_b_wall_east", mat, v3(xb1, 0, -Z - w), v3(xb1 + w, H, Z + w));
+    box_node("room_b_wall_north", mat, v3(0, 0, -Z - w), v3(xb1, H, -Z));
+    box_node("room_b_wall_south", mat, v3(0, 0, Z), v3(xb1, H, Z + w));
+    (void)xa1; (void)xb0;
+    Node *l = light_node("light_a", LIGHT_POINT, I, 1, 1, 1, v3(0.5 * (xa0 + xa1), ly, 0));
+    node_extra(l, "ubake_light", "static");
+}
+
+/* sunroom: 5x3x5 m room with a 1x2 m doorway in the south (+z) wall, ground
+ * plane outside, sun through the doorway, optional door leaf. */
+static void build_sunroom(void)
+{
+    int door = PI_("door");
+    double w = P("wall"), alb = P("albedo"), galb = P("ground_albedo"), E = P("sun");
+    double el = P("elev"), az = P("azim"), gs = P("ground");
+    const double *sky = pv("sky");
+    require(w > 0 && alb >= 0 && alb < 1 && galb >= 0 && galb < 1 && E >= 0 && el > 0 && el <= 90 &&
+            gs > 6 && sky[0] >= 0 && sky[1] >= 0 && sky[2] >= 0,
+            "wall>0, 0<=albedo<1, 0<=ground_albedo<1, sun>=0, 0<elev<=90, ground>6, sky>=0");
+    int wm = material("wall", alb, alb, alb, 0);
+    int gm = material("ground", galb, galb, galb, 0);
+    const double R = 2.5, H = 3.0, DW = 0.5, DH = 2.0;
+    double o = R + w; /* outer half-extent */
+    box_node("floor", wm, v3(-o, -w, -o), v3(o, 0, o));
+    box_node("ceiling", wm, v3(-o, H, -o), v3(o, H + w, o));
+    box_node("wall_north", wm, v3(-o, 0, -o), v3(o, H, -R));
+    box_node("wall_west", wm, v3(-o, 0, -R), v3(-R, H, R));
+    box_node("wall_east", wm, v3(R, 0, -R), v3(o, H, R));
+    box_node("wall_south_west", wm, v3(-o, 0, R), v3(-DW, H, o));
+    box_node("wall_south_east", wm, v3(DW, 0, R), v3(o, H, o));
+    box_node("wall_south_lintel", wm, v3(-DW, DH, R), v3(DW, H, o));
+    /* Ground: y=0, [-g/2,g/2]^2 minus the building footprint [-o,o]^2. */
+    double g = 0.5 * gs;
+    int m = mesh_new("ground", gm);
+    add_rect(m, 1, 0.0, v3(-g, 0, o), v3(g, 0, g), +1, 1);
+    add_rect(m, 1, 0.0, v3(-g, 0, -g), v3(g, 0, -o), +1, 1);
+    add_rect(m, 1, 0.0, v3(-g, 0, -o), v3(-o, 0, o), +1, 1);
+    add_rect(m, 1, 0.0, v3(o, 0, -o), v3(g, 0, o), +1, 1);
+    mesh_node("ground", m);
+    if (door) {
+        const double DT = 0.05;
+        int dm = material("door", 0.5, 0.5, 0.5, 0);
+        int lm = mesh_new("door_leaf", dm);
+        /* Local frame: hinge axis = local +Y through the origin. */
+        add_box(lm, v3(0, 0, 0), v3(2 * DW, DH, DT));
+        Node *c = mesh_node("door_closed", lm);
+        node_translate(c, v3(-DW, 0, R));
+        node_extra(c, "ubake_door", "front");
+        Node *op = mesh_node("door_open", lm);
+        node_translate(op, v3(-DW, 0, R));
+        op->has_r = 1;
+        op->r[0] = 0; op->r[1] = sin(M_PI / 4); op->r[2] = 0; op->r[3] = cos(M_PI / 4);
+        node_extra(op, "ubake_door_open", "front");
+    }
+    double e = deg2rad(el), a = deg2rad(az);
+    V3 to_sun = v3(sin(a) * cos(e), sin(e), cos(a) * cos(e));
+    Node *sn = light_node("sun", LIGHT_DIRECTIONAL, E, 1, 1, 1, vscale(to_sun, 10.0));
+    node_aim(sn, vscale(to_sun, -1.0));
+    node_extra(sn, "ubake_light", "static");
+    S.has_sky = 1;
+    memcpy(S.sky, sky, sizeof S.sky);
+}
+
+/* hallway: 12x3x2.5 m corridor along x, four ceiling lamps in two DLS. */
+static void build_hallway(void)
+{
+    double w = P("wall"), alb = P("albedo"), I = P("intensity"), ly = P("lamp_y");
+    require(w > 0 && alb >= 0 && alb < 1 && I >= 0 && ly > 0 && ly < 2.5,
+            "wall>0, 0<=albedo<1, intensity>=0, 0<lamp_y<2.5");
+    int mat = material("wall", alb, alb, alb, 0);
+    const double X = 6.0, Z = 1.5, H = 2.5;
+    box_node("hall_floor", mat, v3(-X - w, -w, -Z - w), v3(X + w, 0, Z + w));
+    box_node("hall_ceiling", mat, v3(-X - w, H, -Z - w), v3(X + w, H + w, Z + w));
+    box_node("hall_wall_north", mat, v3(-X - w, 0, -Z - w), v3(X + w, H, -Z));
+    box_node("hall_wall_south", mat, v3(-X - w, 0, Z), v3(X + w, H, Z + w));
+    box_node("hall_wall_west", mat, v3(-X - w, 0, -Z), v3(-X, H, Z));
+    box_node("hall_wall_east", mat, v3(X, 0, -Z), v3(X + w, H, Z));
+    static const double lx[4] = { -4.5, -1.5, 1.5, 4.5 };
+    for (int i = 0; i < 4; i++) {
+        char nm[16];
+        snprintf(nm, sizeof nm, "lamp_%d", i + 1);
+        Node *l = light_node(nm, LIGHT_POINT, I, 1, 1, 1, v3(lx[i], ly, 0));
+        node_extra(l, "ubake_light", i == 1 ? "primary" : "static");
+        node_extra(l, "ubake_dls", i < 2 ? "hall_a" : "hall_b");
+    }
+}
+
+static const LevelDef g_levels[] = {
+    { "cornell", "Cornell box (2 m), closed by default; point light or emissive ceiling patch.", build_cornell,
+      { { "open", 1, { 0 }, "1: omit the front wall (z=+1)" },
+        { "emissive", 1, { 0 }, "1: emissive 0.5x0.5 m ceiling patch instead of the point light" },
+        { "light", 1, { 4 }, "point light intensity, W/sr (white)" },
+        { "light_y", 1, { 1.9 }, "point light height, m (x=z=0)" },
+        { "le", 1, { 10 }, "emissive patch radiance, W/(m^2 sr)" },
+        { "patch", 1, { 0.5 }, "emissive patch side, m" } } },
+    { "furnace", "Closed cube furnace: uniform albedo and emission; E = pi*Le*sum_k rho^k.", build_furnace,
+      { { "rho", 1, { 0.5 }, "albedo of every face" },
+        { "le", 1, { 1.0 }, "emitted radiance of every face, W/(m^2 sr)" },
+        { "n", 1, { 4 }, "each face split into n x n quads" },
+        { "size", 1, { 2 }, "cube side, m (x,z in [-size/2,size/2], y in [0,size])" } } },
+    { "plane_point", "Black plane + point light: E = I*h/(h^2+r^2)^1.5.", build_plane_point,
+      { { "h", 1, { 1 }, "light height above the origin, m" },
+        { "intensity", 1, { 10 }, "point light intensity, W/sr" },
+        { "size", 1, { 20 }, "plane side, m" },
+        { "n", 1, { 10 }, "plane split into n x n quads" } } },
+    { "sky_plane", "Black plane under a constant sky: E = pi*L_sky.", build_sky_plane,
+      { { "sky", 3, { 0.5, 0.7, 1.0 }, "sky radiance r,g,b, W/(m^2 sr)" },
+        { "size", 1, { 20 }, "plane side, m" },
+        { "n", 1, { 10 }, "plane split into n x n quads" } } },
+    { "two_rooms", "Two closed rooms sharing one thin wall; light in A only, B must stay dark (leak test).",
+      build_two_rooms,
+      { { "t", 1, { 0.05 }, "shared wall thickness, m (centred on x=0)" },
+        { "wall", 1, { 0.2 }, "outer wall/floor/ceiling slab thickness, m" },
+        { "albedo", 1, { 0.7 }, "albedo of every surface" },
+        { "intensity", 1, { 20 }, "room A point light intensity, W/sr" },
+        { "light_y", 1, { 2 }, "room A point light height, m" } } },
+    { "sunroom", "Dark room, doorway, ground, sun + sky; door leaf with closed/open poses.", build_sunroom,
+      { { "door", 1, { 1 }, "0: no door leaves (doorway open)" },
+        { "sun", 1, { 5 }, "sun irradiance at normal incidence, W/m^2" },
+        { "elev", 1, { 45 }, "sun elevation, degrees" },
+        { "azim", 1, { 0 }, "sun azimuth, degrees (0: sun in the +z direction, 90: +x)" },
+        { "sky", 3, { 0.3, 0.4, 0.6 }, "sky radiance r,g,b" },
+        { "albedo", 1, { 0.6 }, "room albedo" },
+        { "ground_albedo", 1, { 0.3 }, "ground albedo" },
+        { "ground", 1, { 40 }, "ground side, m" },
+        { "wall", 1, { 0.2 }, "wall/floor/ceiling thickness, m" } } },
+    { "hallway", "12x3x2.5 m corridor, 4 ceiling lamps in DLS hall_a (1,2) / hall_b (3,4); lamp 2 primary.",
+      build_hallway,
+      { { "intensity", 1, { 5 }, "each lamp, W/sr" },
+        { "albedo", 1, { 0.6 }, "albedo of every surface" },
+        { "lamp_y", 1, { 2.4 }, "lamp height, m" },
+        { "wall", 1, { 0.2 }, "wall/floor/ceiling thickness, m" } } },
+};
+#define NLEVELS ((int)(sizeof g_levels / sizeof g_levels[0]))
+
+/* ------------------------------------------------------------------------ */
+/* Lightmap UVs (optional): one square grid cell per quad                    */
+
+static void assign_uv1(void)
+{
+    int res = PI_("uv1_res"), pad = PI_("uv1_pad");
+    require(res >= 4 && pad >= 0, "uv1_res>=4, uv1_pad>=0");
+    long nq = 0;
+    for (int i = 0; i < S.nmesh; i++) nq += S.meshes[i].nv / 4;
+    int n = 1;
+    while ((long)n * n < nq) n++;
+    int s = (res - pad * (n + 1)) / n; /* cell side in whole texels */
+    if (s < 1)
+        die("level %s: %ld quads do not fit a %dx%d uv1 atlas with %d texel padding", g_level->name, nq, res, res,
+            pad);
+    long q = 0;
+    for (int i = 0; i < S.nmesh; i++) {
+        Mesh *m = &S.meshes[i];
+        m->uv = xrealloc(m->uv, (size_t)(m->nv > 0 ? m->nv : 1) * 2 * sizeof(float));
+        for (int f = 0; f < m->nv / 4; f++, q++) {
+            int col = (int)(q % n), row = (int)(q / n);
+            double u0 = (double)(pad + col * (s + pad)) / res, v0 = (double)(pad + row * (s + pad)) / res;
+            double u1 = u0 + (double)s / res, v1 = v0 + (double)s / res;
+            float *t = m->uv + 8 * f;
+            t[0] = (float)u0; t[1] = (float)v0;
+            t[2] = (float)u1; t[3] = (float)v0;
+            t[4] = (float)u1; t[5] = (float)v1;
+            t[6] = (float)u0; t[7] = (float)v1;
+        }
+    }
+}
+
+/* ------------------------------------------------------------------------ */
+/* glTF writer                                                               */
+
+typedef struct { char *s; size_t n, cap; } Buf;
+
+static void bprintf(Buf *b, const char *fmt, ...)
+{
+    for (;;) {
+        va_list ap;
+        va_start(ap, fmt);
+        size_t room = b->cap - b->n;
+        int k = vsnprintf(b->s ? b->s + b->n : NULL, room, fmt, ap);
+        va_end(ap);
+        if (k < 0) die("internal: formatting failed");
+        if ((size_t)k < room) { b->n += (size_t)k; return; }
+        b->cap = (b->cap + (size_t)k + 1) * 2;
+        b->s = xrealloc(b->s, b->cap);
+    }
+}
+
+static void bbytes(Buf *b, const void *p, size_t n)
+{
+    if (b->n + n > b->cap) {
+        b->cap = (b->n + n) * 2;
+        b->s = xrealloc(b->s, b->cap);
+    }
+    memcpy(b->s + b->n, p, n);
+    b->n += n;
+}
+
+/* Number in the shortest form that parses back to exactly v (so accessor
+ * min/max equal the stored float32 values, whether read as float or double). */
+static void bnum(Buf *b, double v)
+{
+    if (!isfinite(v)) die("internal: non-finite number in output");
+    if (v == 0.0) v = 0.0; /* no "-0" */
+    char tmp[40];
+    int p0 = fabs(v) >= 1.0 && fabs(v) < 1e15 ? (int)floor(log10(fabs(v))) + 1 : 1; /* no 1e+01 */
+    for (int prec = p0; prec <= 17; prec++) { /* shortest text that reads back exactly */
+        snprintf(tmp, sizeof tmp, "%.*g", prec, v);
+        if (strtod(tmp, NULL) == v) break;
+    }
+    bprintf(b, "%s", tmp);
+}
+
+static void bstr(Buf *b, const char *s)
+{
+    bprintf(b, "\"");
+    for (; *s; s++) {
+        unsigned char c = (unsigned char)*s;
+        if (c == '"' || c == '\\') bprintf(b, "\\%c", c);
+        else if (c < 0x20) bprintf(b, "\\u%04x", c);
+        else bprintf(b, "%c", c);
+    }
+    bprintf(b, "\"");
+}
+
+static void bvec(Buf *b, const double *v, int n)
+{
+    bprintf(b, "[");
+    for (int i = 0; i < n; i++) {
+        if (i) bprintf(b, ", ");
+        bnum(b, v[i]);
+    }
+    bprintf(b, "]");
+}
+
+typedef struct { size_t off, len; int target; } View;
+typedef struct { int view, ctype, count; const char *type; int has_mm; double mn[3], mx[3]; } Accessor;
+
+static void write_file(const char *path, const void *data, size_t n)
+{
+    FILE *f = fopen(path, "wb");
+    if (!f) die("%s: cannot open for writing: %s", path, strerror(errno));
+    if (n && fwrite(data, 1, n, f) != n) die("%s: write failed: %s", path, strerror(errno));
+    if (fclose(f) != 0) die("%s: write failed: %s", path, strerror(errno));
+}
+
+static void mkdir_p(const char *dir)
+{
+    char tmp[4096];
+    size_t n = strlen(dir);
+    if (n == 0 || n >= sizeof tmp) die("bad output directory '%s'", dir);
+    memcpy(tmp, dir, n + 1);
+    for (size_t i = 1; i <= n; i++) {
+        if (tmp[i] == '/' || tmp[i] == 0) {
+            char c = tmp[i];
+            tmp[i] = 0;
+            if (mkdir(tmp, 0777) != 0 && errno != EEXIST) die("%s: cannot create directory: %s", tmp, strerror(errno));
+            tmp[i] = c;
+        }
+    }
+    struct stat st;
+    if (stat(dir, &st) != 0 || !S_ISDIR(st.st_mode)) die("%s: not a directory", dir);
+}
+
+static void write_gltf(const char *dir, const char *base, const char *paramstr)
+{
+    Buf bin = { 0 }, js = { 0 };
+    int nview = 0, nacc = 0;
+    View *views = xrealloc(NULL, (size_t)(S.nmesh * 4 + 1) * sizeof *views);
+    Accessor *accs = xrealloc(NULL, (size_t)(S.nmesh * 4 + 1) * sizeof *accs);
+    int (*macc)[4] = xrealloc(NULL, (size_t)(S.nmesh + 1) * sizeof *macc); /* pos, nrm, uv, idx */
+
+    for (int i = 0; i < S.nmesh; i++) {
+        Mesh *m = &S.meshes[i];
+        if (m->nv == 0 || m->ni == 0) die("internal: empty mesh %s", m->name);
+        /* POSITION */
+        Accessor *a = &accs[nacc];
+        memset(a, 0, sizeof *a);
+        a->view = nview; a->ctype = 5126; a->count = m->nv; a->type = "VEC3"; a->has_mm = 1;
+        for (int c = 0; c < 3; c++) { a->mn[c] = INFINITY; a->mx[c] = -INFINITY; }
+        for (int v = 0; v < m->nv; v++)
+            for (int c = 0; c < 3; c++) {
+                double x = m->pos[3 * v + c];
+                if (x < a->mn[c]) a->mn[c] = x;
+                if (x > a->mx[c]) a->mx[c] = x;
+            }
+        views[nview].off = bin.n; views[nview].len = (size_t)m->nv * 12; views[nview].target = 34962;
+        bbytes(&bin, m->pos, views[nview].len);
+        macc[i][0] = nacc++; nview++;
+        /* NORMAL */
+        a = &accs[nacc];
+        memset(a, 0, sizeof *a);
+        a->view = nview; a->ctype = 5126; a->count = m->nv; a->type = "VEC3";
+        views[nview].off = bin.n; views[nview].len = (size_t)m->nv * 12; views[nview].target = 34962;
+        bbytes(&bin, m->nrm, views[nview].len);
+        macc[i][1] = nacc++; nview++;
+        /* TEXCOORD_1 (optional) */
+        macc[i][2] = -1;
+        if (m->uv) {
+            a = &accs[nacc];
+            memset(a, 0, sizeof *a);
+            a->view = nview; a->ctype = 5126; a->count = m->nv; a->type = "VEC2";
+            views[nview].off = bin.n; views[nview].len = (size_t)m->nv * 8; views[nview].target = 34962;
+            bbytes(&bin, m->uv, views[nview].len);
+            macc[i][2] = nacc++; nview++;
+        }
+        /* indices */
+        a = &accs[nacc];
+        memset(a, 0, sizeof *a);
+        a->view = nview; a->ctype = 5125; a->count = m->ni; a->type = "SCALAR";
+        views[nview].off = bin.n; views[nview].len = (size_t)m->ni * 4; views[nview].target = 34963;
+        bbytes(&bin, m->idx, views[nview].len);
+        macc[i][3] = nacc++; nview++;
+    }
+    if (bin.n % 4) die("internal: buffer not 4-byte aligned");
+
+    int any_emissive = 0;
+    for (int i = 0; i < S.nmat; i++) any_emissive |= S.mats[i].emis_strength > 0;
+
+    bprintf(&js, "{\n  \"asset\": {\"version\": \"2.0\", \"generator\": \"ubake-genlevel\", \"extras\": {\"genlevel_level\": ");
+    bstr(&js, g_level->name);
+    bprintf(&js, ", \"genlevel_params\": ");
+    bstr(&js, paramstr);
+    bprintf(&js, "}},\n");
+    if (S.nlight || any_emissive) {
+        bprintf(&js, "  \"extensionsUsed\": [");
+        int k = 0;
+        if (S.nlight) bprintf(&js, "%s\"KHR_lights_punctual\"", k++ ? ", " : "");
+        if (any_emissive) bprintf(&js, "%s\"KHR_materials_emissive_strength\"", k++ ? ", " : "");
+        bprintf(&js, "],\n");
+    }
+    if (S.nlight) {
+        bprintf(&js, "  \"extensions\": {\"KHR_lights_punctual\": {\"lights\": [\n");
+        for (int i = 0; i < S.nlight; i++) {
+            Light *l = &S.lights[i];
+            bprintf(&js, "    {\"name\": ");
+            bstr(&js, l->name);
+            bprintf(&js, ", \"type\": \"%s\", \"color\": ", l->type == LIGHT_POINT ? "point" : "directional");
+            bvec(&js, l->color, 3);
+            bprintf(&js, ", \"intensity\": ");
+            bnum(&js, l->intensity);
+            bprintf(&js, "}%s\n", i + 1 < S.nlight ? "," : "");
+        }
+        bprintf(&js, "  ]}},\n");
+    }
+    bprintf(&js, "  \"scene\": 0,\n  \"scenes\": [{\"name\": ");
+    bstr(&js, base);
+    bprintf(&js, ", \"nodes\": [");
+    for (int i = 0; i < S.nnode; i++) bprintf(&js, "%s%d", i ? ", " : "", i);
+    bprintf(&js, "]");
+    {
+        double ts = P("texel_size"), gs = P("glg_spacing");
+        int k = 0;
+        if (S.has_sky || ts > 0 || gs > 0) {
+            bprintf(&js, ", \"extras\": {");
+            if (S.has_sky) { bprintf(&js, "\"ubake_sky\": "); bvec(&js, S.sky, 3); k++; }
+            if (ts > 0) { bprintf(&js, "%s\"ubake_texel_size\": ", k++ ? ", " : ""); bnum(&js, ts); }
+            if (gs > 0) { bprintf(&js, "%s\"ubake_glg_spacing\": ", k++ ? ", " : ""); bnum(&js, gs); }
+            bprintf(&js, "}");
+        }
+    }
+    bprintf(&js, "}],\n  \"nodes\": [\n");
+    for (int i = 0; i < S.nnode; i++) {
+        Node *n = &S.nodes[i];
+        bprintf(&js, "    {\"name\": ");
+        bstr(&js, n->name);
+        if (n->mesh >= 0) bprintf(&js, ", \"mesh\": %d", n->mesh);
+        if (n->has_t) { bprintf(&js, ", \"translation\": "); bvec(&js, n->t, 3); }
+        if (n->has_r) { bprintf(&js, ", \"rotation\": "); bvec(&js, n->r, 4); }
+        if (n->light >= 0)
+            bprintf(&js, ", \"extensions\": {\"KHR_lights_punctual\": {\"light\": %d}}", n->light);
+        if (n->nex) {
+            bprintf(&js, ", \"extras\": {");
+            for (int k = 0; k < n->nex; k++) {
+                if (k) bprintf(&js, ", ");
+                bstr(&js, n->ex[k].key);
+                bprintf(&js, ": ");
+                bstr(&js, n->ex[k].val);
+            }
+            bprintf(&js, "}");
+        }
+        bprintf(&js, "}%s\n", i + 1 < S.nnode ? "," : "");
+    }
+    bprintf(&js, "  ],\n  \"meshes\": [\n");
+    for (int i = 0; i < S.nmesh; i++) {
+        bprintf(&js, "    {\"name\": ");
+        bstr(&js, S.meshes[i].name);
+        bprintf(&js, ", \"primitives\": [{\"attributes\": {\"POSITION\": %d, \"NORMAL\": %d", macc[i][0], macc[i][1]);
+        if (macc[i][2] >= 0)
+            bprintf(&js, ", \"TEXCOORD_0\": %d, \"TEXCOORD_1\": %d", macc[i][2], macc[i][2]);
+        bprintf(&js, "}, \"indices\": %d, \"material\": %d, \"mode\": 4}]}%s\n", macc[i][3], S.meshes[i].mat,
+                i + 1 < S.nmesh ? "," : "");
+    }
+    bprintf(&js, "  ],\n  \"materials\": [\n");
+    for (int i = 0; i < S.nmat; i++) {
+        Material *m = &S.mats[i];
+        double bc[4] = { m->base[0], m->base[1], m->base[2], 1.0 };
+        bprintf(&js, "    {\"name\": ");
+        bstr(&js, m->name);
+        bprintf(&js, ", \"pbrMetallicRoughness\": {\"baseColorFactor\": ");
+        bvec(&js, bc, 4);
+        bprintf(&js, ", \"metallicFactor\": 0, \"roughnessFactor\": 1}");
+        if (m->emis_strength > 0) {
+            bprintf(&js, ", \"emissiveFactor\": ");
+            bvec(&js, m->emis_color, 3);
+            bprintf(&js, ", \"extensions\": {\"KHR_materials_emissive_strength\": {\"emissiveStrength\": ");
+            bnum(&js, m->emis_strength);
+            bprintf(&js, "}}");
+        }
+        bprintf(&js, ", \"doubleSided\": false}%s\n", i + 1 < S.nmat ? "," : "");
+    }
+    bprintf(&js, "  ],\n  \"accessors\": [\n");
+    for (int i = 0; i < nacc; i++) {
+        Accessor *a = &accs[i];
+        bprintf(&js, "    {\"bufferView\": %d, \"byteOffset\": 0, \"componentType\": %d, \"count\": %d, \"type\": \"%s\"",
+                a->view, a->ctype, a->count, a->type);
+        if (a->has_mm) {
+            bprintf(&js, ", \"min\": ");
+            bvec(&js, a->mn, 3);
+            bprintf(&js, ", \"max\": ");
+            bvec(&js, a->mx, 3);
+        }
+        bprintf(&js, "}%s\n", i + 1 < nacc ? "," : "");
+    }
+    bprintf(&js, "  ],\n  \"bufferViews\": [\n");
+    for (int i = 0; i < nview; i++)
+        bprintf(&js, "    {\"buffer\": 0, \"byteOffset\": %zu, \"byteLength\": %zu, \"target\": %d}%s\n", views[i].off,
+                views[i].len, views[i].target, i + 1 < nview ? "," : "");
+    bprintf(&js, "  ],\n  \"buffers\": [{\"byteLength\": %zu, \"uri\": ", bin.n);
+    {
+        char uri[512];
+        snprintf(uri, sizeof uri, "%s.bin", base);
+        bstr(&js, uri);
+    }
+    bprintf(&js, "}]\n}\n");
+
+    char path[4608];
+    mkdir_p(dir);
+    snprintf(path, sizeof path, "%s/%s.bin", dir, base);
+    write_file(path, bin.s, bin.n);
+    snprintf(path, sizeof path, "%s/%s.gltf", dir, base);
+    write_file(path, js.s, js.n);
+
+    free(bin.s); free(js.s); free(views); free(accs); free(macc);
+}
+
+/* ------------------------------------------------------------------------ */
+/* Driver                                                                    */
+
+static const LevelDef *find_level(const char *name)
+{
+    for (int i = 0; i < NLEVELS; i++)
+        if (!strcmp(g_levels[i].name, name)) return &g_levels[i];
+    return NULL;
+}
+
+static void print_params(FILE *f, const LevelDef *L, int with_common)
+{
+    int n = level_nparams(L) + (with_common ? NCOMMON : 0);
+    for (int i = 0; i < n; i++) {
+        const ParamDef *d = param_def(L, i);
+        char def[96];
+        if (d->n == 3) snprintf(def, sizeof def, "%g,%g,%g", d->def[0], d->def[1], d->def[2]);
+        else snprintf(def, sizeof def, "%g", d->def[0]);
+        fprintf(f, "      %-14s = %-13s %s\n", d->key, def, d->help);
+    }
+}
+
+static void usage(FILE *f)
+{
+    fprintf(f,
+            "usage: %s --all -o DIR                  write every level as DIR/NAME.gltf + DIR/NAME.bin\n"
+            "       %s NAME -o DIR [--param k=v ...] [--name BASE]\n"
+            "                                           one level (output DIR/BASE.gltf, BASE defaults to NAME)\n"
+            "       %s --list                        level names\n"
+            "       %s [NAME] --help                 this text (or one level's parameters)\n"
+            "levels:\n",
+            g_prog, g_prog, g_prog, g_prog);
+    for (int i = 0; i < NLEVELS; i++) {
+        fprintf(f, "  %s: %s\n", g_levels[i].name, g_levels[i].purpose);
+        print_params(f, &g_levels[i], 0);
+    }
+    fprintf(f, "parameters accepted by every level:\n");
+    for (int i = 0; i < NCOMMON; i++) {
+        const ParamDef *d = &common_params[i];
+        fprintf(f, "      %-14s = %-13g %s\n", d->key, d->def[0], d->help);
+    }
+}
+
+static void generate(const LevelDef *L, const char *dir, const char *base, const char *paramstr)
+{
+    g_level = L;
+    scene_reset();
+    L->build();
+    if (PI_("uv1")) assign_uv1();
+    write_gltf(dir, base, paramstr);
+    scene_reset();
+}
+
+int main(int argc, char **argv)
+{
+    const char *outdir = NULL, *name = NULL, *base = NULL;
+    int all = 0, help = 0, list = 0;
+    const char **kvs = xrealloc(NULL, (size_t)argc * sizeof *kvs);
+    int nkv = 0;
+
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i];
+        if (!strcmp(a, "--all")) all = 1;
+        else if (!strcmp(a, "--help") || !strcmp(a, "-h")) help = 1;
+        else if (!strcmp(a, "--list")) list = 1;
+        else if (!strcmp(a, "-o") || !strcmp(a, "--out")) {
+            if (++i >= argc) die("%s needs a directory", a);
+            outdir = argv[i];
+        } else if (!strcmp(a, "--param") || !strcmp(a, "-p")) {
+            if (++i >= argc) die("%s needs key=value", a);
+            kvs[nkv++] = argv[i];
+        } else if (!strncmp(a, "--param=", 8)) kvs[nkv++] = a + 8;
+        else if (!strcmp(a, "--name")) {
+            if (++i >= argc) die("--name needs a base name");
+            base = argv[i];
+        } else if (a[0] == '-') die("unknown option '%s' (try --help)", a);
+        else if (strchr(a, '=')) kvs[nkv++] = a;
+        else if (!name) name = a;
+        else die("more than one level name given ('%s' and '%s')", name, a);
+    }
+
+    if (help) {
+        if (name) {
+            const LevelDef *L = find_level(name);
+            if (!L) die("unknown level '%s' (try --list)", name);
+            printf("%s: %s\n  parameters (--param key=value):\n", L->name, L->purpose);
+            print_params(stdout, L, 1);
+        } else usage(stdout);
+        free(kvs);
+        return 0;
+    }
+    if (list) {
+        for (int i = 0; i < NLEVELS; i++) printf("%s\n", g_levels[i].name);
+        free(kvs);
+        return 0;
+    }
+    if (!outdir) die("missing -o DIR (try --help)");
+    if (all) {
+        if (name || nkv || base) die("--all takes no level name, --param or --name");
+        for (int i = 0; i < NLEVELS; i++) {
+            params_defaults(&g_levels[i]);
+            generate(&g_levels[i], outdir, g_levels[i].name, "");
+        }
+        free(kvs);
+        return 0;
+    }
+    if (!name) die("missing level name or --all (try --help)");
+    const LevelDef *L = find_level(name);
+    if (!L) die("unknown level '%s' (try --list)", name);
+    if (base && (!*base || strchr(base, '/'))) die("bad --name '%s'", base);
+    params_defaults(L);
+    Buf ps = { 0 };
+    bprintf(&ps, "%s", "");
+    for (int i = 0; i < nkv; i++) {
+        params_set(L, kvs[i]);
+        bprintf(&ps, "%s%s", i ? " " : "", kvs[i]);
+    }
+    generate(L, outdir, base ? base : L->name, ps.s);
+    free(ps.s);
+    free(kvs);
+    return 0;
+}
