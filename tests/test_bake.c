@@ -1,0 +1,278 @@
+/* End-to-end bake tests: closed forms (furnace, point over plane, sky over plane),
+ * bake vs the reference path tracer on cornell, determinism across thread counts.
+ * Levels come from the generator (UB_BUILD/levels). On failure each case prints the
+ * measured numbers; the baked outputs stay in UB_BUILD/test_bake/ for inspection. */
+#include <math.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include "bake/lights.h"
+#include "bake/reference.h"
+#include "bake/rt.h"
+#include "test_util.h"
+#include "ubake/bake.h"
+#include "ubake/bakefile.h"
+#include "ubake/runtime.h"
+#include "ubake/scene.h"
+
+static char g_build[512];
+
+static void level_path(const char *name, char *out, size_t cap)
+{
+  snprintf(out, cap, "%s/levels/%s.gltf", g_build, name);
+}
+
+static ub_runtime *bake(const char *level, const char *tag, ub_quality q, int bounces,
+                        int threads, float texel, char *out_ubk, size_t cap)
+{
+  char path[1024], dir[1024];
+  level_path(level, path, sizeof path);
+  snprintf(dir, sizeof dir, "%s/test_bake/%s", g_build, tag);
+  ub_bake_options o;
+  ub_bake_options_default(&o);
+  o.quality = q;
+  o.bounces = bounces;
+  o.threads = threads;
+  o.out_dir = dir;
+  o.texel_size = texel;
+  ub_bake_stats st;
+  ub_result r = ub_bake_level(path, &o, NULL, &st);
+  if (r != UB_OK) {
+    fprintf(stderr, "bake %s failed: %s\n", path, ub_result_string(r));
+    return NULL;
+  }
+  printf("  baked %-12s %-14s %7u texels %2u bounces %.2f s\n", level, tag, st.texels,
+         st.bounces, st.total_seconds);
+  if (out_ubk)
+    snprintf(out_ubk, cap, "%s", st.ubk_path);
+  ub_runtime *rt = NULL;
+  if (ub_runtime_load(st.ubk_path, NULL, &rt) != UB_OK) {
+    fprintf(stderr, "cannot load %s\n", st.ubk_path);
+    return NULL;
+  }
+  return rt;
+}
+
+/* Irradiance along the normal at every covered texel of every atlas: mean and worst. */
+static void texel_stats(const ub_runtime *rt, double *out_mean, double *out_p95_dev,
+                        double expect)
+{
+  const ub_bakefile *bf = ub_runtime_bakefile(rt);
+  double sum = 0.0;
+  size_t n = 0, cap = 0;
+  double *dev = NULL;
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    for (uint32_t y = 0; y < at->height; y++)
+      for (uint32_t x = 0; x < at->width; x++) {
+        size_t px = (size_t)y * at->width + x;
+        if (at->coverage[px] != 1)
+          continue;
+        float rgb[3];
+        ub_runtime_texel_irradiance(rt, a, x, y, at->normal + 3 * px, rgb);
+        sum += rgb[1];
+        if (n == cap) {
+          cap = cap ? 2 * cap : 1024;
+          dev = realloc(dev, cap * sizeof *dev);
+        }
+        dev[n++] = fabs(rgb[1] - expect) / expect;
+      }
+  }
+  *out_mean = n ? sum / n : 0.0;
+  /* 95th percentile of the relative deviation (partial selection by sorting). */
+  for (size_t i = 1; i < n; i++) {
+    double v = dev[i];
+    size_t j = i;
+    while (j > 0 && dev[j - 1] > v) {
+      dev[j] = dev[j - 1];
+      j--;
+    }
+    dev[j] = v;
+  }
+  *out_p95_dev = n ? dev[(size_t)(0.95 * (n - 1))] : 1e9;
+  free(dev);
+}
+
+static void test_furnace(void)
+{
+  /* Closed cube, uniform emission Le = 1 and albedo rho = 0.5 (generator defaults):
+   * E = π Le Σ_{k≤N} ρ^k at every point of every wall. */
+  const double Le = 1.0, rho = 0.5;
+  const int Ns[] = {0, 1, 3};
+  for (int i = 0; i < 3; i++) {
+    char tag[32];
+    snprintf(tag, sizeof tag, "furnace_b%d", Ns[i]);
+    ub_runtime *rt = bake("furnace", tag, UB_QUALITY_FAST, Ns[i], 0, 0.0f, NULL, 0);
+    ASSERT_TRUE(rt != NULL);
+    if (!rt)
+      continue;
+    double expect = 0.0;
+    for (int k = 0; k <= Ns[i]; k++)
+      expect += M_PI * Le * pow(rho, k);
+    double mean, p95;
+    texel_stats(rt, &mean, &p95, expect);
+    printf("furnace N=%d: mean E = %.5f, closed form %.5f (%.3f%%), p95 texel deviation %.2f%%\n",
+           Ns[i], mean, expect, 100 * (mean - expect) / expect, 100 * p95);
+    ASSERT_NEAR(mean, expect, 0.0, 0.01);
+    ASSERT_TRUE(p95 < 0.05);
+    ub_runtime_free(rt);
+  }
+}
+
+static void test_plane_point(void)
+{
+  /* Point light I = 10 W/sr at height h = 1 over an albedo-0 plane: E = I h/(h²+r²)^{3/2}. */
+  const double I = 10.0, h = 1.0;
+  ub_runtime *rt = bake("plane_point", "plane_point", UB_QUALITY_FAST, -1, 0, 0.05f, NULL, 0);
+  ASSERT_TRUE(rt != NULL);
+  if (!rt)
+    return;
+  const float rs[] = {0.0f, 0.3f, 0.7f, 1.0f, 2.0f, 4.0f, 7.0f};
+  const float az[] = {0.0f, 1.1f, 2.3f, 3.7f, 4.4f, 5.5f, 0.6f};
+  for (int i = 0; i < 7; i++) {
+    float p[3] = {rs[i] * cosf(az[i]) + 0.013f, 0.0f, rs[i] * sinf(az[i]) + 0.007f};
+    float r2 = p[0] * p[0] + p[2] * p[2];
+    float n[3] = {0, 1, 0}, rgb[3], dist;
+    ASSERT_OK(ub_runtime_query_lightmap(rt, p, n, rgb, &dist));
+    double expect = I * h / pow(h * h + r2, 1.5);
+    printf("plane_point r=%.2f (%.1f deg): E = %.5f, closed form %.5f (%.3f%%)\n", sqrt(r2),
+           atan(sqrt(r2) / h) * 180 / M_PI, rgb[1], expect, 100 * (rgb[1] - expect) / expect);
+    ASSERT_NEAR(rgb[1], expect, 0.0, 0.01);
+  }
+  ub_runtime_free(rt);
+}
+
+static void test_sky_plane(void)
+{
+  ub_runtime *rt = bake("sky_plane", "sky_plane", UB_QUALITY_FAST, -1, 0, 0.5f, NULL, 0);
+  ASSERT_TRUE(rt != NULL);
+  if (!rt)
+    return;
+  const float sky[3] = {0.5f, 0.7f, 1.0f};
+  for (int i = 0; i < 5; i++) {
+    float p[3] = {-6.0f + 3.0f * i + 0.11f, 0.0f, 2.0f - 1.3f * i}, n[3] = {0, 1, 0}, rgb[3], d;
+    ASSERT_OK(ub_runtime_query_lightmap(rt, p, n, rgb, &d));
+    for (int c = 0; c < 3; c++)
+      ASSERT_NEAR(rgb[c], M_PI * sky[c], 0.0, 0.01);
+    if (i == 0)
+      printf("sky_plane: E = %.5f %.5f %.5f, closed form %.5f %.5f %.5f\n", rgb[0], rgb[1],
+             rgb[2], M_PI * sky[0], M_PI * sky[1], M_PI * sky[2]);
+  }
+  ub_runtime_free(rt);
+}
+
+static void test_cornell_vs_reference(void)
+{
+  ub_runtime *rt = bake("cornell", "cornell", UB_QUALITY_HIGH, -1, 0, 0.1f, NULL, 0);
+  ASSERT_TRUE(rt != NULL);
+  if (!rt)
+    return;
+  char path[1024];
+  level_path("cornell", path, sizeof path);
+  ub_scene *scene = NULL;
+  ub_rt *trace = NULL;
+  ub_emitters *em = NULL;
+  ASSERT_OK(ub_scene_load(path, NULL, &scene));
+  ASSERT_OK(ub_rt_create(scene, NULL, NULL, &trace));
+  ASSERT_OK(ub_emitters_build(scene, &em));
+  /* Points on the walls and ceiling of the 2 m box (x,z in [-1,1], y in [0,2]), away from
+   * edges and from the two inner boxes. */
+  struct { float p[3], n[3]; } pts[24];
+  int np = 0;
+  for (int i = 0; i < 4; i++)
+    for (int j = 0; j < 2; j++) {
+      float y = 0.35f + 0.4f * i, z = -0.5f + 1.0f * j;
+      pts[np++] = (typeof(pts[0])){{-1.0f, y, z}, {1, 0, 0}};
+      pts[np++] = (typeof(pts[0])){{1.0f, y, z}, {-1, 0, 0}};
+      pts[np++] = (typeof(pts[0])){{-0.5f + 1.0f * j, y, -1.0f}, {0, 0, 1}};
+    }
+  int fails = 0;
+  double worst = 0.0;
+  for (int i = 0; i < np; i++) {
+    float rgb[3], d, ref[3], se[3];
+    ASSERT_OK(ub_runtime_query_lightmap(rt, pts[i].p, pts[i].n, rgb, &d));
+    ub_reference_params rp;
+    ub_reference_params_init(&rp);
+    memcpy(rp.position, pts[i].p, sizeof rp.position);
+    memcpy(rp.normal, pts[i].n, sizeof rp.normal);
+    rp.spp = 8192;
+    rp.seed = 1234 + i;
+    ASSERT_OK(ub_reference_irradiance(scene, trace, em, &rp, ref, se, NULL));
+    for (int c = 0; c < 3; c++) {
+      double tol = 3.0 * se[c] + 0.03 * ref[c];
+      double err = fabs(rgb[c] - ref[c]);
+      double rel = ref[c] > 0 ? err / ref[c] : 0;
+      if (rel > worst)
+        worst = rel;
+      if (!(err <= tol)) {
+        fprintf(stderr, "cornell point %d (%.2f %.2f %.2f) ch %d: bake %.5f ref %.5f ± %.5f\n",
+                i, pts[i].p[0], pts[i].p[1], pts[i].p[2], c, rgb[c], ref[c], se[c]);
+        fails++;
+      }
+    }
+  }
+  printf("cornell: %d points x 3 channels vs reference, worst relative difference %.2f%%, %d "
+         "outside 3 s.e. + 3%%\n",
+         np, 100 * worst, fails);
+  ASSERT_TRUE(np >= 20);
+  ASSERT_TRUE(fails == 0);
+  ub_emitters_free(em);
+  ub_rt_free(trace);
+  ub_scene_free(scene);
+  ub_runtime_free(rt);
+}
+
+static int read_all(const char *path, unsigned char **out, size_t *out_n)
+{
+  FILE *f = fopen(path, "rb");
+  if (!f)
+    return 0;
+  fseek(f, 0, SEEK_END);
+  long n = ftell(f);
+  fseek(f, 0, SEEK_SET);
+  *out = malloc(n > 0 ? (size_t)n : 1);
+  *out_n = fread(*out, 1, (size_t)n, f);
+  fclose(f);
+  return *out_n == (size_t)n;
+}
+
+static void test_determinism(void)
+{
+  char a[1024], b[1024];
+  ub_runtime *r1 = bake("cornell", "det_t1", UB_QUALITY_DRAFT, 2, 1, 0.0f, a, sizeof a);
+  ub_runtime *r2 = bake("cornell", "det_t2", UB_QUALITY_DRAFT, 2, 2, 0.0f, b, sizeof b);
+  ASSERT_TRUE(r1 && r2);
+  unsigned char *da = NULL, *db = NULL;
+  size_t na = 0, nb = 0;
+  ASSERT_TRUE(read_all(a, &da, &na));
+  ASSERT_TRUE(read_all(b, &db, &nb));
+  int same = na == nb && na > 0 && memcmp(da, db, na) == 0;
+  printf("determinism: --threads 1 vs 2: %zu vs %zu bytes, %s\n", na, nb,
+         same ? "identical" : "DIFFERENT");
+  ASSERT_TRUE(same);
+  free(da);
+  free(db);
+  ub_runtime_free(r1);
+  ub_runtime_free(r2);
+}
+
+int main(int argc, char **argv)
+{
+  const char *b = getenv("UB_BUILD");
+  snprintf(g_build, sizeof g_build, "%s", b ? b : "build");
+  const char *only = argc > 1 ? argv[1] : NULL;
+  if (!only || !strcmp(only, "furnace"))
+    test_furnace();
+  if (!only || !strcmp(only, "plane_point"))
+    test_plane_point();
+  if (!only || !strcmp(only, "sky_plane"))
+    test_sky_plane();
+  if (!only || !strcmp(only, "cornell"))
+    test_cornell_vs_reference();
+  if (!only || !strcmp(only, "determinism"))
+    test_determinism();
+  TEST_MAIN_END();
+}
