@@ -225,6 +225,43 @@ static void test_cornell_vs_reference(void)
   ub_runtime_free(rt);
 }
 
+
+static void test_two_rooms_leak(void)
+{
+  /* Shared wall x in [-0.025, 0.025]; light in room A (x < 0). Dark-room (B) texels within
+   * one texel of the wall must stay below 1% of the mirrored lit-side texels. */
+  const float texel = 0.1f;
+  ub_runtime *rt = bake("two_rooms", "two_rooms", UB_QUALITY_FAST, -1, 0, texel, NULL, 0);
+  ASSERT_TRUE(rt != NULL);
+  if (!rt)
+    return;
+  struct { float p[3], n[3]; } pts[] = {
+      {{0.025f + 0.5f * texel, 0.0f, 0.3f}, {0, 1, 0}},   /* floor at the wall */
+      {{0.025f + 0.5f * texel, 3.0f, -0.7f}, {0, -1, 0}}, /* ceiling at the wall */
+      {{0.025f, 0.02f, 1.1f}, {1, 0, 0}},                 /* wall face at the floor */
+      {{0.025f, 1.5f, 0.0f}, {1, 0, 0}},                  /* wall face, middle */
+      {{0.025f, 2.98f, -1.2f}, {1, 0, 0}},                /* wall face at the ceiling */
+  };
+  double worst = 0.0;
+  for (size_t i = 0; i < sizeof pts / sizeof pts[0]; i++) {
+    float b[3], a[3], d;
+    float pa[3] = {-pts[i].p[0], pts[i].p[1], pts[i].p[2]};
+    float na[3] = {-pts[i].n[0], pts[i].n[1], pts[i].n[2]};
+    ASSERT_OK(ub_runtime_query_lightmap(rt, pts[i].p, pts[i].n, b, &d));
+    ASSERT_OK(ub_runtime_query_lightmap(rt, pa, na, a, &d));
+    double ratio = a[1] > 0 ? b[1] / a[1] : 1.0;
+    if (ratio > worst)
+      worst = ratio;
+    if (!(ratio < 0.01))
+      fprintf(stderr, "two_rooms leak at (%.3f %.3f %.3f): dark %.5g lit %.5g\n", pts[i].p[0],
+              pts[i].p[1], pts[i].p[2], b[1], a[1]);
+    ASSERT_TRUE(a[1] > 0.0f);
+    ASSERT_TRUE(ratio < 0.01);
+  }
+  printf("two_rooms: worst dark/lit ratio next to the 5 cm wall = %.2e\n", worst);
+  ub_runtime_free(rt);
+}
+
 static int read_all(const char *path, unsigned char **out, size_t *out_n)
 {
   FILE *f = fopen(path, "rb");
@@ -272,6 +309,8 @@ int main(int argc, char **argv)
     test_sky_plane();
   if (!only || !strcmp(only, "cornell"))
     test_cornell_vs_reference();
+  if (!only || !strcmp(only, "two_rooms"))
+    test_two_rooms_leak();
   if (!only || !strcmp(only, "determinism"))
     test_determinism();
   TEST_MAIN_END();
