@@ -32,7 +32,9 @@ test-sanitize: deps
 	cd build-asan && ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 ctest --output-on-failure -j $(JOBS) --timeout 1800
 
 bench: build
-	@for b in $(BUILD)/bench_*; do echo "== $$b"; $$b || exit 1; done
+	@for b in $(BUILD)/bench_*; do echo "== $$b"; UB_BUILD=$(BUILD) $$b || exit 1; done
+	@echo "== bench_bake on the shipped real levels"
+	UB_BUILD=$(BUILD) $(BUILD)/bench_bake $(SHARED_LEVELS)/oa_dm4/oa_dm4.gltf $(SHARED_LEVELS)/q3dm6ish/q3dm6ish.gltf
 
 FUZZ_SECONDS ?= 60
 fuzz: deps

@@ -1,6 +1,7 @@
 /* Light evaluation, emissive-triangle sampling and hash-based random numbers. */
 #include "bake/lights.h"
 
+#include <assert.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -151,6 +152,7 @@ void ub_emitters_sample(const ub_emitters *em, const ub_scene *scene, float u0, 
                         float *out_pdf_area)
 {
   /* Binary search the CDF. */
+  assert(em->count > 0);
   uint32_t lo = 0, hi = em->count - 1;
   while (lo < hi) {
     uint32_t mid = (lo + hi) / 2;
