@@ -144,8 +144,9 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
 
   /* receivers */
   stage_begin(&sc, "receivers");
-  float texel = opt->texel_size > 0.0f ? opt->texel_size : 0.0f;
-  r = ub_lightmap_build(scene, rt, texel > 0.0f ? texel : scene->texel_size, log, &lm);
+  if (opt->texel_size > 0.0f)
+    scene->texel_size = opt->texel_size; /* the command line overrides the level default */
+  r = ub_lightmap_build(scene, rt, scene->texel_size, log, &lm);
   if (r != UB_OK)
     goto fail;
   stats.atlases = lm->atlas_count;

@@ -139,6 +139,7 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
              "\"pass_seconds\": %.4f, \"rays_per_second\": %.0f},\n",
           (unsigned long long)st->rays_total, (unsigned long long)st->rays_gather,
           (unsigned long long)st->rays_shadow, st->gather_seconds, rps);
+  fprintf(f, "  \"escaped_gather_rays\": %llu,\n", (unsigned long long)base->misses);
   fprintf(f, "  \"clamped_values\": %llu,\n  \"backface_hits\": %llu,\n  \"unlit_hits\": %llu,\n",
           (unsigned long long)st->clamped_values, (unsigned long long)st->backface_hits,
           (unsigned long long)st->unlit_hits);

@@ -30,7 +30,7 @@ typedef struct pass_ctx {
   double *acc_iz;             /* texel × 3, this bounce (stored result) */
   double *acc_src;            /* texel × 3, bounce 0 only: irradiance incl. primary lights */
   uint32_t bounce;
-  _Atomic uint64_t rays_gather, rays_shadow, clamped, backface, unlit;
+  _Atomic uint64_t rays_gather, rays_shadow, clamped, backface, unlit, misses;
   _Atomic uint32_t blocks_done;
   _Atomic int cancelled;
 } pass_ctx;
@@ -307,7 +307,7 @@ static void gather_block(pass_ctx *c, uint32_t t0, uint32_t nt)
   for (size_t j = 0; j < n; j++)
     bucket[order[j]] = (uint32_t)j;
 
-  uint64_t backface = 0, unlit = 0, clamped = 0;
+  uint64_t backface = 0, unlit = 0, clamped = 0, misses = 0;
   uint32_t ne = (d->emissive && d->emitters) ? d->emitters->count : 0;
   for (uint32_t i = 0; i < nt; i++) {
     uint32_t t = t0 + i;
@@ -324,6 +324,7 @@ static void gather_block(pass_ctx *c, uint32_t t0, uint32_t nt)
         continue;
       double wt = M_PI / N;
       if (h->tri == UB_RT_MISS) {
+        misses++;
         if (c->bounce == 0 && d->sky)
           memcpy(L, s->sky, sizeof L);
         else
@@ -395,6 +396,7 @@ static void gather_block(pass_ctx *c, uint32_t t0, uint32_t nt)
   atomic_fetch_add(&c->backface, backface);
   atomic_fetch_add(&c->unlit, unlit);
   atomic_fetch_add(&c->clamped, clamped);
+  atomic_fetch_add(&c->misses, misses);
   free(rays);
   free(sorted);
   free(hits);
@@ -425,6 +427,18 @@ static void build_images(pass_ctx *c, const double *iz)
       ub_lightmap_dilate(img, cov, at->width, at->height, 4, 2);
     free(cov);
   }
+}
+
+/* Radiosity the next bounce could read: Σ albedo·E over texels (luminance). Zero means
+ * another bounce cannot add anything (black level or no light). */
+static double outgoing_energy(const pass_ctx *c, const double *iz)
+{
+  double e = 0.0;
+  for (uint32_t t = 0; t < c->lm->texel_count; t++) {
+    const float *a = c->s->materials[c->s->tri_material[c->lm->texel_tri[t]]].albedo;
+    e += a[0] * iz[3 * (size_t)t] + a[1] * iz[3 * (size_t)t + 1] + a[2] * iz[3 * (size_t)t + 2];
+  }
+  return e;
 }
 
 static double energy_of(const double *iz, uint32_t count)
@@ -522,7 +536,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     goto done;
   }
   double total_energy = energy_of(c.acc_iz, T);
-  double src_energy = energy_of(c.acc_src, T);
+  double src_energy = outgoing_energy(&c, c.acc_src);
   out->bounce_energy[0] = total_energy;
   for (size_t i = 0; i < (size_t)T * 12; i++)
     sh_total[i] = c.acc_sh[i];
@@ -558,6 +572,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     for (size_t i = 0; i < (size_t)T * 3; i++)
       iz_total[i] += c.acc_iz[i];
     total_energy += e;
+    src_energy = outgoing_energy(&c, c.acc_iz);
     ub_log_printf(log, UB_LOG_INFO, "  bounce %u: +%.3f%% energy", b,
                   total_energy > 0 ? 100.0 * e / total_energy : 0.0);
     if (d->bounces < 0 && e <= d->stop_fraction * total_energy) {
@@ -613,6 +628,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   out->clamped = atomic_load(&c.clamped) + clamped;
   out->backface_hits = atomic_load(&c.backface);
   out->unlit_hits = atomic_load(&c.unlit);
+  out->misses = atomic_load(&c.misses);
 
 done:
   if (res != UB_OK)

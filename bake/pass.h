@@ -53,6 +53,7 @@ typedef struct ub_pass_result {
   double bounce_energy[UB_BAKE_MAX_BOUNCES + 1];
   uint64_t rays_gather, rays_shadow;
   uint64_t clamped, backface_hits, unlit_hits;
+  uint64_t misses;               /* gather rays that left the level */
   double gather_seconds;
 } ub_pass_result;
 

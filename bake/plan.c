@@ -94,7 +94,7 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
   }
   if (opt->gather_rays)
     out->gather_rays = opt->gather_rays;
-  if (!out->emissive)
+  if (!out->emissive || getenv("UB_DEBUG_NOEM"))
     out->emissive_samples = 0;
   out->pass_count = 1;
   double T = lm->texel_count;

@@ -92,7 +92,6 @@ typedef struct progress_state {
   int enabled;
   double t0;
   char last_stage[32];
-  int last_decile;
 } progress_state;
 
 static double now_s(void)
@@ -121,14 +120,10 @@ static int on_progress(void *user, const char *stage, double sf, double tf)
     else
       fprintf(stderr, "\r\033[K%-10s [%s] %3.0f%%", stage, bar, 100 * sf);
     p->log->progress_line_open = 1;
-  } else {
-    int dec = (int)(sf * 4);
-    if (strcmp(stage, p->last_stage) != 0 || dec != p->last_decile) {
-      snprintf(p->last_stage, sizeof p->last_stage, "%s", stage);
-      p->last_decile = dec;
-      fprintf(stderr, "progress: %s %3.0f%% (total %3.0f%%, %.1f s)\n", stage, 100 * sf,
-              100 * tf, el);
-    }
+  } else if (strcmp(stage, p->last_stage) != 0) {
+    /* Plain lines: one per stage, when it starts. */
+    snprintf(p->last_stage, sizeof p->last_stage, "%s", stage);
+    fprintf(stderr, "progress: %-10s (total %3.0f%%, %.1f s)\n", stage, 100 * tf, el);
   }
   return 0;
 }
@@ -221,7 +216,7 @@ static int cmd_bake(int argc, char **argv)
     return usage_error("bake", "no output folder given (-o DIR)");
   cli_log_state ls = {0, 0, 0};
   ub_log log = {cli_log, &ls};
-  progress_state ps = {&ls, isatty(2), progress, now_s(), "", -1};
+  progress_state ps = {&ls, isatty(2), progress, now_s(), ""};
   opt.progress = on_progress;
   opt.progress_user = &ps;
   printf("ubake bake %s (quality %s, seed %u)\n", level, ub_quality_name(opt.quality), opt.seed);
