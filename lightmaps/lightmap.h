@@ -45,6 +45,10 @@ typedef struct ub_lightmap {
                                already off back faces; unused slots repeat earlier ones */
   uint32_t backface_fixes;  /* sample points moved off a back face */
   uint32_t overlap_texels;  /* texels claimed by triangles of different planes (warned) */
+
+  /* Added by the lightmaps module: generated charts (for tests and debug views). */
+  uint32_t chart_count;
+  int32_t *tri_chart;       /* triangle_count: generated chart index, -1 = authored/none */
 } ub_lightmap;
 
 /* default_texel_size: metres per texel where neither node nor level says (e.g. 0.25). */

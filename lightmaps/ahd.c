@@ -1,0 +1,168 @@
+/* lightmaps/ahd.c — SH L1 projection/irradiance and the ambient/highlight/direction
+ * encoding (Sloan & Silvennoinen 2018). Run-time library: pure math, no scene, no Embree.
+ *
+ * The L1 irradiance of one channel is linear in the normal: E(n') = a + b·n', with
+ * a = π·Y00·L00 (the mean over the sphere) and b = (2π/3)·0.488603·(L11, L1-1, L10).
+ * AHD replaces it by C_a + C_d·max(0, d·n'), d the luminance-weighted direction of b.
+ * The irradiance along the surface normal, I_z = E_SH(n), must stay exact, so
+ * C_a = I_z − C_d·dz (dz = d·n) and one unknown is left: C_d is the least-squares fit of
+ * E over the sphere under that constraint. With g(n') = max(0, d·n') − dz and t = d·n'
+ * uniform on [-1, 1] (<1> = 1, <t> = 0, <t²> = 1/3, <max(0,t)> = 1/4, <t·max(0,t)> =
+ * <max(0,t)²> = 1/6):
+ *     C_d = (β/6 − (b·n)(1/4 − dz)) / (1/6 − dz/2 + dz²),   β = b·d,
+ * the denominator is ≥ 5/48. For light from one direction (b = β·d, and β ≤ 2a for
+ * positive radiance) C_a = a − β·dz²/(4·denominator) ≥ a − 0.4·β ≥ 0.2·a, so the clamps
+ * below (C_d ≥ 0; C_a ≥ 0, then C_d = (I_z − C_a)/dz) act only on colour channels whose
+ * light comes from elsewhere than d, or on negative (delta) inputs.
+ * When dz ≤ UB_AHD_DZ_GUARD (the light is grazing or behind the surface) everything goes
+ * to ambient: C_a = I_z, C_d = 0, d = n. Decoding is exact along n in every case, and a
+ * decoder storing (C_a, d, I_z) recovers C_d = (I_z − C_a)/(d·n) with d·n > guard.
+ * Measured error for other normals: tests/test_ahd.c.
+ */
+#include "ubake/ahd.h"
+
+#include <math.h>
+#include <stddef.h>
+
+#define UB_SH_Y0 0.282094791773878f /* 1/(2√π) */
+#define UB_SH_Y1 0.488602511902920f /* √3/(2√π) */
+#define UB_PI 3.14159265358979f
+
+/* Below this d·n the direction is grazing or below the surface: ambient only. */
+#define UB_AHD_DZ_GUARD 1e-2f
+/* Linear band magnitude, relative to the mean irradiance, under which the direction is
+ * noise and the normal is used instead. */
+#define UB_AHD_DIR_REL_EPS 1e-6f
+
+/* Rec. 709 luminance weights for the shared direction. */
+static const float k_lum[3] = {0.2126f, 0.7152f, 0.0722f};
+
+static float finite_or_zero(float x)
+{
+  return isfinite(x) ? x : 0.0f;
+}
+
+/* Unit copy of n; (0, 0, 1) for a zero or non-finite vector. */
+static void safe_unit(const float n[3], float out[3])
+{
+  float x = finite_or_zero(n[0]), y = finite_or_zero(n[1]), z = finite_or_zero(n[2]);
+  float l = sqrtf(x * x + y * y + z * z);
+  if (!(l > 1e-20f)) {
+    out[0] = 0.0f;
+    out[1] = 0.0f;
+    out[2] = 1.0f;
+    return;
+  }
+  out[0] = x / l;
+  out[1] = y / l;
+  out[2] = z / l;
+}
+
+/* Per channel: mean term a[c] and linear vector b[c] (x, y, z) of the L1 irradiance. */
+static void sh1_irradiance_terms(const float sh[12], float a[3], float b[3][3])
+{
+  const float ka = UB_PI * UB_SH_Y0;
+  const float kb = (2.0f * UB_PI / 3.0f) * UB_SH_Y1;
+  for (int c = 0; c < 3; c++) {
+    a[c] = ka * finite_or_zero(sh[0 * 3 + c]);
+    b[c][0] = kb * finite_or_zero(sh[3 * 3 + c]); /* Y11 ∝ x */
+    b[c][1] = kb * finite_or_zero(sh[1 * 3 + c]); /* Y1-1 ∝ y */
+    b[c][2] = kb * finite_or_zero(sh[2 * 3 + c]); /* Y10 ∝ z */
+  }
+}
+
+void ub_sh1_add(float sh[12], const float w[3], const float L[3], float wt)
+{
+  const float y[4] = {UB_SH_Y0, UB_SH_Y1 * w[1], UB_SH_Y1 * w[2], UB_SH_Y1 * w[0]};
+  for (int k = 0; k < 4; k++)
+    for (int c = 0; c < 3; c++)
+      sh[k * 3 + c] += wt * L[c] * y[k];
+}
+
+void ub_sh1_irradiance(const float sh[12], const float n[3], float out_rgb[3])
+{
+  float a[3], b[3][3], u[3];
+  sh1_irradiance_terms(sh, a, b);
+  safe_unit(n, u);
+  for (int c = 0; c < 3; c++) {
+    float e = a[c] + b[c][0] * u[0] + b[c][1] * u[1] + b[c][2] * u[2];
+    out_rgb[c] = e > 0.0f ? e : 0.0f;
+  }
+}
+
+void ub_ahd_encode(const float sh[12], const float normal[3], ub_ahd *out_ahd)
+{
+  float a[3], b[3][3], n[3];
+  sh1_irradiance_terms(sh, a, b);
+  safe_unit(normal, n);
+
+  /* Shared direction: luminance-weighted linear band. */
+  float bl[3] = {0.0f, 0.0f, 0.0f};
+  float al = 0.0f;
+  for (int c = 0; c < 3; c++) {
+    al += k_lum[c] * fabsf(a[c]);
+    for (int i = 0; i < 3; i++)
+      bl[i] += k_lum[c] * b[c][i];
+  }
+  float blen = sqrtf(bl[0] * bl[0] + bl[1] * bl[1] + bl[2] * bl[2]);
+  float d[3];
+  if (blen > UB_AHD_DIR_REL_EPS * al && blen > 1e-30f) {
+    d[0] = bl[0] / blen;
+    d[1] = bl[1] / blen;
+    d[2] = bl[2] / blen;
+  } else {
+    d[0] = n[0];
+    d[1] = n[1];
+    d[2] = n[2];
+  }
+  float dz = d[0] * n[0] + d[1] * n[1] + d[2] * n[2];
+  int ambient_only = !(dz > UB_AHD_DZ_GUARD);
+  if (ambient_only) {
+    d[0] = n[0];
+    d[1] = n[1];
+    d[2] = n[2];
+  }
+
+  for (int c = 0; c < 3; c++) {
+    float iz = a[c] + b[c][0] * n[0] + b[c][1] * n[1] + b[c][2] * n[2];
+    if (!(iz > 0.0f))
+      iz = 0.0f; /* the SH irradiance is clamped the same way */
+    float ca, cd;
+    if (ambient_only) {
+      ca = iz;
+      cd = 0.0f;
+    } else {
+      float beta = b[c][0] * d[0] + b[c][1] * d[1] + b[c][2] * d[2];
+      float bn = b[c][0] * n[0] + b[c][1] * n[1] + b[c][2] * n[2];
+      /* least squares over the sphere with I_z held exact (see the top comment) */
+      float cd0 = (beta * (1.0f / 6.0f) - bn * (0.25f - dz)) /
+                  (1.0f / 6.0f - 0.5f * dz + dz * dz);
+      if (!(cd0 > 0.0f))
+        cd0 = 0.0f;
+      ca = iz - cd0 * dz;
+      if (ca < 0.0f)
+        ca = 0.0f;
+      cd = (iz - ca) / dz; /* dz > guard: finite; 0 ≤ cd ≤ cd0 */
+      if (!(cd > 0.0f))
+        cd = 0.0f;
+    }
+    out_ahd->ambient[c] = ca;
+    out_ahd->directional[c] = cd;
+  }
+  out_ahd->direction[0] = d[0];
+  out_ahd->direction[1] = d[1];
+  out_ahd->direction[2] = d[2];
+}
+
+void ub_ahd_irradiance(const ub_ahd *ahd, const float n[3], float out_rgb[3])
+{
+  float u[3];
+  safe_unit(n, u);
+  float t = ahd->direction[0] * u[0] + ahd->direction[1] * u[1] + ahd->direction[2] * u[2];
+  if (!(t > 0.0f))
+    t = 0.0f;
+  for (int c = 0; c < 3; c++) {
+    float e = ahd->ambient[c] + ahd->directional[c] * t;
+    out_rgb[c] = e > 0.0f ? e : 0.0f;
+  }
+}
