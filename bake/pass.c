@@ -1,23 +1,38 @@
-/* Series-expansion pass over lightmap texels (see pass.h). */
+/* Series-expansion pass over every receiver: lightmap texels and probes (see pass.h). */
 #include "bake/pass.h"
 
 #include <math.h>
 #include <omp.h>
-#include <stdio.h>
 #include <stdatomic.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "ubake/ahd.h"
+#include "ubake/sh.h"
 
 /* Rays traced per block: large enough to sort into coherent streams, small enough that
- * a block's scratch stays in cache-friendly megabytes. */
+ * a block's scratch stays a few megabytes. */
 #define UB_BLOCK_RAYS 16384
 #define UB_DIR_BUCKETS 64
-#define UB_SHADOW_PER_TEXEL_MAX 4096
+/* Receiver ids for hashing: probes live above texels so their random numbers differ. */
+#define UB_PROBE_ID_BASE 0x40000000u
 
-static const float UB_Y0 = 0.282094792f;
-static const float UB_Y1 = 0.488602512f;
+static const double UB_Y0 = 0.282094792;
+static const double UB_Y1 = 0.488602512;
+
+/* One kind of receiver, seen uniformly by the direct and gather kernels. */
+typedef struct recv_set {
+  uint32_t count;
+  const float *normal;   /* count × 3, or NULL: points gathering over the full sphere */
+  const float *samples;  /* count × spr × 3: ray origins (already offset) */
+  uint32_t spr;          /* sample points per receiver */
+  uint32_t nsh;          /* SH coefficients per channel: 4 (L1) or 9 (L2) */
+  uint32_t rays;         /* gather rays per receiver per bounce */
+  uint32_t id_base;
+  double *acc_sh;        /* count × nsh × 3, this bounce */
+  double *acc_iz;        /* count × 3 (normal receivers), this bounce, stored result */
+  double *acc_src;       /* count × 3, bounce 0 only: irradiance incl. primary lights */
+} recv_set;
 
 typedef struct pass_ctx {
   const ub_pass_desc *d;
@@ -25,10 +40,7 @@ typedef struct pass_ctx {
   const ub_lightmap *lm;
   int32_t *emitter_of;        /* triangle → emitter index, -1 (bounce 0 MIS) */
   float **img;                /* per atlas: w×h×4 (irradiance rgb, filled) of bounce k-1 */
-  /* per texel accumulators */
-  double *acc_sh;             /* texel × 12, this bounce */
-  double *acc_iz;             /* texel × 3, this bounce (stored result) */
-  double *acc_src;            /* texel × 3, bounce 0 only: irradiance incl. primary lights */
+  recv_set sets[2];           /* 0: texels, 1: probes */
   uint32_t bounce;
   _Atomic uint64_t rays_gather, rays_shadow, clamped, backface, unlit, misses;
   _Atomic uint32_t blocks_done;
@@ -40,10 +52,12 @@ static inline float dot3(const float a[3], const float b[3])
   return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
 }
 
-static inline void sh_accum(double sh[12], const float w[3], const float L[3], double wt)
+static inline void sh_accum(double *sh, uint32_t nsh, const float w[3], const float L[3],
+                            double wt)
 {
-  const float y[4] = {UB_Y0, UB_Y1 * w[1], UB_Y1 * w[2], UB_Y1 * w[0]};
-  for (int k = 0; k < 4; k++)
+  float y[9];
+  ub_sh2_eval_basis(w, y);
+  for (uint32_t k = 0; k < nsh; k++)
     for (int c = 0; c < 3; c++)
       sh[k * 3 + c] += (double)y[k] * L[c] * wt;
 }
@@ -116,31 +130,37 @@ static void tri_normal(const ub_scene *s, uint32_t t, float out[3])
     out[i] = l > 0.0f ? n[i] / l : 0.0f;
 }
 
+/* pdf (per steradian) of the gather direction w for a receiver: cosine about its normal,
+ * or uniform over the sphere for a point receiver. */
+static inline double gather_pdf(const float *nrm, const float w[3])
+{
+  return nrm ? fmax(0.0, dot3(nrm, w)) / M_PI : 1.0 / (4.0 * M_PI);
+}
+
 typedef struct shadow_rec {
-  uint32_t texel;   /* local index in block */
+  uint32_t recv;    /* local index in block */
   uint8_t primary;  /* 1 = counts only toward the next bounce's source */
   float dir[3];
-  float e[3];       /* contribution weights already applied: sh uses e·Y(dir), iz uses e·cos */
+  float e[3];       /* weights applied: SH gets e·Y(dir), I_z gets e·cos */
   float cos;
 } shadow_rec;
 
 /* Bounce 0: punctual lights and emissive area samples with shadow rays. */
-static void direct_block(pass_ctx *c, uint32_t t0, uint32_t nt)
+static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr)
 {
   const ub_pass_desc *d = c->d;
   const ub_scene *s = c->s;
-  const ub_lightmap *lm = c->lm;
   uint32_t nlights = 0;
   for (uint32_t l = 0; l < s->light_count; l++)
     nlights += d->light_enabled[l] != 0;
   uint32_t ns = d->shadow_samples ? d->shadow_samples : 1;
-  if (ns > UB_TEXEL_SAMPLES)
-    ns = UB_TEXEL_SAMPLES;
+  if (ns > rs->spr)
+    ns = rs->spr;
   uint32_t ne = (d->emissive && d->emitters && d->emitters->count) ? d->emissive_samples : 0;
   size_t per = (size_t)nlights * ns + ne;
   if (per == 0)
     return;
-  size_t cap = per * nt;
+  size_t cap = per * nr;
   ub_ray *rays = malloc(cap * sizeof *rays);
   shadow_rec *rec = malloc(cap * sizeof *rec);
   uint8_t *occ = malloc(cap);
@@ -152,30 +172,30 @@ static void direct_block(pass_ctx *c, uint32_t t0, uint32_t nt)
     return;
   }
   size_t n = 0;
-  uint32_t N = d->gather_rays;
+  uint32_t N = rs->rays;
   int mis_gather = d->sky || ne; /* gather rays also see emitters in bounce 0 */
-  for (uint32_t i = 0; i < nt; i++) {
-    uint32_t t = t0 + i;
-    const float *nrm = lm->texel_normal + 3 * (size_t)t;
+  for (uint32_t i = 0; i < nr; i++) {
+    uint32_t r = r0 + i;
+    const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
     for (uint32_t l = 0; l < s->light_count; l++) {
       if (!d->light_enabled[l])
         continue;
       const ub_light *L = &s->lights[l];
       for (uint32_t k = 0; k < ns; k++) {
-        const float *p = lm->sample_pos + ((size_t)t * UB_TEXEL_SAMPLES + k) * 3;
+        const float *p = rs->samples + ((size_t)r * rs->spr + k) * 3;
         float dir[3], dist, e[3];
         if (!ub_light_incident(L, p, dir, &dist, e))
           continue;
-        float cs = dot3(nrm, dir);
+        float cs = nrm ? dot3(nrm, dir) : 1.0f;
         if (cs <= 0.0f)
           continue;
-        shadow_rec *r = &rec[n];
-        r->texel = i;
-        r->primary = L->cls == UB_LIGHT_PRIMARY;
-        memcpy(r->dir, dir, sizeof dir);
+        shadow_rec *sr = &rec[n];
+        sr->recv = i;
+        sr->primary = L->cls == UB_LIGHT_PRIMARY;
+        memcpy(sr->dir, dir, sizeof dir);
         for (int ch = 0; ch < 3; ch++)
-          r->e[ch] = e[ch] / (float)ns;
-        r->cos = cs;
+          sr->e[ch] = e[ch] / (float)ns;
+        sr->cos = cs;
         ub_ray *ray = &rays[n];
         memcpy(ray->org, p, sizeof ray->org);
         memcpy(ray->dir, dir, sizeof dir);
@@ -185,9 +205,9 @@ static void direct_block(pass_ctx *c, uint32_t t0, uint32_t nt)
       }
     }
     for (uint32_t k = 0; k < ne; k++) {
-      uint32_t h = ub_hash4(d->seed, d->pass_id * 0x10000u + 0x8000u, t, k);
+      uint32_t h = ub_hash4(d->seed, d->pass_id * 0x10000u + 0x8000u, rs->id_base + r, k);
       float u0 = ub_u01(h), u1 = ub_u01(ub_hash4(h, 1, 0, 0)), u2 = ub_u01(ub_hash4(h, 2, 0, 0));
-      const float *p = lm->sample_pos + ((size_t)t * UB_TEXEL_SAMPLES + k % UB_TEXEL_SAMPLES) * 3;
+      const float *p = rs->samples + ((size_t)r * rs->spr + k % rs->spr) * 3;
       float q[3], qn[3], le[3], pdf_area;
       ub_emitters_sample(d->emitters, s, u0, u1, u2, q, qn, le, &pdf_area);
       float w[3] = {q[0] - p[0], q[1] - p[1], q[2] - p[2]};
@@ -197,20 +217,20 @@ static void direct_block(pass_ctx *c, uint32_t t0, uint32_t nt)
       float dist = sqrtf(d2);
       for (int ch = 0; ch < 3; ch++)
         w[ch] /= dist;
-      float cs = dot3(nrm, w), ce = -dot3(qn, w);
+      float cs = nrm ? dot3(nrm, w) : 1.0f, ce = -dot3(qn, w);
       if (cs <= 0.0f || ce <= 0.0f)
         continue;
       double pdf_sa = (double)pdf_area * d2 / ce;
-      /* Balance heuristic with the cosine gather rays of bounce 0 (counts ne and N). */
-      double denom = ne * pdf_sa + (mis_gather ? N * (cs / M_PI) : 0.0);
-      shadow_rec *r = &rec[n];
-      r->texel = i;
-      r->primary = 0;
-      memcpy(r->dir, w, sizeof w);
+      /* Balance heuristic with the gather rays of bounce 0 (sample counts ne and N). */
+      double denom = ne * pdf_sa + (mis_gather ? N * gather_pdf(nrm, w) : 0.0);
+      shadow_rec *sr = &rec[n];
+      sr->recv = i;
+      sr->primary = 0;
+      memcpy(sr->dir, w, sizeof w);
       for (int ch = 0; ch < 3; ch++)
-        r->e[ch] = (float)(le[ch] / denom);
-      r->cos = cs;
-      if (!finite3(r->e)) {
+        sr->e[ch] = (float)(le[ch] / denom);
+      sr->cos = cs;
+      if (!finite3(sr->e)) {
         atomic_fetch_add(&c->clamped, 1);
         continue;
       }
@@ -227,17 +247,17 @@ static void direct_block(pass_ctx *c, uint32_t t0, uint32_t nt)
   for (size_t j = 0; j < n; j++) {
     if (occ[j])
       continue;
-    const shadow_rec *r = &rec[j];
-    uint32_t t = t0 + r->texel;
-    double *src = c->acc_src + 3 * (size_t)t;
-    for (int ch = 0; ch < 3; ch++)
-      src[ch] += (double)r->e[ch] * r->cos;
-    if (r->primary)
+    const shadow_rec *sr = &rec[j];
+    uint32_t r = r0 + sr->recv;
+    if (rs->acc_src)
+      for (int ch = 0; ch < 3; ch++)
+        rs->acc_src[3 * (size_t)r + ch] += (double)sr->e[ch] * sr->cos;
+    if (sr->primary)
       continue;
-    double *iz = c->acc_iz + 3 * (size_t)t;
-    for (int ch = 0; ch < 3; ch++)
-      iz[ch] += (double)r->e[ch] * r->cos;
-    sh_accum(c->acc_sh + 12 * (size_t)t, r->dir, r->e, 1.0);
+    if (rs->acc_iz)
+      for (int ch = 0; ch < 3; ch++)
+        rs->acc_iz[3 * (size_t)r + ch] += (double)sr->e[ch] * sr->cos;
+    sh_accum(rs->acc_sh + (size_t)rs->nsh * 3 * r, rs->nsh, sr->dir, sr->e, 1.0);
   }
   free(rays);
   free(rec);
@@ -245,13 +265,13 @@ static void direct_block(pass_ctx *c, uint32_t t0, uint32_t nt)
 }
 
 /* Gather rays: bounce 0 sees the sky and emitters (MIS), bounce k reads bounce k-1. */
-static void gather_block(pass_ctx *c, uint32_t t0, uint32_t nt)
+static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr)
 {
   const ub_pass_desc *d = c->d;
   const ub_scene *s = c->s;
   const ub_lightmap *lm = c->lm;
-  uint32_t N = d->gather_rays;
-  size_t n = (size_t)nt * N;
+  uint32_t N = rs->rays;
+  size_t n = (size_t)nr * N;
   ub_ray *rays = malloc(n * sizeof *rays);
   ub_ray *sorted = malloc(n * sizeof *sorted);
   ub_hit *hits = malloc(n * sizeof *hits);
@@ -266,25 +286,33 @@ static void gather_block(pass_ctx *c, uint32_t t0, uint32_t nt)
     atomic_store(&c->cancelled, 2);
     return;
   }
-  /* Stratified cosine directions: a jittered k×k grid when N is a square. */
+  /* Stratified directions: a jittered k×k grid when N is a square. */
   uint32_t k = (uint32_t)sqrtf((float)N);
   int strat = k * k == N;
-  for (uint32_t i = 0; i < nt; i++) {
-    uint32_t t = t0 + i;
-    const float *nrm = lm->texel_normal + 3 * (size_t)t;
+  for (uint32_t i = 0; i < nr; i++) {
+    uint32_t r = r0 + i;
+    const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
     for (uint32_t j = 0; j < N; j++) {
-      uint32_t h = ub_hash4(d->seed, d->pass_id * 0x10000u + c->bounce, t, j);
+      uint32_t h = ub_hash4(d->seed, d->pass_id * 0x10000u + c->bounce, rs->id_base + r, j);
       float u1 = ub_u01(h), u2 = ub_u01(ub_hash4(h, 7, 0, 0));
       if (strat) {
         u1 = ((float)(j % k) + u1) / (float)k;
         u2 = ((float)(j / k) + u2) / (float)k;
       }
-      ub_ray *r = &rays[(size_t)i * N + j];
-      const float *p = lm->sample_pos + ((size_t)t * UB_TEXEL_SAMPLES + j % UB_TEXEL_SAMPLES) * 3;
-      memcpy(r->org, p, sizeof r->org);
-      ub_sample_cosine(nrm, u1, u2, r->dir);
-      r->tnear = 0.0f;
-      r->tfar = INFINITY;
+      ub_ray *ray = &rays[(size_t)i * N + j];
+      const float *p = rs->samples + ((size_t)r * rs->spr + j % rs->spr) * 3;
+      memcpy(ray->org, p, sizeof ray->org);
+      if (nrm) {
+        ub_sample_cosine(nrm, u1, u2, ray->dir);
+      } else {
+        float z = 1.0f - 2.0f * u1, rr = sqrtf(fmaxf(0.0f, 1.0f - z * z));
+        float phi = 2.0f * (float)M_PI * u2;
+        ray->dir[0] = rr * cosf(phi);
+        ray->dir[1] = z;
+        ray->dir[2] = rr * sinf(phi);
+      }
+      ray->tnear = 0.0f;
+      ray->tfar = INFINITY;
     }
   }
   /* Stable counting sort by direction bucket: rays of a block start close together, so
@@ -309,20 +337,21 @@ static void gather_block(pass_ctx *c, uint32_t t0, uint32_t nt)
 
   uint64_t backface = 0, unlit = 0, clamped = 0, misses = 0;
   uint32_t ne = (d->emissive && d->emitters) ? d->emitters->count : 0;
-  for (uint32_t i = 0; i < nt; i++) {
-    uint32_t t = t0 + i;
-    const float *nrm = lm->texel_normal + 3 * (size_t)t;
-    double *sh = c->acc_sh + 12 * (size_t)t;
-    double *iz = c->acc_iz + 3 * (size_t)t;
-    double *src = c->acc_src ? c->acc_src + 3 * (size_t)t : NULL;
+  for (uint32_t i = 0; i < nr; i++) {
+    uint32_t r = r0 + i;
+    const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
+    double *sh = rs->acc_sh + (size_t)rs->nsh * 3 * r;
+    double *iz = rs->acc_iz ? rs->acc_iz + 3 * (size_t)r : NULL;
+    double *src = rs->acc_src ? rs->acc_src + 3 * (size_t)r : NULL;
     for (uint32_t j = 0; j < N; j++) {
-      const ub_ray *r = &rays[(size_t)i * N + j];
+      const ub_ray *ray = &rays[(size_t)i * N + j];
       const ub_hit *h = &hits[bucket[(size_t)i * N + j]];
       float L[3] = {0, 0, 0};
-      float cs = dot3(nrm, r->dir);
+      float cs = nrm ? dot3(nrm, ray->dir) : 1.0f;
+      double pdf = gather_pdf(nrm, ray->dir);
       if (cs <= 1e-4f)
         continue;
-      double wt = M_PI / N;
+      double wt = 1.0 / (N * pdf); /* plain estimator: L·f/(N·pdf) */
       if (h->tri == UB_RT_MISS) {
         misses++;
         if (c->bounce == 0 && d->sky)
@@ -330,7 +359,7 @@ static void gather_block(pass_ctx *c, uint32_t t0, uint32_t nt)
         else
           continue;
       } else {
-        int front = dot3(h->ng, r->dir) < 0.0f;
+        int front = dot3(h->ng, ray->dir) < 0.0f;
         if (c->bounce == 0) {
           if (!front || !ne || c->emitter_of[h->tri] < 0)
             continue;
@@ -340,16 +369,12 @@ static void gather_block(pass_ctx *c, uint32_t t0, uint32_t nt)
           float p_tri = em->cdf[ei] - (ei ? em->cdf[ei - 1] : 0.0f);
           float en[3];
           tri_normal(s, h->tri, en);
-          float ce = -dot3(en, r->dir);
-          float dl = sqrtf(dot3(r->dir, r->dir));
-          float dist = h->t * dl;
+          float ce = -dot3(en, ray->dir);
           if (ce <= 0.0f)
             continue;
-          double pdf_sa = (double)p_tri / em->area[ei] * dist * dist / ce;
-          double pdf_c = cs / M_PI;
-          double denom = d->emissive_samples * pdf_sa + N * pdf_c;
+          double pdf_sa = (double)p_tri / em->area[ei] * h->t * h->t / ce;
+          wt = 1.0 / (d->emissive_samples * pdf_sa + N * pdf);
           memcpy(L, s->materials[s->tri_material[h->tri]].emission, sizeof L);
-          wt = 1.0 / denom; /* estimator: L·cos/denom (iz), L·Y/denom (SH) */
         } else {
           if (!front) {
             backface++;
@@ -375,22 +400,13 @@ static void gather_block(pass_ctx *c, uint32_t t0, uint32_t nt)
         clamped++;
         continue;
       }
-      /* iz estimator: with cosine sampling, E = π/N Σ L (wt for MIS-weighted emitters is
-       * 1/denom applied to L·cos). */
-      double wiz, wsh;
-      if (c->bounce == 0 && h->tri != UB_RT_MISS) {
-        wiz = wt * cs;           /* L·cos/denom */
-        wsh = wt;                /* L·Y/denom */
-      } else {
-        wiz = M_PI / N;
-        wsh = M_PI / ((double)N * cs);
-      }
-      for (int ch = 0; ch < 3; ch++) {
-        iz[ch] += L[ch] * wiz;
-        if (src)
-          src[ch] += L[ch] * wiz;
-      }
-      sh_accum(sh, r->dir, L, wsh);
+      if (iz)
+        for (int ch = 0; ch < 3; ch++) {
+          iz[ch] += L[ch] * cs * wt;
+          if (src)
+            src[ch] += L[ch] * cs * wt;
+        }
+      sh_accum(sh, rs->nsh, ray->dir, L, wt);
     }
   }
   atomic_fetch_add(&c->backface, backface);
@@ -458,22 +474,32 @@ static int report(pass_ctx *c, const char *stage, double frac, double bounce_sha
   return d->progress(d->progress_user, stage, frac, total);
 }
 
-static void run_blocks(pass_ctx *c, uint32_t texels_per_block, int direct, int gather,
-                       const char *stage, double share0, double share1)
+/* One item-parallel stage over every receiver set, in fixed blocks (thread-count
+ * independent, so results are deterministic). */
+static void run_blocks(pass_ctx *c, int direct, int gather, const char *stage, double share0,
+                       double share1)
 {
-  uint32_t T = c->lm->texel_count;
-  uint32_t nblocks = (T + texels_per_block - 1) / texels_per_block;
+  uint32_t per_set[2], first[3] = {0, 0, 0};
+  for (int s = 0; s < 2; s++) {
+    const recv_set *rs = &c->sets[s];
+    uint32_t tpb = rs->rays ? UB_BLOCK_RAYS / rs->rays : 256;
+    per_set[s] = tpb < 1 ? 1 : (tpb > 256 ? 256 : tpb);
+    first[s + 1] = first[s] + (rs->count + per_set[s] - 1) / per_set[s];
+  }
+  uint32_t nblocks = first[2];
   atomic_store(&c->blocks_done, 0);
 #pragma omp parallel for schedule(dynamic, 1)
   for (uint32_t b = 0; b < nblocks; b++) {
     if (atomic_load(&c->cancelled))
       continue;
-    uint32_t t0 = b * texels_per_block;
-    uint32_t nt = T - t0 < texels_per_block ? T - t0 : texels_per_block;
+    int s = b >= first[1];
+    const recv_set *rs = &c->sets[s];
+    uint32_t r0 = (b - first[s]) * per_set[s];
+    uint32_t nr = rs->count - r0 < per_set[s] ? rs->count - r0 : per_set[s];
     if (direct)
-      direct_block(c, t0, nt);
+      direct_block(c, rs, r0, nr);
     if (gather)
-      gather_block(c, t0, nt);
+      gather_block(c, rs, r0, nr);
     uint32_t done = atomic_fetch_add(&c->blocks_done, 1) + 1;
     if (omp_get_thread_num() == 0) {
       double f = (double)done / nblocks;
@@ -498,13 +524,32 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
 
   double *sh_total = calloc((size_t)T * 12, sizeof(double));
   double *iz_total = calloc((size_t)T * 3, sizeof(double));
-  c.acc_sh = calloc((size_t)T * 12, sizeof(double));
-  c.acc_iz = calloc((size_t)T * 3, sizeof(double));
-  c.acc_src = calloc((size_t)T * 3, sizeof(double));
+  uint32_t P = d->probe_count;
+  uint32_t N = d->gather_rays ? d->gather_rays : 1;
+  double *probe_total = calloc((size_t)P * 27 + 1, sizeof(double));
+  recv_set *tx = &c.sets[0], *pr = &c.sets[1];
+  tx->count = T;
+  tx->normal = lm->texel_normal;
+  tx->samples = lm->sample_pos;
+  tx->spr = UB_TEXEL_SAMPLES;
+  tx->nsh = 4;
+  tx->rays = N;
+  tx->id_base = 0;
+  tx->acc_sh = calloc((size_t)T * 12 + 1, sizeof(double));
+  tx->acc_iz = calloc((size_t)T * 3 + 1, sizeof(double));
+  tx->acc_src = calloc((size_t)T * 3 + 1, sizeof(double));
+  pr->count = P;
+  pr->normal = NULL;
+  pr->samples = d->probe_pos;
+  pr->spr = 1;
+  pr->nsh = 9;
+  pr->rays = d->probe_rays ? d->probe_rays : N;
+  pr->id_base = UB_PROBE_ID_BASE;
+  pr->acc_sh = calloc((size_t)P * 27 + 1, sizeof(double));
   c.img = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *c.img);
   c.emitter_of = malloc((size_t)(s->triangle_count ? s->triangle_count : 1) * sizeof(int32_t));
-  int oom = !sh_total || !iz_total || !c.acc_sh || !c.acc_iz || !c.acc_src || !c.img ||
-            !c.emitter_of;
+  int oom = !sh_total || !iz_total || !tx->acc_sh || !tx->acc_iz || !tx->acc_src || !c.img ||
+            !c.emitter_of || !pr->acc_sh || !probe_total;
   for (uint32_t a = 0; !oom && a < lm->atlas_count; a++) {
     c.img[a] = malloc((size_t)lm->atlases[a].width * lm->atlases[a].height * 4 * sizeof(float));
     oom = !c.img[a];
@@ -520,31 +565,26 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     for (uint32_t i = 0; i < d->emitters->count; i++)
       c.emitter_of[d->emitters->tri[i]] = (int32_t)i;
 
-  uint32_t N = d->gather_rays ? d->gather_rays : 1;
-  uint32_t tpb = UB_BLOCK_RAYS / N;
-  if (tpb < 1)
-    tpb = 1;
-  if (tpb > 256)
-    tpb = 256;
-
   /* Bounce 0: direct light (+ sky and emitters through gather rays). */
   int gather0 = d->sky || (d->emissive && d->emitters && d->emitters->count);
   c.bounce = 0;
-  run_blocks(&c, tpb, 1, gather0, "direct", 0.0, 0.25);
+  run_blocks(&c, 1, gather0, "direct", 0.0, 0.25);
   if (atomic_load(&c.cancelled)) {
     res = atomic_load(&c.cancelled) == 2 ? UB_ERR_OUT_OF_MEMORY : UB_ERR_CANCELLED;
     goto done;
   }
-  double total_energy = energy_of(c.acc_iz, T);
-  double src_energy = outgoing_energy(&c, c.acc_src);
+  double total_energy = energy_of(tx->acc_iz, T);
+  double src_energy = outgoing_energy(&c, tx->acc_src);
   out->bounce_energy[0] = total_energy;
   for (size_t i = 0; i < (size_t)T * 12; i++)
-    sh_total[i] = c.acc_sh[i];
+    sh_total[i] = tx->acc_sh[i];
   for (size_t i = 0; i < (size_t)T * 3; i++)
-    iz_total[i] = c.acc_iz[i];
-  build_images(&c, c.acc_src);
-  free(c.acc_src);
-  c.acc_src = NULL;
+    iz_total[i] = tx->acc_iz[i];
+  for (size_t i = 0; i < (size_t)P * 27; i++)
+    probe_total[i] = pr->acc_sh[i];
+  build_images(&c, tx->acc_src);
+  free(tx->acc_src);
+  tx->acc_src = NULL;
 
   int max_b = d->bounces < 0 ? UB_BAKE_MAX_BOUNCES : d->bounces;
   if (max_b > UB_BAKE_MAX_BOUNCES)
@@ -553,33 +593,36 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   for (b = 1; b <= (uint32_t)max_b; b++) {
     if (src_energy <= 0.0)
       break; /* nothing to bounce */
-    memset(c.acc_sh, 0, (size_t)T * 12 * sizeof(double));
-    memset(c.acc_iz, 0, (size_t)T * 3 * sizeof(double));
+    memset(tx->acc_sh, 0, (size_t)T * 12 * sizeof(double));
+    memset(tx->acc_iz, 0, (size_t)T * 3 * sizeof(double));
+    memset(pr->acc_sh, 0, (size_t)P * 27 * sizeof(double));
     c.bounce = b;
     char stage[32];
     snprintf(stage, sizeof stage, "bounce %u", b);
     double sh0 = 0.25 + 0.75 * (1.0 - pow(0.5, b - 1));
     double sh1 = 0.25 + 0.75 * (1.0 - pow(0.5, b));
-    run_blocks(&c, tpb, 0, 1, stage, sh0, sh1);
+    run_blocks(&c, 0, 1, stage, sh0, sh1);
     if (atomic_load(&c.cancelled)) {
       res = atomic_load(&c.cancelled) == 2 ? UB_ERR_OUT_OF_MEMORY : UB_ERR_CANCELLED;
       goto done;
     }
-    double e = energy_of(c.acc_iz, T);
+    double e = energy_of(tx->acc_iz, T);
     out->bounce_energy[b] = e;
     for (size_t i = 0; i < (size_t)T * 12; i++)
-      sh_total[i] += c.acc_sh[i];
+      sh_total[i] += tx->acc_sh[i];
     for (size_t i = 0; i < (size_t)T * 3; i++)
-      iz_total[i] += c.acc_iz[i];
+      iz_total[i] += tx->acc_iz[i];
+    for (size_t i = 0; i < (size_t)P * 27; i++)
+      probe_total[i] += pr->acc_sh[i];
     total_energy += e;
-    src_energy = outgoing_energy(&c, c.acc_iz);
+    src_energy = outgoing_energy(&c, tx->acc_iz);
     ub_log_printf(log, UB_LOG_INFO, "  bounce %u: +%.3f%% energy", b,
                   total_energy > 0 ? 100.0 * e / total_energy : 0.0);
     if (d->bounces < 0 && e <= d->stop_fraction * total_energy) {
       b++;
       break;
     }
-    build_images(&c, c.acc_iz);
+    build_images(&c, tx->acc_iz);
   }
   out->bounces = b - 1;
 
@@ -623,6 +666,19 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       out->sh[12 * (size_t)t + i] = v;
     }
   }
+  out->probe_sh = malloc(((size_t)P * 27 + 1) * sizeof(float));
+  if (!out->probe_sh) {
+    res = UB_ERR_OUT_OF_MEMORY;
+    goto done;
+  }
+  for (size_t i = 0; i < (size_t)P * 27; i++) {
+    float v = (float)probe_total[i];
+    if (!isfinite(v)) {
+      v = 0.0f;
+      clamped++;
+    }
+    out->probe_sh[i] = v;
+  }
   out->rays_gather = atomic_load(&c.rays_gather);
   out->rays_shadow = atomic_load(&c.rays_shadow);
   out->clamped = atomic_load(&c.clamped) + clamped;
@@ -635,9 +691,11 @@ done:
     ub_pass_result_free(out);
   free(sh_total);
   free(iz_total);
-  free(c.acc_sh);
-  free(c.acc_iz);
-  free(c.acc_src);
+  free(tx->acc_sh);
+  free(tx->acc_iz);
+  free(tx->acc_src);
+  free(pr->acc_sh);
+  free(probe_total);
   if (c.img)
     for (uint32_t a = 0; a < lm->atlas_count; a++)
       free(c.img[a]);
@@ -652,6 +710,8 @@ void ub_pass_result_free(ub_pass_result *r)
     return;
   free(r->sh);
   free(r->iz);
+  free(r->probe_sh);
   r->sh = NULL;
   r->iz = NULL;
+  r->probe_sh = NULL;
 }

@@ -8,8 +8,9 @@
  * between bounces, so no locks. `primary` lights feed bounce 1 but are not part of the
  * stored result (UberBake eq. 1).
  *
- * Receivers are lightmap texels (with a surface normal): each accumulates radiance SH L1
- * and the exact irradiance along its normal I_z. At the end the SH is corrected with a
+ * Receivers are lightmap texels (with a surface normal: cosine-distributed gather, SH L1
+ * plus the exact irradiance along the normal I_z) and probes (points: full-sphere
+ * gather, SH L2); both go through the same code with a receiver-set description. At the end the SH is corrected with a
  * cosine lobe about the normal so that its irradiance along the normal equals I_z exactly
  * (linear in the light, so records stay additive; see Sloan & Silvennoinen 2018).
  *
@@ -37,6 +38,11 @@ typedef struct ub_pass_desc {
   uint32_t gather_rays;          /* per receiver per bounce */
   uint32_t emissive_samples;     /* per receiver */
   uint32_t shadow_samples;       /* per receiver per punctual light, ≤ UB_TEXEL_SAMPLES */
+  /* Probe receivers (GLG and LLG probes): points in free space, full-sphere gather,
+   * radiance SH L2. They receive every bounce; nothing reads them back. */
+  uint32_t probe_count;
+  const float *probe_pos;        /* probe_count × 3, world */
+  uint32_t probe_rays;           /* gather rays per probe per bounce (0 = gather_rays) */
   int bounces;                   /* -1 = until a bounce adds < stop_fraction of the total */
   double stop_fraction;          /* e.g. 0.005 */
   uint32_t seed;
@@ -49,6 +55,7 @@ typedef struct ub_pass_desc {
 typedef struct ub_pass_result {
   float *sh;                     /* texel_count × 12: radiance SH L1 (W/(m²·sr)), I_z-exact */
   float *iz;                     /* texel_count × 3: irradiance along the normal (W/m²) */
+  float *probe_sh;               /* probe_count × 27: radiance SH L2 (W/(m²·sr)), raw */
   uint32_t bounces;
   double bounce_energy[UB_BAKE_MAX_BOUNCES + 1];
   uint64_t rays_gather, rays_shadow;
