@@ -19,6 +19,9 @@
 #include "bake/plan.h"
 #include "bake/rt.h"
 #include "lightmaps/lightmap.h"
+#include "probes/leak.h"
+#include "probes/placement.h"
+#include "probes/tetgen.h"
 #include "ubake/scene.h"
 
 void ub_bake_options_default(ub_bake_options *o)
@@ -114,6 +117,11 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   ub_rt *rt = NULL;
   ub_lightmap *lm = NULL;
   ub_emitters *em = NULL;
+  ub_glg_points gp;
+  memset(&gp, 0, sizeof gp);
+  ub_tetmesh *tm = NULL;
+  ub_glg_leak leak;
+  memset(&leak, 0, sizeof leak);
   ub_plan plan;
   memset(&plan, 0, sizeof plan);
   ub_pass_result base;
@@ -155,6 +163,21 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   stage_end(&sc, "%u atlases, %u texels, %u sample points moved off back faces",
             lm->atlas_count, lm->texel_count, lm->backface_fixes);
 
+  /* probes: GLG placement and its tetrahedralisation (TetGen, child process) */
+  stage_begin(&sc, "probes");
+  r = ub_glg_place(scene, rt, lm, scene->glg_spacing, log, &gp);
+  if (r != UB_OK)
+    goto fail;
+  r = ub_tetgen_build(gp.pos, gp.count, log, &tm);
+  if (r != UB_OK)
+    goto fail;
+  stats.glg_probes = tm->point_count;
+  stats.glg_tets = tm->tet_count;
+  stage_end(&sc, "GLG: %u probes (%u coarse, %u near geometry, %u inside solids dropped, %u "
+            "added hull), %u tets",
+            tm->point_count, gp.coarse, gp.fine, gp.rejected_inside, tm->added_count,
+            tm->tet_count);
+
   /* plan */
   stage_begin(&sc, "plan");
   r = ub_plan_build(scene, rt, em, lm, opt, log, &plan);
@@ -178,6 +201,9 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   pd.gather_rays = plan.gather_rays;
   pd.emissive_samples = plan.emissive_samples;
   pd.shadow_samples = plan.shadow_samples;
+  pd.probe_count = tm->point_count;
+  pd.probe_pos = tm->points;
+  pd.probe_rays = plan.probe_rays;
   pd.bounces = opt->bounces;
   pd.stop_fraction = 0.005;
   pd.seed = opt->seed;
@@ -205,11 +231,21 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
                                            stats.gather_seconds
                                      : 0.0);
 
+  /* leak control: a separating plane for every tet that straddles a surface */
+  stage_begin(&sc, "leak");
+  r = ub_glg_leak_build(rt, tm->point_count, tm->points, tm->tet_count, tm->tets, &leak);
+  if (r != UB_OK)
+    goto fail;
+  stats.glg_leak_tets = leak.plane_count;
+  stage_end(&sc, "%u of %u tets straddle a surface (%.2f M rays)", leak.plane_count,
+            tm->tet_count, leak.rays * 1e-6);
+
   /* encode + write */
   stage_begin(&sc, "write");
   stats.peak_rss_kb = ub_peak_rss_kb();
   stats.total_seconds = now_seconds() - t_start;
-  r = ub_output_write(scene, lm, &plan, &base, opt, &stats, log);
+  ub_glg_bake glg = {tm, base.probe_sh, &leak};
+  r = ub_output_write(scene, lm, &glg, &plan, &base, opt, &stats, log);
   if (r != UB_OK)
     goto fail;
   stage_end(&sc, "%s", stats.ubk_path);
@@ -219,6 +255,9 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
 fail:
   ub_pass_result_free(&base);
   ub_plan_free(&plan);
+  ub_glg_leak_free(&leak);
+  ub_tetmesh_free(tm);
+  ub_glg_points_free(&gp);
   ub_lightmap_free(lm);
   ub_emitters_free(em);
   ub_rt_free(rt);

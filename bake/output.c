@@ -122,6 +122,8 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
             lm->atlases[a].texel_count, lm->atlases[a].generated ? "true" : "false");
   fprintf(f, "], \"texels\": %u, \"backface_fixes\": %u, \"overlap_texels\": %u},\n",
           lm->texel_count, lm->backface_fixes, lm->overlap_texels);
+  fprintf(f, "  \"glg\": {\"probes\": %u, \"tets\": %u, \"leak_plane_tets\": %u, \"spacing\": %.4g},\n",
+          st->glg_probes, st->glg_tets, st->glg_leak_tets, scene->glg_spacing);
   fprintf(f, "  \"bounces\": %u,\n  \"bounce_energy\": [", st->bounces);
   for (uint32_t b = 0; b <= st->bounces && b <= UB_BAKE_MAX_BOUNCES; b++)
     fprintf(f, "%s%.6g", b ? ", " : "", st->bounce_energy[b]);
@@ -219,7 +221,8 @@ static void remove_staging(out_files *files, const char *staging)
   rmdir(staging);
 }
 
-ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub_plan *plan,
+ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub_glg_bake *glg,
+                          const ub_plan *plan,
                           const ub_pass_result *base, const ub_bake_options *opt,
                           ub_bake_stats *stats, const ub_log *log)
 {
@@ -258,6 +261,17 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
   for (uint32_t t = 0; t < scene->triangle_count; t++)
     memcpy(bf.tri_albedo + 3 * (size_t)t, scene->materials[scene->tri_material[t]].albedo,
            3 * sizeof(float));
+  if (glg && glg->mesh) {
+    bf.glg_probe_count = glg->mesh->point_count;
+    bf.glg_positions = glg->mesh->points;
+    bf.glg_sh = (float *)glg->sh;
+    bf.glg_tet_count = glg->mesh->tet_count;
+    bf.glg_tets = glg->mesh->tets;
+    bf.glg_neigh = glg->mesh->neigh;
+    bf.glg_plane_count = glg->leak->plane_count;
+    bf.glg_planes = glg->leak->planes;
+    bf.glg_plane_of = glg->leak->plane_of;
+  }
 
   for (uint32_t a = 0; a < lm->atlas_count; a++) {
     float *ahd = NULL, *irr = NULL;

@@ -6,8 +6,18 @@
 
 #include "bake/pass.h"
 #include "bake/plan.h"
+#include "probes/leak.h"
+#include "probes/tetgen.h"
 
-ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub_plan *plan,
+/* The GLG as baked: mesh, radiance SH L2 per mesh point, leak planes. */
+typedef struct ub_glg_bake {
+  const ub_tetmesh *mesh;
+  const float *sh;
+  const ub_glg_leak *leak;
+} ub_glg_bake;
+
+ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub_glg_bake *glg,
+                          const ub_plan *plan,
                           const ub_pass_result *base, const ub_bake_options *opt,
                           ub_bake_stats *stats, const ub_log *log);
 

@@ -94,6 +94,8 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
   }
   if (opt->gather_rays)
     out->gather_rays = opt->gather_rays;
+  /* A probe sees the whole sphere: twice the rays of a texel's hemisphere. */
+  out->probe_rays = 2 * out->gather_rays;
   if (!out->emissive || getenv("UB_DEBUG_NOEM"))
     out->emissive_samples = 0;
   out->pass_count = 1;

@@ -30,6 +30,7 @@ typedef struct ub_plan {
   uint32_t static_lights, primary_lights, dls_lights;
   int sky, emissive;
   uint32_t gather_rays, emissive_samples, shadow_samples;
+  uint32_t probe_rays;         /* full-sphere gather rays per GLG probe per bounce */
   double est_rays;             /* estimated rays of the base pass (direct + 3 bounces) */
 } ub_plan;
 

@@ -53,6 +53,17 @@ typedef struct ub_bakefile {
 
   uint32_t atlas_count;
   ub_bakefile_atlas *atlases;
+
+  /* Global light grid (section GLG; glg_probe_count 0 = none baked). */
+  uint32_t glg_probe_count;
+  float *glg_positions;     /* probe × 3, metres */
+  float *glg_sh;            /* probe × 27: radiance SH L2, W/(m²·sr), raw (windowed at query) */
+  uint32_t glg_tet_count;
+  uint32_t *glg_tets;       /* tet × 4 probe indices, positively oriented */
+  int32_t *glg_neigh;       /* tet × 4: tet opposite corner i, -1 on the hull */
+  uint32_t glg_plane_count;
+  float *glg_planes;        /* plane × 4: unit normal, d (n·x + d = 0) */
+  uint32_t *glg_plane_of;   /* tet: leak plane index or UINT32_MAX (see probes/leak.h) */
 } ub_bakefile;
 
 ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_log *log);
