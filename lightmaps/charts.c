@@ -640,6 +640,206 @@ ub_result ub_lm_charts_pack(lm_charts *g, uint32_t *out_count, uint32_t **out_w,
   return UB_OK;
 }
 
+/* Breadth-first chart growth from seed over unassigned (chart_of < 0) edge neighbours
+ * within 30° of the seed normal; members written to order[pos..]. Returns the count. */
+static uint32_t grow_chart(const lm_ctx *c, lm_charts *g, uint32_t seed, uint32_t pos,
+                           const uint32_t *adj_start, const uint32_t *adj, int32_t *chart_of,
+                           int32_t id)
+{
+  const float *sn = c->tri_n + 3 * (size_t)g->gtri[seed];
+  uint32_t placed = pos;
+  chart_of[seed] = id;
+  g->order[placed++] = seed;
+  for (uint32_t q = pos; q < placed; q++) {
+    uint32_t cur = g->order[q];
+    for (uint32_t k = adj_start[cur]; k < adj_start[cur + 1]; k++) {
+      uint32_t nb = adj[k];
+      if (chart_of[nb] >= 0)
+        continue;
+      if (f3_dot(c->tri_n + 3 * (size_t)g->gtri[nb], sn) < UB_LM_CHART_COS)
+        continue;
+      chart_of[nb] = id;
+      g->order[placed++] = nb;
+    }
+  }
+  return placed - pos;
+}
+
+/* Positive-area overlap of two UV triangles (separating axis test; touching edges and
+ * shared vertices do not count). */
+static int uv_tris_overlap(const double *a, const double *b)
+{
+  const double eps = 1e-4; /* texels */
+  for (int pass = 0; pass < 2; pass++) {
+    const double *t = pass ? b : a;
+    for (int e = 0; e < 3; e++) {
+      double nx = -(t[2 * ((e + 1) % 3) + 1] - t[2 * e + 1]);
+      double ny = t[2 * ((e + 1) % 3)] - t[2 * e];
+      double len = sqrt(nx * nx + ny * ny);
+      if (!(len > 0.0))
+        continue;
+      nx /= len;
+      ny /= len;
+      double amin = DBL_MAX, amax = -DBL_MAX, bmin = DBL_MAX, bmax = -DBL_MAX;
+      for (int k = 0; k < 3; k++) {
+        double pa = a[2 * k] * nx + a[2 * k + 1] * ny, pb = b[2 * k] * nx + b[2 * k + 1] * ny;
+        amin = fmin(amin, pa);
+        amax = fmax(amax, pa);
+        bmin = fmin(bmin, pb);
+        bmax = fmax(bmax, pb);
+      }
+      if (amax <= bmin + eps || bmax <= amin + eps)
+        return 0;
+    }
+  }
+  return 1;
+}
+
+/* Same orientation and within plane_tol of each other's plane: overlapping copies of one
+ * surface (duplicated faces) share texels harmlessly. */
+static int same_plane(const lm_ctx *c, uint32_t ta, uint32_t tb)
+{
+  const float *na = c->tri_n + 3 * (size_t)ta, *nb = c->tri_n + 3 * (size_t)tb;
+  if (f3_dot(na, nb) < 0.999f)
+    return 0;
+  double pa[3][3], pb[3][3], d[3], n[3];
+  tri_corners(c->scene, ta, pa);
+  tri_corners(c->scene, tb, pb);
+  load3(na, n);
+  v3_sub(pb[0], pa[0], d);
+  return fabs(v3_dot(d, n)) <= c->plane_tol;
+}
+
+/* A chart whose surface winds over itself (a ramp passing under a floor) projects onto
+ * itself. Members are taken in BFS order; one overlapping an earlier accepted member of
+ * another plane is rejected. Rejected members are regrown into new (unprojected) charts.
+ * Returns 0 on out of memory. */
+static int separate_overlaps(const lm_ctx *c, lm_charts *g, uint32_t ci,
+                             const uint32_t *adj_start, const uint32_t *adj, int32_t *chart_of)
+{
+  lm_chart ch = g->charts[ci];
+  if (ch.count < 2)
+    return 1;
+  chart_bounds(g, &ch);
+  double bw = fmax(ch.umax - ch.umin, 1e-6), bh = fmax(ch.vmax - ch.vmin, 1e-6);
+  double cs = fmax(sqrt(bw * bh / ch.count), 1e-3);
+  uint32_t nx = (uint32_t)fmin(ceil(bw / cs), 2048.0), ny = (uint32_t)fmin(ceil(bh / cs), 2048.0);
+  nx = nx ? nx : 1;
+  ny = ny ? ny : 1;
+  double sx = nx / bw, sy = ny / bh;
+  size_t ncell = (size_t)nx * ny;
+  int32_t *head = malloc(ncell * sizeof *head);
+  uint32_t *stamp = calloc(ch.count, sizeof *stamp);
+  uint8_t *rejected = calloc(ch.count, 1);
+  size_t pool_cap = (size_t)ch.count * 4 + 64, pool_n = 0;
+  struct cell_node {
+    uint32_t member;
+    int32_t next;
+  } *pool = malloc(pool_cap * sizeof *pool);
+  if (!head || !stamp || !rejected || !pool) {
+    free(head);
+    free(stamp);
+    free(rejected);
+    free(pool);
+    return 0;
+  }
+  for (size_t i = 0; i < ncell; i++)
+    head[i] = -1;
+  uint32_t nrej = 0;
+  for (uint32_t m = 0; m < ch.count; m++) {
+    uint32_t gi = g->order[ch.first + m];
+    const double *uv = g->guv + 6 * (size_t)gi;
+    double u0 = fmin(uv[0], fmin(uv[2], uv[4])), u1 = fmax(uv[0], fmax(uv[2], uv[4]));
+    double v0 = fmin(uv[1], fmin(uv[3], uv[5])), v1 = fmax(uv[1], fmax(uv[3], uv[5]));
+    uint32_t cx0 = (uint32_t)fmin(nx - 1, fmax(0.0, floor((u0 - ch.umin) * sx)));
+    uint32_t cx1 = (uint32_t)fmin(nx - 1, fmax(0.0, floor((u1 - ch.umin) * sx)));
+    uint32_t cy0 = (uint32_t)fmin(ny - 1, fmax(0.0, floor((v0 - ch.vmin) * sy)));
+    uint32_t cy1 = (uint32_t)fmin(ny - 1, fmax(0.0, floor((v1 - ch.vmin) * sy)));
+    int bad = 0;
+    for (uint32_t cy = cy0; cy <= cy1 && !bad; cy++)
+      for (uint32_t cx = cx0; cx <= cx1 && !bad; cx++)
+        for (int32_t k = head[(size_t)cy * nx + cx]; k >= 0 && !bad; k = pool[k].next) {
+          uint32_t o = pool[k].member;
+          if (stamp[o] == m + 1)
+            continue;
+          stamp[o] = m + 1;
+          uint32_t go = g->order[ch.first + o];
+          if (uv_tris_overlap(uv, g->guv + 6 * (size_t)go) &&
+              !same_plane(c, g->gtri[gi], g->gtri[go]))
+            bad = 1;
+        }
+    if (bad) {
+      rejected[m] = 1;
+      nrej++;
+      continue;
+    }
+    for (uint32_t cy = cy0; cy <= cy1; cy++)
+      for (uint32_t cx = cx0; cx <= cx1; cx++) {
+        if (pool_n == pool_cap) {
+          pool_cap *= 2;
+          struct cell_node *np = realloc(pool, pool_cap * sizeof *np);
+          if (!np) {
+            free(head);
+            free(stamp);
+            free(rejected);
+            free(pool);
+            return 0;
+          }
+          pool = np;
+        }
+        pool[pool_n].member = m;
+        pool[pool_n].next = head[(size_t)cy * nx + cx];
+        head[(size_t)cy * nx + cx] = (int32_t)pool_n++;
+      }
+  }
+  free(head);
+  free(stamp);
+  free(pool);
+  if (nrej == 0) {
+    free(rejected);
+    return 1;
+  }
+  /* accepted members first (order kept), then regrow the rejected ones */
+  uint32_t *rej = malloc((size_t)nrej * sizeof *rej);
+  uint32_t *acc = malloc((size_t)(ch.count - nrej) * sizeof *acc);
+  if (!rej || !acc) {
+    free(rej);
+    free(acc);
+    free(rejected);
+    return 0;
+  }
+  uint32_t na = 0, nr = 0;
+  for (uint32_t m = 0; m < ch.count; m++) {
+    uint32_t gi = g->order[ch.first + m];
+    if (rejected[m]) {
+      rej[nr++] = gi;
+      chart_of[gi] = -1;
+    } else {
+      acc[na++] = gi;
+    }
+  }
+  free(rejected);
+  memcpy(g->order + ch.first, acc, (size_t)na * sizeof *acc);
+  free(acc);
+  g->charts[ci].count = na;
+  uint32_t pos = ch.first + na;
+  int ok = 1;
+  for (uint32_t k = 0; k < nr && ok; k++) {
+    if (chart_of[rej[k]] >= 0)
+      continue;
+    lm_chart nc;
+    memset(&nc, 0, sizeof nc);
+    nc.first = pos;
+    nc.node = ch.node;
+    nc.count = grow_chart(c, g, rej[k], pos, adj_start, adj, chart_of, (int32_t)g->chart_count);
+    pos += nc.count;
+    ok = charts_push(g, &nc);
+  }
+  free(rej);
+  g->overlap_splits++;
+  return ok;
+}
+
 /* Builds generated charts for the triangles with tri_kind == 1. */
 ub_result ub_lm_charts_build(const lm_ctx *c, float default_ts, lm_charts *g)
 {
@@ -748,38 +948,29 @@ ub_result ub_lm_charts_build(const lm_ctx *c, float default_ts, lm_charts *g)
     memset(&ch, 0, sizeof ch);
     ch.first = placed;
     ch.node = s->tri_node[g->gtri[seed]];
-    int32_t id = (int32_t)g->chart_count;
-    const float *sn = c->tri_n + 3 * (size_t)g->gtri[seed];
-    chart_of[seed] = id;
-    g->order[placed++] = seed;
-    for (uint32_t q = ch.first; q < placed; q++) {
-      uint32_t cur = g->order[q];
-      for (uint32_t k = adj_start[cur]; k < adj_start[cur + 1]; k++) {
-        uint32_t nb = adj[k];
-        if (chart_of[nb] >= 0)
-          continue;
-        if (f3_dot(c->tri_n + 3 * (size_t)g->gtri[nb], sn) < UB_LM_CHART_COS)
-          continue;
-        chart_of[nb] = id;
-        g->order[placed++] = nb;
-      }
-    }
-    ch.count = placed - ch.first;
+    ch.count = grow_chart(c, g, seed, placed, adj_start, adj, chart_of, (int32_t)g->chart_count);
+    placed += ch.count;
     if (!charts_push(g, &ch)) {
       res = UB_ERR_OUT_OF_MEMORY;
       goto done;
     }
   }
 
-  /* Project, bound, split or scale what does not fit. */
-  uint32_t base_charts = g->chart_count;
-  for (uint32_t ci = 0; ci < base_charts; ci++) {
-    lm_chart *ch = &g->charts[ci];
-    float ts = ub_lm_texel_size(c, g->gtri[g->order[ch->first]], default_ts);
-    if (!project_chart(c, g, ch, ts)) {
-      res = UB_ERR_OUT_OF_MEMORY;
-      goto done;
+  /* Project (then separate self-overlaps: new charts are appended and visited by this
+   * same loop), bound, split or scale what does not fit (sub-charts keep the parent's
+   * projection and are already within bounds when the loop reaches them). */
+  for (uint32_t ci = 0; ci < g->chart_count; ci++) {
+    if (!g->charts[ci].projected) {
+      lm_chart *ch = &g->charts[ci];
+      float ts = ub_lm_texel_size(c, g->gtri[g->order[ch->first]], default_ts);
+      if (!project_chart(c, g, ch, ts) ||
+          !separate_overlaps(c, g, ci, adj_start, adj, chart_of)) {
+        res = UB_ERR_OUT_OF_MEMORY;
+        goto done;
+      }
+      g->charts[ci].projected = 1;
     }
+    lm_chart *ch = &g->charts[ci];
     chart_bounds(g, ch);
     if (ch->umax - ch->umin > UB_LM_MAX_EXTENT || ch->vmax - ch->vmin > UB_LM_MAX_EXTENT) {
       uint32_t before = g->chart_count;

@@ -865,6 +865,10 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
     if (res != UB_OK)
       goto fail;
   }
+  if (g.overlap_splits)
+    ub_log_printf(log, UB_LOG_INFO,
+                  "lightmap: %u generated charts folded over themselves and were split",
+                  g.overlap_splits);
   if (g.scaled_charts)
     ub_log_printf(log, UB_LOG_WARNING,
                   "lightmap: %u charts larger than a %u² atlas scaled down (coarser texels)",

@@ -108,6 +108,7 @@ typedef struct lm_chart {
   uint32_t rect_w, rect_h;       /* packed rectangle incl. padding */
   uint32_t atlas, x, y;          /* placement (atlas index among generated atlases) */
   uint32_t node;
+  int projected;                 /* guv holds this chart's projection */
 } lm_chart;
 
 typedef struct lm_charts {
@@ -118,6 +119,7 @@ typedef struct lm_charts {
   lm_chart *charts;
   uint32_t chart_count, chart_cap;
   uint32_t split_charts, scaled_charts;
+  uint32_t overlap_splits;      /* charts that folded over themselves and were split */
 } lm_charts;
 
 /* Charts for the triangles with tri_kind == 1: edge-connected (welded positions, same

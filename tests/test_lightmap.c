@@ -658,6 +658,90 @@ static void test_dilate_small(void)
   ub_lightmap_dilate(NULL, cov2, 7, 5, 1, 1); /* NULL-safe */
 }
 
+/* Charts longer than an atlas: a 10 km strip of 100 m quads is split on a grid, a single
+ * 6 km quad cannot be split and is scaled down; both stay fully covered. */
+static void test_oversized_charts(void)
+{
+  builder b = {calloc(1, sizeof(ub_scene)), 0, 0};
+  ub_scene *s = b.s;
+  s->path = dupstr("(strip)");
+  s->texel_size = 1.0f;
+  s->material_count = 1;
+  s->materials = calloc(1, sizeof(ub_material));
+  s->materials[0].name = dupstr("m");
+  s->node_count = 2;
+  s->nodes = calloc(2, sizeof(ub_node));
+  for (int i = 0; i < 2; i++) {
+    s->nodes[i].name = dupstr(i ? "long" : "strip");
+    s->nodes[i].receiver = UB_RECEIVER_LIGHTMAP;
+    s->nodes[i].door = s->nodes[i].door_open = s->nodes[i].semidynamic = -1;
+  }
+  s->nodes[1].texel_size = 2.0f;
+  const float up[3] = {0, 1, 0};
+  for (int q = 0; q < 100; q++) {
+    float x0 = q * 100.0f, x1 = x0 + 100.0f;
+    const float p[4][3] = {{x0, 0, 0}, {x0, 0, 10}, {x1, 0, 10}, {x1, 0, 0}};
+    b_quad(&b, 0, p, up);
+  }
+  s->nodes[0].triangle_count = s->triangle_count;
+  s->nodes[1].first_triangle = s->triangle_count;
+  {
+    const float p[4][3] = {{0, 5, 20}, {0, 5, 30}, {12000, 5, 30}, {12000, 5, 20}};
+    b_quad(&b, 1, p, up);
+  }
+  s->nodes[1].triangle_count = 2;
+  for (int a = 0; a < 3; a++) {
+    s->bounds_min[a] = 0;
+    s->bounds_max[a] = a == 0 ? 12000.0f : 30.0f;
+  }
+  ub_lightmap *lm = NULL;
+  ASSERT_OK(ub_lightmap_build(s, NULL, 0.25f, &g_log, &lm));
+  if (lm) {
+    printf("oversized: %u atlases (%ux%u), %u charts, %u texels\n", lm->atlas_count,
+           lm->atlases[0].width, lm->atlases[0].height, lm->chart_count, lm->texel_count);
+    check_invariants(s, lm, 1);
+    ASSERT_TRUE(lm->chart_count >= 3 + 1);
+    for (uint32_t a = 0; a < lm->atlas_count; a++)
+      ASSERT_TRUE(lm->atlases[a].width <= UB_ATLAS_MAX_SIZE &&
+                  lm->atlases[a].height <= UB_ATLAS_MAX_SIZE);
+    /* the strip keeps its 1 m texels: ≥ 10000 × 10 texels */
+    uint32_t strip_texels = 0;
+    for (uint32_t ti = 0; ti < lm->texel_count; ti++)
+      strip_texels += lm->texel_tri[ti] < 200;
+    ASSERT_TRUE(strip_texels >= 100000 && strip_texels <= 130000);
+    ub_lightmap_free(lm);
+  }
+  ub_scene_free(s);
+}
+
+/* No ray tracer (offsets only), and a scene with nothing lightmapped. */
+static void test_degenerate_inputs(void)
+{
+  ub_scene *s = make_scene();
+  ub_lightmap *lm = NULL;
+  ASSERT_OK(ub_lightmap_build(s, NULL, 0.25f, NULL, &lm));
+  if (lm) {
+    ASSERT_TRUE(lm->backface_fixes == 0 && lm->texel_count > 0);
+    check_invariants(s, lm, 1);
+    ub_lightmap_free(lm);
+    lm = NULL;
+  }
+  for (uint32_t n = 0; n < s->node_count; n++)
+    s->nodes[n].receiver = UB_RECEIVER_LLG;
+  ub_rt *rt = NULL;
+  ASSERT_OK(ub_rt_create(s, NULL, NULL, &rt));
+  ASSERT_OK(ub_lightmap_build(s, rt, 0.25f, NULL, &lm));
+  if (lm) {
+    ASSERT_TRUE(lm->atlas_count == 0 && lm->texel_count == 0);
+    for (uint32_t t = 0; t < s->triangle_count; t++)
+      ASSERT_TRUE(lm->tri_atlas[t] == -1);
+  }
+  ub_lightmap_free(lm);
+  ub_lightmap_free(NULL);
+  ub_rt_free(rt);
+  ub_scene_free(s);
+}
+
 static void test_real_level(const char *path)
 {
   struct stat st;
@@ -704,6 +788,8 @@ int main(void)
   mkdir(dir, 0777);
   test_dilate_small();
   test_small_scene(dir);
+  test_degenerate_inputs();
+  test_oversized_charts();
   const char *levels = getenv("UB_TEST_LEVELS");
   if (!levels) {
     test_real_level("/work/shared/levels/real/oa_dm4/oa_dm4.gltf");
