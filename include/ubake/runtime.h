@@ -1,0 +1,61 @@
+/* ubake/runtime.h — the run-time library: load a baked level (.ubk) and answer lighting
+ * queries the way the game would.
+ *
+ * What it is: a ub_runtime holds a validated bake file (ubake/bakefile.h) and, per
+ * lightmap texel, the AHD encoding (ubake/ahd.h) of its baked SH L1, made once at load
+ * time with the texel's stored normal (a texel without a usable normal takes the normal
+ * of the nearest texel that has one). Lightmap queries find the closest lightmapped
+ * surface point, filter the AHD atlas bilinearly there and decode irradiance for a normal.
+ * It does not depend on Embree or on the baker.
+ *
+ * Lifecycle: ub_runtime_load() → queries → ub_runtime_free() (NULL-safe). On failure
+ * nothing is allocated and *out is left untouched.
+ * Ownership: the runtime owns its bake file; ub_runtime_bakefile() lends it (valid until
+ * ub_runtime_free()). Thread safety: after loading, queries take a const ub_runtime and
+ * may run on any number of threads at once. The log passed to ub_runtime_load() is used
+ * during that call only.
+ *
+ * Lightmap addressing (docs/FORMAT.md): texel (x, y) of a W × H atlas covers
+ * u ∈ [x/W, (x+1)/W), v ∈ [y/H, (y+1)/H); its centre is at ((x+0.5)/W, (y+0.5)/H).
+ */
+#ifndef UBAKE_RUNTIME_H
+#define UBAKE_RUNTIME_H
+
+#include <stdint.h>
+
+#include "ubake/bakefile.h"
+#include "ubake/error.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct ub_runtime ub_runtime;
+
+/* Reads and validates path (.ubk) and prepares the AHD atlases. Errors: UB_ERR_IO,
+ * UB_ERR_INVALID_DATA, UB_ERR_UNSUPPORTED_VERSION, UB_ERR_OUT_OF_MEMORY, each with one
+ * message to log naming the file. */
+ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out);
+void ub_runtime_free(ub_runtime *rt);
+
+/* The loaded bake file, read-only, owned by rt. */
+const ub_bakefile *ub_runtime_bakefile(const ub_runtime *rt);
+
+/* Baked irradiance (W/m², linear RGB) at the lightmapped surface point closest to p
+ * (world, metres), for the unit normal n (normalised here), from the bilinearly filtered
+ * AHD lightmap. out_distance (may be NULL): metres from p to that surface point.
+ * Returns UB_ERR_NOT_BAKED if the file has no lightmapped triangle (outputs untouched),
+ * UB_ERR_INVALID_ARGUMENT for a non-finite p or a zero / non-finite n. */
+ub_result ub_runtime_query_lightmap(const ub_runtime *rt, const float p[3], const float n[3],
+                                    float out_rgb[3], float *out_distance);
+
+/* Irradiance (W/m²) decoded from the AHD of texel (x, y) of atlas `atlas` for unit normal
+ * n (normalised here); 0 for an empty texel (coverage 0). UB_ERR_INVALID_ARGUMENT for an
+ * atlas or texel out of range or a zero / non-finite n (outputs untouched). */
+ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint32_t x,
+                                      uint32_t y, const float n[3], float out_rgb[3]);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

@@ -1,0 +1,868 @@
+/* runtime/bakefile.c — .ubk writer and validating reader (layout: docs/FORMAT.md).
+ *
+ * Writer: validates the in-memory bake file, streams the sections to PATH.tmp (header
+ * and section table are written last, once every section's size and CRC is known), then
+ * renames PATH.tmp to PATH. Reader: treats the bytes as hostile; every field is read
+ * through a bounds-checked cursor, every count is checked against the section size before
+ * anything is allocated, and the parsed result goes through the same validator as the
+ * writer's input, so a file the writer accepts is a file the reader accepts and back.
+ */
+#include "ubake/bakefile.h"
+
+#include <assert.h>
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include "runtime/crc32.h"
+#include "runtime/half.h"
+
+#define UB_UBK_HEADER_SIZE 16u
+#define UB_UBK_ENTRY_SIZE 32u
+#define UB_UBK_FLAG_REQUIRED 1u
+#define UB_UBK_ATLAS_MAX_DIM 16384u
+#define UB_UBK_META_SIZE 72u
+#define UB_UBK_MAX_FILE_SIZE ((uint64_t)4 << 30) /* ub_bakefile_read refuses larger files */
+
+/* Fuzz builds (-DFUZZING_BUILD_MODE_UNSAFE_FOR_PRODUCTION, the libFuzzer/OSS-Fuzz
+ * convention) skip CRC mismatches so the fuzzer reaches the section parsers: a hostile
+ * file can always carry correct CRCs, so the parsers must hold without them. */
+#ifdef FUZZING_BUILD_MODE_UNSAFE_FOR_PRODUCTION
+#define UB_UBK_CHECK_CRC 0
+#else
+#define UB_UBK_CHECK_CRC 1
+#endif
+
+static const uint8_t ub_ubk_magic[4] = {'U', 'B', 'K', 0};
+
+enum { UB_SEC_META = 0, UB_SEC_GEOM, UB_SEC_ATLS, UB_SEC_KNOWN };
+static const char ub_sec_tags[UB_SEC_KNOWN][5] = {"META", "GEOM", "ATLS"};
+
+/* ---------------------------------------------------------------------------------- */
+/* Little-endian encoding, independent of the host's byte order.                       */
+
+static void le_put32(uint8_t *p, uint32_t v)
+{
+  p[0] = (uint8_t)v;
+  p[1] = (uint8_t)(v >> 8);
+  p[2] = (uint8_t)(v >> 16);
+  p[3] = (uint8_t)(v >> 24);
+}
+
+static void le_put64(uint8_t *p, uint64_t v)
+{
+  le_put32(p, (uint32_t)v);
+  le_put32(p + 4, (uint32_t)(v >> 32));
+}
+
+static uint32_t le_get32(const uint8_t *p)
+{
+  return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+}
+
+static uint64_t le_get64(const uint8_t *p)
+{
+  return (uint64_t)le_get32(p) | (uint64_t)le_get32(p + 4) << 32;
+}
+
+static uint16_t le_get16(const uint8_t *p)
+{
+  return (uint16_t)(p[0] | p[1] << 8);
+}
+
+static uint32_t float_bits(float f)
+{
+  uint32_t u;
+  memcpy(&u, &f, sizeof u);
+  return u;
+}
+
+static float bits_float(uint32_t u)
+{
+  float f;
+  memcpy(&f, &u, sizeof f);
+  return f;
+}
+
+static uint64_t align8(uint64_t x)
+{
+  return (x + 7u) & ~(uint64_t)7u;
+}
+
+/* ---------------------------------------------------------------------------------- */
+/* Messages: "NAME: section TAG: what".                                                */
+
+#if defined(__GNUC__)
+__attribute__((format(printf, 4, 5)))
+#endif
+static void ubk_error(const ub_log *log, const char *name, const char *where, const char *fmt,
+                      ...)
+{
+  if (!log || !log->fn)
+    return;
+  char msg[512];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(msg, sizeof msg, fmt, ap);
+  va_end(ap);
+  ub_log_printf(log, UB_LOG_ERROR, "%s: %s: %s", name ? name : "(memory)", where, msg);
+}
+
+/* ---------------------------------------------------------------------------------- */
+/* Validation of an in-memory bake file: shared by the writer (its input) and the reader */
+/* (its output).                                                                       */
+
+static int all_finite(const float *v, size_t n, size_t *out_bad)
+{
+  for (size_t i = 0; i < n; i++)
+    if (!isfinite(v[i])) {
+      *out_bad = i;
+      return 0;
+    }
+  return 1;
+}
+
+static ub_result validate(const ub_bakefile *bf, const char *name, const ub_log *log)
+{
+  size_t bad;
+
+  /* Caller bugs: arrays missing for non-zero counts. */
+  assert(bf->vertex_count == 0 || bf->positions);
+  assert(bf->triangle_count == 0 ||
+         (bf->indices && bf->tri_atlas && bf->tri_uv && bf->tri_albedo));
+  assert(bf->atlas_count == 0 || bf->atlases);
+
+  if (!memchr(bf->level_name, 0, sizeof bf->level_name)) {
+    ubk_error(log, name, "section META", "level name is not NUL-terminated within %zu bytes",
+              sizeof bf->level_name);
+    return UB_ERR_INVALID_DATA;
+  }
+
+  if (!all_finite(bf->positions, (size_t)bf->vertex_count * 3, &bad)) {
+    ubk_error(log, name, "section GEOM", "vertex %zu has a non-finite position", bad / 3);
+    return UB_ERR_INVALID_DATA;
+  }
+  for (size_t i = 0; i < (size_t)bf->triangle_count * 3; i++)
+    if (bf->indices[i] >= bf->vertex_count) {
+      ubk_error(log, name, "section GEOM", "triangle %zu: index %u >= vertex count %u", i / 3,
+                bf->indices[i], bf->vertex_count);
+      return UB_ERR_INVALID_DATA;
+    }
+  for (size_t t = 0; t < bf->triangle_count; t++)
+    if (bf->tri_atlas[t] < -1 || (bf->tri_atlas[t] >= 0 &&
+                                  (uint32_t)bf->tri_atlas[t] >= bf->atlas_count)) {
+      ubk_error(log, name, "section GEOM", "triangle %zu: atlas %d not in [-1, %u)", t,
+                (int)bf->tri_atlas[t], bf->atlas_count);
+      return UB_ERR_INVALID_DATA;
+    }
+  if (!all_finite(bf->tri_uv, (size_t)bf->triangle_count * 6, &bad)) {
+    ubk_error(log, name, "section GEOM", "triangle %zu has a non-finite lightmap UV", bad / 6);
+    return UB_ERR_INVALID_DATA;
+  }
+  if (!all_finite(bf->tri_albedo, (size_t)bf->triangle_count * 3, &bad)) {
+    ubk_error(log, name, "section GEOM", "triangle %zu has a non-finite albedo", bad / 3);
+    return UB_ERR_INVALID_DATA;
+  }
+
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    if (at->width < 1 || at->width > UB_UBK_ATLAS_MAX_DIM || at->height < 1 ||
+        at->height > UB_UBK_ATLAS_MAX_DIM) {
+      ubk_error(log, name, "section ATLS", "atlas %u: size %ux%u not in [1, %u]", a, at->width,
+                at->height, UB_UBK_ATLAS_MAX_DIM);
+      return UB_ERR_INVALID_DATA;
+    }
+    assert(at->sh && at->coverage && at->normal);
+    size_t texels = (size_t)at->width * at->height;
+    for (size_t i = 0; i < texels; i++)
+      if (at->coverage[i] > 2) {
+        ubk_error(log, name, "section ATLS", "atlas %u: texel (%zu, %zu): coverage %u not in "
+                  "{0, 1, 2}", a, i % at->width, i / at->width, at->coverage[i]);
+        return UB_ERR_INVALID_DATA;
+      }
+    if (!all_finite(at->sh, texels * UB_SH1_FLOATS, &bad)) {
+      bad /= UB_SH1_FLOATS;
+      ubk_error(log, name, "section ATLS", "atlas %u: texel (%zu, %zu): non-finite SH", a,
+                bad % at->width, bad / at->width);
+      return UB_ERR_INVALID_DATA;
+    }
+    if (!all_finite(at->normal, texels * 3, &bad)) {
+      bad /= 3;
+      ubk_error(log, name, "section ATLS", "atlas %u: texel (%zu, %zu): non-finite normal", a,
+                bad % at->width, bad / at->width);
+      return UB_ERR_INVALID_DATA;
+    }
+  }
+  return UB_OK;
+}
+
+/* ---------------------------------------------------------------------------------- */
+/* Writer.                                                                             */
+
+typedef struct ubk_section_entry {
+  char tag[4];
+  uint32_t flags;
+  uint64_t offset, size;
+  uint32_t crc;
+} ubk_section_entry;
+
+typedef struct ubk_writer {
+  FILE *f;
+  int err;          /* first errno, 0 = fine */
+  uint64_t pos;     /* bytes emitted so far (file offset of the next byte) */
+  uint32_t crc;     /* running CRC of the current section's payload */
+  uint64_t clamped; /* half values clamped to ±UB_HALF_MAX */
+  size_t n;
+  uint8_t buf[1 << 16];
+} ubk_writer;
+
+static void wr_flush(ubk_writer *w)
+{
+  if (w->n && !w->err) {
+    errno = 0;
+    if (fwrite(w->buf, 1, w->n, w->f) != w->n)
+      w->err = errno ? errno : EIO;
+  }
+  w->n = 0;
+}
+
+/* in_crc: the bytes belong to the current section's payload. */
+static void wr_bytes(ubk_writer *w, const void *data, size_t size, int in_crc)
+{
+  const uint8_t *p = (const uint8_t *)data;
+  if (in_crc)
+    w->crc = ub_crc32_update(w->crc, p, size);
+  w->pos += size;
+  while (size) {
+    size_t k = sizeof w->buf - w->n;
+    if (k > size)
+      k = size;
+    memcpy(w->buf + w->n, p, k);
+    w->n += k;
+    p += k;
+    size -= k;
+    if (w->n == sizeof w->buf)
+      wr_flush(w);
+  }
+}
+
+static void wr_u32(ubk_writer *w, uint32_t v)
+{
+  uint8_t b[4];
+  le_put32(b, v);
+  wr_bytes(w, b, 4, 1);
+}
+
+static void wr_f32(ubk_writer *w, float v)
+{
+  wr_u32(w, float_bits(v));
+}
+
+static void wr_half(ubk_writer *w, float v)
+{
+  if (v > UB_HALF_MAX) {
+    v = UB_HALF_MAX;
+    w->clamped++;
+  } else if (v < -UB_HALF_MAX) {
+    v = -UB_HALF_MAX;
+    w->clamped++;
+  }
+  uint16_t h = ub_half_from_float(v);
+  uint8_t b[2] = {(uint8_t)h, (uint8_t)(h >> 8)};
+  wr_bytes(w, b, 2, 1);
+}
+
+static void wr_zeros(ubk_writer *w, size_t n, int in_crc)
+{
+  static const uint8_t zeros[8];
+  while (n) {
+    size_t k = n < sizeof zeros ? n : sizeof zeros;
+    wr_bytes(w, zeros, k, in_crc);
+    n -= k;
+  }
+}
+
+static void wr_begin(ubk_writer *w, ubk_section_entry *e, const char tag[4])
+{
+  wr_zeros(w, (size_t)(align8(w->pos) - w->pos), 0);
+  memcpy(e->tag, tag, 4);
+  e->flags = UB_UBK_FLAG_REQUIRED;
+  e->offset = w->pos;
+  w->crc = 0;
+}
+
+static void wr_end(ubk_writer *w, ubk_section_entry *e)
+{
+  e->size = w->pos - e->offset;
+  e->crc = w->crc;
+}
+
+static void wr_meta(ubk_writer *w, const ub_bakefile *bf)
+{
+  uint8_t name[64] = {0};
+  /* Bytes after the NUL are written as zeros, whatever the struct holds. */
+  size_t len = strlen(bf->level_name);
+  memcpy(name, bf->level_name, len);
+  wr_bytes(w, name, sizeof name, 1);
+  wr_u32(w, bf->seed);
+  wr_u32(w, bf->bounces);
+}
+
+static void wr_geom(ubk_writer *w, const ub_bakefile *bf)
+{
+  wr_u32(w, bf->vertex_count);
+  wr_u32(w, bf->triangle_count);
+  size_t t = bf->triangle_count;
+  for (size_t i = 0; i < (size_t)bf->vertex_count * 3; i++)
+    wr_f32(w, bf->positions[i]);
+  for (size_t i = 0; i < t * 3; i++)
+    wr_u32(w, bf->indices[i]);
+  for (size_t i = 0; i < t; i++)
+    wr_u32(w, (uint32_t)bf->tri_atlas[i]);
+  for (size_t i = 0; i < t * 6; i++)
+    wr_f32(w, bf->tri_uv[i]);
+  for (size_t i = 0; i < t * 3; i++)
+    wr_f32(w, bf->tri_albedo[i]);
+}
+
+static void wr_atls(ubk_writer *w, const ub_bakefile *bf)
+{
+  wr_u32(w, bf->atlas_count);
+  wr_u32(w, 0); /* reserved */
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    wr_u32(w, bf->atlases[a].width);
+    wr_u32(w, bf->atlases[a].height);
+  }
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    size_t texels = (size_t)at->width * at->height;
+    for (size_t i = 0; i < texels * UB_SH1_FLOATS; i++)
+      wr_half(w, at->sh[i]);
+    for (size_t i = 0; i < texels * 3; i++)
+      wr_half(w, at->normal[i]);
+    wr_bytes(w, at->coverage, texels, 1);
+    uint64_t block = (uint64_t)texels * 31u;
+    wr_zeros(w, (size_t)(align8(block) - block), 1);
+  }
+}
+
+ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_log *log)
+{
+  assert(bf && path);
+  ub_result r = validate(bf, path, log);
+  if (r != UB_OK)
+    return r;
+
+  size_t plen = strlen(path);
+  char *tmp = malloc(plen + 5);
+  ubk_writer *w = calloc(1, sizeof *w);
+  if (!tmp || !w) {
+    free(tmp);
+    free(w);
+    ubk_error(log, path, "write", "out of memory");
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  memcpy(tmp, path, plen);
+  memcpy(tmp + plen, ".tmp", 5);
+
+  w->f = fopen(tmp, "wb");
+  if (!w->f) {
+    ubk_error(log, path, "write", "cannot create %s: %s", tmp, strerror(errno));
+    free(tmp);
+    free(w);
+    return UB_ERR_IO;
+  }
+
+  /* Placeholder header and table; rewritten at the end with the real sizes and CRCs. */
+  ubk_section_entry sec[UB_SEC_KNOWN];
+  memset(sec, 0, sizeof sec);
+  uint8_t head[UB_UBK_HEADER_SIZE + UB_SEC_KNOWN * UB_UBK_ENTRY_SIZE];
+  memset(head, 0, sizeof head);
+  wr_bytes(w, head, sizeof head, 0);
+
+  wr_begin(w, &sec[UB_SEC_META], ub_sec_tags[UB_SEC_META]);
+  wr_meta(w, bf);
+  wr_end(w, &sec[UB_SEC_META]);
+  wr_begin(w, &sec[UB_SEC_GEOM], ub_sec_tags[UB_SEC_GEOM]);
+  wr_geom(w, bf);
+  wr_end(w, &sec[UB_SEC_GEOM]);
+  wr_begin(w, &sec[UB_SEC_ATLS], ub_sec_tags[UB_SEC_ATLS]);
+  wr_atls(w, bf);
+  wr_end(w, &sec[UB_SEC_ATLS]);
+  wr_flush(w);
+
+  memcpy(head, ub_ubk_magic, 4);
+  le_put32(head + 4, UB_BAKEFILE_VERSION);
+  le_put32(head + 8, UB_SEC_KNOWN);
+  for (int i = 0; i < UB_SEC_KNOWN; i++) {
+    uint8_t *e = head + UB_UBK_HEADER_SIZE + (size_t)i * UB_UBK_ENTRY_SIZE;
+    memcpy(e, sec[i].tag, 4);
+    le_put32(e + 4, sec[i].flags);
+    le_put64(e + 8, sec[i].offset);
+    le_put64(e + 16, sec[i].size);
+    le_put32(e + 24, sec[i].crc);
+    le_put32(e + 28, 0);
+  }
+  uint32_t hcrc = ub_crc32_update(0, head, 12);
+  hcrc = ub_crc32_update(hcrc, head + UB_UBK_HEADER_SIZE, sizeof head - UB_UBK_HEADER_SIZE);
+  le_put32(head + 12, hcrc);
+
+  if (!w->err && fseek(w->f, 0, SEEK_SET) != 0)
+    w->err = errno ? errno : EIO;
+  if (!w->err && fwrite(head, 1, sizeof head, w->f) != sizeof head)
+    w->err = errno ? errno : EIO;
+  if (!w->err && fflush(w->f) != 0)
+    w->err = errno ? errno : EIO;
+  if (fclose(w->f) != 0 && !w->err)
+    w->err = errno ? errno : EIO;
+  if (!w->err && rename(tmp, path) != 0) {
+    int e = errno ? errno : EIO;
+    remove(tmp);
+    ubk_error(log, path, "write", "cannot rename %s to %s: %s", tmp, path, strerror(e));
+    free(tmp);
+    free(w);
+    return UB_ERR_IO;
+  }
+  if (w->err) {
+    remove(tmp);
+    ubk_error(log, path, "write", "cannot write %s: %s", tmp, strerror(w->err));
+    free(tmp);
+    free(w);
+    return UB_ERR_IO;
+  }
+  if (w->clamped && log)
+    ub_log_printf(log, UB_LOG_WARNING, "%s: section ATLS: %llu value(s) beyond the half range "
+                  "clamped to +-%g", path, (unsigned long long)w->clamped, (double)UB_HALF_MAX);
+  free(tmp);
+  free(w);
+  return UB_OK;
+}
+
+/* ---------------------------------------------------------------------------------- */
+/* Reader.                                                                             */
+
+/* Bounds-checked view of a section payload: every read checks `left` first. */
+typedef struct ubk_cursor {
+  const uint8_t *p;
+  size_t left;
+} ubk_cursor;
+
+static int cur_take(ubk_cursor *c, size_t n, const uint8_t **out)
+{
+  if (c->left < n)
+    return 0;
+  *out = c->p;
+  c->p += n;
+  c->left -= n;
+  return 1;
+}
+
+static int cur_u32(ubk_cursor *c, uint32_t *out)
+{
+  uint8_t b[4];
+  const uint8_t *p;
+  if (!cur_take(c, 4, &p))
+    return 0;
+  memcpy(b, p, 4);
+  *out = le_get32(b);
+  return 1;
+}
+
+static int cur_f32s(ubk_cursor *c, float *out, size_t n)
+{
+  const uint8_t *p;
+  if (n > c->left / 4 || !cur_take(c, n * 4, &p))
+    return 0;
+  for (size_t i = 0; i < n; i++) {
+    uint8_t b[4];
+    memcpy(b, p + i * 4, 4);
+    out[i] = bits_float(le_get32(b));
+  }
+  return 1;
+}
+
+static int cur_u32s(ubk_cursor *c, uint32_t *out, size_t n)
+{
+  const uint8_t *p;
+  if (n > c->left / 4 || !cur_take(c, n * 4, &p))
+    return 0;
+  for (size_t i = 0; i < n; i++) {
+    uint8_t b[4];
+    memcpy(b, p + i * 4, 4);
+    out[i] = le_get32(b);
+  }
+  return 1;
+}
+
+static int cur_halves(ubk_cursor *c, float *out, size_t n)
+{
+  const uint8_t *p;
+  if (n > c->left / 2 || !cur_take(c, n * 2, &p))
+    return 0;
+  for (size_t i = 0; i < n; i++) {
+    uint8_t b[2];
+    memcpy(b, p + i * 2, 2);
+    out[i] = ub_half_to_float(le_get16(b));
+  }
+  return 1;
+}
+
+/* calloc of count × size with the product overflow-checked. */
+static void *calloc_array(uint64_t count, size_t size)
+{
+  if (count == 0)
+    return NULL;
+  if (count > SIZE_MAX / size)
+    return NULL;
+  return calloc((size_t)count, size);
+}
+
+typedef struct ubk_reader {
+  const char *name;
+  const ub_log *log;
+} ubk_reader;
+
+static ub_result parse_meta(const ubk_reader *rd, const uint8_t *p, uint64_t size,
+                            ub_bakefile *bf)
+{
+  if (size != UB_UBK_META_SIZE) {
+    ubk_error(rd->log, rd->name, "section META", "size %llu, expected %u",
+              (unsigned long long)size, UB_UBK_META_SIZE);
+    return UB_ERR_INVALID_DATA;
+  }
+  ubk_cursor c = {p, (size_t)size};
+  const uint8_t *name;
+  cur_take(&c, 64, &name);
+  const uint8_t *nul = memchr(name, 0, 64);
+  if (!nul) {
+    ubk_error(rd->log, rd->name, "section META", "level name is not NUL-terminated");
+    return UB_ERR_INVALID_DATA;
+  }
+  memcpy(bf->level_name, name, (size_t)(nul - name));
+  cur_u32(&c, &bf->seed);
+  cur_u32(&c, &bf->bounces);
+  return UB_OK;
+}
+
+static ub_result parse_geom(const ubk_reader *rd, const uint8_t *p, uint64_t size,
+                            ub_bakefile *bf)
+{
+  ubk_cursor c = {p, (size_t)size};
+  uint32_t v, t;
+  if (!cur_u32(&c, &v) || !cur_u32(&c, &t)) {
+    ubk_error(rd->log, rd->name, "section GEOM", "size %llu too small for the counts",
+              (unsigned long long)size);
+    return UB_ERR_INVALID_DATA;
+  }
+  /* u32 counts: this cannot overflow 64 bits. */
+  uint64_t expect = 8u + 12u * (uint64_t)v + 52u * (uint64_t)t;
+  if (expect != size) {
+    ubk_error(rd->log, rd->name, "section GEOM", "size %llu does not match %u vertices and "
+              "%u triangles (%llu bytes)", (unsigned long long)size, v, t,
+              (unsigned long long)expect);
+    return UB_ERR_INVALID_DATA;
+  }
+  /* From here each array is bounded by the section size, which is bounded by the input. */
+  bf->positions = calloc_array((uint64_t)v * 3, sizeof(float));
+  bf->indices = calloc_array((uint64_t)t * 3, sizeof(uint32_t));
+  bf->tri_atlas = calloc_array(t, sizeof(int32_t));
+  bf->tri_uv = calloc_array((uint64_t)t * 6, sizeof(float));
+  bf->tri_albedo = calloc_array((uint64_t)t * 3, sizeof(float));
+  if ((v && !bf->positions) ||
+      (t && (!bf->indices || !bf->tri_atlas || !bf->tri_uv || !bf->tri_albedo))) {
+    ubk_error(rd->log, rd->name, "section GEOM", "out of memory");
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  bf->vertex_count = v;
+  bf->triangle_count = t;
+  int ok = cur_f32s(&c, bf->positions, (size_t)v * 3) &&
+           cur_u32s(&c, bf->indices, (size_t)t * 3) &&
+           cur_u32s(&c, (uint32_t *)bf->tri_atlas, t) &&
+           cur_f32s(&c, bf->tri_uv, (size_t)t * 6) &&
+           cur_f32s(&c, bf->tri_albedo, (size_t)t * 3);
+  assert(ok && c.left == 0); /* guaranteed by the exact size check above */
+  (void)ok;
+  return UB_OK;
+}
+
+static ub_result parse_atls(const ubk_reader *rd, const uint8_t *p, uint64_t size,
+                            ub_bakefile *bf)
+{
+  ubk_cursor c = {p, (size_t)size};
+  uint32_t count, reserved;
+  if (!cur_u32(&c, &count) || !cur_u32(&c, &reserved)) {
+    ubk_error(rd->log, rd->name, "section ATLS", "size %llu too small for the atlas count",
+              (unsigned long long)size);
+    return UB_ERR_INVALID_DATA;
+  }
+  if (count > c.left / 8) {
+    ubk_error(rd->log, rd->name, "section ATLS", "atlas count %u does not fit in %llu bytes",
+              count, (unsigned long long)size);
+    return UB_ERR_INVALID_DATA;
+  }
+  /* Directory first: sizes and the total are checked before any texel array exists. */
+  ubk_cursor dir = c;
+  c.p += (size_t)count * 8;
+  c.left -= (size_t)count * 8;
+  uint64_t total = 0;
+  for (uint32_t a = 0; a < count; a++) {
+    uint32_t w = 0, h = 0;
+    cur_u32(&dir, &w);
+    cur_u32(&dir, &h);
+    if (w < 1 || w > UB_UBK_ATLAS_MAX_DIM || h < 1 || h > UB_UBK_ATLAS_MAX_DIM) {
+      ubk_error(rd->log, rd->name, "section ATLS", "atlas %u: size %ux%u not in [1, %u]", a, w,
+                h, UB_UBK_ATLAS_MAX_DIM);
+      return UB_ERR_INVALID_DATA;
+    }
+    total += align8((uint64_t)w * h * 31u);
+    if (total > c.left) {
+      ubk_error(rd->log, rd->name, "section ATLS", "atlas %u (%ux%u) runs past the end of the "
+                "section (%llu bytes)", a, w, h, (unsigned long long)size);
+      return UB_ERR_INVALID_DATA;
+    }
+  }
+  if (total != c.left) {
+    ubk_error(rd->log, rd->name, "section ATLS", "%llu trailing bytes after the last atlas",
+              (unsigned long long)(c.left - total));
+    return UB_ERR_INVALID_DATA;
+  }
+  if (count) {
+    bf->atlases = calloc_array(count, sizeof *bf->atlases);
+    if (!bf->atlases) {
+      ubk_error(rd->log, rd->name, "section ATLS", "out of memory");
+      return UB_ERR_OUT_OF_MEMORY;
+    }
+  }
+  bf->atlas_count = count; /* ub_bakefile_free frees what was allocated so far */
+  dir.p = p + 8;
+  dir.left = (size_t)count * 8;
+  for (uint32_t a = 0; a < count; a++) {
+    ub_bakefile_atlas *at = &bf->atlases[a];
+    cur_u32(&dir, &at->width);
+    cur_u32(&dir, &at->height);
+    size_t texels = (size_t)at->width * at->height;
+    at->sh = calloc_array((uint64_t)texels * UB_SH1_FLOATS, sizeof(float));
+    at->normal = calloc_array((uint64_t)texels * 3, sizeof(float));
+    at->coverage = calloc_array(texels, 1);
+    if (!at->sh || !at->normal || !at->coverage) {
+      ubk_error(rd->log, rd->name, "section ATLS", "atlas %u: out of memory", a);
+      return UB_ERR_OUT_OF_MEMORY;
+    }
+    const uint8_t *cov, *pad;
+    uint64_t block = (uint64_t)texels * 31u;
+    int ok = cur_halves(&c, at->sh, texels * UB_SH1_FLOATS) &&
+             cur_halves(&c, at->normal, texels * 3) && cur_take(&c, texels, &cov) &&
+             cur_take(&c, (size_t)(align8(block) - block), &pad);
+    assert(ok); /* guaranteed by the size walk above */
+    (void)ok;
+    memcpy(at->coverage, cov, texels);
+  }
+  return UB_OK;
+}
+
+ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *name,
+                                  const ub_log *log, ub_bakefile **out_bf)
+{
+  assert(out_bf);
+  assert(data || size == 0);
+  const uint8_t *d = (const uint8_t *)data;
+  ubk_reader rd = {name ? name : "(memory)", log};
+
+  if (size < UB_UBK_HEADER_SIZE) {
+    ubk_error(log, rd.name, "header", "file is %zu bytes, shorter than the %u-byte header",
+              size, UB_UBK_HEADER_SIZE);
+    return UB_ERR_INVALID_DATA;
+  }
+  if (memcmp(d, ub_ubk_magic, 4) != 0) {
+    ubk_error(log, rd.name, "header", "not a .ubk file (bad magic)");
+    return UB_ERR_INVALID_DATA;
+  }
+  uint32_t version = le_get32(d + 4);
+  if (version == 0) {
+    ubk_error(log, rd.name, "header", "format version 0 is invalid");
+    return UB_ERR_INVALID_DATA;
+  }
+  if (version > UB_BAKEFILE_VERSION) {
+    ubk_error(log, rd.name, "header", "format version %u is newer than this reader (%u)",
+              version, UB_BAKEFILE_VERSION);
+    return UB_ERR_UNSUPPORTED_VERSION;
+  }
+  uint32_t count = le_get32(d + 8);
+  uint64_t table_end = UB_UBK_HEADER_SIZE + (uint64_t)count * UB_UBK_ENTRY_SIZE;
+  if (table_end > size) {
+    ubk_error(log, rd.name, "header", "section table (%u entries) runs past the end of the "
+              "file (%zu bytes)", count, size);
+    return UB_ERR_INVALID_DATA;
+  }
+  uint32_t hcrc = ub_crc32_update(0, d, 12);
+  hcrc = ub_crc32_update(hcrc, d + UB_UBK_HEADER_SIZE, (size_t)(table_end - UB_UBK_HEADER_SIZE));
+  if (UB_UBK_CHECK_CRC && hcrc != le_get32(d + 12)) {
+    ubk_error(log, rd.name, "header", "header CRC mismatch (0x%08x stored, 0x%08x computed)",
+              le_get32(d + 12), hcrc);
+    return UB_ERR_INVALID_DATA;
+  }
+
+  /* Section table: in file order, 8-aligned, non-overlapping, gaps zero, no trailing
+   * bytes: every byte of the file is covered by a CRC or checked to be zero. */
+  const uint8_t *known[UB_SEC_KNOWN] = {NULL};
+  uint64_t known_size[UB_SEC_KNOWN] = {0};
+  uint64_t prev_end = table_end;
+  for (uint32_t i = 0; i < count; i++) {
+    const uint8_t *e = d + UB_UBK_HEADER_SIZE + (size_t)i * UB_UBK_ENTRY_SIZE;
+    char tag[5] = {0};
+    memcpy(tag, e, 4);
+    char where[32];
+    int printable = 1;
+    for (int k = 0; k < 4; k++)
+      if ((unsigned char)tag[k] < 0x20 || (unsigned char)tag[k] > 0x7e)
+        printable = 0;
+    if (!printable) {
+      ubk_error(log, rd.name, "header", "section %u: tag is not printable ASCII", i);
+      return UB_ERR_INVALID_DATA;
+    }
+    snprintf(where, sizeof where, "section %s", tag);
+    uint32_t flags = le_get32(e + 4);
+    uint64_t off = le_get64(e + 8), sz = le_get64(e + 16);
+    uint32_t crc = le_get32(e + 24);
+    if (off % 8 != 0) {
+      ubk_error(log, rd.name, where, "offset %llu is not 8-byte aligned",
+                (unsigned long long)off);
+      return UB_ERR_INVALID_DATA;
+    }
+    if (off < prev_end || off > size || sz > size - off) {
+      ubk_error(log, rd.name, where, "offset %llu size %llu outside [%llu, %zu] or overlapping",
+                (unsigned long long)off, (unsigned long long)sz, (unsigned long long)prev_end,
+                size);
+      return UB_ERR_INVALID_DATA;
+    }
+    for (uint64_t g = prev_end; g < off; g++)
+      if (d[g] != 0) {
+        ubk_error(log, rd.name, where, "non-zero padding byte at file offset %llu",
+                  (unsigned long long)g);
+        return UB_ERR_INVALID_DATA;
+      }
+    prev_end = off + sz;
+    if (UB_UBK_CHECK_CRC && ub_crc32_update(0, d + off, (size_t)sz) != crc) {
+      ubk_error(log, rd.name, where, "CRC mismatch (corrupted or truncated file)");
+      return UB_ERR_INVALID_DATA;
+    }
+    int k;
+    for (k = 0; k < UB_SEC_KNOWN; k++)
+      if (memcmp(tag, ub_sec_tags[k], 4) == 0)
+        break;
+    if (k == UB_SEC_KNOWN) {
+      if (flags & UB_UBK_FLAG_REQUIRED) {
+        ubk_error(log, rd.name, where, "required by the file but unknown to this reader");
+        return UB_ERR_UNSUPPORTED_VERSION;
+      }
+      continue; /* optional and unknown: skipped (forward compatibility) */
+    }
+    if (known[k]) {
+      ubk_error(log, rd.name, where, "appears twice");
+      return UB_ERR_INVALID_DATA;
+    }
+    known[k] = d + off;
+    known_size[k] = sz;
+  }
+  if (prev_end != size) {
+    ubk_error(log, rd.name, "header", "%llu bytes after the last section",
+              (unsigned long long)(size - prev_end));
+    return UB_ERR_INVALID_DATA;
+  }
+  for (int k = 0; k < UB_SEC_KNOWN; k++)
+    if (!known[k]) {
+      char where[32];
+      snprintf(where, sizeof where, "section %s", ub_sec_tags[k]);
+      ubk_error(log, rd.name, where, "missing");
+      return UB_ERR_INVALID_DATA;
+    }
+
+  ub_bakefile *bf = calloc(1, sizeof *bf);
+  if (!bf) {
+    ubk_error(log, rd.name, "header", "out of memory");
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  ub_result r = parse_meta(&rd, known[UB_SEC_META], known_size[UB_SEC_META], bf);
+  if (r == UB_OK)
+    r = parse_geom(&rd, known[UB_SEC_GEOM], known_size[UB_SEC_GEOM], bf);
+  if (r == UB_OK)
+    r = parse_atls(&rd, known[UB_SEC_ATLS], known_size[UB_SEC_ATLS], bf);
+  if (r == UB_OK)
+    r = validate(bf, rd.name, log);
+  if (r != UB_OK) {
+    ub_bakefile_free(bf);
+    return r;
+  }
+  *out_bf = bf;
+  return UB_OK;
+}
+
+ub_result ub_bakefile_read(const char *path, const ub_log *log, ub_bakefile **out_bf)
+{
+  assert(path && out_bf);
+  FILE *f = fopen(path, "rb");
+  if (!f) {
+    ubk_error(log, path, "read", "cannot open: %s", strerror(errno));
+    return UB_ERR_IO;
+  }
+  struct stat st;
+  if (fstat(fileno(f), &st) != 0) {
+    ubk_error(log, path, "read", "cannot stat: %s", strerror(errno));
+    fclose(f);
+    return UB_ERR_IO;
+  }
+  if (!S_ISREG(st.st_mode)) {
+    ubk_error(log, path, "read", "not a regular file");
+    fclose(f);
+    return UB_ERR_IO;
+  }
+  if (st.st_size < 0 || (uint64_t)st.st_size > UB_UBK_MAX_FILE_SIZE ||
+      (uint64_t)st.st_size > SIZE_MAX) {
+    ubk_error(log, path, "read", "file size %lld outside [0, %llu]", (long long)st.st_size,
+              (unsigned long long)UB_UBK_MAX_FILE_SIZE);
+    fclose(f);
+    return UB_ERR_INVALID_DATA;
+  }
+  size_t size = (size_t)st.st_size;
+  uint8_t *buf = malloc(size ? size : 1);
+  if (!buf) {
+    ubk_error(log, path, "read", "out of memory (%zu bytes)", size);
+    fclose(f);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  size_t got = fread(buf, 1, size, f);
+  int rerr = ferror(f) ? (errno ? errno : EIO) : 0;
+  /* The file may have grown since fstat: one extra byte tells. */
+  int grew = got == size && fgetc(f) != EOF;
+  fclose(f);
+  if (rerr || got != size || grew) {
+    ubk_error(log, path, "read", "%s", rerr ? strerror(rerr) : "file changed while reading");
+    free(buf);
+    return UB_ERR_IO;
+  }
+  ub_result r = ub_bakefile_read_memory(buf, size, path, log, out_bf);
+  free(buf);
+  return r;
+}
+
+void ub_bakefile_free(ub_bakefile *bf)
+{
+  if (!bf)
+    return;
+  free(bf->positions);
+  free(bf->indices);
+  free(bf->tri_atlas);
+  free(bf->tri_uv);
+  free(bf->tri_albedo);
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    free(bf->atlases[a].sh);
+    free(bf->atlases[a].coverage);
+    free(bf->atlases[a].normal);
+  }
+  free(bf->atlases);
+  free(bf);
+}

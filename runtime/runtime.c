@@ -1,0 +1,431 @@
+/* runtime/runtime.c — run-time state and lightmap queries (include/ubake/runtime.h). */
+#include "ubake/runtime.h"
+
+#include <assert.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "ubake/ahd.h"
+
+/* Texels searched around a query whose four bilinear neighbours are all empty. */
+#define UB_RT_EMPTY_SEARCH_RADIUS 4
+/* A stored normal shorter than this is treated as absent (padding, degenerate). */
+#define UB_RT_MIN_NORMAL_LENGTH 0.5f
+
+struct ub_runtime {
+  ub_bakefile *bf;
+  ub_ahd **ahd;          /* atlas_count arrays of width × height; zero for empty texels */
+  uint32_t lit_count;    /* triangles with tri_atlas >= 0 */
+  uint32_t *lit_tris;
+};
+
+static const float ub_rt_luma[3] = {0.2126f, 0.7152f, 0.0722f};
+
+static int normalise3(const float v[3], float out[3])
+{
+  if (!isfinite(v[0]) || !isfinite(v[1]) || !isfinite(v[2]))
+    return 0;
+  double l = sqrt((double)v[0] * v[0] + (double)v[1] * v[1] + (double)v[2] * v[2]);
+  if (!(l > 0.0))
+    return 0;
+  for (int i = 0; i < 3; i++)
+    out[i] = (float)(v[i] / l);
+  return 1;
+}
+
+/* Normal for a texel that has none: the luminance-weighted direction of the SH L1 band
+ * (where most light comes from), else +Y. L1 order is (y, z, x). */
+static void sh_dominant_direction(const float sh[UB_SH1_FLOATS], float out_n[3])
+{
+  float d[3] = {0, 0, 0};
+  for (int c = 0; c < 3; c++) {
+    d[0] += ub_rt_luma[c] * sh[3 * 3 + c];
+    d[1] += ub_rt_luma[c] * sh[1 * 3 + c];
+    d[2] += ub_rt_luma[c] * sh[2 * 3 + c];
+  }
+  if (!normalise3(d, out_n)) {
+    out_n[0] = 0;
+    out_n[1] = 1;
+    out_n[2] = 0;
+  }
+}
+
+/* Encodes one atlas to AHD. Texels without a usable stored normal take the normal of the
+ * nearest texel (8-connected multi-source BFS) that has one. */
+static ub_result encode_atlas(const ub_bakefile_atlas *at, ub_ahd **out_ahd)
+{
+  size_t texels = (size_t)at->width * at->height;
+  ub_ahd *ahd = calloc(texels, sizeof *ahd);
+  float *nrm = malloc(texels * 3 * sizeof *nrm);
+  int32_t *src = malloc(texels * sizeof *src);   /* texel whose normal is used, -1 none */
+  uint32_t *queue = malloc(texels * sizeof *queue);
+  if (!ahd || !nrm || !src || !queue) {
+    free(ahd);
+    free(nrm);
+    free(src);
+    free(queue);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  size_t head = 0, tail = 0;
+  for (size_t i = 0; i < texels; i++) {
+    const float *n = &at->normal[i * 3];
+    double l2 = (double)n[0] * n[0] + (double)n[1] * n[1] + (double)n[2] * n[2];
+    src[i] = -1;
+    if (at->coverage[i] != 0 && l2 >= (double)UB_RT_MIN_NORMAL_LENGTH * UB_RT_MIN_NORMAL_LENGTH &&
+        normalise3(n, &nrm[i * 3])) {
+      src[i] = (int32_t)i;
+      queue[tail++] = (uint32_t)i;
+    }
+  }
+  while (head < tail) {
+    uint32_t i = queue[head++];
+    int64_t x = i % at->width, y = i / at->width;
+    for (int dy = -1; dy <= 1; dy++)
+      for (int dx = -1; dx <= 1; dx++) {
+        int64_t nx = x + dx, ny = y + dy;
+        if (nx < 0 || ny < 0 || nx >= at->width || ny >= at->height)
+          continue;
+        size_t j = (size_t)ny * at->width + (size_t)nx;
+        if (src[j] >= 0)
+          continue;
+        src[j] = src[i];
+        queue[tail++] = (uint32_t)j;
+      }
+  }
+  for (size_t i = 0; i < texels; i++) {
+    if (at->coverage[i] == 0)
+      continue;
+    const float *sh = &at->sh[i * UB_SH1_FLOATS];
+    float n[3];
+    if (src[i] >= 0)
+      memcpy(n, &nrm[(size_t)src[i] * 3], sizeof n);
+    else
+      sh_dominant_direction(sh, n);
+    ub_ahd_encode(sh, n, &ahd[i]);
+  }
+  free(nrm);
+  free(src);
+  free(queue);
+  *out_ahd = ahd;
+  return UB_OK;
+}
+
+void ub_runtime_free(ub_runtime *rt)
+{
+  if (!rt)
+    return;
+  if (rt->ahd)
+    for (uint32_t a = 0; a < rt->bf->atlas_count; a++)
+      free(rt->ahd[a]);
+  free(rt->ahd);
+  free(rt->lit_tris);
+  ub_bakefile_free(rt->bf);
+  free(rt);
+}
+
+ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
+{
+  assert(path && out);
+  ub_bakefile *bf = NULL;
+  ub_result r = ub_bakefile_read(path, log, &bf);
+  if (r != UB_OK)
+    return r;
+  ub_runtime *rt = calloc(1, sizeof *rt);
+  if (!rt) {
+    ub_bakefile_free(bf);
+    ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory", path);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  rt->bf = bf;
+  if (bf->atlas_count) {
+    rt->ahd = calloc(bf->atlas_count, sizeof *rt->ahd);
+    if (!rt->ahd)
+      goto oom;
+    for (uint32_t a = 0; a < bf->atlas_count; a++)
+      if (encode_atlas(&bf->atlases[a], &rt->ahd[a]) != UB_OK)
+        goto oom;
+  }
+  for (uint32_t t = 0; t < bf->triangle_count; t++)
+    rt->lit_count += bf->tri_atlas[t] >= 0;
+  if (rt->lit_count) {
+    rt->lit_tris = malloc((size_t)rt->lit_count * sizeof *rt->lit_tris);
+    if (!rt->lit_tris)
+      goto oom;
+    uint32_t k = 0;
+    for (uint32_t t = 0; t < bf->triangle_count; t++)
+      if (bf->tri_atlas[t] >= 0)
+        rt->lit_tris[k++] = t;
+  }
+  *out = rt;
+  return UB_OK;
+oom:
+  ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing the lightmaps", path);
+  ub_runtime_free(rt);
+  return UB_ERR_OUT_OF_MEMORY;
+}
+
+const ub_bakefile *ub_runtime_bakefile(const ub_runtime *rt)
+{
+  assert(rt);
+  return rt->bf;
+}
+
+ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint32_t x,
+                                      uint32_t y, const float n[3], float out_rgb[3])
+{
+  assert(rt && n && out_rgb);
+  float nn[3];
+  if (atlas >= rt->bf->atlas_count || x >= rt->bf->atlases[atlas].width ||
+      y >= rt->bf->atlases[atlas].height || !normalise3(n, nn))
+    return UB_ERR_INVALID_ARGUMENT;
+  const ub_bakefile_atlas *at = &rt->bf->atlases[atlas];
+  size_t i = (size_t)y * at->width + x;
+  if (at->coverage[i] == 0) {
+    out_rgb[0] = out_rgb[1] = out_rgb[2] = 0.0f;
+    return UB_OK;
+  }
+  ub_ahd_irradiance(&rt->ahd[atlas][i], nn, out_rgb);
+  return UB_OK;
+}
+
+/* ---------------------------------------------------------------------------------- */
+/* Closest point on a triangle (Ericson, Real-Time Collision Detection §5.1.5), in double, */
+/* returning barycentrics. Degenerate triangles fall back to their edges.              */
+
+static double dot3d(const double a[3], const double b[3])
+{
+  return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+static void sub3d(const double a[3], const double b[3], double out[3])
+{
+  for (int i = 0; i < 3; i++)
+    out[i] = a[i] - b[i];
+}
+
+/* Closest point on segment ab to p as the parameter t ∈ [0, 1] (a + t·(b − a)). */
+static double closest_t_segment(const double p[3], const double a[3], const double b[3])
+{
+  double ab[3], ap[3];
+  sub3d(b, a, ab);
+  sub3d(p, a, ap);
+  double l2 = dot3d(ab, ab);
+  if (!(l2 > 0.0))
+    return 0.0;
+  double t = dot3d(ap, ab) / l2;
+  return t < 0.0 ? 0.0 : t > 1.0 ? 1.0 : t;
+}
+
+static void bary_point(const double a[3], const double b[3], const double c[3],
+                       const double bary[3], double out[3])
+{
+  for (int i = 0; i < 3; i++)
+    out[i] = bary[0] * a[i] + bary[1] * b[i] + bary[2] * c[i];
+}
+
+static void closest_on_edges(const double p[3], const double a[3], const double b[3],
+                             const double c[3], double out_bary[3])
+{
+  const double *v[3] = {a, b, c};
+  double best = INFINITY;
+  for (int e = 0; e < 3; e++) {
+    int i = e, j = (e + 1) % 3;
+    double t = closest_t_segment(p, v[i], v[j]);
+    double bary[3] = {0, 0, 0}, q[3], d[3];
+    bary[i] = 1.0 - t;
+    bary[j] = t;
+    bary_point(a, b, c, bary, q);
+    sub3d(p, q, d);
+    double d2 = dot3d(d, d);
+    if (d2 < best) {
+      best = d2;
+      memcpy(out_bary, bary, sizeof bary);
+    }
+  }
+}
+
+static void closest_on_triangle(const double p[3], const double a[3], const double b[3],
+                                const double c[3], double out_bary[3])
+{
+  double ab[3], ac[3], ap[3], bp[3], cp[3];
+  sub3d(b, a, ab);
+  sub3d(c, a, ac);
+  double cr[3] = {ab[1] * ac[2] - ab[2] * ac[1], ab[2] * ac[0] - ab[0] * ac[2],
+                  ab[0] * ac[1] - ab[1] * ac[0]};
+  if (!(dot3d(cr, cr) > 0.0)) {
+    closest_on_edges(p, a, b, c, out_bary);
+    return;
+  }
+  sub3d(p, a, ap);
+  double d1 = dot3d(ab, ap), d2 = dot3d(ac, ap);
+  if (d1 <= 0.0 && d2 <= 0.0) { /* vertex region A */
+    out_bary[0] = 1, out_bary[1] = 0, out_bary[2] = 0;
+    return;
+  }
+  sub3d(p, b, bp);
+  double d3 = dot3d(ab, bp), d4 = dot3d(ac, bp);
+  if (d3 >= 0.0 && d4 <= d3) { /* vertex region B */
+    out_bary[0] = 0, out_bary[1] = 1, out_bary[2] = 0;
+    return;
+  }
+  double vc = d1 * d4 - d3 * d2;
+  if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) { /* edge AB */
+    double v = d1 - d3 > 0.0 ? d1 / (d1 - d3) : 0.0;
+    out_bary[0] = 1.0 - v, out_bary[1] = v, out_bary[2] = 0;
+    return;
+  }
+  sub3d(p, c, cp);
+  double d5 = dot3d(ab, cp), d6 = dot3d(ac, cp);
+  if (d6 >= 0.0 && d5 <= d6) { /* vertex region C */
+    out_bary[0] = 0, out_bary[1] = 0, out_bary[2] = 1;
+    return;
+  }
+  double vb = d5 * d2 - d1 * d6;
+  if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) { /* edge AC */
+    double w = d2 - d6 > 0.0 ? d2 / (d2 - d6) : 0.0;
+    out_bary[0] = 1.0 - w, out_bary[1] = 0, out_bary[2] = w;
+    return;
+  }
+  double va = d3 * d6 - d5 * d4;
+  if (va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0) { /* edge BC */
+    double den = (d4 - d3) + (d5 - d6);
+    double w = den > 0.0 ? (d4 - d3) / den : 0.0;
+    out_bary[0] = 0, out_bary[1] = 1.0 - w, out_bary[2] = w;
+    return;
+  }
+  double den = va + vb + vc;
+  if (!(den > 0.0)) {
+    closest_on_edges(p, a, b, c, out_bary);
+    return;
+  }
+  double v = vb / den, w = vc / den;
+  out_bary[0] = 1.0 - v - w, out_bary[1] = v, out_bary[2] = w;
+}
+
+/* ---------------------------------------------------------------------------------- */
+/* Bilinear AHD lookup.                                                                */
+
+static float luma(const float rgb[3])
+{
+  return ub_rt_luma[0] * rgb[0] + ub_rt_luma[1] * rgb[1] + ub_rt_luma[2] * rgb[2];
+}
+
+/* Filters ambient and directional colour linearly, and the direction weighted by each
+ * texel's directional luminance (a texel with no directional light has no say in where
+ * it comes from), renormalised. Empty texels are left out and the weights renormalised;
+ * if all four are empty, the nearest non-empty texel within a few texels is used.
+ * Returns 0 if there is none. */
+static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub_ahd *out)
+{
+  const ub_bakefile_atlas *at = &rt->bf->atlases[atlas];
+  const ub_ahd *ahd = rt->ahd[atlas];
+  u = u > 0.0f ? (u < 1.0f ? u : 1.0f) : 0.0f; /* NaN → 0 */
+  v = v > 0.0f ? (v < 1.0f ? v : 1.0f) : 0.0f;
+  float fx = u * (float)at->width - 0.5f, fy = v * (float)at->height - 0.5f;
+  float x0f = floorf(fx), y0f = floorf(fy);
+  float tx = fx - x0f, ty = fy - y0f;
+  int64_t x0 = (int64_t)x0f, y0 = (int64_t)y0f;
+  int64_t w = at->width, h = at->height;
+
+  double sw = 0, amb[3] = {0, 0, 0}, col[3] = {0, 0, 0}, dir[3] = {0, 0, 0},
+         dir_plain[3] = {0, 0, 0};
+  for (int k = 0; k < 4; k++) {
+    int64_t x = x0 + (k & 1), y = y0 + (k >> 1);
+    x = x < 0 ? 0 : x >= w ? w - 1 : x;
+    y = y < 0 ? 0 : y >= h ? h - 1 : y;
+    size_t i = (size_t)y * (size_t)w + (size_t)x;
+    if (at->coverage[i] == 0)
+      continue;
+    double wt = ((k & 1) ? tx : 1.0f - tx) * ((k >> 1) ? ty : 1.0f - ty);
+    if (!(wt > 0.0))
+      continue;
+    const ub_ahd *a = &ahd[i];
+    double dl = wt * luma(a->directional);
+    sw += wt;
+    for (int c = 0; c < 3; c++) {
+      amb[c] += wt * a->ambient[c];
+      col[c] += wt * a->directional[c];
+      dir[c] += dl * a->direction[c];
+      dir_plain[c] += wt * a->direction[c];
+    }
+  }
+  if (!(sw > 0.0)) {
+    /* Nearest non-empty texel around the sample point. */
+    int64_t cx = (int64_t)floorf(u * (float)at->width), cy = (int64_t)floorf(v * (float)at->height);
+    double best = INFINITY;
+    size_t bi = 0;
+    for (int64_t y = cy - UB_RT_EMPTY_SEARCH_RADIUS; y <= cy + UB_RT_EMPTY_SEARCH_RADIUS; y++)
+      for (int64_t x = cx - UB_RT_EMPTY_SEARCH_RADIUS; x <= cx + UB_RT_EMPTY_SEARCH_RADIUS; x++) {
+        if (x < 0 || y < 0 || x >= w || y >= h)
+          continue;
+        size_t i = (size_t)y * (size_t)w + (size_t)x;
+        double dx = (double)x - fx, dy = (double)y - fy, d2 = dx * dx + dy * dy;
+        if (at->coverage[i] != 0 && d2 < best) {
+          best = d2;
+          bi = i;
+        }
+      }
+    if (best == INFINITY)
+      return 0;
+    *out = ahd[bi];
+    return 1;
+  }
+  double dl = sqrt(dot3d(dir, dir));
+  if (!(dl > 1e-30)) {
+    memcpy(dir, dir_plain, sizeof dir);
+    dl = sqrt(dot3d(dir, dir));
+  }
+  for (int c = 0; c < 3; c++) {
+    out->ambient[c] = (float)(amb[c] / sw);
+    out->directional[c] = (float)(col[c] / sw);
+    out->direction[c] = dl > 1e-30 ? (float)(dir[c] / dl) : 0.0f;
+  }
+  return 1;
+}
+
+ub_result ub_runtime_query_lightmap(const ub_runtime *rt, const float p[3], const float n[3],
+                                    float out_rgb[3], float *out_distance)
+{
+  assert(rt && p && n && out_rgb);
+  if (rt->lit_count == 0)
+    return UB_ERR_NOT_BAKED;
+  float nn[3];
+  if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2]) || !normalise3(n, nn))
+    return UB_ERR_INVALID_ARGUMENT;
+
+  const ub_bakefile *bf = rt->bf;
+  double pd[3] = {p[0], p[1], p[2]};
+  double best_d2 = INFINITY, best_bary[3] = {1, 0, 0};
+  uint32_t best_tri = rt->lit_tris[0];
+  for (uint32_t k = 0; k < rt->lit_count; k++) {
+    uint32_t t = rt->lit_tris[k];
+    double v[3][3];
+    for (int j = 0; j < 3; j++) {
+      const float *pos = &bf->positions[(size_t)bf->indices[(size_t)t * 3 + j] * 3];
+      v[j][0] = pos[0], v[j][1] = pos[1], v[j][2] = pos[2];
+    }
+    double bary[3], q[3], d[3];
+    closest_on_triangle(pd, v[0], v[1], v[2], bary);
+    bary_point(v[0], v[1], v[2], bary, q);
+    sub3d(pd, q, d);
+    double d2 = dot3d(d, d);
+    if (d2 < best_d2) {
+      best_d2 = d2;
+      best_tri = t;
+      memcpy(best_bary, bary, sizeof bary);
+    }
+  }
+
+  const float *uv = &bf->tri_uv[(size_t)best_tri * 6];
+  double u = best_bary[0] * uv[0] + best_bary[1] * uv[2] + best_bary[2] * uv[4];
+  double v = best_bary[0] * uv[1] + best_bary[1] * uv[3] + best_bary[2] * uv[5];
+  ub_ahd ahd;
+  if (sample_ahd(rt, (uint32_t)bf->tri_atlas[best_tri], (float)u, (float)v, &ahd))
+    ub_ahd_irradiance(&ahd, nn, out_rgb);
+  else
+    out_rgb[0] = out_rgb[1] = out_rgb[2] = 0.0f;
+  if (out_distance)
+    *out_distance = (float)sqrt(best_d2);
+  return UB_OK;
+}
