@@ -15,6 +15,10 @@
 
 #include "ubake/error.h"
 
+#ifdef __cplusplus
+extern "C" {
+#endif
+
 /* AHD atlas channels (DESIGN: "lightmaps as OpenEXR"), in this order in the data:
  * ambient.R/G/B  C_a, W/m²;
  * dir.X/Y/Z      unit direction d, world space (Y-up);
@@ -51,4 +55,7 @@ void ub_image_free(ub_image *image);
 /* Index of the channel called name, -1 if absent. */
 int ub_image_channel(const ub_image *image, const char *name);
 
+#ifdef __cplusplus
+}
+#endif
 #endif

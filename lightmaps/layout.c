@@ -761,9 +761,8 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
   size_t ntn = nt ? nt : 1;
   c.tri_n = malloc(ntn * 3 * sizeof *c.tri_n);
   c.tri_area = malloc(ntn * sizeof *c.tri_area);
-  c.tri_ok = malloc(ntn);
   c.tri_kind = malloc(ntn);
-  if (!lm || !c.tri_n || !c.tri_area || !c.tri_ok || !c.tri_kind) {
+  if (!lm || !c.tri_n || !c.tri_area || !c.tri_kind) {
     res = UB_ERR_OUT_OF_MEMORY;
     goto fail;
   }
@@ -809,7 +808,6 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
     double len = v3_normalize(n);
     int ok = !(s->tri_flags && (s->tri_flags[t] & UB_TRI_DEGENERATE)) && len > 0.0 &&
              isfinite(len);
-    c.tri_ok[t] = (uint8_t)ok;
     c.tri_area[t] = ok ? 0.5 * len : 0.0;
     for (int a = 0; a < 3; a++)
       c.tri_n[3 * (size_t)t + a] = ok ? (float)n[a] : 0.0f;
@@ -1092,7 +1090,6 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
   ub_lm_charts_free(&g);
   free(c.tri_n);
   free(c.tri_area);
-  free(c.tri_ok);
   free(c.tri_kind);
   *out_lightmap = lm;
   return UB_OK;
@@ -1114,7 +1111,6 @@ fail:
   ub_lm_charts_free(&g);
   free(c.tri_n);
   free(c.tri_area);
-  free(c.tri_ok);
   free(c.tri_kind);
   ub_lightmap_free(lm);
   if (res == UB_ERR_OUT_OF_MEMORY)

@@ -86,7 +86,6 @@ typedef struct lm_ctx {
   double plane_tol;    /* coplanarity distance, metres */
   float *tri_n;        /* triangle_count × 3: unit geometric normal (0 when degenerate) */
   double *tri_area;    /* triangle_count: world area, m² */
-  uint8_t *tri_ok;     /* triangle_count: non-degenerate */
   int8_t *tri_kind;    /* -1 none, 0 authored, 1 generated */
 } lm_ctx;
 
