@@ -39,8 +39,12 @@
 
 static const uint8_t ub_ubk_magic[4] = {'U', 'B', 'K', 0};
 
-enum { UB_SEC_META = 0, UB_SEC_GEOM, UB_SEC_ATLS, UB_SEC_KNOWN };
-static const char ub_sec_tags[UB_SEC_KNOWN][5] = {"META", "GEOM", "ATLS"};
+/* META, GEOM, ATLS are mandatory; GLGP is optional (absent: no global light grid). */
+enum { UB_SEC_META = 0, UB_SEC_GEOM, UB_SEC_ATLS, UB_SEC_MANDATORY, UB_SEC_GLGP = UB_SEC_MANDATORY,
+       UB_SEC_KNOWN };
+static const char ub_sec_tags[UB_SEC_KNOWN][5] = {"META", "GEOM", "ATLS", "GLGP"};
+#define UB_GLG_SH_FLOATS 27 /* SH L2 × RGB */
+#define UB_GLG_NO_PLANE_INDEX 0xffffffffu
 
 /* ---------------------------------------------------------------------------------- */
 /* Little-endian encoding, independent of the host's byte order.                       */
@@ -126,6 +130,58 @@ static int all_finite(const float *v, size_t n, size_t *out_bad)
   return 1;
 }
 
+static ub_result validate_glg(const ub_bakefile *bf, const char *name, const ub_log *log)
+{
+  static const char *where = "section GLGP";
+  size_t bad;
+  uint32_t p = bf->glg_probe_count, t = bf->glg_tet_count, k = bf->glg_plane_count;
+  assert(p == 0 || (bf->glg_positions && bf->glg_sh));
+  assert(t == 0 || (bf->glg_tets && bf->glg_neigh)); /* glg_plane_of may be NULL: no planes */
+  assert(k == 0 || bf->glg_planes);
+  if (p == 0 && (t || k)) {
+    ubk_error(log, name, where, "%u tetrahedra and %u planes but no probes", t, k);
+    return UB_ERR_INVALID_DATA;
+  }
+  if (!all_finite(bf->glg_positions, (size_t)p * 3, &bad)) {
+    ubk_error(log, name, where, "probe %zu has a non-finite position", bad / 3);
+    return UB_ERR_INVALID_DATA;
+  }
+  if (!all_finite(bf->glg_sh, (size_t)p * UB_GLG_SH_FLOATS, &bad)) {
+    ubk_error(log, name, where, "probe %zu has a non-finite SH", bad / UB_GLG_SH_FLOATS);
+    return UB_ERR_INVALID_DATA;
+  }
+  if (!all_finite(bf->glg_planes, (size_t)k * 4, &bad)) {
+    ubk_error(log, name, where, "plane %zu is not finite", bad / 4);
+    return UB_ERR_INVALID_DATA;
+  }
+  for (uint32_t i = 0; i < t; i++) {
+    const uint32_t *c = &bf->glg_tets[(size_t)i * 4];
+    for (int j = 0; j < 4; j++) {
+      if (c[j] >= p) {
+        ubk_error(log, name, where, "tetrahedron %u: corner %u >= probe count %u", i, c[j], p);
+        return UB_ERR_INVALID_DATA;
+      }
+      for (int m = 0; m < j; m++)
+        if (c[m] == c[j]) {
+          ubk_error(log, name, where, "tetrahedron %u: corner %u repeated", i, c[j]);
+          return UB_ERR_INVALID_DATA;
+        }
+      int32_t nb = bf->glg_neigh[(size_t)i * 4 + j];
+      if (nb < -1 || (nb >= 0 && (uint32_t)nb >= t) || (nb >= 0 && (uint32_t)nb == i)) {
+        ubk_error(log, name, where, "tetrahedron %u: neighbour %d not -1 or another "
+                  "tetrahedron in [0, %u)", i, (int)nb, t);
+        return UB_ERR_INVALID_DATA;
+      }
+    }
+    uint32_t pl = bf->glg_plane_of ? bf->glg_plane_of[i] : UB_GLG_NO_PLANE_INDEX;
+    if (pl != UB_GLG_NO_PLANE_INDEX && pl >= k) {
+      ubk_error(log, name, where, "tetrahedron %u: plane %u >= plane count %u", i, pl, k);
+      return UB_ERR_INVALID_DATA;
+    }
+  }
+  return UB_OK;
+}
+
 static ub_result validate(const ub_bakefile *bf, const char *name, const ub_log *log)
 {
   size_t bad;
@@ -197,7 +253,7 @@ static ub_result validate(const ub_bakefile *bf, const char *name, const ub_log 
       return UB_ERR_INVALID_DATA;
     }
   }
-  return UB_OK;
+  return validate_glg(bf, name, log);
 }
 
 /* ---------------------------------------------------------------------------------- */
@@ -286,11 +342,11 @@ static void wr_zeros(ubk_writer *w, size_t n, int in_crc)
   }
 }
 
-static void wr_begin(ubk_writer *w, ubk_section_entry *e, const char tag[4])
+static void wr_begin(ubk_writer *w, ubk_section_entry *e, const char tag[4], uint32_t flags)
 {
   wr_zeros(w, (size_t)(align8(w->pos) - w->pos), 0);
   memcpy(e->tag, tag, 4);
-  e->flags = UB_UBK_FLAG_REQUIRED;
+  e->flags = flags;
   e->offset = w->pos;
   w->crc = 0;
 }
@@ -350,6 +406,27 @@ static void wr_atls(ubk_writer *w, const ub_bakefile *bf)
   }
 }
 
+static void wr_glgp(ubk_writer *w, const ub_bakefile *bf)
+{
+  uint32_t p = bf->glg_probe_count, t = bf->glg_tet_count, k = bf->glg_plane_count;
+  wr_u32(w, p);
+  wr_u32(w, t);
+  wr_u32(w, k);
+  wr_u32(w, 0); /* reserved */
+  for (size_t i = 0; i < (size_t)p * 3; i++)
+    wr_f32(w, bf->glg_positions[i]);
+  for (size_t i = 0; i < (size_t)t * 4; i++)
+    wr_u32(w, bf->glg_tets[i]);
+  for (size_t i = 0; i < (size_t)t * 4; i++)
+    wr_u32(w, (uint32_t)bf->glg_neigh[i]);
+  for (size_t i = 0; i < (size_t)k * 4; i++)
+    wr_f32(w, bf->glg_planes[i]);
+  for (size_t i = 0; i < t; i++)
+    wr_u32(w, bf->glg_plane_of ? bf->glg_plane_of[i] : UB_GLG_NO_PLANE_INDEX);
+  for (size_t i = 0; i < (size_t)p * UB_GLG_SH_FLOATS; i++)
+    wr_half(w, bf->glg_sh[i]);
+}
+
 ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_log *log)
 {
   assert(bf && path);
@@ -382,23 +459,30 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
   memset(sec, 0, sizeof sec);
   uint8_t head[UB_UBK_HEADER_SIZE + UB_SEC_KNOWN * UB_UBK_ENTRY_SIZE];
   memset(head, 0, sizeof head);
-  wr_bytes(w, head, sizeof head, 0);
+  int sections = bf->glg_probe_count ? UB_SEC_KNOWN : UB_SEC_MANDATORY;
+  size_t head_size = UB_UBK_HEADER_SIZE + (size_t)sections * UB_UBK_ENTRY_SIZE;
+  wr_bytes(w, head, head_size, 0);
 
-  wr_begin(w, &sec[UB_SEC_META], ub_sec_tags[UB_SEC_META]);
+  wr_begin(w, &sec[UB_SEC_META], ub_sec_tags[UB_SEC_META], UB_UBK_FLAG_REQUIRED);
   wr_meta(w, bf);
   wr_end(w, &sec[UB_SEC_META]);
-  wr_begin(w, &sec[UB_SEC_GEOM], ub_sec_tags[UB_SEC_GEOM]);
+  wr_begin(w, &sec[UB_SEC_GEOM], ub_sec_tags[UB_SEC_GEOM], UB_UBK_FLAG_REQUIRED);
   wr_geom(w, bf);
   wr_end(w, &sec[UB_SEC_GEOM]);
-  wr_begin(w, &sec[UB_SEC_ATLS], ub_sec_tags[UB_SEC_ATLS]);
+  wr_begin(w, &sec[UB_SEC_ATLS], ub_sec_tags[UB_SEC_ATLS], UB_UBK_FLAG_REQUIRED);
   wr_atls(w, bf);
   wr_end(w, &sec[UB_SEC_ATLS]);
+  if (sections > UB_SEC_GLGP) {
+    wr_begin(w, &sec[UB_SEC_GLGP], ub_sec_tags[UB_SEC_GLGP], 0);
+    wr_glgp(w, bf);
+    wr_end(w, &sec[UB_SEC_GLGP]);
+  }
   wr_flush(w);
 
   memcpy(head, ub_ubk_magic, 4);
   le_put32(head + 4, UB_BAKEFILE_VERSION);
-  le_put32(head + 8, UB_SEC_KNOWN);
-  for (int i = 0; i < UB_SEC_KNOWN; i++) {
+  le_put32(head + 8, (uint32_t)sections);
+  for (int i = 0; i < sections; i++) {
     uint8_t *e = head + UB_UBK_HEADER_SIZE + (size_t)i * UB_UBK_ENTRY_SIZE;
     memcpy(e, sec[i].tag, 4);
     le_put32(e + 4, sec[i].flags);
@@ -408,12 +492,12 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
     le_put32(e + 28, 0);
   }
   uint32_t hcrc = ub_crc32_update(0, head, 12);
-  hcrc = ub_crc32_update(hcrc, head + UB_UBK_HEADER_SIZE, sizeof head - UB_UBK_HEADER_SIZE);
+  hcrc = ub_crc32_update(hcrc, head + UB_UBK_HEADER_SIZE, head_size - UB_UBK_HEADER_SIZE);
   le_put32(head + 12, hcrc);
 
   if (!w->err && fseek(w->f, 0, SEEK_SET) != 0)
     w->err = errno ? errno : EIO;
-  if (!w->err && fwrite(head, 1, sizeof head, w->f) != sizeof head)
+  if (!w->err && fwrite(head, 1, head_size, w->f) != head_size)
     w->err = errno ? errno : EIO;
   if (!w->err && fflush(w->f) != 0)
     w->err = errno ? errno : EIO;
@@ -435,8 +519,9 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
     return UB_ERR_IO;
   }
   if (w->clamped && log)
-    ub_log_printf(log, UB_LOG_WARNING, "%s: section ATLS: %llu value(s) beyond the half range "
-                  "clamped to +-%g", path, (unsigned long long)w->clamped, (double)UB_HALF_MAX);
+    ub_log_printf(log, UB_LOG_WARNING, "%s: sections ATLS/GLGP: %llu SH or normal value(s) "
+                  "beyond the half range clamped to +-%g", path, (unsigned long long)w->clamped,
+                  (double)UB_HALF_MAX);
   free(tmp);
   free(w);
   return UB_OK;
@@ -664,6 +749,50 @@ static ub_result parse_atls(const ubk_reader *rd, const uint8_t *p, uint64_t siz
   return UB_OK;
 }
 
+static ub_result parse_glgp(const ubk_reader *rd, const uint8_t *p, uint64_t size,
+                            ub_bakefile *bf)
+{
+  ubk_cursor c = {p, (size_t)size};
+  uint32_t np, nt, nk, reserved;
+  if (!cur_u32(&c, &np) || !cur_u32(&c, &nt) || !cur_u32(&c, &nk) || !cur_u32(&c, &reserved)) {
+    ubk_error(rd->log, rd->name, "section GLGP", "size %llu too small for the counts",
+              (unsigned long long)size);
+    return UB_ERR_INVALID_DATA;
+  }
+  /* u32 counts: this cannot overflow 64 bits. */
+  uint64_t expect = 16u + (12u + 2u * UB_GLG_SH_FLOATS) * (uint64_t)np + 36u * (uint64_t)nt +
+                    16u * (uint64_t)nk;
+  if (expect != size) {
+    ubk_error(rd->log, rd->name, "section GLGP", "size %llu does not match %u probes, %u "
+              "tetrahedra and %u planes (%llu bytes)", (unsigned long long)size, np, nt, nk,
+              (unsigned long long)expect);
+    return UB_ERR_INVALID_DATA;
+  }
+  bf->glg_positions = calloc_array((uint64_t)np * 3, sizeof(float));
+  bf->glg_sh = calloc_array((uint64_t)np * UB_GLG_SH_FLOATS, sizeof(float));
+  bf->glg_tets = calloc_array((uint64_t)nt * 4, sizeof(uint32_t));
+  bf->glg_neigh = calloc_array((uint64_t)nt * 4, sizeof(int32_t));
+  bf->glg_planes = calloc_array((uint64_t)nk * 4, sizeof(float));
+  bf->glg_plane_of = calloc_array(nt, sizeof(uint32_t));
+  if ((np && (!bf->glg_positions || !bf->glg_sh)) ||
+      (nt && (!bf->glg_tets || !bf->glg_neigh || !bf->glg_plane_of)) || (nk && !bf->glg_planes)) {
+    ubk_error(rd->log, rd->name, "section GLGP", "out of memory");
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  bf->glg_probe_count = np;
+  bf->glg_tet_count = nt;
+  bf->glg_plane_count = nk;
+  int ok = cur_f32s(&c, bf->glg_positions, (size_t)np * 3) &&
+           cur_u32s(&c, bf->glg_tets, (size_t)nt * 4) &&
+           cur_u32s(&c, (uint32_t *)bf->glg_neigh, (size_t)nt * 4) &&
+           cur_f32s(&c, bf->glg_planes, (size_t)nk * 4) &&
+           cur_u32s(&c, bf->glg_plane_of, nt) &&
+           cur_halves(&c, bf->glg_sh, (size_t)np * UB_GLG_SH_FLOATS);
+  assert(ok && c.left == 0); /* guaranteed by the exact size check above */
+  (void)ok;
+  return UB_OK;
+}
+
 ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *name,
                                   const ub_log *log, ub_bakefile **out_bf)
 {
@@ -773,7 +902,7 @@ ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *nam
               (unsigned long long)(size - prev_end));
     return UB_ERR_INVALID_DATA;
   }
-  for (int k = 0; k < UB_SEC_KNOWN; k++)
+  for (int k = 0; k < UB_SEC_MANDATORY; k++)
     if (!known[k]) {
       char where[32];
       snprintf(where, sizeof where, "section %s", ub_sec_tags[k]);
@@ -791,6 +920,8 @@ ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *nam
     r = parse_geom(&rd, known[UB_SEC_GEOM], known_size[UB_SEC_GEOM], bf);
   if (r == UB_OK)
     r = parse_atls(&rd, known[UB_SEC_ATLS], known_size[UB_SEC_ATLS], bf);
+  if (r == UB_OK && known[UB_SEC_GLGP])
+    r = parse_glgp(&rd, known[UB_SEC_GLGP], known_size[UB_SEC_GLGP], bf);
   if (r == UB_OK)
     r = validate(bf, rd.name, log);
   if (r != UB_OK) {
@@ -864,5 +995,11 @@ void ub_bakefile_free(ub_bakefile *bf)
     free(bf->atlases[a].normal);
   }
   free(bf->atlases);
+  free(bf->glg_positions);
+  free(bf->glg_sh);
+  free(bf->glg_tets);
+  free(bf->glg_neigh);
+  free(bf->glg_planes);
+  free(bf->glg_plane_of);
   free(bf);
 }

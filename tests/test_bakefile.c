@@ -223,6 +223,29 @@ static ub_bakefile *make_sample(void)
   bf->atlases = calloc(2, sizeof *bf->atlases);
   make_atlas(&bf->atlases[0], 4, 3);
   make_atlas(&bf->atlases[1], 3, 5); /* 15 texels: 31·15 = 465 bytes, padded to 472 */
+
+  /* Global light grid: 5 probes, 2 tetrahedra sharing a face, 1 leak plane. */
+  bf->glg_probe_count = 5;
+  bf->glg_positions = malloc(5 * 3 * sizeof(float));
+  static const float gp[15] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 1, 1, 1};
+  memcpy(bf->glg_positions, gp, sizeof gp);
+  bf->glg_sh = malloc(5 * 27 * sizeof(float));
+  for (int i = 0; i < 5 * 27; i++)
+    bf->glg_sh[i] = frand(-3, 3);
+  bf->glg_tet_count = 2;
+  static const uint32_t tets[8] = {0, 1, 2, 3, 1, 2, 3, 4};
+  static const int32_t neigh[8] = {1, -1, -1, -1, -1, -1, -1, 0};
+  bf->glg_tets = malloc(sizeof tets);
+  memcpy(bf->glg_tets, tets, sizeof tets);
+  bf->glg_neigh = malloc(sizeof neigh);
+  memcpy(bf->glg_neigh, neigh, sizeof neigh);
+  bf->glg_plane_count = 1;
+  bf->glg_planes = malloc(4 * sizeof(float));
+  static const float plane[4] = {0.57735f, 0.57735f, 0.57735f, -0.8f};
+  memcpy(bf->glg_planes, plane, sizeof plane);
+  bf->glg_plane_of = malloc(2 * sizeof(uint32_t));
+  bf->glg_plane_of[0] = 0xffffffffu;
+  bf->glg_plane_of[1] = 0;
   return bf;
 }
 
@@ -367,6 +390,24 @@ static void compare(const ub_bakefile *a, const ub_bakefile *b)
     }
     ASSERT_TRUE(bad == 0);
   }
+  ASSERT_TRUE(a->glg_probe_count == b->glg_probe_count && a->glg_tet_count == b->glg_tet_count &&
+              a->glg_plane_count == b->glg_plane_count);
+  if (a->glg_probe_count != b->glg_probe_count || a->glg_tet_count != b->glg_tet_count ||
+      a->glg_plane_count != b->glg_plane_count)
+    return;
+  ASSERT_TRUE(a->glg_probe_count == 0 ||
+              memcmp(a->glg_positions, b->glg_positions, a->glg_probe_count * 12) == 0);
+  ASSERT_TRUE(a->glg_tet_count == 0 ||
+              (memcmp(a->glg_tets, b->glg_tets, a->glg_tet_count * 16) == 0 &&
+               memcmp(a->glg_neigh, b->glg_neigh, a->glg_tet_count * 16) == 0 &&
+               memcmp(a->glg_plane_of, b->glg_plane_of, a->glg_tet_count * 4) == 0));
+  ASSERT_TRUE(a->glg_plane_count == 0 ||
+              memcmp(a->glg_planes, b->glg_planes, a->glg_plane_count * 16) == 0);
+  int bad = 0;
+  for (size_t i = 0; i < (size_t)a->glg_probe_count * 27; i++)
+    if (!(fabs((double)a->glg_sh[i] - b->glg_sh[i]) <= HALF_REL * fabs(a->glg_sh[i]) + 3e-8))
+      bad++;
+  ASSERT_TRUE(bad == 0);
 }
 
 static int expect_reject(const uint8_t *data, size_t size)
@@ -413,8 +454,8 @@ static void test_roundtrip_and_corruption(void)
 
   /* Layout facts from FORMAT.md. */
   ASSERT_TRUE(memcmp(f1, "UBK\0", 4) == 0 && rd32(f1 + 4) == UB_BAKEFILE_VERSION &&
-              rd32(f1 + 8) == 3);
-  for (int i = 0; i < 3; i++)
+              rd32(f1 + 8) == 4);
+  for (int i = 0; i < 4; i++)
     ASSERT_TRUE(rd64(f1 + 16 + 32 * i + 8) % 8 == 0);
 
   /* Truncation at every length, a flipped byte at every offset (two patterns), a
@@ -431,7 +472,7 @@ static void test_roundtrip_and_corruption(void)
       accepted += !expect_reject(g, s1);
     }
   }
-  size_t table_end = 16 + 32 * 3;
+  size_t table_end = 16 + 32 * 4;
   for (size_t bit = 0; bit < table_end * 8; bit++) {
     memcpy(g, f1, s1);
     g[bit / 8] ^= (uint8_t)(1u << (bit % 8));
@@ -451,7 +492,7 @@ static void test_roundtrip_and_corruption(void)
   ASSERT_TRUE(ub_bakefile_read_memory(g, s1, "t.ubk", NULL, &rd) == UB_ERR_INVALID_DATA);
   section sec[8];
   int ns = split_file(f1, s1, sec, 8);
-  ASSERT_TRUE(ns == 3);
+  ASSERT_TRUE(ns == 4);
   size_t sz;
   uint8_t *v2 = assemble(sec, ns, UB_BAKEFILE_VERSION + 1, &sz);
   cap.errors = 0;
@@ -469,35 +510,42 @@ static void test_roundtrip_and_corruption(void)
 
   /* Forward compatibility: an unknown optional section is skipped; an unknown required
    * one makes the file unsupported. */
-  section more[4];
-  memcpy(more, sec, 3 * sizeof *sec);
+  section more[5];
+  memcpy(more, sec, 4 * sizeof *sec);
   uint8_t extra[13] = "future data!";
-  memcpy(more[3].tag, "GLGP", 4);
-  more[3].flags = 0;
-  more[3].data = extra;
-  more[3].size = sizeof extra;
-  v2 = assemble(more, 4, UB_BAKEFILE_VERSION, &sz);
+  memcpy(more[4].tag, "XTRA", 4);
+  more[4].flags = 0;
+  more[4].data = extra;
+  more[4].size = sizeof extra;
+  v2 = assemble(more, 5, UB_BAKEFILE_VERSION, &sz);
   rd = NULL;
   ASSERT_OK(ub_bakefile_read_memory(v2, sz, "t.ubk", NULL, &rd));
   if (rd)
     compare(bf, rd);
   ub_bakefile_free(rd);
   free(v2);
-  more[3].flags = 1;
-  v2 = assemble(more, 4, UB_BAKEFILE_VERSION, &sz);
+  more[4].flags = 1;
+  v2 = assemble(more, 5, UB_BAKEFILE_VERSION, &sz);
   ASSERT_TRUE(ub_bakefile_read_memory(v2, sz, "t.ubk", NULL, &rd) ==
               UB_ERR_UNSUPPORTED_VERSION);
   free(v2);
   /* Section order in the file does not matter; duplicates and missing ones do. */
-  section perm[3] = {sec[2], sec[0], sec[1]};
-  v2 = assemble(perm, 3, UB_BAKEFILE_VERSION, &sz);
+  section perm[4] = {sec[2], sec[3], sec[0], sec[1]};
+  v2 = assemble(perm, 4, UB_BAKEFILE_VERSION, &sz);
   rd = NULL;
   ASSERT_OK(ub_bakefile_read_memory(v2, sz, "t.ubk", NULL, &rd));
   ub_bakefile_free(rd);
   free(v2);
-  section dup[4] = {sec[0], sec[1], sec[2], sec[1]};
-  v2 = assemble(dup, 4, UB_BAKEFILE_VERSION, &sz);
+  section dup[5] = {sec[0], sec[1], sec[2], sec[3], sec[1]};
+  v2 = assemble(dup, 5, UB_BAKEFILE_VERSION, &sz);
   ASSERT_TRUE(ub_bakefile_read_memory(v2, sz, "t.ubk", NULL, &rd) == UB_ERR_INVALID_DATA);
+  free(v2);
+  /* GLGP is optional: without it the file reads, with no global light grid. */
+  v2 = assemble(sec, 3, UB_BAKEFILE_VERSION, &sz);
+  rd = NULL;
+  ASSERT_OK(ub_bakefile_read_memory(v2, sz, "t.ubk", NULL, &rd));
+  ASSERT_TRUE(rd && rd->glg_probe_count == 0 && rd->glg_positions == NULL);
+  ub_bakefile_free(rd);
   free(v2);
   v2 = assemble(sec, 2, UB_BAKEFILE_VERSION, &sz);
   cap.errors = 0;
@@ -569,6 +617,32 @@ static void edit_atls_trailing(section *s)
   memset(s->data + s->size - 8, 0, 8);
 }
 
+/* GLGP of the sample: 16-byte counts, positions 60, tets 32, neigh 32, plane 16,
+ * plane_of 8, SH 270. */
+static void edit_glgp_huge_probes(section *s) { wr32(s->data, 0x7fffffffu); }
+static void edit_glgp_corner(section *s) { wr32(s->data + 16 + 60 + 4 * 5, 9); }
+static void edit_glgp_repeat(section *s) { wr32(s->data + 16 + 60 + 4 * 5, 1); }
+static void edit_glgp_neigh(section *s) { wr32(s->data + 16 + 60 + 32 + 4 * 3, 2); }
+static void edit_glgp_self(section *s) { wr32(s->data + 16 + 60 + 32, 0); }
+static void edit_glgp_plane_of(section *s) { wr32(s->data + 16 + 60 + 32 + 32 + 16 + 4, 1); }
+static void edit_glgp_inf_plane(section *s) { wr32(s->data + 16 + 60 + 64 + 4, 0x7f800000u); }
+static void edit_glgp_nan_sh(section *s) { s->data[s->size - 1] = 0xfe; }
+static void edit_glgp_no_probes(section *s)
+{
+  memset(s->data, 0, 16);
+  wr32(s->data + 8, 0); /* 0 probes, 0 tets, 0 planes: valid and empty */
+  s->size = 16;
+}
+static void edit_glgp_tets_no_probes(section *s)
+{
+  wr32(s->data, 0);
+  wr32(s->data + 4, 0);
+  wr32(s->data + 8, 1);
+  wr32(s->data + 12, 0);
+  memset(s->data + 16, 0, 16);
+  s->size = 32;
+}
+
 static void test_hostile(void)
 {
   ub_bakefile *bf = make_sample();
@@ -603,6 +677,15 @@ static void test_hostile(void)
       {"ATLS", edit_atls_inf_sh, "non-finite SH"},
       {"ATLS", edit_atls_nan_normal, "non-finite normal"},
       {"ATLS", edit_atls_trailing, "trailing"},
+      {"GLGP", edit_glgp_huge_probes, "does not match"},
+      {"GLGP", edit_glgp_corner, "tetrahedron 1: corner 9 >= probe count 5"},
+      {"GLGP", edit_glgp_repeat, "tetrahedron 1: corner 1 repeated"},
+      {"GLGP", edit_glgp_neigh, "tetrahedron 0: neighbour 2 not"},
+      {"GLGP", edit_glgp_self, "tetrahedron 0: neighbour 0 not"},
+      {"GLGP", edit_glgp_plane_of, "tetrahedron 1: plane 1 >= plane count 1"},
+      {"GLGP", edit_glgp_inf_plane, "plane 0 is not finite"},
+      {"GLGP", edit_glgp_nan_sh, "probe 4 has a non-finite SH"},
+      {"GLGP", edit_glgp_tets_no_probes, "but no probes"},
   };
   for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
     ub_result r = read_edited(f, size, cases[i].tag, cases[i].edit, &cap);
@@ -614,6 +697,8 @@ static void test_hostile(void)
       fprintf(stderr, "hostile case %zu: result %d, message \"%s\"\n", i, (int)r, cap.last);
     ASSERT_TRUE(ok);
   }
+
+  ASSERT_TRUE(read_edited(f, size, "GLGP", edit_glgp_no_probes, &cap) == UB_OK);
 
   /* A hostile count must not make the reader allocate: with the address space capped at
    * 512 MiB the huge-atlas case still fails as invalid data, not out of memory. (Skipped
@@ -681,7 +766,22 @@ static void test_writer_errors(void)
   ASSERT_TRUE(ub_bakefile_write(bf, p, &log) == UB_ERR_INVALID_DATA);
   ASSERT_TRUE(strstr(cap.last, "index 7 >= vertex count 7") != NULL);
   bf->indices[3] = 2;
+  bf->glg_sh[30] = -INFINITY;
+  ASSERT_TRUE(ub_bakefile_write(bf, p, &log) == UB_ERR_INVALID_DATA);
+  ASSERT_TRUE(strstr(cap.last, "bad.ubk: section GLGP: probe 1 has a non-finite SH") != NULL);
+  bf->glg_sh[30] = 0.0f;
   ASSERT_TRUE(!file_exists(p) && !file_exists(ptmp));
+
+  /* glg_plane_of NULL: no leak planes, written as "none" for every tetrahedron. */
+  uint32_t *plane_of = bf->glg_plane_of;
+  bf->glg_plane_of = NULL;
+  ASSERT_OK(ub_bakefile_write(bf, p, &log));
+  bf->glg_plane_of = plane_of;
+  ub_bakefile *rd0 = NULL;
+  ASSERT_OK(ub_bakefile_read(p, NULL, &rd0));
+  ASSERT_TRUE(rd0 && rd0->glg_plane_of[0] == 0xffffffffu && rd0->glg_plane_of[1] == 0xffffffffu);
+  ub_bakefile_free(rd0);
+  remove(p);
 
   /* Out-of-range finite SH is clamped to the half range with a warning. */
   bf->atlases[0].sh[5] = 1e6f;
