@@ -1,0 +1,150 @@
+/* ubake/glg.h — global light grid (GLG) at run time: tetrahedral probe mesh, point
+ * location, barycentric SH interpolation and irradiance queries.
+ *
+ * The GLG is a Delaunay tetrahedralisation of radiance probes (SH L2, ubake/sh.h) placed
+ * over the whole level. For a point p the run-time finds the tet containing p by walking
+ * from a caller-held cache (the previous tet of the same object), interpolates the four
+ * probes' SH barycentrically and convolves with the cosine lobe for a normal.
+ *
+ *   - Point location: walk from *inout_tet_cache across the face with the most negative
+ *     barycentric (never straight back). If the cache is invalid (UB_GLG_NO_CACHE) or
+ *     far from p, the walk starts from a coarse start grid built at init. After
+ *     walk_cap steps (4·cbrt(tets) + 64) it falls back to a brute-force scan.
+ *   - Outside the probes' convex hull: p is projected onto the hull (closest point on the
+ *     closest hull face, found by a local search over hull faces with a brute-force
+ *     fallback) and interpolated there. Projection onto a convex set is continuous, so
+ *     results are continuous everywhere and bounded by the probe values.
+ *   - Robustness: barycentrics are clamped to [0, 1] and renormalised; badly shaped tets
+ *     (|det| < 1e-3 × longest edge³, ~0.4% of a random Delaunay mesh) are evaluated in double, singular ones by their
+ *     closest face; non-finite p gives the cached tet's centroid. Nothing returns NaN.
+ *   - Leak control (Iwanicki & Sloan 2017), two optional hooks, both may be NULL:
+ *     corner_visible (tet × 4) weights each corner of each tet, 0 = probe hidden from the
+ *     tet's interior, 255 = fully visible; leak planes (the .ubk GLGP section, baked by
+ *     probes/leak.c) give a tet one plane n·x + d = 0 and only the corners on the query
+ *     point's side of it are used (a corner on the plane counts for both sides).
+ *     Interpolation uses w_i = λ_i·vis_i·side_i / Σ_j λ_j·vis_j·side_j, falling back to
+ *     plain λ when every weight is 0.
+ *   - Windowing: probe SH as stored in the .ubk is raw. ub_glg_query windows the
+ *     interpolated SH (ub_sh2_window: a few ns when it is smooth, ~15 µs when it rings)
+ *     before the cosine convolution, then clamps at 0. If the caller windowed every probe
+ *     itself (sh_windowed = 1) the query skips it: a convex combination of windowed probes
+ *     is already non-negative for every normal. ub_glg_sample returns the raw
+ *     interpolation (radiance, as the LLG resample needs it).
+ *
+ * Lifecycle: ub_glg_init builds the owned acceleration data; ub_glg_release frees it
+ * (NULL-safe, idempotent). Borrowed arrays (positions, sh, tets, leak data) must
+ * outlive the ub_glg and keep their values (sh may be updated in place by the run-time,
+ * with finite, windowed values); neigh is only read during init.
+ * Thread safety: after init every query is read-only on the ub_glg; each thread passes its
+ * own cache. Pure C11, part of the run-time library.
+ */
+#ifndef UBAKE_GLG_H
+#define UBAKE_GLG_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "ubake/error.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define UB_GLG_NO_CACHE 0xFFFFFFFFu /* initial value of a caller's tet cache */
+
+typedef struct ub_glg_desc {
+  uint32_t probe_count;
+  const float *positions; /* probe_count × 3, metres */
+  const float *sh;        /* probe_count × 27, radiance SH L2, W/(m²·sr), windowed */
+  uint32_t tet_count;
+  const uint32_t *tets;  /* tet_count × 4 probe indices (either orientation) */
+  const int32_t *neigh;  /* tet_count × 4, neigh[4t+i] = tet opposite corner i, −1 on hull */
+  const uint8_t *corner_visible; /* tet_count × 4 visibility weights 0..255, or NULL */
+  uint32_t leak_plane_count;
+  const float *leak_planes;       /* leak_plane_count × 4: unit normal, d; or NULL */
+  const uint32_t *leak_plane_of;  /* tet_count: plane index or UB_GLG_NO_LEAK_PLANE; or NULL */
+  int sh_windowed;                /* 1: every probe's sh already went through ub_sh2_window */
+} ub_glg_desc;
+
+#define UB_GLG_NO_LEAK_PLANE 0xFFFFFFFFu
+
+typedef struct ub_glg_tet ub_glg_tet;   /* private: 64-byte per-tet walk record */
+typedef struct ub_glg_hull ub_glg_hull; /* private: one hull face */
+
+typedef struct ub_glg {
+  /* borrowed (see ub_glg_desc) */
+  uint32_t probe_count;
+  const float *positions;
+  const float *sh;
+  uint32_t tet_count;
+  const uint32_t *tets;
+  const uint8_t *corner_visible;
+  uint32_t leak_plane_count;
+  const float *leak_planes;
+  const uint32_t *leak_plane_of;
+  int sh_windowed;
+  /* owned, built by ub_glg_init */
+  ub_glg_tet *tet_data;  /* per tet: inverse edge matrix, origin, neighbours/hull links */
+  uint8_t *tet_flags;    /* per tet: 0 normal, 1 ill-conditioned (double), 2 singular */
+  uint32_t hull_count;
+  ub_glg_hull *hull;     /* hull faces with hull-surface adjacency */
+  uint32_t *start_grid;  /* a tet near the centre of each start-grid cell */
+  uint32_t grid_dim[3];
+  float grid_lo[3], grid_inv_cell[3], grid_far2; /* far2: squared "far from cache" radius */
+  uint32_t walk_cap;      /* steps before the brute-force fallback */
+  uint32_t ill_tet_count; /* tets evaluated in double / singular */
+  uint32_t singular_tet_count;
+} ub_glg;
+
+/* Optional diagnostics of one locate. */
+typedef struct ub_glg_locate_info {
+  uint32_t steps;      /* tets visited by the walk */
+  uint32_t hull_steps; /* hull faces visited by the outside projection */
+  uint8_t outside;     /* p was outside the hull and was projected onto it */
+  uint8_t fallback;    /* the walk hit walk_cap (or the hull search failed): brute force */
+  uint8_t from_grid;   /* the walk started from the start grid, not the cache */
+} ub_glg_locate_info;
+
+/* Validates desc (hostile data: index ranges, neighbour symmetry, finite values, closed
+ * hull) and builds the owned data. On failure g is zeroed and nothing leaks.
+ * Errors: UB_ERR_INVALID_ARGUMENT (NULLs, zero counts), UB_ERR_INVALID_DATA (message names
+ * the tet/probe), UB_ERR_OUT_OF_MEMORY. */
+ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *desc, const ub_log *log);
+void ub_glg_release(ub_glg *g);
+
+/* Tet for p (metres) and its barycentrics out_bary (Σ = 1, each in [0, 1]; for p outside
+ * the hull, the barycentrics of p's projection onto a hull face of that tet).
+ * inout_tet_cache: the caller's cache, UB_GLG_NO_CACHE initially, updated; an opaque value
+ * (a tet, or a hull face while p stays outside), valid only for this ub_glg. NULL: none. */
+uint32_t ub_glg_locate(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
+                       float out_bary[4]);
+uint32_t ub_glg_locate_ex(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
+                          float out_bary[4], ub_glg_locate_info *out_info);
+
+/* Interpolated radiance SH L2 at p (27 floats, W/(m²·sr)), with leak-control weights;
+ * not windowed (see above). */
+void ub_glg_sample(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
+                   float out_sh[27]);
+
+/* Irradiance (W/m², ≥ 0) at p for unit normal n, from the windowed interpolated SH (a
+ * non-unit n is normalised; a zero or non-finite n gives the mean irradiance π·Y00·L00). */
+void ub_glg_query(const ub_glg *g, const float p[3], const float n[3],
+                  uint32_t *inout_tet_cache, float out_rgb[3]);
+
+/* Resamples the GLG at the nx × ny × nz grid points of an oriented box (the dynamic LLG
+ * atlas of a moving object). Grid points span the box corner to corner:
+ *   p(ix,iy,iz) = center + Σ_a s_a·half_extents[a]·axes[a], s_a = −1 + 2·i_a/(n_a − 1)
+ * (s_a = 0 when n_a = 1). axes: 3 unit vectors (rows). out_sh: nx·ny·nz × 27 floats,
+ * index ix + nx·(iy + ny·iz). Points are visited in serpentine order so the walk stays
+ * coherent; inout_tet_cache may be NULL. Errors: UB_ERR_INVALID_ARGUMENT. */
+ub_result ub_glg_resample_llg(const ub_glg *g, const float center[3], const float axes[9],
+                              const float half_extents[3], uint32_t nx, uint32_t ny,
+                              uint32_t nz, uint32_t *inout_tet_cache, float *out_sh);
+
+/* Bytes owned by g (per-tet records, flags, hull, start grid). */
+size_t ub_glg_owned_bytes(const ub_glg *g);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

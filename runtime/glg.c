@@ -1,0 +1,1088 @@
+/* runtime/glg.c — global light grid: tetrahedral walk, hull projection, SH interpolation.
+ * See ubake/glg.h. */
+#include "ubake/glg.h"
+
+#include <assert.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "ubake/sh.h"
+
+/* One cache line per walk step: λ1..3 = m·(p − o), λ0 = 1 − Σ; nb[i] ≥ 0 is the tet
+ * opposite corner i, nb[i] < 0 is hull face −nb[i] − 1. Ill-conditioned and singular
+ * tets have m = 0 (so λ = (1,0,0,0) "accepts" them) and are resolved by tet_flags. */
+struct ub_glg_tet {
+  float m[9];
+  float o[3];
+  int32_t nb[4];
+};
+
+/* A hull face: v are probe indices (outward counter-clockwise), adj[k] the hull face
+ * across the edge opposite v[k], tet/corner the tet it bounds and its opposite corner,
+ * fc[k] the tet corner holding v[k]. */
+struct ub_glg_hull {
+  uint32_t v[3];
+  uint32_t adj[3];
+  uint32_t tet;
+  uint8_t corner;
+  uint8_t fc[3];
+};
+
+_Static_assert(sizeof(struct ub_glg_tet) == 64, "walk record is one cache line");
+
+#define GLG_EPS 1e-5f           /* barycentric "inside" tolerance */
+#define GLG_ILL_Q 1e-3          /* |det| / lmax³ below this: evaluate in double */
+#define GLG_SINGULAR_Q 1e-13    /* below this: singular, use the closest face */
+#define GLG_BRUTE_ACCEPT -1e-3  /* brute force: accept the best tet above this */
+#define GLG_RING_CAP 256        /* faces around one hull vertex */
+#define GLG_FLAG_ILL 1
+#define GLG_FLAG_SINGULAR 2
+#define GLG_NONE 0xFFFFFFFFu
+#define GLG_CACHE_HULL 0x80000000u /* cache value: outside, at hull face (low bits) */
+
+static const int face_of[4][3] = {{1, 2, 3}, {0, 3, 2}, {0, 1, 3}, {0, 2, 1}};
+
+/* ---- small double helpers ----------------------------------------------------------- */
+
+static void d3load(const float *p, double o[3])
+{
+  o[0] = p[0];
+  o[1] = p[1];
+  o[2] = p[2];
+}
+static void d3sub(const double a[3], const double b[3], double o[3])
+{
+  o[0] = a[0] - b[0];
+  o[1] = a[1] - b[1];
+  o[2] = a[2] - b[2];
+}
+static double d3dot(const double a[3], const double b[3])
+{
+  return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+static void d3cross(const double a[3], const double b[3], double o[3])
+{
+  double x = a[1] * b[2] - a[2] * b[1], y = a[2] * b[0] - a[0] * b[2],
+         z = a[0] * b[1] - a[1] * b[0];
+  o[0] = x;
+  o[1] = y;
+  o[2] = z;
+}
+
+static const float *probe_pos(const ub_glg *g, uint32_t i)
+{
+  return g->positions + 3 * (size_t)i;
+}
+
+/* ---- barycentrics ------------------------------------------------------------------- */
+
+static inline void rec_bary(const struct ub_glg_tet *r, const float p[3], float l[4])
+{
+  float dx = p[0] - r->o[0], dy = p[1] - r->o[1], dz = p[2] - r->o[2];
+  l[1] = r->m[0] * dx + r->m[1] * dy + r->m[2] * dz;
+  l[2] = r->m[3] * dx + r->m[4] * dy + r->m[5] * dz;
+  l[3] = r->m[6] * dx + r->m[7] * dy + r->m[8] * dz;
+  l[0] = 1.0f - l[1] - l[2] - l[3];
+}
+
+/* Double-precision barycentrics from the positions; 0 if the tet is singular. */
+static int tet_bary_double(const ub_glg *g, uint32_t t, const float p[3], double l[4])
+{
+  const uint32_t *v = g->tets + 4 * (size_t)t;
+  double a[3], b[3], c[3], d[3], q[3], e1[3], e2[3], e3[3], x[3], r1[3], r2[3], r3[3];
+  d3load(probe_pos(g, v[0]), a);
+  d3load(probe_pos(g, v[1]), b);
+  d3load(probe_pos(g, v[2]), c);
+  d3load(probe_pos(g, v[3]), d);
+  d3load(p, q);
+  d3sub(b, a, e1);
+  d3sub(c, a, e2);
+  d3sub(d, a, e3);
+  d3sub(q, a, x);
+  d3cross(e2, e3, r1);
+  d3cross(e3, e1, r2);
+  d3cross(e1, e2, r3);
+  double det = d3dot(e1, r1);
+  if (!(fabs(det) > 0.0) || !isfinite(det))
+    return 0;
+  l[1] = d3dot(r1, x) / det;
+  l[2] = d3dot(r2, x) / det;
+  l[3] = d3dot(r3, x) / det;
+  l[0] = 1.0 - l[1] - l[2] - l[3];
+  return 1;
+}
+
+/* Clamp to [0, 1] and renormalise; a zero sum gives the centroid. */
+static void bary_finish(float l[4])
+{
+  float s = 0.0f;
+  for (int i = 0; i < 4; i++) {
+    float x = l[i];
+    if (!(x > 0.0f))
+      x = 0.0f;
+    if (x > 1.0f)
+      x = 1.0f;
+    l[i] = x;
+    s += x;
+  }
+  if (!(s > 0.0f)) {
+    l[0] = l[1] = l[2] = l[3] = 0.25f;
+    return;
+  }
+  float inv = 1.0f / s;
+  for (int i = 0; i < 4; i++)
+    l[i] *= inv;
+}
+
+/* Closest point on triangle abc to p (Ericson, RTCD §5.1.5), in double. Writes the
+ * barycentrics (of a, b, c) and returns the region: 0..2 vertex k, 3..5 the edge opposite
+ * vertex k − 3, 6 the interior. */
+static int closest_on_tri(const double p[3], const double a[3], const double b[3],
+                          const double c[3], double out_w[3])
+{
+  double ab[3], ac[3], ap[3], bp[3], cp[3];
+  d3sub(b, a, ab);
+  d3sub(c, a, ac);
+  d3sub(p, a, ap);
+  double d1 = d3dot(ab, ap), d2 = d3dot(ac, ap);
+  if (d1 <= 0.0 && d2 <= 0.0) {
+    out_w[0] = 1.0, out_w[1] = 0.0, out_w[2] = 0.0;
+    return 0;
+  }
+  d3sub(p, b, bp);
+  double d3 = d3dot(ab, bp), d4 = d3dot(ac, bp);
+  if (d3 >= 0.0 && d4 <= d3) {
+    out_w[0] = 0.0, out_w[1] = 1.0, out_w[2] = 0.0;
+    return 1;
+  }
+  double vc = d1 * d4 - d3 * d2;
+  if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) {
+    double den = d1 - d3;
+    double v = den > 0.0 ? d1 / den : 0.0;
+    out_w[0] = 1.0 - v, out_w[1] = v, out_w[2] = 0.0;
+    return 5;
+  }
+  d3sub(p, c, cp);
+  double d5 = d3dot(ab, cp), d6 = d3dot(ac, cp);
+  if (d6 >= 0.0 && d5 <= d6) {
+    out_w[0] = 0.0, out_w[1] = 0.0, out_w[2] = 1.0;
+    return 2;
+  }
+  double vb = d5 * d2 - d1 * d6;
+  if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) {
+    double den = d2 - d6;
+    double w = den > 0.0 ? d2 / den : 0.0;
+    out_w[0] = 1.0 - w, out_w[1] = 0.0, out_w[2] = w;
+    return 4;
+  }
+  double va = d3 * d6 - d5 * d4;
+  if (va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0) {
+    double den = (d4 - d3) + (d5 - d6);
+    double w = den > 0.0 ? (d4 - d3) / den : 0.0;
+    out_w[0] = 0.0, out_w[1] = 1.0 - w, out_w[2] = w;
+    return 3;
+  }
+  double s = va + vb + vc;
+  if (!(s > 0.0)) { /* degenerate triangle: nearest vertex */
+    out_w[0] = 1.0, out_w[1] = 0.0, out_w[2] = 0.0;
+    return 0;
+  }
+  double v = vb / s, w = vc / s;
+  out_w[0] = 1.0 - v - w, out_w[1] = v, out_w[2] = w;
+  return 6;
+}
+
+/* ---- outside the hull: projection onto the closest hull face --------------------------- */
+
+typedef struct hull_hit {
+  uint32_t face;
+  double w[3];
+  double d2;
+  int region;
+} hull_hit;
+
+static void hull_eval(const ub_glg *g, const double p[3], uint32_t h, hull_hit *out)
+{
+  const struct ub_glg_hull *f = &g->hull[h];
+  double a[3], b[3], c[3], q[3], e[3];
+  d3load(probe_pos(g, f->v[0]), a);
+  d3load(probe_pos(g, f->v[1]), b);
+  d3load(probe_pos(g, f->v[2]), c);
+  out->face = h;
+  out->region = closest_on_tri(p, a, b, c, out->w);
+  for (int i = 0; i < 3; i++)
+    q[i] = out->w[0] * a[i] + out->w[1] * b[i] + out->w[2] * c[i];
+  d3sub(p, q, e);
+  out->d2 = d3dot(e, e);
+}
+
+/* (p − q)·n_h ≥ −tol·|p − q|·|n_h|: p is on the outer side of face h's plane. */
+static int hull_sees(const ub_glg *g, const double p[3], const hull_hit *hit, uint32_t h)
+{
+  const struct ub_glg_hull *f = &g->hull[h];
+  const struct ub_glg_hull *fh = &g->hull[hit->face];
+  double a[3], b[3], c[3], e1[3], e2[3], n[3], q[3], d[3];
+  d3load(probe_pos(g, f->v[0]), a);
+  d3load(probe_pos(g, f->v[1]), b);
+  d3load(probe_pos(g, f->v[2]), c);
+  d3sub(b, a, e1);
+  d3sub(c, a, e2);
+  d3cross(e1, e2, n);
+  double qa[3], qb[3], qc[3];
+  d3load(probe_pos(g, fh->v[0]), qa);
+  d3load(probe_pos(g, fh->v[1]), qb);
+  d3load(probe_pos(g, fh->v[2]), qc);
+  for (int i = 0; i < 3; i++)
+    q[i] = hit->w[0] * qa[i] + hit->w[1] * qb[i] + hit->w[2] * qc[i];
+  d3sub(p, q, d);
+  double dn = d3dot(d, n);
+  return dn >= -1e-9 * sqrt(d3dot(d, d) * d3dot(n, n));
+}
+
+static void hull_brute(const ub_glg *g, const double p[3], hull_hit *best)
+{
+  best->d2 = HUGE_VAL;
+  for (uint32_t h = 0; h < g->hull_count; h++) {
+    hull_hit hit;
+    hull_eval(g, p, h, &hit);
+    if (hit.d2 < best->d2)
+      *best = hit;
+  }
+}
+
+static int local_index(const struct ub_glg_hull *f, uint32_t vid)
+{
+  for (int k = 0; k < 3; k++)
+    if (f->v[k] == vid)
+      return k;
+  return -1;
+}
+
+/* Local search over hull faces from h0 for the closest point q of the (convex) hull to
+ * an outside point p: move to an adjacent face (across q's edge, or around q's vertex)
+ * while that is strictly closer. The stop is certified by the normal-cone condition: q is
+ * the closest point of every face around it (so p − q is normal to the hull's tangent
+ * cone at q) and p lies on the outer side of at least one of those faces (which rules out
+ * local minima on the far side of the hull). If that fails, or after too many steps,
+ * brute force over all hull faces. */
+static void hull_project(const ub_glg *g, const double p[3], uint32_t h0, hull_hit *out,
+                         ub_glg_locate_info *info)
+{
+  hull_hit cur;
+  hull_eval(g, p, h0, &cur);
+  uint32_t cap = 64 + 4 * (uint32_t)sqrt((double)g->hull_count);
+  for (uint32_t step = 0; step < cap; step++) {
+    if (info)
+      info->hull_steps++;
+    if (cur.d2 == 0.0) {
+      *out = cur;
+      return;
+    }
+    const double shrink = 1.0 - 1e-12;
+    if (cur.region == 6) {
+      if (hull_sees(g, p, &cur, cur.face)) {
+        *out = cur;
+        return;
+      }
+      break; /* behind an interior face: a trap on the far side */
+    }
+    const struct ub_glg_hull *f = &g->hull[cur.face];
+    if (cur.region >= 3) { /* edge opposite vertex region−3 */
+      uint32_t nbf = f->adj[cur.region - 3];
+      hull_hit nh;
+      hull_eval(g, p, nbf, &nh);
+      if (nh.d2 < cur.d2 * shrink) {
+        cur = nh;
+        continue;
+      }
+      if (hull_sees(g, p, &cur, cur.face) || hull_sees(g, p, &cur, nbf)) {
+        *out = cur;
+        return;
+      }
+      break;
+    }
+    /* vertex: the ring of faces around it */
+    uint32_t vid = f->v[cur.region];
+    uint32_t prev = GLG_NONE, at = cur.face;
+    hull_hit best = cur;
+    int seen = 0, closed = 0;
+    for (int r = 0; r < GLG_RING_CAP; r++) {
+      const struct ub_glg_hull *fa = &g->hull[at];
+      int j = local_index(fa, vid);
+      if (j < 0)
+        break;
+      if (at != cur.face) {
+        hull_hit hh;
+        hull_eval(g, p, at, &hh);
+        if (hh.d2 < best.d2 * shrink)
+          best = hh;
+      }
+      seen |= hull_sees(g, p, &cur, at);
+      uint32_t nx = fa->adj[(j + 1) % 3];
+      if (nx == prev)
+        nx = fa->adj[(j + 2) % 3];
+      prev = at;
+      at = nx;
+      if (at == cur.face) {
+        closed = 1;
+        break;
+      }
+    }
+    if (!closed)
+      break;
+    if (best.face != cur.face) {
+      cur = best;
+      continue;
+    }
+    if (seen) {
+      *out = cur;
+      return;
+    }
+    break;
+  }
+  if (info)
+    info->fallback = 1;
+  hull_brute(g, p, out);
+}
+
+static uint32_t hull_result(const ub_glg *g, const hull_hit *hit, float bary[4])
+{
+  const struct ub_glg_hull *f = &g->hull[hit->face];
+  bary[0] = bary[1] = bary[2] = bary[3] = 0.0f;
+  for (int k = 0; k < 3; k++)
+    bary[f->fc[k]] = (float)hit->w[k];
+  bary_finish(bary);
+  return f->tet;
+}
+
+/* ---- singular tets -------------------------------------------------------------------- */
+
+static void singular_weights(const ub_glg *g, uint32_t t, const float p[3], float bary[4])
+{
+  const uint32_t *v = g->tets + 4 * (size_t)t;
+  double q[3], best = HUGE_VAL;
+  d3load(p, q);
+  bary[0] = bary[1] = bary[2] = bary[3] = 0.0f;
+  float out[4] = {0.25f, 0.25f, 0.25f, 0.25f};
+  for (int i = 0; i < 4; i++) {
+    double a[3], b[3], c[3], w[3], x[3], e[3];
+    d3load(probe_pos(g, v[face_of[i][0]]), a);
+    d3load(probe_pos(g, v[face_of[i][1]]), b);
+    d3load(probe_pos(g, v[face_of[i][2]]), c);
+    closest_on_tri(q, a, b, c, w);
+    for (int k = 0; k < 3; k++)
+      x[k] = w[0] * a[k] + w[1] * b[k] + w[2] * c[k];
+    d3sub(q, x, e);
+    double d2 = d3dot(e, e);
+    if (d2 < best) {
+      best = d2;
+      out[0] = out[1] = out[2] = out[3] = 0.0f;
+      for (int k = 0; k < 3; k++)
+        out[face_of[i][k]] = (float)w[k];
+    }
+  }
+  memcpy(bary, out, sizeof out);
+  bary_finish(bary);
+}
+
+/* ---- the walk ----------------------------------------------------------------------- */
+
+/* min barycentric of p in tet t (singular tets score −1e30 so they rank last). */
+static float tet_min_bary(const ub_glg *g, uint32_t t, const float p[3])
+{
+  float l[4];
+  uint8_t fl = g->tet_flags[t];
+  if (fl == GLG_FLAG_SINGULAR)
+    return -1e30f;
+  if (fl == GLG_FLAG_ILL) {
+    double ld[4];
+    if (!tet_bary_double(g, t, p, ld))
+      return -1e30f;
+    for (int i = 0; i < 4; i++)
+      l[i] = (float)ld[i];
+  } else {
+    rec_bary(&g->tet_data[t], p, l);
+  }
+  return fminf(fminf(l[0], l[1]), fminf(l[2], l[3]));
+}
+
+static uint32_t brute_locate(const ub_glg *g, const float p[3], float bary[4],
+                             ub_glg_locate_info *info, uint32_t *out_cache)
+{
+  float best_min = -HUGE_VALF, best_l[4] = {0.25f, 0.25f, 0.25f, 0.25f};
+  uint32_t best_t = 0;
+  for (uint32_t t = 0; t < g->tet_count; t++) {
+    float l[4];
+    uint8_t fl = g->tet_flags[t];
+    if (fl == GLG_FLAG_SINGULAR)
+      continue;
+    if (fl == GLG_FLAG_ILL) {
+      double ld[4];
+      if (!tet_bary_double(g, t, p, ld))
+        continue;
+      for (int i = 0; i < 4; i++)
+        l[i] = (float)ld[i];
+    } else {
+      rec_bary(&g->tet_data[t], p, l);
+    }
+    float mn = fminf(fminf(l[0], l[1]), fminf(l[2], l[3]));
+    if (mn > best_min) {
+      best_min = mn;
+      best_t = t;
+      memcpy(best_l, l, sizeof best_l);
+    }
+  }
+  if (best_min >= (float)GLG_BRUTE_ACCEPT) {
+    memcpy(bary, best_l, sizeof best_l);
+    bary_finish(bary);
+    *out_cache = best_t;
+    return best_t;
+  }
+  if (info)
+    info->outside = 1;
+  double q[3];
+  d3load(p, q);
+  hull_hit hit;
+  hull_brute(g, q, &hit);
+  *out_cache = GLG_CACHE_HULL | hit.face;
+  return hull_result(g, &hit, bary);
+}
+
+/* Walks from tet t to the tet containing p (or p's projection onto the hull).
+ * *out_cache receives the value for the caller's cache: the tet, or GLG_CACHE_HULL | face
+ * when p was outside. */
+static uint32_t walk(const ub_glg *g, const float p[3], uint32_t t, float bary[4],
+                     ub_glg_locate_info *info, uint32_t *out_cache)
+{
+  *out_cache = GLG_NONE;
+  uint32_t prev = GLG_NONE;
+  for (uint32_t step = 0; step < g->walk_cap; step++) {
+    if (info)
+      info->steps++;
+    const struct ub_glg_tet *r = &g->tet_data[t];
+    float l[4];
+    rec_bary(r, p, l);
+    float mn = fminf(fminf(l[0], l[1]), fminf(l[2], l[3]));
+    if (mn >= -GLG_EPS) {
+      uint8_t fl = g->tet_flags[t];
+      if (!fl) {
+        memcpy(bary, l, sizeof l);
+        bary_finish(bary);
+        *out_cache = t;
+        return t;
+      }
+      double ld[4];
+      if (fl == GLG_FLAG_SINGULAR || !tet_bary_double(g, t, p, ld)) {
+        /* Zero volume: nothing is inside. Step to the neighbour that best contains p
+         * (stacks of flat tets come from jittered retries on coplanar probes). */
+        uint32_t best = GLG_NONE;
+        float best_v = -HUGE_VALF;
+        for (int i = 0; i < 4; i++) {
+          int32_t u = r->nb[i];
+          if (u < 0 || (uint32_t)u == prev)
+            continue;
+          float v = tet_min_bary(g, (uint32_t)u, p);
+          if (best == GLG_NONE || v > best_v) {
+            best = (uint32_t)u;
+            best_v = v;
+          }
+        }
+        if (best == GLG_NONE) {
+          singular_weights(g, t, p, bary);
+          *out_cache = t;
+          return t;
+        }
+        prev = t;
+        t = best;
+        continue;
+      }
+      for (int i = 0; i < 4; i++)
+        l[i] = (float)ld[i];
+      mn = fminf(fminf(l[0], l[1]), fminf(l[2], l[3]));
+      if (mn >= -GLG_EPS) {
+        memcpy(bary, l, sizeof l);
+        bary_finish(bary);
+        *out_cache = t;
+        return t;
+      }
+    }
+    /* Cross the face with the most negative barycentric, never straight back; beyond
+     * any hull face's plane p is outside the convex hull, so project right away. */
+    int k = -1;
+    float kv = -GLG_EPS;
+    int hull_k = -1;
+    for (int i = 0; i < 4; i++) {
+      if (l[i] < kv && !(r->nb[i] >= 0 && (uint32_t)r->nb[i] == prev)) {
+        kv = l[i];
+        k = i;
+      }
+      if (r->nb[i] < 0 && l[i] < -GLG_EPS && (hull_k < 0 || l[i] < l[hull_k]))
+        hull_k = i;
+    }
+    if (hull_k >= 0)
+      k = hull_k;
+    if (k < 0) { /* only the face we came through is violated: numerically on it */
+      memcpy(bary, l, sizeof l);
+      bary_finish(bary);
+      *out_cache = t;
+      return t;
+    }
+    int32_t nb = r->nb[k];
+    if (nb < 0) { /* beyond a hull face's supporting plane: outside the convex hull */
+      if (info)
+        info->outside = 1;
+      double q[3];
+      d3load(p, q);
+      hull_hit hit;
+      hull_project(g, q, (uint32_t)(-nb - 1), &hit, info);
+      *out_cache = GLG_CACHE_HULL | hit.face;
+      return hull_result(g, &hit, bary);
+    }
+    prev = t;
+    t = (uint32_t)nb;
+  }
+  if (info)
+    info->fallback = 1;
+  return brute_locate(g, p, bary, info, out_cache);
+}
+
+static uint32_t grid_start(const ub_glg *g, const float p[3])
+{
+  uint32_t c[3];
+  for (int a = 0; a < 3; a++) {
+    float x = (p[a] - g->grid_lo[a]) * g->grid_inv_cell[a];
+    int64_t i = x > 0.0f ? (int64_t)x : 0;
+    if (i >= (int64_t)g->grid_dim[a])
+      i = (int64_t)g->grid_dim[a] - 1;
+    c[a] = (uint32_t)i;
+  }
+  return g->start_grid[c[0] + (size_t)g->grid_dim[0] * (c[1] + (size_t)g->grid_dim[1] * c[2])];
+}
+
+/* p strictly on the outer side of hull face h's plane. */
+static int hull_outside(const ub_glg *g, const float p[3], uint32_t h)
+{
+  const struct ub_glg_hull *f = &g->hull[h];
+  double a[3], b[3], c[3], q[3], e1[3], e2[3], n[3], d[3];
+  d3load(probe_pos(g, f->v[0]), a);
+  d3load(probe_pos(g, f->v[1]), b);
+  d3load(probe_pos(g, f->v[2]), c);
+  d3load(p, q);
+  d3sub(b, a, e1);
+  d3sub(c, a, e2);
+  d3cross(e1, e2, n);
+  d3sub(q, a, d);
+  return d3dot(n, d) > 0.0;
+}
+
+uint32_t ub_glg_locate_ex(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
+                          float out_bary[4], ub_glg_locate_info *info)
+{
+  assert(g && g->tet_data && p && out_bary);
+  if (info)
+    memset(info, 0, sizeof *info);
+  uint32_t cache = inout_tet_cache ? *inout_tet_cache : GLG_NONE;
+  int finite = isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2]);
+  if (cache != GLG_NONE && (cache & GLG_CACHE_HULL)) {
+    /* Last query was outside: stay on the hull while p is beyond the cached face. */
+    uint32_t h = cache & ~GLG_CACHE_HULL;
+    if (h >= g->hull_count) {
+      cache = GLG_NONE;
+    } else if (finite && hull_outside(g, p, h)) {
+      if (info)
+        info->outside = 1;
+      double q[3];
+      d3load(p, q);
+      hull_hit hit;
+      hull_project(g, q, h, &hit, info);
+      if (inout_tet_cache)
+        *inout_tet_cache = GLG_CACHE_HULL | hit.face;
+      return hull_result(g, &hit, out_bary);
+    } else {
+      cache = g->hull[h].tet;
+    }
+  }
+  if (cache >= g->tet_count)
+    cache = GLG_NONE;
+  if (!finite) {
+    out_bary[0] = out_bary[1] = out_bary[2] = out_bary[3] = 0.25f;
+    return cache == GLG_NONE ? 0 : cache;
+  }
+  uint32_t start = cache;
+  if (g->start_grid) {
+    int far = 1;
+    if (start != GLG_NONE) {
+      const float *o = g->tet_data[start].o;
+      float dx = p[0] - o[0], dy = p[1] - o[1], dz = p[2] - o[2];
+      far = dx * dx + dy * dy + dz * dz > g->grid_far2;
+    }
+    if (far) {
+      start = grid_start(g, p);
+      if (info)
+        info->from_grid = 1;
+    }
+  }
+  if (start == GLG_NONE)
+    start = 0;
+  uint32_t out_cache;
+  uint32_t t = walk(g, p, start, out_bary, info, &out_cache);
+  if (inout_tet_cache)
+    *inout_tet_cache = out_cache;
+  return t;
+}
+
+uint32_t ub_glg_locate(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
+                       float out_bary[4])
+{
+  return ub_glg_locate_ex(g, p, inout_tet_cache, out_bary, NULL);
+}
+
+/* ---- interpolation ------------------------------------------------------------------ */
+
+void ub_glg_sample(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
+                   float out_sh[27])
+{
+  float w[4];
+  uint32_t t = ub_glg_locate_ex(g, p, inout_tet_cache, w, NULL);
+  const uint32_t *v = g->tets + 4 * (size_t)t;
+  uint32_t pl = g->leak_plane_of ? g->leak_plane_of[t] : UB_GLG_NO_LEAK_PLANE;
+  if (g->corner_visible || pl != UB_GLG_NO_LEAK_PLANE) {
+    float vw[4] = {w[0], w[1], w[2], w[3]}, s = 0.0f;
+    if (g->corner_visible) {
+      const uint8_t *vis = g->corner_visible + 4 * (size_t)t;
+      for (int i = 0; i < 4; i++)
+        vw[i] *= (float)vis[i];
+    }
+    if (pl != UB_GLG_NO_LEAK_PLANE && isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2])) {
+      const float *n = g->leak_planes + 4 * (size_t)pl;
+      float sp = n[0] * p[0] + n[1] * p[1] + n[2] * p[2] + n[3];
+      for (int i = 0; i < 4; i++) {
+        const float *x = probe_pos(g, v[i]);
+        float si = n[0] * x[0] + n[1] * x[1] + n[2] * x[2] + n[3];
+        if (sp >= 0.0f ? si < 0.0f : si > 0.0f)
+          vw[i] = 0.0f;
+      }
+    }
+    for (int i = 0; i < 4; i++)
+      s += vw[i];
+    if (s > 0.0f) {
+      float inv = 1.0f / s;
+      for (int i = 0; i < 4; i++)
+        w[i] = vw[i] * inv;
+    }
+  }
+  memset(out_sh, 0, 27 * sizeof(float));
+  for (int i = 0; i < 4; i++) {
+    if (!(w[i] > 0.0f))
+      continue;
+    const float *s = g->sh + 27 * (size_t)v[i];
+    for (int k = 0; k < 27; k++)
+      out_sh[k] += w[i] * s[k];
+  }
+}
+
+void ub_glg_query(const ub_glg *g, const float p[3], const float n[3],
+                  uint32_t *inout_tet_cache, float out_rgb[3])
+{
+  float sh[27];
+  ub_glg_sample(g, p, inout_tet_cache, sh);
+  if (!g->sh_windowed)
+    ub_sh2_window(sh);
+  float l2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
+  if (!(l2 > 0.0f) || !isfinite(l2)) {
+    for (int c = 0; c < 3; c++)
+      out_rgb[c] = fmaxf(0.0f, UB_SH_A0 * 0.282094792f * sh[c]);
+    return;
+  }
+  float inv = 1.0f / sqrtf(l2);
+  float nn[3] = {n[0] * inv, n[1] * inv, n[2] * inv};
+  ub_sh2_irradiance(sh, nn, out_rgb);
+  for (int c = 0; c < 3; c++)
+    out_rgb[c] = out_rgb[c] > 0.0f ? out_rgb[c] : 0.0f;
+}
+
+ub_result ub_glg_resample_llg(const ub_glg *g, const float center[3], const float axes[9],
+                              const float half[3], uint32_t nx, uint32_t ny, uint32_t nz,
+                              uint32_t *inout_tet_cache, float *out_sh)
+{
+  if (!g || !g->tet_data || !center || !axes || !half || !out_sh || !nx || !ny || !nz)
+    return UB_ERR_INVALID_ARGUMENT;
+  if ((uint64_t)nx * ny * nz > ((uint64_t)1 << 32) / 27)
+    return UB_ERR_INVALID_ARGUMENT;
+  uint32_t local = GLG_NONE;
+  uint32_t *cache = inout_tet_cache ? inout_tet_cache : &local;
+  const uint32_t dims[3] = {nx, ny, nz};
+  for (uint32_t iz = 0; iz < nz; iz++) {
+    for (uint32_t jy = 0; jy < ny; jy++) {
+      uint32_t iy = (iz & 1) ? ny - 1 - jy : jy; /* serpentine: neighbours stay adjacent */
+      for (uint32_t jx = 0; jx < nx; jx++) {
+        uint32_t ix = ((iz * ny + jy) & 1) ? nx - 1 - jx : jx;
+        const uint32_t idx[3] = {ix, iy, iz};
+        float p[3] = {center[0], center[1], center[2]};
+        for (int a = 0; a < 3; a++) {
+          float s = dims[a] > 1 ? -1.0f + 2.0f * (float)idx[a] / (float)(dims[a] - 1) : 0.0f;
+          for (int i = 0; i < 3; i++)
+            p[i] += s * half[a] * axes[3 * a + i];
+        }
+        ub_glg_sample(g, p, cache, out_sh + 27 * ((size_t)ix + nx * ((size_t)iy + (size_t)ny * iz)));
+      }
+    }
+  }
+  return UB_OK;
+}
+
+/* ---- init --------------------------------------------------------------------------- */
+
+static int same_face(const uint32_t *a, int ia, const uint32_t *b, int ib)
+{
+  int hits = 0;
+  for (int i = 0; i < 3; i++)
+    for (int j = 0; j < 3; j++)
+      hits += a[face_of[ia][i]] == b[face_of[ib][j]];
+  return hits == 3;
+}
+
+static uint64_t mix64(uint64_t k)
+{
+  k ^= k >> 33;
+  k *= 0xff51afd7ed558ccdull;
+  k ^= k >> 33;
+  k *= 0xc4ceb9fe1a85ec53ull;
+  k ^= k >> 33;
+  return k;
+}
+
+/* Links hull faces across their edges; every hull edge must have exactly two faces. */
+static ub_result build_hull_adjacency(ub_glg *g, const ub_log *log)
+{
+  size_t cap = 16;
+  while (cap < 6 * (size_t)g->hull_count)
+    cap <<= 1;
+  uint64_t *keys = malloc(cap * sizeof *keys);
+  uint32_t *val = malloc(cap * sizeof *val); /* face << 2 | k; GLG_NONE = empty */
+  if (!keys || !val) {
+    free(keys);
+    free(val);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  for (size_t i = 0; i < cap; i++)
+    val[i] = GLG_NONE;
+  ub_result res = UB_OK;
+  for (uint32_t h = 0; h < g->hull_count && res == UB_OK; h++) {
+    struct ub_glg_hull *f = &g->hull[h];
+    for (int k = 0; k < 3; k++) {
+      uint32_t a = f->v[(k + 1) % 3], b = f->v[(k + 2) % 3];
+      uint64_t key = a < b ? ((uint64_t)a << 32 | b) : ((uint64_t)b << 32 | a);
+      size_t s = mix64(key) & (cap - 1);
+      while (val[s] != GLG_NONE && keys[s] != key)
+        s = (s + 1) & (cap - 1);
+      if (val[s] == GLG_NONE) {
+        keys[s] = key;
+        val[s] = h << 2 | (uint32_t)k;
+        continue;
+      }
+      uint32_t other = val[s];
+      if (other == GLG_NONE - 1) {
+        ub_log_printf(log, UB_LOG_ERROR, "glg: hull edge %u-%u has more than two faces", a, b);
+        res = UB_ERR_INVALID_DATA;
+        break;
+      }
+      uint32_t oh = other >> 2, ok = other & 3;
+      f->adj[k] = oh;
+      g->hull[oh].adj[ok] = h;
+      val[s] = GLG_NONE - 1; /* full */
+    }
+  }
+  for (uint32_t h = 0; h < g->hull_count && res == UB_OK; h++)
+    for (int k = 0; k < 3; k++)
+      if (g->hull[h].adj[k] == GLG_NONE) {
+        ub_log_printf(log, UB_LOG_ERROR, "glg: hull is not closed at face of tet %u",
+                      g->hull[h].tet);
+        res = UB_ERR_INVALID_DATA;
+        break;
+      }
+  free(keys);
+  free(val);
+  return res;
+}
+
+static ub_result build_start_grid(ub_glg *g)
+{
+  float lo[3] = {HUGE_VALF, HUGE_VALF, HUGE_VALF}, hi[3] = {-HUGE_VALF, -HUGE_VALF, -HUGE_VALF};
+  for (uint32_t i = 0; i < g->probe_count; i++)
+    for (int a = 0; a < 3; a++) {
+      lo[a] = fminf(lo[a], g->positions[3 * (size_t)i + a]);
+      hi[a] = fmaxf(hi[a], g->positions[3 * (size_t)i + a]);
+    }
+  double ext[3], diag = 0.0;
+  for (int a = 0; a < 3; a++) {
+    ext[a] = (double)hi[a] - lo[a];
+    diag += ext[a] * ext[a];
+  }
+  diag = sqrt(diag);
+  for (int a = 0; a < 3; a++)
+    if (ext[a] < 1e-6 * diag)
+      ext[a] = 1e-6 * diag;
+  if (!(diag > 0.0))
+    return UB_ERR_INVALID_DATA;
+  double cells = g->probe_count / 2.0 + 1.0;
+  if (cells > (double)(1u << 22))
+    cells = (double)(1u << 22);
+  double s = cbrt(ext[0] * ext[1] * ext[2] / cells);
+  size_t total = 1;
+  double cd2 = 0.0;
+  for (int a = 0; a < 3; a++) {
+    double d = ceil(ext[a] / s);
+    if (d < 1.0)
+      d = 1.0;
+    if (d > 1024.0)
+      d = 1024.0;
+    g->grid_dim[a] = (uint32_t)d;
+    g->grid_lo[a] = lo[a];
+    g->grid_inv_cell[a] = (float)(d / ext[a]);
+    total *= g->grid_dim[a];
+    double c = ext[a] / d;
+    cd2 += c * c;
+  }
+  g->grid_far2 = (float)(4.0 * cd2); /* two cell diagonals */
+  g->start_grid = malloc(total * sizeof *g->start_grid);
+  if (!g->start_grid)
+    return UB_ERR_OUT_OF_MEMORY;
+  uint32_t t = 0;
+  for (uint32_t z = 0; z < g->grid_dim[2]; z++)
+    for (uint32_t jy = 0; jy < g->grid_dim[1]; jy++) {
+      uint32_t y = (z & 1) ? g->grid_dim[1] - 1 - jy : jy;
+      for (uint32_t jx = 0; jx < g->grid_dim[0]; jx++) {
+        uint32_t x = ((z * g->grid_dim[1] + jy) & 1) ? g->grid_dim[0] - 1 - jx : jx;
+        float p[3];
+        const uint32_t c[3] = {x, y, z};
+        for (int a = 0; a < 3; a++)
+          p[a] = (float)(lo[a] + (c[a] + 0.5) * ext[a] / g->grid_dim[a]);
+        float bary[4];
+        uint32_t cache;
+        t = walk(g, p, t, bary, NULL, &cache);
+        g->start_grid[x + (size_t)g->grid_dim[0] * (y + (size_t)g->grid_dim[1] * z)] = t;
+      }
+    }
+  return UB_OK;
+}
+
+ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
+{
+  if (!g)
+    return UB_ERR_INVALID_ARGUMENT;
+  memset(g, 0, sizeof *g);
+  if (!d || !d->positions || !d->sh || !d->tets || !d->neigh || d->probe_count < 4 ||
+      d->tet_count < 1) {
+    ub_log_printf(log, UB_LOG_ERROR, "glg: missing arrays or fewer than 4 probes / 1 tet");
+    return UB_ERR_INVALID_ARGUMENT;
+  }
+  if (d->tet_count > 0x3FFFFFFFu || d->probe_count > 0x3FFFFFFFu) {
+    ub_log_printf(log, UB_LOG_ERROR, "glg: %u tets / %u probes is too many", d->tet_count,
+                  d->probe_count);
+    return UB_ERR_INVALID_DATA;
+  }
+  for (size_t i = 0; i < 3 * (size_t)d->probe_count; i++)
+    if (!isfinite(d->positions[i])) {
+      ub_log_printf(log, UB_LOG_ERROR, "glg: probe %zu position is not finite", i / 3);
+      return UB_ERR_INVALID_DATA;
+    }
+  for (size_t i = 0; i < 27 * (size_t)d->probe_count; i++)
+    if (!isfinite(d->sh[i])) {
+      ub_log_printf(log, UB_LOG_ERROR, "glg: probe %zu SH is not finite", i / 27);
+      return UB_ERR_INVALID_DATA;
+    }
+  g->probe_count = d->probe_count;
+  g->positions = d->positions;
+  g->sh = d->sh;
+  g->tet_count = d->tet_count;
+  g->tets = d->tets;
+  g->corner_visible = d->corner_visible;
+  g->sh_windowed = d->sh_windowed;
+  if (d->leak_plane_of) {
+    if (d->leak_plane_count && !d->leak_planes) {
+      ub_log_printf(log, UB_LOG_ERROR, "glg: leak planes missing");
+      memset(g, 0, sizeof *g);
+      return UB_ERR_INVALID_ARGUMENT;
+    }
+    for (size_t i = 0; i < 4 * (size_t)d->leak_plane_count; i++)
+      if (!isfinite(d->leak_planes[i])) {
+        ub_log_printf(log, UB_LOG_ERROR, "glg: leak plane %zu is not finite", i / 4);
+        memset(g, 0, sizeof *g);
+        return UB_ERR_INVALID_DATA;
+      }
+    for (uint32_t t = 0; t < d->tet_count; t++)
+      if (d->leak_plane_of[t] != UB_GLG_NO_LEAK_PLANE && d->leak_plane_of[t] >= d->leak_plane_count) {
+        ub_log_printf(log, UB_LOG_ERROR, "glg: tet %u: leak plane %u out of range", t,
+                      d->leak_plane_of[t]);
+        memset(g, 0, sizeof *g);
+        return UB_ERR_INVALID_DATA;
+      }
+    g->leak_plane_count = d->leak_plane_count;
+    g->leak_planes = d->leak_planes;
+    g->leak_plane_of = d->leak_plane_of;
+  }
+
+  ub_result res = UB_OK;
+  /* Topology: indices, neighbour symmetry, shared faces; count hull faces. */
+  uint32_t hull_count = 0;
+  for (uint32_t t = 0; t < d->tet_count && res == UB_OK; t++) {
+    const uint32_t *v = d->tets + 4 * (size_t)t;
+    for (int i = 0; i < 4 && res == UB_OK; i++) {
+      if (v[i] >= d->probe_count) {
+        ub_log_printf(log, UB_LOG_ERROR, "glg: tet %u corner %d: probe %u out of range", t, i,
+                      v[i]);
+        res = UB_ERR_INVALID_DATA;
+      }
+      for (int j = 0; j < i && res == UB_OK; j++)
+        if (v[i] == v[j]) {
+          ub_log_printf(log, UB_LOG_ERROR, "glg: tet %u repeats probe %u", t, v[i]);
+          res = UB_ERR_INVALID_DATA;
+        }
+    }
+    for (int i = 0; i < 4 && res == UB_OK; i++) {
+      int32_t u = d->neigh[4 * (size_t)t + i];
+      if (u == -1) {
+        hull_count++;
+        continue;
+      }
+      if (u < 0 || (uint32_t)u >= d->tet_count || (uint32_t)u == t) {
+        ub_log_printf(log, UB_LOG_ERROR, "glg: tet %u neighbour %d invalid", t, u);
+        res = UB_ERR_INVALID_DATA;
+        break;
+      }
+      int back = -1, backs = 0;
+      for (int j = 0; j < 4; j++)
+        if (d->neigh[4 * (size_t)u + j] == (int32_t)t) {
+          back = j;
+          backs++;
+        }
+      if (backs != 1 || !same_face(v, i, d->tets + 4 * (size_t)u, back)) {
+        ub_log_printf(log, UB_LOG_ERROR, "glg: tets %u and %d are not neighbours sharing a face",
+                      t, u);
+        res = UB_ERR_INVALID_DATA;
+      }
+    }
+  }
+  if (res != UB_OK)
+    goto fail;
+  if (hull_count < 4 || hull_count >= (1u << 29)) {
+    ub_log_printf(log, UB_LOG_ERROR, "glg: tet mesh has %u hull faces (not closed)", hull_count);
+    res = UB_ERR_INVALID_DATA;
+    goto fail;
+  }
+
+  res = UB_ERR_OUT_OF_MEMORY;
+  g->tet_data = aligned_alloc(64, (size_t)d->tet_count * sizeof *g->tet_data);
+  g->tet_flags = calloc(d->tet_count, 1);
+  g->hull = malloc((size_t)hull_count * sizeof *g->hull);
+  if (!g->tet_data || !g->tet_flags || !g->hull)
+    goto fail;
+  g->hull_count = hull_count;
+
+  uint32_t h = 0;
+  for (uint32_t t = 0; t < d->tet_count; t++) {
+    const uint32_t *v = d->tets + 4 * (size_t)t;
+    struct ub_glg_tet *r = &g->tet_data[t];
+    double a[3], e[3][3], inv[3][3], lmax2 = 0.0;
+    double q[4][3];
+    for (int i = 0; i < 4; i++)
+      d3load(probe_pos(g, v[i]), q[i]);
+    memcpy(a, q[0], sizeof a);
+    for (int i = 0; i < 3; i++)
+      d3sub(q[i + 1], a, e[i]);
+    for (int i = 0; i < 4; i++)
+      for (int j = i + 1; j < 4; j++) {
+        double x[3];
+        d3sub(q[i], q[j], x);
+        lmax2 = fmax(lmax2, d3dot(x, x));
+      }
+    d3cross(e[1], e[2], inv[0]);
+    d3cross(e[2], e[0], inv[1]);
+    d3cross(e[0], e[1], inv[2]);
+    double det = d3dot(e[0], inv[0]);
+    double qual = fabs(det) / (lmax2 * sqrt(lmax2));
+    for (int i = 0; i < 3; i++)
+      r->o[i] = (float)a[i];
+    if (!(qual >= GLG_ILL_Q) || !isfinite(qual)) {
+      memset(r->m, 0, sizeof r->m);
+      g->tet_flags[t] = (qual >= GLG_SINGULAR_Q && isfinite(qual)) ? GLG_FLAG_ILL
+                                                                    : GLG_FLAG_SINGULAR;
+      g->ill_tet_count++;
+      g->singular_tet_count += g->tet_flags[t] == GLG_FLAG_SINGULAR;
+    } else {
+      for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+          r->m[3 * i + j] = (float)(inv[i][j] / det);
+    }
+    for (int i = 0; i < 4; i++) {
+      int32_t u = d->neigh[4 * (size_t)t + i];
+      if (u >= 0) {
+        r->nb[i] = u;
+        continue;
+      }
+      struct ub_glg_hull *f = &g->hull[h];
+      f->tet = t;
+      f->corner = (uint8_t)i;
+      for (int k = 0; k < 3; k++) {
+        f->fc[k] = (uint8_t)face_of[i][k];
+        f->v[k] = v[face_of[i][k]];
+        f->adj[k] = GLG_NONE;
+      }
+      /* outward: the normal must point away from the opposite corner */
+      double e1[3], e2[3], n[3], w[3];
+      d3sub(q[f->fc[1]], q[f->fc[0]], e1);
+      d3sub(q[f->fc[2]], q[f->fc[0]], e2);
+      d3cross(e1, e2, n);
+      d3sub(q[i], q[f->fc[0]], w);
+      if (d3dot(n, w) > 0.0) {
+        uint8_t tc = f->fc[1];
+        f->fc[1] = f->fc[2];
+        f->fc[2] = tc;
+        uint32_t tv = f->v[1];
+        f->v[1] = f->v[2];
+        f->v[2] = tv;
+      }
+      r->nb[i] = -(int32_t)h - 1;
+      h++;
+    }
+  }
+  res = build_hull_adjacency(g, log);
+  if (res != UB_OK)
+    goto fail;
+  g->walk_cap = 4 * (uint32_t)cbrt((double)d->tet_count) + 64;
+  res = build_start_grid(g);
+  if (res != UB_OK)
+    goto fail;
+  if (g->ill_tet_count)
+    ub_log_printf(log, UB_LOG_INFO, "glg: %u badly shaped tet(s) evaluated in double, %u singular",
+                  g->ill_tet_count, g->singular_tet_count);
+  return UB_OK;
+
+fail:
+  if (res == UB_ERR_OUT_OF_MEMORY)
+    ub_log_printf(log, UB_LOG_ERROR, "glg: out of memory (%u tets)", d->tet_count);
+  ub_glg_release(g);
+  return res;
+}
+
+void ub_glg_release(ub_glg *g)
+{
+  if (!g)
+    return;
+  free(g->tet_data);
+  free(g->tet_flags);
+  free(g->hull);
+  free(g->start_grid);
+  memset(g, 0, sizeof *g);
+}
+
+size_t ub_glg_owned_bytes(const ub_glg *g)
+{
+  if (!g || !g->tet_data)
+    return 0;
+  size_t cells = (size_t)g->grid_dim[0] * g->grid_dim[1] * g->grid_dim[2];
+  return (size_t)g->tet_count * (sizeof(struct ub_glg_tet) + 1) +
+         (size_t)g->hull_count * sizeof(struct ub_glg_hull) + cells * sizeof(uint32_t);
+}

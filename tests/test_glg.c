@@ -1,0 +1,931 @@
+/* tests/test_glg.c — TetGen driver (degenerate sets, failures) and the run-time GLG
+ * (point location, interpolation, continuity, hull projection, leak hook, speed). */
+#include "probes/tetgen.h"
+#include "ubake/glg.h"
+#include "ubake/sh.h"
+#include "test_util.h"
+
+#include <dirent.h>
+#include <stdint.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#define PI_D 3.14159265358979323846
+
+static uint64_t rng_state = 0x2545F4914F6CDD1Dull;
+static double rnd(void)
+{
+  rng_state ^= rng_state << 13;
+  rng_state ^= rng_state >> 7;
+  rng_state ^= rng_state << 17;
+  return (double)(rng_state >> 11) * (1.0 / 9007199254740992.0);
+}
+static uint32_t rndu(uint32_t n) { return (uint32_t)(rnd() * n) % n; }
+static void rnd_dir(float d[3])
+{
+  double z = 2.0 * rnd() - 1.0, phi = 2.0 * PI_D * rnd(), r = sqrt(fmax(0.0, 1.0 - z * z));
+  d[0] = (float)(r * cos(phi));
+  d[1] = (float)(r * sin(phi));
+  d[2] = (float)z;
+}
+static double now_s(void)
+{
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return ts.tv_sec + 1e-9 * ts.tv_nsec;
+}
+
+/* ---- log capture ---- */
+static char last_error[1024];
+static int quiet_info = 1;
+static void log_fn(void *user, ub_log_level level, const char *msg)
+{
+  (void)user;
+  if (level == UB_LOG_ERROR)
+    snprintf(last_error, sizeof last_error, "%s", msg);
+  if (level != UB_LOG_INFO || !quiet_info)
+    printf("  [%s] %s\n", level == UB_LOG_ERROR ? "error" : level == UB_LOG_WARNING ? "warn" : "info",
+           msg);
+}
+static const ub_log test_log = {log_fn, NULL};
+
+static char tmpdir[256];
+static int dir_is_empty(const char *path)
+{
+  DIR *d = opendir(path);
+  if (!d)
+    return 0;
+  struct dirent *e;
+  int n = 0;
+  while ((e = readdir(d)) != NULL)
+    if (strcmp(e->d_name, ".") && strcmp(e->d_name, ".."))
+      n++;
+  closedir(d);
+  return n == 0;
+}
+
+/* ---- fields --------------------------------------------------------------------------- */
+
+/* Linear field: coefficient i of probe at x = A[i]·x + D[i]. */
+typedef struct linfield {
+  float A[27][3], D[27];
+} linfield;
+static void linfield_init(linfield *f)
+{
+  for (int i = 0; i < 27; i++) {
+    for (int a = 0; a < 3; a++)
+      f->A[i][a] = (float)(2.0 * rnd() - 1.0);
+    f->D[i] = (float)(4.0 * rnd() - 2.0);
+  }
+}
+static void linfield_eval(const linfield *f, const float x[3], double out[27])
+{
+  for (int i = 0; i < 27; i++)
+    out[i] = (double)f->A[i][0] * x[0] + (double)f->A[i][1] * x[1] + (double)f->A[i][2] * x[2] +
+             f->D[i];
+}
+static float *linfield_sh(const linfield *f, const ub_tetmesh *m)
+{
+  float *sh = malloc((size_t)m->point_count * 27 * sizeof *sh);
+  for (uint32_t p = 0; p < m->point_count; p++) {
+    double v[27];
+    linfield_eval(f, m->points + 3 * (size_t)p, v);
+    for (int i = 0; i < 27; i++)
+      sh[27 * (size_t)p + i] = (float)v[i];
+  }
+  return sh;
+}
+
+static ub_result make_glg(const ub_tetmesh *m, const float *sh, const uint8_t *vis, ub_glg *g)
+{
+  /* sh_windowed: these tests' fields are not radiance; windowing is tested apart */
+  ub_glg_desc d = {.probe_count = m->point_count, .positions = m->points, .sh = sh,
+                   .tet_count = m->tet_count, .tets = m->tets, .neigh = m->neigh,
+                   .corner_visible = vis, .sh_windowed = 1};
+  return ub_glg_init(g, &d, &test_log);
+}
+
+static double sh_scale(const float *sh, uint32_t n)
+{
+  double s = 0.0;
+  for (size_t i = 0; i < 27 * (size_t)n; i++)
+    s = fmax(s, fabs(sh[i]));
+  return s;
+}
+
+/* A point in tet t with random barycentrics; kind 0 interior, 1 face, 2 edge, 3 vertex. */
+static void point_in_tet(const ub_tetmesh *m, uint32_t t, int kind, float out[3])
+{
+  double w[4] = {rnd(), rnd(), rnd(), rnd()};
+  int zero = kind; /* number of zero weights */
+  for (int z = 0; z < zero; z++)
+    w[(z + (int)rndu(4)) % 4] = 0.0;
+  if (kind == 3) {
+    w[0] = w[1] = w[2] = w[3] = 0.0;
+    w[rndu(4)] = 1.0;
+  }
+  double s = w[0] + w[1] + w[2] + w[3];
+  if (s <= 0.0) {
+    w[0] = 1.0;
+    s = 1.0;
+  }
+  for (int a = 0; a < 3; a++) {
+    double x = 0.0;
+    for (int i = 0; i < 4; i++)
+      x += w[i] / s * m->points[3 * (size_t)m->tets[4 * (size_t)t + i] + a];
+    out[a] = (float)x;
+  }
+}
+
+static void mesh_bounds(const ub_tetmesh *m, float lo[3], float hi[3])
+{
+  for (int a = 0; a < 3; a++) {
+    lo[a] = HUGE_VALF;
+    hi[a] = -HUGE_VALF;
+  }
+  for (uint32_t i = 0; i < m->point_count; i++)
+    for (int a = 0; a < 3; a++) {
+      lo[a] = fminf(lo[a], m->points[3 * i + a]);
+      hi[a] = fmaxf(hi[a], m->points[3 * i + a]);
+    }
+}
+
+/* Linear reproduction inside the hull, cache vs scratch, far-outside bounds, locate sanity. */
+static void check_glg_on_mesh(const char *name, const ub_tetmesh *m)
+{
+  linfield f;
+  linfield_init(&f);
+  float *sh = linfield_sh(&f, m);
+  ub_glg g;
+  ASSERT_OK(make_glg(m, sh, NULL, &g));
+  if (!g.tet_data) {
+    free(sh);
+    return;
+  }
+  double scale = sh_scale(sh, m->point_count);
+  double worst_lin = 0.0, worst_cache = 0.0, worst_pos = 0.0;
+  uint32_t cache = UB_GLG_NO_CACHE;
+  for (int it = 0; it < 3000; it++) {
+    float p[3];
+    point_in_tet(m, rndu(m->tet_count), it % 4, p);
+    float out[27], out2[27];
+    ub_glg_sample(&g, p, &cache, out);
+    double ex[27];
+    linfield_eval(&f, p, ex);
+    for (int i = 0; i < 27; i++)
+      worst_lin = fmax(worst_lin, fabs(out[i] - ex[i]) / scale);
+    uint32_t c2 = rndu(m->tet_count); /* a random, stale cache */
+    ub_glg_sample(&g, p, &c2, out2);
+    uint32_t c3 = UB_GLG_NO_CACHE;
+    float out3[27];
+    ub_glg_sample(&g, p, &c3, out3);
+    for (int i = 0; i < 27; i++) {
+      worst_cache = fmax(worst_cache, fabs(out2[i] - out[i]) / scale);
+      worst_cache = fmax(worst_cache, fabs(out3[i] - out[i]) / scale);
+    }
+    /* the located tet really contains p */
+    float bary[4];
+    ub_glg_locate_info info;
+    uint32_t t = ub_glg_locate_ex(&g, p, &cache, bary, &info);
+    ASSERT_TRUE(t < m->tet_count);
+    ASSERT_TRUE(!info.fallback);
+    float s = bary[0] + bary[1] + bary[2] + bary[3];
+    ASSERT_NEAR(s, 1.0, 1e-6, 0);
+    /* within float rounding: the walk accepts λ ≥ −1e-5, i.e. ~1e-5 of the tet's size */
+    double lmax = 0.0;
+    for (int i = 0; i < 4; i++)
+      for (int j = 0; j < i; j++) {
+        double e2 = 0.0;
+        for (int a = 0; a < 3; a++) {
+          double e = (double)m->points[3 * (size_t)m->tets[4 * (size_t)t + i] + a] -
+                     m->points[3 * (size_t)m->tets[4 * (size_t)t + j] + a];
+          e2 += e * e;
+        }
+        lmax = fmax(lmax, sqrt(e2));
+      }
+    for (int a = 0; a < 3; a++) {
+      double x = 0.0;
+      for (int i = 0; i < 4; i++)
+        x += bary[i] * m->points[3 * (size_t)m->tets[4 * (size_t)t + i] + a];
+      ASSERT_NEAR(x, p[a], 4e-5 * lmax + 1e-6 * fabs(p[a]), 0);
+      worst_pos = fmax(worst_pos, fabs(x - p[a]) / lmax);
+    }
+  }
+  ASSERT_TRUE(worst_lin < 1e-4);
+  ASSERT_TRUE(worst_cache < 1e-4);
+
+  /* Far outside: finite and within the probes' range. */
+  float lo[3], hi[3];
+  mesh_bounds(m, lo, hi);
+  double ext = 0.0;
+  for (int a = 0; a < 3; a++)
+    ext = fmax(ext, hi[a] - lo[a]);
+  float vmin[27], vmax[27];
+  for (int i = 0; i < 27; i++) {
+    vmin[i] = HUGE_VALF;
+    vmax[i] = -HUGE_VALF;
+  }
+  for (uint32_t p = 0; p < m->point_count; p++)
+    for (int i = 0; i < 27; i++) {
+      vmin[i] = fminf(vmin[i], sh[27 * (size_t)p + i]);
+      vmax[i] = fmaxf(vmax[i], sh[27 * (size_t)p + i]);
+    }
+  int bad = 0;
+  for (int it = 0; it < 500; it++) {
+    float d[3], p[3], out[27];
+    rnd_dir(d);
+    double r = ext * pow(10.0, 6.0 * rnd());
+    for (int a = 0; a < 3; a++)
+      p[a] = (float)(0.5 * (lo[a] + hi[a]) + r * d[a]);
+    ub_glg_sample(&g, p, &cache, out);
+    for (int i = 0; i < 27; i++)
+      if (!isfinite(out[i]) || out[i] < vmin[i] - 1e-5 * scale || out[i] > vmax[i] + 1e-5 * scale)
+        bad++;
+  }
+  ASSERT_TRUE(bad == 0);
+  /* Non-finite input: finite output. */
+  float pn[3] = {NAN, 0.0f, INFINITY}, out[27], rgb[3], nrm[3] = {0, 1, 0};
+  ub_glg_sample(&g, pn, &cache, out);
+  ub_glg_query(&g, pn, nrm, &cache, rgb);
+  for (int i = 0; i < 27; i++)
+    ASSERT_TRUE(isfinite(out[i]));
+  ASSERT_TRUE(isfinite(rgb[0]) && isfinite(rgb[1]) && isfinite(rgb[2]));
+  printf("%-22s %6u probes (%u merged, %u added, %s) %7u tets %5u hull faces: linear err %.1e,"
+         " cache-vs-scratch %.1e, located-point err %.1e x tet size, far-outside ok\n",
+         name, m->point_count, m->merged_count, m->added_count,
+         m->degeneracy == UB_TETGEN_GENERAL     ? "general"
+         : m->degeneracy == UB_TETGEN_COPLANAR  ? "coplanar"
+         : m->degeneracy == UB_TETGEN_COLLINEAR ? "collinear"
+                                                : "point",
+         m->tet_count, g.hull_count, worst_lin, worst_cache, worst_pos);
+  ub_glg_release(&g);
+  free(sh);
+}
+
+static ub_tetmesh *build_checked(const char *name, const float *pts, uint32_t n)
+{
+  ub_tetmesh *m = NULL;
+  ub_result r = ub_tetgen_build(pts, n, &test_log, &m);
+  ASSERT_OK(r);
+  if (r != UB_OK) {
+    fprintf(stderr, "%s: %s (%s)\n", name, ub_result_string(r), last_error);
+    return NULL;
+  }
+  ASSERT_OK(ub_tetmesh_validate(m, &test_log));
+  ASSERT_TRUE(m->unused_count == 0);
+  ASSERT_TRUE(m->input_count == n);
+  /* Every input point maps to a mesh point at (nearly) its position. */
+  float lo[3], hi[3];
+  mesh_bounds(m, lo, hi);
+  double diag = sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
+                     (hi[2] - lo[2]) * (hi[2] - lo[2]));
+  for (uint32_t i = 0; i < n; i++) {
+    int32_t k = m->input_to_point[i];
+    ASSERT_TRUE(k >= 0 && (uint32_t)k < m->added_first);
+    if (k < 0 || (uint32_t)k >= m->point_count)
+      continue;
+    double d2 = 0.0;
+    for (int a = 0; a < 3; a++) {
+      double e = (double)pts[3 * i + a] - m->points[3 * k + a];
+      d2 += e * e;
+    }
+    ASSERT_TRUE(sqrt(d2) <= 1.01e-6 * diag + 1e-12);
+  }
+  ASSERT_TRUE(dir_is_empty(tmpdir));
+  check_glg_on_mesh(name, m);
+  return m;
+}
+
+static void test_tetgen_sets(void)
+{
+  /* 20×20×20 lattice: every cube's 8 corners are cospherical. */
+  uint32_t n = 8000;
+  float *pts = malloc(n * 3 * sizeof *pts);
+  for (uint32_t i = 0; i < n; i++) {
+    pts[3 * i + 0] = (float)(i % 20);
+    pts[3 * i + 1] = (float)((i / 20) % 20);
+    pts[3 * i + 2] = (float)(i / 400);
+  }
+  ub_tetmesh *m = build_checked("lattice 20^3", pts, n);
+  if (m)
+    ASSERT_TRUE(m->added_count == 0 && m->merged_count == 0);
+  ub_tetmesh_free(m);
+
+  /* random */
+  n = 3000;
+  for (uint32_t i = 0; i < 3 * n; i++)
+    pts[i] = (float)(30.0 * rnd());
+  ub_tetmesh_free(build_checked("random", pts, n));
+
+  /* exact and near duplicates */
+  n = 1500;
+  for (uint32_t i = 0; i < 500 * 3; i++)
+    pts[i] = (float)(10.0 * rnd());
+  for (uint32_t i = 500; i < 1500; i++) {
+    uint32_t j = rndu(500);
+    for (int a = 0; a < 3; a++)
+      pts[3 * i + a] = pts[3 * j + a] + (i % 2 ? 0.0f : (float)(1e-7 * (rnd() - 0.5)));
+  }
+  m = build_checked("duplicates", pts, n);
+  if (m)
+    ASSERT_TRUE(m->merged_count == 1000 && m->point_count == 500);
+  ub_tetmesh_free(m);
+
+  /* flat slab: a tilted plane of points (all exactly coplanar in z = 0 after rotation is
+   * not representable in float, so use an axis plane and a diagonal plane x = y). */
+  n = 400;
+  for (uint32_t i = 0; i < n; i++) {
+    pts[3 * i + 0] = (float)(i % 20);
+    pts[3 * i + 1] = 3.0f;
+    pts[3 * i + 2] = (float)(i / 20);
+  }
+  m = build_checked("flat slab y=3", pts, n);
+  if (m)
+    ASSERT_TRUE(m->degeneracy == UB_TETGEN_COPLANAR && m->added_count == 8);
+  ub_tetmesh_free(m);
+  for (uint32_t i = 0; i < n; i++) {
+    float s = (float)(50.0 * rnd()), t = (float)(5.0 * rnd());
+    pts[3 * i + 0] = s;
+    pts[3 * i + 1] = s;
+    pts[3 * i + 2] = t;
+  }
+  m = build_checked("random plane x=y", pts, n);
+  if (m)
+    ASSERT_TRUE(m->degeneracy == UB_TETGEN_COPLANAR);
+  ub_tetmesh_free(m);
+
+  /* a 3D set containing a large exactly coplanar subset of a tilted plane: TetGen 1.5
+   * aborts on the exact coordinates; the driver retries with jitter */
+  n = 500;
+  for (uint32_t i = 0; i < n; i++) {
+    if (i < 400) {
+      float s = (float)(50.0 * rnd()), t = (float)(5.0 * rnd());
+      pts[3 * i + 0] = s;
+      pts[3 * i + 1] = s;
+      pts[3 * i + 2] = t;
+    } else {
+      for (int a = 0; a < 3; a++)
+        pts[3 * i + a] = (float)(70.0 * rnd() - 10.0);
+    }
+  }
+  m = build_checked("3D + plane x=y", pts, n);
+  if (m)
+    printf("  (retry jitter %.2g m, %u flat tets)\n", m->retry_jitter, m->flat_tet_count);
+  ub_tetmesh_free(m);
+
+  /* collinear row */
+  n = 50;
+  for (uint32_t i = 0; i < n; i++) {
+    pts[3 * i + 0] = 1.0f + 0.5f * i;
+    pts[3 * i + 1] = 2.0f + 0.5f * i;
+    pts[3 * i + 2] = -1.0f;
+  }
+  m = build_checked("collinear row", pts, n);
+  if (m)
+    ASSERT_TRUE(m->degeneracy == UB_TETGEN_COLLINEAR);
+  ub_tetmesh_free(m);
+
+  /* 1, 2, 3 points; 3 identical points */
+  const float few[9] = {1, 2, 3, 4, 2, 3, 1, 5, 3};
+  m = build_checked("1 point", few, 1);
+  if (m)
+    ASSERT_TRUE(m->degeneracy == UB_TETGEN_SINGLE_POINT && m->point_count == 9);
+  ub_tetmesh_free(m);
+  ub_tetmesh_free(build_checked("2 points", few, 2));
+  m = build_checked("3 points", few, 3);
+  if (m)
+    ASSERT_TRUE(m->degeneracy == UB_TETGEN_COPLANAR);
+  ub_tetmesh_free(m);
+  const float same[9] = {7, 7, 7, 7, 7, 7, 7, 7, 7};
+  m = build_checked("3 identical points", same, 3);
+  if (m)
+    ASSERT_TRUE(m->merged_count == 2 && m->degeneracy == UB_TETGEN_SINGLE_POINT);
+  ub_tetmesh_free(m);
+
+  /* Hostile input. */
+  ub_tetmesh *bad = NULL;
+  float nanpts[12] = {0, 0, 0, 1, 0, 0, 0, NAN, 0, 0, 0, 1};
+  ASSERT_TRUE(ub_tetgen_build(nanpts, 4, &test_log, &bad) == UB_ERR_INVALID_DATA && !bad);
+  ASSERT_TRUE(ub_tetgen_build(nanpts, 0, &test_log, &bad) == UB_ERR_INVALID_ARGUMENT && !bad);
+  free(pts);
+}
+
+/* tetgen that fails: exit status, signal, garbage output, missing program. */
+static void test_tetgen_failures(void)
+{
+  char script[512];
+  float pts[15] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 1, 1, 1};
+  struct {
+    const char *body, *expect;
+  } cases[] = {
+      {"#!/bin/sh\nexit 3\n", "exit status 3"},
+      {"#!/bin/sh\necho 'Error: out of cheese' >&2\nkill -ABRT $$\n", "killed by signal 6"},
+      {"#!/bin/sh\nb=${2%.node}\nprintf '2 4 0\\n0 0 1 2 3\\n1 0 1 2 99\\n' > $b.1.ele\n"
+       "printf '2 4\\n0 -1 -1 -1 -1\\n1 -1 -1 -1 -1\\n' > $b.1.neigh\n",
+       "out-of-range"},
+      {"#!/bin/sh\nb=${2%.node}\nprintf '1 4 0\\n0 0 1 2 3.5\\n' > $b.1.ele\n", "malformed"},
+      {"#!/bin/sh\nb=${2%.node}\nprintf '1 4 0\\n0 0 1 2 3\\n' > $b.1.ele\n"
+       "printf '1 4\\n0 -1 -1 -1\\n' > $b.1.neigh\n",
+       "truncated"},
+      /* valid syntax, inverted + non-symmetric topology */
+      {"#!/bin/sh\nb=${2%.node}\nprintf '2 4 0\\n0 0 1 2 3\\n1 1 2 3 4\\n' > $b.1.ele\n"
+       "printf '2 4\\n0 -1 -1 -1 -1\\n1 -1 -1 -1 0\\n' > $b.1.neigh\n",
+       "invalid tetrahedralisation"},
+  };
+  for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++) {
+    snprintf(script, sizeof script, "%s/fake_tetgen_%zu.sh", tmpdir, c);
+    FILE *f = fopen(script, "w");
+    fputs(cases[c].body, f);
+    fclose(f);
+    chmod(script, 0700);
+    ub_tetgen_options opt = {script};
+    ub_tetmesh *m = NULL;
+    last_error[0] = '\0';
+    ub_result r = ub_tetgen_build_ex(pts, 5, &opt, &test_log, &m);
+    ASSERT_TRUE(r == UB_ERR_EXTERNAL && m == NULL);
+    ASSERT_TRUE(strstr(last_error, "tetgen failed on 5 probe points") != NULL);
+    if (!strstr(last_error, cases[c].expect)) {
+      fprintf(stderr, "case %zu: message '%s' lacks '%s'\n", c, last_error, cases[c].expect);
+      ub_test_failures++;
+    }
+    unlink(script);
+    ASSERT_TRUE(dir_is_empty(tmpdir));
+  }
+  ub_tetgen_options opt = {"/nonexistent/tetgen"};
+  ub_tetmesh *m = NULL;
+  ASSERT_TRUE(ub_tetgen_build_ex(pts, 5, &opt, &test_log, &m) == UB_ERR_EXTERNAL && !m);
+  ASSERT_TRUE(strstr(last_error, "cannot run") != NULL);
+  ASSERT_TRUE(dir_is_empty(tmpdir));
+}
+
+/* A random point on a random hull face (also exactly on hull vertices and edges). */
+static void point_on_hull(const ub_tetmesh *m, float out[3])
+{
+  static const int fo[4][3] = {{1, 2, 3}, {0, 3, 2}, {0, 1, 3}, {0, 2, 1}};
+  for (;;) {
+    uint32_t t = rndu(m->tet_count);
+    for (int i = 0; i < 4; i++) {
+      if (m->neigh[4 * (size_t)t + i] != -1)
+        continue;
+      double w[3] = {rnd(), rnd(), rnd()};
+      int kind = (int)rndu(4); /* 0 face, 1 edge, 2 vertex, 3 face */
+      if (kind == 1)
+        w[rndu(3)] = 0.0;
+      if (kind == 2)
+        w[0] = w[1] = w[2] = 0.0, w[rndu(3)] = 1.0;
+      double sum = w[0] + w[1] + w[2];
+      if (sum <= 0.0)
+        w[0] = sum = 1.0;
+      for (int a = 0; a < 3; a++) {
+        double x = 0.0;
+        for (int k = 0; k < 3; k++)
+          x += w[k] / sum * m->points[3 * (size_t)m->tets[4 * (size_t)t + fo[i][k]] + a];
+        out[a] = (float)x;
+      }
+      return;
+    }
+  }
+}
+
+/* Continuity: values ε apart agree, at vertices, edges, faces, inside and outside. */
+static void check_continuity(const char *name, const ub_tetmesh *m, const float *sh, double tol)
+{
+  ub_glg g;
+  ASSERT_OK(make_glg(m, sh, NULL, &g));
+  if (!g.tet_data)
+    return;
+  double scale = sh_scale(sh, m->point_count);
+  const float eps = 1e-5f;
+  double worst[6] = {0};
+  const char *kinds[6] = {"interior", "face", "edge", "vertex", "near hull", "outside"};
+  uint32_t cache = UB_GLG_NO_CACHE, cache2 = UB_GLG_NO_CACHE;
+  for (int it = 0; it < 20000; it++) {
+    int kind = it % 6;
+    float p[3], q[3], d[3];
+    if (kind < 4) {
+      point_in_tet(m, rndu(m->tet_count), kind, p);
+    } else {
+      /* on a hull face (kind 4: exactly, or 1e-4 m off either side; kind 5: up to 30 m
+       * away in a random direction, mostly outside) */
+      point_on_hull(m, p);
+      rnd_dir(d);
+      float off = kind == 4 ? (it % 12 < 6 ? 0.0f : 1e-4f) : (float)(30.0 * rnd());
+      for (int a = 0; a < 3; a++)
+        p[a] += off * d[a];
+    }
+    rnd_dir(d);
+    for (int a = 0; a < 3; a++)
+      q[a] = p[a] + eps * d[a];
+    float a1[27], a2[27];
+    ub_glg_sample(&g, p, &cache, a1);
+    ub_glg_sample(&g, q, &cache2, a2);
+    for (int i = 0; i < 27; i++)
+      worst[kind] = fmax(worst[kind], fabs(a1[i] - a2[i]) / scale);
+  }
+  printf("%-22s continuity |f(p)-f(p+1e-5 d)|/max|f|:", name);
+  for (int k = 0; k < 6; k++) {
+    printf(" %s %.1e", kinds[k], worst[k]);
+    ASSERT_TRUE(worst[k] <= tol);
+  }
+  printf("\n");
+  ub_glg_release(&g);
+}
+
+static void test_continuity(void)
+{
+  uint32_t n = 8000;
+  float *pts = malloc(n * 3 * sizeof *pts);
+  for (uint32_t i = 0; i < n; i++) {
+    pts[3 * i + 0] = (float)(i % 20);
+    pts[3 * i + 1] = (float)((i / 20) % 20);
+    pts[3 * i + 2] = (float)(i / 400);
+  }
+  ub_tetmesh *m = NULL;
+  ASSERT_OK(ub_tetgen_build(pts, n, &test_log, &m));
+  if (m) {
+    /* random (non-linear) probe values: the lattice has no slivers, so the interpolant's
+     * slope is ≤ ~2 per metre and 1e-5 m steps change it by ≪ 1e-4 unless it jumps */
+    float *sh = malloc((size_t)m->point_count * 27 * sizeof *sh);
+    for (size_t i = 0; i < 27 * (size_t)m->point_count; i++)
+      sh[i] = (float)rnd();
+    check_continuity("lattice, random values", m, sh, 1e-4);
+    linfield f;
+    linfield_init(&f);
+    float *shl = linfield_sh(&f, m);
+    check_continuity("lattice, linear", m, shl, 1e-4);
+    free(sh);
+    free(shl);
+  }
+  ub_tetmesh_free(m);
+  /* random points: slivers make random values arbitrarily steep, so use a linear field
+   * (exact inside; the hull projection is what is tested outside) */
+  n = 3000;
+  for (uint32_t i = 0; i < 3 * n; i++)
+    pts[i] = (float)(20.0 * rnd());
+  m = NULL;
+  ASSERT_OK(ub_tetgen_build(pts, n, &test_log, &m));
+  if (m) {
+    linfield f;
+    linfield_init(&f);
+    float *shl = linfield_sh(&f, m);
+    check_continuity("random, linear", m, shl, 1e-4);
+    free(shl);
+  }
+  ub_tetmesh_free(m);
+  free(pts);
+}
+
+/* Leak-control hooks and query-time windowing on a single tet; hostile GLG input. */
+static void test_hooks(void)
+{
+  const float pts[12] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1};
+  const uint32_t tets[4] = {0, 1, 2, 3};
+  const int32_t neigh[4] = {-1, -1, -1, -1};
+  float sh[4 * 27] = {0};
+  for (int p = 0; p < 4; p++)
+    sh[27 * p] = (float)(p + 1); /* DC red = 1, 2, 3, 4 */
+  uint8_t vis[4] = {0, 255, 255, 255};
+  ub_glg_desc d = {.probe_count = 4, .positions = pts, .sh = sh, .tet_count = 1, .tets = tets,
+                   .neigh = neigh, .corner_visible = vis};
+  ub_glg g;
+  ASSERT_OK(ub_glg_init(&g, &d, &test_log));
+  float c[3] = {0.25f, 0.25f, 0.25f}, out[27];
+  uint32_t cache = UB_GLG_NO_CACHE;
+  ub_glg_sample(&g, c, &cache, out);
+  ASSERT_NEAR(out[0], 3.0, 1e-5, 0); /* (2 + 3 + 4) / 3 */
+  ub_glg_release(&g);
+  uint8_t none[4] = {0, 0, 0, 0};
+  d.corner_visible = none;
+  ASSERT_OK(ub_glg_init(&g, &d, &test_log));
+  ub_glg_sample(&g, c, &cache, out);
+  ASSERT_NEAR(out[0], 2.5, 1e-5, 0); /* none visible: plain barycentrics */
+  /* outside, beyond the face opposite corner 0: projection onto that face */
+  float far[3] = {5, 5, 5};
+  ub_glg_sample(&g, far, &cache, out);
+  ASSERT_NEAR(out[0], 3.0, 1e-5, 0);
+  float nrm[3] = {0, 0, 2}, rgb[3];
+  ub_glg_query(&g, far, nrm, &cache, rgb);
+  ASSERT_NEAR(rgb[0], PI_D * 0.282095 * 3.0, 1e-4, 1e-5);
+  ub_glg_release(&g);
+
+  /* Leak plane x = 0.5: corner 1 alone on the + side. */
+  d.corner_visible = NULL;
+  const float plane[4] = {1, 0, 0, -0.5f};
+  const uint32_t plane_of[1] = {0};
+  d.leak_plane_count = 1;
+  d.leak_planes = plane;
+  d.leak_plane_of = plane_of;
+  ASSERT_OK(ub_glg_init(&g, &d, &test_log));
+  ub_glg_sample(&g, c, &cache, out);
+  ASSERT_NEAR(out[0], 8.0 / 3.0, 1e-5, 0); /* corners 0, 2, 3 */
+  float right[3] = {0.6f, 0.1f, 0.1f};
+  ub_glg_sample(&g, right, &cache, out);
+  ASSERT_NEAR(out[0], 2.0, 1e-5, 0); /* corner 1 only */
+  ub_glg_release(&g);
+  const uint32_t bad_plane_of[1] = {3};
+  d.leak_plane_of = bad_plane_of;
+  ASSERT_TRUE(ub_glg_init(&g, &d, &test_log) == UB_ERR_INVALID_DATA);
+  d.leak_plane_count = 0;
+  d.leak_planes = NULL;
+  d.leak_plane_of = NULL;
+
+  /* Windowing at query: raw ringing probes (a bright delta each) never give negative
+   * irradiance; pre-windowed probes with sh_windowed = 1 neither. */
+  float ring[4 * 27];
+  for (int p = 0; p < 4; p++) {
+    float dir[3], L[3] = {100, 50, 10};
+    rnd_dir(dir);
+    ub_sh2_zero(ring + 27 * p);
+    ub_sh2_add(ring + 27 * p, dir, L, 1.0f);
+  }
+  d.sh = ring;
+  d.corner_visible = NULL;
+  ASSERT_OK(ub_glg_init(&g, &d, &test_log));
+  double raw_min = HUGE_VAL, q_min = HUGE_VAL;
+  for (int i = 0; i < 20000; i++) {
+    float q[3] = {(float)(0.25 * rnd()), (float)(0.25 * rnd()), (float)(0.25 * rnd())}, nn[3];
+    rnd_dir(nn);
+    float s[27], e[3];
+    ub_glg_sample(&g, q, &cache, s);
+    ub_sh2_irradiance(s, nn, e);
+    raw_min = fmin(raw_min, e[0]);
+    ub_glg_query(&g, q, nn, &cache, e);
+    q_min = fmin(q_min, fmin(e[0], fmin(e[1], e[2])));
+    ub_sh2_window(s);
+    float ew[3];
+    ub_sh2_irradiance(s, nn, ew);
+    for (int k = 0; k < 3; k++)
+      ASSERT_NEAR(e[k], fmaxf(ew[k], 0.0f), 1e-6 * PI_D * 0.282095 * s[k], 1e-6);
+  }
+  ASSERT_TRUE(raw_min < 0.0);
+  ASSERT_TRUE(q_min >= 0.0);
+  ub_glg_release(&g);
+  for (int p = 0; p < 4; p++)
+    ub_sh2_window(ring + 27 * p);
+  d.sh_windowed = 1;
+  ASSERT_OK(ub_glg_init(&g, &d, &test_log));
+  double pre_min = HUGE_VAL;
+  for (int i = 0; i < 20000; i++) {
+    float q[3] = {(float)(0.25 * rnd()), (float)(0.25 * rnd()), (float)(0.25 * rnd())}, nn[3];
+    rnd_dir(nn);
+    float s[27], e[3];
+    ub_glg_sample(&g, q, &cache, s);
+    ub_sh2_irradiance(s, nn, e);
+    pre_min = fmin(pre_min, fmin(e[0], fmin(e[1], e[2])) / (PI_D * 0.282095 * s[0]));
+  }
+  ASSERT_TRUE(pre_min >= -1e-6);
+  printf("query windowing: raw interpolated min E %.2f (negative), windowed at query >= 0; "
+         "interpolated pre-windowed probes min E/DC %+.1e\n", raw_min, pre_min);
+  ub_glg_release(&g);
+  d.sh = sh;
+  d.sh_windowed = 0;
+
+  /* Hostile GLG input. */
+  int32_t bad_neigh[4] = {-1, 0, -1, -1}; /* self-neighbour */
+  d.neigh = bad_neigh;
+  ASSERT_TRUE(ub_glg_init(&g, &d, &test_log) == UB_ERR_INVALID_DATA && !g.tet_data);
+  d.neigh = neigh;
+  uint32_t bad_tets[4] = {0, 1, 2, 7};
+  d.tets = bad_tets;
+  ASSERT_TRUE(ub_glg_init(&g, &d, &test_log) == UB_ERR_INVALID_DATA);
+  d.tets = tets;
+  float bad_sh[4 * 27] = {0};
+  bad_sh[30] = NAN;
+  d.sh = bad_sh;
+  ASSERT_TRUE(ub_glg_init(&g, &d, &test_log) == UB_ERR_INVALID_DATA);
+  ub_glg_release(&g);
+  ub_glg_release(NULL);
+}
+
+/* ---- the 50k-probe level: coherent walk, speed, memory ------------------------------ */
+
+static void test_scale(void)
+{
+  const uint32_t n = 50000;
+  const float box[3] = {100.0f, 25.0f, 100.0f};
+  float *pts = malloc(n * 3 * sizeof *pts);
+  for (uint32_t i = 0; i < n; i++)
+    for (int a = 0; a < 3; a++)
+      pts[3 * i + a] = (float)(box[a] * rnd());
+  ub_tetmesh *m = NULL;
+  double t0 = now_s();
+  ASSERT_OK(ub_tetgen_build(pts, n, &test_log, &m));
+  double t_tetgen = now_s() - t0;
+  if (!m) {
+    free(pts);
+    return;
+  }
+  /* windowed random radiance per probe */
+  float *sh = malloc((size_t)m->point_count * 27 * sizeof *sh);
+  for (uint32_t p = 0; p < m->point_count; p++) {
+    float *s = sh + 27 * (size_t)p;
+    ub_sh2_zero(s);
+    for (int l = 0; l < 3; l++) {
+      float dir[3], L[3] = {(float)rnd(), (float)rnd(), (float)rnd()};
+      rnd_dir(dir);
+      ub_sh2_add(s, dir, L, 1.0f);
+    }
+    ub_sh2_window(s);
+  }
+  ub_glg g;
+  t0 = now_s();
+  ASSERT_OK(make_glg(m, sh, NULL, &g));
+  double t_init = now_s() - t0;
+  if (!g.tet_data) {
+    free(sh);
+    free(pts);
+    ub_tetmesh_free(m);
+    return;
+  }
+
+  /* Random walk, 100k coherent 1 cm steps, with excursions up to 2 m outside the hull. */
+  float p[3] = {50, 12, 50}, d[3] = {1, 0, 0};
+  uint32_t cache = UB_GLG_NO_CACHE, max_steps = 0, fallbacks = 0, outside = 0, max_hull = 0;
+  uint64_t total_steps = 0;
+  for (int it = 0; it < 100000; it++) {
+    float r[3];
+    rnd_dir(r);
+    float len = 0.0f;
+    for (int a = 0; a < 3; a++) {
+      d[a] += 0.05f * r[a];
+      len += d[a] * d[a];
+    }
+    len = sqrtf(len);
+    for (int a = 0; a < 3; a++) {
+      d[a] /= len;
+      p[a] += 0.01f * d[a];
+      if (p[a] < -2.0f || p[a] > box[a] + 2.0f)
+        d[a] = -d[a];
+    }
+    /* every 10k steps teleport to stress the jump-start */
+    if (it % 10000 == 9999)
+      for (int a = 0; a < 3; a++)
+        p[a] = (float)(box[a] * rnd());
+    float bary[4];
+    ub_glg_locate_info info;
+    ub_glg_locate_ex(&g, p, &cache, bary, &info);
+    total_steps += info.steps;
+    if (info.steps > max_steps)
+      max_steps = info.steps;
+    if (info.hull_steps > max_hull)
+      max_hull = info.hull_steps;
+    fallbacks += info.fallback;
+    outside += info.outside;
+  }
+  printf("random walk 100k x 1 cm: mean %.2f tets/query, max %u (cap %u), %u outside "
+         "(max %u hull faces), %u fallbacks\n",
+         (double)total_steps / 100000, max_steps, g.walk_cap, outside, max_hull, fallbacks);
+  ASSERT_TRUE(fallbacks == 0);
+  ASSERT_TRUE(max_steps <= g.walk_cap);
+
+  /* Speed, single thread. */
+  const int N = 2000000;
+  float *path = malloc((size_t)N * 3 * sizeof *path);
+  float q[3] = {50, 12, 50};
+  for (int a = 0; a < 3; a++)
+    d[a] = a == 0 ? 1.0f : 0.0f;
+  for (int i = 0; i < N; i++) {
+    float r[3];
+    rnd_dir(r);
+    float len = 0.0f;
+    for (int a = 0; a < 3; a++) {
+      d[a] += 0.05f * r[a];
+      len += d[a] * d[a];
+    }
+    len = sqrtf(len);
+    for (int a = 0; a < 3; a++) {
+      d[a] /= len;
+      q[a] += 0.01f * d[a];
+      if (q[a] < 0.5f || q[a] > box[a] - 0.5f)
+        d[a] = -d[a];
+      path[3 * (size_t)i + a] = q[a];
+    }
+  }
+  const float nrm[3] = {0, 1, 0};
+  double sink = 0.0;
+  cache = UB_GLG_NO_CACHE;
+  t0 = now_s();
+  for (int i = 0; i < N; i++) {
+    float rgb[3];
+    ub_glg_query(&g, path + 3 * (size_t)i, nrm, &cache, rgb);
+    sink += rgb[0];
+  }
+  double t_coh = now_s() - t0;
+  const int NR = 400000;
+  for (int i = 0; i < NR; i++)
+    for (int a = 0; a < 3; a++)
+      path[3 * (size_t)i + a] = (float)(box[a] * rnd());
+  t0 = now_s();
+  for (int i = 0; i < NR; i++) {
+    float rgb[3];
+    ub_glg_query(&g, path + 3 * (size_t)i, nrm, &cache, rgb);
+    sink += rgb[0];
+  }
+  double t_rnd = now_s() - t0;
+  t0 = now_s();
+  for (int i = 0; i < NR; i++) {
+    float rgb[3];
+    uint32_t c = UB_GLG_NO_CACHE;
+    ub_glg_query(&g, path + 3 * (size_t)i, nrm, &c, rgb);
+    sink += rgb[0];
+  }
+  double t_rnd0 = now_s() - t0;
+  /* the same coherent path with windowing at query (raw probes, as in the .ubk) */
+  ub_glg graw;
+  ub_glg_desc draw = {.probe_count = m->point_count, .positions = m->points, .sh = sh,
+                      .tet_count = m->tet_count, .tets = m->tets, .neigh = m->neigh};
+  ASSERT_OK(ub_glg_init(&graw, &draw, &test_log));
+  double t_raw = 0.0;
+  const int NW = 400000;
+  if (graw.tet_data) {
+    cache = UB_GLG_NO_CACHE;
+    for (int i = 0; i < NW; i++)
+      for (int a = 0; a < 3; a++)
+        path[3 * (size_t)i + a] = (float)(50.0 + (a == 1 ? -38.0 : 0.0) + 0.01 * i * (a == 0));
+    t0 = now_s();
+    for (int i = 0; i < NW; i++) {
+      float rgb[3];
+      ub_glg_query(&graw, path + 3 * (size_t)i, nrm, &cache, rgb);
+      sink += rgb[0];
+    }
+    t_raw = now_s() - t0;
+    ub_glg_release(&graw);
+  }
+  /* LLG resample: 8×8×8 box around a moving object */
+  float *llg = malloc(512 * 27 * sizeof *llg);
+  const float axes[9] = {0.8f, 0.6f, 0, -0.6f, 0.8f, 0, 0, 0, 1};
+  const float half[3] = {1.0f, 1.0f, 2.0f};
+  cache = UB_GLG_NO_CACHE;
+  t0 = now_s();
+  int boxes = 2000;
+  for (int b = 0; b < boxes; b++) {
+    float c[3] = {20.0f + 0.05f * b, 12.0f, 40.0f};
+    ASSERT_OK(ub_glg_resample_llg(&g, c, axes, half, 8, 8, 8, &cache, llg));
+    sink += llg[0];
+  }
+  double t_llg = now_s() - t0;
+  /* the resample agrees with direct samples */
+  {
+    float c[3] = {30.0f, 10.0f, 60.0f}, s[27];
+    ASSERT_OK(ub_glg_resample_llg(&g, c, axes, half, 8, 8, 8, NULL, llg));
+    uint32_t ix = 5, iy = 2, iz = 7, c2 = UB_GLG_NO_CACHE;
+    float pp[3];
+    for (int i = 0; i < 3; i++)
+      pp[i] = c[i] + (-1.0f + 2.0f * ix / 7.0f) * half[0] * axes[i] +
+              (-1.0f + 2.0f * iy / 7.0f) * half[1] * axes[3 + i] +
+              (-1.0f + 2.0f * iz / 7.0f) * half[2] * axes[6 + i];
+    ub_glg_sample(&g, pp, &c2, s);
+    for (int k = 0; k < 27; k++)
+      ASSERT_NEAR(llg[27 * (ix + 8 * (iy + 8 * iz)) + k], s[k], 1e-5, 1e-4);
+  }
+  ASSERT_TRUE(isfinite(sink));
+
+  size_t owned = ub_glg_owned_bytes(&g);
+  double per_probe_owned = (double)owned / m->point_count;
+  double borrowed = 12.0 * m->point_count + 16.0 * m->tet_count; /* positions + tets */
+  double per_probe_borrowed = borrowed / m->point_count;
+  printf("50k random probes in %gx%gx%g m: tetgen %.2f s, glg init %.3f s, %u tets "
+         "(%.2f/probe), %u hull faces, %u ill-shaped tets\n",
+         box[0], box[1], box[2], t_tetgen, t_init, m->tet_count,
+         (double)m->tet_count / m->point_count, g.hull_count, g.ill_tet_count);
+  printf("GLG query (locate + SH L2 interpolation + irradiance), 1 thread:\n"
+         "  coherent walk, 1 cm steps: %.2f M queries/s\n"
+         "  random points, cache = previous point: %.3f M queries/s\n"
+         "  random points, no cache (start grid): %.3f M queries/s\n"
+         "  coherent, windowing at query (raw probes; these random 3-delta probes ring, so\n"
+         "    most queries take the exact-minimum path): %.3f M queries/s\n"
+         "  LLG resample 8x8x8, moving box: %.0f boxes/s (%.2f M probes/s)\n",
+         N / t_coh * 1e-6, NR / t_rnd * 1e-6, NR / t_rnd0 * 1e-6, NW / t_raw * 1e-6, boxes / t_llg,
+         boxes * 512 / t_llg * 1e-6);
+  printf("run-time bytes per probe (SH excluded, 108 B/probe): owned %.1f (per tet: 64 B walk "
+         "record + 1 B flag; hull %zu B, start grid %zu B) + borrowed %.1f (positions 12 + "
+         "tets 16 B/tet) = %.1f B/probe\n",
+         per_probe_owned, (size_t)g.hull_count * 32,
+         (size_t)g.grid_dim[0] * g.grid_dim[1] * g.grid_dim[2] * 4, per_probe_borrowed,
+         per_probe_owned + per_probe_borrowed);
+  free(llg);
+  free(path);
+  ub_glg_release(&g);
+  free(sh);
+  ub_tetmesh_free(m);
+  free(pts);
+}
+
+int main(void)
+{
+  snprintf(tmpdir, sizeof tmpdir, "/tmp/ubake-test-glg-XXXXXX");
+  if (!mkdtemp(tmpdir)) {
+    perror("mkdtemp");
+    return 1;
+  }
+  setenv("TMPDIR", tmpdir, 1);
+  test_tetgen_sets();
+  test_tetgen_failures();
+  test_hooks();
+  test_continuity();
+  test_scale();
+  rmdir(tmpdir);
+  TEST_MAIN_END();
+}
