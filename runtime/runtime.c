@@ -1,5 +1,6 @@
 /* runtime/runtime.c — run-time state and lightmap queries (include/ubake/runtime.h). */
 #include "ubake/runtime.h"
+#include "ubake/glg.h"
 
 #include <assert.h>
 #include <math.h>
@@ -15,6 +16,8 @@
 
 struct ub_runtime {
   ub_bakefile *bf;
+  ub_glg glg;            /* valid when has_glg */
+  int has_glg;
   ub_ahd **ahd;          /* atlas_count arrays of width × height; zero for empty texels */
   uint32_t lit_count;    /* triangles with tri_atlas >= 0 */
   uint32_t *lit_tris;
@@ -120,6 +123,8 @@ void ub_runtime_free(ub_runtime *rt)
       free(rt->ahd[a]);
   free(rt->ahd);
   free(rt->lit_tris);
+  if (rt->has_glg)
+    ub_glg_release(&rt->glg);
   ub_bakefile_free(rt->bf);
   free(rt);
 }
@@ -157,12 +162,51 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
       if (bf->tri_atlas[t] >= 0)
         rt->lit_tris[k++] = t;
   }
+  if (bf->glg_probe_count) {
+    ub_glg_desc gd;
+    memset(&gd, 0, sizeof gd);
+    gd.probe_count = bf->glg_probe_count;
+    gd.positions = bf->glg_positions;
+    gd.sh = bf->glg_sh;
+    gd.tet_count = bf->glg_tet_count;
+    gd.tets = bf->glg_tets;
+    gd.neigh = bf->glg_neigh;
+    gd.leak_plane_count = bf->glg_plane_count;
+    gd.leak_planes = bf->glg_planes;
+    gd.leak_plane_of = bf->glg_plane_of;
+    gd.sh_windowed = 0; /* raw sums: windowed after interpolation, at query time */
+    r = ub_glg_init(&rt->glg, &gd, log);
+    if (r != UB_OK) {
+      ub_runtime_free(rt);
+      return r;
+    }
+    rt->has_glg = 1;
+  }
   *out = rt;
   return UB_OK;
 oom:
   ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing the lightmaps", path);
   ub_runtime_free(rt);
   return UB_ERR_OUT_OF_MEMORY;
+}
+
+ub_result ub_runtime_query_glg(const ub_runtime *rt, const float p[3], const float n[3],
+                               uint32_t *inout_tet_cache, float out_rgb[3])
+{
+  assert(rt && p && n && out_rgb);
+  if (!rt->has_glg)
+    return UB_ERR_NOT_BAKED;
+  if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2]))
+    return UB_ERR_INVALID_ARGUMENT;
+  uint32_t local = UB_GLG_NO_CACHE;
+  ub_glg_query(&rt->glg, p, n, inout_tet_cache ? inout_tet_cache : &local, out_rgb);
+  return UB_OK;
+}
+
+const ub_glg *ub_runtime_glg(const ub_runtime *rt)
+{
+  assert(rt);
+  return rt->has_glg ? &rt->glg : NULL;
 }
 
 const ub_bakefile *ub_runtime_bakefile(const ub_runtime *rt)

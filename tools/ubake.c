@@ -276,6 +276,11 @@ static int cmd_info(int argc, char **argv)
       dilated += bf->atlases[a].coverage[p] == 2;
     }
   }
+  /* On-disk GLG bytes: positions f32, SH L2 half, tets, neighbours, plane refs, planes. */
+  unsigned long long glg_bytes =
+      (unsigned long long)bf->glg_probe_count * (12 + 54) +
+      (unsigned long long)bf->glg_tet_count * (16 + 16 + 4) +
+      (unsigned long long)bf->glg_plane_count * 16;
   if (json) {
     printf("{\"level\": \"%s\", \"bytes\": %lld, \"seed\": %u, \"bounces\": %u, "
            "\"vertices\": %u, \"triangles\": %u, \"atlases\": [",
@@ -284,9 +289,11 @@ static int cmd_info(int argc, char **argv)
       printf("%s{\"width\": %u, \"height\": %u}", a ? ", " : "", bf->atlases[a].width,
              bf->atlases[a].height);
     printf("], \"texels\": %llu, \"covered_texels\": %llu, \"dilated_texels\": %llu, "
-           "\"glg_probes\": 0, \"llg_probes\": 0, \"dls\": 0}\n",
+           "\"glg_probes\": %u, \"glg_tets\": %u, \"glg_leak_planes\": %u, "
+           "\"glg_bytes\": %llu, \"llg_probes\": 0, \"dls\": 0}\n",
            (unsigned long long)total, (unsigned long long)covered,
-           (unsigned long long)dilated);
+           (unsigned long long)dilated, bf->glg_probe_count, bf->glg_tet_count,
+           bf->glg_plane_count, glg_bytes);
   } else {
     printf("%s: level %s, %lld bytes, seed %u, %u bounces\n", path, bf->level_name, bytes,
            bf->seed, bf->bounces);
@@ -295,7 +302,13 @@ static int cmd_info(int argc, char **argv)
       printf("  atlas %u: %u x %u\n", a, bf->atlases[a].width, bf->atlases[a].height);
     printf("  texels: %llu (%llu covered, %llu dilated padding)\n", (unsigned long long)total,
            (unsigned long long)covered, (unsigned long long)dilated);
-    printf("  probes: none baked (GLG/LLG not implemented yet); dynamic light sets: none\n");
+    if (bf->glg_probe_count)
+      printf("  GLG: %u probes, %u tets, %u leak planes, %llu bytes (%.1f bytes/probe)\n",
+             bf->glg_probe_count, bf->glg_tet_count, bf->glg_plane_count, glg_bytes,
+             (double)glg_bytes / bf->glg_probe_count);
+    else
+      printf("  GLG: none baked\n");
+    printf("  LLG: none baked (not implemented yet); dynamic light sets: none\n");
   }
   ub_bakefile_free(bf);
   return 0;
@@ -307,9 +320,9 @@ static const char *QUERY_HELP =
     "usage: ubake query DIR/NAME.ubk --at X,Y,Z --normal X,Y,Z [--source auto|glg|llg|lightmap]\n"
     "Prints the baked irradiance \"R G B\" (W/m², linear) the run-time uses there.\n"
     "  --source lightmap   the lightmap of the closest lightmapped surface point\n"
-    "  --source glg|llg    probes (not baked yet: reports an error)\n"
-    "  --source auto       glg for a point in space (falls back to lightmap while probes are\n"
-    "                      not baked)\n";
+    "  --source glg        the global light grid (tetrahedral probes), as a dynamic object\n"
+    "  --source llg        local light grids (not baked yet: reports an error)\n"
+    "  --source auto       the default: glg (a point in space)\n";
 
 static int cmd_query(int argc, char **argv)
 {
@@ -353,10 +366,10 @@ static int cmd_query(int argc, char **argv)
     return usage_error("query", "--source takes auto, glg, llg or lightmap");
   cli_log_state ls = {0, 0, 0};
   ub_log log = {cli_log, &ls};
-  if (!strcmp(source, "glg") || !strcmp(source, "llg")) {
-    fprintf(stderr, "ubake: %s: %s probes are not baked in this file (probes are not "
+  if (!strcmp(source, "llg")) {
+    fprintf(stderr, "ubake: %s: llg probes are not baked in this file (LLGs are not "
                     "implemented yet)\n",
-            path, source);
+            path);
     return 1;
   }
   ub_runtime *rt = NULL;
@@ -364,8 +377,17 @@ static int cmd_query(int argc, char **argv)
   if (r != UB_OK)
     return fail(&ls, r, path);
   float rgb[3], dist;
-  r = ub_runtime_query_lightmap(rt, at, nrm, rgb, &dist);
+  /* auto: a point in space is answered by the GLG, as for a dynamic object. */
+  if (!strcmp(source, "lightmap"))
+    r = ub_runtime_query_lightmap(rt, at, nrm, rgb, &dist);
+  else
+    r = ub_runtime_query_glg(rt, at, nrm, NULL, rgb);
   ub_runtime_free(rt);
+  if (r == UB_ERR_NOT_BAKED) {
+    fprintf(stderr, "ubake: %s: no %s data baked in this file\n", path,
+            strcmp(source, "lightmap") ? "GLG" : "lightmap");
+    return 1;
+  }
   if (r != UB_OK)
     return fail(&ls, r, path);
   printf("%.6g %.6g %.6g\n", rgb[0], rgb[1], rgb[2]);

@@ -55,6 +55,17 @@ ub_result ub_runtime_query_lightmap(const ub_runtime *rt, const float p[3], cons
 ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint32_t x,
                                       uint32_t y, const float n[3], float out_rgb[3]);
 
+/* Irradiance (W/m², ≥ 0) from the global light grid at any point p for unit normal n:
+ * tetrahedral interpolation of the probes' SH L2 with leak planes, windowed, convolved.
+ * inout_tet_cache: a caller-owned cache (start at UB_GLG_NO_CACHE; one per moving object
+ * or thread), or NULL. UB_ERR_NOT_BAKED when the file has no GLG. */
+ub_result ub_runtime_query_glg(const ub_runtime *rt, const float p[3], const float n[3],
+                               uint32_t *inout_tet_cache, float out_rgb[3]);
+
+struct ub_glg;
+/* The run-time GLG (for resampling into LLG boxes, see ubake/glg.h), or NULL. */
+const struct ub_glg *ub_runtime_glg(const ub_runtime *rt);
+
 #ifdef __cplusplus
 }
 #endif
