@@ -165,6 +165,8 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
 
   /* probes: GLG placement and its tetrahedralisation (TetGen, child process) */
   stage_begin(&sc, "probes");
+  if (opt->glg_spacing > 0.0f)
+    scene->glg_spacing = opt->glg_spacing;
   r = ub_glg_place(scene, rt, lm, scene->glg_spacing, log, &gp);
   if (r != UB_OK)
     goto fail;

@@ -286,18 +286,21 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     atomic_store(&c->cancelled, 2);
     return;
   }
-  /* Stratified directions: a jittered k×k grid when N is a square. */
-  uint32_t k = (uint32_t)sqrtf((float)N);
-  int strat = k * k == N;
+  /* Stratified directions: the first kx·ky rays on a jittered kx × ky grid (kx = ⌊√N⌋),
+   * the few left over (N not a multiple of kx) uniformly random. */
+  uint32_t kx = (uint32_t)sqrtf((float)N);
+  if (kx < 1)
+    kx = 1;
+  uint32_t ky = N / kx;
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
     for (uint32_t j = 0; j < N; j++) {
       uint32_t h = ub_hash4(d->seed, d->pass_id * 0x10000u + c->bounce, rs->id_base + r, j);
       float u1 = ub_u01(h), u2 = ub_u01(ub_hash4(h, 7, 0, 0));
-      if (strat) {
-        u1 = ((float)(j % k) + u1) / (float)k;
-        u2 = ((float)(j / k) + u2) / (float)k;
+      if (j < kx * ky) {
+        u1 = ((float)(j % kx) + u1) / (float)kx;
+        u2 = ((float)(j / kx) + u2) / (float)ky;
       }
       ub_ray *ray = &rays[(size_t)i * N + j];
       const float *p = rs->samples + ((size_t)r * rs->spr + j % rs->spr) * 3;

@@ -15,6 +15,7 @@
 #include "test_util.h"
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
+#include "ubake/glg.h"
 #include "ubake/runtime.h"
 #include "ubake/scene.h"
 
@@ -33,6 +34,8 @@ static void level_path(const char *name, char *out, size_t cap)
   snprintf(out, cap, "%s/levels/%s.gltf", g_build, name);
 }
 
+static float g_glg_spacing = 0.0f; /* override for the next bake (0 = level default) */
+
 static ub_runtime *bake(const char *level, const char *tag, ub_quality q, int bounces,
                         int threads, float texel, char *out_ubk, size_t cap)
 {
@@ -46,6 +49,7 @@ static ub_runtime *bake(const char *level, const char *tag, ub_quality q, int bo
   o.threads = threads;
   o.out_dir = dir;
   o.texel_size = texel;
+  o.glg_spacing = g_glg_spacing;
   ub_bake_stats st;
   ub_result r = ub_bake_level(path, &o, &g_log, &st);
   if (r != UB_OK) {
@@ -271,6 +275,172 @@ static void test_two_rooms_leak(void)
   ub_runtime_free(rt);
 }
 
+/* ---- GLG probes ----------------------------------------------------------------- */
+
+static void test_glg_furnace(void)
+{
+  /* Inside the closed furnace the radiance is the same from every direction at every
+   * point: the GLG must give E = π Le Σ_{k≤N} ρ^k for any point and normal. */
+  ub_runtime *rt = bake("furnace", "glg_furnace", UB_QUALITY_HIGH, 3, 0, 0.0f, NULL, 0);
+  ASSERT_TRUE(rt != NULL);
+  if (!rt)
+    return;
+  double expect = M_PI * (1.0 + 0.5 + 0.25 + 0.125);
+  double worst = 0.0;
+  uint32_t cache = UB_GLG_NO_CACHE;
+  for (int i = 0; i < 50; i++) {
+    uint32_t h = ub_hash4(77, i, 0, 0);
+    float p[3] = {-0.9f + 1.8f * ub_u01(h), 0.1f + 1.8f * ub_u01(ub_hash4(h, 1, 0, 0)),
+                  -0.9f + 1.8f * ub_u01(ub_hash4(h, 2, 0, 0))};
+    float n[3];
+    ub_sample_cosine((const float[3]){0, 1, 0}, ub_u01(ub_hash4(h, 3, 0, 0)),
+                     ub_u01(ub_hash4(h, 4, 0, 0)), n);
+    if (i % 2)
+      n[1] = -n[1];
+    float rgb[3];
+    ASSERT_OK(ub_runtime_query_glg(rt, p, n, &cache, rgb));
+    double rel = fabs(rgb[1] - expect) / expect;
+    if (rel > worst)
+      worst = rel;
+    ASSERT_NEAR(rgb[1], expect, 0.0, 0.01);
+  }
+  printf("glg furnace: 50 interior points, closed form %.5f, worst deviation %.3f%%\n", expect,
+         100 * worst);
+  ub_runtime_free(rt);
+}
+
+/* Copies BUILD/levels/NAME.{gltf,bin} to BUILD/levels/OUT.{gltf,bin} with the first
+ * occurrence of `from` in the JSON replaced by `to`. */
+static int level_variant(const char *name, const char *out, const char *from, const char *to)
+{
+  char src[1024], dst[1024];
+  level_path(name, src, sizeof src);
+  level_path(out, dst, sizeof dst);
+  FILE *f = fopen(src, "rb");
+  if (!f)
+    return 0;
+  static char buf[1 << 20];
+  size_t n = fread(buf, 1, sizeof buf - 1, f);
+  fclose(f);
+  buf[n] = 0;
+  char *at = strstr(buf, from);
+  if (!at)
+    return 0;
+  f = fopen(dst, "wb");
+  if (!f)
+    return 0;
+  fwrite(buf, 1, (size_t)(at - buf), f);
+  fputs(to, f);
+  fputs(at + strlen(from), f);
+  fclose(f);
+  /* the .bin is referenced by its original name, which sits beside the copy */
+  return 1;
+}
+
+static void test_glg_cornell(void)
+{
+  /* The GLG stores what UberBake stores in it: with the ceiling light `primary`, its direct
+   * light is the run-time's job and the probes hold the (smooth) indirect light, which SH
+   * L2 represents well. The reference computes the same path classes. */
+  ASSERT_TRUE(level_variant("cornell", "cornell_primary", "\"ubake_light\": \"static\"",
+                            "\"ubake_light\": \"primary\""));
+  g_glg_spacing = 0.5f;
+  ub_runtime *rt = bake("cornell_primary", "glg_cornell", UB_QUALITY_HIGH, -1, 0, 0.0f, NULL, 0);
+  g_glg_spacing = 0.0f;
+  ASSERT_TRUE(rt != NULL);
+  if (!rt)
+    return;
+  char path[1024];
+  level_path("cornell_primary", path, sizeof path);
+  ub_scene *scene = NULL;
+  ub_rt *trace = NULL;
+  ub_emitters *em = NULL;
+  ASSERT_OK(ub_scene_load(path, NULL, &scene));
+  ASSERT_OK(ub_rt_create(scene, NULL, NULL, &trace));
+  ASSERT_OK(ub_emitters_build(scene, &em));
+  int fails = 0, np = 0;
+  double worst = 0.0, sum_rel = 0.0;
+  uint32_t cache = UB_GLG_NO_CACHE;
+  for (int i = 0; np < 30 && i < 1000; i++) {
+    /* Random points in the air of the box, away from walls and outside the two boxes. */
+    uint32_t h = ub_hash4(4242, i, 0, 0);
+    float p[3] = {-0.8f + 1.6f * ub_u01(h), 0.2f + 1.6f * ub_u01(ub_hash4(h, 1, 0, 0)),
+                  -0.8f + 1.6f * ub_u01(ub_hash4(h, 2, 0, 0))};
+    if (p[1] < 1.35f && fabsf(p[0] + 0.33f) < 0.55f && fabsf(p[2] + 0.27f) < 0.55f)
+      continue; /* tall box */
+    if (p[1] < 0.75f && fabsf(p[0] - 0.33f) < 0.55f && fabsf(p[2] - 0.39f) < 0.55f)
+      continue; /* short box */
+    float n[3];
+    ub_sample_cosine((const float[3]){0, 1, 0}, ub_u01(ub_hash4(h, 3, 0, 0)),
+                     ub_u01(ub_hash4(h, 4, 0, 0)), n);
+    if (i % 3 == 1)
+      n[1] = -n[1];
+    float rgb[3], ref[3], se[3];
+    ASSERT_OK(ub_runtime_query_glg(rt, p, n, &cache, rgb));
+    ub_reference_params rp;
+    ub_reference_params_init(&rp);
+    memcpy(rp.position, p, sizeof p);
+    memcpy(rp.normal, n, sizeof n);
+    rp.spp = 8192;
+    rp.seed = 99 + i;
+    ASSERT_OK(ub_reference_irradiance(scene, trace, em, &rp, ref, se, NULL));
+    np++;
+    for (int c = 0; c < 3; c++) {
+      double err = fabs(rgb[c] - ref[c]), rel = ref[c] > 0 ? err / ref[c] : 0.0;
+      if (c == 1) {
+        sum_rel += rel;
+        if (rel > worst)
+          worst = rel;
+      }
+      if (!(err <= 3.0 * se[c] + 0.10 * ref[c])) {
+        fprintf(stderr, "glg cornell (%.2f %.2f %.2f) n (%.2f %.2f %.2f) ch %d: glg %.4f ref %.4f ± %.4f\n",
+                p[0], p[1], p[2], n[0], n[1], n[2], c, rgb[c], ref[c], se[c]);
+        fails++;
+      }
+    }
+  }
+  printf("glg cornell: %d points vs reference: mean |rel err| %.2f%%, worst %.2f%% (green), %d "
+         "outside 3 s.e. + 10%%\n",
+         np, 100 * sum_rel / np, 100 * worst, fails);
+  ASSERT_TRUE(np == 30);
+  ASSERT_TRUE(fails == 0);
+  ub_emitters_free(em);
+  ub_rt_free(trace);
+  ub_scene_free(scene);
+  ub_runtime_free(rt);
+}
+
+static void test_glg_two_rooms_leak(void)
+{
+  /* GLG irradiance in the dark room 10 cm from the shared 5 cm wall < 1% of the lit side. */
+  ub_runtime *rt = bake("two_rooms", "glg_two_rooms", UB_QUALITY_DRAFT, -1, 0, 0.0f, NULL, 0);
+  ASSERT_TRUE(rt != NULL);
+  if (!rt)
+    return;
+  double worst = 0.0;
+  for (int i = 0; i < 12; i++) {
+    float y = 0.3f + 0.22f * i, z = -1.7f + 0.3f * i;
+    const float normals[3][3] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}};
+    for (int k = 0; k < 3; k++) {
+      float pb[3] = {0.025f + 0.1f, y, z}, pa[3] = {-0.025f - 0.1f, y, z};
+      float nb[3] = {normals[k][0], normals[k][1], normals[k][2]};
+      float na[3] = {-nb[0], nb[1], nb[2]};
+      float b[3], a[3];
+      ASSERT_OK(ub_runtime_query_glg(rt, pb, nb, NULL, b));
+      ASSERT_OK(ub_runtime_query_glg(rt, pa, na, NULL, a));
+      double ratio = a[1] > 0 ? b[1] / a[1] : 1.0;
+      if (ratio > worst)
+        worst = ratio;
+      if (!(ratio < 0.01))
+        fprintf(stderr, "glg leak at (%.3f %.3f %.3f): dark %.4g lit %.4g\n", pb[0], pb[1], pb[2],
+                b[1], a[1]);
+      ASSERT_TRUE(ratio < 0.01);
+    }
+  }
+  printf("glg two_rooms: worst dark/lit ratio 10 cm from the 5 cm wall = %.2e\n", worst);
+  ub_runtime_free(rt);
+}
+
 static int read_all(const char *path, unsigned char **out, size_t *out_n)
 {
   FILE *f = fopen(path, "rb");
@@ -320,6 +490,12 @@ int main(int argc, char **argv)
     test_cornell_vs_reference();
   if (!only || !strcmp(only, "two_rooms"))
     test_two_rooms_leak();
+  if (!only || !strcmp(only, "glg_furnace"))
+    test_glg_furnace();
+  if (!only || !strcmp(only, "glg_cornell"))
+    test_glg_cornell();
+  if (!only || !strcmp(only, "glg_two_rooms"))
+    test_glg_two_rooms_leak();
   if (!only || !strcmp(only, "determinism"))
     test_determinism();
   TEST_MAIN_END();

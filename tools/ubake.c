@@ -141,6 +141,7 @@ static const char *BAKE_HELP =
     "  --seed N                random seed (default 1)\n"
     "  --gather-rays N         override gather rays per texel per bounce\n"
     "  --texel-size M          override metres per lightmap texel\n"
+    "  --glg-spacing M         override metres between coarse GLG probes\n"
     "  --json FILE             write the report here instead of DIR/NAME.report.json\n"
     "  --no-progress           no progress output\n";
 
@@ -196,6 +197,13 @@ static int cmd_bake(int argc, char **argv)
       if (end == v || *end || !(t > 0.0) || !isfinite(t))
         return usage_error("bake", "--texel-size takes a positive number of metres");
       opt.texel_size = (float)t;
+      i++;
+    } else if (!strcmp(a, "--glg-spacing") && v) {
+      char *end;
+      double t = strtod(v, &end);
+      if (end == v || *end || !(t > 0.0) || !isfinite(t))
+        return usage_error("bake", "--glg-spacing takes a positive number of metres");
+      opt.glg_spacing = (float)t;
       i++;
     } else if (!strcmp(a, "--json") && v) {
       opt.json_path = v;

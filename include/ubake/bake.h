@@ -39,6 +39,7 @@ typedef struct ub_bake_options {
   const char *json_path;  /* report path; NULL = DIR/NAME.report.json */
   uint32_t gather_rays;   /* 0 = from quality: rays per receiver per bounce */
   float texel_size;       /* 0 = from the level (metres per texel) */
+  float glg_spacing;      /* 0 = from the level (metres between coarse GLG probes) */
   ub_progress_fn progress;
   void *progress_user;
 } ub_bake_options;
