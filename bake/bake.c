@@ -13,6 +13,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "bake/dls.h"
 #include "bake/lights.h"
 #include "bake/output.h"
 #include "bake/pass.h"
@@ -126,6 +127,9 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   memset(&plan, 0, sizeof plan);
   ub_pass_result base;
   memset(&base, 0, sizeof base);
+  ub_bakefile_record *dls = NULL;
+  ub_dls_stats dstats;
+  memset(&dstats, 0, sizeof dstats);
   ub_result r;
 
   /* load */
@@ -233,6 +237,20 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
                                            stats.gather_seconds
                                      : 0.0);
 
+  /* dynamic light sets: influence pass + full pass over the kept receivers, per set */
+  if (scene->dls_count) {
+    stage_begin(&sc, "dls");
+    r = ub_dls_bake(&pd, &plan, log, &dls, &dstats);
+    if (r != UB_OK)
+      goto fail;
+    stats.dls_sets = dstats.sets_baked;
+    stats.rays_total = ub_rt_rays_traced(rt);
+    stage_end(&sc, "%u set(s) baked, %u reach nothing; influence %.1f M rays %.2f s, full %.1f "
+              "M rays %.2f s",
+              dstats.sets_baked, dstats.sets_empty, dstats.rays_influence * 1e-6,
+              dstats.seconds_influence, dstats.rays_full * 1e-6, dstats.seconds_full);
+  }
+
   /* leak control: a separating plane for every tet that straddles a surface */
   stage_begin(&sc, "leak");
   r = ub_glg_leak_build(rt, tm->point_count, tm->points, tm->tet_count, tm->tets, &leak);
@@ -247,7 +265,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   stats.peak_rss_kb = ub_peak_rss_kb();
   stats.total_seconds = now_seconds() - t_start;
   ub_glg_bake glg = {tm, base.probe_sh, &leak};
-  r = ub_output_write(scene, lm, &glg, &plan, &base, opt, &stats, log);
+  r = ub_output_write(scene, lm, &glg, dls, &dstats, &plan, &base, opt, &stats, log);
   if (r != UB_OK)
     goto fail;
   stage_end(&sc, "%s", stats.ubk_path);
@@ -256,6 +274,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
 
 fail:
   ub_pass_result_free(&base);
+  ub_dls_records_free(dls, scene ? scene->dls_count : 0);
   ub_plan_free(&plan);
   ub_glg_leak_free(&leak);
   ub_tetmesh_free(tm);

@@ -38,6 +38,9 @@ const float kDefaultGlgSpacing = 2.0f;  /* metres between GLG probes */
 const double kDegenerateRel = 1e-6;
 /* ...or when that altitude is below what float rounding of its coordinates can produce. */
 const double kDegenerateUlps = 8.0;
+/* World coordinates beyond this (metres: 10,000 km, where float spacing is 1 m) are
+ * rejected: products of such coordinates (extents, cross products) overflow float. */
+const double kMaxCoordinate = 1e7;
 /* TEXCOORD_1 may stray this far outside [0,1] (rounding) and is clamped silently. */
 const double kUvSlack = 1e-3;
 const size_t kMaxWarnings = 20;
@@ -240,9 +243,34 @@ bool keep_image_bytes(tinygltf::Image *image, const int image_idx, std::string *
   return true;
 }
 
+/* Filesystem callbacks for ub_scene_load_memory(): a glTF loaded from memory must be
+ * self-contained (data: URIs or the GLB binary chunk); any external URI is refused, so
+ * hostile input can never make the loader touch the filesystem. */
+bool mem_file_exists(const std::string &, void *) { return false; }
+std::string mem_expand_path(const std::string &p, void *) { return p; }
+bool mem_read_file(std::vector<unsigned char> *, std::string *err, const std::string &, void *)
+{
+  if (err)
+    *err += "external files cannot be read when loading from memory";
+  return false;
+}
+bool mem_write_file(std::string *err, const std::string &, const std::vector<unsigned char> &,
+                    void *)
+{
+  if (err)
+    *err += "writing is not supported";
+  return false;
+}
+
 class Loader {
 public:
-  Loader(const char *path, const ub_log *log) : path_(path), log_(log) {}
+  /* data == NULL: read the file at path; else parse data[0..size) and use path as the
+   * name in messages only. */
+  Loader(const char *path, const ub_log *log, const unsigned char *data = nullptr,
+         size_t size = 0)
+      : path_(path), log_(log), mem_data_(data), mem_size_(size)
+  {
+  }
 
   void load();
   ub_scene *to_c() const; /* NULL on out of memory */
@@ -263,6 +291,8 @@ private:
       ;
 
   void parse_file();
+  void parse_bytes(const unsigned char *data, size_t size, const std::string &base_dir,
+                   bool self_contained);
   std::string node_label(int idx) const;
   void check_extensions();
   void read_scene_settings(int scene_idx);
@@ -285,6 +315,8 @@ private:
 
   std::string path_;
   const ub_log *log_;
+  const unsigned char *mem_data_; /* non-NULL: load from memory */
+  size_t mem_size_;
   tinygltf::Model model_;
   std::vector<std::string> warnings_;
   size_t dropped_warnings_ = 0;
@@ -354,6 +386,12 @@ std::string Loader::node_label(int idx) const
  * let tinygltf parse it. */
 void Loader::parse_file()
 {
+  if (mem_data_) {
+    if (mem_size_ > 0xFFFFFFF0u)
+      fail(UB_ERR_INVALID_DATA, "data is larger than 4 GB");
+    parse_bytes(mem_data_, mem_size_, std::string(), true);
+    return;
+  }
   FILE *f = fopen(path_.c_str(), "rb");
   if (!f)
     fail(UB_ERR_IO, "cannot open: %s", strerror(errno));
@@ -377,20 +415,37 @@ void Loader::parse_file()
   size_t slash = path_.find_last_of('/');
   if (slash != std::string::npos)
     base_dir = path_.substr(0, slash);
+  parse_bytes(bytes.data(), bytes.size(), base_dir, false);
+}
 
+/* Parses a whole .gltf or .glb (told apart by the GLB magic) with tinygltf. size has been
+ * checked to fit an unsigned int. */
+void Loader::parse_bytes(const unsigned char *data, size_t size, const std::string &base_dir,
+                         bool self_contained)
+{
   tinygltf::TinyGLTF gltf;
   ImageCtx ictx{&model_};
   gltf.SetImageLoader(keep_image_bytes, &ictx);
+  if (self_contained) {
+    tinygltf::FsCallbacks fs = {mem_file_exists, mem_expand_path, mem_read_file,
+                                mem_write_file, nullptr};
+    gltf.SetFsCallbacks(fs);
+  }
   std::string err, warn_text;
   bool ok;
-  bool is_glb = bytes.size() >= 4 && memcmp(bytes.data(), "glTF", 4) == 0;
+  bool is_glb = size >= 4 && memcmp(data, "glTF", 4) == 0;
+  /* tinygltf reads a .gltf as JSON text of exactly `size` bytes; an empty buffer still
+   * needs a valid pointer. */
+  static const unsigned char empty[1] = {0};
+  if (size == 0)
+    data = empty;
   if (is_glb)
-    ok = gltf.LoadBinaryFromMemory(&model_, &err, &warn_text, bytes.data(),
-                                   (unsigned int)bytes.size(), base_dir);
+    ok = gltf.LoadBinaryFromMemory(&model_, &err, &warn_text, data, (unsigned int)size,
+                                   base_dir);
   else
     ok = gltf.LoadASCIIFromString(&model_, &err, &warn_text,
-                                  reinterpret_cast<const char *>(bytes.data()),
-                                  (unsigned int)bytes.size(), base_dir);
+                                  reinterpret_cast<const char *>(data), (unsigned int)size,
+                                  base_dir);
   if (!ok) {
     std::string e = one_line(err.empty() ? "unknown tinygltf error" : err);
     bool io = err.find("File not found") != std::string::npos ||
@@ -931,9 +986,10 @@ void Loader::add_light(int node_idx, int li, const Mat4 &world, const Tags &tags
   }
   for (int i = 0; i < 3; i++)
     o.direction[i] = (float)(d[i] / dl);
-  if (!std::isfinite(o.position[0]) || !std::isfinite(o.position[1]) ||
-      !std::isfinite(o.position[2]))
-    fail(UB_ERR_INVALID_DATA, "%s: position is not finite", label.c_str());
+  for (int i = 0; i < 3; i++)
+    if (!std::isfinite(o.position[i]) || std::fabs(world.m[12 + i]) > kMaxCoordinate)
+      fail(UB_ERR_INVALID_DATA, "%s: position is not finite or beyond %.0f m", label.c_str(),
+           kMaxCoordinate);
   o.cls = tags.light_class;
   o.dls = tags.dls;
   o.node = ub_node;
@@ -1075,6 +1131,9 @@ void Loader::add_primitive(int node_idx, int mesh_idx, int prim_idx, const Mat4 
       if (!std::isfinite(f))
         fail(UB_ERR_INVALID_DATA, "%s: POSITION accessor %d vertex %zu is not finite in world "
              "space", where.c_str(), a_pos, v);
+      if (std::fabs(w) > kMaxCoordinate)
+        fail(UB_ERR_INVALID_DATA, "%s: POSITION accessor %d vertex %zu is %.3g m from the "
+             "origin in world space (limit %.0f m)", where.c_str(), a_pos, v, w, kMaxCoordinate);
       WP[v * 3 + (size_t)r] = f;
     }
   }
@@ -1504,6 +1563,43 @@ ub_scene *Loader::to_c() const
 
 } // namespace
 
+namespace {
+
+/* Runs a Loader and converts the outcome to a result code and one log line. */
+ub_result run_loader(Loader &loader, const char *name, const ub_log *log, ub_scene **out_scene)
+{
+  try {
+    loader.load();
+    ub_scene *s = loader.to_c();
+    if (!s) {
+      ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory", name);
+      return UB_ERR_OUT_OF_MEMORY;
+    }
+    loader.flush_warnings();
+    ub_log_printf(log, UB_LOG_INFO,
+                  "%s: %u triangles (%u degenerate), %u vertices, %u materials, %u nodes, "
+                  "%u lights, %u primitives skipped",
+                  name, s->triangle_count, s->degenerate_count, s->vertex_count,
+                  s->material_count, s->node_count, s->light_count, s->skipped_primitives);
+    *out_scene = s;
+    return UB_OK;
+  } catch (const LoadError &e) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s", e.message.c_str());
+    return e.code;
+  } catch (const std::bad_alloc &) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory", name);
+    return UB_ERR_OUT_OF_MEMORY;
+  } catch (const std::exception &e) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: invalid glTF: %s", name, one_line(e.what()).c_str());
+    return UB_ERR_INVALID_DATA;
+  } catch (...) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: invalid glTF (unexpected exception)", name);
+    return UB_ERR_INVALID_DATA;
+  }
+}
+
+} // namespace
+
 extern "C" ub_result ub_scene_load(const char *path, const ub_log *log, ub_scene **out_scene)
 {
   if (!path || !out_scene) {
@@ -1512,31 +1608,28 @@ extern "C" ub_result ub_scene_load(const char *path, const ub_log *log, ub_scene
   }
   try {
     Loader loader(path, log);
-    loader.load();
-    ub_scene *s = loader.to_c();
-    if (!s) {
-      ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory", path);
-      return UB_ERR_OUT_OF_MEMORY;
-    }
-    loader.flush_warnings();
-    ub_log_printf(log, UB_LOG_INFO,
-                  "%s: %u triangles (%u degenerate), %u vertices, %u materials, %u nodes, "
-                  "%u lights, %u primitives skipped",
-                  path, s->triangle_count, s->degenerate_count, s->vertex_count,
-                  s->material_count, s->node_count, s->light_count, s->skipped_primitives);
-    *out_scene = s;
-    return UB_OK;
-  } catch (const LoadError &e) {
-    ub_log_printf(log, UB_LOG_ERROR, "%s", e.message.c_str());
-    return e.code;
-  } catch (const std::bad_alloc &) {
+    return run_loader(loader, path, log, out_scene);
+  } catch (...) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory", path);
     return UB_ERR_OUT_OF_MEMORY;
-  } catch (const std::exception &e) {
-    ub_log_printf(log, UB_LOG_ERROR, "%s: invalid glTF: %s", path, one_line(e.what()).c_str());
-    return UB_ERR_INVALID_DATA;
+  }
+}
+
+extern "C" ub_result ub_scene_load_memory(const void *data, size_t size, const char *name,
+                                          const ub_log *log, ub_scene **out_scene)
+{
+  if ((!data && size) || !out_scene) {
+    ub_log_printf(log, UB_LOG_ERROR, "ub_scene_load_memory: %s is NULL",
+                  out_scene ? "data" : "out_scene");
+    return UB_ERR_INVALID_ARGUMENT;
+  }
+  static const unsigned char empty[1] = {0};
+  const char *label = name ? name : "(memory)";
+  try {
+    Loader loader(label, log, data ? static_cast<const unsigned char *>(data) : empty, size);
+    return run_loader(loader, label, log, out_scene);
   } catch (...) {
-    ub_log_printf(log, UB_LOG_ERROR, "%s: invalid glTF (unexpected exception)", path);
-    return UB_ERR_INVALID_DATA;
+    ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory", label);
+    return UB_ERR_OUT_OF_MEMORY;
   }
 }

@@ -74,6 +74,7 @@ static void json_str(FILE *f, const char *s)
 
 static ub_result write_report(const char *path, const ub_scene *scene, const ub_lightmap *lm,
                               const ub_plan *plan, const ub_pass_result *base,
+                              const ub_bakefile *bf, const ub_dls_stats *dstats,
                               const ub_bake_options *opt, const ub_bake_stats *st,
                               const ub_log *log)
 {
@@ -101,7 +102,21 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
           plan->sky ? "true" : "false", plan->emissive ? "true" : "false", plan->gather_rays,
           plan->emissive_samples, plan->shadow_samples, plan->est_rays,
           (unsigned long long)(base->rays_gather + base->rays_shadow));
-  fprintf(f, "    \"dls_lights_not_baked\": %u,\n    \"lights\": [", plan->dls_lights);
+  fprintf(f, "    \"dls\": {\"sets\": %u, \"baked\": %u, \"reach_nothing\": %u, "
+             "\"influence_rays\": %llu, \"influence_seconds\": %.4f, \"full_rays\": %llu, "
+             "\"full_seconds\": %.4f, \"records\": [",
+          scene->dls_count, dstats ? dstats->sets_baked : 0, dstats ? dstats->sets_empty : 0,
+          dstats ? (unsigned long long)dstats->rays_influence : 0ULL,
+          dstats ? dstats->seconds_influence : 0.0,
+          dstats ? (unsigned long long)dstats->rays_full : 0ULL,
+          dstats ? dstats->seconds_full : 0.0);
+  for (uint32_t d = 0; d < bf->dls_count; d++) {
+    fprintf(f, "%s{\"name\": ", d ? ", " : "");
+    json_str(f, bf->dls[d].name);
+    fprintf(f, ", \"lights\": %u, \"texel_pixels\": %u, \"probes\": %u}",
+            bf->dls[d].light_count, bf->dls[d].texel_count, bf->dls[d].probe_count);
+  }
+  fprintf(f, "]},\n    \"lights\": [");
   for (uint32_t l = 0; l < scene->light_count; l++) {
     const ub_light *L = &scene->lights[l];
     static const char *types[] = {"point", "spot", "directional"};
@@ -222,6 +237,7 @@ static void remove_staging(out_files *files, const char *staging)
 }
 
 ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub_glg_bake *glg,
+                          ub_bakefile_record *dls, const ub_dls_stats *dstats,
                           const ub_plan *plan,
                           const ub_pass_result *base, const ub_bake_options *opt,
                           ub_bake_stats *stats, const ub_log *log)
@@ -261,6 +277,8 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
   for (uint32_t t = 0; t < scene->triangle_count; t++)
     memcpy(bf.tri_albedo + 3 * (size_t)t, scene->materials[scene->tri_material[t]].albedo,
            3 * sizeof(float));
+  bf.dls_count = dls ? scene->dls_count : 0;
+  bf.dls = dls;
   if (glg && glg->mesh) {
     bf.glg_probe_count = glg->mesh->point_count;
     bf.glg_positions = glg->mesh->points;
@@ -323,7 +341,8 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
     goto done;
   }
   snprintf(files.final[files.count - 1], sizeof files.final[0], "%s", report_final);
-  r = write_report(files.staged[files.count - 1], scene, lm, plan, base, opt, stats, log);
+  r = write_report(files.staged[files.count - 1], scene, lm, plan, base, &bf, dstats, opt, stats,
+                   log);
   if (r != UB_OK)
     goto done;
 

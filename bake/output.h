@@ -5,6 +5,7 @@
 #define UBAKE_BAKE_OUTPUT_H
 
 #include "bake/pass.h"
+#include "bake/dls.h"
 #include "bake/plan.h"
 #include "probes/leak.h"
 #include "probes/tetgen.h"
@@ -17,6 +18,7 @@ typedef struct ub_glg_bake {
 } ub_glg_bake;
 
 ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub_glg_bake *glg,
+                          ub_bakefile_record *dls, const ub_dls_stats *dstats,
                           const ub_plan *plan,
                           const ub_pass_result *base, const ub_bake_options *opt,
                           ub_bake_stats *stats, const ub_log *log);

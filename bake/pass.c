@@ -23,6 +23,8 @@ static const double UB_Y1 = 0.488602512;
 /* One kind of receiver, seen uniformly by the direct and gather kernels. */
 typedef struct recv_set {
   uint32_t count;
+  const uint32_t *index; /* active receivers (a pass's influence subset), NULL = all */
+  uint32_t active;       /* receivers processed: index ? its length : count */
   const float *normal;   /* count × 3, or NULL: points gathering over the full sphere */
   const float *samples;  /* count × spr × 3: ray origins (already offset) */
   uint32_t spr;          /* sample points per receiver */
@@ -175,7 +177,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   uint32_t N = rs->rays;
   int mis_gather = d->sky || ne; /* gather rays also see emitters in bounce 0 */
   for (uint32_t i = 0; i < nr; i++) {
-    uint32_t r = r0 + i;
+    uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
     for (uint32_t l = 0; l < s->light_count; l++) {
       if (!d->light_enabled[l])
@@ -248,7 +250,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     if (occ[j])
       continue;
     const shadow_rec *sr = &rec[j];
-    uint32_t r = r0 + sr->recv;
+    uint32_t r = rs->index ? rs->index[r0 + sr->recv] : r0 + sr->recv;
     if (rs->acc_src)
       for (int ch = 0; ch < 3; ch++)
         rs->acc_src[3 * (size_t)r + ch] += (double)sr->e[ch] * sr->cos;
@@ -293,7 +295,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     kx = 1;
   uint32_t ky = N / kx;
   for (uint32_t i = 0; i < nr; i++) {
-    uint32_t r = r0 + i;
+    uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
     for (uint32_t j = 0; j < N; j++) {
       uint32_t h = ub_hash4(d->seed, d->pass_id * 0x10000u + c->bounce, rs->id_base + r, j);
@@ -341,7 +343,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   uint64_t backface = 0, unlit = 0, clamped = 0, misses = 0;
   uint32_t ne = (d->emissive && d->emitters) ? d->emitters->count : 0;
   for (uint32_t i = 0; i < nr; i++) {
-    uint32_t r = r0 + i;
+    uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
     double *sh = rs->acc_sh + (size_t)rs->nsh * 3 * r;
     double *iz = rs->acc_iz ? rs->acc_iz + 3 * (size_t)r : NULL;
@@ -460,6 +462,11 @@ static double outgoing_energy(const pass_ctx *c, const double *iz)
   return e;
 }
 
+static double lum3d(const double *rgb)
+{
+  return 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2];
+}
+
 static double energy_of(const double *iz, uint32_t count)
 {
   double e = 0.0;
@@ -487,7 +494,7 @@ static void run_blocks(pass_ctx *c, int direct, int gather, const char *stage, d
     const recv_set *rs = &c->sets[s];
     uint32_t tpb = rs->rays ? UB_BLOCK_RAYS / rs->rays : 256;
     per_set[s] = tpb < 1 ? 1 : (tpb > 256 ? 256 : tpb);
-    first[s + 1] = first[s] + (rs->count + per_set[s] - 1) / per_set[s];
+    first[s + 1] = first[s] + (rs->active + per_set[s] - 1) / per_set[s];
   }
   uint32_t nblocks = first[2];
   atomic_store(&c->blocks_done, 0);
@@ -498,7 +505,7 @@ static void run_blocks(pass_ctx *c, int direct, int gather, const char *stage, d
     int s = b >= first[1];
     const recv_set *rs = &c->sets[s];
     uint32_t r0 = (b - first[s]) * per_set[s];
-    uint32_t nr = rs->count - r0 < per_set[s] ? rs->count - r0 : per_set[s];
+    uint32_t nr = rs->active - r0 < per_set[s] ? rs->active - r0 : per_set[s];
     if (direct)
       direct_block(c, rs, r0, nr);
     if (gather)
@@ -530,8 +537,14 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   uint32_t P = d->probe_count;
   uint32_t N = d->gather_rays ? d->gather_rays : 1;
   double *probe_total = calloc((size_t)P * 27 + 1, sizeof(double));
+  out->texel_direct = calloc((size_t)T + 1, sizeof(float));
+  out->texel_indirect = calloc((size_t)T + 1, sizeof(float));
+  out->probe_direct = calloc((size_t)P + 1, sizeof(float));
+  out->probe_indirect = calloc((size_t)P + 1, sizeof(float));
   recv_set *tx = &c.sets[0], *pr = &c.sets[1];
   tx->count = T;
+  tx->index = d->texel_subset;
+  tx->active = d->texel_subset ? d->texel_subset_count : T;
   tx->normal = lm->texel_normal;
   tx->samples = lm->sample_pos;
   tx->spr = UB_TEXEL_SAMPLES;
@@ -542,6 +555,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   tx->acc_iz = calloc((size_t)T * 3 + 1, sizeof(double));
   tx->acc_src = calloc((size_t)T * 3 + 1, sizeof(double));
   pr->count = P;
+  pr->index = d->probe_subset;
+  pr->active = d->probe_subset ? d->probe_subset_count : P;
   pr->normal = NULL;
   pr->samples = d->probe_pos;
   pr->spr = 1;
@@ -552,7 +567,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   c.img = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *c.img);
   c.emitter_of = malloc((size_t)(s->triangle_count ? s->triangle_count : 1) * sizeof(int32_t));
   int oom = !sh_total || !iz_total || !tx->acc_sh || !tx->acc_iz || !tx->acc_src || !c.img ||
-            !c.emitter_of || !pr->acc_sh || !probe_total;
+            !c.emitter_of || !pr->acc_sh || !probe_total || !out->texel_direct ||
+            !out->texel_indirect || !out->probe_direct || !out->probe_indirect;
   for (uint32_t a = 0; !oom && a < lm->atlas_count; a++) {
     c.img[a] = malloc((size_t)lm->atlases[a].width * lm->atlases[a].height * 4 * sizeof(float));
     oom = !c.img[a];
@@ -585,6 +601,10 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     iz_total[i] = tx->acc_iz[i];
   for (size_t i = 0; i < (size_t)P * 27; i++)
     probe_total[i] = pr->acc_sh[i];
+  for (uint32_t t = 0; t < T; t++)
+    out->texel_direct[t] = (float)lum3d(tx->acc_src + 3 * (size_t)t);
+  for (uint32_t q = 0; q < P; q++)
+    out->probe_direct[q] = (float)(M_PI * UB_Y0 * lum3d(pr->acc_sh + 27 * (size_t)q));
   build_images(&c, tx->acc_src);
   free(tx->acc_src);
   tx->acc_src = NULL;
@@ -617,6 +637,10 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       iz_total[i] += tx->acc_iz[i];
     for (size_t i = 0; i < (size_t)P * 27; i++)
       probe_total[i] += pr->acc_sh[i];
+    for (uint32_t t = 0; t < T; t++)
+      out->texel_indirect[t] += (float)lum3d(tx->acc_iz + 3 * (size_t)t);
+    for (uint32_t q = 0; q < P; q++)
+      out->probe_indirect[q] += (float)(M_PI * UB_Y0 * lum3d(pr->acc_sh + 27 * (size_t)q));
     total_energy += e;
     src_energy = outgoing_energy(&c, tx->acc_iz);
     ub_log_printf(log, UB_LOG_INFO, "  bounce %u: +%.3f%% energy", b,
@@ -714,6 +738,11 @@ void ub_pass_result_free(ub_pass_result *r)
   free(r->sh);
   free(r->iz);
   free(r->probe_sh);
+  free(r->texel_direct);
+  free(r->texel_indirect);
+  free(r->probe_direct);
+  free(r->probe_indirect);
+  r->texel_direct = r->texel_indirect = r->probe_direct = r->probe_indirect = NULL;
   r->sh = NULL;
   r->iz = NULL;
   r->probe_sh = NULL;

@@ -43,6 +43,12 @@ typedef struct ub_pass_desc {
   uint32_t probe_count;
   const float *probe_pos;        /* probe_count × 3, world */
   uint32_t probe_rays;           /* gather rays per probe per bounce (0 = gather_rays) */
+  /* Influence subset (a dynamic element's pass): only these receivers are simulated; the
+   * others stay zero. NULL = every receiver. Indices sorted ascending. */
+  const uint32_t *texel_subset;
+  uint32_t texel_subset_count;
+  const uint32_t *probe_subset;
+  uint32_t probe_subset_count;
   int bounces;                   /* -1 = until a bounce adds < stop_fraction of the total */
   double stop_fraction;          /* e.g. 0.005 */
   uint32_t seed;
@@ -56,6 +62,10 @@ typedef struct ub_pass_result {
   float *sh;                     /* texel_count × 12: radiance SH L1 (W/(m²·sr)), I_z-exact */
   float *iz;                     /* texel_count × 3: irradiance along the normal (W/m²) */
   float *probe_sh;               /* probe_count × 27: radiance SH L2 (W/(m²·sr)), raw */
+  /* Influence measures (luminance, W/m²): what reached each receiver directly (bounce 0,
+   * including primary lights' unstored direct light) and through bounces ≥ 1. */
+  float *texel_direct, *texel_indirect; /* texel_count */
+  float *probe_direct, *probe_indirect; /* probe_count: DC (mean) irradiance */
   uint32_t bounces;
   double bounce_energy[UB_BAKE_MAX_BOUNCES + 1];
   uint64_t rays_gather, rays_shadow;

@@ -11,7 +11,7 @@ const char *ub_light_skip_reason(ub_light_skip s)
   case UB_SKIP_NONE: return "baked";
   case UB_SKIP_DARK: return "zero intensity";
   case UB_SKIP_OUT_OF_RANGE: return "reaches no receiver (range/cone)";
-  case UB_SKIP_DLS_PENDING: return "dynamic light set: not in the base pass";
+  case UB_SKIP_IN_DLS: return "baked in its dynamic light set's pass";
   }
   return "?";
 }
@@ -40,20 +40,28 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
   size_t nl = scene->light_count ? scene->light_count : 1;
   out->base_light_enabled = calloc(nl, 1);
   out->light_skip = calloc(nl, 1);
-  if (!out->base_light_enabled || !out->light_skip) {
+  out->dls_light_reaches = calloc(nl, 1);
+  uint8_t *set_reaches = calloc(scene->dls_count ? scene->dls_count : 1, 1);
+  if (!out->base_light_enabled || !out->light_skip || !out->dls_light_reaches || !set_reaches) {
+    free(set_reaches);
     ub_plan_free(out);
     return UB_ERR_OUT_OF_MEMORY;
   }
   for (uint32_t l = 0; l < scene->light_count; l++) {
     const ub_light *L = &scene->lights[l];
     ub_light_skip skip = UB_SKIP_NONE;
-    if (L->dls >= 0) {
-      skip = UB_SKIP_DLS_PENDING;
-      out->dls_lights++;
-    } else if (!(L->intensity[0] > 0.0f || L->intensity[1] > 0.0f || L->intensity[2] > 0.0f)) {
+    if (!(L->intensity[0] > 0.0f || L->intensity[1] > 0.0f || L->intensity[2] > 0.0f))
       skip = UB_SKIP_DARK;
-    } else if (!light_reaches(L, lm)) {
+    else if (!light_reaches(L, lm))
       skip = UB_SKIP_OUT_OF_RANGE;
+    else if (L->dls >= 0)
+      skip = UB_SKIP_IN_DLS;
+    if (L->dls >= 0) {
+      out->dls_lights++;
+      if (skip == UB_SKIP_IN_DLS) {
+        out->dls_light_reaches[l] = 1;
+        set_reaches[L->dls] = 1;
+      }
     }
     out->light_skip[l] = (uint8_t)skip;
     if (skip == UB_SKIP_NONE) {
@@ -63,16 +71,14 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
         out->primary_lights++;
       else
         out->static_lights++;
-    } else {
+    } else if (skip != UB_SKIP_IN_DLS) {
       ub_log_printf(log, UB_LOG_INFO, "  plan: light %u (node %d) skipped: %s", l, L->node,
                     ub_light_skip_reason(skip));
     }
   }
-  if (out->dls_lights)
-    ub_log_printf(log, UB_LOG_WARNING,
-                  "%u light(s) belong to dynamic light sets; DLS passes are not implemented "
-                  "yet, so they are left out of this bake",
-                  out->dls_lights);
+  for (uint32_t d = 0; d < scene->dls_count; d++)
+    out->dls_passes += set_reaches[d];
+  free(set_reaches);
   out->sky = scene->has_sky && (scene->sky[0] > 0 || scene->sky[1] > 0 || scene->sky[2] > 0);
   out->emissive = em && em->count > 0;
   switch (opt->quality) {
@@ -96,9 +102,11 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
     out->gather_rays = opt->gather_rays;
   /* A probe sees the whole sphere: twice the rays of a texel's hemisphere. */
   out->probe_rays = 2 * out->gather_rays;
+  /* Influence passes only decide who is reached: an eighth of the rays, at least 16. */
+  out->influence_rays = out->gather_rays / 8 < 16 ? 16 : out->gather_rays / 8;
   if (!out->emissive || getenv("UB_DEBUG_NOEM"))
     out->emissive_samples = 0;
-  out->pass_count = 1;
+  out->pass_count = 1 + out->dls_passes;
   double T = lm->texel_count;
   double direct = T * ((double)out->base_lights * out->shadow_samples + out->emissive_samples +
                        ((out->sky || out->emissive) ? out->gather_rays : 0));
@@ -113,6 +121,8 @@ void ub_plan_free(ub_plan *plan)
     return;
   free(plan->base_light_enabled);
   free(plan->light_skip);
+  free(plan->dls_light_reaches);
   plan->base_light_enabled = NULL;
   plan->light_skip = NULL;
+  plan->dls_light_reaches = NULL;
 }

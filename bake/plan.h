@@ -19,18 +19,21 @@ typedef enum ub_light_skip {
   UB_SKIP_NONE = 0,
   UB_SKIP_DARK,          /* zero intensity */
   UB_SKIP_OUT_OF_RANGE,  /* no receiver inside its range / cone */
-  UB_SKIP_DLS_PENDING    /* belongs to a dynamic light set (not in the base pass) */
+  UB_SKIP_IN_DLS         /* baked in its dynamic light set's pass, not the base */
 } ub_light_skip;
 
 typedef struct ub_plan {
   uint32_t pass_count;
   uint8_t *base_light_enabled; /* light_count */
   uint8_t *light_skip;         /* light_count: ub_light_skip */
+  uint8_t *dls_light_reaches;  /* light_count: a DLS light that can reach a receiver */
   uint32_t base_lights;
   uint32_t static_lights, primary_lights, dls_lights;
   int sky, emissive;
   uint32_t gather_rays, emissive_samples, shadow_samples;
   uint32_t probe_rays;         /* full-sphere gather rays per GLG probe per bounce */
+  uint32_t influence_rays;     /* gather rays per texel of a DLS influence pass */
+  uint32_t dls_passes;         /* sets with at least one light that reaches a receiver */
   double est_rays;             /* estimated rays of the base pass (direct + 3 bounces) */
 } ub_plan;
 

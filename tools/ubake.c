@@ -298,10 +298,18 @@ static int cmd_info(int argc, char **argv)
              bf->atlases[a].height);
     printf("], \"texels\": %llu, \"covered_texels\": %llu, \"dilated_texels\": %llu, "
            "\"glg_probes\": %u, \"glg_tets\": %u, \"glg_leak_planes\": %u, "
-           "\"glg_bytes\": %llu, \"llg_probes\": 0, \"dls\": 0}\n",
+           "\"glg_bytes\": %llu, \"llg_probes\": 0, \"dls\": [",
            (unsigned long long)total, (unsigned long long)covered,
            (unsigned long long)dilated, bf->glg_probe_count, bf->glg_tet_count,
            bf->glg_plane_count, glg_bytes);
+    for (uint32_t d = 0; d < bf->dls_count; d++)
+      printf("%s{\"name\": \"%s\", \"lights\": %u, \"texels\": %u, \"probes\": %u, "
+             "\"bytes\": %llu}",
+             d ? ", " : "", bf->dls[d].name, bf->dls[d].light_count, bf->dls[d].texel_count,
+             bf->dls[d].probe_count,
+             (unsigned long long)bf->dls[d].texel_count * 28 +
+                 (unsigned long long)bf->dls[d].probe_count * 58);
+    printf("]}\n");
   } else {
     printf("%s: level %s, %lld bytes, seed %u, %u bounces\n", path, bf->level_name, bytes,
            bf->seed, bf->bounces);
@@ -316,7 +324,14 @@ static int cmd_info(int argc, char **argv)
              (double)glg_bytes / bf->glg_probe_count);
     else
       printf("  GLG: none baked\n");
-    printf("  LLG: none baked (not implemented yet); dynamic light sets: none\n");
+    printf("  LLG: none baked (not implemented yet)\n");
+    printf("  dynamic light sets: %u\n", bf->dls_count);
+    for (uint32_t d = 0; d < bf->dls_count; d++) {
+      const ub_bakefile_record *rc = &bf->dls[d];
+      printf("    %-20s %2u light(s), %8u texels, %6u GLG probes, %9llu bytes\n", rc->name,
+             rc->light_count, rc->texel_count, rc->probe_count,
+             (unsigned long long)rc->texel_count * 28 + (unsigned long long)rc->probe_count * 58);
+    }
   }
   ub_bakefile_free(bf);
   return 0;

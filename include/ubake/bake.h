@@ -52,6 +52,7 @@ typedef struct ub_bake_stats {
   uint32_t triangles, lights, emissive_triangles;
   uint32_t atlases, texels, backface_fixes;
   uint32_t glg_probes, glg_tets, glg_leak_tets;
+  uint32_t dls_sets;                     /* dynamic light sets baked */
   uint32_t bounces;                      /* indirect bounces baked */
   double bounce_energy[UB_BAKE_MAX_BOUNCES + 1]; /* Σ luminance(E) per bounce, 0 = direct */
   uint64_t rays_total, rays_gather, rays_shadow;

@@ -37,6 +37,22 @@ typedef struct ub_bakefile_atlas {
   float *normal;
 } ub_bakefile_atlas;
 
+/* A dynamic element's sparse, linear record (section DLSR): what it adds to the base when
+ * its weight is 1. Receiver indices are sorted and unique. Lightmap receivers are pixels
+ * of the atlases taken in order (pixel = Σ_{b<a} W_b·H_b + y·W_a + x), padding included;
+ * GLG receivers are probe indices. */
+typedef struct ub_bakefile_record {
+  char name[64];            /* the set's name (ubake_dls), NUL-terminated */
+  uint32_t light_count;     /* lights in the set */
+  float mean_intensity;     /* mean luminance intensity of its lights (W/sr or W/m²) */
+  uint32_t texel_count;
+  uint32_t *texel_index;    /* texel_count, < Σ W·H */
+  float *texel_sh;          /* texel_count × 12: radiance SH L1 (I_z-exact), W/(m²·sr) */
+  uint32_t probe_count;
+  uint32_t *probe_index;    /* probe_count, < glg_probe_count */
+  float *probe_sh;          /* probe_count × 27: radiance SH L2, W/(m²·sr) */
+} ub_bakefile_record;
+
 typedef struct ub_bakefile {
   char level_name[64];      /* NUL-terminated */
   uint32_t seed;
@@ -64,6 +80,10 @@ typedef struct ub_bakefile {
   uint32_t glg_plane_count;
   float *glg_planes;        /* plane × 4: unit normal, d (n·x + d = 0) */
   uint32_t *glg_plane_of;   /* tet: leak plane index or UINT32_MAX (see probes/leak.h) */
+
+  /* Dynamic light sets (section DLSR; dls_count 0 = none). */
+  uint32_t dls_count;
+  ub_bakefile_record *dls;
 } ub_bakefile;
 
 ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_log *log);

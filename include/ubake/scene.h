@@ -13,6 +13,7 @@
 #ifndef UBAKE_SCENE_H
 #define UBAKE_SCENE_H
 
+#include <stddef.h>
 #include <stdint.h>
 
 #include "ubake/error.h"
@@ -120,6 +121,13 @@ typedef struct ub_scene {
  * file and the node/accessor. Warnings (unknown ubake_* keys, skipped primitives) go to
  * log at UB_LOG_WARNING. */
 ub_result ub_scene_load(const char *path, const ub_log *log, ub_scene **out_scene);
+
+/* Same as ub_scene_load() for a whole .gltf (JSON; buffers and images as data: URIs) or
+ * .glb held in memory (data[0..size), not kept). External URIs are refused (the loader
+ * never touches the filesystem), so this is safe on untrusted bytes. name (may be NULL)
+ * is used in messages and as ub_scene.path. */
+ub_result ub_scene_load_memory(const void *data, size_t size, const char *name,
+                               const ub_log *log, ub_scene **out_scene);
 
 void ub_scene_free(ub_scene *scene);
 
