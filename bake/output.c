@@ -279,6 +279,25 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
            3 * sizeof(float));
   bf.dls_count = dls ? scene->dls_count : 0;
   bf.dls = dls;
+  bf.light_count = scene->light_count;
+  bf.lights = calloc(scene->light_count ? scene->light_count : 1, sizeof *bf.lights);
+  if (!bf.lights) {
+    r = UB_ERR_OUT_OF_MEMORY;
+    goto done;
+  }
+  for (uint32_t l = 0; l < scene->light_count; l++) {
+    const ub_light *L = &scene->lights[l];
+    ub_bakefile_light *o = &bf.lights[l];
+    o->type = (uint32_t)L->type;
+    o->cls = (uint32_t)L->cls;
+    o->dls = bf.dls_count ? L->dls : -1;
+    memcpy(o->position, L->position, sizeof o->position);
+    memcpy(o->direction, L->direction, sizeof o->direction);
+    memcpy(o->intensity, L->intensity, sizeof o->intensity);
+    o->range = L->range;
+    o->cos_inner = L->cos_inner;
+    o->cos_outer = L->cos_outer;
+  }
   if (glg && glg->mesh) {
     bf.glg_probe_count = glg->mesh->point_count;
     bf.glg_positions = glg->mesh->points;
@@ -365,5 +384,6 @@ done:
     }
   free(bf.atlases);
   free(bf.tri_albedo);
+  free(bf.lights);
   return r;
 }

@@ -42,8 +42,9 @@ static const uint8_t ub_ubk_magic[4] = {'U', 'B', 'K', 0};
 /* META, GEOM, ATLS are mandatory; GLGP (global light grid) and DLSR (dynamic light set
  * records) are optional: a reader without them still has the base lighting. */
 enum { UB_SEC_META = 0, UB_SEC_GEOM, UB_SEC_ATLS, UB_SEC_MANDATORY, UB_SEC_GLGP = UB_SEC_MANDATORY,
-       UB_SEC_DLSR, UB_SEC_KNOWN };
-static const char ub_sec_tags[UB_SEC_KNOWN][5] = {"META", "GEOM", "ATLS", "GLGP", "DLSR"};
+       UB_SEC_DLSR, UB_SEC_LITE, UB_SEC_KNOWN };
+static const char ub_sec_tags[UB_SEC_KNOWN][5] = {"META", "GEOM", "ATLS", "GLGP", "DLSR", "LITE"};
+#define UB_LITE_SIZE 60 /* bytes per light */
 #define UB_DLSR_SET_HEADER 80 /* name[64], light count, mean intensity, texels, probes */
 #define UB_GLG_SH_FLOATS 27 /* SH L2 × RGB */
 #define UB_GLG_NO_PLANE_INDEX 0xffffffffu
@@ -225,6 +226,27 @@ static ub_result validate_dls(const ub_bakefile *bf, const char *name, const ub_
   return UB_OK;
 }
 
+static ub_result validate_lights(const ub_bakefile *bf, const char *name, const ub_log *log)
+{
+  for (uint32_t l = 0; l < bf->light_count; l++) {
+    const ub_bakefile_light *L = &bf->lights[l];
+    size_t bad;
+    if (L->type > 2 || L->cls > 1 || L->dls < -1 ||
+        (L->dls >= 0 && (uint32_t)L->dls >= bf->dls_count)) {
+      ubk_error(log, name, "section LITE", "light %u: type %u, class %u or set %d out of range",
+                l, L->type, L->cls, (int)L->dls);
+      return UB_ERR_INVALID_DATA;
+    }
+    if (!all_finite(L->position, 3, &bad) || !all_finite(L->direction, 3, &bad) ||
+        !all_finite(L->intensity, 3, &bad) || !isfinite(L->range) || !isfinite(L->cos_inner) ||
+        !isfinite(L->cos_outer) || L->range < 0.0f) {
+      ubk_error(log, name, "section LITE", "light %u: non-finite or negative value", l);
+      return UB_ERR_INVALID_DATA;
+    }
+  }
+  return UB_OK;
+}
+
 static ub_result validate(const ub_bakefile *bf, const char *name, const ub_log *log)
 {
   size_t bad;
@@ -297,7 +319,9 @@ static ub_result validate(const ub_bakefile *bf, const char *name, const ub_log 
     }
   }
   ub_result r = validate_glg(bf, name, log);
-  return r == UB_OK ? validate_dls(bf, name, log) : r;
+  if (r == UB_OK)
+    r = validate_dls(bf, name, log);
+  return r == UB_OK ? validate_lights(bf, name, log) : r;
 }
 
 /* ---------------------------------------------------------------------------------- */
@@ -502,6 +526,29 @@ static void wr_dlsr(ubk_writer *w, const ub_bakefile *bf)
   }
 }
 
+static void wr_lite(ubk_writer *w, const ub_bakefile *bf)
+{
+  wr_u32(w, bf->light_count);
+  wr_u32(w, 0); /* reserved */
+  for (uint32_t l = 0; l < bf->light_count; l++) {
+    const ub_bakefile_light *L = &bf->lights[l];
+    wr_u32(w, L->type);
+    wr_u32(w, L->cls);
+    wr_u32(w, (uint32_t)L->dls);
+    for (int k = 0; k < 3; k++)
+      wr_f32(w, L->position[k]);
+    for (int k = 0; k < 3; k++)
+      wr_f32(w, L->direction[k]);
+    for (int k = 0; k < 3; k++)
+      wr_f32(w, L->intensity[k]);
+    wr_f32(w, L->range);
+    wr_f32(w, L->cos_inner);
+    wr_f32(w, L->cos_outer);
+  }
+  uint64_t block = 8u + (uint64_t)UB_LITE_SIZE * bf->light_count;
+  wr_zeros(w, (size_t)(align8(block) - block), 1);
+}
+
 ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_log *log)
 {
   assert(bf && path);
@@ -542,6 +589,8 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
     order[sections++] = UB_SEC_GLGP;
   if (bf->dls_count)
     order[sections++] = UB_SEC_DLSR;
+  if (bf->light_count)
+    order[sections++] = UB_SEC_LITE;
   size_t head_size = UB_UBK_HEADER_SIZE + (size_t)sections * UB_UBK_ENTRY_SIZE;
   wr_bytes(w, head, head_size, 0);
 
@@ -563,6 +612,11 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
     wr_begin(w, &sec[UB_SEC_DLSR], ub_sec_tags[UB_SEC_DLSR], 0);
     wr_dlsr(w, bf);
     wr_end(w, &sec[UB_SEC_DLSR]);
+  }
+  if (bf->light_count) {
+    wr_begin(w, &sec[UB_SEC_LITE], ub_sec_tags[UB_SEC_LITE], 0);
+    wr_lite(w, bf);
+    wr_end(w, &sec[UB_SEC_LITE]);
   }
   wr_flush(w);
 
@@ -952,6 +1006,37 @@ static ub_result parse_dlsr(const ubk_reader *rd, const uint8_t *p, uint64_t siz
   return UB_OK;
 }
 
+static ub_result parse_lite(const ubk_reader *rd, const uint8_t *p, uint64_t size,
+                            ub_bakefile *bf)
+{
+  ubk_cursor c = {p, (size_t)size};
+  uint32_t n, reserved;
+  if (!cur_u32(&c, &n) || !cur_u32(&c, &reserved) ||
+      align8(8u + (uint64_t)UB_LITE_SIZE * n) != size) {
+    ubk_error(rd->log, rd->name, "section LITE", "size %llu does not match its light count",
+              (unsigned long long)size);
+    return UB_ERR_INVALID_DATA;
+  }
+  bf->lights = calloc_array(n, sizeof *bf->lights);
+  if (n && !bf->lights) {
+    ubk_error(rd->log, rd->name, "section LITE", "out of memory");
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  bf->light_count = n;
+  for (uint32_t l = 0; l < n; l++) {
+    ub_bakefile_light *L = &bf->lights[l];
+    uint32_t dls;
+    int ok = cur_u32(&c, &L->type) && cur_u32(&c, &L->cls) && cur_u32(&c, &dls) &&
+             cur_f32s(&c, L->position, 3) && cur_f32s(&c, L->direction, 3) &&
+             cur_f32s(&c, L->intensity, 3) && cur_f32s(&c, &L->range, 1) &&
+             cur_f32s(&c, &L->cos_inner, 1) && cur_f32s(&c, &L->cos_outer, 1);
+    assert(ok);
+    (void)ok;
+    L->dls = (int32_t)dls;
+  }
+  return UB_OK;
+}
+
 ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *name,
                                   const ub_log *log, ub_bakefile **out_bf)
 {
@@ -1083,6 +1168,8 @@ ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *nam
     r = parse_glgp(&rd, known[UB_SEC_GLGP], known_size[UB_SEC_GLGP], bf);
   if (r == UB_OK && known[UB_SEC_DLSR])
     r = parse_dlsr(&rd, known[UB_SEC_DLSR], known_size[UB_SEC_DLSR], bf);
+  if (r == UB_OK && known[UB_SEC_LITE])
+    r = parse_lite(&rd, known[UB_SEC_LITE], known_size[UB_SEC_LITE], bf);
   if (r == UB_OK)
     r = validate(bf, rd.name, log);
   if (r != UB_OK) {
@@ -1169,5 +1256,6 @@ void ub_bakefile_free(ub_bakefile *bf)
     free(bf->dls[d].probe_sh);
   }
   free(bf->dls);
+  free(bf->lights);
   free(bf);
 }

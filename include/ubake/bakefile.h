@@ -53,6 +53,16 @@ typedef struct ub_bakefile_record {
   float *probe_sh;          /* probe_count × 27: radiance SH L2, W/(m²·sr) */
 } ub_bakefile_record;
 
+/* A punctual light as the run-time sees it (section LITE): primary lights' direct light is
+ * computed at run time; static lights are listed for completeness. Units as in scene.h. */
+typedef struct ub_bakefile_light {
+  uint32_t type;        /* 0 point, 1 spot, 2 directional */
+  uint32_t cls;         /* 0 static (direct baked), 1 primary (direct at run time) */
+  int32_t dls;          /* dynamic light set index into dls[], -1 = none */
+  float position[3], direction[3], intensity[3];
+  float range, cos_inner, cos_outer;
+} ub_bakefile_light;
+
 typedef struct ub_bakefile {
   char level_name[64];      /* NUL-terminated */
   uint32_t seed;
@@ -80,6 +90,10 @@ typedef struct ub_bakefile {
   uint32_t glg_plane_count;
   float *glg_planes;        /* plane × 4: unit normal, d (n·x + d = 0) */
   uint32_t *glg_plane_of;   /* tet: leak plane index or UINT32_MAX (see probes/leak.h) */
+
+  /* Punctual lights (section LITE; light_count 0 = none). */
+  uint32_t light_count;
+  ub_bakefile_light *lights;
 
   /* Dynamic light sets (section DLSR; dls_count 0 = none). */
   uint32_t dls_count;
