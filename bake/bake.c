@@ -186,12 +186,18 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
 
   /* plan */
   stage_begin(&sc, "plan");
-  r = ub_plan_build(scene, rt, em, lm, opt, log, &plan);
+  r = ub_plan_build(scene, rt, em, lm, tm->point_count, opt, log, &plan);
   if (r != UB_OK)
     goto fail;
   stage_end(&sc, "%u pass(es), %u of %u lights in the base pass, sky %s, emissive %s",
             plan.pass_count, plan.base_lights, scene->light_count, plan.sky ? "yes" : "no",
             plan.emissive ? "yes" : "no");
+  ub_plan_print(&plan, scene, log);
+  if (opt->plan_only) {
+    stats.total_seconds = now_seconds() - t_start;
+    stats.peak_rss_kb = ub_peak_rss_kb();
+    goto fail; /* r == UB_OK: nothing is written */
+  }
 
   /* passes */
   stage_begin(&sc, "base pass");
@@ -211,7 +217,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   pd.probe_pos = tm->points;
   pd.probe_rays = plan.probe_rays;
   pd.bounces = opt->bounces;
-  pd.stop_fraction = 0.005;
+  pd.stop_fraction = plan.stop_fraction;
   pd.seed = opt->seed;
   pd.pass_id = 0;
   pd.progress = opt->progress;
@@ -231,6 +237,9 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   stats.clamped_values += base.clamped;
   stats.backface_hits = base.backface_hits;
   stats.unlit_hits = base.unlit_hits;
+  stats.rays_emissive = base.rays_emissive;
+  stats.sky_hits = base.sky_hits;
+  stats.emitter_hits = base.emitter_hits;
   stage_end(&sc, "%u bounces, %.1f M gather + %.1f M shadow rays, %.2f M rays/s",
             base.bounces, base.rays_gather * 1e-6, base.rays_shadow * 1e-6,
             stats.gather_seconds > 0 ? (base.rays_gather + base.rays_shadow) * 1e-6 /

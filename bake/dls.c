@@ -203,11 +203,12 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
       }
     double thr = lit ? UB_DLS_INFLUENCE_FRACTION * ind_sum / lit : 0.0;
     uint32_t nkt = 0, nkp = 0;
+    /* --plan all keeps every receiver (no culling), to measure what culling drops. */
     for (uint32_t t = 0; t < lm->texel_count; t++)
-      if (inf.texel_direct[t] > 0.0f || inf.texel_indirect[t] > thr)
+      if (!plan->influence_culling || inf.texel_direct[t] > 0.0f || inf.texel_indirect[t] > thr)
         kt[nkt++] = t;
     for (uint32_t q = 0; q < base->probe_count; q++)
-      if (inf.probe_direct[q] > 0.0f || inf.probe_indirect[q] > thr)
+      if (!plan->influence_culling || inf.probe_direct[q] > 0.0f || inf.probe_indirect[q] > thr)
         kp[nkp++] = q;
     ub_pass_result_free(&inf);
     if (nkt == 0 && nkp == 0) {

@@ -94,14 +94,32 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
           scene->triangle_count, scene->degenerate_count, scene->material_count,
           scene->light_count, st->emissive_triangles, scene->node_count,
           scene->has_sky ? "true" : "false");
-  fprintf(f, "  \"plan\": {\n    \"passes\": [{\"name\": \"base\", \"lights\": %u, "
+  fprintf(f, "  \"plan\": {\n    \"forced_all\": %s, \"ray_rate\": %.0f, \"doors\": 0, "
+             "\"door_passes\": 0,\n",
+          plan->forced ? "true" : "false", plan->ray_rate);
+  fprintf(f, "    \"passes\": [{\"name\": \"base\", \"lights\": %u, "
              "\"static_lights\": %u, \"primary_lights\": %u, \"sky\": %s, \"emissive\": %s, "
              "\"gather_rays\": %u, \"emissive_samples\": %u, \"shadow_samples\": %u, "
-             "\"estimated_rays\": %.0f, \"actual_rays\": %llu}],\n",
+             "\"estimated_rays\": %.0f, \"actual_rays\": %llu, \"estimated_seconds\": %.3f, "
+             "\"actual_seconds\": %.3f}",
           plan->base_lights, plan->static_lights, plan->primary_lights,
           plan->sky ? "true" : "false", plan->emissive ? "true" : "false", plan->gather_rays,
           plan->emissive_samples, plan->shadow_samples, plan->est_rays,
-          (unsigned long long)(base->rays_gather + base->rays_shadow));
+          (unsigned long long)(base->rays_gather + base->rays_shadow),
+          plan->est_rays / plan->ray_rate, st->gather_seconds);
+  for (uint32_t d = 0; d < scene->dls_count; d++) {
+    fprintf(f, ", {\"name\": ");
+    char nm[80];
+    snprintf(nm, sizeof nm, "dls %s", scene->dls_names[d]);
+    json_str(f, nm);
+    fprintf(f, ", \"estimated_rays\": %.0f, \"skipped\": %s}", plan->dls_est_rays[d],
+            plan->dls_est_rays[d] > 0 ? "false" : "true");
+  }
+  fprintf(f, "],\n");
+  fprintf(f, "    \"effect_counters\": {\"emissive_shadow_rays\": %llu, \"sky_gather_hits\": "
+             "%llu, \"emitter_gather_hits\": %llu, \"dls_passes\": %u, \"door_passes\": 0},\n",
+          (unsigned long long)st->rays_emissive, (unsigned long long)st->sky_hits,
+          (unsigned long long)st->emitter_hits, st->dls_sets);
   fprintf(f, "    \"dls\": {\"sets\": %u, \"baked\": %u, \"reach_nothing\": %u, "
              "\"influence_rays\": %llu, \"influence_seconds\": %.4f, \"full_rays\": %llu, "
              "\"full_seconds\": %.4f, \"records\": [",

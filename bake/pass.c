@@ -45,6 +45,7 @@ typedef struct pass_ctx {
   recv_set sets[2];           /* 0: texels, 1: probes */
   uint32_t bounce;
   _Atomic uint64_t rays_gather, rays_shadow, clamped, backface, unlit, misses;
+  _Atomic uint64_t rays_emissive, sky_hits, emitter_hits;
   _Atomic uint32_t blocks_done;
   _Atomic int cancelled;
 } pass_ctx;
@@ -142,6 +143,7 @@ static inline double gather_pdf(const float *nrm, const float w[3])
 typedef struct shadow_rec {
   uint32_t recv;    /* local index in block */
   uint8_t primary;  /* 1 = counts only toward the next bounce's source */
+  uint8_t emissive; /* an emissive-triangle sample (counted) */
   float dir[3];
   float e[3];       /* weights applied: SH gets e·Y(dir), I_z gets e·cos */
   float cos;
@@ -194,6 +196,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
         shadow_rec *sr = &rec[n];
         sr->recv = i;
         sr->primary = L->cls == UB_LIGHT_PRIMARY;
+        sr->emissive = 0;
         memcpy(sr->dir, dir, sizeof dir);
         for (int ch = 0; ch < 3; ch++)
           sr->e[ch] = e[ch] / (float)ns;
@@ -228,6 +231,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
       shadow_rec *sr = &rec[n];
       sr->recv = i;
       sr->primary = 0;
+      sr->emissive = 1;
       memcpy(sr->dir, w, sizeof w);
       for (int ch = 0; ch < 3; ch++)
         sr->e[ch] = (float)(le[ch] / denom);
@@ -246,6 +250,10 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   }
   ub_rt_occluded(d->rt, rays, (uint32_t)n, occ);
   atomic_fetch_add(&c->rays_shadow, n);
+  uint64_t nem = 0;
+  for (size_t j = 0; j < n; j++)
+    nem += rec[j].emissive;
+  atomic_fetch_add(&c->rays_emissive, nem);
   for (size_t j = 0; j < n; j++) {
     if (occ[j])
       continue;
@@ -340,7 +348,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   for (size_t j = 0; j < n; j++)
     bucket[order[j]] = (uint32_t)j;
 
-  uint64_t backface = 0, unlit = 0, clamped = 0, misses = 0;
+  uint64_t backface = 0, unlit = 0, clamped = 0, misses = 0, sky_hits = 0, emitter_hits = 0;
   uint32_t ne = (d->emissive && d->emitters) ? d->emitters->count : 0;
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
@@ -359,10 +367,12 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
       double wt = 1.0 / (N * pdf); /* plain estimator: L·f/(N·pdf) */
       if (h->tri == UB_RT_MISS) {
         misses++;
-        if (c->bounce == 0 && d->sky)
+        if (c->bounce == 0 && d->sky) {
           memcpy(L, s->sky, sizeof L);
-        else
+          sky_hits++;
+        } else {
           continue;
+        }
       } else {
         int front = dot3(h->ng, ray->dir) < 0.0f;
         if (c->bounce == 0) {
@@ -380,6 +390,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
           double pdf_sa = (double)p_tri / em->area[ei] * h->t * h->t / ce;
           wt = 1.0 / (d->emissive_samples * pdf_sa + N * pdf);
           memcpy(L, s->materials[s->tri_material[h->tri]].emission, sizeof L);
+          emitter_hits++;
         } else {
           if (!front) {
             backface++;
@@ -418,6 +429,8 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   atomic_fetch_add(&c->unlit, unlit);
   atomic_fetch_add(&c->clamped, clamped);
   atomic_fetch_add(&c->misses, misses);
+  atomic_fetch_add(&c->sky_hits, sky_hits);
+  atomic_fetch_add(&c->emitter_hits, emitter_hits);
   free(rays);
   free(sorted);
   free(hits);
@@ -712,6 +725,9 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   out->backface_hits = atomic_load(&c.backface);
   out->unlit_hits = atomic_load(&c.unlit);
   out->misses = atomic_load(&c.misses);
+  out->rays_emissive = atomic_load(&c.rays_emissive);
+  out->sky_hits = atomic_load(&c.sky_hits);
+  out->emitter_hits = atomic_load(&c.emitter_hits);
 
 done:
   if (res != UB_OK)

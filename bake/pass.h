@@ -71,6 +71,9 @@ typedef struct ub_pass_result {
   uint64_t rays_gather, rays_shadow;
   uint64_t clamped, backface_hits, unlit_hits;
   uint64_t misses;               /* gather rays that left the level */
+  /* Effect counters (issue: simulate only what the scene calls for): shadow rays toward
+   * emissive triangles, gather rays that added sky light or hit an emitter. */
+  uint64_t rays_emissive, sky_hits, emitter_hits;
   double gather_seconds;
 } ub_pass_result;
 

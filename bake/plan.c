@@ -4,83 +4,99 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 const char *ub_light_skip_reason(ub_light_skip s)
 {
   switch (s) {
   case UB_SKIP_NONE: return "baked";
   case UB_SKIP_DARK: return "zero intensity";
-  case UB_SKIP_OUT_OF_RANGE: return "reaches no receiver (range/cone)";
+  case UB_SKIP_OUT_OF_RANGE: return "reaches no receiver (range, cone or facing)";
   case UB_SKIP_IN_DLS: return "baked in its dynamic light set's pass";
   }
   return "?";
 }
 
-/* Does any receiver lie where the light can shine (range sphere, spot cone, front side)? */
-static int light_reaches(const ub_light *L, const ub_lightmap *lm)
+/* Fraction of receivers where the light can shine (range sphere, spot cone, front side),
+ * ignoring occlusion: an upper bound of what the light reaches. */
+static double light_reach_fraction(const ub_light *L, const ub_lightmap *lm, int any)
 {
+  uint64_t n = 0;
   for (uint32_t t = 0; t < lm->texel_count; t++) {
     const float *p = lm->texel_pos + 3 * (size_t)t;
-    const float *n = lm->texel_normal + 3 * (size_t)t;
+    const float *nn = lm->texel_normal + 3 * (size_t)t;
     float dir[3], dist, e[3];
     if (!ub_light_incident(L, p, dir, &dist, e))
       continue;
-    if (dir[0] * n[0] + dir[1] * n[1] + dir[2] * n[2] > 0.0f)
-      return 1;
+    if (dir[0] * nn[0] + dir[1] * nn[1] + dir[2] * nn[2] > 0.0f) {
+      n++;
+      if (any)
+        break;
+    }
   }
-  return 0;
+  return lm->texel_count ? (double)n / lm->texel_count : 0.0;
+}
+
+static double now_s(void)
+{
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* Rays per second of this level's scene on this machine: a short burst of cosine rays
+ * from texel sample points, all threads. Used only to turn planned rays into seconds. */
+static double measure_ray_rate(const ub_rt *rt, const ub_lightmap *lm)
+{
+  if (lm->texel_count == 0)
+    return 1e6;
+  const uint32_t per = 4096, chunks = 16;
+  double t0 = now_s();
+#pragma omp parallel for schedule(dynamic, 1)
+  for (uint32_t c = 0; c < chunks; c++) {
+    ub_ray *rays = malloc(per * sizeof *rays);
+    ub_hit *hits = malloc(per * sizeof *hits);
+    if (rays && hits) {
+      for (uint32_t i = 0; i < per; i++) {
+        uint32_t h = ub_hash4(0x51a7, c, i, 0);
+        uint32_t t = h % lm->texel_count;
+        memcpy(rays[i].org, lm->sample_pos + ((size_t)t * UB_TEXEL_SAMPLES) * 3,
+               3 * sizeof(float));
+        ub_sample_cosine(lm->texel_normal + 3 * (size_t)t, ub_u01(ub_hash4(h, 1, 0, 0)),
+                         ub_u01(ub_hash4(h, 2, 0, 0)), rays[i].dir);
+        rays[i].tnear = 0.0f;
+        rays[i].tfar = INFINITY;
+      }
+      ub_rt_intersect(rt, rays, per, hits);
+    }
+    free(rays);
+    free(hits);
+  }
+  double dt = now_s() - t0;
+  return dt > 0 ? (double)per * chunks / dt : 1e6;
 }
 
 ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitters *em,
-                        const ub_lightmap *lm, const ub_bake_options *opt, const ub_log *log,
-                        ub_plan *out)
+                        const ub_lightmap *lm, uint32_t probe_count,
+                        const ub_bake_options *opt, const ub_log *log, ub_plan *out)
 {
-  (void)rt;
+  (void)log; /* the plan is printed by ub_plan_print */
   memset(out, 0, sizeof *out);
+  int all = opt->plan_all;
+  out->forced = all;
   size_t nl = scene->light_count ? scene->light_count : 1;
   out->base_light_enabled = calloc(nl, 1);
   out->light_skip = calloc(nl, 1);
   out->dls_light_reaches = calloc(nl, 1);
+  out->light_reach = calloc(nl, sizeof *out->light_reach);
   uint8_t *set_reaches = calloc(scene->dls_count ? scene->dls_count : 1, 1);
-  if (!out->base_light_enabled || !out->light_skip || !out->dls_light_reaches || !set_reaches) {
+  out->dls_est_rays = calloc(scene->dls_count ? scene->dls_count : 1, sizeof(double));
+  if (!out->base_light_enabled || !out->light_skip || !out->dls_light_reaches ||
+      !out->light_reach || !set_reaches || !out->dls_est_rays) {
     free(set_reaches);
     ub_plan_free(out);
     return UB_ERR_OUT_OF_MEMORY;
   }
-  for (uint32_t l = 0; l < scene->light_count; l++) {
-    const ub_light *L = &scene->lights[l];
-    ub_light_skip skip = UB_SKIP_NONE;
-    if (!(L->intensity[0] > 0.0f || L->intensity[1] > 0.0f || L->intensity[2] > 0.0f))
-      skip = UB_SKIP_DARK;
-    else if (!light_reaches(L, lm))
-      skip = UB_SKIP_OUT_OF_RANGE;
-    else if (L->dls >= 0)
-      skip = UB_SKIP_IN_DLS;
-    if (L->dls >= 0) {
-      out->dls_lights++;
-      if (skip == UB_SKIP_IN_DLS) {
-        out->dls_light_reaches[l] = 1;
-        set_reaches[L->dls] = 1;
-      }
-    }
-    out->light_skip[l] = (uint8_t)skip;
-    if (skip == UB_SKIP_NONE) {
-      out->base_light_enabled[l] = 1;
-      out->base_lights++;
-      if (L->cls == UB_LIGHT_PRIMARY)
-        out->primary_lights++;
-      else
-        out->static_lights++;
-    } else if (skip != UB_SKIP_IN_DLS) {
-      ub_log_printf(log, UB_LOG_INFO, "  plan: light %u (node %d) skipped: %s", l, L->node,
-                    ub_light_skip_reason(skip));
-    }
-  }
-  for (uint32_t d = 0; d < scene->dls_count; d++)
-    out->dls_passes += set_reaches[d];
-  free(set_reaches);
-  out->sky = scene->has_sky && (scene->sky[0] > 0 || scene->sky[1] > 0 || scene->sky[2] > 0);
-  out->emissive = em && em->count > 0;
   switch (opt->quality) {
   case UB_QUALITY_DRAFT:
     out->gather_rays = 64;
@@ -104,15 +120,107 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
   out->probe_rays = 2 * out->gather_rays;
   /* Influence passes only decide who is reached: an eighth of the rays, at least 16. */
   out->influence_rays = out->gather_rays / 8 < 16 ? 16 : out->gather_rays / 8;
-  if (!out->emissive || getenv("UB_DEBUG_NOEM"))
+
+  for (uint32_t l = 0; l < scene->light_count; l++) {
+    const ub_light *L = &scene->lights[l];
+    ub_light_skip skip = UB_SKIP_NONE;
+    int dark = !(L->intensity[0] > 0.0f || L->intensity[1] > 0.0f || L->intensity[2] > 0.0f);
+    out->light_reach[l] = dark ? 0.0f : (float)light_reach_fraction(L, lm, 0);
+    if (!all && dark)
+      skip = UB_SKIP_DARK;
+    else if (!all && out->light_reach[l] <= 0.0f)
+      skip = UB_SKIP_OUT_OF_RANGE;
+    else if (L->dls >= 0)
+      skip = UB_SKIP_IN_DLS;
+    if (L->dls >= 0) {
+      out->dls_lights++;
+      if (skip == UB_SKIP_IN_DLS) {
+        out->dls_light_reaches[l] = 1;
+        set_reaches[L->dls] = 1;
+      }
+    }
+    out->light_skip[l] = (uint8_t)skip;
+    if (skip == UB_SKIP_NONE) {
+      out->base_light_enabled[l] = 1;
+      out->base_lights++;
+      if (L->cls == UB_LIGHT_PRIMARY)
+        out->primary_lights++;
+      else
+        out->static_lights++;
+    } else if (skip != UB_SKIP_IN_DLS) {
+      out->skipped_lights++;
+    }
+  }
+  for (uint32_t d = 0; d < scene->dls_count; d++)
+    out->dls_passes += set_reaches[d];
+  out->sky = all || (scene->has_sky && (scene->sky[0] > 0 || scene->sky[1] > 0 || scene->sky[2] > 0));
+  out->emissive = em && em->count > 0;
+  if (!out->emissive)
     out->emissive_samples = 0;
+  out->stop_fraction = all ? 0.0005 : 0.005;
+  out->influence_culling = !all;
   out->pass_count = 1 + out->dls_passes;
-  double T = lm->texel_count;
+
+  /* Estimates: rays per pass, and seconds from this machine's measured ray rate. */
+  double T = lm->texel_count, P = probe_count;
+  int b = opt->bounces < 0 ? 4 : opt->bounces;
   double direct = T * ((double)out->base_lights * out->shadow_samples + out->emissive_samples +
-                       ((out->sky || out->emissive) ? out->gather_rays : 0));
-  int b = opt->bounces < 0 ? 3 : opt->bounces;
-  out->est_rays = direct + T * out->gather_rays * b;
+                       ((out->sky || out->emissive) ? out->gather_rays : 0)) +
+                  P * ((double)out->base_lights + out->emissive_samples +
+                       ((out->sky || out->emissive) ? out->probe_rays : 0));
+  /* A base pass with nothing emitting traces nothing (no bounce has a source). */
+  int base_emits = out->base_lights || out->sky || out->emissive;
+  out->est_rays = base_emits ? direct + (T * out->gather_rays + P * out->probe_rays) * b : 0.0;
+  for (uint32_t d = 0; d < scene->dls_count; d++) {
+    if (!set_reaches[d])
+      continue;
+    double reach = 0.0;
+    uint32_t nlight = 0;
+    for (uint32_t l = 0; l < scene->light_count; l++)
+      if (scene->lights[l].dls == (int32_t)d && out->dls_light_reaches[l]) {
+        reach = fmax(reach, out->light_reach[l]);
+        nlight++;
+      }
+    /* influence: direct + 2 bounces on everything; full: the reachable share. */
+    double inf = (T + P) * nlight + 2.0 * (T * out->influence_rays + P * 2 * out->influence_rays);
+    double frac = out->influence_culling ? fmin(1.0, 1.2 * reach) : 1.0;
+    double full = frac * ((T * out->shadow_samples + P) * nlight +
+                          (T * out->gather_rays + P * out->probe_rays) * b);
+    out->dls_est_rays[d] = (out->influence_culling ? inf : 0.0) + full;
+  }
+  out->ray_rate = measure_ray_rate(rt, lm);
+  free(set_reaches);
   return UB_OK;
+}
+
+void ub_plan_print(const ub_plan *plan, const ub_scene *scene, const ub_log *log)
+{
+  ub_log_printf(log, UB_LOG_INFO, "plan%s: sky %s, emissive triangles %s, %u static + %u "
+                "primary lights in the base pass, %u skipped, %u dynamic light set pass(es)",
+                plan->forced ? " (--plan all: every effect forced on)" : "",
+                plan->sky ? "yes" : "no (no sky rays)",
+                plan->emissive ? "yes" : "no (no emissive sampling)", plan->static_lights,
+                plan->primary_lights, plan->skipped_lights, plan->dls_passes);
+  ub_log_printf(log, UB_LOG_INFO, "  samples: %u gather rays/texel, %u/probe, %u emissive, %u "
+                "shadow; bounces until < %.2f%% energy; doors: none (no door pass)",
+                plan->gather_rays, plan->probe_rays, plan->emissive_samples,
+                plan->shadow_samples, 100 * plan->stop_fraction);
+  ub_log_printf(log, UB_LOG_INFO, "  pass base: est. %.1f M rays, %.1f s at %.2f M rays/s",
+                plan->est_rays * 1e-6, plan->est_rays / plan->ray_rate, plan->ray_rate * 1e-6);
+  for (uint32_t d = 0; d < scene->dls_count; d++)
+    if (plan->dls_est_rays[d] > 0)
+      ub_log_printf(log, UB_LOG_INFO, "  pass dls %s: est. %.1f M rays, %.1f s%s",
+                    scene->dls_names[d], plan->dls_est_rays[d] * 1e-6,
+                    plan->dls_est_rays[d] / plan->ray_rate,
+                    plan->influence_culling ? " (influence-culled)" : "");
+    else
+      ub_log_printf(log, UB_LOG_INFO, "  pass dls %s: skipped, its lights reach no receiver",
+                    scene->dls_names[d]);
+  for (uint32_t l = 0; l < scene->light_count; l++)
+    if (plan->light_skip[l] != UB_SKIP_NONE && plan->light_skip[l] != UB_SKIP_IN_DLS)
+      ub_log_printf(log, UB_LOG_INFO, "  light %u (%s): skipped: %s", l,
+                    scene->nodes[scene->lights[l].node].name,
+                    ub_light_skip_reason((ub_light_skip)plan->light_skip[l]));
 }
 
 void ub_plan_free(ub_plan *plan)
@@ -122,7 +230,11 @@ void ub_plan_free(ub_plan *plan)
   free(plan->base_light_enabled);
   free(plan->light_skip);
   free(plan->dls_light_reaches);
+  free(plan->light_reach);
+  free(plan->dls_est_rays);
   plan->base_light_enabled = NULL;
   plan->light_skip = NULL;
   plan->dls_light_reaches = NULL;
+  plan->light_reach = NULL;
+  plan->dls_est_rays = NULL;
 }

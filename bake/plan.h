@@ -23,23 +23,31 @@ typedef enum ub_light_skip {
 } ub_light_skip;
 
 typedef struct ub_plan {
+  int forced;                  /* --plan all: every effect on, no culling (for checking) */
   uint32_t pass_count;
   uint8_t *base_light_enabled; /* light_count */
   uint8_t *light_skip;         /* light_count: ub_light_skip */
   uint8_t *dls_light_reaches;  /* light_count: a DLS light that can reach a receiver */
-  uint32_t base_lights;
+  float *light_reach;          /* light_count: share of texels it can shine on (no occlusion) */
+  uint32_t base_lights, skipped_lights;
   uint32_t static_lights, primary_lights, dls_lights;
   int sky, emissive;
+  int influence_culling;       /* DLS full passes only over their influence region */
+  double stop_fraction;        /* a pass stops when a bounce adds less than this share */
   uint32_t gather_rays, emissive_samples, shadow_samples;
   uint32_t probe_rays;         /* full-sphere gather rays per GLG probe per bounce */
   uint32_t influence_rays;     /* gather rays per texel of a DLS influence pass */
   uint32_t dls_passes;         /* sets with at least one light that reaches a receiver */
-  double est_rays;             /* estimated rays of the base pass (direct + 3 bounces) */
+  double est_rays;             /* estimated rays of the base pass */
+  double *dls_est_rays;        /* dls_count: estimated rays per set (0 = skipped) */
+  double ray_rate;             /* measured rays/s on this level, all threads */
 } ub_plan;
 
 ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitters *em,
-                        const ub_lightmap *lm, const ub_bake_options *opt, const ub_log *log,
-                        ub_plan *out_plan);
+                        const ub_lightmap *lm, uint32_t probe_count,
+                        const ub_bake_options *opt, const ub_log *log, ub_plan *out_plan);
+/* Prints the plan, one line per pass and per skipped light with the reason. */
+void ub_plan_print(const ub_plan *plan, const ub_scene *scene, const ub_log *log);
 void ub_plan_free(ub_plan *plan);
 const char *ub_light_skip_reason(ub_light_skip s);
 

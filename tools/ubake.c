@@ -143,6 +143,10 @@ static const char *BAKE_HELP =
     "  --texel-size M          override metres per lightmap texel\n"
     "  --glg-spacing M         override metres between coarse GLG probes\n"
     "  --json FILE             write the report here instead of DIR/NAME.report.json\n"
+    "  --plan-only             print the plan (passes, skips and their reasons, estimated\n"
+    "                          rays and seconds) and stop; writes nothing\n"
+    "  --plan auto|all         auto (default): simulate only what the level calls for;\n"
+    "                          all: force every effect on, no culling (to check the plan)\n"
     "  --no-progress           no progress output\n";
 
 static int cmd_bake(int argc, char **argv)
@@ -210,6 +214,14 @@ static int cmd_bake(int argc, char **argv)
       i++;
     } else if (!strcmp(a, "--no-progress")) {
       progress = 0;
+    } else if (!strcmp(a, "--plan-only")) {
+      opt.plan_only = 1;
+    } else if (!strcmp(a, "--plan") && v) {
+      if (!strcmp(v, "all"))
+        opt.plan_all = 1;
+      else if (strcmp(v, "auto"))
+        return usage_error("bake", "--plan takes auto or all");
+      i++;
     } else if (a[0] == '-') {
       return usage_error("bake", "unknown option or missing value");
     } else if (!level) {
@@ -220,7 +232,7 @@ static int cmd_bake(int argc, char **argv)
   }
   if (!level)
     return usage_error("bake", "no level given");
-  if (!opt.out_dir)
+  if (!opt.out_dir && !opt.plan_only)
     return usage_error("bake", "no output folder given (-o DIR)");
   cli_log_state ls = {0, 0, 0};
   ub_log log = {cli_log, &ls};
@@ -234,6 +246,8 @@ static int cmd_bake(int argc, char **argv)
     fputs("\r\033[K", stderr);
   if (r != UB_OK)
     return fail(&ls, r, level);
+  if (opt.plan_only)
+    return 0;
   double rps = st.gather_seconds > 0 ? (st.rays_gather + st.rays_shadow) / st.gather_seconds : 0;
   printf("baked %s: %u texels, %u bounces, %.2f M rays at %.2f M rays/s, %.2f s, peak RSS "
          "%.1f MB, %llu clamped\n",

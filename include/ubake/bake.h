@@ -40,6 +40,8 @@ typedef struct ub_bake_options {
   uint32_t gather_rays;   /* 0 = from quality: rays per receiver per bounce */
   float texel_size;       /* 0 = from the level (metres per texel) */
   float glg_spacing;      /* 0 = from the level (metres between coarse GLG probes) */
+  int plan_all;           /* 1: force every effect on, no culling (to check the plan) */
+  int plan_only;          /* 1: stop after printing the plan; write nothing */
   ub_progress_fn progress;
   void *progress_user;
 } ub_bake_options;
@@ -53,6 +55,8 @@ typedef struct ub_bake_stats {
   uint32_t atlases, texels, backface_fixes;
   uint32_t glg_probes, glg_tets, glg_leak_tets;
   uint32_t dls_sets;                     /* dynamic light sets baked */
+  uint32_t door_passes;                  /* door passes run (0: no door code ran) */
+  uint64_t rays_emissive, sky_hits, emitter_hits; /* effect counters of the base pass */
   uint32_t bounces;                      /* indirect bounces baked */
   double bounce_energy[UB_BAKE_MAX_BOUNCES + 1]; /* Σ luminance(E) per bounce, 0 = direct */
   uint64_t rays_total, rays_gather, rays_shadow;
