@@ -473,3 +473,24 @@ ub_result ub_runtime_query_lightmap(const ub_runtime *rt, const float p[3], cons
     *out_distance = (float)sqrt(best_d2);
   return UB_OK;
 }
+
+ub_result ub_runtime_lightmap_at(const ub_runtime *rt, uint32_t tri, float b1, float b2,
+                                 const float n[3], float out_rgb[3])
+{
+  assert(rt && n && out_rgb);
+  const ub_bakefile *bf = rt->bf;
+  float nn[3];
+  if (tri >= bf->triangle_count || bf->tri_atlas[tri] < 0 || !isfinite(b1) ||
+      !isfinite(b2) || !normalise3(n, nn))
+    return UB_ERR_INVALID_ARGUMENT;
+  const float *uv = &bf->tri_uv[(size_t)tri * 6];
+  float b0 = 1.0f - b1 - b2;
+  float u = b0 * uv[0] + b1 * uv[2] + b2 * uv[4];
+  float v = b0 * uv[1] + b1 * uv[3] + b2 * uv[5];
+  ub_ahd ahd;
+  if (sample_ahd(rt, (uint32_t)bf->tri_atlas[tri], u, v, &ahd))
+    ub_ahd_irradiance(&ahd, nn, out_rgb);
+  else
+    out_rgb[0] = out_rgb[1] = out_rgb[2] = 0.0f;
+  return UB_OK;
+}

@@ -66,6 +66,16 @@ struct ub_glg;
 /* The run-time GLG (for resampling into LLG boxes, see ubake/glg.h), or NULL. */
 const struct ub_glg *ub_runtime_glg(const ub_runtime *rt);
 
+/* Baked irradiance (W/m², linear RGB) on lightmapped triangle tri at barycentrics (b1, b2)
+ * of its corners 1 and 2 (corner 0: 1 − b1 − b2), for the unit normal n (normalised
+ * here): the AHD lightmap filtered bilinearly at the interpolated lightmap UV, as
+ * ub_runtime_query_lightmap() does, without searching for the closest point (for
+ * renderers that already know the surface point). UB_ERR_INVALID_ARGUMENT for tri out of
+ * range or not lightmapped (tri_atlas < 0), non-finite barycentrics or a zero /
+ * non-finite n (outputs untouched). */
+ub_result ub_runtime_lightmap_at(const ub_runtime *rt, uint32_t tri, float b1, float b2,
+                                 const float n[3], float out_rgb[3]);
+
 #ifdef __cplusplus
 }
 #endif
