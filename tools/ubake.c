@@ -512,6 +512,267 @@ static int cmd_reference(int argc, char **argv)
   return 0;
 }
 
+/* ---- render ------------------------------------------------------------------------ */
+
+#include <stb_image_write.h> /* implementation in libstb: no STB_IMAGE_WRITE_IMPLEMENTATION */
+
+#include "ubake/render.h"
+
+static const char *RENDER_HELP =
+    "usage: ubake render DIR/NAME.ubk --camera EX,EY,EZ,TX,TY,TZ,FOVY -o OUT.png\n"
+    "          [--size WxH] [--exposure EV] [--samples N] [--dls NAME=W|R,G,B ...]\n"
+    "Renders the level from a camera as the run-time shows it: lightmaps on lightmapped\n"
+    "geometry, the global light grid on the rest, plus the run-time direct light of the\n"
+    "primary lights (with shadows), under the given state. Back faces are black.\n"
+    "  --camera ...        eye X,Y,Z, target X,Y,Z (metres, Y up), vertical field of view\n"
+    "                      in degrees (7 numbers)\n"
+    "  --size WxH          image size in pixels (default 960x540)\n"
+    "  --exposure EV       fixed exposure: pixels × 2^EV before the filmic curve (default:\n"
+    "                      automatic from the 95th percentile of luminance; the EV used is\n"
+    "                      printed, pass it back to compare states at the same exposure)\n"
+    "  --samples N         N×N rays per pixel (default 1)\n"
+    "  --dls NAME=W        weight (or R,G,B tint) of a dynamic light set (default 1)\n";
+
+static int cmd_render(int argc, char **argv)
+{
+  const char *path = NULL, *out_png = NULL;
+  ub_render_params rp;
+  ub_render_params_default(&rp);
+  int have_camera = 0, auto_exposure = 1;
+  float ev = 0.0f;
+  int dls_arg_count = 0;
+  const char **dls_args = calloc((size_t)argc + 1, sizeof *dls_args);
+  if (!dls_args) {
+    fprintf(stderr, "ubake: out of memory\n");
+    return 1;
+  }
+  for (int i = 0; i < argc; i++) {
+    const char *a = argv[i];
+    const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+    char *end;
+    if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
+      fputs(RENDER_HELP, stdout);
+      free(dls_args);
+      return 0;
+    } else if (!strcmp(a, "--camera") && v) {
+      float c[7];
+      const char *s = v;
+      int ok = 1;
+      for (int k = 0; k < 7 && ok; k++) {
+        errno = 0;
+        double x = strtod(s, &end);
+        ok = end != s && !errno && isfinite(x) && (k == 6 ? *end == '\0' : *end == ',');
+        c[k] = (float)x;
+        s = end + 1;
+      }
+      if (!ok) {
+        free(dls_args);
+        return usage_error("render", "--camera takes EX,EY,EZ,TX,TY,TZ,FOVY (7 numbers)");
+      }
+      memcpy(rp.eye, c, sizeof rp.eye);
+      memcpy(rp.target, c + 3, sizeof rp.target);
+      rp.fovy_degrees = c[6];
+      have_camera = 1;
+      i++;
+    } else if ((!strcmp(a, "-o") || !strcmp(a, "--output")) && v) {
+      out_png = v;
+      i++;
+    } else if (!strcmp(a, "--size") && v) {
+      errno = 0;
+      unsigned long w = strtoul(v, &end, 10), h = 0;
+      int ok = end != v && (*end == 'x' || *end == 'X') && !errno;
+      if (ok) {
+        const char *s = end + 1;
+        h = strtoul(s, &end, 10);
+        ok = end != s && *end == '\0' && !errno;
+      }
+      if (!ok || w < 1 || h < 1 || w > 16384 || h > 16384) {
+        free(dls_args);
+        return usage_error("render", "--size takes WxH, each 1..16384");
+      }
+      rp.width = (uint32_t)w;
+      rp.height = (uint32_t)h;
+      i++;
+    } else if (!strcmp(a, "--exposure") && v) {
+      errno = 0;
+      double x = strtod(v, &end);
+      if (end == v || *end || errno || !isfinite(x) || fabs(x) > 64.0) {
+        free(dls_args);
+        return usage_error("render", "--exposure takes an EV in [-64, 64]");
+      }
+      ev = (float)x;
+      auto_exposure = 0;
+      i++;
+    } else if (!strcmp(a, "--samples") && v) {
+      long n;
+      if (!parse_uint(v, 16, &n) || n < 1) {
+        free(dls_args);
+        return usage_error("render", "--samples takes 1..16");
+      }
+      rp.samples = (uint32_t)n;
+      i++;
+    } else if (!strcmp(a, "--dls") && v) {
+      dls_args[dls_arg_count++] = v;
+      i++;
+    } else if ((!strcmp(a, "--door") || !strcmp(a, "--object")) && v) {
+      fprintf(stderr, "ubake: render: %s: doors and show/hide objects are not baked yet\n", a);
+      free(dls_args);
+      return 1;
+    } else if (a[0] == '-') {
+      free(dls_args);
+      return usage_error("render", "unknown option or missing value");
+    } else {
+      path = a;
+    }
+  }
+  if (!path || !have_camera || !out_png) {
+    free(dls_args);
+    return usage_error("render", "need DIR/NAME.ubk, --camera and -o OUT.png");
+  }
+  cli_log_state ls = {0, 0, 0};
+  ub_log log = {cli_log, &ls};
+  if (ub_render_params_check(&rp, 0, &log) != UB_OK) {
+    free(dls_args);
+    return 1;
+  }
+  double t0 = now_s();
+  ub_runtime *rt = NULL;
+  ub_result r = ub_runtime_load(path, &log, &rt);
+  if (r != UB_OK) {
+    free(dls_args);
+    return fail(&ls, r, path);
+  }
+  const ub_bakefile *bf = ub_runtime_bakefile(rt);
+  uint32_t triangles = bf->triangle_count;
+  double t_load = now_s() - t0;
+
+  /* State: one RGB weight per dynamic light set, by name; default 1 (as baked). */
+  float *weights = malloc(((size_t)bf->dls_count + 1) * 3 * sizeof *weights);
+  int bad = weights == NULL;
+  for (uint32_t s = 0; !bad && s < bf->dls_count * 3; s++)
+    weights[s] = 1.0f;
+  for (int k = 0; !bad && k < dls_arg_count; k++) {
+    const char *v = dls_args[k], *eq = strchr(v, '=');
+    float rgb[3];
+    int ok = eq && eq != v;
+    if (ok) {
+      errno = 0;
+      char *end;
+      double w = strtod(eq + 1, &end);
+      if (end != eq + 1 && *end == '\0' && !errno && isfinite(w))
+        rgb[0] = rgb[1] = rgb[2] = (float)w;
+      else
+        ok = parse_vec3(eq + 1, rgb);
+      ok = ok && rgb[0] >= 0.0f && rgb[1] >= 0.0f && rgb[2] >= 0.0f;
+    }
+    if (!ok) {
+      usage_error("render", "--dls takes NAME=W or NAME=R,G,B (weights >= 0)");
+      bad = 1;
+      break;
+    }
+    uint32_t s = 0;
+    while (s < bf->dls_count &&
+           !(strlen(bf->dls[s].name) == (size_t)(eq - v) && !strncmp(bf->dls[s].name, v, (size_t)(eq - v))))
+      s++;
+    if (s == bf->dls_count) {
+      fprintf(stderr, "ubake: %s: no dynamic light set named '%.*s' in this file\n", path,
+              (int)(eq - v), v);
+      bad = 1;
+      break;
+    }
+    memcpy(&weights[(size_t)s * 3], rgb, sizeof rgb);
+  }
+  free(dls_args);
+  if (bad) {
+    if (!weights)
+      fprintf(stderr, "ubake: out of memory\n");
+    free(weights);
+    ub_runtime_free(rt);
+    return 1;
+  }
+  /* The baked indirect part of each set (its records blended into the lightmaps/GLG).
+   * RUNTIME-DLS CALL SITE: ub_runtime_set_dls(rt, s, &weights[s * 3]) for every set s, then
+   * ub_runtime_update(rt, NULL), once the run-time blends DLS records. */
+  if (r != UB_OK) {
+    free(weights);
+    ub_runtime_free(rt);
+    return fail(&ls, r, path);
+  }
+  rp.dls_weights = weights;
+
+  double t1 = now_s();
+  ub_renderer *ren = NULL;
+  r = ub_renderer_create(rt, &log, &ren);
+  if (r != UB_OK) {
+    free(weights);
+    ub_runtime_free(rt);
+    return fail(&ls, r, path);
+  }
+  double t_bvh = now_s() - t1;
+  size_t npix = (size_t)rp.width * rp.height;
+  float *rgb = malloc(npix * 3 * sizeof *rgb);
+  uint8_t *srgb = malloc(npix * 3);
+  if (!rgb || !srgb) {
+    fprintf(stderr, "ubake: out of memory for a %ux%u image\n", rp.width, rp.height);
+    free(rgb);
+    free(srgb);
+    ub_renderer_free(ren);
+    free(weights);
+    ub_runtime_free(rt);
+    return 1;
+  }
+  /* Bands of rows, one per task: the renderer is thread safe over disjoint rows. */
+  double t2 = now_s();
+  const uint32_t band = 4;
+  long bands = (long)((rp.height + band - 1) / band);
+  int render_failed = 0;
+#pragma omp parallel for schedule(dynamic, 1)
+  for (long b = 0; b < bands; b++) {
+    uint32_t y0 = (uint32_t)b * band, y1 = y0 + band < rp.height ? y0 + band : rp.height;
+    if (ub_renderer_render(ren, &rp, y0, y1, rgb, NULL) != UB_OK) {
+#pragma omp atomic write
+      render_failed = 1;
+    }
+  }
+  double t_render = now_s() - t2;
+  float ev_used = ev;
+  r = render_failed ? UB_ERR_INVALID_ARGUMENT
+                    : ub_render_tonemap(rgb, rp.width, rp.height, auto_exposure, ev, srgb, &ev_used);
+  uint32_t nodes = 0, depth = 0;
+  ub_bvh_stats(ub_renderer_bvh(ren), &nodes, &depth);
+  ub_renderer_free(ren);
+  free(weights);
+  ub_runtime_free(rt);
+  free(rgb);
+  if (r != UB_OK) {
+    free(srgb);
+    return fail(&ls, r, path);
+  }
+  size_t plen = strlen(out_png);
+  char *tmp = malloc(plen + 5);
+  int wrote = 0;
+  if (tmp) {
+    memcpy(tmp, out_png, plen);
+    memcpy(tmp + plen, ".tmp", 5);
+    wrote = stbi_write_png(tmp, (int)rp.width, (int)rp.height, 3, srgb, (int)rp.width * 3) != 0;
+    if (wrote && rename(tmp, out_png) != 0)
+      wrote = 0;
+    if (!wrote)
+      remove(tmp);
+  }
+  free(tmp);
+  free(srgb);
+  if (!wrote) {
+    fprintf(stderr, "ubake: %s: cannot write the PNG (%s)\n", out_png, strerror(errno));
+    return 1;
+  }
+  printf("rendered %s: %ux%u, %u ray(s)/pixel, exposure %.2f EV (%s)\n", out_png, rp.width,
+         rp.height, rp.samples * rp.samples, ev_used, auto_exposure ? "auto" : "fixed");
+  printf("load %.2f s, BVH %.3f s (%u triangles, %u nodes, depth %u), render %.3f s\n", t_load,
+         t_bvh, triangles, nodes, depth, t_render);
+  return 0;
+}
+
 /* ---- main -------------------------------------------------------------------------- */
 
 static const char *MAIN_HELP =
@@ -519,7 +780,8 @@ static const char *MAIN_HELP =
     "  bake       bake a glTF level into DIR/NAME.ubk + lightmaps + report\n"
     "  info       describe a .ubk\n"
     "  query      baked irradiance at a point and normal\n"
-    "  reference  path-traced ground truth at a point and normal\n";
+    "  reference  path-traced ground truth at a point and normal\n"
+    "  render     PNG of the level from a camera, as the run-time shows it\n";
 
 int main(int argc, char **argv)
 {
@@ -537,6 +799,8 @@ int main(int argc, char **argv)
     return cmd_query(argc - 2, argv + 2);
   if (!strcmp(cmd, "reference"))
     return cmd_reference(argc - 2, argv + 2);
+  if (!strcmp(cmd, "render"))
+    return cmd_render(argc - 2, argv + 2);
   fprintf(stderr, "ubake: unknown command '%s' (see 'ubake --help')\n", cmd);
   return 1;
 }
