@@ -22,6 +22,7 @@ static const double UB_Y1 = 0.488602512;
 
 /* One kind of receiver, seen uniformly by the direct and gather kernels. */
 typedef struct recv_set {
+  int texels;            /* 1: lightmap texels (footprints known), 0: probes */
   uint32_t count;
   const uint32_t *index; /* active receivers (a pass's influence subset), NULL = all */
   uint32_t active;       /* receivers processed: index ? its length : count */
@@ -34,6 +35,7 @@ typedef struct recv_set {
   double *acc_sh;        /* count × nsh × 3, this bounce */
   double *acc_iz;        /* count × 3 (normal receivers), this bounce, stored result */
   double *acc_src;       /* count × 3, bounce 0 only: irradiance incl. primary lights */
+  double *acc_src_np;    /* count × 3, bounce 0 only: its non-punctual part (sky, emitters) */
 } recv_set;
 
 typedef struct pass_ctx {
@@ -43,6 +45,8 @@ typedef struct pass_ctx {
   int32_t *emitter_of;        /* triangle → emitter index, -1 (bounce 0 MIS) */
   float **img;                /* per atlas: w×h×4 (irradiance rgb, filled) of bounce k-1 */
   recv_set sets[2];           /* 0: texels, 1: probes */
+  int nee;                    /* bounce 1 takes punctual light at its hits by next-event
+                                 estimation instead of reading the bounce-0 lightmap */
   uint32_t bounce;
   _Atomic uint64_t rays_gather, rays_shadow, clamped, backface, unlit, misses;
   _Atomic uint64_t rays_emissive, sky_hits, emitter_hits;
@@ -140,6 +144,52 @@ static inline double gather_pdf(const float *nrm, const float w[3])
   return nrm ? fmax(0.0, dot3(nrm, w)) / M_PI : 1.0 / (4.0 * M_PI);
 }
 
+/* Point lights closer than this many texel widths get their irradiance averaged over the
+ * texel's footprint with UB_NEAR_SAMPLES points instead of the 4 fixed sample points: a
+ * 1/d² peak under a lamp is badly point-sampled (a lamp 10 cm under a ceiling with 25 cm
+ * texels loses ~30% of the power the ceiling receives, and with it the indirect light). */
+#define UB_NEAR_TEXELS 6.0f
+#define UB_NEAR_SAMPLES 16
+
+/* World point of texel-space position (x + fx, y + fy) on the plane of the texel's owning
+ * triangle (affine UV → world map; points past the triangle's edges stay in its plane). */
+static int texel_plane_point(const pass_ctx *c, uint32_t t, float fx, float fy, float out[3])
+{
+  const ub_lightmap *lm = c->lm;
+  const ub_scene *s = c->s;
+  uint32_t tri = lm->texel_tri[t];
+  const ub_atlas *at = &lm->atlases[lm->texel_atlas[t]];
+  const float *uv = lm->tri_uv + 6 * (size_t)tri;
+  float qu = ((float)lm->texel_xy[2 * t] + fx) / (float)at->width;
+  float qv = ((float)lm->texel_xy[2 * t + 1] + fy) / (float)at->height;
+  float e1u = uv[2] - uv[0], e1v = uv[3] - uv[1], e2u = uv[4] - uv[0], e2v = uv[5] - uv[1];
+  float det = e1u * e2v - e2u * e1v;
+  if (!(fabsf(det) > 1e-20f))
+    return 0;
+  float du = qu - uv[0], dv = qv - uv[1];
+  float b1 = (du * e2v - e2u * dv) / det, b2 = (e1u * dv - du * e1v) / det;
+  const float *p0 = s->positions + 3 * s->indices[3 * tri];
+  const float *p1 = s->positions + 3 * s->indices[3 * tri + 1];
+  const float *p2 = s->positions + 3 * s->indices[3 * tri + 2];
+  for (int k = 0; k < 3; k++)
+    out[k] = p0[k] + b1 * (p1[k] - p0[k]) + b2 * (p2[k] - p0[k]);
+  return isfinite(out[0]) && isfinite(out[1]) && isfinite(out[2]);
+}
+
+/* World width of a texel (metres) from its owning triangle's world/UV area ratio. */
+static float texel_world_size(const pass_ctx *c, uint32_t t)
+{
+  float a[3], b[3], o[3];
+  if (!texel_plane_point(c, t, 0.0f, 0.0f, o) || !texel_plane_point(c, t, 1.0f, 0.0f, a) ||
+      !texel_plane_point(c, t, 0.0f, 1.0f, b))
+    return 0.0f;
+  float da = sqrtf((a[0] - o[0]) * (a[0] - o[0]) + (a[1] - o[1]) * (a[1] - o[1]) +
+                   (a[2] - o[2]) * (a[2] - o[2]));
+  float db = sqrtf((b[0] - o[0]) * (b[0] - o[0]) + (b[1] - o[1]) * (b[1] - o[1]) +
+                   (b[2] - o[2]) * (b[2] - o[2]));
+  return fmaxf(da, db);
+}
+
 typedef struct shadow_rec {
   uint32_t recv;    /* local index in block */
   uint8_t primary;  /* 1 = counts only toward the next bounce's source */
@@ -161,7 +211,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   if (ns > rs->spr)
     ns = rs->spr;
   uint32_t ne = (d->emissive && d->emitters && d->emitters->count) ? d->emissive_samples : 0;
-  size_t per = (size_t)nlights * ns + ne;
+  size_t per = (size_t)nlights * (rs->texels && ns < UB_NEAR_SAMPLES ? UB_NEAR_SAMPLES : ns) + ne;
   if (per == 0)
     return;
   size_t cap = per * nr;
@@ -181,12 +231,40 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
+    float tw = -1.0f; /* texel width, computed on first need */
     for (uint32_t l = 0; l < s->light_count; l++) {
       if (!d->light_enabled[l])
         continue;
       const ub_light *L = &s->lights[l];
-      for (uint32_t k = 0; k < ns; k++) {
-        const float *p = rs->samples + ((size_t)r * rs->spr + k) * 3;
+      /* Near a point or spot light: average over the texel's footprint. */
+      uint32_t nk = ns;
+      int near = 0;
+      if (rs->texels && L->type != UB_LIGHT_DIRECTIONAL) {
+        const float *tp = c->lm->texel_pos + 3 * (size_t)r;
+        float dl = sqrtf((L->position[0] - tp[0]) * (L->position[0] - tp[0]) +
+                         (L->position[1] - tp[1]) * (L->position[1] - tp[1]) +
+                         (L->position[2] - tp[2]) * (L->position[2] - tp[2]));
+        if (tw < 0.0f)
+          tw = texel_world_size(c, r);
+        if (tw > 0.0f && dl < UB_NEAR_TEXELS * tw) {
+          near = 1;
+          nk = UB_NEAR_SAMPLES;
+        }
+      }
+      for (uint32_t k = 0; k < nk; k++) {
+        const float *p = rs->samples + ((size_t)r * rs->spr + k % rs->spr) * 3;
+        float pn[3];
+        if (near) {
+          /* Stratified 4×4 jittered positions over the whole texel, on its plane. */
+          uint32_t h = ub_hash4(d->seed, d->pass_id * 0x10000u + 0x4000u + l, r, k);
+          float fx = ((float)(k % 4) + ub_u01(h)) * 0.25f;
+          float fy = ((float)(k / 4) + ub_u01(ub_hash4(h, 3, 0, 0))) * 0.25f;
+          float q[3];
+          if (texel_plane_point(c, r, fx, fy, q)) {
+            ub_rt_offset_point(d->rt, q, nrm, pn);
+            p = pn;
+          }
+        }
         float dir[3], dist, e[3];
         if (!ub_light_incident(L, p, dir, &dist, e))
           continue;
@@ -199,7 +277,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
         sr->emissive = 0;
         memcpy(sr->dir, dir, sizeof dir);
         for (int ch = 0; ch < 3; ch++)
-          sr->e[ch] = e[ch] / (float)ns;
+          sr->e[ch] = e[ch] / (float)nk;
         sr->cos = cs;
         ub_ray *ray = &rays[n];
         memcpy(ray->org, p, sizeof ray->org);
@@ -262,6 +340,9 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     if (rs->acc_src)
       for (int ch = 0; ch < 3; ch++)
         rs->acc_src[3 * (size_t)r + ch] += (double)sr->e[ch] * sr->cos;
+    if (rs->acc_src_np && sr->emissive)
+      for (int ch = 0; ch < 3; ch++)
+        rs->acc_src_np[3 * (size_t)r + ch] += (double)sr->e[ch] * sr->cos;
     if (sr->primary)
       continue;
     if (rs->acc_iz)
@@ -272,6 +353,98 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   free(rays);
   free(rec);
   free(occ);
+}
+
+/* Next-event estimation at bounce-1 hits: the punctual lights' direct irradiance at each
+ * hit point, one light chosen per hit in proportion to its unoccluded irradiance there and
+ * one shadow ray. Reading it from the bounce-0 lightmap instead turns the bright, small
+ * spots next to lamps into fireflies (a gather ray rarely hits them, and then very hard).
+ * Returns per-ray outgoing radiance albedo/π·E (n × 3), or NULL (no light, no memory). */
+static float *nee_block(pass_ctx *c, const ub_ray *rays, const ub_hit *hits,
+                        const uint32_t *sorted_of, size_t n, uint32_t id)
+{
+  const ub_pass_desc *d = c->d;
+  const ub_scene *s = c->s;
+  float *nee = calloc(n * 3, sizeof *nee);
+  ub_ray *sr = malloc(n * sizeof *sr);
+  uint32_t *sj = malloc(n * sizeof *sj);
+  float *se = malloc(n * 3 * sizeof *se);
+  uint8_t *occ = malloc(n);
+  float *w = malloc((s->light_count + 1) * sizeof *w);
+  if (!nee || !sr || !sj || !se || !occ || !w) {
+    free(nee);
+    free(sr);
+    free(sj);
+    free(se);
+    free(occ);
+    free(w);
+    return NULL;
+  }
+  size_t m = 0;
+  for (size_t j = 0; j < n; j++) {
+    const ub_hit *h = &hits[sorted_of[j]];
+    const ub_ray *ray = &rays[j];
+    if (h->tri == UB_RT_MISS || dot3(h->ng, ray->dir) >= 0.0f)
+      continue;
+    float len = sqrtf(dot3(h->ng, h->ng));
+    if (!(len > 0.0f))
+      continue;
+    float hn[3] = {h->ng[0] / len, h->ng[1] / len, h->ng[2] / len};
+    float hp[3] = {ray->org[0] + h->t * ray->dir[0], ray->org[1] + h->t * ray->dir[1],
+                   ray->org[2] + h->t * ray->dir[2]};
+    float po[3];
+    ub_rt_offset_point(d->rt, hp, hn, po);
+    double total = 0.0;
+    for (uint32_t l = 0; l < s->light_count; l++) {
+      w[l] = 0.0f;
+      if (!d->light_enabled[l])
+        continue;
+      float dir[3], dist, e[3];
+      if (!ub_light_incident(&s->lights[l], po, dir, &dist, e))
+        continue;
+      float cs = dot3(hn, dir);
+      if (cs <= 0.0f)
+        continue;
+      w[l] = (0.2126f * e[0] + 0.7152f * e[1] + 0.0722f * e[2]) * cs;
+      total += w[l];
+    }
+    if (!(total > 0.0))
+      continue;
+    double u = ub_u01(ub_hash4(d->seed, d->pass_id * 0x10000u + 0x2000u, id, (uint32_t)j)) * total;
+    uint32_t pick = 0;
+    double acc = 0.0;
+    for (uint32_t l = 0; l < s->light_count; l++) {
+      if (w[l] <= 0.0f)
+        continue;
+      pick = l;
+      acc += w[l];
+      if (u < acc)
+        break;
+    }
+    float dir[3], dist, e[3];
+    ub_light_incident(&s->lights[pick], po, dir, &dist, e);
+    double scale = dot3(hn, dir) * total / w[pick];
+    const float *alb = s->materials[s->tri_material[h->tri]].albedo;
+    for (int ch = 0; ch < 3; ch++)
+      se[3 * m + ch] = (float)(alb[ch] * M_1_PI * e[ch] * scale);
+    memcpy(sr[m].org, po, sizeof po);
+    memcpy(sr[m].dir, dir, sizeof dir);
+    sr[m].tnear = 0.0f;
+    sr[m].tfar = isfinite(dist) ? dist * (1.0f - 1e-4f) : INFINITY;
+    sj[m] = (uint32_t)j;
+    m++;
+  }
+  ub_rt_occluded(d->rt, sr, (uint32_t)m, occ);
+  atomic_fetch_add(&c->rays_shadow, m);
+  for (size_t k = 0; k < m; k++)
+    if (!occ[k] && isfinite(se[3 * k]) && isfinite(se[3 * k + 1]) && isfinite(se[3 * k + 2]))
+      memcpy(nee + 3 * (size_t)sj[k], se + 3 * k, 3 * sizeof(float));
+  free(sr);
+  free(sj);
+  free(se);
+  free(occ);
+  free(w);
+  return nee;
 }
 
 /* Gather rays: bounce 0 sees the sky and emitters (MIS), bounce k reads bounce k-1. */
@@ -347,6 +520,8 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   /* Scatter hits back to ray order (bucket reused as the inverse permutation). */
   for (size_t j = 0; j < n; j++)
     bucket[order[j]] = (uint32_t)j;
+  float *nee = c->bounce == 1 && c->nee ? nee_block(c, rays, hits, bucket, n, rs->id_base + r0)
+                                        : NULL;
 
   uint64_t backface = 0, unlit = 0, clamped = 0, misses = 0, sky_hits = 0, emitter_hits = 0;
   uint32_t ne = (d->emissive && d->emitters) ? d->emitters->count : 0;
@@ -356,6 +531,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     double *sh = rs->acc_sh + (size_t)rs->nsh * 3 * r;
     double *iz = rs->acc_iz ? rs->acc_iz + 3 * (size_t)r : NULL;
     double *src = rs->acc_src ? rs->acc_src + 3 * (size_t)r : NULL;
+    double *src_np = rs->acc_src_np ? rs->acc_src_np + 3 * (size_t)r : NULL;
     for (uint32_t j = 0; j < N; j++) {
       const ub_ray *ray = &rays[(size_t)i * N + j];
       const ub_hit *h = &hits[bucket[(size_t)i * N + j]];
@@ -397,20 +573,27 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
             continue;
           }
           int32_t a = lm->tri_atlas[h->tri];
-          if (a < 0) {
+          if (a < 0 && !(nee && (nee[3 * ((size_t)i * N + j)] > 0.0f ||
+                                 nee[3 * ((size_t)i * N + j) + 1] > 0.0f ||
+                                 nee[3 * ((size_t)i * N + j) + 2] > 0.0f))) {
             unlit++;
             continue;
           }
-          const float *uv = lm->tri_uv + 6 * (size_t)h->tri;
-          float b0 = 1.0f - h->u - h->v;
-          float u = b0 * uv[0] + h->u * uv[2] + h->v * uv[4];
-          float v = b0 * uv[1] + h->u * uv[3] + h->v * uv[5];
-          float e[3];
-          sample_image(c, (uint32_t)a, u, v, e);
+          const float *uv = a >= 0 ? lm->tri_uv + 6 * (size_t)h->tri : NULL;
+          float e[3] = {0.0f, 0.0f, 0.0f};
+          if (uv) {
+            float b0 = 1.0f - h->u - h->v;
+            float u = b0 * uv[0] + h->u * uv[2] + h->v * uv[4];
+            float v = b0 * uv[1] + h->u * uv[3] + h->v * uv[5];
+            sample_image(c, (uint32_t)a, u, v, e);
+          }
           const float *alb = s->materials[s->tri_material[h->tri]].albedo;
           for (int ch = 0; ch < 3; ch++)
             L[ch] = alb[ch] * (float)M_1_PI * e[ch];
         }
+        if (nee)
+          for (int ch = 0; ch < 3; ch++)
+            L[ch] += nee[3 * ((size_t)i * N + j) + ch];
       }
       if (!finite3(L)) {
         clamped++;
@@ -421,6 +604,8 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
           iz[ch] += L[ch] * cs * wt;
           if (src)
             src[ch] += L[ch] * cs * wt;
+          if (src_np)
+            src_np[ch] += L[ch] * cs * wt;
         }
       sh_accum(sh, rs->nsh, ray->dir, L, wt);
     }
@@ -431,6 +616,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   atomic_fetch_add(&c->misses, misses);
   atomic_fetch_add(&c->sky_hits, sky_hits);
   atomic_fetch_add(&c->emitter_hits, emitter_hits);
+  free(nee);
   free(rays);
   free(sorted);
   free(hits);
@@ -555,6 +741,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   out->probe_direct = calloc((size_t)P + 1, sizeof(float));
   out->probe_indirect = calloc((size_t)P + 1, sizeof(float));
   recv_set *tx = &c.sets[0], *pr = &c.sets[1];
+  tx->texels = 1;
   tx->count = T;
   tx->index = d->texel_subset;
   tx->active = d->texel_subset ? d->texel_subset_count : T;
@@ -567,6 +754,9 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   tx->acc_sh = calloc((size_t)T * 12 + 1, sizeof(double));
   tx->acc_iz = calloc((size_t)T * 3 + 1, sizeof(double));
   tx->acc_src = calloc((size_t)T * 3 + 1, sizeof(double));
+  tx->acc_src_np = calloc((size_t)T * 3 + 1, sizeof(double));
+  for (uint32_t l = 0; l < s->light_count; l++)
+    c.nee |= d->light_enabled[l] != 0;
   pr->count = P;
   pr->index = d->probe_subset;
   pr->active = d->probe_subset ? d->probe_subset_count : P;
@@ -579,7 +769,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   pr->acc_sh = calloc((size_t)P * 27 + 1, sizeof(double));
   c.img = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *c.img);
   c.emitter_of = malloc((size_t)(s->triangle_count ? s->triangle_count : 1) * sizeof(int32_t));
-  int oom = !sh_total || !iz_total || !tx->acc_sh || !tx->acc_iz || !tx->acc_src || !c.img ||
+  int oom = !sh_total || !iz_total || !tx->acc_sh || !tx->acc_iz || !tx->acc_src ||
+            !tx->acc_src_np || !c.img ||
             !c.emitter_of || !pr->acc_sh || !probe_total || !out->texel_direct ||
             !out->texel_indirect || !out->probe_direct || !out->probe_indirect;
   for (uint32_t a = 0; !oom && a < lm->atlas_count; a++) {
@@ -618,9 +809,12 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     out->texel_direct[t] = (float)lum3d(tx->acc_src + 3 * (size_t)t);
   for (uint32_t q = 0; q < P; q++)
     out->probe_direct[q] = (float)(M_PI * UB_Y0 * lum3d(pr->acc_sh + 27 * (size_t)q));
-  build_images(&c, tx->acc_src);
+  /* With next-event estimation, bounce 1 reads only the non-punctual part of bounce 0. */
+  build_images(&c, c.nee ? tx->acc_src_np : tx->acc_src);
   free(tx->acc_src);
+  free(tx->acc_src_np);
   tx->acc_src = NULL;
+  tx->acc_src_np = NULL;
 
   int max_b = d->bounces < 0 ? UB_BAKE_MAX_BOUNCES : d->bounces;
   if (max_b > UB_BAKE_MAX_BOUNCES)
@@ -737,6 +931,7 @@ done:
   free(tx->acc_sh);
   free(tx->acc_iz);
   free(tx->acc_src);
+  free(tx->acc_src_np);
   free(pr->acc_sh);
   free(probe_total);
   if (c.img)

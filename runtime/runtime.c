@@ -7,6 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "runtime/blend.h"
 #include "ubake/ahd.h"
 
 /* Texels searched around a query whose four bilinear neighbours are all empty. */
@@ -16,6 +17,13 @@
 
 struct ub_runtime {
   ub_bakefile *bf;
+  float **enc_normal;    /* atlas_count arrays of width × height × 3: AHD encode normals */
+  uint64_t *pixel_first; /* atlas_count + 1: first global pixel of each atlas */
+  /* Dynamic light sets (when the file has any): blended SH, re-encoded where touched. */
+  float *lm_base, *lm_cur; /* Σ pixels × 12 */
+  float *glg_cur;          /* probes × 27 (the GLG reads it) */
+  ub_blend *lm_blend, *glg_blend;
+  ub_blend_record *lm_rec, *glg_rec;
   ub_glg glg;            /* valid when has_glg */
   int has_glg;
   ub_ahd **ahd;          /* atlas_count arrays of width × height; zero for empty texels */
@@ -54,18 +62,19 @@ static void sh_dominant_direction(const float sh[UB_SH1_FLOATS], float out_n[3])
   }
 }
 
-/* Encodes one atlas to AHD. Texels without a usable stored normal take the normal of the
- * nearest texel (8-connected multi-source BFS) that has one. */
-static ub_result encode_atlas(const ub_bakefile_atlas *at, ub_ahd **out_ahd)
+/* Per-pixel encode normals of one atlas: a texel's stored normal, or for texels without a
+ * usable one the normal of the nearest texel (8-connected multi-source BFS) that has one;
+ * -1 in out_src where no texel of the atlas has a normal (the SH's own direction is used). */
+static ub_result encode_normals(const ub_bakefile_atlas *at, float **out_nrm)
 {
   size_t texels = (size_t)at->width * at->height;
-  ub_ahd *ahd = calloc(texels, sizeof *ahd);
   float *nrm = malloc(texels * 3 * sizeof *nrm);
+  float *res = calloc(texels * 3, sizeof *res);
   int32_t *src = malloc(texels * sizeof *src);   /* texel whose normal is used, -1 none */
   uint32_t *queue = malloc(texels * sizeof *queue);
-  if (!ahd || !nrm || !src || !queue) {
-    free(ahd);
+  if (!nrm || !res || !src || !queue) {
     free(nrm);
+    free(res);
     free(src);
     free(queue);
     return UB_ERR_OUT_OF_MEMORY;
@@ -96,22 +105,31 @@ static ub_result encode_atlas(const ub_bakefile_atlas *at, ub_ahd **out_ahd)
         queue[tail++] = (uint32_t)j;
       }
   }
-  for (size_t i = 0; i < texels; i++) {
-    if (at->coverage[i] == 0)
-      continue;
-    const float *sh = &at->sh[i * UB_SH1_FLOATS];
-    float n[3];
+  /* A zero vector marks "no normal anywhere": encode_pixels uses the SH's direction. */
+  for (size_t i = 0; i < texels; i++)
     if (src[i] >= 0)
-      memcpy(n, &nrm[(size_t)src[i] * 3], sizeof n);
-    else
-      sh_dominant_direction(sh, n);
-    ub_ahd_encode(sh, n, &ahd[i]);
-  }
+      memcpy(&res[i * 3], &nrm[(size_t)src[i] * 3], 3 * sizeof(float));
   free(nrm);
   free(src);
   free(queue);
-  *out_ahd = ahd;
+  *out_nrm = res;
   return UB_OK;
+}
+
+/* AHD of pixels [first, first + count) of an atlas from the given SH. */
+static void encode_pixels(const ub_bakefile_atlas *at, const float *sh, const float *nrm,
+                          ub_ahd *ahd, size_t first, size_t count)
+{
+  for (size_t i = first; i < first + count; i++) {
+    if (at->coverage[i] == 0)
+      continue;
+    const float *v = &sh[i * UB_SH1_FLOATS];
+    float n[3];
+    memcpy(n, &nrm[i * 3], sizeof n);
+    if (n[0] == 0.0f && n[1] == 0.0f && n[2] == 0.0f)
+      sh_dominant_direction(v, n);
+    ub_ahd_encode(v, n, &ahd[i]);
+  }
 }
 
 void ub_runtime_free(ub_runtime *rt)
@@ -122,11 +140,75 @@ void ub_runtime_free(ub_runtime *rt)
     for (uint32_t a = 0; a < rt->bf->atlas_count; a++)
       free(rt->ahd[a]);
   free(rt->ahd);
+  if (rt->enc_normal)
+    for (uint32_t a = 0; a < rt->bf->atlas_count; a++)
+      free(rt->enc_normal[a]);
+  free(rt->enc_normal);
+  free(rt->pixel_first);
+  ub_blend_free(rt->lm_blend);
+  ub_blend_free(rt->glg_blend);
+  free(rt->lm_rec);
+  free(rt->glg_rec);
+  free(rt->lm_base);
+  free(rt->lm_cur);
+  free(rt->glg_cur);
   free(rt->lit_tris);
   if (rt->has_glg)
     ub_glg_release(&rt->glg);
   ub_bakefile_free(rt->bf);
   free(rt);
+}
+
+/* Blend engines for the sets' lightmap and GLG records; every set starts at weight 1. */
+static ub_result setup_dls(ub_runtime *rt, const char *path, const ub_log *log)
+{
+  const ub_bakefile *bf = rt->bf;
+  uint64_t pixels = rt->pixel_first[bf->atlas_count];
+  rt->lm_base = malloc((size_t)(pixels ? pixels : 1) * UB_SH1_FLOATS * sizeof(float));
+  rt->lm_cur = malloc((size_t)(pixels ? pixels : 1) * UB_SH1_FLOATS * sizeof(float));
+  rt->lm_rec = calloc(bf->dls_count, sizeof *rt->lm_rec);
+  rt->glg_rec = calloc(bf->dls_count, sizeof *rt->glg_rec);
+  if (!rt->lm_base || !rt->lm_cur || !rt->lm_rec || !rt->glg_rec) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic light sets", path);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  for (uint32_t a = 0; a < bf->atlas_count; a++)
+    memcpy(rt->lm_base + rt->pixel_first[a] * UB_SH1_FLOATS, bf->atlases[a].sh,
+           (size_t)(rt->pixel_first[a + 1] - rt->pixel_first[a]) * UB_SH1_FLOATS * sizeof(float));
+  for (uint32_t d = 0; d < bf->dls_count; d++) {
+    rt->lm_rec[d].receivers = bf->dls[d].texel_index;
+    rt->lm_rec[d].values = bf->dls[d].texel_sh;
+    rt->lm_rec[d].count = bf->dls[d].texel_count;
+    rt->glg_rec[d].receivers = bf->dls[d].probe_index;
+    rt->glg_rec[d].values = bf->dls[d].probe_sh;
+    rt->glg_rec[d].count = bf->dls[d].probe_count;
+  }
+  ub_blend_desc bd;
+  memset(&bd, 0, sizeof bd);
+  bd.name = "lightmap texels";
+  bd.receiver_count = (uint32_t)pixels;
+  bd.stride = UB_SH1_FLOATS;
+  bd.base = rt->lm_base;
+  bd.storage = UB_BLEND_FLOAT32;
+  bd.element_count = bf->dls_count;
+  bd.elements = rt->lm_rec;
+  ub_result r = ub_blend_create(&bd, log, rt->lm_cur, &rt->lm_blend);
+  if (r != UB_OK)
+    return r;
+  if (rt->has_glg) {
+    bd.name = "GLG probes";
+    bd.receiver_count = bf->glg_probe_count;
+    bd.stride = 27;
+    bd.base = bf->glg_sh;
+    bd.elements = rt->glg_rec;
+    r = ub_blend_create(&bd, log, rt->glg_cur, &rt->glg_blend);
+    if (r != UB_OK)
+      return r;
+  }
+  const float one[3] = {1.0f, 1.0f, 1.0f};
+  for (uint32_t d = 0; d < bf->dls_count; d++)
+    ub_runtime_set_dls(rt, d, one);
+  return ub_runtime_update(rt, NULL);
 }
 
 ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
@@ -143,13 +225,25 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
     return UB_ERR_OUT_OF_MEMORY;
   }
   rt->bf = bf;
+  rt->pixel_first = calloc((size_t)bf->atlas_count + 1, sizeof *rt->pixel_first);
+  if (!rt->pixel_first)
+    goto oom;
+  for (uint32_t a = 0; a < bf->atlas_count; a++)
+    rt->pixel_first[a + 1] =
+        rt->pixel_first[a] + (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
   if (bf->atlas_count) {
     rt->ahd = calloc(bf->atlas_count, sizeof *rt->ahd);
-    if (!rt->ahd)
+    rt->enc_normal = calloc(bf->atlas_count, sizeof *rt->enc_normal);
+    if (!rt->ahd || !rt->enc_normal)
       goto oom;
-    for (uint32_t a = 0; a < bf->atlas_count; a++)
-      if (encode_atlas(&bf->atlases[a], &rt->ahd[a]) != UB_OK)
+    for (uint32_t a = 0; a < bf->atlas_count; a++) {
+      const ub_bakefile_atlas *at = &bf->atlases[a];
+      size_t texels = (size_t)at->width * at->height;
+      rt->ahd[a] = calloc(texels ? texels : 1, sizeof *rt->ahd[a]);
+      if (!rt->ahd[a] || encode_normals(at, &rt->enc_normal[a]) != UB_OK)
         goto oom;
+      encode_pixels(at, at->sh, rt->enc_normal[a], rt->ahd[a], 0, texels);
+    }
   }
   for (uint32_t t = 0; t < bf->triangle_count; t++)
     rt->lit_count += bf->tri_atlas[t] >= 0;
@@ -175,6 +269,14 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
     gd.leak_planes = bf->glg_planes;
     gd.leak_plane_of = bf->glg_plane_of;
     gd.sh_windowed = 0; /* raw sums: windowed after interpolation, at query time */
+    if (bf->dls_count) {
+      /* The GLG reads the blended SH; it starts as the base. */
+      rt->glg_cur = malloc((size_t)bf->glg_probe_count * 27 * sizeof(float));
+      if (!rt->glg_cur)
+        goto oom;
+      memcpy(rt->glg_cur, bf->glg_sh, (size_t)bf->glg_probe_count * 27 * sizeof(float));
+      gd.sh = rt->glg_cur;
+    }
     r = ub_glg_init(&rt->glg, &gd, log);
     if (r != UB_OK) {
       ub_runtime_free(rt);
@@ -182,12 +284,111 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
     }
     rt->has_glg = 1;
   }
+  if (bf->dls_count) {
+    r = setup_dls(rt, path, log);
+    if (r != UB_OK) {
+      ub_runtime_free(rt);
+      return r;
+    }
+  }
   *out = rt;
   return UB_OK;
 oom:
   ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing the lightmaps", path);
   ub_runtime_free(rt);
   return UB_ERR_OUT_OF_MEMORY;
+}
+
+uint32_t ub_runtime_dls_count(const ub_runtime *rt)
+{
+  assert(rt);
+  return rt->bf->dls_count;
+}
+
+int32_t ub_runtime_dls_find(const ub_runtime *rt, const char *name)
+{
+  assert(rt && name);
+  for (uint32_t d = 0; d < rt->bf->dls_count; d++)
+    if (strcmp(rt->bf->dls[d].name, name) == 0)
+      return (int32_t)d;
+  return -1;
+}
+
+const char *ub_runtime_dls_name(const ub_runtime *rt, uint32_t set)
+{
+  assert(rt);
+  return set < rt->bf->dls_count ? rt->bf->dls[set].name : NULL;
+}
+
+ub_result ub_runtime_set_dls(ub_runtime *rt, uint32_t set, const float rgb[3])
+{
+  assert(rt && rgb);
+  if (set >= rt->bf->dls_count || !isfinite(rgb[0]) || !isfinite(rgb[1]) || !isfinite(rgb[2]))
+    return UB_ERR_INVALID_ARGUMENT;
+  ub_result r = ub_blend_set_weight(rt->lm_blend, set, rgb);
+  if (r == UB_OK && rt->glg_blend)
+    r = ub_blend_set_weight(rt->glg_blend, set, rgb);
+  return r;
+}
+
+float ub_runtime_dls_weight_from_lights(const float *strengths, uint32_t count)
+{
+  if (!strengths || count == 0)
+    return 0.0f;
+  double s = 0.0;
+  for (uint32_t i = 0; i < count; i++)
+    s += isfinite(strengths[i]) ? strengths[i] : 0.0;
+  return (float)(s / count);
+}
+
+typedef struct touched_ctx {
+  ub_runtime *rt;
+  uint64_t texels;
+} touched_ctx;
+
+/* Re-encodes to AHD the pixels the blend just wrote (they may span atlases). */
+static void lm_touched(void *user, uint32_t first, uint32_t count)
+{
+  touched_ctx *tc = user;
+  ub_runtime *rt = tc->rt;
+  uint64_t lo = first, hi = (uint64_t)first + count;
+  for (uint32_t a = 0; a < rt->bf->atlas_count && lo < hi; a++) {
+    uint64_t a0 = rt->pixel_first[a], a1 = rt->pixel_first[a + 1];
+    if (hi <= a0 || lo >= a1)
+      continue;
+    uint64_t s0 = lo > a0 ? lo : a0, s1 = hi < a1 ? hi : a1;
+    encode_pixels(&rt->bf->atlases[a], rt->lm_cur + a0 * UB_SH1_FLOATS, rt->enc_normal[a],
+                  rt->ahd[a], (size_t)(s0 - a0), (size_t)(s1 - s0));
+    tc->texels += s1 - s0;
+  }
+}
+
+ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
+{
+  assert(rt);
+  ub_runtime_update_stats st;
+  memset(&st, 0, sizeof st);
+  if (rt->lm_blend) {
+    touched_ctx tc = {rt, 0};
+    ub_blend_stats bs;
+    ub_blend_update(rt->lm_blend, lm_touched, &tc, rt->lm_cur, &bs);
+    st.texels_written = bs.receivers;
+    st.texels_reencoded = tc.texels;
+    st.bytes_read += bs.bytes_read;
+    st.bytes_written += bs.bytes_written;
+    st.groups += bs.groups;
+  }
+  if (rt->glg_blend) {
+    ub_blend_stats bs;
+    ub_blend_update(rt->glg_blend, NULL, NULL, rt->glg_cur, &bs);
+    st.probes_written = bs.receivers;
+    st.bytes_read += bs.bytes_read;
+    st.bytes_written += bs.bytes_written;
+    st.groups += bs.groups;
+  }
+  if (out_stats)
+    *out_stats = st;
+  return UB_OK;
 }
 
 ub_result ub_runtime_query_glg(const ub_runtime *rt, const float p[3], const float n[3],

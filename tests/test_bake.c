@@ -244,7 +244,7 @@ static void test_two_rooms_leak(void)
   /* Shared wall x in [-0.025, 0.025]; light in room A (x < 0). Dark-room (B) texels within
    * one texel of the wall must stay below 1% of the mirrored lit-side texels. */
   const float texel = 0.1f;
-  ub_runtime *rt = bake("two_rooms", "two_rooms", UB_QUALITY_FAST, -1, 0, texel, NULL, 0);
+  ub_runtime *rt = bake("two_rooms", "two_rooms", UB_QUALITY_DRAFT, -1, 0, texel, NULL, 0);
   ASSERT_TRUE(rt != NULL);
   if (!rt)
     return;

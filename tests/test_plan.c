@@ -169,8 +169,8 @@ static void test_dls_culling(void)
   char path[1024];
   snprintf(path, sizeof path, "%s/levels/hallway.gltf", g_build);
   ub_bake_stats sa, sb;
-  ASSERT_TRUE(bake(path, "dls_auto", UB_QUALITY_FAST, 0, &sa));
-  ASSERT_TRUE(bake(path, "dls_all", UB_QUALITY_FAST, 1, &sb));
+  ASSERT_TRUE(bake(path, "dls_auto", UB_QUALITY_DRAFT, 0, &sa));
+  ASSERT_TRUE(bake(path, "dls_all", UB_QUALITY_DRAFT, 1, &sb));
   ub_bakefile *fa = NULL, *fb = NULL;
   ASSERT_OK(ub_bakefile_read(sa.ubk_path, NULL, &fa));
   ASSERT_OK(ub_bakefile_read(sb.ubk_path, NULL, &fb));

@@ -85,6 +85,38 @@ static int parse_uint(const char *s, long max, long *out)
   return 1;
 }
 
+/* ---- state (--dls NAME=W|R,G,B) ---------------------------------------------------- */
+
+#define UB_CLI_MAX_STATE 256
+
+typedef struct cli_state {
+  uint32_t count;
+  char name[UB_CLI_MAX_STATE][64];
+  float rgb[UB_CLI_MAX_STATE][3];
+} cli_state;
+
+/* Parses one "NAME=W" or "NAME=R,G,B" value; 0 on a malformed value. */
+static int parse_dls_value(const char *v, cli_state *st)
+{
+  const char *eq = strchr(v, '=');
+  if (!eq || eq == v || (size_t)(eq - v) >= sizeof st->name[0] || st->count >= UB_CLI_MAX_STATE)
+    return 0;
+  float rgb[3];
+  char *end;
+  errno = 0;
+  double w = strtod(eq + 1, &end);
+  if (end != eq + 1 && *end == '\0' && !errno && isfinite(w)) {
+    rgb[0] = rgb[1] = rgb[2] = (float)w;
+  } else if (!parse_vec3(eq + 1, rgb)) {
+    return 0;
+  }
+  memcpy(st->name[st->count], v, (size_t)(eq - v));
+  st->name[st->count][eq - v] = '\0';
+  memcpy(st->rgb[st->count], rgb, sizeof rgb);
+  st->count++;
+  return 1;
+}
+
 /* ---- progress ---------------------------------------------------------------------- */
 
 typedef struct progress_state {
@@ -356,7 +388,9 @@ static int cmd_info(int argc, char **argv)
 
 static const char *QUERY_HELP =
     "usage: ubake query DIR/NAME.ubk --at X,Y,Z --normal X,Y,Z [--source auto|glg|llg|lightmap]\n"
+    "                   [--dls NAME=W|R,G,B ...]\n"
     "Prints the baked irradiance \"R G B\" (W/m², linear) the run-time uses there.\n"
+    "  --dls NAME=W        weight (or RGB tint) of a dynamic light set (default 1: as baked)\n"
     "  --source lightmap   the lightmap of the closest lightmapped surface point\n"
     "  --source glg        the global light grid (tetrahedral probes), as a dynamic object\n"
     "  --source llg        local light grids (not baked yet: reports an error)\n"
@@ -365,6 +399,8 @@ static const char *QUERY_HELP =
 static int cmd_query(int argc, char **argv)
 {
   const char *path = NULL, *source = "auto";
+  static cli_state state;
+  state.count = 0;
   float at[3], nrm[3];
   int have_at = 0, have_n = 0;
   for (int i = 0; i < argc; i++) {
@@ -385,6 +421,10 @@ static int cmd_query(int argc, char **argv)
       i++;
     } else if (!strcmp(a, "--source") && v) {
       source = v;
+      i++;
+    } else if (!strcmp(a, "--dls") && v) {
+      if (!parse_dls_value(v, &state))
+        return usage_error("query", "--dls takes NAME=W or NAME=R,G,B");
       i++;
     } else if (a[0] == '-') {
       return usage_error("query", "unknown option or missing value");
@@ -414,6 +454,18 @@ static int cmd_query(int argc, char **argv)
   ub_result r = ub_runtime_load(path, &log, &rt);
   if (r != UB_OK)
     return fail(&ls, r, path);
+  for (uint32_t k = 0; k < state.count; k++) {
+    int32_t set = ub_runtime_dls_find(rt, state.name[k]);
+    if (set < 0) {
+      fprintf(stderr, "ubake: %s: no dynamic light set named '%s' in this file\n", path,
+              state.name[k]);
+      ub_runtime_free(rt);
+      return 1;
+    }
+    ub_runtime_set_dls(rt, (uint32_t)set, state.rgb[k]);
+  }
+  if (state.count)
+    ub_runtime_update(rt, NULL);
   float rgb[3], dist;
   /* auto: a point in space is answered by the GLG, as for a dynamic object. */
   if (!strcmp(source, "lightmap"))
@@ -436,13 +488,15 @@ static int cmd_query(int argc, char **argv)
 
 static const char *REFERENCE_HELP =
     "usage: ubake reference LEVEL.gltf --at X,Y,Z --normal X,Y,Z [--spp N] [--seed N]\n"
-    "          [--bounces N] [--threads N]\n"
+    "          [--bounces N] [--threads N] [--dls NAME=W|R,G,B ...]\n"
     "Brute-force path-traced irradiance (W/m², linear RGB) for the same path classes as the\n"
     "bake. Prints \"R G B\" on the first line and \"se R G B\" (standard error) on the second.\n";
 
 static int cmd_reference(int argc, char **argv)
 {
   const char *level = NULL;
+  static cli_state state;
+  state.count = 0;
   ub_reference_params rp;
   ub_reference_params_init(&rp);
   int have_at = 0, have_n = 0;
@@ -483,6 +537,10 @@ static int cmd_reference(int argc, char **argv)
         return usage_error("reference", "--threads takes 1..1024");
       rp.threads = (int)n;
       i++;
+    } else if (!strcmp(a, "--dls") && v) {
+      if (!parse_dls_value(v, &state))
+        return usage_error("reference", "--dls takes NAME=W or NAME=R,G,B");
+      i++;
     } else if (a[0] == '-') {
       return usage_error("reference", "unknown option or missing value");
     } else {
@@ -502,8 +560,31 @@ static int cmd_reference(int argc, char **argv)
   if (r == UB_OK)
     r = ub_emitters_build(scene, &em);
   float rgb[3], se[3];
+  float *weights = NULL;
+  if (r == UB_OK && scene->dls_count) {
+    weights = malloc((size_t)scene->dls_count * 3 * sizeof *weights);
+    if (!weights)
+      r = UB_ERR_OUT_OF_MEMORY;
+    for (uint32_t d = 0; weights && d < scene->dls_count * 3; d++)
+      weights[d] = 1.0f;
+    rp.dls_weight = weights;
+  }
+  for (uint32_t k = 0; r == UB_OK && k < state.count; k++) {
+    uint32_t d;
+    for (d = 0; d < scene->dls_count; d++)
+      if (!strcmp(scene->dls_names[d], state.name[k]))
+        break;
+    if (d == scene->dls_count) {
+      fprintf(stderr, "ubake: %s: no dynamic light set named '%s'\n", level, state.name[k]);
+      ls.errors++;
+      r = UB_ERR_INVALID_ARGUMENT;
+      break;
+    }
+    memcpy(weights + 3 * d, state.rgb[k], 3 * sizeof(float));
+  }
   if (r == UB_OK)
     r = ub_reference_irradiance(scene, rt, em, &rp, rgb, se, &log);
+  free(weights);
   ub_emitters_free(em);
   ub_rt_free(rt);
   ub_scene_free(scene);
@@ -691,9 +772,11 @@ static int cmd_render(int argc, char **argv)
     ub_runtime_free(rt);
     return 1;
   }
-  /* The baked indirect part of each set (its records blended into the lightmaps/GLG).
-   * RUNTIME-DLS CALL SITE: ub_runtime_set_dls(rt, s, &weights[s * 3]) for every set s, then
-   * ub_runtime_update(rt, NULL), once the run-time blends DLS records. */
+  /* The baked indirect part of each set (its records blended into the lightmaps/GLG). */
+  for (uint32_t s = 0; s < bf->dls_count && r == UB_OK; s++)
+    r = ub_runtime_set_dls(rt, s, &weights[(size_t)s * 3]);
+  if (r == UB_OK)
+    r = ub_runtime_update(rt, NULL);
   if (r != UB_OK) {
     free(weights);
     ub_runtime_free(rt);

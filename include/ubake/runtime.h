@@ -62,6 +62,28 @@ ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint
 ub_result ub_runtime_query_glg(const ub_runtime *rt, const float p[3], const float n[3],
                                uint32_t *inout_tet_cache, float out_rgb[3]);
 
+/* ---- dynamic light sets --------------------------------------------------------------
+ * Each set baked into the file has an RGB weight (default 1: its lights on as baked). The
+ * lighting used everywhere is base + Σ weight_i · set_i, exact per channel because light
+ * transport is linear (a tint keeps colour bleeding). ub_runtime_set_dls() only records
+ * the weight; ub_runtime_update() recomputes the receivers of the changed sets (each
+ * written once, batched by overlap combination) and re-encodes their AHD texels. Not
+ * thread safe against concurrent queries: update between frames. */
+uint32_t ub_runtime_dls_count(const ub_runtime *rt);
+int32_t ub_runtime_dls_find(const ub_runtime *rt, const char *name); /* -1 if absent */
+const char *ub_runtime_dls_name(const ub_runtime *rt, uint32_t set);
+ub_result ub_runtime_set_dls(ub_runtime *rt, uint32_t set, const float rgb[3]);
+/* A set's weight from its lights' strengths (each 0 = shot out … 1 = as baked): their
+ * mean (UberBake §3.1). */
+float ub_runtime_dls_weight_from_lights(const float *strengths, uint32_t count);
+
+typedef struct ub_runtime_update_stats {
+  uint64_t texels_written, texels_reencoded, probes_written;
+  uint64_t bytes_read, bytes_written;
+  uint32_t groups;
+} ub_runtime_update_stats;
+ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats);
+
 struct ub_glg;
 /* The run-time GLG (for resampling into LLG boxes, see ubake/glg.h), or NULL. */
 const struct ub_glg *ub_runtime_glg(const ub_runtime *rt);
