@@ -45,3 +45,17 @@ fuzz: deps
 
 clean:
 	rm -rf $(BUILD) build-asan build-fuzz
+
+# Accuracy vs time (README "Accuracy vs time"): `ubake sweep` on every shipped level into
+# out/sweep/<level>/ (sweep.csv, sweep.png, reference_points.csv). The real levels take
+# hours on 2 cores; SWEEP_LEVELS picks a subset, SWEEP_ARGS adds options (e.g.
+# SWEEP_ARGS="--ladder quick").
+SWEEP_ARGS ?=
+SWEEP_LEVELS ?= $(BUILD)/levels/cornell.gltf $(BUILD)/levels/sunroom.gltf \
+  $(wildcard $(SHARED_LEVELS)/oa_dm4/oa_dm4.gltf $(SHARED_LEVELS)/q3dm6ish/q3dm6ish.gltf \
+             $(SHARED_LEVELS)/kaos/kaos.gltf)
+.PHONY: sweep
+sweep: build
+	@for l in $(SWEEP_LEVELS); do n=$$(basename $$l .gltf); echo "== sweep $$l -> out/sweep/$$n"; \
+	  $(BUILD)/ubake sweep $$l -o out/sweep/$$n $(SWEEP_ARGS) || exit 1; done
+	@echo "sweep: out/sweep/<level>/sweep.csv and sweep.png"

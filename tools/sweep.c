@@ -80,7 +80,7 @@ typedef struct sweep_rung {
 typedef struct sweep {
   const char *level, *out_dir;
   char name[64];
-  int points, threads, repeat, keep_bakes, plot, verbose, quick;
+  int points, threads, repeat, keep_bakes, plot, verbose, quick, reuse_conv;
   uint32_t ref_spp, converged_rays, seed;
   ub_scene *scene;
   ub_rt *rt;
@@ -736,9 +736,9 @@ static void sw_build_ladder(sweep *s)
   memset(&s->results[0], 0, sizeof s->results[0]);
   s->nresults = 1;
   static const uint32_t rays_full[] = {16, 32, 64, 128, 256, 512, 1024};
-  static const uint32_t rays_quick[] = {16, 64, 256, 1024};
+  static const uint32_t rays_quick[] = {16, 64, 256};
   const uint32_t *rays = s->quick ? rays_quick : rays_full;
-  int nrays = s->quick ? 4 : 7;
+  int nrays = s->quick ? 3 : 7;
   for (int i = 0; i < nrays; i++) {
     sweep_cfg c = SW_MIDDLE;
     c.gather_rays = rays[i];
@@ -838,32 +838,33 @@ static int sw_plot(const sweep *s, double load_end)
   long cores = sysconf(_SC_NPROCESSORS_ONLN);
   fprintf(f,
           "# ubake sweep plot of sweep.csv (written by ubake sweep; run: cd DIR && gnuplot sweep.gp)\n"
-          "set terminal pngcairo size 1500,620 font ',10' noenhanced\n"
+          "set terminal pngcairo size 1500,1150 font ',10' noenhanced\n"
           "set output 'sweep.png'\n"
           "set datafile separator ','\n"
           "set logscale xy\n"
           "set grid xtics ytics mxtics mytics lc rgb '#dddddd'\n"
-          "set key top right\n"
+          "set key bottom left\n"
           "set xlabel 'bake wall-clock seconds'\n"
           "knobs = 'gather_rays bounces texel_size glg_spacing preset'\n"
           "sel(k, c) = strcol(1) eq k ? column(c) : NaN\n"
           "refnoise = %.6g\n"
-          "set multiplot layout 1,2 title '%s: error vs bake time, one knob at a time from the "
-          "fast preset (%ld cores, load %.1f-%.1f)'\n"
-          "set ylabel 'relative RMSE vs reference (%d points, %u spp)'\n"
-          "plot for [i=1:words(knobs)] 'sweep.csv' using (sel(word(knobs,i),3)):(sel(word(knobs,i),6)) "
+          "set multiplot layout 2,2 title '%s: error vs bake time, one knob at a time from the "
+          "fast preset (%ld cores, load average %.1f-%.1f; reference %u spp)'\n"
+          "do for [col in '6 12 13 9'] {\n"
+          "  c = int(col)\n"
+          "  set ylabel (c == 6 ? 'relative RMSE at all %d reference points' : c == 12 ? "
+          "'relative RMSE at the %d lightmap points' : c == 13 ? 'relative RMSE at the %d GLG "
+          "points' : 'relative RMSE vs converged bake, all texels')\n"
+          "  plot for [i=1:words(knobs)] 'sweep.csv' using (sel(word(knobs,i),3)):(sel(word(knobs,i),c)) "
           "with linespoints lw 2 pt 7 lc i title word(knobs,i), \\\n"
-          "     for [i=1:words(knobs)] 'sweep.csv' using (sel(word(knobs,i),3)):(sel(word(knobs,i),6)):2 "
-          "with labels offset char 0,0.9 font ',8' tc lt i notitle, \\\n"
-          "     refnoise with lines dt 2 lc rgb 'gray40' title 'reference noise'\n"
-          "set ylabel 'relative RMSE vs converged bake (all covered texels)'\n"
-          "plot for [i=1:words(knobs)] 'sweep.csv' using (sel(word(knobs,i),3)):(sel(word(knobs,i),9)) "
-          "with linespoints lw 2 pt 7 lc i title word(knobs,i), \\\n"
-          "     for [i=1:words(knobs)] 'sweep.csv' using (sel(word(knobs,i),3)):(sel(word(knobs,i),9)):2 "
-          "with labels offset char 0,0.9 font ',8' tc lt i notitle\n"
+          "       for [i=1:words(knobs)] 'sweep.csv' using (sel(word(knobs,i),3)):(sel(word(knobs,i),c)):2 "
+          "with labels offset char 0,0.9 font ',8' notitle, \\\n"
+          "       (c == 9 ? NaN : refnoise) with lines dt 2 lc rgb 'gray40' title "
+          "(c == 9 ? '' : 'reference noise (all points)')\n"
+          "}\n"
           "unset multiplot\n",
           isfinite(s->ref_noise) ? s->ref_noise : 0.0, s->name, cores, s->load_begin, load_end,
-          s->npts, s->ref_spp);
+          s->ref_spp, s->npts, s->nlm, s->nglg);
   if (fclose(f) != 0) {
     fprintf(stderr, "ubake: %s: write failed\n", path);
     return 0;
@@ -899,7 +900,7 @@ static int sw_plot(const sweep *s, double load_end)
 
 /* ---- the sweep --------------------------------------------------------------------- */
 
-static void sw_print_result(const sweep_rung *r, const sweep_result *m, int reused)
+static void sw_print_result(const sweep_rung *r, const sweep_result *m)
 {
   printf("  %-12s %-6s %-5s %8.2f s %8.2f core-s %9.2f M rays  points %6.2f%% (p95 %6.2f%%, "
          "max %6.2f%%)  texels %s%.2f%%%s\n",
@@ -907,8 +908,6 @@ static void sw_print_result(const sweep_rung *r, const sweep_result *m, int reus
          100 * m->rmse_pts, 100 * m->p95_pts, 100 * m->max_pts,
          isfinite(m->rmse_texels) ? "" : "(n/a ", isfinite(m->rmse_texels) ? 100 * m->rmse_texels : 0.0,
          isfinite(m->rmse_texels) ? "" : ")");
-  if (reused)
-    printf("  %-12s %-6s (same bake as above)\n", "", "");
   fflush(stdout);
 }
 
@@ -997,7 +996,7 @@ static int sw_run(sweep *s)
     return 0;
   }
 
-  /* 3. The converged bake (per-texel ground truth), reused when already there. */
+  /* 3. The converged bake (per-texel ground truth). */
   if (s->converged_rays) {
     sweep_cfg c = SW_MIDDLE;
     c.quality = UB_QUALITY_HIGH;
@@ -1005,7 +1004,7 @@ static int sw_run(sweep *s)
     snprintf(dir, sizeof dir, "%s/converged_%u", bakes, s->converged_rays);
     snprintf(ubk, sizeof ubk, "%s/%s.ubk", dir, s->name);
     snprintf(rep, sizeof rep, "%s/%s.report.json", dir, s->name);
-    if (sw_file_exists(ubk) && sw_file_exists(rep)) {
+    if (s->reuse_conv && sw_file_exists(ubk) && sw_file_exists(rep)) {
       printf("sweep: converged bake: reusing %s\n", ubk);
     } else {
       printf("sweep: converged bake (%u gather rays, high preset's other samples, seed %u)\n",
@@ -1041,8 +1040,7 @@ static int sw_run(sweep *s)
       printf("sweep: knob %s\n", rg->setting);
       last_setting = rg->setting;
     }
-    int reused = s->results[rg->result].done;
-    if (!reused) {
+    if (!s->results[rg->result].done) {
       char label[64];
       snprintf(label, sizeof label, "%s=%s", rg->setting, rg->value);
       printf("  [%d/%d] baking %s %s\n", ++k, total, label, rg->note);
@@ -1051,7 +1049,7 @@ static int sw_run(sweep *s)
       if (!sw_run_result(s, rg->result, label, dir, 0))
         return 0;
     }
-    sw_print_result(rg, &s->results[rg->result], 0);
+    sw_print_result(rg, &s->results[rg->result]);
     if (!sw_write_csv(s))
       return 0;
   }
@@ -1075,14 +1073,16 @@ static const char *SWEEP_HELP =
     "  -o DIR               output folder (default out/sweep/LEVELNAME)\n"
     "  --ladder quick|full  full (default): gather rays 16..1024, bounces 1,2,3,auto, texel\n"
     "                       size x2,x1,x0.5, GLG spacing x2,x1,x0.5, presets draft,fast,high;\n"
-    "                       quick: gather rays 16,64,256,1024 and presets draft,fast\n"
+    "                       quick (CI): gather rays 16,64,256 and presets draft,fast\n"
     "  --points N           ground-truth points, half lightmap, half GLG (default 64; quick 32)\n"
     "  --ref-spp N          reference paths per point (default 65536; quick 16384)\n"
     "  --converged-rays N   gather rays per texel of the converged bake (default 4096;\n"
-    "                       quick 2048; 0 = no per-texel error)\n"
+    "                       quick 1024; 0 = no per-texel error)\n"
     "  --repeat N           bake every rung N times and keep the fastest (default 1)\n"
     "  --threads N          worker threads (default: all cores)\n"
     "  --seed N             bake seed (default 1)\n"
+    "  --reuse-converged    reuse DIR/bakes/converged_N/ from an earlier run (only if the\n"
+    "                       baker has not changed since)\n"
     "  --keep-bakes         keep every rung's bake in DIR/bakes/ (default: only the middle\n"
     "                       and the converged bakes)\n"
     "  --no-plot            write the CSV and sweep.gp only\n"
@@ -1146,6 +1146,8 @@ int ub_cli_sweep(int argc, char **argv)
         SW_USAGE("--seed takes 0..4294967295");
       s.seed = (uint32_t)n;
       i++;
+    } else if (!strcmp(a, "--reuse-converged")) {
+      s.reuse_conv = 1;
     } else if (!strcmp(a, "--keep-bakes")) {
       s.keep_bakes = 1;
     } else if (!strcmp(a, "--no-plot")) {
@@ -1167,7 +1169,7 @@ int ub_cli_sweep(int argc, char **argv)
   }
   s.points = points > 0 ? (int)points : s.quick ? 32 : 64;
   s.ref_spp = spp > 0 ? (uint32_t)spp : s.quick ? 16384u : 65536u;
-  s.converged_rays = conv >= 0 ? (uint32_t)conv : s.quick ? 2048u : 4096u;
+  s.converged_rays = conv >= 0 ? (uint32_t)conv : s.quick ? 1024u : 4096u;
   char defdir[1024];
   if (!s.out_dir) {
     char name[64];
