@@ -9,6 +9,7 @@
 
 #include "runtime/blend.h"
 #include "ubake/ahd.h"
+#include "ubake/sh.h"
 
 /* Texels searched around a query whose four bilinear neighbours are all empty. */
 #define UB_RT_EMPTY_SEARCH_RADIUS 4
@@ -21,7 +22,10 @@ struct ub_runtime {
   uint64_t *pixel_first; /* atlas_count + 1: first global pixel of each atlas */
   /* Dynamic light sets (when the file has any): blended SH, re-encoded where touched. */
   float *lm_base, *lm_cur; /* Σ pixels × 12 */
-  float *glg_cur;          /* probes × 27 (the GLG reads it) */
+  float *glg_cur;          /* probes × 27: base + Σ sets (raw; NULL without sets) */
+  float *glg_win;          /* probes × 27: windowed per probe, what the GLG reads. A convex
+                              blend of windowed probes keeps irradiance ≥ 0, so queries
+                              need no windowing (which costs 1–15 µs when it triggers). */
   ub_blend *lm_blend, *glg_blend;
   ub_blend_record *lm_rec, *glg_rec;
   ub_glg glg;            /* valid when has_glg */
@@ -152,6 +156,7 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt->lm_base);
   free(rt->lm_cur);
   free(rt->glg_cur);
+  free(rt->glg_win);
   free(rt->lit_tris);
   if (rt->has_glg)
     ub_glg_release(&rt->glg);
@@ -268,15 +273,22 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
     gd.leak_plane_count = bf->glg_plane_count;
     gd.leak_planes = bf->glg_planes;
     gd.leak_plane_of = bf->glg_plane_of;
-    gd.sh_windowed = 0; /* raw sums: windowed after interpolation, at query time */
+    size_t sh_bytes = (size_t)bf->glg_probe_count * 27 * sizeof(float);
+    rt->glg_win = malloc(sh_bytes);
+    if (!rt->glg_win)
+      goto oom;
     if (bf->dls_count) {
-      /* The GLG reads the blended SH; it starts as the base. */
-      rt->glg_cur = malloc((size_t)bf->glg_probe_count * 27 * sizeof(float));
+      /* The sets blend into glg_cur; it starts as the base. */
+      rt->glg_cur = malloc(sh_bytes);
       if (!rt->glg_cur)
         goto oom;
-      memcpy(rt->glg_cur, bf->glg_sh, (size_t)bf->glg_probe_count * 27 * sizeof(float));
-      gd.sh = rt->glg_cur;
+      memcpy(rt->glg_cur, bf->glg_sh, sh_bytes);
     }
+    memcpy(rt->glg_win, bf->glg_sh, sh_bytes);
+    for (uint32_t q = 0; q < bf->glg_probe_count; q++)
+      ub_sh2_window(rt->glg_win + 27 * (size_t)q);
+    gd.sh = rt->glg_win;
+    gd.sh_windowed = 1;
     r = ub_glg_init(&rt->glg, &gd, log);
     if (r != UB_OK) {
       ub_runtime_free(rt);
@@ -363,6 +375,16 @@ static void lm_touched(void *user, uint32_t first, uint32_t count)
   }
 }
 
+/* Re-windows the probes the blend just wrote. */
+static void glg_touched(void *user, uint32_t first, uint32_t count)
+{
+  ub_runtime *rt = user;
+  memcpy(rt->glg_win + 27 * (size_t)first, rt->glg_cur + 27 * (size_t)first,
+         (size_t)count * 27 * sizeof(float));
+  for (uint32_t q = first; q < first + count; q++)
+    ub_sh2_window(rt->glg_win + 27 * (size_t)q);
+}
+
 ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
 {
   assert(rt);
@@ -380,7 +402,7 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
   }
   if (rt->glg_blend) {
     ub_blend_stats bs;
-    ub_blend_update(rt->glg_blend, NULL, NULL, rt->glg_cur, &bs);
+    ub_blend_update(rt->glg_blend, glg_touched, rt, rt->glg_cur, &bs);
     st.probes_written = bs.receivers;
     st.bytes_read += bs.bytes_read;
     st.bytes_written += bs.bytes_written;
