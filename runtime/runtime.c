@@ -426,6 +426,16 @@ ub_result ub_runtime_query_glg(const ub_runtime *rt, const float p[3], const flo
   return UB_OK;
 }
 
+const float *ub_runtime_glg_probe_sh(const ub_runtime *rt, int windowed)
+{
+  assert(rt);
+  if (!rt->has_glg)
+    return NULL;
+  if (windowed)
+    return rt->glg_win;
+  return rt->glg_cur ? rt->glg_cur : rt->bf->glg_sh;
+}
+
 const ub_glg *ub_runtime_glg(const ub_runtime *rt)
 {
   assert(rt);

@@ -85,6 +85,10 @@ typedef struct ub_runtime_update_stats {
 ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats);
 
 struct ub_glg;
+/* Every GLG probe's current radiance SH L2 (probe × 27): base + Σ weight·set, raw (linear
+ * in the weights) or windowed (what queries interpolate). NULL without a GLG. */
+const float *ub_runtime_glg_probe_sh(const ub_runtime *rt, int windowed);
+
 /* The run-time GLG (for resampling into LLG boxes, see ubake/glg.h), or NULL. */
 const struct ub_glg *ub_runtime_glg(const ub_runtime *rt);
 
