@@ -359,8 +359,9 @@ typedef struct touched_ctx {
 } touched_ctx;
 
 /* Re-encodes to AHD the pixels the blend just wrote (they may span atlases). */
-static void lm_touched(void *user, uint32_t first, uint32_t count)
+static void lm_touched(void *user, uint32_t first, uint32_t count, const float *rows)
 {
+  (void)rows; /* the same rows are in lm_cur: out_values is given to the blend */
   touched_ctx *tc = user;
   ub_runtime *rt = tc->rt;
   uint64_t lo = first, hi = (uint64_t)first + count;
@@ -376,8 +377,9 @@ static void lm_touched(void *user, uint32_t first, uint32_t count)
 }
 
 /* Re-windows the probes the blend just wrote. */
-static void glg_touched(void *user, uint32_t first, uint32_t count)
+static void glg_touched(void *user, uint32_t first, uint32_t count, const float *rows)
 {
+  (void)rows;
   ub_runtime *rt = user;
   memcpy(rt->glg_win + 27 * (size_t)first, rt->glg_cur + 27 * (size_t)first,
          (size_t)count * 27 * sizeof(float));
