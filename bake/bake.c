@@ -21,6 +21,7 @@
 #include "bake/rt.h"
 #include "lightmaps/lightmap.h"
 #include "probes/leak.h"
+#include "probes/llg.h"
 #include "probes/placement.h"
 #include "probes/tetgen.h"
 #include "ubake/scene.h"
@@ -125,6 +126,8 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   memset(&leak, 0, sizeof leak);
   ub_plan plan;
   memset(&plan, 0, sizeof plan);
+  ub_llg_set llg;
+  memset(&llg, 0, sizeof llg);
   ub_pass_result base;
   memset(&base, 0, sizeof base);
   ub_bakefile_record *dls = NULL;
@@ -184,6 +187,22 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
             tm->point_count, gp.coarse, gp.fine, gp.rejected_inside, tm->added_count,
             tm->tet_count);
 
+  /* local light grids: boxes, probes, per-vertex self-visibility */
+  stage_begin(&sc, "llg");
+  {
+    uint32_t vis_rays = opt->quality == UB_QUALITY_DRAFT ? 128u
+                        : opt->quality == UB_QUALITY_FAST ? 256u : 1024u;
+    r = ub_llg_build(scene, vis_rays, opt->seed, log, &llg);
+    if (r != UB_OK)
+      goto fail;
+    uint32_t nv = 0;
+    for (uint32_t i = 0; i < llg.model_count; i++)
+      nv += llg.models[i].vertex_count;
+    stage_end(&sc, "%u model(s), %u probes (%u moved out of other geometry, %u filled), %u "
+              "vertices, %.2f M rays", llg.model_count, llg.probe_count, llg.moved_count,
+              llg.invalid_count, nv, llg.rays * 1e-6);
+  }
+
   /* plan */
   stage_begin(&sc, "plan");
   r = ub_plan_build(scene, rt, em, lm, tm->point_count, opt, log, &plan);
@@ -216,6 +235,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   pd.probe_count = tm->point_count;
   pd.probe_pos = tm->points;
   pd.probe_rays = plan.probe_rays;
+  pd.llg = llg.model_count ? &llg : NULL;
   pd.bounces = opt->bounces;
   pd.stop_fraction = plan.stop_fraction;
   pd.seed = opt->seed;
@@ -246,6 +266,20 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
                                            stats.gather_seconds
                                      : 0.0);
 
+  /* LLG self-inter-reflection: what each model's own surfaces reflect onto its vertices */
+  if (llg.model_count) {
+    stage_begin(&sc, "llg self");
+    uint64_t r0 = llg.rays;
+    uint32_t self_rays = opt->quality == UB_QUALITY_DRAFT ? 64u
+                         : opt->quality == UB_QUALITY_FAST ? 256u : 1024u;
+    r = ub_llg_self_bounce(&llg, scene, rt, base.llg_sh, plan.base_light_enabled, self_rays,
+                           opt->seed);
+    if (r != UB_OK)
+      goto fail;
+    stage_end(&sc, "%u model(s), %u iterations, %.2f M rays", llg.model_count,
+              UB_LLG_SELF_ITERATIONS, (llg.rays - r0) * 1e-6);
+  }
+
   /* dynamic light sets: influence pass + full pass over the kept receivers, per set */
   if (scene->dls_count) {
     stage_begin(&sc, "dls");
@@ -274,7 +308,8 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   stats.peak_rss_kb = ub_peak_rss_kb();
   stats.total_seconds = now_seconds() - t_start;
   ub_glg_bake glg = {tm, base.probe_sh, &leak};
-  r = ub_output_write(scene, lm, &glg, dls, &dstats, &plan, &base, opt, &stats, log);
+  r = ub_output_write(scene, lm, &glg, &llg, base.llg_sh, dls, &dstats, &plan, &base, opt, &stats,
+                      log);
   if (r != UB_OK)
     goto fail;
   stage_end(&sc, "%s", stats.ubk_path);
@@ -285,6 +320,7 @@ fail:
   ub_pass_result_free(&base);
   ub_dls_records_free(dls, scene ? scene->dls_count : 0);
   ub_plan_free(&plan);
+  ub_llg_free(&llg);
   ub_glg_leak_free(&leak);
   ub_tetmesh_free(tm);
   ub_glg_points_free(&gp);

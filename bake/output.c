@@ -74,7 +74,8 @@ static void json_str(FILE *f, const char *s)
 
 static ub_result write_report(const char *path, const ub_scene *scene, const ub_lightmap *lm,
                               const ub_plan *plan, const ub_pass_result *base,
-                              const ub_bakefile *bf, const ub_dls_stats *dstats,
+                              const ub_bakefile *bf, const ub_llg_set *llg,
+                              const ub_dls_stats *dstats,
                               const ub_bake_options *opt, const ub_bake_stats *st,
                               const ub_log *log)
 {
@@ -157,6 +158,10 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
           lm->texel_count, lm->backface_fixes, lm->overlap_texels);
   fprintf(f, "  \"glg\": {\"probes\": %u, \"tets\": %u, \"leak_plane_tets\": %u, \"spacing\": %.4g},\n",
           st->glg_probes, st->glg_tets, st->glg_leak_tets, scene->glg_spacing);
+  fprintf(f, "  \"llg\": {\"models\": %u, \"probes\": %u, \"invalid_probes\": %u, "
+             "\"visibility_rays\": %llu},\n",
+          llg ? llg->model_count : 0, llg ? llg->probe_count : 0, llg ? llg->invalid_count : 0,
+          llg ? (unsigned long long)llg->rays : 0ULL);
   fprintf(f, "  \"bounces\": %u,\n  \"bounce_energy\": [", st->bounces);
   for (uint32_t b = 0; b <= st->bounces && b <= UB_BAKE_MAX_BOUNCES; b++)
     fprintf(f, "%s%.6g", b ? ", " : "", st->bounce_energy[b]);
@@ -254,7 +259,44 @@ static void remove_staging(out_files *files, const char *staging)
   rmdir(staging);
 }
 
+/* The LLG models as the .ubk stores them (arrays owned by the caller's bakefile). */
+static ub_result fill_llgs(const ub_scene *scene, const ub_llg_set *llg, const float *llg_sh,
+                           ub_bakefile *bf)
+{
+  bf->llgs = calloc(llg->model_count, sizeof *bf->llgs);
+  if (!bf->llgs)
+    return UB_ERR_OUT_OF_MEMORY;
+  bf->llg_count = llg->model_count;
+  for (uint32_t i = 0; i < llg->model_count; i++) {
+    const ub_llg_model *m = &llg->models[i];
+    ub_bakefile_llg *o = &bf->llgs[i];
+    snprintf(o->name, sizeof o->name, "%s", scene->nodes[m->node].name);
+    memcpy(o->center, m->center, sizeof o->center);
+    memcpy(o->axes, m->axes, sizeof o->axes);
+    memcpy(o->half, m->half, sizeof o->half);
+    memcpy(o->dims, m->dims, sizeof o->dims);
+    o->probe_sh = (float *)(llg_sh + 27 * (size_t)m->probe_first);
+    o->vertex_count = m->vertex_count;
+    o->vis = m->vis;
+    o->self = m->self;
+    o->triangle_count = m->triangle_count;
+    o->indices = m->local_indices;
+    o->positions = malloc((size_t)m->vertex_count * 3 * sizeof(float) + 1);
+    o->normals = malloc((size_t)m->vertex_count * 3 * sizeof(float) + 1);
+    if (!o->positions || !o->normals)
+      return UB_ERR_OUT_OF_MEMORY;
+    for (uint32_t v = 0; v < m->vertex_count; v++) {
+      memcpy(o->positions + 3 * (size_t)v, scene->positions + 3 * (size_t)m->vertices[v],
+             3 * sizeof(float));
+      memcpy(o->normals + 3 * (size_t)v, scene->normals + 3 * (size_t)m->vertices[v],
+             3 * sizeof(float));
+    }
+  }
+  return UB_OK;
+}
+
 ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub_glg_bake *glg,
+                          const ub_llg_set *llg, const float *llg_sh,
                           ub_bakefile_record *dls, const ub_dls_stats *dstats,
                           const ub_plan *plan,
                           const ub_pass_result *base, const ub_bake_options *opt,
@@ -328,6 +370,12 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
     bf.glg_plane_of = glg->leak->plane_of;
   }
 
+  if (llg && llg->model_count) {
+    r = fill_llgs(scene, llg, llg_sh, &bf);
+    if (r != UB_OK)
+      goto done;
+  }
+
   for (uint32_t a = 0; a < lm->atlas_count; a++) {
     float *ahd = NULL, *irr = NULL;
     r = encode_atlas(lm, base, a, &bf.atlases[a], &ahd, &irr);
@@ -378,7 +426,8 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
     goto done;
   }
   snprintf(files.final[files.count - 1], sizeof files.final[0], "%s", report_final);
-  r = write_report(files.staged[files.count - 1], scene, lm, plan, base, &bf, dstats, opt, stats,
+  r = write_report(files.staged[files.count - 1], scene, lm, plan, base, &bf, llg, dstats, opt,
+                   stats,
                    log);
   if (r != UB_OK)
     goto done;
@@ -403,5 +452,10 @@ done:
   free(bf.atlases);
   free(bf.tri_albedo);
   free(bf.lights);
+  for (uint32_t i = 0; bf.llgs && i < bf.llg_count; i++) {
+    free(bf.llgs[i].positions);
+    free(bf.llgs[i].normals);
+  }
+  free(bf.llgs);
   return r;
 }

@@ -8,6 +8,7 @@
 #include "bake/dls.h"
 #include "bake/plan.h"
 #include "probes/leak.h"
+#include "probes/llg.h"
 #include "probes/tetgen.h"
 
 /* The GLG as baked: mesh, radiance SH L2 per mesh point, leak planes. */
@@ -17,7 +18,9 @@ typedef struct ub_glg_bake {
   const ub_glg_leak *leak;
 } ub_glg_bake;
 
+/* llg: the LLG models (or NULL) and llg_sh their probes' SH (llg->probe_count × 27). */
 ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub_glg_bake *glg,
+                          const ub_llg_set *llg, const float *llg_sh,
                           ub_bakefile_record *dls, const ub_dls_stats *dstats,
                           const ub_plan *plan,
                           const ub_pass_result *base, const ub_bake_options *opt,

@@ -8,6 +8,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "probes/llg.h"
 #include "ubake/sh.h"
 
 /* Rays traced per block: large enough to sort into coherent streams, small enough that
@@ -16,6 +17,7 @@
 #define UB_DIR_BUCKETS 64
 /* Receiver ids for hashing: probes live above texels so their random numbers differ. */
 #define UB_PROBE_ID_BASE 0x40000000u
+#define UB_LLG_ID_BASE 0x60000000u
 
 static const double UB_Y0 = 0.282094792;
 static const double UB_Y1 = 0.488602512;
@@ -32,6 +34,8 @@ typedef struct recv_set {
   uint32_t nsh;          /* SH coefficients per channel: 4 (L1) or 9 (L2) */
   uint32_t rays;         /* gather rays per receiver per bounce */
   uint32_t id_base;
+  const ub_rt *rt;       /* the geometry its rays see (LLG probes: the level without LLGs) */
+  double *acc_sh_np;     /* bounce 0 only (LLG probes): its non-punctual part, or NULL */
   double *acc_sh;        /* count × nsh × 3, this bounce */
   double *acc_iz;        /* count × 3 (normal receivers), this bounce, stored result */
   double *acc_src;       /* count × 3, bounce 0 only: irradiance incl. primary lights */
@@ -44,7 +48,9 @@ typedef struct pass_ctx {
   const ub_lightmap *lm;
   int32_t *emitter_of;        /* triangle → emitter index, -1 (bounce 0 MIS) */
   float **img;                /* per atlas: w×h×4 (irradiance rgb, filled) of bounce k-1 */
-  recv_set sets[2];           /* 0: texels, 1: probes */
+  recv_set sets[3];           /* 0: texels, 1: GLG probes, 2: LLG probes */
+  const ub_llg_set *llg;      /* LLG models, or NULL */
+  float *llg_prev;            /* LLG probes' SH of bounce k-1 (what LLG-lit hits read) */
   int nee;                    /* bounce 1 takes punctual light at its hits by next-event
                                  estimation instead of reading the bounce-0 lightmap */
   uint32_t bounce;
@@ -326,7 +332,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
       n++;
     }
   }
-  ub_rt_occluded(d->rt, rays, (uint32_t)n, occ);
+  ub_rt_occluded(rs->rt, rays, (uint32_t)n, occ);
   atomic_fetch_add(&c->rays_shadow, n);
   uint64_t nem = 0;
   for (size_t j = 0; j < n; j++)
@@ -345,6 +351,8 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
         rs->acc_src_np[3 * (size_t)r + ch] += (double)sr->e[ch] * sr->cos;
     if (sr->primary)
       continue;
+    if (rs->acc_sh_np && sr->emissive)
+      sh_accum(rs->acc_sh_np + (size_t)rs->nsh * 3 * r, rs->nsh, sr->dir, sr->e, 1.0);
     if (rs->acc_iz)
       for (int ch = 0; ch < 3; ch++)
         rs->acc_iz[3 * (size_t)r + ch] += (double)sr->e[ch] * sr->cos;
@@ -355,12 +363,14 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   free(occ);
 }
 
-/* Next-event estimation at bounce-1 hits: the punctual lights' direct irradiance at each
+/* Next-event estimation at bounce-1 hits (shadow rays against the whole level, also for
+ * LLG probes, whose own rays ignore the LLG models: the surfaces they see are lit as the
+ * level really is): the punctual lights' direct irradiance at each
  * hit point, one light chosen per hit in proportion to its unoccluded irradiance there and
  * one shadow ray. Reading it from the bounce-0 lightmap instead turns the bright, small
  * spots next to lamps into fireflies (a gather ray rarely hits them, and then very hard).
  * Returns per-ray outgoing radiance albedo/π·E (n × 3), or NULL (no light, no memory). */
-static float *nee_block(pass_ctx *c, const ub_ray *rays, const ub_hit *hits,
+static float *nee_block(pass_ctx *c, const ub_rt *rt, const ub_ray *rays, const ub_hit *hits,
                         const uint32_t *sorted_of, size_t n, uint32_t id)
 {
   const ub_pass_desc *d = c->d;
@@ -393,7 +403,7 @@ static float *nee_block(pass_ctx *c, const ub_ray *rays, const ub_hit *hits,
     float hp[3] = {ray->org[0] + h->t * ray->dir[0], ray->org[1] + h->t * ray->dir[1],
                    ray->org[2] + h->t * ray->dir[2]};
     float po[3];
-    ub_rt_offset_point(d->rt, hp, hn, po);
+    ub_rt_offset_point(rt, hp, hn, po);
     double total = 0.0;
     for (uint32_t l = 0; l < s->light_count; l++) {
       w[l] = 0.0f;
@@ -434,7 +444,7 @@ static float *nee_block(pass_ctx *c, const ub_ray *rays, const ub_hit *hits,
     sj[m] = (uint32_t)j;
     m++;
   }
-  ub_rt_occluded(d->rt, sr, (uint32_t)m, occ);
+  ub_rt_occluded(rt, sr, (uint32_t)m, occ);
   atomic_fetch_add(&c->rays_shadow, m);
   for (size_t k = 0; k < m; k++)
     if (!occ[k] && isfinite(se[3 * k]) && isfinite(se[3 * k + 1]) && isfinite(se[3 * k + 2]))
@@ -515,12 +525,12 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     order[dst] = (uint32_t)j;
     sorted[dst] = rays[j];
   }
-  ub_rt_intersect(d->rt, sorted, (uint32_t)n, hits);
+  ub_rt_intersect(rs->rt, sorted, (uint32_t)n, hits);
   atomic_fetch_add(&c->rays_gather, n);
   /* Scatter hits back to ray order (bucket reused as the inverse permutation). */
   for (size_t j = 0; j < n; j++)
     bucket[order[j]] = (uint32_t)j;
-  float *nee = c->bounce == 1 && c->nee ? nee_block(c, rays, hits, bucket, n, rs->id_base + r0)
+  float *nee = c->bounce == 1 && c->nee ? nee_block(c, d->rt, rays, hits, bucket, n, rs->id_base + r0)
                                         : NULL;
 
   uint64_t backface = 0, unlit = 0, clamped = 0, misses = 0, sky_hits = 0, emitter_hits = 0;
@@ -532,6 +542,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     double *iz = rs->acc_iz ? rs->acc_iz + 3 * (size_t)r : NULL;
     double *src = rs->acc_src ? rs->acc_src + 3 * (size_t)r : NULL;
     double *src_np = rs->acc_src_np ? rs->acc_src_np + 3 * (size_t)r : NULL;
+    double *sh_np = rs->acc_sh_np ? rs->acc_sh_np + (size_t)rs->nsh * 3 * r : NULL;
     for (uint32_t j = 0; j < N; j++) {
       const ub_ray *ray = &rays[(size_t)i * N + j];
       const ub_hit *h = &hits[bucket[(size_t)i * N + j]];
@@ -573,14 +584,21 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
             continue;
           }
           int32_t a = lm->tri_atlas[h->tri];
-          if (a < 0 && !(nee && (nee[3 * ((size_t)i * N + j)] > 0.0f ||
-                                 nee[3 * ((size_t)i * N + j) + 1] > 0.0f ||
-                                 nee[3 * ((size_t)i * N + j) + 2] > 0.0f))) {
+          float e[3] = {0.0f, 0.0f, 0.0f};
+          int llg_lit = 0;
+          if (a < 0 && c->llg_prev) {
+            float hp[3] = {ray->org[0] + h->t * ray->dir[0], ray->org[1] + h->t * ray->dir[1],
+                           ray->org[2] + h->t * ray->dir[2]};
+            llg_lit = ub_llg_hit_irradiance(c->llg, s, c->llg_prev, h->tri, h->u, h->v, hp,
+                                            ray->dir, e);
+          }
+          if (a < 0 && !llg_lit && !(nee && (nee[3 * ((size_t)i * N + j)] > 0.0f ||
+                                             nee[3 * ((size_t)i * N + j) + 1] > 0.0f ||
+                                             nee[3 * ((size_t)i * N + j) + 2] > 0.0f))) {
             unlit++;
             continue;
           }
           const float *uv = a >= 0 ? lm->tri_uv + 6 * (size_t)h->tri : NULL;
-          float e[3] = {0.0f, 0.0f, 0.0f};
           if (uv) {
             float b0 = 1.0f - h->u - h->v;
             float u = b0 * uv[0] + h->u * uv[2] + h->v * uv[4];
@@ -608,6 +626,8 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
             src_np[ch] += L[ch] * cs * wt;
         }
       sh_accum(sh, rs->nsh, ray->dir, L, wt);
+      if (sh_np)
+        sh_accum(sh_np, rs->nsh, ray->dir, L, wt);
     }
   }
   atomic_fetch_add(&c->backface, backface);
@@ -688,20 +708,20 @@ static int report(pass_ctx *c, const char *stage, double frac, double bounce_sha
 static void run_blocks(pass_ctx *c, int direct, int gather, const char *stage, double share0,
                        double share1)
 {
-  uint32_t per_set[2], first[3] = {0, 0, 0};
-  for (int s = 0; s < 2; s++) {
+  uint32_t per_set[3], first[4] = {0, 0, 0, 0};
+  for (int s = 0; s < 3; s++) {
     const recv_set *rs = &c->sets[s];
     uint32_t tpb = rs->rays ? UB_BLOCK_RAYS / rs->rays : 256;
     per_set[s] = tpb < 1 ? 1 : (tpb > 256 ? 256 : tpb);
     first[s + 1] = first[s] + (rs->active + per_set[s] - 1) / per_set[s];
   }
-  uint32_t nblocks = first[2];
+  uint32_t nblocks = first[3];
   atomic_store(&c->blocks_done, 0);
 #pragma omp parallel for schedule(dynamic, 1)
   for (uint32_t b = 0; b < nblocks; b++) {
     if (atomic_load(&c->cancelled))
       continue;
-    int s = b >= first[1];
+    int s = b >= first[2] ? 2 : b >= first[1];
     const recv_set *rs = &c->sets[s];
     uint32_t r0 = (b - first[s]) * per_set[s];
     uint32_t nr = rs->active - r0 < per_set[s] ? rs->active - r0 : per_set[s];
@@ -740,7 +760,10 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   out->texel_indirect = calloc((size_t)T + 1, sizeof(float));
   out->probe_direct = calloc((size_t)P + 1, sizeof(float));
   out->probe_indirect = calloc((size_t)P + 1, sizeof(float));
-  recv_set *tx = &c.sets[0], *pr = &c.sets[1];
+  recv_set *tx = &c.sets[0], *pr = &c.sets[1], *lg = &c.sets[2];
+  const ub_llg_set *llg = d->llg && d->llg->probe_count ? d->llg : NULL;
+  uint32_t LP = llg ? llg->probe_count : 0;
+  c.llg = llg;
   tx->texels = 1;
   tx->count = T;
   tx->index = d->texel_subset;
@@ -751,6 +774,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   tx->nsh = 4;
   tx->rays = N;
   tx->id_base = 0;
+  tx->rt = d->rt;
   tx->acc_sh = calloc((size_t)T * 12 + 1, sizeof(double));
   tx->acc_iz = calloc((size_t)T * 3 + 1, sizeof(double));
   tx->acc_src = calloc((size_t)T * 3 + 1, sizeof(double));
@@ -766,13 +790,28 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   pr->nsh = 9;
   pr->rays = d->probe_rays ? d->probe_rays : N;
   pr->id_base = UB_PROBE_ID_BASE;
+  pr->rt = d->rt;
+  lg->count = LP;
+  lg->active = LP;
+  lg->samples = llg ? llg->probe_pos : NULL;
+  lg->spr = 1;
+  lg->nsh = 9;
+  lg->rays = pr->rays;
+  lg->id_base = UB_LLG_ID_BASE;
+  lg->rt = llg ? llg->rt_env : d->rt;
+  lg->acc_sh = calloc((size_t)LP * 27 + 1, sizeof(double));
+  lg->acc_sh_np = calloc((size_t)LP * 27 + 1, sizeof(double));
+  double *llg_total = calloc((size_t)LP * 27 + 1, sizeof(double));
+  if (LP)
+    c.llg_prev = calloc((size_t)LP * 27, sizeof(float));
   pr->acc_sh = calloc((size_t)P * 27 + 1, sizeof(double));
   c.img = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *c.img);
   c.emitter_of = malloc((size_t)(s->triangle_count ? s->triangle_count : 1) * sizeof(int32_t));
   int oom = !sh_total || !iz_total || !tx->acc_sh || !tx->acc_iz || !tx->acc_src ||
             !tx->acc_src_np || !c.img ||
             !c.emitter_of || !pr->acc_sh || !probe_total || !out->texel_direct ||
-            !out->texel_indirect || !out->probe_direct || !out->probe_indirect;
+            !out->texel_indirect || !out->probe_direct || !out->probe_indirect || !lg->acc_sh ||
+            !lg->acc_sh_np || !llg_total || (LP && !c.llg_prev);
   for (uint32_t a = 0; !oom && a < lm->atlas_count; a++) {
     c.img[a] = malloc((size_t)lm->atlases[a].width * lm->atlases[a].height * 4 * sizeof(float));
     oom = !c.img[a];
@@ -811,6 +850,14 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     out->probe_direct[q] = (float)(M_PI * UB_Y0 * lum3d(pr->acc_sh + 27 * (size_t)q));
   /* With next-event estimation, bounce 1 reads only the non-punctual part of bounce 0. */
   build_images(&c, c.nee ? tx->acc_src_np : tx->acc_src);
+  /* LLG probes likewise: bounce 1 reads their non-punctual bounce 0 when NEE is on. */
+  for (size_t i = 0; i < (size_t)LP * 27; i++) {
+    llg_total[i] = lg->acc_sh[i];
+    c.llg_prev[i] = (float)(c.nee ? lg->acc_sh_np[i] : lg->acc_sh[i]);
+  }
+  ub_llg_fill_invalid(llg, c.llg_prev);
+  free(lg->acc_sh_np);
+  lg->acc_sh_np = NULL;
   free(tx->acc_src);
   free(tx->acc_src_np);
   tx->acc_src = NULL;
@@ -826,6 +873,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     memset(tx->acc_sh, 0, (size_t)T * 12 * sizeof(double));
     memset(tx->acc_iz, 0, (size_t)T * 3 * sizeof(double));
     memset(pr->acc_sh, 0, (size_t)P * 27 * sizeof(double));
+    memset(lg->acc_sh, 0, (size_t)LP * 27 * sizeof(double));
     c.bounce = b;
     char stage[32];
     snprintf(stage, sizeof stage, "bounce %u", b);
@@ -844,6 +892,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       iz_total[i] += tx->acc_iz[i];
     for (size_t i = 0; i < (size_t)P * 27; i++)
       probe_total[i] += pr->acc_sh[i];
+    for (size_t i = 0; i < (size_t)LP * 27; i++)
+      llg_total[i] += lg->acc_sh[i];
     for (uint32_t t = 0; t < T; t++)
       out->texel_indirect[t] += (float)lum3d(tx->acc_iz + 3 * (size_t)t);
     for (uint32_t q = 0; q < P; q++)
@@ -857,6 +907,9 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       break;
     }
     build_images(&c, tx->acc_iz);
+    for (size_t i = 0; i < (size_t)LP * 27; i++)
+      c.llg_prev[i] = (float)lg->acc_sh[i];
+    ub_llg_fill_invalid(llg, c.llg_prev);
   }
   out->bounces = b - 1;
 
@@ -913,6 +966,20 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     }
     out->probe_sh[i] = v;
   }
+  out->llg_sh = malloc(((size_t)LP * 27 + 1) * sizeof(float));
+  if (!out->llg_sh) {
+    res = UB_ERR_OUT_OF_MEMORY;
+    goto done;
+  }
+  for (size_t i = 0; i < (size_t)LP * 27; i++) {
+    float v = (float)llg_total[i];
+    if (!isfinite(v)) {
+      v = 0.0f;
+      clamped++;
+    }
+    out->llg_sh[i] = v;
+  }
+  ub_llg_fill_invalid(llg, out->llg_sh);
   out->rays_gather = atomic_load(&c.rays_gather);
   out->rays_shadow = atomic_load(&c.rays_shadow);
   out->clamped = atomic_load(&c.clamped) + clamped;
@@ -934,6 +1001,10 @@ done:
   free(tx->acc_src_np);
   free(pr->acc_sh);
   free(probe_total);
+  free(lg->acc_sh);
+  free(lg->acc_sh_np);
+  free(llg_total);
+  free(c.llg_prev);
   if (c.img)
     for (uint32_t a = 0; a < lm->atlas_count; a++)
       free(c.img[a]);
@@ -949,6 +1020,8 @@ void ub_pass_result_free(ub_pass_result *r)
   free(r->sh);
   free(r->iz);
   free(r->probe_sh);
+  free(r->llg_sh);
+  r->llg_sh = NULL;
   free(r->texel_direct);
   free(r->texel_indirect);
   free(r->probe_direct);

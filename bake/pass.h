@@ -43,6 +43,10 @@ typedef struct ub_pass_desc {
   uint32_t probe_count;
   const float *probe_pos;        /* probe_count × 3, world */
   uint32_t probe_rays;           /* gather rays per probe per bounce (0 = gather_rays) */
+  /* Local light grids (probes/llg.h), or NULL: their probes are a third receiver set
+   * (full-sphere gather, SH L2, every bounce, rays against llg->rt_env), and gather rays
+   * that hit an LLG model read bounce k-1 from its grid × self-visibility × gain. */
+  const struct ub_llg_set *llg;
   /* Influence subset (a dynamic element's pass): only these receivers are simulated; the
    * others stay zero. NULL = every receiver. Indices sorted ascending. */
   const uint32_t *texel_subset;
@@ -62,6 +66,8 @@ typedef struct ub_pass_result {
   float *sh;                     /* texel_count × 12: radiance SH L1 (W/(m²·sr)), I_z-exact */
   float *iz;                     /* texel_count × 3: irradiance along the normal (W/m²) */
   float *probe_sh;               /* probe_count × 27: radiance SH L2 (W/(m²·sr)), raw */
+  float *llg_sh;                 /* llg->probe_count × 27: LLG probes' radiance SH L2, invalid
+                                    probes filled from their neighbours */
   /* Influence measures (luminance, W/m²): what reached each receiver directly (bounce 0,
    * including primary lights' unstored direct light) and through bounces ≥ 1. */
   float *texel_direct, *texel_indirect; /* texel_count */

@@ -42,8 +42,12 @@ static const uint8_t ub_ubk_magic[4] = {'U', 'B', 'K', 0};
 /* META, GEOM, ATLS are mandatory; GLGP (global light grid) and DLSR (dynamic light set
  * records) are optional: a reader without them still has the base lighting. */
 enum { UB_SEC_META = 0, UB_SEC_GEOM, UB_SEC_ATLS, UB_SEC_MANDATORY, UB_SEC_GLGP = UB_SEC_MANDATORY,
-       UB_SEC_DLSR, UB_SEC_LITE, UB_SEC_KNOWN };
-static const char ub_sec_tags[UB_SEC_KNOWN][5] = {"META", "GEOM", "ATLS", "GLGP", "DLSR", "LITE"};
+       UB_SEC_DLSR, UB_SEC_LITE, UB_SEC_LLGM, UB_SEC_KNOWN };
+static const char ub_sec_tags[UB_SEC_KNOWN][5] = {"META", "GEOM", "ATLS", "GLGP", "DLSR", "LITE",
+                                                  "LLGM"};
+#define UB_LLGM_MODEL_HEADER 144 /* name[64], centre, axes, half, dims, V, T */
+#define UB_LLGM_MAX_DIM 64u
+#define UB_LLGM_MAX_SELF 65504.0f /* the half range */
 #define UB_LITE_SIZE 60 /* bytes per light */
 #define UB_DLSR_SET_HEADER 80 /* name[64], light count, mean intensity, texels, probes */
 #define UB_GLG_SH_FLOATS 27 /* SH L2 × RGB */
@@ -247,6 +251,73 @@ static ub_result validate_lights(const ub_bakefile *bf, const char *name, const 
   return UB_OK;
 }
 
+static ub_result validate_llg(const ub_bakefile *bf, const char *name, const ub_log *log)
+{
+  static const char *where = "section LLGM";
+  for (uint32_t i = 0; i < bf->llg_count; i++) {
+    const ub_bakefile_llg *m = &bf->llgs[i];
+    size_t bad;
+    if (memchr(m->name, 0, sizeof m->name) == NULL) {
+      ubk_error(log, name, where, "model %u: name is not NUL-terminated", i);
+      return UB_ERR_INVALID_DATA;
+    }
+    uint64_t np = 1;
+    for (int a = 0; a < 3; a++) {
+      if (m->dims[a] < 2 || m->dims[a] > UB_LLGM_MAX_DIM) {
+        ubk_error(log, name, where, "model %u (%s): grid %ux%ux%u not in [2, %u] per axis", i,
+                  m->name, m->dims[0], m->dims[1], m->dims[2], UB_LLGM_MAX_DIM);
+        return UB_ERR_INVALID_DATA;
+      }
+      np *= m->dims[a];
+    }
+    assert(m->probe_sh && (m->vertex_count == 0 || (m->positions && m->normals && m->vis &&
+                                                    m->self)));
+    assert(m->triangle_count == 0 || m->indices);
+    int box_ok = all_finite(m->center, 3, &bad) && all_finite(m->axes, 9, &bad) &&
+                 all_finite(m->half, 3, &bad);
+    for (int a = 0; box_ok && a < 3; a++) {
+      if (!(m->half[a] > 0.0f) || m->half[a] > 1e6f)
+        box_ok = 0;
+      for (int b = 0; b <= a; b++) {
+        double d = 0.0;
+        for (int k = 0; k < 3; k++)
+          d += (double)m->axes[3 * a + k] * m->axes[3 * b + k];
+        if (fabs(d - (a == b ? 1.0 : 0.0)) > 1e-3)
+          box_ok = 0;
+      }
+    }
+    if (!box_ok) {
+      ubk_error(log, name, where, "model %u (%s): box not finite, axes not orthonormal or a "
+                "half extent not in (0, 1e6]", i, m->name);
+      return UB_ERR_INVALID_DATA;
+    }
+    if (!all_finite(m->probe_sh, (size_t)np * UB_GLG_SH_FLOATS, &bad)) {
+      ubk_error(log, name, where, "model %u (%s): probe %zu has a non-finite SH", i, m->name,
+                bad / UB_GLG_SH_FLOATS);
+      return UB_ERR_INVALID_DATA;
+    }
+    size_t v = m->vertex_count;
+    if (!all_finite(m->positions, v * 3, &bad) || !all_finite(m->normals, v * 3, &bad) ||
+        !all_finite(m->vis, v * 9, &bad)) {
+      ubk_error(log, name, where, "model %u (%s): vertex data not finite", i, m->name);
+      return UB_ERR_INVALID_DATA;
+    }
+    for (size_t k = 0; k < v * 3; k++)
+      if (!(m->self[k] >= 0.0f && m->self[k] <= UB_LLGM_MAX_SELF)) {
+        ubk_error(log, name, where, "model %u (%s): vertex %zu: self irradiance not in "
+                  "[0, %g]", i, m->name, k / 3, (double)UB_LLGM_MAX_SELF);
+        return UB_ERR_INVALID_DATA;
+      }
+    for (size_t k = 0; k < (size_t)m->triangle_count * 3; k++)
+      if (m->indices[k] >= m->vertex_count) {
+        ubk_error(log, name, where, "model %u (%s): triangle %zu: index %u >= vertex count %u",
+                  i, m->name, k / 3, m->indices[k], m->vertex_count);
+        return UB_ERR_INVALID_DATA;
+      }
+  }
+  return UB_OK;
+}
+
 static ub_result validate(const ub_bakefile *bf, const char *name, const ub_log *log)
 {
   size_t bad;
@@ -321,7 +392,9 @@ static ub_result validate(const ub_bakefile *bf, const char *name, const ub_log 
   ub_result r = validate_glg(bf, name, log);
   if (r == UB_OK)
     r = validate_dls(bf, name, log);
-  return r == UB_OK ? validate_lights(bf, name, log) : r;
+  if (r == UB_OK)
+    r = validate_lights(bf, name, log);
+  return r == UB_OK ? validate_llg(bf, name, log) : r;
 }
 
 /* ---------------------------------------------------------------------------------- */
@@ -549,6 +622,52 @@ static void wr_lite(ubk_writer *w, const ub_bakefile *bf)
   wr_zeros(w, (size_t)(align8(block) - block), 1);
 }
 
+static uint64_t llgm_block_size(uint64_t np, uint64_t nv, uint64_t nt)
+{
+  return 48u * nv + 12u * nt + 2u * UB_GLG_SH_FLOATS * np;
+}
+
+static void wr_llgm(ubk_writer *w, const ub_bakefile *bf)
+{
+  wr_u32(w, bf->llg_count);
+  wr_u32(w, 0); /* reserved */
+  for (uint32_t i = 0; i < bf->llg_count; i++) {
+    const ub_bakefile_llg *m = &bf->llgs[i];
+    uint8_t name[64];
+    memset(name, 0, sizeof name);
+    memcpy(name, m->name, strnlen(m->name, sizeof name - 1));
+    wr_bytes(w, name, sizeof name, 1);
+    for (int k = 0; k < 3; k++)
+      wr_f32(w, m->center[k]);
+    for (int k = 0; k < 9; k++)
+      wr_f32(w, m->axes[k]);
+    for (int k = 0; k < 3; k++)
+      wr_f32(w, m->half[k]);
+    for (int k = 0; k < 3; k++)
+      wr_u32(w, m->dims[k]);
+    wr_u32(w, m->vertex_count);
+    wr_u32(w, m->triangle_count);
+  }
+  for (uint32_t i = 0; i < bf->llg_count; i++) {
+    const ub_bakefile_llg *m = &bf->llgs[i];
+    size_t np = (size_t)m->dims[0] * m->dims[1] * m->dims[2], nv = m->vertex_count;
+    for (size_t k = 0; k < nv * 3; k++)
+      wr_f32(w, m->positions[k]);
+    for (size_t k = 0; k < nv * 3; k++)
+      wr_f32(w, m->normals[k]);
+    for (size_t k = 0; k < (size_t)m->triangle_count * 3; k++)
+      wr_u32(w, m->indices[k]);
+    for (size_t k = 0; k < np * UB_GLG_SH_FLOATS; k++)
+      wr_half(w, m->probe_sh[k]);
+    for (size_t k = 0; k < nv * 9; k++)
+      wr_half(w, m->vis[k]);
+    for (size_t k = 0; k < nv * 3; k++)
+      wr_half(w, m->self[k]);
+    uint64_t block = llgm_block_size(np, nv, m->triangle_count);
+    wr_zeros(w, (size_t)(align8(block) - block), 1);
+  }
+}
+
 ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_log *log)
 {
   assert(bf && path);
@@ -591,6 +710,8 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
     order[sections++] = UB_SEC_DLSR;
   if (bf->light_count)
     order[sections++] = UB_SEC_LITE;
+  if (bf->llg_count)
+    order[sections++] = UB_SEC_LLGM;
   size_t head_size = UB_UBK_HEADER_SIZE + (size_t)sections * UB_UBK_ENTRY_SIZE;
   wr_bytes(w, head, head_size, 0);
 
@@ -617,6 +738,11 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
     wr_begin(w, &sec[UB_SEC_LITE], ub_sec_tags[UB_SEC_LITE], 0);
     wr_lite(w, bf);
     wr_end(w, &sec[UB_SEC_LITE]);
+  }
+  if (bf->llg_count) {
+    wr_begin(w, &sec[UB_SEC_LLGM], ub_sec_tags[UB_SEC_LLGM], 0);
+    wr_llgm(w, bf);
+    wr_end(w, &sec[UB_SEC_LLGM]);
   }
   wr_flush(w);
 
@@ -1037,6 +1163,89 @@ static ub_result parse_lite(const ubk_reader *rd, const uint8_t *p, uint64_t siz
   return UB_OK;
 }
 
+static ub_result parse_llgm(const ubk_reader *rd, const uint8_t *p, uint64_t size,
+                            ub_bakefile *bf)
+{
+  static const char *where = "section LLGM";
+  ubk_cursor c = {p, (size_t)size};
+  uint32_t nm, reserved;
+  if (!cur_u32(&c, &nm) || !cur_u32(&c, &reserved)) {
+    ubk_error(rd->log, rd->name, where, "size %llu too small for the count",
+              (unsigned long long)size);
+    return UB_ERR_INVALID_DATA;
+  }
+  if ((uint64_t)nm * UB_LLGM_MODEL_HEADER > size - 8) {
+    ubk_error(rd->log, rd->name, where, "%u models do not fit in %llu bytes", nm,
+              (unsigned long long)size);
+    return UB_ERR_INVALID_DATA;
+  }
+  /* Walk the model headers: dims range and the exact size before allocating anything. */
+  uint64_t expect = 8u + (uint64_t)nm * UB_LLGM_MODEL_HEADER;
+  for (uint32_t i = 0; i < nm && expect <= size; i++) {
+    const uint8_t *h = p + 8 + (size_t)i * UB_LLGM_MODEL_HEADER;
+    uint64_t np = 1;
+    for (int a = 0; a < 3; a++) {
+      uint32_t d = le_get32(h + 124 + 4 * a);
+      if (d < 2 || d > UB_LLGM_MAX_DIM) {
+        ubk_error(rd->log, rd->name, where, "model %u: %u probes along axis %d not in [2, %u]",
+                  i, d, a, UB_LLGM_MAX_DIM);
+        return UB_ERR_INVALID_DATA;
+      }
+      np *= d;
+    }
+    expect += align8(llgm_block_size(np, le_get32(h + 136), le_get32(h + 140)));
+  }
+  if (expect != size) {
+    ubk_error(rd->log, rd->name, where, "size %llu does not match its %u models' counts",
+              (unsigned long long)size, nm);
+    return UB_ERR_INVALID_DATA;
+  }
+  bf->llgs = calloc_array(nm, sizeof *bf->llgs);
+  if (nm && !bf->llgs) {
+    ubk_error(rd->log, rd->name, where, "out of memory");
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  bf->llg_count = nm;
+  for (uint32_t i = 0; i < nm; i++) {
+    ub_bakefile_llg *m = &bf->llgs[i];
+    const uint8_t *nmp = NULL;
+    int ok = cur_take(&c, 64, &nmp);
+    assert(ok && nmp);
+    memcpy(m->name, nmp, 64);
+    ok = cur_f32s(&c, m->center, 3) && cur_f32s(&c, m->axes, 9) &&
+         cur_f32s(&c, m->half, 3) && cur_u32s(&c, m->dims, 3) &&
+         cur_u32(&c, &m->vertex_count) && cur_u32(&c, &m->triangle_count);
+    assert(ok);
+    (void)ok;
+  }
+  for (uint32_t i = 0; i < nm; i++) {
+    ub_bakefile_llg *m = &bf->llgs[i];
+    uint64_t np = (uint64_t)m->dims[0] * m->dims[1] * m->dims[2], nv = m->vertex_count;
+    m->probe_sh = calloc_array(np * UB_GLG_SH_FLOATS, sizeof(float));
+    m->positions = calloc_array(nv * 3, sizeof(float));
+    m->normals = calloc_array(nv * 3, sizeof(float));
+    m->vis = calloc_array(nv * 9, sizeof(float));
+    m->self = calloc_array(nv * 3, sizeof(float));
+    m->indices = calloc_array((uint64_t)m->triangle_count * 3, sizeof(uint32_t));
+    if (!m->probe_sh || (nv && (!m->positions || !m->normals || !m->vis || !m->self)) ||
+        (m->triangle_count && !m->indices)) {
+      ubk_error(rd->log, rd->name, where, "out of memory");
+      return UB_ERR_OUT_OF_MEMORY;
+    }
+    uint64_t block = llgm_block_size(np, nv, m->triangle_count);
+    const uint8_t *pad;
+    int ok = cur_f32s(&c, m->positions, (size_t)nv * 3) &&
+             cur_f32s(&c, m->normals, (size_t)nv * 3) &&
+             cur_u32s(&c, m->indices, (size_t)m->triangle_count * 3) &&
+             cur_halves(&c, m->probe_sh, (size_t)np * UB_GLG_SH_FLOATS) &&
+             cur_halves(&c, m->vis, (size_t)nv * 9) && cur_halves(&c, m->self, (size_t)nv * 3) &&
+             cur_take(&c, (size_t)(align8(block) - block), &pad);
+    assert(ok); /* guaranteed by the exact size walk above */
+    (void)ok;
+  }
+  return UB_OK;
+}
+
 ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *name,
                                   const ub_log *log, ub_bakefile **out_bf)
 {
@@ -1170,6 +1379,8 @@ ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *nam
     r = parse_dlsr(&rd, known[UB_SEC_DLSR], known_size[UB_SEC_DLSR], bf);
   if (r == UB_OK && known[UB_SEC_LITE])
     r = parse_lite(&rd, known[UB_SEC_LITE], known_size[UB_SEC_LITE], bf);
+  if (r == UB_OK && known[UB_SEC_LLGM])
+    r = parse_llgm(&rd, known[UB_SEC_LLGM], known_size[UB_SEC_LLGM], bf);
   if (r == UB_OK)
     r = validate(bf, rd.name, log);
   if (r != UB_OK) {
@@ -1257,5 +1468,14 @@ void ub_bakefile_free(ub_bakefile *bf)
   }
   free(bf->dls);
   free(bf->lights);
+  for (uint32_t i = 0; i < bf->llg_count; i++) {
+    free(bf->llgs[i].probe_sh);
+    free(bf->llgs[i].positions);
+    free(bf->llgs[i].normals);
+    free(bf->llgs[i].vis);
+    free(bf->llgs[i].self);
+    free(bf->llgs[i].indices);
+  }
+  free(bf->llgs);
   free(bf);
 }

@@ -336,6 +336,16 @@ static int cmd_info(int argc, char **argv)
       (unsigned long long)bf->glg_probe_count * (12 + 54) +
       (unsigned long long)bf->glg_tet_count * (16 + 16 + 4) +
       (unsigned long long)bf->glg_plane_count * 16;
+  /* On-disk LLG bytes: per model header, f32 vertices/normals, u32 triangles, half SH,
+   * half visibility and gain. */
+  unsigned long long llg_bytes = 0, llg_probes = 0, llg_vertices = 0;
+  for (uint32_t i = 0; i < bf->llg_count; i++) {
+    const ub_bakefile_llg *m = &bf->llgs[i];
+    unsigned long long np = (unsigned long long)m->dims[0] * m->dims[1] * m->dims[2];
+    llg_probes += np;
+    llg_vertices += m->vertex_count;
+    llg_bytes += 144 + 54 * np + 48ULL * m->vertex_count + 12ULL * m->triangle_count;
+  }
   if (json) {
     printf("{\"level\": \"%s\", \"bytes\": %lld, \"seed\": %u, \"bounces\": %u, "
            "\"vertices\": %u, \"triangles\": %u, \"atlases\": [",
@@ -345,10 +355,11 @@ static int cmd_info(int argc, char **argv)
              bf->atlases[a].height);
     printf("], \"texels\": %llu, \"covered_texels\": %llu, \"dilated_texels\": %llu, "
            "\"glg_probes\": %u, \"glg_tets\": %u, \"glg_leak_planes\": %u, "
-           "\"glg_bytes\": %llu, \"llg_probes\": 0, \"dls\": [",
+           "\"glg_bytes\": %llu, \"llg_models\": %u, \"llg_probes\": %llu, "
+           "\"llg_vertices\": %llu, \"llg_bytes\": %llu, \"dls\": [",
            (unsigned long long)total, (unsigned long long)covered,
            (unsigned long long)dilated, bf->glg_probe_count, bf->glg_tet_count,
-           bf->glg_plane_count, glg_bytes);
+           bf->glg_plane_count, glg_bytes, bf->llg_count, llg_probes, llg_vertices, llg_bytes);
     for (uint32_t d = 0; d < bf->dls_count; d++)
       printf("%s{\"name\": \"%s\", \"lights\": %u, \"texels\": %u, \"probes\": %u, "
              "\"bytes\": %llu}",
@@ -371,7 +382,16 @@ static int cmd_info(int argc, char **argv)
              (double)glg_bytes / bf->glg_probe_count);
     else
       printf("  GLG: none baked\n");
-    printf("  LLG: none baked (not implemented yet)\n");
+    if (bf->llg_count) {
+      printf("  LLG: %u model(s), %llu probes, %llu vertices, %llu bytes\n", bf->llg_count,
+             llg_probes, llg_vertices, llg_bytes);
+      for (uint32_t i = 0; i < bf->llg_count; i++)
+        printf("    %-20s grid %u x %u x %u, %u vertices, %u triangles\n", bf->llgs[i].name,
+               bf->llgs[i].dims[0], bf->llgs[i].dims[1], bf->llgs[i].dims[2],
+               bf->llgs[i].vertex_count, bf->llgs[i].triangle_count);
+    } else {
+      printf("  LLG: none baked\n");
+    }
     printf("  dynamic light sets: %u\n", bf->dls_count);
     for (uint32_t d = 0; d < bf->dls_count; d++) {
       const ub_bakefile_record *rc = &bf->dls[d];
@@ -393,7 +413,9 @@ static const char *QUERY_HELP =
     "  --dls NAME=W        weight (or RGB tint) of a dynamic light set (default 1: as baked)\n"
     "  --source lightmap   the lightmap of the closest lightmapped surface point\n"
     "  --source glg        the global light grid (tetrahedral probes), as a dynamic object\n"
-    "  --source llg        local light grids (not baked yet: reports an error)\n"
+    "  --source llg        the local light grid of the LLG model whose box holds the point\n"
+    "                      (closest box otherwise), with its self-visibility within 5 cm\n"
+    "                      of its surface\n"
     "  --source auto       the default: glg (a point in space)\n";
 
 static int cmd_query(int argc, char **argv)
@@ -444,12 +466,6 @@ static int cmd_query(int argc, char **argv)
     return usage_error("query", "--source takes auto, glg, llg or lightmap");
   cli_log_state ls = {0, 0, 0};
   ub_log log = {cli_log, &ls};
-  if (!strcmp(source, "llg")) {
-    fprintf(stderr, "ubake: %s: llg probes are not baked in this file (LLGs are not "
-                    "implemented yet)\n",
-            path);
-    return 1;
-  }
   ub_runtime *rt = NULL;
   ub_result r = ub_runtime_load(path, &log, &rt);
   if (r != UB_OK)
@@ -470,12 +486,14 @@ static int cmd_query(int argc, char **argv)
   /* auto: a point in space is answered by the GLG, as for a dynamic object. */
   if (!strcmp(source, "lightmap"))
     r = ub_runtime_query_lightmap(rt, at, nrm, rgb, &dist);
+  else if (!strcmp(source, "llg"))
+    r = ub_runtime_query_llg(rt, at, nrm, rgb);
   else
     r = ub_runtime_query_glg(rt, at, nrm, NULL, rgb);
   ub_runtime_free(rt);
   if (r == UB_ERR_NOT_BAKED) {
     fprintf(stderr, "ubake: %s: no %s data baked in this file\n", path,
-            strcmp(source, "lightmap") ? "GLG" : "lightmap");
+            !strcmp(source, "lightmap") ? "lightmap" : !strcmp(source, "llg") ? "LLG" : "GLG");
     return 1;
   }
   if (r != UB_OK)

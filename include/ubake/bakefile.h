@@ -63,6 +63,25 @@ typedef struct ub_bakefile_light {
   float range, cos_inner, cos_outer;
 } ub_bakefile_light;
 
+/* One local light grid model (section LLGM; evaluation: ubake/llg.h). Probe (x, y, z) is
+ * number (z·dims[1] + y)·dims[0] + x and sits on the box corners and evenly in between. */
+typedef struct ub_bakefile_llg {
+  char name[64];            /* the node's name, NUL-terminated */
+  float center[3];          /* box centre, world metres */
+  float axes[9];            /* rows: the box's orthonormal, right-handed axes */
+  float half[3];            /* half extents along the axes, metres, > 0 */
+  uint32_t dims[3];         /* probes per axis, each in [2, 64] */
+  float *probe_sh;          /* dims product × 27: radiance SH L2, W/(m²·sr) */
+  uint32_t vertex_count;
+  float *positions;         /* vertex_count × 3, world metres */
+  float *normals;           /* vertex_count × 3, unit */
+  float *vis;               /* vertex_count × 9: self-visibility SH L2 (monochrome) */
+  float *self;              /* vertex_count × 3: self-inter-reflection irradiance along the
+                               vertex normal, W/m², ≥ 0 */
+  uint32_t triangle_count;
+  uint32_t *indices;        /* triangle_count × 3, < vertex_count */
+} ub_bakefile_llg;
+
 typedef struct ub_bakefile {
   char level_name[64];      /* NUL-terminated */
   uint32_t seed;
@@ -94,6 +113,10 @@ typedef struct ub_bakefile {
   /* Punctual lights (section LITE; light_count 0 = none). */
   uint32_t light_count;
   ub_bakefile_light *lights;
+
+  /* Local light grid models (section LLGM; llg_count 0 = none). */
+  uint32_t llg_count;
+  ub_bakefile_llg *llgs;
 
   /* Dynamic light sets (section DLSR; dls_count 0 = none). */
   uint32_t dls_count;

@@ -62,6 +62,25 @@ ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint
 ub_result ub_runtime_query_glg(const ub_runtime *rt, const float p[3], const float n[3],
                                uint32_t *inout_tet_cache, float out_rgb[3]);
 
+/* Irradiance (W/m², ≥ 0) from the local light grids (ubake/llg.h) at p for unit normal n
+ * (normalised here). The model: the first whose box contains p, else the one whose box is
+ * closest. Its grid is interpolated trilinearly at p; when the model's surface is within
+ * UB_LLG_SURFACE_DISTANCE of p, the self-visibility at the closest surface point (ties
+ * between faces, as near a concave edge, go to the face whose normal agrees with n) is
+ * multiplied in (SH triple product, before the cosine convolution) and its
+ * self-inter-reflection added (ubake/llg.h); farther away (a point in the air around the
+ * model) the grid alone answers.
+ * flags: 0, or UB_LLG_QUERY_NO_VISIBILITY (grid alone, for comparisons).
+ * out_model (may be NULL): the model's index in ub_runtime_bakefile(rt)->llgs.
+ * UB_ERR_NOT_BAKED when the file has no LLG; UB_ERR_INVALID_ARGUMENT for a non-finite p
+ * or a zero / non-finite n (outputs untouched). */
+#define UB_LLG_SURFACE_DISTANCE 0.05f /* metres */
+#define UB_LLG_QUERY_NO_VISIBILITY 1u
+ub_result ub_runtime_query_llg(const ub_runtime *rt, const float p[3], const float n[3],
+                               float out_rgb[3]);
+ub_result ub_runtime_query_llg_ex(const ub_runtime *rt, const float p[3], const float n[3],
+                                  unsigned flags, float out_rgb[3], uint32_t *out_model);
+
 /* ---- dynamic light sets --------------------------------------------------------------
  * Each set baked into the file has an RGB weight (default 1: its lights on as baked). The
  * lighting used everywhere is base + Σ weight_i · set_i, exact per channel because light
