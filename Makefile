@@ -37,11 +37,22 @@ bench: build
 	UB_BUILD=$(BUILD) $(BUILD)/bench_bake $(SHARED_LEVELS)/oa_dm4/oa_dm4.gltf $(SHARED_LEVELS)/q3dm6ish/q3dm6ish.gltf
 
 FUZZ_SECONDS ?= 60
+FUZZ_TARGETS ?= fuzz_gltf fuzz_ubk fuzz_ubk_crc
+FUZZ_NICE ?= nice -n 10
+# The whole library is compiled with coverage (fuzzer-no-link) so libFuzzer is guided by
+# the loaders' code, not only by the target file; UBSan aborts so the fuzzer sees it.
+FUZZ_FLAGS := -fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=undefined -fno-omit-frame-pointer
 fuzz: deps
-	CC=clang CXX=clang++ cmake -S . -B build-fuzz -DCMAKE_BUILD_TYPE=RelWithDebInfo -DUB_FUZZ=ON >/dev/null
-	cmake --build build-fuzz -j $(JOBS)
-	@for f in build-fuzz/fuzz_*; do n=$$(basename $$f); mkdir -p build-fuzz/corpus-$$n; \
-	  $$f -max_total_time=$(FUZZ_SECONDS) build-fuzz/corpus-$$n tests/fuzz/corpus-$$n || exit 1; done
+	CC=clang CXX=clang++ cmake -S . -B build-fuzz -DCMAKE_BUILD_TYPE=RelWithDebInfo -DUB_FUZZ=ON \
+	  "-DCMAKE_C_FLAGS=$(FUZZ_FLAGS)" "-DCMAKE_CXX_FLAGS=$(FUZZ_FLAGS)" \
+	  "-DCMAKE_EXE_LINKER_FLAGS=-fsanitize=address,undefined" >/dev/null
+	cmake --build build-fuzz -j $(JOBS) --target $(FUZZ_TARGETS)
+	@for n in $(FUZZ_TARGETS); do mkdir -p build-fuzz/corpus-$$n build-fuzz/artifacts-$$n; \
+	  echo "== $$n for $(FUZZ_SECONDS) s"; \
+	  dict=; [ -f tests/fuzz/$$n.dict ] && dict=-dict=tests/fuzz/$$n.dict; \
+	  $(FUZZ_NICE) build-fuzz/$$n -max_total_time=$(FUZZ_SECONDS) -print_final_stats=1 $$dict \
+	    -artifact_prefix=build-fuzz/artifacts-$$n/ build-fuzz/corpus-$$n tests/fuzz/corpus-$$n \
+	    || { echo "fuzz: $$n found a crash: see build-fuzz/artifacts-$$n/"; exit 1; }; done
 
 clean:
 	rm -rf $(BUILD) build-asan build-fuzz

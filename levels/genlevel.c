@@ -298,6 +298,36 @@ static void add_face(int mi, const V3 p_in[4], V3 n_expected)
     m->ni += 6;
 }
 
+/* Raw indexed geometry (hard-case levels only: not quads, so no uv1 grid).
+ * mesh_vertex adds one vertex carrying normal n and returns its index;
+ * mesh_tri adds one triangle by vertex indices, as given (degenerate triangles
+ * have no winding to check). */
+static uint32_t mesh_vertex(int mi, V3 p, V3 n)
+{
+    Mesh *m = &S.meshes[mi];
+    mesh_reserve(m, 1, 0);
+    float *P = m->pos + 3 * m->nv, *N = m->nrm + 3 * m->nv;
+    P[0] = (float)p.x; P[1] = (float)p.y; P[2] = (float)p.z;
+    N[0] = (float)n.x; N[1] = (float)n.y; N[2] = (float)n.z;
+    return (uint32_t)m->nv++;
+}
+
+static void mesh_tri(int mi, uint32_t a, uint32_t b, uint32_t c)
+{
+    Mesh *m = &S.meshes[mi];
+    mesh_reserve(m, 0, 3);
+    m->idx[m->ni++] = a; m->idx[m->ni++] = b; m->idx[m->ni++] = c;
+}
+
+/* Triangle with its own 3 vertices, wound counter-clockwise about n
+ * (non-degenerate input only). */
+static void add_tri(int mi, V3 a, V3 b, V3 c, V3 n)
+{
+    if (vdot(vcross(vsub(b, a), vsub(c, a)), n) < 0) { V3 t = b; b = c; c = t; }
+    uint32_t i = mesh_vertex(mi, a, n), j = mesh_vertex(mi, b, n), k = mesh_vertex(mi, c, n);
+    mesh_tri(mi, i, j, k);
+}
+
 /* Rectangle o + [0,1]eu + [0,1]ev split into nu x nv quads, facing n. */
 static void add_grid(int mi, V3 o, V3 eu, V3 ev, int nu, int nv, V3 n)
 {
@@ -521,7 +551,7 @@ static void build_furnace(void)
 {
     double rho = P("rho"), le = P("le"), sz = P("size");
     int n = PI_("n");
-    require(rho >= 0 && rho < 1 && le >= 0 && n >= 1 && n <= 64 && sz > 0, "0<=rho<1, le>=0, 1<=n<=64, size>0");
+    require(rho >= 0 && rho <= 1 && le >= 0 && n >= 1 && n <= 64 && sz > 0, "0<=rho<=1, le>=0, 1<=n<=64, size>0");
     int mat = material("furnace", rho, rho, rho, le);
     double h = 0.5 * sz;
     static const char *names[6] = { "furnace_wall_xneg", "furnace_wall_xpos", "furnace_floor",
@@ -675,6 +705,173 @@ static void build_hallway(void)
     }
 }
 
+/* ---- hard numerical cases (tests/hard/) ---------------------------------- */
+
+/* grazing: black plane, directional light at `angle` degrees from its normal. */
+static void build_grazing(void)
+{
+    double sz = P("size"), E = P("sun"), ang = P("angle"), az = P("azim");
+    int n = PI_("n");
+    require(sz > 0 && n >= 1 && n <= 256 && E >= 0 && ang >= 0 && ang < 90,
+            "size>0, 1<=n<=256, sun>=0, 0<=angle<90");
+    int mat = material("black", 0, 0, 0, 0);
+    int m = mesh_new("plane", mat);
+    add_rect(m, 1, 0.0, v3(-sz / 2, 0, -sz / 2), v3(sz / 2, 0, sz / 2), +1, n);
+    mesh_node("plane", m);
+    double t = deg2rad(ang), a = deg2rad(az);
+    V3 to_sun = v3(sin(t) * sin(a), cos(t), sin(t) * cos(a));
+    Node *sn = light_node("sun", LIGHT_DIRECTIONAL, E, 1, 1, 1, vscale(to_sun, 10.0));
+    node_aim(sn, vscale(to_sun, -1.0));
+    node_extra(sn, "ubake_light", "static");
+}
+
+/* tjunction: black size x size floor (y=0, facing +y) under a constant sky,
+ * built from indexed triangles with T-junctions, shared and duplicate
+ * vertices, zero-area and sliver triangles. */
+static void build_tjunction(void)
+{
+    double sz = P("size"), sl = P("sliver");
+    const double *sky = pv("sky");
+    require(!PI_("uv1"), "uv1=1 is not supported (the floor is not made of quads)");
+    require(sz > 0 && sl > 0 && sl < 0.05 * sz && sky[0] >= 0 && sky[1] >= 0 && sky[2] >= 0,
+            "size>0, 0<sliver<size/20, sky>=0");
+    int mat = material("black", 0, 0, 0, 0);
+    int m = mesh_new("floor", mat);
+    V3 up = v3(0, 1, 0);
+    double h = 0.5 * sz, q = 0.25 * sz; /* half size, quarter size */
+#define FV(x, z) mesh_vertex(m, v3((x), 0, (z)), up)
+    /* Left half x in [-h,0]: two squares sharing the edge z=0 through shared
+     * vertices, except one corner which is a duplicate (same position, new index). */
+    uint32_t a0 = FV(-h, -h), a1 = FV(0, -h), a2 = FV(0, 0), a3 = FV(-h, 0);
+    uint32_t a4 = FV(0, h), a5 = FV(-h, h), a3dup = FV(-h, 0);
+    mesh_tri(m, a0, a2, a1); mesh_tri(m, a0, a3, a2);           /* z in [-h,0] */
+    mesh_tri(m, a3dup, a4, a2); mesh_tri(m, a3dup, a5, a4);     /* z in [0,h] */
+    /* Right half x in [0,h]: four strips along z, their corners at z=-q and
+     * z=+q are T-junctions on the left squares' edge x=0. */
+    uint32_t r[5][2];
+    for (int k = 0; k < 5; k++) { r[k][0] = FV(0, -h + k * q); r[k][1] = FV(h, -h + k * q); }
+    mesh_tri(m, r[0][0], r[1][1], r[0][1]); mesh_tri(m, r[0][0], r[1][0], r[1][1]); /* [-h,-q] */
+    mesh_tri(m, r[1][0], r[2][1], r[1][1]); mesh_tri(m, r[1][0], r[2][0], r[2][1]); /* [-q,0] */
+    /* [0,q] split at x=h/2: T-junction at (h/2, 0) on the edge of [-q,0] */
+    uint32_t b0 = FV(0.5 * h, 0), b1 = FV(0.5 * h, q);
+    mesh_tri(m, r[2][0], r[3][0], b1); mesh_tri(m, r[2][0], b1, b0);
+    mesh_tri(m, b0, b1, r[3][1]); mesh_tri(m, b0, r[3][1], r[2][1]);
+    /* [q,h] as a fan around E, `sliver` above the edge z=q: (A,B,E) is a sliver
+     * (altitude `sliver` over a size/2 edge), the others are ordinary. */
+    uint32_t A = r[3][0], B = r[3][1], C = r[4][1], D = r[4][0];
+    uint32_t E = FV(0.5 * h, q + sl);
+    mesh_tri(m, A, E, B); mesh_tri(m, B, E, C); mesh_tri(m, C, E, D); mesh_tri(m, D, E, A);
+    /* Zero-area triangles in the middle of the floor: collinear along the
+     * T-junction seam x=0, two corners at one position (duplicate vertex), and
+     * a repeated index. */
+    uint32_t c0 = FV(0, -h), c1 = FV(0, -q), c2 = FV(0, 0);
+    mesh_tri(m, c0, c1, c2);
+    uint32_t d0 = FV(0.5 * h, 0), d1 = FV(0.5 * h, 0), d2 = FV(h, 0);
+    mesh_tri(m, d0, d1, d2);
+    mesh_tri(m, a2, a2, a4);
+    /* A sliver below the loader's degenerate threshold (altitude 1e-7 m). */
+    uint32_t s0 = FV(-h, 0.5 * q), s1 = FV(0, 0.5 * q), s2 = FV(-0.5 * h, 0.5 * q + 1e-7);
+    mesh_tri(m, s0, s2, s1);
+#undef FV
+    mesh_node("floor", m);
+    S.has_sky = 1;
+    memcpy(S.sky, sky, sizeof S.sky);
+}
+
+/* room: closed 4x3x4 m room (inward single-sided quads) with a point light,
+ * translated by `offset`; `marker`=1 adds a 1 m closed box at the origin so
+ * the level spans from the origin to the room. */
+static void build_room(void)
+{
+    const double *off = pv("offset");
+    double alb = P("albedo"), I = P("intensity");
+    const double *lp = pv("light_pos");
+    int n = PI_("n"), marker = PI_("marker");
+    V3 o = v3(off[0], off[1], off[2]);
+    require(alb >= 0 && alb < 1 && I >= 0 && n >= 1 && n <= 64 && lp[0] > 0 && lp[0] < 4 && lp[1] > 0 &&
+            lp[1] < 3 && lp[2] > 0 && lp[2] < 4,
+            "0<=albedo<1, intensity>=0, 1<=n<=64, light_pos inside (0,4)x(0,3)x(0,4)");
+    require(!marker || fabs(o.x) > 2 || fabs(o.z) > 2 || o.y > 1 || o.y < -3,
+            "marker=1 needs the room offset clear of the marker box at the origin");
+    int mat = material("room", alb, alb, alb, 0);
+    static const char *names[6] = { "room_wall_xneg", "room_wall_xpos", "room_floor",
+                                    "room_ceiling", "room_wall_zneg", "room_wall_zpos" };
+    V3 lo = o, hi = vadd(o, v3(4, 3, 4));
+    for (int a = 0; a < 3; a++)
+        for (int sd = 0; sd < 2; sd++) {
+            int m = mesh_new(names[2 * a + sd], mat);
+            add_rect(m, a, sd ? vget(hi, a) : vget(lo, a), lo, hi, sd ? -1 : +1, n); /* inward */
+            mesh_node(names[2 * a + sd], m);
+        }
+    Node *l = light_node("light", LIGHT_POINT, I, 1, 1, 1, vadd(o, v3(lp[0], lp[1], lp[2])));
+    node_extra(l, "ubake_light", "static");
+    if (marker) box_node("marker", mat, v3(-0.5, 0, -0.5), v3(0.5, 1, 0.5));
+}
+
+/* sunpatch: closed room (slabs) with a small window in the ceiling; a very
+ * bright sun makes a small patch on the floor, a dim point light lights the
+ * rest. */
+static void build_sunpatch(void)
+{
+    double w = P("wall"), alb = P("albedo"), E = P("sun"), I = P("intensity"), win = P("window");
+    double el = P("elev"), az = P("azim");
+    const double *wc = pv("window_at"), *lp = pv("light_pos");
+    const double R = 2.0, H = 3.0;
+    require(w > 0 && alb >= 0 && alb < 1 && E >= 0 && I >= 0 && win > 0 && el > 0 && el <= 90 &&
+            fabs(wc[0]) + 0.5 * win < R && fabs(wc[2]) + 0.5 * win < R && fabs(lp[0]) < R &&
+            fabs(lp[2]) < R && lp[1] > 0 && lp[1] < H,
+            "wall>0, 0<=albedo<1, sun>=0, intensity>=0, window>0 inside the ceiling, 0<elev<=90, light inside");
+    int mat = material("wall", alb, alb, alb, 0);
+    double o = R + w;
+    box_node("floor", mat, v3(-o, -w, -o), v3(o, 0, o));
+    box_node("wall_north", mat, v3(-o, 0, -o), v3(o, H, -R));
+    box_node("wall_south", mat, v3(-o, 0, R), v3(o, H, o));
+    box_node("wall_west", mat, v3(-o, 0, -R), v3(-R, H, R));
+    box_node("wall_east", mat, v3(R, 0, -R), v3(o, H, R));
+    /* Ceiling slab y in [H,H+w] around the window [x0,x1]x[z0,z1]: 4 boxes. */
+    double x0 = wc[0] - 0.5 * win, x1 = wc[0] + 0.5 * win, z0 = wc[2] - 0.5 * win, z1 = wc[2] + 0.5 * win;
+    box_node("ceiling_west", mat, v3(-o, H, -o), v3(x0, H + w, o));
+    box_node("ceiling_east", mat, v3(x1, H, -o), v3(o, H + w, o));
+    box_node("ceiling_north", mat, v3(x0, H, -o), v3(x1, H + w, z0));
+    box_node("ceiling_south", mat, v3(x0, H, z1), v3(x1, H + w, o));
+    double e = deg2rad(el), a = deg2rad(az);
+    V3 to_sun = v3(sin(a) * cos(e), sin(e), cos(a) * cos(e));
+    Node *sn = light_node("sun", LIGHT_DIRECTIONAL, E, 1, 1, 1, vadd(v3(wc[0], H + 10, wc[2]), vscale(to_sun, 10.0)));
+    node_aim(sn, vscale(to_sun, -1.0));
+    node_extra(sn, "ubake_light", "static");
+    Node *l = light_node("lamp", LIGHT_POINT, I, 1, 1, 1, v3(lp[0], lp[1], lp[2]));
+    node_extra(l, "ubake_light", "static");
+}
+
+/* mis_edge: black floor and emitters placed where one sampling strategy has
+ * zero pdf: coplanar with the floor (edge-on), touching it, facing away from
+ * it, and under it (facing its back). */
+static void build_mis_edge(void)
+{
+    double le = P("le"), alb = P("albedo");
+    require(le >= 0 && alb >= 0 && alb < 1, "le>=0, 0<=albedo<1");
+    int fm = material("floor", alb, alb, alb, 0);
+    int em = material("emitter", 0, 0, 0, le);
+    int m = mesh_new("floor", fm);
+    add_rect(m, 1, 0.0, v3(-2, 0, -2), v3(2, 0, 2), +1, 1);
+    mesh_node("floor", m);
+    m = mesh_new("em_coplanar", em);         /* y=0 facing +y, shares the floor edge x=2 */
+    add_rect(m, 1, 0.0, v3(2, 0, -1), v3(3, 0, 1), +1, 1);
+    mesh_node("em_coplanar", m);
+    m = mesh_new("em_touching", em);         /* x=-1 facing +x, bottom edge on the floor */
+    add_rect(m, 0, -1.0, v3(0, 0, -0.5), v3(0, 1, 0.5), +1, 1);
+    mesh_node("em_touching", m);
+    m = mesh_new("em_away", em);             /* y=1 facing +y: its back to the floor */
+    add_rect(m, 1, 1.0, v3(0.5, 0, -1.5), v3(1.5, 0, -0.5), +1, 1);
+    mesh_node("em_away", m);
+    m = mesh_new("em_below", em);            /* y=-0.5 facing +y: toward the floor's back */
+    add_rect(m, 1, -0.5, v3(-1, 0, 0.5), v3(1, 0, 1.5), +1, 1);
+    mesh_node("em_below", m);
+    m = mesh_new("em_edgeon", em);           /* triangle in the plane z=1.8, seen edge-on along z=1.8 */
+    add_tri(m, v3(0.5, 0.0, 1.8), v3(1.5, 0.0, 1.8), v3(1.0, 0.8, 1.8), v3(0, 0, -1));
+    mesh_node("em_edgeon", m);
+}
+
 static const LevelDef g_levels[] = {
     { "cornell", "Cornell box (2 m), closed by default; point light or emissive ceiling patch.", build_cornell,
       { { "open", 1, { 0 }, "1: omit the front wall (z=+1)" },
@@ -684,7 +881,7 @@ static const LevelDef g_levels[] = {
         { "le", 1, { 10 }, "emissive patch radiance, W/(m^2 sr)" },
         { "patch", 1, { 0.5 }, "emissive patch side, m" } } },
     { "furnace", "Closed cube furnace: uniform albedo and emission; E = pi*Le*sum_k rho^k.", build_furnace,
-      { { "rho", 1, { 0.5 }, "albedo of every face" },
+      { { "rho", 1, { 0.5 }, "albedo of every face (1 allowed: ubake clamps albedo to 0.999)" },
         { "le", 1, { 1.0 }, "emitted radiance of every face, W/(m^2 sr)" },
         { "n", 1, { 4 }, "each face split into n x n quads" },
         { "size", 1, { 2 }, "cube side, m (x,z in [-size/2,size/2], y in [0,size])" } } },
@@ -720,6 +917,40 @@ static const LevelDef g_levels[] = {
         { "albedo", 1, { 0.6 }, "albedo of every surface" },
         { "lamp_y", 1, { 2.4 }, "lamp height, m" },
         { "wall", 1, { 0.2 }, "wall/floor/ceiling thickness, m" } } },
+    { "grazing", "Black plane, directional light at a grazing angle: E = sun*cos(angle).", build_grazing,
+      { { "angle", 1, { 89.9 }, "angle between the light and the plane normal, degrees" },
+        { "azim", 1, { 30 }, "azimuth of the light about +y, degrees (0: from +z)" },
+        { "sun", 1, { 1000 }, "irradiance at normal incidence, W/m^2" },
+        { "size", 1, { 4 }, "plane side, m" },
+        { "n", 1, { 4 }, "plane split into n x n quads" } } },
+    { "tjunction", "Black floor under a constant sky, made of T-junctions, duplicate vertices, zero-area and sliver triangles: E = pi*L_sky.",
+      build_tjunction,
+      { { "sky", 3, { 1, 1, 1 }, "sky radiance r,g,b, W/(m^2 sr)" },
+        { "size", 1, { 4 }, "floor side, m" },
+        { "sliver", 1, { 1e-4 }, "altitude of the sliver triangle, m" } } },
+    { "room", "Closed 4x3x4 m room with a point light, translated by offset (float precision); marker=1 adds a box at the origin.",
+      build_room,
+      { { "offset", 3, { 0, 0, 0 }, "room corner (interior is offset + [0,4]x[0,3]x[0,4]), m" },
+        { "marker", 1, { 0 }, "1: add a 1 m closed box at the origin (the level spans origin..room)" },
+        { "albedo", 1, { 0.5 }, "albedo of every face" },
+        { "intensity", 1, { 10 }, "point light intensity, W/sr" },
+        { "light_pos", 3, { 2, 2, 2 }, "light position relative to the room corner, m" },
+        { "n", 1, { 1 }, "each face split into n x n quads" } } },
+    { "sunpatch", "Closed 4x3x4 m room, dim lamp, very bright sun through a small ceiling window (fireflies).",
+      build_sunpatch,
+      { { "sun", 1, { 1e5 }, "sun irradiance at normal incidence, W/m^2" },
+        { "intensity", 1, { 1 }, "lamp intensity, W/sr" },
+        { "light_pos", 3, { -1, 2.5, 1 }, "lamp position, m" },
+        { "window", 1, { 0.2 }, "ceiling window side, m" },
+        { "window_at", 3, { 1.2, 3, 1.2 }, "window centre (x, -, z), m" },
+        { "elev", 1, { 90 }, "sun elevation, degrees" },
+        { "azim", 1, { 0 }, "sun azimuth, degrees" },
+        { "albedo", 1, { 0.5 }, "albedo of every surface" },
+        { "wall", 1, { 0.2 }, "wall/floor/ceiling thickness, m" } } },
+    { "mis_edge", "Black floor, emitters edge-on (coplanar), touching, facing away and below it (zero-pdf MIS).",
+      build_mis_edge,
+      { { "le", 1, { 1 }, "emitter radiance, W/(m^2 sr)" },
+        { "albedo", 1, { 0 }, "floor albedo" } } },
 };
 #define NLEVELS ((int)(sizeof g_levels / sizeof g_levels[0]))
 
