@@ -530,8 +530,9 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   /* Scatter hits back to ray order (bucket reused as the inverse permutation). */
   for (size_t j = 0; j < n; j++)
     bucket[order[j]] = (uint32_t)j;
-  float *nee = c->bounce == 1 && c->nee ? nee_block(c, d->rt, rays, hits, bucket, n, rs->id_base + r0)
-                                        : NULL;
+  float *nee = c->bounce == 1 && c->nee
+                   ? nee_block(c, d->rt, rays, hits, bucket, n, rs->id_base + r0)
+                   : NULL;
 
   uint64_t backface = 0, unlit = 0, clamped = 0, misses = 0, sky_hits = 0, emitter_hits = 0;
   uint32_t ne = (d->emissive && d->emitters) ? d->emitters->count : 0;

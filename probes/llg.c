@@ -354,10 +354,11 @@ ub_result ub_llg_build(const ub_scene *s, uint32_t vis_rays, uint32_t seed, cons
     const ub_llg_model *m = &out->models[i];
     for (uint32_t z = 0; z < m->dims[2]; z++)
       for (uint32_t y = 0; y < m->dims[1]; y++)
-        for (uint32_t x = 0; x < m->dims[0]; x++)
+        for (uint32_t x = 0; x < m->dims[0]; x++) {
+          size_t q = m->probe_first + ((size_t)z * m->dims[1] + y) * m->dims[0] + x;
           ub_llg_probe_position(m->center, m->axes, m->half, m->dims, x, y, z,
-                                out->probe_pos + 3 * (m->probe_first +
-                                                      ((size_t)z * m->dims[1] + y) * m->dims[0] + x));
+                                out->probe_pos + 3 * q);
+        }
   }
   uint8_t *mask = malloc(s->triangle_count ? s->triangle_count : 1);
   if (!mask)
