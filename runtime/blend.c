@@ -1,0 +1,992 @@
+/* runtime/blend.c — run-time blend engine: base + Σ ω_i·S_i, grouped by combination of
+ * overlapping elements (paper §3.3). See runtime/blend.h. */
+#include "runtime/blend.h"
+
+#include <assert.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "runtime/half.h"
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#define BLEND_SSE2 1
+#else
+#define BLEND_SSE2 0
+#endif
+/* Hardware half conversion (F16C), chosen at run time: GCC/clang on x86. */
+#if BLEND_SSE2 && defined(__GNUC__) && (defined(__x86_64__) || defined(__i386__))
+#include <cpuid.h>
+#include <immintrin.h>
+#define BLEND_F16C 1
+#else
+#define BLEND_F16C 0
+#endif
+
+#if defined(__GNUC__)
+#define BLEND_INLINE static inline __attribute__((always_inline))
+#else
+#define BLEND_INLINE static inline
+#endif
+
+/* Specialised kernels exist for up to this many non-zero members; more use the generic
+ * one (same operations in the same order, so the same bits). */
+#define BLEND_SPECIALISED 8
+
+/* Streaming mode (no out array): rows are blended into an L1-sized scratch of this many
+ * receivers and handed to the callback. */
+#define BLEND_CHUNK 64
+
+/* Half records are decoded to float (exactly) into an L1-sized scratch of this many
+ * floats, a chunk of consecutive receivers at a time, then blended by the float kernels:
+ * one kernel family, and the decode runs as long vector loops (F16C: 8 per instruction). */
+#define BLEND_DECODE_FLOATS 4096
+
+#define GROUP_LIST 0x80000000u /* k_mode bit: receivers stored as a list, else as runs */
+
+/* A group: receivers sharing one combination of elements. Its data words, from data_off:
+ *   runs: per run   [length, p_0 … p_{k-1}]  (length consecutive receivers)
+ *   list: per receiver [p_0 … p_{k-1}]
+ * p_m is the position of the (first) receiver in member m's record; the receiver index is
+ * members[0]'s receivers[p_0]. Runs of consecutive receivers are consecutive in every
+ * record too (records are sorted and unique), so one position per member per run is
+ * enough. */
+typedef struct blend_group {
+  uint64_t data_off;
+  uint32_t member_off; /* first of k element ids in b->members, ascending */
+  uint32_t receivers;
+  uint32_t units;      /* runs or receivers */
+  uint32_t k_mode;     /* k | GROUP_LIST */
+} blend_group;
+
+enum { KERNEL_12, KERNEL_27, KERNEL_ANY };
+
+typedef void (*blend_decode_fn)(const uint16_t *src, float *dst, size_t n);
+
+struct ub_blend {
+  uint32_t receiver_count, stride, wstride, element_count, group_count;
+  uint32_t value_size, kernel;
+  blend_decode_fn decode; /* half → float, NULL for float records */
+  uint32_t touched, max_overlap, run_groups;
+  uint64_t runs, memberships, data_words;
+  const float *base;
+  ub_blend_record *rec; /* copies of desc->elements */
+  float *weight;        /* element_count × 3 */
+  float *wexp;          /* element_count × wstride: weight[c] at every j ≡ c (mod 3) */
+  uint8_t *nonzero;     /* weight != (0, 0, 0) */
+  uint8_t *dirty;
+  uint32_t *dirty_list;
+  uint32_t dirty_count;
+  blend_group *groups;
+  uint32_t *members;
+  uint32_t *data;
+  uint32_t *elem_off; /* element_count + 1: groups of element e = elem_groups[off[e]…] */
+  uint32_t *elem_groups;
+  uint32_t *stamp; /* per group, the update epoch that collected it */
+  uint32_t epoch;
+  uint32_t *work;  /* group ids of one update */
+  float *scratch;  /* BLEND_CHUNK × stride floats, streaming mode */
+  float *dec;      /* max(BLEND_DECODE_FLOATS, max_overlap × stride) floats, half records */
+  size_t dec_floats;
+  /* Scratch for combinations above BLEND_SPECIALISED (max_overlap entries each). */
+  uint32_t *scr_act;
+  const char **scr_src;
+  const float **scr_rows;
+  const float **scr_w;
+  size_t engine_bytes, record_bytes;
+};
+
+/* ---- kernels ------------------------------------------------------------------------- */
+
+/* Half → float decoders: all exact (runtime/half.h), so every one gives the same bits. */
+static void decode_scalar(const uint16_t *src, float *dst, size_t n)
+{
+  for (size_t i = 0; i < n; i++)
+    dst[i] = ub_half_to_float(src[i]);
+}
+
+#if BLEND_SSE2
+/* 4 finite halves → floats: the magnitude bits moved to a float's mantissa position and
+ * scaled by 2^112 (rebias 15 → 127), subnormal halves included. Exact only without DAZ
+ * (half subnormals are float denormals here): updates run with FTZ/DAZ off. */
+static void decode_sse2(const uint16_t *src, float *dst, size_t n)
+{
+  const __m128i sign_mask = _mm_set1_epi32((int)0x80000000u);
+  const __m128i mag_mask = _mm_set1_epi32(0x7fff0000);
+  const __m128 scale = _mm_castsi128_ps(_mm_set1_epi32(239 << 23)); /* 2^112 */
+  size_t i = 0;
+  for (; i + 4 <= n; i += 4) {
+    __m128i h = _mm_loadl_epi64((const __m128i *)(const void *)(src + i));
+    __m128i x = _mm_unpacklo_epi16(_mm_setzero_si128(), h); /* h << 16 per lane */
+    __m128i mag = _mm_srli_epi32(_mm_and_si128(x, mag_mask), 3);
+    __m128 f = _mm_mul_ps(_mm_castsi128_ps(mag), scale);
+    _mm_storeu_ps(dst + i, _mm_or_ps(f, _mm_castsi128_ps(_mm_and_si128(x, sign_mask))));
+  }
+  decode_scalar(src + i, dst + i, n - i);
+}
+#endif
+
+#if BLEND_F16C
+__attribute__((target("avx,f16c"))) static void decode_f16c(const uint16_t *src, float *dst,
+                                                            size_t n)
+{
+  size_t i = 0;
+  for (; i + 8 <= n; i += 8)
+    _mm256_storeu_ps(dst + i,
+                     _mm256_cvtph_ps(_mm_loadu_si128((const __m128i *)(const void *)(src + i))));
+  for (; i + 4 <= n; i += 4)
+    _mm_storeu_ps(dst + i, _mm_cvtph_ps(_mm_loadl_epi64((const __m128i *)(const void *)(src + i))));
+  /* Clean upper ymm state before any SSE code runs (GCC omits it on the tail call, and
+   * dirty state slows every later SSE instruction). */
+  _mm256_zeroupper();
+  decode_scalar(src + i, dst + i, n - i);
+}
+#endif
+
+#if BLEND_F16C
+/* CPUID: F16C and AVX, and the OS saves the AVX registers (OSXSAVE, XCR0 bits 1–2). */
+static int cpu_has_f16c(void)
+{
+  unsigned a, b, c, d;
+  if (!__get_cpuid(1, &a, &b, &c, &d))
+    return 0;
+  const unsigned need = (1u << 27) | (1u << 28) | (1u << 29); /* OSXSAVE, AVX, F16C */
+  if ((c & need) != need)
+    return 0;
+  unsigned lo, hi;
+  __asm__ volatile("xgetbv" : "=a"(lo), "=d"(hi) : "c"(0));
+  (void)hi;
+  return (lo & 6u) == 6u;
+}
+#endif
+
+static blend_decode_fn pick_decoder(int portable)
+{
+#if BLEND_F16C
+  if (!portable && cpu_has_f16c())
+    return decode_f16c;
+#endif
+  (void)portable;
+#if BLEND_SSE2
+  return decode_sse2;
+#else
+  return decode_scalar;
+#endif
+}
+
+/* One receiver: o = bs + Σ_m w[m]·row[m], m in element-id order, every product rounded
+ * once and added once (SIMD lanes and the scalar loop do exactly the same operations). A
+ * stride that is not a multiple of 4 ends with one vector overlapping the previous one:
+ * the shared lanes get the same value twice. blend_row_fixed is for compile-time k and S
+ * (unrolled, accumulators in registers); blend_row_any for run-time ones. */
+BLEND_INLINE void blend_row_scalar(float *restrict o, const float *restrict bs,
+                                   const float *const *rows, const float *const *w,
+                                   const uint32_t k, const uint32_t S)
+{
+  for (uint32_t j = 0; j < S; j++) {
+    float acc = bs[j];
+    for (uint32_t m = 0; m < k; m++) {
+      float t = w[m][j] * rows[m][j];
+      acc = acc + t;
+    }
+    o[j] = acc;
+  }
+}
+
+#if BLEND_SSE2
+BLEND_INLINE void blend_row_fixed(float *restrict o, const float *restrict bs,
+                                  const float *const *rows, const float *const *w,
+                                  const uint32_t k, const uint32_t S)
+{
+  enum { MAXV = UB_BLEND_MAX_STRIDE / 4 };
+  const uint32_t nv = S / 4, tail = S - 4; /* tail vector used when S % 4 != 0 */
+  __m128 acc[MAXV], acct = _mm_setzero_ps();
+#pragma GCC unroll 12
+  for (uint32_t q = 0; q < nv; q++)
+    acc[q] = _mm_loadu_ps(bs + 4 * q);
+  if (S % 4)
+    acct = _mm_loadu_ps(bs + tail);
+#pragma GCC unroll 8
+  for (uint32_t m = 0; m < k; m++) {
+    const float *row = rows[m], *wm = w[m];
+#pragma GCC unroll 12
+    for (uint32_t q = 0; q < nv; q++)
+      acc[q] = _mm_add_ps(acc[q], _mm_mul_ps(_mm_load_ps(wm + 4 * q), _mm_loadu_ps(row + 4 * q)));
+    if (S % 4)
+      acct = _mm_add_ps(acct, _mm_mul_ps(_mm_loadu_ps(wm + tail), _mm_loadu_ps(row + tail)));
+  }
+#pragma GCC unroll 12
+  for (uint32_t q = 0; q < nv; q++)
+    _mm_storeu_ps(o + 4 * q, acc[q]);
+  if (S % 4)
+    _mm_storeu_ps(o + tail, acct);
+}
+
+BLEND_INLINE void blend_row_any(float *restrict o, const float *restrict bs,
+                                const float *const *rows, const float *const *w,
+                                const uint32_t k, const uint32_t S)
+{
+  if (S < 4) {
+    blend_row_scalar(o, bs, rows, w, k, S);
+    return;
+  }
+  uint32_t q = 0;
+  for (; q + 4 <= S; q += 4) {
+    __m128 acc = _mm_loadu_ps(bs + q);
+    for (uint32_t m = 0; m < k; m++)
+      acc = _mm_add_ps(acc, _mm_mul_ps(_mm_load_ps(w[m] + q), _mm_loadu_ps(rows[m] + q)));
+    _mm_storeu_ps(o + q, acc);
+  }
+  if (S % 4) {
+    const uint32_t tail = S - 4;
+    __m128 acc = _mm_loadu_ps(bs + tail);
+    for (uint32_t m = 0; m < k; m++)
+      acc = _mm_add_ps(acc, _mm_mul_ps(_mm_loadu_ps(w[m] + tail), _mm_loadu_ps(rows[m] + tail)));
+    _mm_storeu_ps(o + tail, acc);
+  }
+}
+#else
+#define blend_row_fixed blend_row_scalar
+#define blend_row_any blend_row_scalar
+#endif
+
+typedef struct blend_call {
+  const ub_blend *b;
+  float *out;     /* NULL: streaming, rows go through scratch to fn */
+  float *scratch; /* BLEND_CHUNK rows */
+  ub_blend_touched_fn fn;
+  void *user;
+} blend_call;
+
+/* One group with k non-zero members act[0..k) (slots into the group's members). S and
+ * (for k ≤ BLEND_SPECIALISED) k are compile-time constants at the fixed call sites. */
+BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const uint32_t *act,
+                             const uint32_t k, const uint32_t S, const int fixed)
+{
+  const ub_blend *b = c->b;
+  const char *src_l[BLEND_SPECIALISED];
+  const float *rows_l[BLEND_SPECIALISED], *w_l[BLEND_SPECIALISED];
+  const char **src = k <= BLEND_SPECIALISED ? src_l : b->scr_src;
+  const float **rows = k <= BLEND_SPECIALISED ? rows_l : b->scr_rows;
+  const float **w = k <= BLEND_SPECIALISED ? w_l : b->scr_w;
+  const uint32_t gk = g->k_mode & ~GROUP_LIST;
+  const uint32_t *mem = b->members + g->member_off;
+  const uint32_t *d = b->data + g->data_off;
+  const uint32_t *idx0 = b->rec[mem[0]].receivers;
+  const size_t rstep = (size_t)S * b->value_size; /* record row, bytes */
+  const blend_decode_fn decode = b->decode;
+  const float *base = b->base;
+  float *out = c->out;
+
+  /* Receivers per chunk: bounded by the decode scratch (half) and the streaming scratch. */
+  uint32_t chunk = out ? UINT32_MAX : BLEND_CHUNK;
+  if (decode) {
+    size_t fit = b->dec_floats / ((size_t)k * S);
+    chunk = fit < chunk ? (uint32_t)fit : chunk; /* ≥ 1: dec_floats ≥ max_overlap × S */
+  }
+  for (uint32_t m = 0; m < k; m++)
+    w[m] = b->wexp + (size_t)mem[act[m]] * b->wstride;
+
+  if (g->k_mode & GROUP_LIST) {
+    for (uint32_t u = 0; u < g->units; u++, d += gk) {
+      uint32_t r = idx0[d[0]];
+      for (uint32_t m = 0; m < k; m++) {
+        const char *row = (const char *)b->rec[mem[act[m]]].values + (size_t)d[act[m]] * rstep;
+        if (decode) {
+          decode((const uint16_t *)(const void *)row, b->dec + (size_t)m * S, S);
+          rows[m] = b->dec + (size_t)m * S;
+        } else {
+          rows[m] = (const float *)(const void *)row;
+        }
+      }
+      float *o = out ? out + (size_t)r * S : c->scratch;
+      if (fixed)
+        blend_row_fixed(o, base + (size_t)r * S, rows, w, k, S);
+      else
+        blend_row_any(o, base + (size_t)r * S, rows, w, k, S);
+      if (c->fn)
+        c->fn(c->user, r, 1, o);
+    }
+    return;
+  }
+  for (uint32_t u = 0; u < g->units; u++, d += 1 + gk) {
+    uint32_t len = d[0], r = idx0[d[1]];
+    const float *bs = base + (size_t)r * S;
+    for (uint32_t m = 0; m < k; m++)
+      src[m] = (const char *)b->rec[mem[act[m]]].values + (size_t)d[1 + act[m]] * rstep;
+    for (uint32_t i = 0; i < len;) {
+      uint32_t n = len - i < chunk ? len - i : chunk;
+      for (uint32_t m = 0; m < k; m++) {
+        if (decode) {
+          float *dst = b->dec + (size_t)m * n * S;
+          decode((const uint16_t *)(const void *)src[m], dst, (size_t)n * S);
+          rows[m] = dst;
+        } else {
+          rows[m] = (const float *)(const void *)src[m];
+        }
+        src[m] += (size_t)n * rstep;
+      }
+      float *o0 = out ? out + (size_t)(r + i) * S : c->scratch, *o = o0;
+      for (uint32_t q = 0; q < n; q++) {
+        if (fixed)
+          blend_row_fixed(o, bs, rows, w, k, S);
+        else
+          blend_row_any(o, bs, rows, w, k, S);
+        o += S;
+        bs += S;
+        for (uint32_t m = 0; m < k; m++)
+          rows[m] += S;
+      }
+      if (c->fn)
+        c->fn(c->user, r + i, n, o0);
+      i += n;
+    }
+  }
+}
+
+/* The kernels specialised for 1..8 non-zero members (S constant), generic above. */
+BLEND_INLINE void group_switch(const blend_call *c, const blend_group *g, const uint32_t *act,
+                               uint32_t k, const uint32_t S)
+{
+  switch (k) {
+  case 1: group_body(c, g, act, 1, S, 1); break;
+  case 2: group_body(c, g, act, 2, S, 1); break;
+  case 3: group_body(c, g, act, 3, S, 1); break;
+  case 4: group_body(c, g, act, 4, S, 1); break;
+  case 5: group_body(c, g, act, 5, S, 1); break;
+  case 6: group_body(c, g, act, 6, S, 1); break;
+  case 7: group_body(c, g, act, 7, S, 1); break;
+  case 8: group_body(c, g, act, 8, S, 1); break;
+  default: group_body(c, g, act, k, S, 0); break;
+  }
+}
+
+static void group_blend(const blend_call *c, const blend_group *g, const uint32_t *act,
+                        uint32_t k)
+{
+  switch (c->b->kernel) {
+  case KERNEL_12: group_switch(c, g, act, k, 12); break;
+  case KERNEL_27: group_switch(c, g, act, k, 27); break;
+  default: group_body(c, g, act, k, c->b->stride, 0); break;
+  }
+}
+
+/* All weights 0: out = base, row copies (still one write per receiver, no read of out). */
+static void group_copy_base(const blend_call *c, const blend_group *g)
+{
+  const ub_blend *b = c->b;
+  const uint32_t gk = g->k_mode & ~GROUP_LIST, S = b->stride;
+  const uint32_t *d = b->data + g->data_off;
+  const uint32_t *idx0 = b->rec[b->members[g->member_off]].receivers;
+  const int list = (g->k_mode & GROUP_LIST) != 0;
+  for (uint32_t u = 0; u < g->units; u++) {
+    uint32_t len = list ? 1 : d[0];
+    uint32_t r = idx0[list ? d[0] : d[1]];
+    const float *bs = b->base + (size_t)r * S;
+    if (c->out)
+      memcpy(c->out + (size_t)r * S, bs, (size_t)len * S * sizeof(float));
+    if (c->fn) /* streaming: the base rows are the result, no copy */
+      c->fn(c->user, r, len, c->out ? c->out + (size_t)r * S : bs);
+    d += list ? gk : 1 + gk;
+  }
+}
+
+static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
+{
+  const ub_blend *b = c->b;
+  const blend_group *g = &b->groups[gi];
+  const uint32_t gk = g->k_mode & ~GROUP_LIST;
+  const uint32_t *mem = b->members + g->member_off;
+  uint32_t act_l[BLEND_SPECIALISED];
+  uint32_t *act = gk <= BLEND_SPECIALISED ? act_l : b->scr_act;
+  uint32_t k = 0;
+  for (uint32_t m = 0; m < gk; m++)
+    if (b->nonzero[mem[m]])
+      act[k++] = m;
+  if (k == 0)
+    group_copy_base(c, g);
+  else
+    group_blend(c, g, act, k);
+
+  uint64_t row = (uint64_t)b->stride * sizeof(float);
+  uint64_t words = (uint64_t)g->units * ((g->k_mode & GROUP_LIST) ? gk : gk + 1);
+  st->groups++;
+  st->groups_base += k == 0;
+  st->receivers += g->receivers;
+  st->bytes_written += c->out ? g->receivers * row : 0;
+  st->bytes_read += g->receivers * row +
+                    (uint64_t)k * g->receivers * b->stride * b->value_size +
+                    (words + g->units) * sizeof(uint32_t) + sizeof *g;
+}
+
+/* Updates run with FTZ and DAZ off (restored after): the half decode is exact and the
+ * results do not depend on the caller's floating-point mode. */
+static unsigned fp_mode_enter(void)
+{
+#if BLEND_SSE2
+  unsigned csr = _mm_getcsr();
+  if (csr & 0x8040u)
+    _mm_setcsr(csr & ~0x8040u);
+  return csr;
+#else
+  return 0;
+#endif
+}
+
+static void fp_mode_leave(unsigned csr)
+{
+#if BLEND_SSE2
+  if (csr & 0x8040u)
+    _mm_setcsr(csr);
+#else
+  (void)csr;
+#endif
+}
+
+static int cmp_u32(const void *a, const void *b)
+{
+  uint32_t x = *(const uint32_t *)a, y = *(const uint32_t *)b;
+  return (x > y) - (x < y);
+}
+
+void ub_blend_update(ub_blend *b, ub_blend_touched_fn touched, void *user, float *out_values,
+                     ub_blend_stats *out_stats)
+{
+  assert(b && (out_values || touched));
+  ub_blend_stats st;
+  memset(&st, 0, sizeof st);
+  if (++b->epoch == 0) { /* wrapped: forget every stamp */
+    memset(b->stamp, 0, (size_t)b->group_count * sizeof *b->stamp);
+    b->epoch = 1;
+  }
+  uint32_t n = 0;
+  for (uint32_t i = 0; i < b->dirty_count; i++) {
+    uint32_t e = b->dirty_list[i];
+    b->dirty[e] = 0;
+    for (uint32_t j = b->elem_off[e]; j < b->elem_off[e + 1]; j++) {
+      uint32_t g = b->elem_groups[j];
+      if (b->stamp[g] != b->epoch) {
+        b->stamp[g] = b->epoch;
+        b->work[n++] = g;
+      }
+    }
+  }
+  b->dirty_count = 0;
+
+  blend_call c = {b, out_values, b->scratch, touched, user};
+  unsigned csr = fp_mode_enter();
+  if (n > b->group_count / 16) { /* many groups: scanning the stamps is cheaper than sorting */
+    for (uint32_t g = 0; g < b->group_count; g++)
+      if (b->stamp[g] == b->epoch)
+        process_group(&c, g, &st);
+  } else {
+    qsort(b->work, n, sizeof *b->work, cmp_u32);
+    for (uint32_t i = 0; i < n; i++)
+      process_group(&c, b->work[i], &st);
+  }
+  fp_mode_leave(csr);
+  if (out_stats)
+    *out_stats = st;
+}
+
+void ub_blend_update_all(ub_blend *b, ub_blend_touched_fn touched, void *user,
+                         float *out_values, ub_blend_stats *out_stats)
+{
+  assert(b && (out_values || touched));
+  ub_blend_stats st;
+  memset(&st, 0, sizeof st);
+  for (uint32_t i = 0; i < b->dirty_count; i++)
+    b->dirty[b->dirty_list[i]] = 0;
+  b->dirty_count = 0;
+  blend_call c = {b, out_values, b->scratch, touched, user};
+  unsigned csr = fp_mode_enter();
+  for (uint32_t g = 0; g < b->group_count; g++)
+    process_group(&c, g, &st);
+  fp_mode_leave(csr);
+  if (out_stats)
+    *out_stats = st;
+}
+
+/* ---- weights ----------------------------------------------------------------------- */
+
+static int finite_f(float x)
+{
+  uint32_t u;
+  memcpy(&u, &x, sizeof u);
+  return (u & 0x7f800000u) != 0x7f800000u;
+}
+
+ub_result ub_blend_set_weight(ub_blend *b, uint32_t element, const float rgb[3])
+{
+  assert(b && rgb);
+  if (element >= b->element_count || !finite_f(rgb[0]) || !finite_f(rgb[1]) ||
+      !finite_f(rgb[2]))
+    return UB_ERR_INVALID_ARGUMENT;
+  float *w = b->weight + (size_t)element * 3;
+  if (w[0] == rgb[0] && w[1] == rgb[1] && w[2] == rgb[2])
+    return UB_OK;
+  for (int c = 0; c < 3; c++)
+    w[c] = rgb[c] == 0.0f ? 0.0f : rgb[c]; /* -0 → +0: the same state, the same bits */
+  float *we = b->wexp + (size_t)element * b->wstride;
+  for (uint32_t j = 0; j < b->wstride; j++)
+    we[j] = w[j % 3];
+  b->nonzero[element] = w[0] != 0.0f || w[1] != 0.0f || w[2] != 0.0f;
+  if (!b->dirty[element]) {
+    b->dirty[element] = 1;
+    b->dirty_list[b->dirty_count++] = element;
+  }
+  return UB_OK;
+}
+
+void ub_blend_weight(const ub_blend *b, uint32_t element, float out_rgb[3])
+{
+  assert(b && out_rgb);
+  for (int c = 0; c < 3; c++)
+    out_rgb[c] = element < b->element_count ? b->weight[(size_t)element * 3 + c] : 0.0f;
+}
+
+/* ---- info, free ------------------------------------------------------------------------ */
+
+void ub_blend_get_info(const ub_blend *b, ub_blend_info *out_info)
+{
+  assert(b && out_info);
+  ub_blend_info in;
+  memset(&in, 0, sizeof in);
+  in.receiver_count = b->receiver_count;
+  in.stride = b->stride;
+  in.element_count = b->element_count;
+  in.touched_receivers = b->touched;
+  in.max_overlap = b->max_overlap;
+  in.group_count = b->group_count;
+  in.run_groups = b->run_groups;
+  in.runs = b->runs;
+  in.memberships = b->memberships;
+  in.engine_bytes = b->engine_bytes;
+  in.record_bytes = b->record_bytes;
+  *out_info = in;
+}
+
+size_t ub_blend_memory_bytes(const ub_blend *b)
+{
+  return b ? b->engine_bytes : 0;
+}
+
+void ub_blend_free(ub_blend *b)
+{
+  if (!b)
+    return;
+  free(b->rec);
+  free(b->weight);
+  free(b->wexp);
+  free(b->nonzero);
+  free(b->dirty);
+  free(b->dirty_list);
+  free(b->groups);
+  free(b->members);
+  free(b->data);
+  free(b->elem_off);
+  free(b->elem_groups);
+  free(b->stamp);
+  free(b->work);
+  free(b->scratch);
+  free(b->dec);
+  free(b->scr_act);
+  free((void *)b->scr_src);
+  free((void *)b->scr_rows);
+  free((void *)b->scr_w);
+  free(b);
+}
+
+/* ---- create ------------------------------------------------------------------------ */
+
+/* malloc(n * size) with overflow check; counts what the engine keeps in *acc. */
+static void *alloc_n(size_t n, size_t size, size_t *acc)
+{
+  if (size && n > SIZE_MAX / size)
+    return NULL;
+  size_t bytes = n * size;
+  void *p = malloc(bytes ? bytes : 1);
+  if (p && acc)
+    *acc += bytes;
+  return p;
+}
+
+static void *calloc_n(size_t n, size_t size, size_t *acc)
+{
+  void *p = calloc(n ? n : 1, size ? size : 1);
+  if (p && acc)
+    *acc += n * size;
+  return p;
+}
+
+static uint32_t combo_hash(const uint32_t *e, uint32_t k)
+{
+  uint64_t h = 0x9E3779B97F4A7C15ull ^ k;
+  for (uint32_t i = 0; i < k; i++) {
+    h = (h ^ e[i]) * 0xff51afd7ed558ccdull;
+    h ^= h >> 32;
+  }
+  return (uint32_t)h;
+}
+
+static const char *desc_name(const ub_blend_desc *d)
+{
+  return d->name ? d->name : "(unnamed)";
+}
+
+static ub_result validate(const ub_blend_desc *d, const ub_log *log, uint64_t *out_memberships)
+{
+  const char *nm = desc_name(d);
+  if ((d->receiver_count && !d->base) || (d->element_count && !d->elements)) {
+    ub_log_printf(log, UB_LOG_ERROR, "blend %s: NULL base or elements", nm);
+    return UB_ERR_INVALID_ARGUMENT;
+  }
+  if (d->stride < 3 || d->stride > UB_BLEND_MAX_STRIDE || d->stride % 3) {
+    ub_log_printf(log, UB_LOG_ERROR, "blend %s: stride %u is not a multiple of 3 in 3..%d", nm,
+                  d->stride, UB_BLEND_MAX_STRIDE);
+    return UB_ERR_INVALID_ARGUMENT;
+  }
+  if (d->storage != UB_BLEND_FLOAT32 && d->storage != UB_BLEND_FLOAT16) {
+    ub_log_printf(log, UB_LOG_ERROR, "blend %s: unknown storage %d", nm, (int)d->storage);
+    return UB_ERR_INVALID_ARGUMENT;
+  }
+  if ((uint64_t)d->receiver_count * d->stride > SIZE_MAX / sizeof(float)) {
+    ub_log_printf(log, UB_LOG_ERROR, "blend %s: %u receivers are too many", nm,
+                  d->receiver_count);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  size_t nb = (size_t)d->receiver_count * d->stride;
+  for (size_t i = 0; i < nb; i++)
+    if (!finite_f(d->base[i])) {
+      ub_log_printf(log, UB_LOG_ERROR, "blend %s: base value %zu (receiver %zu) is not finite",
+                    nm, i % d->stride, i / d->stride);
+      return UB_ERR_INVALID_DATA;
+    }
+  uint64_t total = 0;
+  for (uint32_t e = 0; e < d->element_count; e++) {
+    const ub_blend_record *r = &d->elements[e];
+    if (r->count && (!r->receivers || !r->values)) {
+      ub_log_printf(log, UB_LOG_ERROR, "blend %s: element %u: NULL receivers or values", nm, e);
+      return UB_ERR_INVALID_ARGUMENT;
+    }
+    for (uint32_t i = 0; i < r->count; i++) {
+      uint32_t x = r->receivers[i];
+      if (x >= d->receiver_count) {
+        ub_log_printf(log, UB_LOG_ERROR,
+                      "blend %s: element %u: receiver index %u at position %u is out of "
+                      "range (%u receivers)", nm, e, x, i, d->receiver_count);
+        return UB_ERR_INVALID_DATA;
+      }
+      if (i && x <= r->receivers[i - 1]) {
+        ub_log_printf(log, UB_LOG_ERROR,
+                      "blend %s: element %u: receiver index %u at position %u is not above "
+                      "the previous one (%u): indices must be sorted and unique", nm, e, x, i,
+                      r->receivers[i - 1]);
+        return UB_ERR_INVALID_DATA;
+      }
+    }
+    size_t nv = (size_t)r->count * d->stride;
+    for (size_t i = 0; i < nv; i++) {
+      int ok = d->storage == UB_BLEND_FLOAT16
+                   ? ub_half_is_finite(((const uint16_t *)r->values)[i])
+                   : finite_f(((const float *)r->values)[i]);
+      if (!ok) {
+        ub_log_printf(log, UB_LOG_ERROR,
+                      "blend %s: element %u: value %zu of receiver %u (position %zu) is not "
+                      "finite", nm, e, i % d->stride, r->receivers[i / d->stride],
+                      i / d->stride);
+        return UB_ERR_INVALID_DATA;
+      }
+    }
+    total += r->count;
+  }
+  if (total >= UINT32_MAX) {
+    ub_log_printf(log, UB_LOG_ERROR, "blend %s: %llu element-receiver pairs are too many", nm,
+                  (unsigned long long)total);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  *out_memberships = total;
+  return UB_OK;
+}
+
+/* Temporaries of create. */
+typedef struct build_tmp {
+  uint32_t *off;      /* receiver_count + 1: memberships of receiver r = [off[r], off[r+1]) */
+  uint32_t *m_elem;   /* per membership: element id (ascending within a receiver) */
+  uint32_t *m_pos;    /* per membership: position in that element's record */
+  uint32_t *touched;  /* touched receivers, ascending */
+  uint32_t *gid;      /* per touched receiver: its group */
+  uint32_t *g_k, *g_moff, *g_hash, *g_n, *g_start, *g_units;
+  uint32_t *members;  /* capacity: memberships */
+  uint32_t *table;    /* hash: group id + 1, 0 = empty */
+  uint32_t *order;    /* touched receivers sorted by group */
+} build_tmp;
+
+static void build_tmp_free(build_tmp *t)
+{
+  free(t->off);
+  free(t->m_elem);
+  free(t->m_pos);
+  free(t->touched);
+  free(t->gid);
+  free(t->g_k);
+  free(t->g_moff);
+  free(t->g_hash);
+  free(t->g_n);
+  free(t->g_start);
+  free(t->g_units);
+  free(t->members);
+  free(t->table);
+  free(t->order);
+}
+
+static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
+{
+  const uint32_t R = d->receiver_count, E = d->element_count;
+  const uint64_t M = b->memberships;
+  size_t *acc = &b->engine_bytes;
+
+  /* 1. Per receiver, its elements (ascending id, as elements are visited in order). */
+  t->off = calloc_n((size_t)R + 1, sizeof(uint32_t), NULL);
+  t->m_elem = alloc_n(M, sizeof(uint32_t), NULL);
+  t->m_pos = alloc_n(M, sizeof(uint32_t), NULL);
+  if (!t->off || !t->m_elem || !t->m_pos)
+    return UB_ERR_OUT_OF_MEMORY;
+  for (uint32_t e = 0; e < E; e++)
+    for (uint32_t i = 0; i < d->elements[e].count; i++)
+      t->off[d->elements[e].receivers[i] + 1]++;
+  uint32_t T = 0, maxk = 0;
+  for (uint32_t r = 0; r < R; r++) {
+    uint32_t k = t->off[r + 1];
+    T += k != 0;
+    maxk = k > maxk ? k : maxk;
+    t->off[r + 1] += t->off[r];
+  }
+  for (uint32_t e = 0; e < E; e++)
+    for (uint32_t i = 0; i < d->elements[e].count; i++) {
+      uint32_t r = d->elements[e].receivers[i], at = t->off[r]++;
+      t->m_elem[at] = e;
+      t->m_pos[at] = i;
+    }
+  for (uint32_t r = R; r > 0; r--) /* the fill advanced off[r] to off[r+1]: shift back */
+    t->off[r] = t->off[r - 1];
+  t->off[0] = 0;
+  b->touched = T;
+  b->max_overlap = maxk;
+
+  /* 2. Groups by combination (hash of the sorted element list), in order of first
+   * receiver, so group order is receiver order. */
+  t->touched = alloc_n(T, sizeof(uint32_t), NULL);
+  t->gid = alloc_n(T, sizeof(uint32_t), NULL);
+  t->g_k = alloc_n(T, sizeof(uint32_t), NULL);
+  t->g_moff = alloc_n(T, sizeof(uint32_t), NULL);
+  t->g_hash = alloc_n(T, sizeof(uint32_t), NULL);
+  t->g_n = calloc_n(T, sizeof(uint32_t), NULL);
+  t->members = alloc_n(M, sizeof(uint32_t), NULL);
+  size_t cap = 16;
+  while (cap < (size_t)T * 2)
+    cap *= 2;
+  t->table = calloc_n(cap, sizeof(uint32_t), NULL);
+  if (!t->touched || !t->gid || !t->g_k || !t->g_moff || !t->g_hash || !t->g_n ||
+      !t->members || !t->table)
+    return UB_ERR_OUT_OF_MEMORY;
+  uint32_t G = 0, nmem = 0, ti = 0;
+  for (uint32_t r = 0; r < R; r++) {
+    uint32_t k = t->off[r + 1] - t->off[r];
+    if (!k)
+      continue;
+    const uint32_t *el = t->m_elem + t->off[r];
+    uint32_t h = combo_hash(el, k);
+    size_t s = h & (cap - 1);
+    uint32_t g = UINT32_MAX;
+    for (;; s = (s + 1) & (cap - 1)) {
+      uint32_t v = t->table[s];
+      if (!v)
+        break;
+      v--;
+      if (t->g_hash[v] == h && t->g_k[v] == k &&
+          !memcmp(t->members + t->g_moff[v], el, k * sizeof(uint32_t))) {
+        g = v;
+        break;
+      }
+    }
+    if (g == UINT32_MAX) {
+      g = G++;
+      t->table[s] = g + 1;
+      t->g_k[g] = k;
+      t->g_hash[g] = h;
+      t->g_moff[g] = nmem;
+      memcpy(t->members + nmem, el, k * sizeof(uint32_t));
+      nmem += k;
+    }
+    t->g_n[g]++;
+    t->touched[ti] = r;
+    t->gid[ti++] = g;
+  }
+  b->group_count = G;
+
+  /* 3. Receivers of each group, ascending (stable counting sort by group). */
+  t->g_start = alloc_n((size_t)G + 1, sizeof(uint32_t), NULL);
+  t->g_units = alloc_n(G, sizeof(uint32_t), NULL);
+  t->order = alloc_n(T, sizeof(uint32_t), NULL);
+  if (!t->g_start || !t->g_units || !t->order)
+    return UB_ERR_OUT_OF_MEMORY;
+  t->g_start[0] = 0;
+  for (uint32_t g = 0; g < G; g++)
+    t->g_start[g + 1] = t->g_start[g] + t->g_n[g];
+  for (uint32_t i = 0; i < T; i++)
+    t->order[t->g_start[t->gid[i]]++] = t->touched[i];
+  for (uint32_t g = G; g > 0; g--)
+    t->g_start[g] = t->g_start[g - 1];
+  t->g_start[0] = 0;
+
+  /* 4. Storage per group: runs or list, whichever is smaller. */
+  b->groups = alloc_n(G, sizeof(blend_group), acc);
+  b->members = alloc_n(nmem, sizeof(uint32_t), acc);
+  if (!b->groups || !b->members)
+    return UB_ERR_OUT_OF_MEMORY;
+  memcpy(b->members, t->members, (size_t)nmem * sizeof(uint32_t));
+  uint64_t words = 0;
+  for (uint32_t g = 0; g < G; g++) {
+    const uint32_t *rs = t->order + t->g_start[g];
+    uint32_t n = t->g_n[g], k = t->g_k[g], runs = 1;
+    for (uint32_t i = 1; i < n; i++)
+      runs += rs[i] != rs[i - 1] + 1;
+    int list = (uint64_t)n * k < (uint64_t)runs * (k + 1);
+    blend_group *bg = &b->groups[g];
+    bg->data_off = words;
+    bg->member_off = t->g_moff[g];
+    bg->receivers = n;
+    bg->units = list ? n : runs;
+    bg->k_mode = k | (list ? GROUP_LIST : 0);
+    words += list ? (uint64_t)n * k : (uint64_t)runs * (k + 1);
+    if (!list) {
+      b->run_groups++;
+      b->runs += runs;
+    }
+  }
+  b->data_words = words;
+  b->data = alloc_n(words, sizeof(uint32_t), acc);
+  if (!b->data)
+    return UB_ERR_OUT_OF_MEMORY;
+  for (uint32_t g = 0; g < G; g++) {
+    const blend_group *bg = &b->groups[g];
+    const uint32_t *rs = t->order + t->g_start[g];
+    uint32_t n = bg->receivers, k = bg->k_mode & ~GROUP_LIST;
+    uint32_t *w = b->data + bg->data_off;
+    for (uint32_t i = 0; i < n;) {
+      uint32_t len = 1;
+      if (!(bg->k_mode & GROUP_LIST))
+        while (i + len < n && rs[i + len] == rs[i] + len)
+          len++;
+      if (!(bg->k_mode & GROUP_LIST))
+        *w++ = len;
+      const uint32_t *pos = t->m_pos + t->off[rs[i]];
+      for (uint32_t m = 0; m < k; m++)
+        *w++ = pos[m];
+      i += len;
+    }
+    assert(w == b->data + bg->data_off + (bg->k_mode & GROUP_LIST ? (uint64_t)n * k
+                                                                   : (uint64_t)bg->units * (k + 1)));
+  }
+
+  /* 5. Element → groups holding it (ascending group id). */
+  b->elem_off = calloc_n((size_t)E + 1, sizeof(uint32_t), acc);
+  b->elem_groups = alloc_n(nmem, sizeof(uint32_t), acc);
+  if (!b->elem_off || !b->elem_groups)
+    return UB_ERR_OUT_OF_MEMORY;
+  for (uint32_t i = 0; i < nmem; i++)
+    b->elem_off[b->members[i] + 1]++;
+  for (uint32_t e = 0; e < E; e++)
+    b->elem_off[e + 1] += b->elem_off[e];
+  for (uint32_t g = 0; g < G; g++) {
+    const blend_group *bg = &b->groups[g];
+    for (uint32_t m = 0; m < (bg->k_mode & ~GROUP_LIST); m++)
+      b->elem_groups[b->elem_off[b->members[bg->member_off + m]]++] = g;
+  }
+  for (uint32_t e = E; e > 0; e--)
+    b->elem_off[e] = b->elem_off[e - 1];
+  b->elem_off[0] = 0;
+
+  /* 6. Update state and scratch. */
+  size_t sk = maxk > BLEND_SPECIALISED ? maxk : 1;
+  b->stamp = calloc_n(G, sizeof(uint32_t), acc);
+  b->work = alloc_n(G, sizeof(uint32_t), acc);
+  b->scratch = alloc_n((size_t)BLEND_CHUNK * b->stride, sizeof(float), acc);
+  if (b->value_size == 2) {
+    b->dec_floats = (size_t)maxk * b->stride > BLEND_DECODE_FLOATS
+                        ? (size_t)maxk * b->stride : BLEND_DECODE_FLOATS;
+    b->dec = alloc_n(b->dec_floats, sizeof(float), acc);
+    if (!b->dec)
+      return UB_ERR_OUT_OF_MEMORY;
+  }
+  b->scr_act = alloc_n(sk, sizeof(uint32_t), acc);
+  b->scr_src = alloc_n(sk, sizeof(char *), acc);
+  b->scr_rows = alloc_n(sk, sizeof(float *), acc);
+  b->scr_w = alloc_n(sk, sizeof(float *), acc);
+  if (!b->stamp || !b->work || !b->scratch || !b->scr_act || !b->scr_src || !b->scr_rows ||
+      !b->scr_w)
+    return UB_ERR_OUT_OF_MEMORY;
+  return UB_OK;
+}
+
+ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *out_values,
+                          ub_blend **out_blend)
+{
+  if (!desc || !out_blend)
+    return UB_ERR_INVALID_ARGUMENT;
+  uint64_t memberships = 0;
+  ub_result res = validate(desc, log, &memberships);
+  if (res != UB_OK)
+    return res;
+
+  const uint32_t E = desc->element_count, S = desc->stride;
+  ub_blend *b = calloc(1, sizeof *b);
+  if (!b)
+    goto oom;
+  b->engine_bytes = sizeof *b;
+  b->receiver_count = desc->receiver_count;
+  b->stride = S;
+  b->wstride = (S + 3) & ~3u;
+  b->element_count = E;
+  b->value_size = desc->storage == UB_BLEND_FLOAT16 ? 2 : 4;
+  b->kernel = S == 12 ? KERNEL_12 : S == 27 ? KERNEL_27 : KERNEL_ANY;
+  b->decode = b->value_size == 2 ? pick_decoder((desc->flags & UB_BLEND_PORTABLE) != 0) : NULL;
+  b->base = desc->base;
+  b->memberships = memberships;
+  b->record_bytes = memberships * (sizeof(uint32_t) + (uint64_t)S * b->value_size);
+  b->rec = alloc_n(E, sizeof *b->rec, &b->engine_bytes);
+  b->weight = calloc_n((size_t)E * 3, sizeof(float), &b->engine_bytes);
+  /* 16-byte aligned weight rows (aligned_alloc wants a multiple of the alignment). */
+  size_t wbytes = (size_t)E * b->wstride * sizeof(float);
+  b->wexp = aligned_alloc(16, wbytes ? wbytes : 16);
+  if (b->wexp) {
+    memset(b->wexp, 0, wbytes);
+    b->engine_bytes += wbytes;
+  }
+  b->nonzero = calloc_n(E, 1, &b->engine_bytes);
+  b->dirty = calloc_n(E, 1, &b->engine_bytes);
+  b->dirty_list = alloc_n(E, sizeof(uint32_t), &b->engine_bytes);
+  if (!b->rec || !b->weight || !b->wexp || !b->nonzero || !b->dirty || !b->dirty_list)
+    goto oom;
+  if (E)
+    memcpy(b->rec, desc->elements, (size_t)E * sizeof *b->rec);
+
+  build_tmp t;
+  memset(&t, 0, sizeof t);
+  res = build(b, desc, &t);
+  build_tmp_free(&t);
+  if (res != UB_OK)
+    goto oom;
+
+  if (out_values && desc->receiver_count)
+    memcpy(out_values, desc->base, (size_t)desc->receiver_count * S * sizeof(float));
+  *out_blend = b;
+  return UB_OK;
+
+oom:
+  ub_log_printf(log, UB_LOG_ERROR, "blend %s: out of memory building the groups",
+                desc_name(desc));
+  ub_blend_free(b);
+  return UB_ERR_OUT_OF_MEMORY;
+}

@@ -1,0 +1,159 @@
+/* runtime/blend.h — the run-time blend engine: final = base + Σ ω_i·S_i (paper eq. 2).
+ *
+ * What it is: one ub_blend re-blends ONE representation (lightmap texels, LLG probes or
+ * GLG probes; runtime.c makes one per representation). A representation is an array of
+ * receiver_count receivers with `stride` floats each, RGB interleaved, coefficient-major:
+ * value[r*stride + k*3 + c] for coefficient k, channel c (texels: SH L1, stride 12;
+ * probes: SH L2, stride 27). Inputs:
+ *   - base: receiver_count × stride floats, the base bake;
+ *   - elements (dynamic light sets; later doors and show/hide objects): each a sparse,
+ *     linear record = `count` sorted, unique receiver indices + count × stride values
+ *     (float or IEEE half), receiver-major;
+ *   - a weight per element: RGB ω_i; channel c of every coefficient of S_i is scaled by
+ *     ω_i[c] (a scalar weight w is (w, w, w)). Every weight starts at 0 (the base state).
+ * Output: a caller-owned out array of receiver_count × stride floats, set to base by
+ * ub_blend_create(). ub_blend_update() writes, for every receiver of every group holding
+ * an element whose weight changed, out[r] = base[r] + Σ_{ω_i ≠ 0} ω_i·S_i[r], summed in
+ * element-id order in registers and stored ONCE (no read-modify-write of out, paper
+ * §3.3). No other receiver is written. Streaming mode (out_values NULL at update): the
+ * rows are blended into a small L1-resident scratch and handed to the touched callback
+ * (e.g. to re-encode lightmap texels to AHD without keeping a blended SH array at all).
+ *
+ * Grouping (paper §3.3, second game): at create time, every receiver touched by ≥ 1
+ * element gets its combination (sorted element ids); receivers with the same combination
+ * form a group. A group stores its receivers either as runs of consecutive receivers
+ * (one length + one record position per member per run) or, when runs are short, as a
+ * list (one record position per member per receiver); the receiver index itself is read
+ * from the first member's record. Kernels are specialised for the stride (12, 27, other)
+ * and 1..8 non-zero members; a generic kernel takes any count. Half records are decoded
+ * exactly to float (F16C when the CPU has it, else SSE2 bit operations) a chunk of
+ * consecutive receivers at a time into an L1 scratch, then blended in float. A group
+ * whose weights are all 0 copies base rows (the "light off" fast path). Elements with
+ * weight 0 are skipped, so a receiver's value depends only on the current weights, never
+ * on the update history: setting weights back gives bit-identical output.
+ * Numerics: each term is rounded once (product) and summed once in float, so
+ * |out − exact| ≤ γ_{k+1}·(|base| + Σ|ω_i·S_i|) per value, γ_n = n·2^-24/(1 − n·2^-24).
+ *
+ * Lifecycle: ub_blend_create() → { ub_blend_set_weight()…, ub_blend_update() }… →
+ * ub_blend_free() (NULL-safe). On failure nothing is allocated, *out_blend and
+ * out_values are left untouched.
+ * Ownership: the engine BORROWS base and every record's receivers/values: they must stay
+ * valid and unchanged until ub_blend_free(). The desc and its elements array are copied
+ * (pointers only) and may be freed after create. The out array is the caller's; pass
+ * the same array to every update (to fill a new one: copy base, then ub_blend_update_all),
+ * or always NULL (streaming).
+ * Floating point: updates run with FTZ/DAZ cleared (restored on return), so results do not
+ * depend on the caller's MXCSR.
+ * Thread safety: an instance is single-threaded (no locks); distinct instances are
+ * independent and may be updated on different threads at once. The log is used during
+ * ub_blend_create() only.
+ */
+#ifndef UBAKE_RUNTIME_BLEND_H
+#define UBAKE_RUNTIME_BLEND_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "ubake/error.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* Floats per receiver: a multiple of 3 (RGB), 3..UB_BLEND_MAX_STRIDE (SH L3 × RGB). */
+#define UB_BLEND_MAX_STRIDE 48
+
+/* desc.flags */
+#define UB_BLEND_PORTABLE 1u /* baseline kernels only (no F16C half decode): for tests */
+
+typedef enum ub_blend_storage {
+  UB_BLEND_FLOAT32 = 0, /* record values are float */
+  UB_BLEND_FLOAT16 = 1  /* record values are IEEE binary16 (runtime/half.h), uint16_t */
+} ub_blend_storage;
+
+typedef struct ub_blend_record {
+  const uint32_t *receivers; /* count indices, strictly increasing, < receiver_count */
+  const void *values;        /* count × stride values (desc storage), naturally aligned */
+  uint32_t count;            /* 0 is allowed: the element touches nothing */
+} ub_blend_record;
+
+typedef struct ub_blend_desc {
+  const char *name;          /* for messages, e.g. "lightmap texels"; may be NULL */
+  uint32_t receiver_count;
+  uint32_t stride;           /* floats per receiver: 12 (SH L1 × RGB), 27 (SH L2 × RGB) */
+  const float *base;         /* receiver_count × stride, finite (W/(m²·sr)) */
+  ub_blend_storage storage;  /* of every record's values */
+  uint32_t element_count;
+  const ub_blend_record *elements; /* element_count records; element id = index */
+  uint32_t flags;            /* 0, or UB_BLEND_PORTABLE */
+} ub_blend_desc;
+
+/* Counters of one update (all for that call only). */
+typedef struct ub_blend_stats {
+  uint32_t groups;          /* groups recomputed */
+  uint32_t groups_base;     /* of which all weights were 0: base rows copied */
+  uint64_t receivers;       /* receivers written, each exactly once */
+  uint64_t bytes_read;      /* base rows + record rows of non-zero members + group tables */
+  uint64_t bytes_written;   /* rows stored to out_values: receivers × stride × 4 (0 when
+                             * streaming) */
+} ub_blend_stats;
+
+/* What create built (for reports, `ubake info` and benchmarks). */
+typedef struct ub_blend_info {
+  uint32_t receiver_count;
+  uint32_t stride;
+  uint32_t element_count;
+  uint32_t touched_receivers; /* receivers with ≥ 1 element */
+  uint32_t max_overlap;       /* largest combination size */
+  uint32_t group_count;
+  uint32_t run_groups;        /* groups stored as runs (the rest as lists) */
+  uint64_t runs;              /* runs over all run groups */
+  uint64_t memberships;       /* Σ record counts */
+  size_t engine_bytes;        /* the engine's own allocations (tables, weights, scratch) */
+  size_t record_bytes;        /* the borrowed records: indices + values */
+} ub_blend_info;
+
+/* Reports the receivers an update just recomputed: [first, first + count), whose final
+ * rows are rows[0 .. count × stride) (= out_values + first × stride, or when streaming a
+ * scratch or base rows valid during the call only). Called in ascending group order,
+ * right after the rows are computed (cache-hot: re-encode AHD here); every recomputed
+ * receiver is reported exactly once, in pieces of consecutive receivers. */
+typedef void (*ub_blend_touched_fn)(void *user, uint32_t first, uint32_t count,
+                                    const float *rows);
+
+typedef struct ub_blend ub_blend;
+
+/* Validates desc (stride, sorted unique in-range indices, finite base and values), builds
+ * the groups and, if out_values is not NULL, copies base into it (receiver_count × stride
+ * floats). Errors: UB_ERR_INVALID_ARGUMENT (NULL pointers, bad stride or storage),
+ * UB_ERR_INVALID_DATA (records or base), UB_ERR_OUT_OF_MEMORY; one message to log naming
+ * desc->name, the element and the position. */
+ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *out_values,
+                          ub_blend **out_blend);
+void ub_blend_free(ub_blend *b);
+
+/* Sets element's RGB weight (finite, any sign; typical 0..1 × tint). Marks the element
+ * dirty only if the value changed (0 and -0 compare equal). UB_ERR_INVALID_ARGUMENT for
+ * an element out of range or a non-finite weight (nothing changes). */
+ub_result ub_blend_set_weight(ub_blend *b, uint32_t element, const float rgb[3]);
+/* The element's current weight (0 for an element out of range). */
+void ub_blend_weight(const ub_blend *b, uint32_t element, float out_rgb[3]);
+
+/* Recomputes every group holding a dirty element, writes those receivers' rows of
+ * out_values (the array given to create; NULL: streaming, then touched is required),
+ * calls touched (may be NULL otherwise) for them, clears the dirty marks. out_stats may
+ * be NULL. Cost ∝ the receivers of the changed elements. */
+void ub_blend_update(ub_blend *b, ub_blend_touched_fn touched, void *user,
+                     float *out_values, ub_blend_stats *out_stats);
+/* The same for every group (every touched receiver), dirty or not. */
+void ub_blend_update_all(ub_blend *b, ub_blend_touched_fn touched, void *user,
+                         float *out_values, ub_blend_stats *out_stats);
+
+void ub_blend_get_info(const ub_blend *b, ub_blend_info *out_info);
+/* The engine's own bytes (= info.engine_bytes). */
+size_t ub_blend_memory_bytes(const ub_blend *b);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

@@ -1,0 +1,713 @@
+/* tests/test_blend.c — run-time blend engine (runtime/blend.h): every overlap count 0…20
+ * against a naive double sum, a random 100k-receiver scenario with 1000 weight changes
+ * (only the changed elements' receivers are written, each once), bit-exact toggling,
+ * exact half decoding, input validation.
+ *
+ * Tolerance: engine value vs the exact sum (double; products of two floats are exact in
+ * double) within γ_{k+1}·Σ|terms| (k non-zero terms besides base, γ_n = n·u/(1 − n·u),
+ * u = 2^-24): one rounding per product and one per addition, the bound blend.h states. */
+#include "runtime/blend.h"
+#include "runtime/half.h"
+#include "test_util.h"
+
+#include <stdint.h>
+#include <string.h>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
+static uint64_t rng_state = 0x243F6A8885A308D3ull;
+static uint64_t rnd_u64(void)
+{
+  rng_state ^= rng_state << 13;
+  rng_state ^= rng_state >> 7;
+  rng_state ^= rng_state << 17;
+  return rng_state;
+}
+static double rnd(void) /* [0, 1) */
+{
+  return (double)(rnd_u64() >> 11) * (1.0 / 9007199254740992.0);
+}
+static uint32_t rnd_below(uint32_t n)
+{
+  return (uint32_t)(rnd() * n);
+}
+
+/* ---- a test representation: base + records, plus a naive reference ------------------ */
+
+typedef struct rep {
+  uint32_t R, S, E;
+  ub_blend_storage storage;
+  float *base;
+  uint32_t **idx;
+  uint32_t *cnt;
+  float **vf;     /* values as float (exact value of the half when storage is F16) */
+  uint16_t **vh;  /* half storage */
+  ub_blend_record *recs;
+  /* membership lookup: per receiver, its (element, position) pairs */
+  uint32_t *off, *m_elem, *m_pos;
+  float *w; /* E × 3, what the test believes the weights are */
+} rep;
+
+static void rep_free(rep *p)
+{
+  for (uint32_t e = 0; e < p->E; e++) {
+    free(p->idx[e]);
+    free(p->vf[e]);
+    free(p->vh[e]);
+  }
+  free(p->idx);
+  free(p->cnt);
+  free(p->vf);
+  free(p->vh);
+  free(p->recs);
+  free(p->base);
+  free(p->off);
+  free(p->m_elem);
+  free(p->m_pos);
+  free(p->w);
+  memset(p, 0, sizeof *p);
+}
+
+static float rnd_value(void)
+{
+  return (float)(rnd() * 3.0 - 1.0); /* signed: door/object deltas can remove light */
+}
+
+/* cover[e] is a receiver_count byte mask of element e (consumed). */
+static void rep_init(rep *p, uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st,
+                     uint8_t **cover)
+{
+  memset(p, 0, sizeof *p);
+  p->R = R;
+  p->S = S;
+  p->E = E;
+  p->storage = st;
+  p->base = malloc(sizeof(float) * ((size_t)R * S + 1));
+  for (size_t i = 0; i < (size_t)R * S; i++)
+    p->base[i] = (float)(rnd() * 2.0);
+  p->idx = calloc(E + 1, sizeof *p->idx);
+  p->cnt = calloc(E + 1, sizeof *p->cnt);
+  p->vf = calloc(E + 1, sizeof *p->vf);
+  p->vh = calloc(E + 1, sizeof *p->vh);
+  p->recs = calloc(E + 1, sizeof *p->recs);
+  p->w = calloc((size_t)E * 3 + 1, sizeof(float));
+  p->off = calloc((size_t)R + 1, sizeof(uint32_t));
+  for (uint32_t e = 0; e < E; e++) {
+    uint32_t n = 0;
+    for (uint32_t r = 0; r < R; r++)
+      n += cover[e][r] != 0;
+    p->cnt[e] = n;
+    p->idx[e] = malloc(sizeof(uint32_t) * (n + 1));
+    p->vf[e] = malloc(sizeof(float) * ((size_t)n * S + 1));
+    p->vh[e] = malloc(sizeof(uint16_t) * ((size_t)n * S + 1));
+    n = 0;
+    for (uint32_t r = 0; r < R; r++)
+      if (cover[e][r]) {
+        p->idx[e][n++] = r;
+        p->off[r + 1]++;
+      }
+    for (size_t i = 0; i < (size_t)n * S; i++) {
+      float v = rnd_value();
+      if (rnd() < 0.02)
+        v *= 1e-6f; /* some half subnormals */
+      p->vh[e][i] = ub_half_from_float(v);
+      p->vf[e][i] = st == UB_BLEND_FLOAT16 ? ub_half_to_float(p->vh[e][i]) : v;
+    }
+    p->recs[e].receivers = p->idx[e];
+    p->recs[e].values = st == UB_BLEND_FLOAT16 ? (const void *)p->vh[e] : (const void *)p->vf[e];
+    p->recs[e].count = p->cnt[e];
+  }
+  for (uint32_t r = 0; r < R; r++)
+    p->off[r + 1] += p->off[r];
+  p->m_elem = malloc(sizeof(uint32_t) * (p->off[R] + 1));
+  p->m_pos = malloc(sizeof(uint32_t) * (p->off[R] + 1));
+  uint32_t *cur = malloc(sizeof(uint32_t) * (R + 1));
+  memcpy(cur, p->off, sizeof(uint32_t) * R);
+  for (uint32_t e = 0; e < E; e++)
+    for (uint32_t i = 0; i < p->cnt[e]; i++) {
+      uint32_t r = p->idx[e][i];
+      p->m_elem[cur[r]] = e;
+      p->m_pos[cur[r]++] = i;
+    }
+  free(cur);
+}
+
+static ub_blend_desc rep_desc(const rep *p, const char *name)
+{
+  ub_blend_desc d = {name, p->R, p->S, p->base, p->storage, p->E, p->recs, 0};
+  return d;
+}
+
+/* Checks receiver r of out against the exact sum; returns 1 if good. */
+static int check_receiver(const rep *p, const float *out, uint32_t r)
+{
+  int ok = 1;
+  for (uint32_t j = 0; j < p->S; j++) {
+    uint32_t c = j % 3;
+    double b = p->base[(size_t)r * p->S + j];
+    double sum = b, mag = fabs(b);
+    int k = 0;
+    for (uint32_t q = p->off[r]; q < p->off[r + 1]; q++) {
+      uint32_t e = p->m_elem[q];
+      const float *w = p->w + (size_t)e * 3;
+      if (w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f)
+        continue;
+      double t = (double)w[c] * (double)p->vf[e][(size_t)p->m_pos[q] * p->S + j];
+      sum += t;
+      mag += fabs(t);
+      k++;
+    }
+    double u = 1.0 / 16777216.0, n = k + 1;
+    double tol = n * u / (1.0 - n * u) * mag + 1e-12 * mag + 1e-30;
+    double got = out[(size_t)r * p->S + j];
+    if (!(fabs(got - sum) <= tol)) {
+      if (ok)
+        fprintf(stderr, "receiver %u value %u: %.9g, expected %.9g (tol %.3g, %d terms)\n", r,
+                j, got, sum, tol, k);
+      ok = 0;
+    }
+  }
+  return ok;
+}
+
+static void set_w(rep *p, ub_blend *b, uint32_t e, float r, float g, float bl)
+{
+  float rgb[3] = {r, g, bl};
+  ASSERT_OK(ub_blend_set_weight(b, e, rgb));
+  memcpy(p->w + (size_t)e * 3, rgb, sizeof rgb);
+}
+
+static void rnd_weight(float rgb[3])
+{
+  double x = rnd();
+  if (x < 0.25) {
+    rgb[0] = rgb[1] = rgb[2] = 0.0f;
+  } else if (x < 0.6) {
+    rgb[0] = rgb[1] = rgb[2] = (float)(rnd() * 2.0);
+  } else {
+    for (int c = 0; c < 3; c++)
+      rgb[c] = rnd() < 0.2 ? 0.0f : (float)(rnd() * 2.5 - 0.5);
+  }
+}
+
+/* ---- touched-list collection --------------------------------------------------------- */
+
+typedef struct touch_log {
+  uint8_t *count;   /* per receiver: times reported */
+  uint64_t total;
+  uint32_t S;
+  const float *out; /* non-streaming: rows must be out + first × S */
+  float *copy;      /* streaming: rows copied here */
+  int rows_bad;
+} touch_log;
+
+static void on_touched(void *user, uint32_t first, uint32_t count, const float *rows)
+{
+  touch_log *t = user;
+  for (uint32_t i = 0; i < count; i++)
+    if (t->count[first + i] < 255)
+      t->count[first + i]++;
+  t->total += count;
+  if (t->out && rows != t->out + (size_t)first * t->S)
+    t->rows_bad++;
+  if (t->copy)
+    memcpy(t->copy + (size_t)first * t->S, rows, sizeof(float) * count * t->S);
+}
+
+/* ---- 1. every overlap count 0…20 ------------------------------------------------------- */
+
+static void test_overlaps(uint32_t S, ub_blend_storage st)
+{
+  const uint32_t R = 300;
+  for (uint32_t k = 0; k <= 20; k++) {
+    /* The shared set: a run of 20 receivers and 20 scattered ones, overlapped by all k
+     * elements; each element also covers random other receivers (fewer overlaps). */
+    uint8_t **cover = malloc(sizeof(uint8_t *) * (k + 1));
+    for (uint32_t e = 0; e < k; e++) {
+      cover[e] = calloc(R, 1);
+      for (uint32_t i = 0; i < 20; i++) {
+        cover[e][100 + i] = 1;
+        cover[e][130 + 7 * i] = 1;
+      }
+      for (uint32_t r = 0; r < R; r++)
+        if (rnd() < 0.15)
+          cover[e][r] = 1;
+    }
+    rep p;
+    rep_init(&p, R, S, k, st, cover);
+    for (uint32_t e = 0; e < k; e++)
+      free(cover[e]);
+    free(cover);
+
+    float *out = malloc(sizeof(float) * R * S);
+    ub_blend *b = NULL;
+    ub_blend_desc d = rep_desc(&p, "overlap test");
+    ASSERT_OK(ub_blend_create(&d, NULL, out, &b));
+    if (!b) {
+      rep_free(&p);
+      free(out);
+      continue;
+    }
+    ASSERT_TRUE(memcmp(out, p.base, sizeof(float) * R * S) == 0);
+    ub_blend_info info;
+    ub_blend_get_info(b, &info);
+    ASSERT_TRUE(info.max_overlap == k);
+    uint32_t touched = 0;
+    for (uint32_t r = 0; r < R; r++)
+      touched += p.off[r + 1] > p.off[r];
+    ASSERT_TRUE(info.touched_receivers == touched);
+
+    /* Several rounds of random weights (some zero, so every active count ≤ k occurs). */
+    for (int round = 0; round < 6; round++) {
+      for (uint32_t e = 0; e < k; e++) {
+        float rgb[3];
+        rnd_weight(rgb);
+        if (round == 0)
+          rgb[0] = rgb[1] = rgb[2] = 0.5f + (float)e; /* all k non-zero */
+        set_w(&p, b, e, rgb[0], rgb[1], rgb[2]);
+      }
+      ub_blend_update(b, NULL, NULL, out, NULL);
+      int bad = 0;
+      for (uint32_t r = 0; r < R; r++)
+        bad += !check_receiver(&p, out, r);
+      if (bad)
+        fprintf(stderr, "stride %u storage %d overlap %u round %d: %d bad receivers\n", S,
+                (int)st, k, round, bad);
+      ASSERT_TRUE(bad == 0);
+    }
+    /* All off: bit-identical base. */
+    for (uint32_t e = 0; e < k; e++)
+      set_w(&p, b, e, 0, 0, 0);
+    ub_blend_update(b, NULL, NULL, out, NULL);
+    ASSERT_TRUE(memcmp(out, p.base, sizeof(float) * R * S) == 0);
+    ub_blend_free(b);
+    rep_free(&p);
+    free(out);
+  }
+}
+
+/* ---- 2. half decoding is exact for every finite half ---------------------------------- */
+
+static void test_half_exact(uint32_t S)
+{
+  uint32_t nfin = 0;
+  for (uint32_t h = 0; h < 65536; h++)
+    nfin += ub_half_is_finite((uint16_t)h);
+  uint32_t R = (nfin + S - 1) / S;
+  float *base = calloc((size_t)R * S, sizeof(float));
+  uint16_t *vals = calloc((size_t)R * S, sizeof(uint16_t));
+  uint32_t *idx = malloc(sizeof(uint32_t) * R);
+  uint32_t n = 0;
+  for (uint32_t h = 0; h < 65536; h++)
+    if (ub_half_is_finite((uint16_t)h))
+      vals[n++] = (uint16_t)h;
+  for (uint32_t r = 0; r < R; r++)
+    idx[r] = r;
+  ub_blend_record rec = {idx, vals, R};
+  ub_blend_desc d = {"half", R, S, base, UB_BLEND_FLOAT16, 1, &rec, 0};
+  float *out = malloc(sizeof(float) * R * S);
+  ub_blend *b = NULL;
+  ASSERT_OK(ub_blend_create(&d, NULL, out, &b));
+  float one[3] = {1, 1, 1};
+  ASSERT_OK(ub_blend_set_weight(b, 0, one));
+  ub_blend_update(b, NULL, NULL, out, NULL);
+  uint32_t bad = 0;
+  for (uint32_t i = 0; i < (uint32_t)R * S; i++)
+    bad += out[i] != ub_half_to_float(vals[i]); /* 0 + -0 = +0 compares equal */
+  ASSERT_TRUE(bad == 0);
+  /* The portable decoder (SSE2 bit operations / scalar) gives the same bits. */
+  float *outp = malloc(sizeof(float) * R * S);
+  ub_blend *bp = NULL;
+  d.flags = UB_BLEND_PORTABLE;
+  ASSERT_OK(ub_blend_create(&d, NULL, outp, &bp));
+  if (bp) {
+    ASSERT_OK(ub_blend_set_weight(bp, 0, one));
+    ub_blend_update(bp, NULL, NULL, outp, NULL);
+    ASSERT_TRUE(memcmp(out, outp, sizeof(float) * R * S) == 0);
+  }
+  ub_blend_free(bp);
+  free(outp);
+#if defined(__SSE2__)
+  /* The caller's FTZ/DAZ mode changes nothing (half subnormals are float denormals inside
+   * the kernel) and is restored. */
+  float *out2 = malloc(sizeof(float) * R * S);
+  memcpy(out2, base, sizeof(float) * R * S);
+  unsigned csr = _mm_getcsr();
+  _mm_setcsr(csr | 0x8040u);
+  ub_blend_update_all(b, NULL, NULL, out2, NULL);
+  unsigned after = _mm_getcsr();
+  _mm_setcsr(csr);
+  ASSERT_TRUE(after == (csr | 0x8040u));
+  ASSERT_TRUE(memcmp(out, out2, sizeof(float) * R * S) == 0);
+  free(out2);
+#endif
+  ub_blend_free(b);
+  free(base);
+  free(vals);
+  free(idx);
+  free(out);
+}
+
+/* ---- 3. random scenario ---------------------------------------------------------------- */
+
+static void scenario(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, int changes)
+{
+  /* Records: contiguous-ish blobs with holes, or scattered picks; sizes log-uniform; at
+   * most 16 elements per receiver; a hub of 16 elements shares one region. */
+  uint8_t **cover = malloc(sizeof(uint8_t *) * E);
+  uint8_t *ov = calloc(R, 1);
+  for (uint32_t e = 0; e < E; e++) {
+    cover[e] = calloc(R, 1);
+    uint32_t size = (uint32_t)(20.0 * pow(200.0, rnd()));
+    if (e < 16) { /* the hub */
+      for (uint32_t r = R / 3; r < R / 3 + 400; r++)
+        if (ov[r] < 16 && rnd() < 0.97) {
+          cover[e][r] = 1;
+          ov[r]++;
+        }
+      continue;
+    }
+    if (rnd() < 0.7) {
+      uint32_t start = rnd_below(R);
+      for (uint32_t r = start; r < R && r < start + size; r++)
+        if (ov[r] < 16 && rnd() < 0.95) {
+          cover[e][r] = 1;
+          ov[r]++;
+        }
+    } else {
+      for (uint32_t i = 0; i < size; i++) {
+        uint32_t r = rnd_below(R);
+        if (ov[r] < 16 && !cover[e][r]) {
+          cover[e][r] = 1;
+          ov[r]++;
+        }
+      }
+    }
+  }
+  free(ov);
+  rep p;
+  rep_init(&p, R, S, E, st, cover);
+  for (uint32_t e = 0; e < E; e++)
+    free(cover[e]);
+  free(cover);
+
+  size_t nf = (size_t)R * S;
+  float *out = malloc(sizeof(float) * nf), *prev = malloc(sizeof(float) * nf);
+  ub_blend *b = NULL;
+  ub_blend_desc d = rep_desc(&p, "scenario");
+  ASSERT_OK(ub_blend_create(&d, NULL, out, &b));
+  if (!b)
+    return;
+  ub_blend_info info;
+  ub_blend_get_info(b, &info);
+  ASSERT_TRUE(info.max_overlap == 16);
+  printf("scenario R=%u S=%u E=%u %s: %u touched, %u groups (%u as runs, %llu runs), "
+         "engine %zu B = %.2f B per membership\n", R, S, E,
+         st == UB_BLEND_FLOAT16 ? "half" : "float", info.touched_receivers, info.group_count,
+         info.run_groups, (unsigned long long)info.runs, info.engine_bytes,
+         (double)info.engine_bytes / (double)info.memberships);
+
+  /* A second engine in streaming mode (no out array) with the portable half decoder gets
+   * the same weights; its callback copies the rows into `streamed`, which must equal out
+   * bit for bit. */
+  float *streamed = malloc(sizeof(float) * nf);
+  ub_blend *bs = NULL;
+  ub_blend_desc dp = d;
+  dp.flags = UB_BLEND_PORTABLE;
+  ASSERT_OK(ub_blend_create(&dp, NULL, streamed, &bs));
+  uint8_t *changed = calloc(E, 1), *expect = calloc(R, 1);
+  touch_log tl = {calloc(R, 1), 0, S, out, NULL, 0};
+  touch_log ts = {calloc(R, 1), 0, S, NULL, streamed, 0};
+  int bad_updates = 0, bad_values = 0;
+  for (int c = 0; c < changes;) {
+    /* 1..5 weight changes, then an update. */
+    int nchg = 1 + (int)rnd_below(5);
+    memset(changed, 0, E);
+    for (int i = 0; i < nchg && c < changes; i++, c++) {
+      uint32_t e = rnd_below(E);
+      float rgb[3];
+      float *cur = p.w + (size_t)e * 3;
+      if (rnd() < 0.1)
+        memcpy(rgb, cur, sizeof rgb); /* no change: must not dirty */
+      else
+        rnd_weight(rgb);
+      if (rnd() < 0.05)
+        rgb[0] = rgb[1] = rgb[2] = -0.0f; /* same as 0 */
+      if (!(rgb[0] == cur[0] && rgb[1] == cur[1] && rgb[2] == cur[2]))
+        changed[e] = 1;
+      set_w(&p, b, e, rgb[0], rgb[1], rgb[2]);
+      if (bs)
+        ASSERT_OK(ub_blend_set_weight(bs, e, rgb));
+    }
+    memset(expect, 0, R);
+    uint64_t nexp = 0;
+    for (uint32_t e = 0; e < E; e++)
+      if (changed[e])
+        for (uint32_t i = 0; i < p.cnt[e]; i++)
+          if (!expect[p.idx[e][i]]) {
+            expect[p.idx[e][i]] = 1;
+            nexp++;
+          }
+    memcpy(prev, out, sizeof(float) * nf);
+    memset(tl.count, 0, R);
+    tl.total = 0;
+    ub_blend_stats stats;
+    ub_blend_update(b, on_touched, &tl, out, &stats);
+    int bad = stats.receivers != nexp || tl.total != nexp ||
+              stats.bytes_written != nexp * S * sizeof(float);
+    if (bs) {
+      ub_blend_stats ss;
+      memset(ts.count, 0, R);
+      ts.total = 0;
+      ub_blend_update(bs, on_touched, &ts, NULL, &ss);
+      bad |= ss.receivers != nexp || ts.total != nexp || ss.bytes_written != 0 ||
+             memcmp(streamed, out, sizeof(float) * nf) != 0 || memcmp(ts.count, tl.count, R);
+    }
+    for (uint32_t r = 0; r < R; r++) {
+      if (tl.count[r] != expect[r])
+        bad = 1; /* written more than once, or the wrong set */
+      if (!expect[r] && memcmp(out + (size_t)r * S, prev + (size_t)r * S, sizeof(float) * S))
+        bad = 1; /* a row nobody reported changed */
+    }
+    bad_updates += bad;
+    for (int i = 0; i < 300; i++)
+      bad_values += !check_receiver(&p, out, rnd_below(R));
+  }
+  ASSERT_TRUE(bad_updates == 0);
+  ASSERT_TRUE(bad_values == 0);
+  ASSERT_TRUE(tl.rows_bad == 0);
+  ASSERT_TRUE(bs != NULL);
+  ub_blend_free(bs);
+  int bad_final = 0;
+  for (uint32_t r = 0; r < R; r++)
+    bad_final += !check_receiver(&p, out, r);
+  ASSERT_TRUE(bad_final == 0);
+
+  /* History independence: update_all and a fresh engine give the same bits. */
+  float *first = malloc(sizeof(float) * nf);
+  memcpy(first, out, sizeof(float) * nf);
+  ub_blend_stats sa;
+  ub_blend_update_all(b, NULL, NULL, out, &sa);
+  ASSERT_TRUE(sa.receivers == info.touched_receivers);
+  ASSERT_TRUE(memcmp(out, first, sizeof(float) * nf) == 0);
+  float *fresh = malloc(sizeof(float) * nf);
+  ub_blend *b2 = NULL;
+  ASSERT_OK(ub_blend_create(&d, NULL, fresh, &b2));
+  for (uint32_t e = 0; b2 && e < E; e++)
+    ASSERT_OK(ub_blend_set_weight(b2, e, p.w + (size_t)e * 3));
+  if (b2)
+    ub_blend_update(b2, NULL, NULL, fresh, NULL);
+  ASSERT_TRUE(memcmp(fresh, first, sizeof(float) * nf) == 0);
+  ub_blend_free(b2);
+
+  /* Toggling: all off → base bit for bit; back on → the first result bit for bit,
+   * repeatedly (no drift). */
+  float *saved = malloc(sizeof(float) * E * 3);
+  memcpy(saved, p.w, sizeof(float) * E * 3);
+  for (int rep_i = 0; rep_i < 5; rep_i++) {
+    for (uint32_t e = 0; e < E; e++)
+      set_w(&p, b, e, 0, 0, 0);
+    ub_blend_update(b, NULL, NULL, out, NULL);
+    ASSERT_TRUE(memcmp(out, p.base, sizeof(float) * nf) == 0);
+    for (uint32_t e = 0; e < E; e++)
+      set_w(&p, b, e, saved[3 * e], saved[3 * e + 1], saved[3 * e + 2]);
+    ub_blend_update(b, NULL, NULL, out, NULL);
+    ASSERT_TRUE(memcmp(out, first, sizeof(float) * nf) == 0);
+  }
+  /* Setting unchanged weights dirties nothing. */
+  for (uint32_t e = 0; e < E; e++)
+    set_w(&p, b, e, saved[3 * e], saved[3 * e + 1], saved[3 * e + 2]);
+  ub_blend_stats s0;
+  ub_blend_update(b, NULL, NULL, out, &s0);
+  ASSERT_TRUE(s0.groups == 0 && s0.receivers == 0);
+
+  ub_blend_free(b);
+  free(saved);
+  free(first);
+  free(fresh);
+  free(changed);
+  free(expect);
+  free(tl.count);
+  free(ts.count);
+  free(streamed);
+  free(out);
+  free(prev);
+  rep_free(&p);
+}
+
+/* ---- 4. validation ----------------------------------------------------------------------- */
+
+static int log_count;
+static void count_log(void *user, ub_log_level level, const char *msg)
+{
+  (void)user;
+  (void)level;
+  if (msg && msg[0])
+    log_count++;
+}
+
+static void expect_create(const ub_blend_desc *d, ub_result want)
+{
+  float out[64];
+  for (int i = 0; i < 64; i++)
+    out[i] = 1234.5f;
+  ub_blend *b = (ub_blend *)(uintptr_t)0x1;
+  ub_log log = {count_log, NULL};
+  log_count = 0;
+  ub_result r = ub_blend_create(d, &log, out, &b);
+  ASSERT_TRUE(r == want);
+  ASSERT_TRUE(log_count == 1);
+  ASSERT_TRUE(b == (ub_blend *)(uintptr_t)0x1); /* untouched */
+  int same = 1;
+  for (int i = 0; i < 64; i++)
+    same &= out[i] == 1234.5f;
+  ASSERT_TRUE(same);
+}
+
+static void test_validation(void)
+{
+  float base[4 * 12];
+  for (int i = 0; i < 48; i++)
+    base[i] = 0.25f;
+  float vals[3 * 12];
+  uint16_t hv[3 * 12];
+  for (int i = 0; i < 36; i++) {
+    vals[i] = 0.5f;
+    hv[i] = ub_half_from_float(0.5f);
+  }
+  uint32_t good[3] = {0, 2, 3};
+  ub_blend_record rec = {good, vals, 3};
+  ub_blend_desc d = {"validation", 4, 12, base, UB_BLEND_FLOAT32, 1, &rec, 0};
+
+  float out[48];
+  ub_blend *b = NULL;
+  ASSERT_OK(ub_blend_create(&d, NULL, out, &b));
+  ub_blend_free(b);
+  ub_blend_free(NULL);
+
+  uint32_t unsorted[3] = {0, 3, 2}, dup[3] = {0, 2, 2}, range[3] = {0, 2, 4};
+  rec.receivers = unsorted;
+  expect_create(&d, UB_ERR_INVALID_DATA);
+  rec.receivers = dup;
+  expect_create(&d, UB_ERR_INVALID_DATA);
+  rec.receivers = range;
+  expect_create(&d, UB_ERR_INVALID_DATA);
+  rec.receivers = good;
+
+  vals[17] = NAN;
+  expect_create(&d, UB_ERR_INVALID_DATA);
+  vals[17] = INFINITY;
+  expect_create(&d, UB_ERR_INVALID_DATA);
+  vals[17] = 0.5f;
+
+  d.storage = UB_BLEND_FLOAT16;
+  rec.values = hv;
+  ASSERT_OK(ub_blend_create(&d, NULL, out, &b));
+  ub_blend_free(b);
+  hv[30] = 0x7c00; /* +Inf */
+  expect_create(&d, UB_ERR_INVALID_DATA);
+  hv[30] = 0x7e01; /* NaN */
+  expect_create(&d, UB_ERR_INVALID_DATA);
+  hv[30] = ub_half_from_float(0.5f);
+
+  base[40] = NAN;
+  expect_create(&d, UB_ERR_INVALID_DATA);
+  base[40] = 0.25f;
+
+  d.stride = 10;
+  expect_create(&d, UB_ERR_INVALID_ARGUMENT);
+  d.stride = 51;
+  expect_create(&d, UB_ERR_INVALID_ARGUMENT);
+  d.stride = 12;
+  d.storage = (ub_blend_storage)7;
+  expect_create(&d, UB_ERR_INVALID_ARGUMENT);
+  d.storage = UB_BLEND_FLOAT16;
+  rec.values = NULL;
+  expect_create(&d, UB_ERR_INVALID_ARGUMENT);
+  rec.values = hv;
+
+  /* Weights: range and finiteness. */
+  ASSERT_OK(ub_blend_create(&d, NULL, out, &b));
+  float nanw[3] = {1, NAN, 1}, one[3] = {1, 1, 1}, w[3];
+  ASSERT_TRUE(ub_blend_set_weight(b, 1, one) == UB_ERR_INVALID_ARGUMENT);
+  ASSERT_TRUE(ub_blend_set_weight(b, 0, nanw) == UB_ERR_INVALID_ARGUMENT);
+  ub_blend_weight(b, 0, w);
+  ASSERT_TRUE(w[0] == 0 && w[1] == 0 && w[2] == 0);
+  ASSERT_OK(ub_blend_set_weight(b, 0, one));
+  ub_blend_weight(b, 0, w);
+  ASSERT_TRUE(w[0] == 1 && w[1] == 1 && w[2] == 1);
+  ub_blend_stats st;
+  ub_blend_update(b, NULL, NULL, out, &st);
+  ASSERT_TRUE(st.groups == 1 && st.receivers == 3 && st.bytes_written == 3 * 48);
+  ASSERT_TRUE(out[0] == 0.75f && out[12] == 0.25f && out[24] == 0.75f);
+  ub_blend_free(b);
+
+  /* Degenerate shapes: no elements, an empty record, no receivers. */
+  ub_blend_record empty = {NULL, NULL, 0};
+  ub_blend_desc d0 = {"empty", 4, 12, base, UB_BLEND_FLOAT32, 1, &empty, 0};
+  ASSERT_OK(ub_blend_create(&d0, NULL, out, &b));
+  ASSERT_OK(ub_blend_set_weight(b, 0, one));
+  ub_blend_update(b, NULL, NULL, out, &st);
+  ASSERT_TRUE(st.receivers == 0);
+  ub_blend_free(b);
+  ub_blend_desc d1 = {NULL, 0, 27, NULL, UB_BLEND_FLOAT32, 0, NULL, 0};
+  ASSERT_OK(ub_blend_create(&d1, NULL, NULL, &b));
+  ub_blend_update_all(b, NULL, NULL, out, &st);
+  ASSERT_TRUE(st.receivers == 0);
+  ub_blend_free(b);
+}
+
+/* ---- 5. compact tables for coherent records ------------------------------------------- */
+
+static void test_compact(void)
+{
+  /* 4 overlapping contiguous blobs over 100k receivers: few groups, all runs; the tables
+   * are far below 4 bytes per membership. */
+  const uint32_t R = 100000, E = 4;
+  uint8_t **cover = malloc(sizeof(uint8_t *) * E);
+  for (uint32_t e = 0; e < E; e++) {
+    cover[e] = calloc(R, 1);
+    for (uint32_t r = e * 15000; r < e * 15000 + 40000; r++)
+      cover[e][r] = 1;
+  }
+  rep p;
+  rep_init(&p, R, 12, E, UB_BLEND_FLOAT32, cover);
+  for (uint32_t e = 0; e < E; e++)
+    free(cover[e]);
+  free(cover);
+  ub_blend_desc d = rep_desc(&p, "compact");
+  float *out = malloc(sizeof(float) * R * 12);
+  ub_blend *b = NULL;
+  ASSERT_OK(ub_blend_create(&d, NULL, out, &b));
+  ub_blend_info in;
+  ub_blend_get_info(b, &in);
+  ASSERT_TRUE(in.run_groups == in.group_count && in.group_count == 7);
+  ASSERT_TRUE(in.engine_bytes < 8192); /* incl. a 3 KB streaming scratch */
+  for (uint32_t e = 0; e < E; e++)
+    set_w(&p, b, e, 1.0f + e, 0.5f, 2.0f);
+  ub_blend_update(b, NULL, NULL, out, NULL);
+  int bad = 0;
+  for (uint32_t r = 0; r < R; r += 7)
+    bad += !check_receiver(&p, out, r);
+  ASSERT_TRUE(bad == 0);
+  ub_blend_free(b);
+  free(out);
+  rep_free(&p);
+}
+
+int main(void)
+{
+  const uint32_t strides[] = {12, 27, 9, 48};
+  for (int s = 0; s < 4; s++) {
+    test_overlaps(strides[s], UB_BLEND_FLOAT32);
+    test_overlaps(strides[s], UB_BLEND_FLOAT16);
+  }
+  test_half_exact(12);
+  test_half_exact(27);
+  test_validation();
+  test_compact();
+  scenario(100000, 12, 200, UB_BLEND_FLOAT16, 1000);
+  scenario(30000, 27, 120, UB_BLEND_FLOAT32, 400);
+  TEST_MAIN_END();
+}
