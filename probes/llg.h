@@ -25,6 +25,7 @@
  *     self term of the previous iteration); UB_LLG_SELF_ITERATIONS iterations. Static
  *     lights' direct light is already in the grid. (UberBake shares V between instances;
  *     S depends on the instance's lighting, so it is per model instance, like the grid.)
+ *     During the pass, before S exists, gather rays that hit an LLG model read grid × V.
  * Deterministic: rays are hashes of (seed, model, vertex/probe, ray).
  * Lifecycle: ub_llg_build() fills a ub_llg_set; ub_llg_free() releases it (NULL-safe).
  */

@@ -72,19 +72,15 @@ static const tp_entry ub_llg_tp[] = {
 
 void ub_llg_sh_product(const float L[27], const float V[9], float out[27])
 {
-  double acc[27];
-  memset(acc, 0, sizeof acc);
+  memset(out, 0, 27 * sizeof *out);
   for (size_t e = 0; e < sizeof ub_llg_tp / sizeof ub_llg_tp[0]; e++) {
     const tp_entry *t = &ub_llg_tp[e];
-    for (int c = 0; c < 3; c++) {
-      double v = (double)L[t->i * 3 + c] * V[t->j];
-      if (t->i != t->j)
-        v += (double)L[t->j * 3 + c] * V[t->i];
-      acc[t->k * 3 + c] += v * t->c;
-    }
+    const float *li = L + t->i * 3, *lj = L + t->j * 3;
+    float vi = V[t->i], vj = V[t->j], w = t->i != t->j ? 1.0f : 0.0f;
+    float *o = out + t->k * 3;
+    for (int c = 0; c < 3; c++)
+      o[c] += (li[c] * vj + w * lj[c] * vi) * t->c;
   }
-  for (int i = 0; i < 27; i++)
-    out[i] = (float)acc[i];
 }
 
 static void local_coords(const float center[3], const float axes[9], const float p[3],

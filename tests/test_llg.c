@@ -23,6 +23,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <time.h>
 
 #include "bake/reference.h"
 #include "bake/rt.h"
@@ -324,6 +325,38 @@ static void test_accuracy(const char *level, const char *ubk)
            k ? "concave channel edges:" : "floor contact (y < 2 cm):", excl_n[k],
            100 * excl_vis[k] / (excl_n[k] ? excl_n[k] : 1),
            100 * excl_novis[k] / (excl_n[k] ? excl_n[k] : 1));
+  /* Speed (printed only): per-vertex evaluation as a vertex shader would do it, and the
+   * point query (closest surface point by brute force over the model's triangles). */
+  {
+    struct timespec t0, t1;
+    double sink = 0.0;
+    uint32_t nq = 200000;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    for (uint32_t k = 0; k < nq; k++) {
+      uint32_t v = k % m->vertex_count;
+      float L[27], e[3];
+      ub_llg_grid_sample(m->center, m->axes, m->half, m->dims, m->probe_sh,
+                         m->positions + 3 * (size_t)v, L);
+      ub_llg_irradiance(L, m->vis + 9 * (size_t)v, m->self + 3 * (size_t)v,
+                        m->normals + 3 * (size_t)v, e);
+      sink += e[0];
+    }
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+    double tv = (t1.tv_sec - t0.tv_sec) + 1e-9 * (t1.tv_nsec - t0.tv_nsec);
+    uint32_t nq2 = 20000;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    for (uint32_t k = 0; k < nq2; k++) {
+      uint32_t v = k % m->vertex_count;
+      float e[3];
+      ub_runtime_query_llg(run, m->positions + 3 * (size_t)v, m->normals + 3 * (size_t)v, e);
+      sink += e[0];
+    }
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+    double tq = (t1.tv_sec - t0.tv_sec) + 1e-9 * (t1.tv_nsec - t0.tv_nsec);
+    printf("  speed (1 core): per-vertex LLG %.2f M/s, ub_runtime_query_llg %.3f M/s (%u "
+           "triangles searched)%s\n", nq / tv * 1e-6, nq2 / tq * 1e-6, m->triangle_count,
+           sink > 0 ? "" : " ");
+  }
   ASSERT_TRUE(all >= 40 && cnt[1] >= 10);
   ASSERT_TRUE(mv < 0.10);
   ASSERT_TRUE(mv < mn);
