@@ -31,12 +31,17 @@
 #define SWEEP_TEST_RAYS 24
 /* A point whose test rays hit back faces more than this share is inside solid geometry. */
 #define SWEEP_BACKFACE_SHARE 0.25
+/* A surface point is covered if most of its hemisphere rays stop within this many texels. */
+#define SWEEP_NEAR_TEXELS 0.05f
 /* Per-point relative error: |bake − ref| / max(ref, floor × mean ref), so that points in
  * near darkness do not dominate the maximum and the percentile. */
 #define SWEEP_ERR_FLOOR 0.1
 /* Attempts per wanted point before giving up on finding more. */
 #define SWEEP_TRIES 64
 #define SWEEP_MAX_RUNGS 32
+/* Default timing: bakes shorter than this many seconds are repeated, the fastest kept. */
+#define SWEEP_AUTO_REPEAT_SECONDS 10.0
+#define SWEEP_AUTO_REPEAT 3
 /* Seeds of the point picker, the references and the converged bake: fixed so that runs
  * are comparable and the cache stays valid. */
 #define SWEEP_POINT_SEED 0x5eedu
@@ -216,8 +221,9 @@ static void sw_fib_dir(int r, float out[3])
 
 /* 1 if the point sees mostly front faces: for a surface point (n != NULL) over the
  * hemisphere of n from the offset origin, for a free point over the whole sphere. A point
- * that sees nothing at all (open void) is rejected too. */
-static int sw_point_open(const ub_rt *rt, const float p[3], const float *n)
+ * that sees nothing at all (open void) is rejected too, and so is a surface point covered
+ * by other geometry (most of its rays stop within `near` metres: a floor under a wall). */
+static int sw_point_open(const ub_rt *rt, const float p[3], const float *n, float near)
 {
   ub_ray rays[SWEEP_TEST_RAYS];
   ub_hit hits[SWEEP_TEST_RAYS];
@@ -239,16 +245,19 @@ static int sw_point_open(const ub_rt *rt, const float p[3], const float *n)
     rays[r].tfar = INFINITY;
   }
   ub_rt_intersect(rt, rays, SWEEP_TEST_RAYS, hits);
-  int hit = 0, back = 0;
+  int hit = 0, back = 0, close = 0;
   for (int r = 0; r < SWEEP_TEST_RAYS; r++) {
     if (hits[r].tri == UB_RT_MISS)
       continue;
     hit++;
+    close += hits[r].t < near;
     const float *g = hits[r].ng;
     if (g[0] * rays[r].dir[0] + g[1] * rays[r].dir[1] + g[2] * rays[r].dir[2] > 0.0f)
       back++;
   }
   if (!n && hit == 0)
+    return 0;
+  if (n && 2 * close > SWEEP_TEST_RAYS)
     return 0;
   return back <= SWEEP_BACKFACE_SHARE * hit;
 }
@@ -303,9 +312,11 @@ static void sw_cfg_options(const sweep *s, const sweep_cfg *c, ub_bake_options *
   o->seed = s->seed;
 }
 
-/* Bakes c into dir (s->repeat times, keeping the fastest wall time). */
+/* Bakes c into dir (timed: s->repeat times, keeping the fastest wall time); s->repeat 0 (auto):
+ * once, or SWEEP_AUTO_REPEAT times if the first bake was shorter than
+ * SWEEP_AUTO_REPEAT_SECONDS (short bakes are the ones another process's burst distorts). */
 static int sw_bake(sweep *s, const sweep_cfg *c, uint32_t seed, const char *dir,
-                   const char *label, ub_bake_stats *out_st, double *out_seconds,
+                   const char *label, int timed, ub_bake_stats *out_st, double *out_seconds,
                    double *out_core)
 {
   ub_bake_options o;
@@ -314,7 +325,8 @@ static int sw_bake(sweep *s, const sweep_cfg *c, uint32_t seed, const char *dir,
   o.out_dir = dir;
   ub_log log = {sw_log, s};
   double best = INFINITY, best_core = 0.0;
-  for (int k = 0; k < s->repeat; k++) {
+  int runs = timed && s->repeat > 0 ? s->repeat : 1;
+  for (int k = 0; k < runs; k++) {
     sw_progress pr = {label, sw_now(), sw_now()};
     o.progress = sw_on_progress;
     o.progress_user = &pr;
@@ -328,6 +340,8 @@ static int sw_bake(sweep *s, const sweep_cfg *c, uint32_t seed, const char *dir,
                 ub_result_string(r));
       return 0;
     }
+    if (timed && s->repeat == 0 && k == 0 && dt < SWEEP_AUTO_REPEAT_SECONDS)
+      runs = SWEEP_AUTO_REPEAT;
     if (dt < best) {
       best = dt;
       best_core = dc;
@@ -417,7 +431,7 @@ static int sw_pick_points(sweep *s, const ub_bakefile *bf)
       continue;
     for (int k = 0; k < 3; k++)
       pt->n[k] = nn[k] / len;
-    if (!sw_point_open(s->rt, pt->p, pt->n))
+    if (!sw_point_open(s->rt, pt->p, pt->n, SWEEP_NEAR_TEXELS * s->texel0))
       continue;
     pt->kind = PT_LIGHTMAP;
     n++;
@@ -440,7 +454,7 @@ static int sw_pick_points(sweep *s, const ub_bakefile *bf)
         v += w[c] / sum * bf->glg_positions[3 * (size_t)bf->glg_tets[4 * (size_t)tet + c] + k];
       pt->p[k] = (float)v;
     }
-    if (!sw_point_open(s->rt, pt->p, NULL))
+    if (!sw_point_open(s->rt, pt->p, NULL, 0.0f))
       continue;
     float z = 1.0f - 2.0f * ub_u01(ub_hash4(h, 5, 0, 0)),
           phi = 6.2831853f * ub_u01(ub_hash4(h, 6, 0, 0)), r = sqrtf(fmaxf(0.0f, 1.0f - z * z));
@@ -919,7 +933,7 @@ static int sw_run_result(sweep *s, int ri, const char *label, const char *dir, i
     return 1;
   ub_bake_stats st;
   double sec, core;
-  if (!sw_bake(s, &s->cfgs[ri], s->seed, dir, label, &st, &sec, &core))
+  if (!sw_bake(s, &s->cfgs[ri], s->seed, dir, label, 1, &st, &sec, &core))
     return 0;
   ub_runtime *rt = sw_load(s, st.ubk_path);
   if (!rt)
@@ -979,7 +993,7 @@ static int sw_run(sweep *s)
   snprintf(dir, sizeof dir, "%s/middle", bakes);
   ub_bake_stats st;
   double sec, core;
-  if (!sw_bake(s, &s->cfgs[0], s->seed, dir, "middle", &st, &sec, &core))
+  if (!sw_bake(s, &s->cfgs[0], s->seed, dir, "middle", 1, &st, &sec, &core))
     return 0;
   ub_runtime *mid = sw_load(s, st.ubk_path);
   if (!mid)
@@ -1011,7 +1025,7 @@ static int sw_run(sweep *s)
              s->converged_rays, SWEEP_CONVERGED_SEED);
       fflush(stdout);
       ub_bake_stats cs;
-      if (!sw_bake(s, &c, SWEEP_CONVERGED_SEED, dir, "converged", &cs, &sec, &core)) {
+      if (!sw_bake(s, &c, SWEEP_CONVERGED_SEED, dir, "converged", 0, &cs, &sec, &core)) {
         ub_runtime_free(mid);
         return 0;
       }
@@ -1078,7 +1092,8 @@ static const char *SWEEP_HELP =
     "  --ref-spp N          reference paths per point (default 65536; quick 16384)\n"
     "  --converged-rays N   gather rays per texel of the converged bake (default 4096;\n"
     "                       quick 1024; 0 = no per-texel error)\n"
-    "  --repeat N           bake every rung N times and keep the fastest (default 1)\n"
+    "  --repeat N           bake every rung N times and keep the fastest (default: bakes\n"
+    "                       under 10 s 3 times, longer ones once)\n"
     "  --threads N          worker threads (default: all cores)\n"
     "  --seed N             bake seed (default 1)\n"
     "  --reuse-converged    reuse DIR/bakes/converged_N/ from an earlier run (only if the\n"
@@ -1095,7 +1110,6 @@ int ub_cli_sweep(int argc, char **argv)
   sweep s;
   memset(&s, 0, sizeof s);
   s.seed = 1;
-  s.repeat = 1;
   s.plot = 1;
   long points = -1, spp = -1, conv = -1, n;
   for (int i = 0; i < argc; i++) {
