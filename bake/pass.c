@@ -903,7 +903,9 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     src_energy = outgoing_energy(&c, tx->acc_iz);
     ub_log_printf(log, UB_LOG_INFO, "  bounce %u: +%.3f%% energy", b,
                   total_energy > 0 ? 100.0 * e / total_energy : 0.0);
-    if (d->bounces < 0 && e <= d->stop_fraction * total_energy) {
+    /* Stop on the indirect light so far: a bright directly lit area (a sun patch) must not
+     * end the bounces while a dark room still gains much of its light per bounce. */
+    if (d->bounces < 0 && e <= d->stop_fraction * (total_energy - out->bounce_energy[0])) {
       b++;
       break;
     }

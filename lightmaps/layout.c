@@ -306,7 +306,7 @@ static float point_eps(const lm_ctx *c, const float p[3])
   if (c->rt)
     return ub_rt_epsilon(c->rt, p);
   float m = fmaxf(fabsf(p[0]), fmaxf(fabsf(p[1]), fabsf(p[2])));
-  return fmaxf(c->local_eps, m * 7.62939453125e-06f);
+  return fmaxf(c->local_eps, m * 2.384185791015625e-07f);
 }
 
 /* Per-triangle minimum barycentrics that keep a point 4 ray epsilons (world) inside
@@ -792,7 +792,7 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
         e = fmaxf(e, mx[a] - mn[a]);
     c.extent = e;
     c.plane_tol = fmax(1e-5 * (double)e, 1e-6);
-    c.local_eps = fmaxf(1e-5f * e, 1e-6f);
+    c.local_eps = fmaxf(1e-7f * e, 1e-6f);
   }
 
   /* 1. per-triangle normals, areas, classification */
@@ -1049,7 +1049,7 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
       for (int j = 0; j < UB_TEXEL_SAMPLES; j++) {
         const float *p = raw_samples + ((size_t)ii * UB_TEXEL_SAMPLES + j) * 3;
         float m = fmaxf(fabsf(p[0]), fmaxf(fabsf(p[1]), fabsf(p[2])));
-        float eps = fmaxf(c.local_eps, m * 7.62939453125e-06f);
+        float eps = fmaxf(c.local_eps, m * 2.384185791015625e-07f);
         float *d = lm->sample_pos + ((size_t)ii * UB_TEXEL_SAMPLES + j) * 3;
         for (int a = 0; a < 3; a++)
           d[a] = p[a] + n[a] * eps;

@@ -585,16 +585,9 @@ static void closest_on_triangle(const double p[3], const double a[3], const doub
 /* ---------------------------------------------------------------------------------- */
 /* Bilinear AHD lookup.                                                                */
 
-static float luma(const float rgb[3])
-{
-  return ub_rt_luma[0] * rgb[0] + ub_rt_luma[1] * rgb[1] + ub_rt_luma[2] * rgb[2];
-}
-
-/* Filters ambient and directional colour linearly, and the direction weighted by each
- * texel's directional luminance (a texel with no directional light has no say in where
- * it comes from), renormalised. Empty texels are left out and the weights renormalised;
- * if all four are empty, the nearest non-empty texel within a few texels is used.
- * Returns 0 if there is none. */
+/* The AHD at lightmap uv: bilinear over the covered texels' SH and normals, encoded once.
+ * Empty texels are left out and the weights renormalised; with all four empty, the
+ * nearest non-empty texel within UB_RT_EMPTY_SEARCH_RADIUS is used. */
 static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub_ahd *out)
 {
   const ub_bakefile_atlas *at = &rt->bf->atlases[atlas];
@@ -607,8 +600,12 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
   int64_t x0 = (int64_t)x0f, y0 = (int64_t)y0f;
   int64_t w = at->width, h = at->height;
 
-  double sw = 0, amb[3] = {0, 0, 0}, col[3] = {0, 0, 0}, dir[3] = {0, 0, 0},
-         dir_plain[3] = {0, 0, 0};
+  /* Bilinear over the texels' linear data (SH L1 of the current state and the encode
+   * normals), then one AHD encode: filtering the AHD parameters themselves (non-linear)
+   * is off by up to 40% along the normal between texels that are each exact. */
+  const float *shs = rt->lm_cur ? rt->lm_cur + rt->pixel_first[atlas] * UB_SH1_FLOATS : at->sh;
+  const float *nrms = rt->enc_normal[atlas];
+  double sw = 0, sh[UB_SH1_FLOATS] = {0}, nn[3] = {0, 0, 0};
   for (int k = 0; k < 4; k++) {
     int64_t x = x0 + (k & 1), y = y0 + (k >> 1);
     x = x < 0 ? 0 : x >= w ? w - 1 : x;
@@ -619,15 +616,11 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
     double wt = ((k & 1) ? tx : 1.0f - tx) * ((k >> 1) ? ty : 1.0f - ty);
     if (!(wt > 0.0))
       continue;
-    const ub_ahd *a = &ahd[i];
-    double dl = wt * luma(a->directional);
     sw += wt;
-    for (int c = 0; c < 3; c++) {
-      amb[c] += wt * a->ambient[c];
-      col[c] += wt * a->directional[c];
-      dir[c] += dl * a->direction[c];
-      dir_plain[c] += wt * a->direction[c];
-    }
+    for (int c = 0; c < UB_SH1_FLOATS; c++)
+      sh[c] += wt * shs[i * UB_SH1_FLOATS + c];
+    for (int c = 0; c < 3; c++)
+      nn[c] += wt * nrms[i * 3 + c];
   }
   if (!(sw > 0.0)) {
     /* Nearest non-empty texel around the sample point. */
@@ -650,16 +643,12 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
     *out = ahd[bi];
     return 1;
   }
-  double dl = sqrt(dot3d(dir, dir));
-  if (!(dl > 1e-30)) {
-    memcpy(dir, dir_plain, sizeof dir);
-    dl = sqrt(dot3d(dir, dir));
-  }
-  for (int c = 0; c < 3; c++) {
-    out->ambient[c] = (float)(amb[c] / sw);
-    out->directional[c] = (float)(col[c] / sw);
-    out->direction[c] = dl > 1e-30 ? (float)(dir[c] / dl) : 0.0f;
-  }
+  float fsh[UB_SH1_FLOATS], fn[3] = {(float)nn[0], (float)nn[1], (float)nn[2]}, un[3];
+  for (int c = 0; c < UB_SH1_FLOATS; c++)
+    fsh[c] = (float)(sh[c] / sw);
+  if (!normalise3(fn, un))
+    sh_dominant_direction(fsh, un);
+  ub_ahd_encode(fsh, un, out);
   return 1;
 }
 
