@@ -90,11 +90,44 @@ ub_result ub_glg_place(const ub_scene *scene, const ub_rt *rt, const ub_lightmap
     free(occ);
     return UB_ERR_OUT_OF_MEMORY;
   }
+  /* Coarse points only where they can matter: corners of cells within one cell of a
+   * surface, plus the bounds' 8 corners (the hull). Empty space far from any surface (a
+   * small room in a 20 km level) gets no probes. */
+  uint8_t *nearc = calloc(ncells, 1);
+  if (!nearc) {
+    free(occ);
+    free(keys);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  for (uint32_t k = 0; k < n[2]; k++)
+    for (uint32_t j = 0; j < n[1]; j++)
+      for (uint32_t i = 0; i < n[0]; i++) {
+        if (!occ[((size_t)k * n[1] + j) * n[0] + i])
+          continue;
+        for (int dk = -1; dk <= 1; dk++)
+          for (int dj = -1; dj <= 1; dj++)
+            for (int di = -1; di <= 1; di++) {
+              int64_t a = (int64_t)i + di, b = (int64_t)j + dj, cc = (int64_t)k + dk;
+              if (a < 0 || b < 0 || cc < 0 || a >= n[0] || b >= n[1] || cc >= n[2])
+                continue;
+              nearc[((size_t)cc * n[1] + (size_t)b) * n[0] + (size_t)a] = 1;
+            }
+      }
   size_t nk = 0;
   for (uint32_t k = 0; k <= n[2]; k++)
     for (uint32_t j = 0; j <= n[1]; j++)
-      for (uint32_t i = 0; i <= n[0]; i++)
-        keys[nk++] = key_of(2 * i, 2 * j, 2 * k);
+      for (uint32_t i = 0; i <= n[0]; i++) {
+        int keep = (i == 0 || i == n[0]) && (j == 0 || j == n[1]) && (k == 0 || k == n[2]);
+        for (int c = 0; c < 8 && !keep; c++) {
+          int64_t a = (int64_t)i - (c & 1), b = (int64_t)j - ((c >> 1) & 1),
+                  cc = (int64_t)k - ((c >> 2) & 1);
+          if (a >= 0 && b >= 0 && cc >= 0 && a < n[0] && b < n[1] && cc < n[2])
+            keep = nearc[((size_t)cc * n[1] + (size_t)b) * n[0] + (size_t)a];
+        }
+        if (keep)
+          keys[nk++] = key_of(2 * i, 2 * j, 2 * k);
+      }
+  free(nearc);
   size_t ncoarse = nk;
   for (uint32_t k = 0; k < n[2]; k++)
     for (uint32_t j = 0; j < n[1]; j++)
