@@ -20,6 +20,7 @@
 
 #include "runtime/crc32.h"
 #include "runtime/half.h"
+#include "runtime/texel_sh.h"
 
 #define UB_UBK_HEADER_SIZE 16u
 #define UB_UBK_ENTRY_SIZE 32u
@@ -526,6 +527,32 @@ static void wr_geom(ubk_writer *w, const ub_bakefile *bf)
     wr_f32(w, bf->tri_albedo[i]);
 }
 
+/* Texel SH storage (runtime/texel_sh.h): I_z replaces L00 where the texel has a normal.
+ * The normal that counts is the one the reader will see: the stored normal rounded to
+ * half; I_z itself is evaluated with the baker's float normal (where it is exact). */
+static void texel_pack(float sh[UB_SH1_FLOATS], const float normal[3])
+{
+  float nr[3], un_read[3], un[3];
+  for (int k = 0; k < 3; k++)
+    nr[k] = ub_half_to_float(ub_half_from_float(normal[k]));
+  if (!ub_texel_normal(nr, un_read) || !ub_texel_normal(normal, un))
+    return;
+  ub_texel_sh_pack(sh, un);
+}
+
+/* Stored normal of global atlas pixel p, or NULL. */
+static const float *pixel_normal(const ub_bakefile *bf, uint32_t p)
+{
+  uint64_t first = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    uint64_t n = (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
+    if (p < first + n)
+      return bf->atlases[a].normal + 3 * (size_t)(p - first);
+    first += n;
+  }
+  return NULL;
+}
+
 static void wr_atls(ubk_writer *w, const ub_bakefile *bf)
 {
   wr_u32(w, bf->atlas_count);
@@ -537,8 +564,13 @@ static void wr_atls(ubk_writer *w, const ub_bakefile *bf)
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     const ub_bakefile_atlas *at = &bf->atlases[a];
     size_t texels = (size_t)at->width * at->height;
-    for (size_t i = 0; i < texels * UB_SH1_FLOATS; i++)
-      wr_half(w, at->sh[i]);
+    for (size_t i = 0; i < texels; i++) {
+      float sh[UB_SH1_FLOATS];
+      memcpy(sh, at->sh + i * UB_SH1_FLOATS, sizeof sh);
+      texel_pack(sh, at->normal + 3 * i);
+      for (int k = 0; k < UB_SH1_FLOATS; k++)
+        wr_half(w, sh[k]);
+    }
     for (size_t i = 0; i < texels * 3; i++)
       wr_half(w, at->normal[i]);
     wr_bytes(w, at->coverage, texels, 1);
@@ -590,8 +622,15 @@ static void wr_dlsr(ubk_writer *w, const ub_bakefile *bf)
       wr_u32(w, r->texel_index[i]);
     for (uint32_t i = 0; i < r->probe_count; i++)
       wr_u32(w, r->probe_index[i]);
-    for (size_t i = 0; i < (size_t)r->texel_count * UB_SH1_FLOATS; i++)
-      wr_half(w, r->texel_sh[i]);
+    for (uint32_t i = 0; i < r->texel_count; i++) {
+      float sh[UB_SH1_FLOATS];
+      memcpy(sh, r->texel_sh + (size_t)i * UB_SH1_FLOATS, sizeof sh);
+      const float *n = pixel_normal(bf, r->texel_index[i]);
+      if (n)
+        texel_pack(sh, n);
+      for (int k = 0; k < UB_SH1_FLOATS; k++)
+        wr_half(w, sh[k]);
+    }
     for (size_t i = 0; i < (size_t)r->probe_count * UB_GLG_SH_FLOATS; i++)
       wr_half(w, r->probe_sh[i]);
     uint64_t block = 28u * (uint64_t)r->texel_count + 58u * (uint64_t)r->probe_count;
@@ -787,7 +826,7 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
     return UB_ERR_IO;
   }
   if (w->clamped && log)
-    ub_log_printf(log, UB_LOG_WARNING, "%s: sections ATLS/GLGP: %llu SH or normal value(s) "
+    ub_log_printf(log, UB_LOG_WARNING, "%s: sections ATLS/GLGP/DLSR/LLGM: %llu half value(s) "
                   "beyond the half range clamped to +-%g", path, (unsigned long long)w->clamped,
                   (double)UB_HALF_MAX);
   free(tmp);
@@ -1013,6 +1052,11 @@ static ub_result parse_atls(const ubk_reader *rd, const uint8_t *p, uint64_t siz
     assert(ok); /* guaranteed by the size walk above */
     (void)ok;
     memcpy(at->coverage, cov, texels);
+    for (size_t i = 0; i < texels; i++) {
+      float un[3];
+      if (ub_texel_normal(at->normal + 3 * i, un))
+        ub_texel_sh_unpack(at->sh + i * UB_SH1_FLOATS, un);
+    }
   }
   return UB_OK;
 }
@@ -1130,6 +1174,26 @@ static ub_result parse_dlsr(const ubk_reader *rd, const uint8_t *p, uint64_t siz
     (void)ok;
   }
   return UB_OK;
+}
+
+/* After ATLS and DLSR are parsed: the records' texel SH back from the I_z form. Indices
+ * out of range are left for validate() to report. */
+static void unpack_dls_texels(ub_bakefile *bf)
+{
+  uint64_t pixels = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++)
+    pixels += (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
+  for (uint32_t d = 0; d < bf->dls_count; d++) {
+    ub_bakefile_record *r = &bf->dls[d];
+    for (uint32_t i = 0; i < r->texel_count; i++) {
+      if (r->texel_index[i] >= pixels)
+        continue;
+      const float *n = pixel_normal(bf, r->texel_index[i]);
+      float un[3];
+      if (n && ub_texel_normal(n, un))
+        ub_texel_sh_unpack(r->texel_sh + (size_t)i * UB_SH1_FLOATS, un);
+    }
+  }
 }
 
 static ub_result parse_lite(const ubk_reader *rd, const uint8_t *p, uint64_t size,
@@ -1377,6 +1441,8 @@ ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *nam
     r = parse_glgp(&rd, known[UB_SEC_GLGP], known_size[UB_SEC_GLGP], bf);
   if (r == UB_OK && known[UB_SEC_DLSR])
     r = parse_dlsr(&rd, known[UB_SEC_DLSR], known_size[UB_SEC_DLSR], bf);
+  if (r == UB_OK)
+    unpack_dls_texels(bf);
   if (r == UB_OK && known[UB_SEC_LITE])
     r = parse_lite(&rd, known[UB_SEC_LITE], known_size[UB_SEC_LITE], bf);
   if (r == UB_OK && known[UB_SEC_LLGM])
