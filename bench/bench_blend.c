@@ -9,11 +9,14 @@
  * them kept (walls); at most 16 sets per receiver. Values are SH of a warm/cool point
  * light: positive DC falling off from the set's centre, L1/L2 terms a fraction of it.
  *
- * Figures, single thread: (a) one set toggled (all three representations, median over
- * every set toggled off and on, several passes), with every other set on and with every
- * other set off (the base-copy fast path); (b) every group forced (update_all); (c) bytes
- * moved per update and GB/s vs memcpy GB/s measured in the same run on a buffer of the
- * same traffic; (d) run-time memory without and with the sets. Prints; asserts nothing. */
+ * Figures, single thread, each time the best of several runs (the machine is shared):
+ * (a) one set toggled (all three representations; median / p90 / max over every set
+ * toggled off and on), with every other set on, and with every other set off (the
+ * base-copy fast path); (b) every group forced (update_all), half and float records, and
+ * texels in streaming mode; (c) bytes moved per update (base rows + record rows + tables
+ * read, output rows written; not counting write-allocate reads) and GB/s vs memcpy GB/s
+ * of the same traffic, alternating with the blend runs; (d) run-time memory without and
+ * with the sets. Prints; asserts nothing. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -209,8 +212,10 @@ static double minv(const double *v, int n)
  * representations together; per set and direction the best of PASSES (the machine is
  * shared: the minimum is the least disturbed run), then median / p90 / max over sets. */
 static void bench_toggle(rep *reps, const dls *s, int others_on, double *out_med_ms,
-                         double *out_p90_ms, double *out_max_ms, double *out_med_bytes)
+                         double *out_p90_ms, double *out_max_ms, double *out_med_bytes,
+                         double *out_med_gbs)
 {
+  static double gbs[NSETS * 2];
   enum { PASSES = 5 };
   static double t[NSETS * 2][PASSES], best[NSETS * 2], by[NSETS * 2];
   set_all(reps, 1, s, others_on ? 1.0f : 0.0f);
@@ -232,8 +237,11 @@ static void bench_toggle(rep *reps, const dls *s, int others_on, double *out_med
         t[2 * e + phase][pass] = (now_s() - t0) * 1e3;
         by[2 * e + phase] = bytes;
       }
-  for (int i = 0; i < NSETS * 2; i++)
+  for (int i = 0; i < NSETS * 2; i++) {
     best[i] = minv(t[i], PASSES);
+    gbs[i] = by[i] / (best[i] * 1e-3) / 1e9;
+  }
+  *out_med_gbs = median(gbs, NSETS * 2);
   *out_med_ms = median(best, NSETS * 2);
   *out_p90_ms = best[NSETS * 2 * 9 / 10];
   *out_max_ms = best[NSETS * 2 - 1];
@@ -361,13 +369,13 @@ int main(void)
   printf("single thread; times are the best of several runs (load average %.1f on this "
          "machine when the timing started)\n", load_average());
   /* (a) one set toggled. */
-  double med, p90, mx, mb;
-  bench_toggle(reps, sets, 1, &med, &p90, &mx, &mb);
+  double med, p90, mx, mb, tg;
+  bench_toggle(reps, sets, 1, &med, &p90, &mx, &mb, &tg);
   printf("(a) one set toggled, others on : median %.3f ms, p90 %.3f ms, max %.3f ms; median "
-         "%.2f MB moved (target <= 0.1 ms)\n", med, p90, mx, mb / 1e6);
-  bench_toggle(reps, sets, 0, &med, &p90, &mx, &mb);
+         "%.2f MB moved, %.2f GB/s (target <= 0.1 ms)\n", med, p90, mx, mb / 1e6, tg);
+  bench_toggle(reps, sets, 0, &med, &p90, &mx, &mb, &tg);
   printf("    one set toggled, others off: median %.3f ms, p90 %.3f ms, max %.3f ms; median "
-         "%.2f MB moved\n", med, p90, mx, mb / 1e6);
+         "%.2f MB moved, %.2f GB/s\n", med, p90, mx, mb / 1e6, tg);
 
   /* (b), (c) every set forced every update. */
   double ms_rep[NREP], mgbs;

@@ -40,7 +40,7 @@
 /* Half records are decoded to float (exactly) into an L1-sized scratch of this many
  * floats, a chunk of consecutive receivers at a time, then blended by the float kernels:
  * one kernel family, and the decode runs as long vector loops (F16C: 8 per instruction). */
-#define BLEND_DECODE_FLOATS 4096
+#define BLEND_DECODE_FLOATS 2048
 
 #define GROUP_LIST 0x80000000u /* k_mode bit: receivers stored as a list, else as runs */
 
