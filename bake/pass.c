@@ -51,6 +51,15 @@ typedef struct pass_ctx {
   recv_set sets[3];           /* 0: texels, 1: GLG probes, 2: LLG probes */
   const ub_llg_set *llg;      /* LLG models, or NULL */
   float *llg_prev;            /* LLG probes' SH of bounce k-1 (what LLG-lit hits read) */
+  /* Texel lights (bounces ≥ 1): the previous bounce's texels as area lights, sampled in
+   * proportion to their power and combined with the gather rays by the balance heuristic,
+   * so a small bright spot (a sun patch, the ceiling above a lamp) is found by every
+   * receiver instead of by a few gather rays (fireflies). */
+  float *tl_rad;              /* texel × 3: outgoing radiance albedo/π·E of the previous bounce */
+  float *tl_cdf;              /* texel: cumulative power, last = 1 */
+  float *tl_area;             /* texel: world area (m²) */
+  int tl_on;
+  uint32_t tl_samples;        /* per receiver per bounce */
   int nee;                    /* bounce 1 takes punctual light at its hits by next-event
                                  estimation instead of reading the bounce-0 lightmap */
   uint32_t bounce;
@@ -457,6 +466,123 @@ static float *nee_block(pass_ctx *c, const ub_rt *rt, const ub_ray *rays, const 
   return nee;
 }
 
+/* Bounces ≥ 1: samples toward the previous bounce's texels as area lights (see tl_*). */
+static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr)
+{
+  const ub_pass_desc *d = c->d;
+  const ub_lightmap *lm = c->lm;
+  uint32_t M = c->tl_samples, N = rs->rays, T = lm->texel_count;
+  size_t cap = (size_t)M * nr;
+  ub_ray *rays = malloc(cap * sizeof *rays);
+  shadow_rec *rec = malloc(cap * sizeof *rec);
+  uint8_t *occ = malloc(cap);
+  if (!rays || !rec || !occ) {
+    free(rays);
+    free(rec);
+    free(occ);
+    atomic_store(&c->cancelled, 2);
+    return;
+  }
+  size_t n = 0;
+  for (uint32_t i = 0; i < nr; i++) {
+    uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
+    const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
+    for (uint32_t k = 0; k < M; k++) {
+      uint32_t h = ub_hash4(d->seed, d->pass_id * 0x10000u + 0x1000u + c->bounce,
+                            rs->id_base + r, k);
+      float u0 = ub_u01(h);
+      uint32_t lo = 0, hi = T - 1;
+      while (lo < hi) {
+        uint32_t mid = (lo + hi) / 2;
+        if (c->tl_cdf[mid] > u0)
+          hi = mid;
+        else
+          lo = mid + 1;
+      }
+      uint32_t t = lo;
+      float q[3];
+      if (!(c->tl_area[t] > 0.0f) ||
+          !texel_plane_point(c, t, ub_u01(ub_hash4(h, 1, 0, 0)), ub_u01(ub_hash4(h, 2, 0, 0)), q))
+        continue;
+      const float *tn = lm->texel_normal + 3 * (size_t)t;
+      float qo[3];
+      ub_rt_offset_point(d->rt, q, tn, qo);
+      const float *p = rs->samples + ((size_t)r * rs->spr + k % rs->spr) * 3;
+      float w[3] = {qo[0] - p[0], qo[1] - p[1], qo[2] - p[2]};
+      float d2 = dot3(w, w);
+      if (!(d2 > 0.0f))
+        continue;
+      float dist = sqrtf(d2);
+      for (int ch = 0; ch < 3; ch++)
+        w[ch] /= dist;
+      float cs = nrm ? dot3(nrm, w) : 1.0f, ce = -dot3(tn, w);
+      if (cs <= 1e-4f || ce <= 0.0f)
+        continue;
+      double p_t = c->tl_cdf[t] - (t ? c->tl_cdf[t - 1] : 0.0f);
+      double pdf_sa = p_t / c->tl_area[t] * d2 / ce;
+      double denom = M * pdf_sa + N * gather_pdf(nrm, w);
+      shadow_rec *sr = &rec[n];
+      sr->recv = i;
+      sr->primary = 0;
+      sr->emissive = 0;
+      memcpy(sr->dir, w, sizeof w);
+      for (int ch = 0; ch < 3; ch++)
+        sr->e[ch] = (float)(c->tl_rad[3 * (size_t)t + ch] / denom);
+      sr->cos = cs;
+      if (!finite3(sr->e))
+        continue;
+      ub_ray *ray = &rays[n];
+      memcpy(ray->org, p, sizeof ray->org);
+      memcpy(ray->dir, w, sizeof w);
+      ray->tnear = 0.0f;
+      ray->tfar = dist * (1.0f - 1e-4f);
+      n++;
+    }
+  }
+  ub_rt_occluded(d->rt, rays, (uint32_t)n, occ);
+  atomic_fetch_add(&c->rays_shadow, n);
+  for (size_t j = 0; j < n; j++) {
+    if (occ[j])
+      continue;
+    const shadow_rec *sr = &rec[j];
+    uint32_t r = rs->index ? rs->index[r0 + sr->recv] : r0 + sr->recv;
+    if (rs->acc_iz)
+      for (int ch = 0; ch < 3; ch++)
+        rs->acc_iz[3 * (size_t)r + ch] += (double)sr->e[ch] * sr->cos;
+    sh_accum(rs->acc_sh + (size_t)rs->nsh * 3 * r, rs->nsh, sr->dir, sr->e, 1.0);
+  }
+  free(rays);
+  free(rec);
+  free(occ);
+}
+
+/* Builds the texel-light tables from the irradiance the next bounce reads. */
+static void texel_lights_build(pass_ctx *c, const double *e_prev)
+{
+  const ub_lightmap *lm = c->lm;
+  const ub_scene *s = c->s;
+  uint32_t T = lm->texel_count;
+  c->tl_on = 0;
+  if (!c->tl_rad || !c->tl_samples || T == 0)
+    return;
+  double sum = 0.0;
+  for (uint32_t t = 0; t < T; t++) {
+    const float *alb = s->materials[s->tri_material[lm->texel_tri[t]]].albedo;
+    for (int ch = 0; ch < 3; ch++)
+      c->tl_rad[3 * (size_t)t + ch] = (float)(alb[ch] * M_1_PI * e_prev[3 * (size_t)t + ch]);
+    const float *L = c->tl_rad + 3 * (size_t)t;
+    double pw = (0.2126 * L[0] + 0.7152 * L[1] + 0.0722 * L[2]) * c->tl_area[t];
+    sum += pw > 0.0 && isfinite(pw) ? pw : 0.0;
+    c->tl_cdf[t] = (float)sum;
+  }
+  if (!(sum > 0.0))
+    return;
+  for (uint32_t t = 0; t < T; t++)
+    c->tl_cdf[t] = (float)(c->tl_cdf[t] / sum);
+  c->tl_cdf[T - 1] = 1.0f;
+  c->tl_on = 1;
+}
+
 /* Gather rays: bounce 0 sees the sky and emitters (MIS), bounce k reads bounce k-1. */
 static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr)
 {
@@ -600,19 +726,43 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
             continue;
           }
           const float *uv = a >= 0 ? lm->tri_uv + 6 * (size_t)h->tri : NULL;
+          int tl_hit = 0;
           if (uv) {
             float b0 = 1.0f - h->u - h->v;
             float u = b0 * uv[0] + h->u * uv[2] + h->v * uv[4];
             float v = b0 * uv[1] + h->u * uv[3] + h->v * uv[5];
-            sample_image(c, (uint32_t)a, u, v, e);
+            if (c->tl_on) {
+              /* The texel under the hit, as the texel-light strategy sees it. */
+              const ub_atlas *at = &lm->atlases[a];
+              int64_t tx = (int64_t)(u * (float)at->width), ty = (int64_t)(v * (float)at->height);
+              tx = tx < 0 ? 0 : (tx >= at->width ? at->width - 1 : tx);
+              ty = ty < 0 ? 0 : (ty >= at->height ? at->height - 1 : ty);
+              int32_t t = at->texel_of[(size_t)ty * at->width + (size_t)tx];
+              float gl = sqrtf(dot3(h->ng, h->ng));
+              float ce = gl > 0.0f ? -dot3(h->ng, ray->dir) / gl : 0.0f;
+              if (t >= 0 && ce > 0.0f && c->tl_area[t] > 0.0f) {
+                double p_t = c->tl_cdf[t] - (t ? c->tl_cdf[t - 1] : 0.0f);
+                double pdf_sa = p_t / c->tl_area[t] * h->t * h->t / ce;
+                wt = 1.0 / (c->tl_samples * pdf_sa + N * pdf);
+                memcpy(L, c->tl_rad + 3 * (size_t)t, sizeof L);
+                tl_hit = 1;
+              }
+            }
+            if (!tl_hit)
+              sample_image(c, (uint32_t)a, u, v, e);
           }
-          const float *alb = s->materials[s->tri_material[h->tri]].albedo;
-          for (int ch = 0; ch < 3; ch++)
-            L[ch] = alb[ch] * (float)M_1_PI * e[ch];
+          if (!tl_hit) {
+            const float *alb = s->materials[s->tri_material[h->tri]].albedo;
+            for (int ch = 0; ch < 3; ch++)
+              L[ch] = alb[ch] * (float)M_1_PI * e[ch];
+          }
         }
-        if (nee)
+        if (nee) {
+          /* Punctual light at the hit: its own estimator, weight 1/(N·pdf). */
+          double wn = 1.0 / (N * pdf) / wt;
           for (int ch = 0; ch < 3; ch++)
-            L[ch] += nee[3 * ((size_t)i * N + j) + ch];
+            L[ch] += (float)(nee[3 * ((size_t)i * N + j) + ch] * wn);
+        }
       }
       if (!finite3(L)) {
         clamped++;
@@ -730,6 +880,8 @@ static void run_blocks(pass_ctx *c, int direct, int gather, const char *stage, d
       direct_block(c, rs, r0, nr);
     if (gather)
       gather_block(c, rs, r0, nr);
+    if (gather && c->bounce >= 1 && c->tl_on && rs->samples)
+      texel_light_block(c, rs, r0, nr);
     uint32_t done = atomic_fetch_add(&c->blocks_done, 1) + 1;
     if (omp_get_thread_num() == 0) {
       double f = (double)done / nblocks;
@@ -780,6 +932,16 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   tx->acc_iz = calloc((size_t)T * 3 + 1, sizeof(double));
   tx->acc_src = calloc((size_t)T * 3 + 1, sizeof(double));
   tx->acc_src_np = calloc((size_t)T * 3 + 1, sizeof(double));
+  /* Texel lights: an eighth of the gather rays (at least 4) toward bright texels. */
+  c.tl_samples = N / 8 < 4 ? 4 : N / 8;
+  c.tl_rad = malloc(((size_t)T * 3 + 1) * sizeof(float));
+  c.tl_cdf = malloc(((size_t)T + 1) * sizeof(float));
+  c.tl_area = malloc(((size_t)T + 1) * sizeof(float));
+  if (c.tl_area)
+    for (uint32_t t = 0; t < T; t++) {
+      float w = texel_world_size(&c, t);
+      c.tl_area[t] = w * w;
+    }
   for (uint32_t l = 0; l < s->light_count; l++)
     c.nee |= d->light_enabled[l] != 0;
   pr->count = P;
@@ -809,6 +971,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   c.img = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *c.img);
   c.emitter_of = malloc((size_t)(s->triangle_count ? s->triangle_count : 1) * sizeof(int32_t));
   int oom = !sh_total || !iz_total || !tx->acc_sh || !tx->acc_iz || !tx->acc_src ||
+            !c.tl_rad || !c.tl_cdf || !c.tl_area ||
             !tx->acc_src_np || !c.img ||
             !c.emitter_of || !pr->acc_sh || !probe_total || !out->texel_direct ||
             !out->texel_indirect || !out->probe_direct || !out->probe_indirect || !lg->acc_sh ||
@@ -851,6 +1014,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     out->probe_direct[q] = (float)(M_PI * UB_Y0 * lum3d(pr->acc_sh + 27 * (size_t)q));
   /* With next-event estimation, bounce 1 reads only the non-punctual part of bounce 0. */
   build_images(&c, c.nee ? tx->acc_src_np : tx->acc_src);
+  texel_lights_build(&c, c.nee ? tx->acc_src_np : tx->acc_src);
   /* LLG probes likewise: bounce 1 reads their non-punctual bounce 0 when NEE is on. */
   for (size_t i = 0; i < (size_t)LP * 27; i++) {
     llg_total[i] = lg->acc_sh[i];
@@ -910,6 +1074,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       break;
     }
     build_images(&c, tx->acc_iz);
+    texel_lights_build(&c, tx->acc_iz);
     for (size_t i = 0; i < (size_t)LP * 27; i++)
       c.llg_prev[i] = (float)lg->acc_sh[i];
     ub_llg_fill_invalid(llg, c.llg_prev);
@@ -1002,6 +1167,9 @@ done:
   free(tx->acc_iz);
   free(tx->acc_src);
   free(tx->acc_src_np);
+  free(c.tl_rad);
+  free(c.tl_cdf);
+  free(c.tl_area);
   free(pr->acc_sh);
   free(probe_total);
   free(lg->acc_sh);
