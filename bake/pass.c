@@ -17,6 +17,9 @@
 #define UB_DIR_BUCKETS 64
 /* Receiver ids for hashing: probes live above texels so their random numbers differ. */
 #define UB_PROBE_ID_BASE 0x40000000u
+/* Auto-stop: at most this share of the lit texels may still gain more than stop_fraction
+ * of their own light in a bounce. */
+#define UB_STOP_TEXEL_SHARE 0.01
 #define UB_LLG_ID_BASE 0x60000000u
 
 static const double UB_Y0 = 0.282094792;
@@ -1067,9 +1070,20 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     src_energy = outgoing_energy(&c, tx->acc_iz);
     ub_log_printf(log, UB_LOG_INFO, "  bounce %u: +%.3f%% energy", b,
                   total_energy > 0 ? 100.0 * e / total_energy : 0.0);
-    /* Stop on the indirect light so far: a bright directly lit area (a sun patch) must not
-     * end the bounces while a dark room still gains much of its light per bounce. */
-    if (d->bounces < 0 && e <= d->stop_fraction * (total_energy - out->bounce_energy[0])) {
+    /* Stop when the bounce adds < stop_fraction of the light so far, both over the level
+     * and at (almost) every texel: a bright directly lit area (a sun patch) must not end
+     * the bounces while a dark corner still gains a good part of its light per bounce. */
+    uint64_t gaining = 0, lit = 0;
+    for (uint32_t t = 0; t < T; t++) {
+      double add = lum3d(tx->acc_iz + 3 * (size_t)t), sum = lum3d(iz_total + 3 * (size_t)t);
+      if (sum > 0.0) {
+        lit++;
+        gaining += add > d->stop_fraction * sum;
+      }
+    }
+    int local_done = gaining <= (uint64_t)(UB_STOP_TEXEL_SHARE * (double)lit);
+    if (d->bounces < 0 && local_done &&
+        e <= d->stop_fraction * (total_energy - out->bounce_energy[0])) {
       b++;
       break;
     }
