@@ -20,6 +20,9 @@
 /* Auto-stop: at most this share of the lit texels may still gain more than stop_fraction
  * of their own light in a bounce. */
 #define UB_STOP_TEXEL_SHARE 0.01
+/* Texel lights are used for a bounce when its brightest texel carries this many times the
+ * mean texel power. */
+#define UB_TL_PEAK 30.0
 #define UB_LLG_ID_BASE 0x60000000u
 
 static const double UB_Y0 = 0.282094792;
@@ -568,17 +571,21 @@ static void texel_lights_build(pass_ctx *c, const double *e_prev)
   c->tl_on = 0;
   if (!c->tl_rad || !c->tl_samples || T == 0)
     return;
-  double sum = 0.0;
+  double sum = 0.0, peak = 0.0;
   for (uint32_t t = 0; t < T; t++) {
     const float *alb = s->materials[s->tri_material[lm->texel_tri[t]]].albedo;
     for (int ch = 0; ch < 3; ch++)
       c->tl_rad[3 * (size_t)t + ch] = (float)(alb[ch] * M_1_PI * e_prev[3 * (size_t)t + ch]);
     const float *L = c->tl_rad + 3 * (size_t)t;
     double pw = (0.2126 * L[0] + 0.7152 * L[1] + 0.0722 * L[2]) * c->tl_area[t];
-    sum += pw > 0.0 && isfinite(pw) ? pw : 0.0;
+    pw = pw > 0.0 && isfinite(pw) ? pw : 0.0;
+    peak = pw > peak ? pw : peak;
+    sum += pw;
     c->tl_cdf[t] = (float)sum;
   }
-  if (!(sum > 0.0))
+  /* Only where power is concentrated (a texel with > UB_TL_PEAK× the mean): in an evenly
+   * lit level the gather rays alone do better, texel lights would only add shadow rays. */
+  if (!(sum > 0.0) || peak < UB_TL_PEAK * sum / T)
     return;
   for (uint32_t t = 0; t < T; t++)
     c->tl_cdf[t] = (float)(c->tl_cdf[t] / sum);

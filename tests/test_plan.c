@@ -195,7 +195,9 @@ static void test_dls_culling(void)
            "light; probes %u vs %u\n",
            ra->name, ra->texel_count, rb->texel_count, 100 * share, ra->probe_count,
            rb->probe_count);
-    ASSERT_TRUE(ra->texel_count < rb->texel_count);
+    /* culling culls: fewer probes simulated (texel records hold only non-zero pixels, so
+     * their counts compare noise, not culling) */
+    ASSERT_TRUE(ra->probe_count < rb->probe_count);
     ASSERT_TRUE(share < 0.01);
   }
   printf("hallway: DLS bake %.2f s culled vs %.2f s dense\n", sa.total_seconds, sb.total_seconds);
