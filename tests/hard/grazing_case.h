@@ -1,19 +1,18 @@
 /* tests/hard/grazing_case.h — one grazing-light bake and its checks, shared by
- * test_hard_grazing (89.9°) and test_hard_grazing_extreme (89.99°). */
+ * test_hard_grazing (89.9°), test_hard_grazing_extreme (89.99°) and test_hard_sun_range. */
 #ifndef UBAKE_TESTS_HARD_GRAZING_CASE_H
 #define UBAKE_TESTS_HARD_GRAZING_CASE_H
 
 #include "hard_util.h"
 
 /* Level grazing (black plane, albedo 0: direct light only), directional light of
- * I = 1000 W/m² at angle_deg from the normal. Closed form everywhere: E = I·cos(angle).
+ * I W/m² (1000 in the grazing tests) at angle_deg from the normal. Closed form everywhere: E = I·cos(angle).
  * Asserted: every covered texel and every query finite, ≥ 0, within 1% + 1e-4 W/m², never
  * above I·cos·1.01 + 1e-4; nothing clamped, no non-finite value in the .ubk. */
-static inline void grazing_case(double angle_deg, double azim_deg)
+static inline void grazing_case(double angle_deg, double azim_deg, double I)
 {
-  const double I = 1000.0;
   char gltf[1100], base[64], params[256];
-  snprintf(base, sizeof base, "grazing_%g_%g", angle_deg, azim_deg);
+  snprintf(base, sizeof base, "grazing_%g_%g_%g", angle_deg, azim_deg, I);
   for (char *p = base; *p; p++)
     if (*p == '.')
       *p = 'p';
@@ -69,9 +68,9 @@ static inline void grazing_case(double angle_deg, double azim_deg)
         qbad++;
       }
     }
-  printf("grazing %.2f deg (azimuth %g): %zu texels, E in [%.6g, %.6g], closed form %.6g, "
+  printf("light %g W/m^2 at %.2f deg (azimuth %g): %zu texels, E in [%.6g, %.6g], closed form %.6g, "
          "worst |error| %.3g (%.3f%%), clamped %llu (report %lld), non-finite in .ubk %llu\n",
-         angle_deg, azim_deg, n, emin, emax, expect, worst, 100.0 * worst / expect,
+         I, angle_deg, azim_deg, n, emin, emax, expect, worst, 100.0 * worst / expect,
          (unsigned long long)st.clamped_values, hard_report_clamped(st.ubk_path),
          (unsigned long long)hard_nonfinite(bf));
   ASSERT_TRUE(n > 0);

@@ -6,7 +6,7 @@
 int main(void)
 {
   hard_init("grazing");
-  grazing_case(89.9, 30.0);
-  grazing_case(89.9, 0.0);
+  grazing_case(89.9, 30.0, 1000.0);
+  grazing_case(89.9, 0.0, 1000.0);
   TEST_MAIN_END();
 }

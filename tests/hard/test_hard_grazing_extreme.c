@@ -12,6 +12,6 @@
 int main(void)
 {
   hard_init("grazing_extreme");
-  grazing_case(89.99, 45.0);
+  grazing_case(89.99, 45.0, 1000.0);
   TEST_MAIN_END();
 }
