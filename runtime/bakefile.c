@@ -553,10 +553,34 @@ static const float *pixel_normal(const ub_bakefile *bf, uint32_t p)
   return NULL;
 }
 
+/* Power-of-two scale that keeps every stored texel SH value (in its stored form) within
+ * the half range with margin: 1 unless the level is brighter than ~32768 W/m² (a sun in
+ * W/m² with a bright sky). Exact: a power of two changes no mantissa bit. */
+static float atls_scale(const ub_bakefile *bf)
+{
+  double mx = 0.0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    size_t texels = (size_t)at->width * at->height;
+    for (size_t i = 0; i < texels; i++) {
+      float sh[UB_SH1_FLOATS];
+      memcpy(sh, at->sh + i * UB_SH1_FLOATS, sizeof sh);
+      texel_pack(sh, at->normal + 3 * i);
+      for (int k = 0; k < UB_SH1_FLOATS; k++)
+        mx = fmax(mx, fabs((double)sh[k]));
+    }
+  }
+  float scale = 1.0f;
+  while (mx / scale > 32768.0 && scale < 1e30f)
+    scale *= 2.0f;
+  return scale;
+}
+
 static void wr_atls(ubk_writer *w, const ub_bakefile *bf)
 {
+  float scale = atls_scale(bf);
   wr_u32(w, bf->atlas_count);
-  wr_u32(w, 0); /* reserved */
+  wr_f32(w, scale == 1.0f ? 0.0f : scale); /* SH scale (0 = 1) */
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     wr_u32(w, bf->atlases[a].width);
     wr_u32(w, bf->atlases[a].height);
@@ -569,7 +593,7 @@ static void wr_atls(ubk_writer *w, const ub_bakefile *bf)
       memcpy(sh, at->sh + i * UB_SH1_FLOATS, sizeof sh);
       texel_pack(sh, at->normal + 3 * i);
       for (int k = 0; k < UB_SH1_FLOATS; k++)
-        wr_half(w, sh[k]);
+        wr_half(w, sh[k] / scale);
     }
     for (size_t i = 0; i < texels * 3; i++)
       wr_half(w, at->normal[i]);
@@ -985,10 +1009,18 @@ static ub_result parse_atls(const ubk_reader *rd, const uint8_t *p, uint64_t siz
                             ub_bakefile *bf)
 {
   ubk_cursor c = {p, (size_t)size};
-  uint32_t count, reserved;
-  if (!cur_u32(&c, &count) || !cur_u32(&c, &reserved)) {
+  uint32_t count;
+  float scale;
+  if (!cur_u32(&c, &count) || !cur_f32s(&c, &scale, 1)) {
     ubk_error(rd->log, rd->name, "section ATLS", "size %llu too small for the atlas count",
               (unsigned long long)size);
+    return UB_ERR_INVALID_DATA;
+  }
+  if (scale == 0.0f)
+    scale = 1.0f;
+  if (!isfinite(scale) || scale < 1.0f) {
+    ubk_error(rd->log, rd->name, "section ATLS", "SH scale %g is not finite and >= 1",
+              (double)scale);
     return UB_ERR_INVALID_DATA;
   }
   if (count > c.left / 8) {
@@ -1052,6 +1084,9 @@ static ub_result parse_atls(const ubk_reader *rd, const uint8_t *p, uint64_t siz
     assert(ok); /* guaranteed by the size walk above */
     (void)ok;
     memcpy(at->coverage, cov, texels);
+    if (scale != 1.0f)
+      for (size_t i = 0; i < texels * UB_SH1_FLOATS; i++)
+        at->sh[i] *= scale;
     for (size_t i = 0; i < texels; i++) {
       float un[3];
       if (ub_texel_normal(at->normal + 3 * i, un))
