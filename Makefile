@@ -17,10 +17,15 @@ $(BUILD)/CMakeCache.txt:
 build: deps $(BUILD)/CMakeCache.txt
 	cmake --build $(BUILD) -j $(JOBS)
 
+DEMO_CAMERA ?= -2,-6.8,-17.5,-2,-7.6,-4,70
 demo: build
 	@mkdir -p out/demo
 	$(BUILD)/ubake bake $(LEVEL) -o out/demo --quality fast
-	@echo "demo: outputs in out/demo/ (.ubk, EXR lightmaps, PNG previews, report.json)"
+	@name=$$(basename $(LEVEL) | sed 's/\.[^.]*$$//'); \
+	  $(BUILD)/ubake render out/demo/$$name.ubk --camera $(DEMO_CAMERA) --size 960x540 \
+	    -o out/demo/$${name}_render.png && \
+	  $(BUILD)/ubake info out/demo/$$name.ubk
+	@echo "demo: outputs in out/demo/ (.ubk, EXR lightmaps, PNG previews, a rendered view, report.json)"
 	@ls -l out/demo
 
 test: build
