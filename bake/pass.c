@@ -1080,10 +1080,16 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     /* Stop when the bounce adds < stop_fraction of the light so far, both over the level
      * and at (almost) every texel: a bright directly lit area (a sun patch) must not end
      * the bounces while a dark corner still gains a good part of its light per bounce. */
+    /* Texels below 0.1% of the mean (a dark room next to a lit one: leak-level light)
+     * have nothing to converge to. */
+    double mean_sum = 0.0;
+    for (uint32_t t = 0; t < T; t++)
+      mean_sum += lum3d(iz_total + 3 * (size_t)t);
+    mean_sum /= T ? T : 1;
     uint64_t gaining = 0, lit = 0;
     for (uint32_t t = 0; t < T; t++) {
       double add = lum3d(tx->acc_iz + 3 * (size_t)t), sum = lum3d(iz_total + 3 * (size_t)t);
-      if (sum > 0.0) {
+      if (sum > 1e-3 * mean_sum) {
         lit++;
         gaining += add > d->stop_fraction * sum;
       }
