@@ -842,6 +842,23 @@ static double outgoing_energy(const pass_ctx *c, const double *iz)
   return e;
 }
 
+/* New float array of n sums (at least one element), non-finite values → 0 and counted. */
+static float *finite_floats(const double *v, size_t n, uint64_t *clamped)
+{
+  float *out = malloc((n + 1) * sizeof(float));
+  if (!out)
+    return NULL;
+  for (size_t i = 0; i < n; i++) {
+    float f = (float)v[i];
+    if (!isfinite(f)) {
+      f = 0.0f;
+      (*clamped)++;
+    }
+    out[i] = f;
+  }
+  return out;
+}
+
 static double lum3d(const double *rgb)
 {
   return 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2];
@@ -1148,31 +1165,11 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       out->sh[12 * (size_t)t + i] = v;
     }
   }
-  out->probe_sh = malloc(((size_t)P * 27 + 1) * sizeof(float));
-  if (!out->probe_sh) {
+  out->probe_sh = finite_floats(probe_total, (size_t)P * 27, &clamped);
+  out->llg_sh = finite_floats(llg_total, (size_t)LP * 27, &clamped);
+  if (!out->probe_sh || !out->llg_sh) {
     res = UB_ERR_OUT_OF_MEMORY;
     goto done;
-  }
-  for (size_t i = 0; i < (size_t)P * 27; i++) {
-    float v = (float)probe_total[i];
-    if (!isfinite(v)) {
-      v = 0.0f;
-      clamped++;
-    }
-    out->probe_sh[i] = v;
-  }
-  out->llg_sh = malloc(((size_t)LP * 27 + 1) * sizeof(float));
-  if (!out->llg_sh) {
-    res = UB_ERR_OUT_OF_MEMORY;
-    goto done;
-  }
-  for (size_t i = 0; i < (size_t)LP * 27; i++) {
-    float v = (float)llg_total[i];
-    if (!isfinite(v)) {
-      v = 0.0f;
-      clamped++;
-    }
-    out->llg_sh[i] = v;
   }
   ub_llg_fill_invalid(llg, out->llg_sh);
   out->rays_gather = atomic_load(&c.rays_gather);
