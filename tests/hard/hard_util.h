@@ -88,7 +88,7 @@ static inline void hard_options(ub_bake_options *o, ub_quality q, int bounces, f
 }
 
 /* Bakes and loads; NULL (and a message) on failure. */
-static ub_runtime *hard_bake(const char *gltf, const ub_bake_options *o, ub_bake_stats *out_st)
+static inline ub_runtime *hard_bake(const char *gltf, const ub_bake_options *o, ub_bake_stats *out_st)
 {
   ub_bake_stats st;
   ub_result r = ub_bake_level(gltf, o, &hard_log, &st);
