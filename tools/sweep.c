@@ -962,16 +962,6 @@ static int sw_run(sweep *s)
          s->level, s->out_dir, s->quick ? "quick" : "full", s->points, s->ref_spp,
          s->converged_rays, sysconf(_SC_NPROCESSORS_ONLN), s->load_begin);
   fflush(stdout);
-  if (sw_mkdir_p(s->out_dir) != 0) {
-    fprintf(stderr, "ubake: %s: cannot create: %s\n", s->out_dir, strerror(errno));
-    return 0;
-  }
-  char bakes[1280], dir[1400], ubk[1500], rep[1500];
-  snprintf(bakes, sizeof bakes, "%s/bakes", s->out_dir);
-  if (sw_mkdir_p(bakes) != 0) {
-    fprintf(stderr, "ubake: %s: cannot create: %s\n", bakes, strerror(errno));
-    return 0;
-  }
   ub_result r = ub_scene_load(s->level, &log, &s->scene);
   if (r == UB_OK)
     r = ub_rt_create(s->scene, NULL, &log, &s->rt);
@@ -980,6 +970,17 @@ static int sw_run(sweep *s)
   if (r != UB_OK) {
     if (!s->log_errors)
       fprintf(stderr, "ubake: %s: %s\n", s->level, ub_result_string(r));
+    return 0;
+  }
+  if (sw_mkdir_p(s->out_dir) != 0) {
+    fprintf(stderr, "ubake: %s: cannot create: %s\n", s->out_dir, strerror(errno));
+    return 0;
+  }
+  /* Only now: a level that does not load leaves no folder behind. */
+  char bakes[1280], dir[1400], ubk[1500], rep[1500];
+  snprintf(bakes, sizeof bakes, "%s/bakes", s->out_dir);
+  if (sw_mkdir_p(bakes) != 0) {
+    fprintf(stderr, "ubake: %s: cannot create: %s\n", bakes, strerror(errno));
     return 0;
   }
   sw_level_name(s->level, s->name, sizeof s->name);
