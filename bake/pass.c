@@ -220,6 +220,59 @@ typedef struct shadow_rec {
   float cos;
 } shadow_rec;
 
+/* Scratch for a block's shadow rays; 0 (and the pass cancelled as out of memory) if it
+ * cannot be had. */
+static int shadow_alloc(pass_ctx *c, size_t cap, ub_ray **rays, shadow_rec **rec, uint8_t **occ)
+{
+  *rays = malloc((cap ? cap : 1) * sizeof **rays);
+  *rec = malloc((cap ? cap : 1) * sizeof **rec);
+  *occ = malloc(cap ? cap : 1);
+  if (*rays && *rec && *occ)
+    return 1;
+  free(*rays);
+  free(*rec);
+  free(*occ);
+  atomic_store(&c->cancelled, 2);
+  return 0;
+}
+
+/* Traces a block's shadow rays and adds the unoccluded ones to their receivers: the
+ * stored result (not for primary lights), the next bounce's source (bounce 0) and its
+ * non-punctual part. Frees the scratch. */
+static void shadow_flush(pass_ctx *c, const recv_set *rs, uint32_t r0, ub_ray *rays,
+                         shadow_rec *rec, uint8_t *occ, size_t n)
+{
+  ub_rt_occluded(rs->rt, rays, (uint32_t)n, occ);
+  atomic_fetch_add(&c->rays_shadow, n);
+  uint64_t nem = 0;
+  for (size_t j = 0; j < n; j++)
+    nem += rec[j].emissive;
+  atomic_fetch_add(&c->rays_emissive, nem);
+  for (size_t j = 0; j < n; j++) {
+    if (occ[j])
+      continue;
+    const shadow_rec *sr = &rec[j];
+    uint32_t r = rs->index ? rs->index[r0 + sr->recv] : r0 + sr->recv;
+    if (rs->acc_src)
+      for (int ch = 0; ch < 3; ch++)
+        rs->acc_src[3 * (size_t)r + ch] += (double)sr->e[ch] * sr->cos;
+    if (rs->acc_src_np && sr->emissive)
+      for (int ch = 0; ch < 3; ch++)
+        rs->acc_src_np[3 * (size_t)r + ch] += (double)sr->e[ch] * sr->cos;
+    if (sr->primary)
+      continue;
+    if (rs->acc_sh_np && sr->emissive)
+      sh_accum(rs->acc_sh_np + (size_t)rs->nsh * 3 * r, rs->nsh, sr->dir, sr->e, 1.0);
+    if (rs->acc_iz)
+      for (int ch = 0; ch < 3; ch++)
+        rs->acc_iz[3 * (size_t)r + ch] += (double)sr->e[ch] * sr->cos;
+    sh_accum(rs->acc_sh + (size_t)rs->nsh * 3 * r, rs->nsh, sr->dir, sr->e, 1.0);
+  }
+  free(rays);
+  free(rec);
+  free(occ);
+}
+
 /* Bounce 0: punctual lights and emissive area samples with shadow rays. */
 static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr)
 {
@@ -236,16 +289,11 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   if (per == 0)
     return;
   size_t cap = per * nr;
-  ub_ray *rays = malloc(cap * sizeof *rays);
-  shadow_rec *rec = malloc(cap * sizeof *rec);
-  uint8_t *occ = malloc(cap);
-  if (!rays || !rec || !occ) {
-    free(rays);
-    free(rec);
-    free(occ);
-    atomic_store(&c->cancelled, 2);
+  ub_ray *rays;
+  shadow_rec *rec;
+  uint8_t *occ;
+  if (!shadow_alloc(c, cap, &rays, &rec, &occ))
     return;
-  }
   size_t n = 0;
   uint32_t N = rs->rays;
   int mis_gather = d->sky || ne; /* gather rays also see emitters in bounce 0 */
@@ -347,35 +395,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
       n++;
     }
   }
-  ub_rt_occluded(rs->rt, rays, (uint32_t)n, occ);
-  atomic_fetch_add(&c->rays_shadow, n);
-  uint64_t nem = 0;
-  for (size_t j = 0; j < n; j++)
-    nem += rec[j].emissive;
-  atomic_fetch_add(&c->rays_emissive, nem);
-  for (size_t j = 0; j < n; j++) {
-    if (occ[j])
-      continue;
-    const shadow_rec *sr = &rec[j];
-    uint32_t r = rs->index ? rs->index[r0 + sr->recv] : r0 + sr->recv;
-    if (rs->acc_src)
-      for (int ch = 0; ch < 3; ch++)
-        rs->acc_src[3 * (size_t)r + ch] += (double)sr->e[ch] * sr->cos;
-    if (rs->acc_src_np && sr->emissive)
-      for (int ch = 0; ch < 3; ch++)
-        rs->acc_src_np[3 * (size_t)r + ch] += (double)sr->e[ch] * sr->cos;
-    if (sr->primary)
-      continue;
-    if (rs->acc_sh_np && sr->emissive)
-      sh_accum(rs->acc_sh_np + (size_t)rs->nsh * 3 * r, rs->nsh, sr->dir, sr->e, 1.0);
-    if (rs->acc_iz)
-      for (int ch = 0; ch < 3; ch++)
-        rs->acc_iz[3 * (size_t)r + ch] += (double)sr->e[ch] * sr->cos;
-    sh_accum(rs->acc_sh + (size_t)rs->nsh * 3 * r, rs->nsh, sr->dir, sr->e, 1.0);
-  }
-  free(rays);
-  free(rec);
-  free(occ);
+  shadow_flush(c, rs, r0, rays, rec, occ, n);
 }
 
 /* Next-event estimation at bounce-1 hits (shadow rays against the whole level, also for
@@ -479,16 +499,11 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
   const ub_lightmap *lm = c->lm;
   uint32_t M = c->tl_samples, N = rs->rays, T = lm->texel_count;
   size_t cap = (size_t)M * nr;
-  ub_ray *rays = malloc(cap * sizeof *rays);
-  shadow_rec *rec = malloc(cap * sizeof *rec);
-  uint8_t *occ = malloc(cap);
-  if (!rays || !rec || !occ) {
-    free(rays);
-    free(rec);
-    free(occ);
-    atomic_store(&c->cancelled, 2);
+  ub_ray *rays;
+  shadow_rec *rec;
+  uint8_t *occ;
+  if (!shadow_alloc(c, cap, &rays, &rec, &occ))
     return;
-  }
   size_t n = 0;
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
@@ -545,21 +560,7 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
       n++;
     }
   }
-  ub_rt_occluded(d->rt, rays, (uint32_t)n, occ);
-  atomic_fetch_add(&c->rays_shadow, n);
-  for (size_t j = 0; j < n; j++) {
-    if (occ[j])
-      continue;
-    const shadow_rec *sr = &rec[j];
-    uint32_t r = rs->index ? rs->index[r0 + sr->recv] : r0 + sr->recv;
-    if (rs->acc_iz)
-      for (int ch = 0; ch < 3; ch++)
-        rs->acc_iz[3 * (size_t)r + ch] += (double)sr->e[ch] * sr->cos;
-    sh_accum(rs->acc_sh + (size_t)rs->nsh * 3 * r, rs->nsh, sr->dir, sr->e, 1.0);
-  }
-  free(rays);
-  free(rec);
-  free(occ);
+  shadow_flush(c, rs, r0, rays, rec, occ, n);
 }
 
 /* Builds the texel-light tables from the irradiance the next bounce reads. */
