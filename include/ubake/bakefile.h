@@ -41,8 +41,22 @@ typedef struct ub_bakefile_atlas {
  * its weight is 1. Receiver indices are sorted and unique. Lightmap receivers are pixels
  * of the atlases taken in order (pixel = Σ_{b<a} W_b·H_b + y·W_a + x), padding included;
  * GLG receivers are probe indices. */
+/* Kinds of dynamic element (ub_bakefile_record.kind). */
+typedef enum ub_element_kind {
+  UB_ELEMENT_DLS = 0,     /* a dynamic light set (ub_bakefile.dls) */
+  UB_ELEMENT_DOOR = 1,    /* a door: S_open − S_closed, weight = opening fraction t */
+  UB_ELEMENT_OBJECT = 2,  /* a show/hide object: lighting(shown) − lighting(hidden) */
+  UB_ELEMENT_COMBO = 3    /* a combination of two elements (paper Fig. 9 / pairwise
+                             shadow correction): weight = weight(parent[0]) ⊙ weight(parent[1]) */
+} ub_element_kind;
+
 typedef struct ub_bakefile_record {
   char name[64];            /* the set's name (ubake_dls), NUL-terminated */
+  /* Section DLSR holds kind UB_ELEMENT_DLS only (parents -1); section ELEM the others.
+   * Parents (COMBO only, else -1) use one numbering for all elements: [0, dls_count) are
+   * the sets, dls_count + e is elems[e]; a parent is never the combination itself. */
+  uint32_t kind;
+  int32_t parent[2];
   uint32_t light_count;     /* lights in the set */
   float mean_intensity;     /* mean luminance intensity of its lights (W/sr or W/m²) */
   uint32_t texel_count;
@@ -121,6 +135,11 @@ typedef struct ub_bakefile {
   /* Dynamic light sets (section DLSR; dls_count 0 = none). */
   uint32_t dls_count;
   ub_bakefile_record *dls;
+
+  /* Doors, show/hide objects and combinations (section ELEM; elem_count 0 = none), in
+   * that order of kinds, names unique per kind. */
+  uint32_t elem_count;
+  ub_bakefile_record *elems;
 } ub_bakefile;
 
 ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_log *log);
