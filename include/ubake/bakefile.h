@@ -65,6 +65,11 @@ typedef struct ub_bakefile_record {
   uint32_t probe_count;
   uint32_t *probe_index;    /* probe_count, < glg_probe_count */
   float *probe_sh;          /* probe_count × 27: radiance SH L2, W/(m²·sr) */
+  /* LLG receivers: global LLG probe indices (models in order, each model's probes in its
+   * own order: Σ_{m' < m} probes(m') + local index), < Σ probes of all models. */
+  uint32_t llg_probe_count;
+  uint32_t *llg_probe_index;
+  float *llg_probe_sh;      /* llg_probe_count × 27: radiance SH L2, W/(m²·sr) */
 } ub_bakefile_record;
 
 /* A punctual light as the run-time sees it (section LITE): primary lights' direct light is
