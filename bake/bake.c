@@ -14,6 +14,7 @@
 #include <unistd.h>
 
 #include "bake/dls.h"
+#include "bake/geomstate.h"
 #include "bake/lights.h"
 #include "bake/output.h"
 #include "bake/pass.h"
@@ -133,6 +134,10 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   ub_bakefile_record *dls = NULL;
   ub_dls_stats dstats;
   memset(&dstats, 0, sizeof dstats);
+  ub_bakefile_record *elems = NULL; /* doors, objects, combinations */
+  uint32_t elem_count = 0;
+  uint32_t *orig_material = NULL;   /* materials before closed leaves turned black */
+  uint8_t *base_mask = NULL;
   ub_result r;
 
   /* load */
@@ -146,9 +151,17 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
             scene->triangle_count, scene->degenerate_count, scene->material_count,
             scene->light_count, scene->node_count);
 
-  /* rays */
+  /* rays: the base geometry state (bake/geomstate.h) */
   stage_begin(&sc, "rays");
-  r = ub_rt_create(scene, NULL, log, &rt);
+  r = ub_geom_prepare(scene, log, &orig_material);
+  if (r != UB_OK)
+    goto fail;
+  base_mask = ub_geom_mask(scene, NULL);
+  if (!base_mask) {
+    r = UB_ERR_OUT_OF_MEMORY;
+    goto fail;
+  }
+  r = ub_rt_create(scene, base_mask, log, &rt);
   if (r != UB_OK)
     goto fail;
   r = ub_emitters_build(scene, &em);
@@ -308,8 +321,8 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   stats.peak_rss_kb = ub_peak_rss_kb();
   stats.total_seconds = now_seconds() - t_start;
   ub_glg_bake glg = {tm, base.probe_sh, &leak};
-  r = ub_output_write(scene, lm, &glg, &llg, base.llg_sh, dls, &dstats, &plan, &base, opt, &stats,
-                      log);
+  r = ub_output_write(scene, lm, &glg, &llg, base.llg_sh, dls, &dstats, elems, elem_count,
+                      &plan, &base, opt, &stats, log);
   if (r != UB_OK)
     goto fail;
   stage_end(&sc, "%s", stats.ubk_path);
@@ -318,6 +331,9 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
 
 fail:
   ub_pass_result_free(&base);
+  ub_dls_records_free(elems, elem_count);
+  free(base_mask);
+  free(orig_material);
   ub_dls_records_free(dls, scene ? scene->dls_count : 0);
   ub_plan_free(&plan);
   ub_llg_free(&llg);

@@ -35,6 +35,8 @@ void ub_dls_records_free(ub_bakefile_record *records, uint32_t count)
     free(records[i].texel_sh);
     free(records[i].probe_index);
     free(records[i].probe_sh);
+    free(records[i].llg_probe_index);
+    free(records[i].llg_probe_sh);
   }
   free(records);
 }

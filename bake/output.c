@@ -298,6 +298,7 @@ static ub_result fill_llgs(const ub_scene *scene, const ub_llg_set *llg, const f
 ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub_glg_bake *glg,
                           const ub_llg_set *llg, const float *llg_sh,
                           ub_bakefile_record *dls, const ub_dls_stats *dstats,
+                          ub_bakefile_record *elems, uint32_t elem_count,
                           const ub_plan *plan,
                           const ub_pass_result *base, const ub_bake_options *opt,
                           ub_bake_stats *stats, const ub_log *log)
@@ -339,6 +340,8 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
            3 * sizeof(float));
   bf.dls_count = dls ? scene->dls_count : 0;
   bf.dls = dls;
+  bf.elem_count = elems ? elem_count : 0;
+  bf.elems = elems;
   bf.light_count = scene->light_count;
   bf.lights = calloc(scene->light_count ? scene->light_count : 1, sizeof *bf.lights);
   if (!bf.lights) {
