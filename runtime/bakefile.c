@@ -43,14 +43,16 @@ static const uint8_t ub_ubk_magic[4] = {'U', 'B', 'K', 0};
 /* META, GEOM, ATLS are mandatory; GLGP (global light grid) and DLSR (dynamic light set
  * records) are optional: a reader without them still has the base lighting. */
 enum { UB_SEC_META = 0, UB_SEC_GEOM, UB_SEC_ATLS, UB_SEC_MANDATORY, UB_SEC_GLGP = UB_SEC_MANDATORY,
-       UB_SEC_DLSR, UB_SEC_LITE, UB_SEC_LLGM, UB_SEC_KNOWN };
+       UB_SEC_DLSR, UB_SEC_LITE, UB_SEC_LLGM, UB_SEC_ELEM, UB_SEC_KNOWN };
 static const char ub_sec_tags[UB_SEC_KNOWN][5] = {"META", "GEOM", "ATLS", "GLGP", "DLSR", "LITE",
-                                                  "LLGM"};
+                                                  "LLGM", "ELEM"};
 #define UB_LLGM_MODEL_HEADER 144 /* name[64], centre, axes, half, dims, V, T */
 #define UB_LLGM_MAX_DIM 64u
 #define UB_LLGM_MAX_SELF 65504.0f /* the half range */
 #define UB_LITE_SIZE 60 /* bytes per light */
-#define UB_DLSR_SET_HEADER 80 /* name[64], light count, mean intensity, texels, probes */
+/* Record header (sections DLSR and ELEM): name[64], kind, parent[2], light count, mean
+ * intensity, texels, GLG probes, LLG probes. */
+#define UB_REC_HEADER 96
 #define UB_GLG_SH_FLOATS 27 /* SH L2 × RGB */
 #define UB_GLG_NO_PLANE_INDEX 0xffffffffu
 
@@ -190,41 +192,101 @@ static ub_result validate_glg(const ub_bakefile *bf, const char *name, const ub_
   return UB_OK;
 }
 
-static ub_result validate_dls(const ub_bakefile *bf, const char *name, const ub_log *log)
+static uint64_t llg_probe_total(const ub_bakefile *bf)
 {
-  static const char *where = "section DLSR";
+  uint64_t n = 0;
+  for (uint32_t m = 0; m < bf->llg_count; m++)
+    n += (uint64_t)bf->llgs[m].dims[0] * bf->llgs[m].dims[1] * bf->llgs[m].dims[2];
+  return n;
+}
+
+static int sorted_below(const uint32_t *idx, uint32_t n, uint64_t limit, uint32_t *at)
+{
+  for (uint32_t i = 0; i < n; i++)
+    if (idx[i] >= limit || (i && idx[i] <= idx[i - 1])) {
+      *at = i;
+      return 0;
+    }
+  return 1;
+}
+
+/* Records of sections DLSR (elem = 0) and ELEM (elem = 1). */
+static ub_result validate_records(const ub_bakefile *bf, int elem, const char *name,
+                                  const ub_log *log)
+{
+  const char *where = elem ? "section ELEM" : "section DLSR";
+  const ub_bakefile_record *recs = elem ? bf->elems : bf->dls;
+  uint32_t count = elem ? bf->elem_count : bf->dls_count;
   uint64_t pixels = 0;
   for (uint32_t a = 0; a < bf->atlas_count; a++)
     pixels += (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
-  for (uint32_t d = 0; d < bf->dls_count; d++) {
-    const ub_bakefile_record *r = &bf->dls[d];
+  uint64_t llg_probes = llg_probe_total(bf);
+  uint32_t prev_kind = 0;
+  for (uint32_t d = 0; d < count; d++) {
+    const ub_bakefile_record *r = &recs[d];
     size_t bad;
-    if (memchr(r->name, 0, sizeof r->name) == NULL) {
-      ubk_error(log, name, where, "set %u: name is not NUL-terminated", d);
+    uint32_t at = 0;
+    if (memchr(r->name, 0, sizeof r->name) == NULL || !r->name[0]) {
+      ubk_error(log, name, where, "record %u: name empty or not NUL-terminated", d);
       return UB_ERR_INVALID_DATA;
     }
+    uint32_t self = elem ? bf->dls_count + d : d;
+    if (!elem ? r->kind != UB_ELEMENT_DLS
+              : (r->kind < UB_ELEMENT_DOOR || r->kind > UB_ELEMENT_COMBO || r->kind < prev_kind)) {
+      ubk_error(log, name, where, "record %u (%s): kind %u invalid or out of order", d, r->name,
+                r->kind);
+      return UB_ERR_INVALID_DATA;
+    }
+    prev_kind = r->kind;
+    for (int k = 0; k < 2; k++) {
+      int32_t p = r->parent[k];
+      int ok;
+      if (r->kind != UB_ELEMENT_COMBO) {
+        ok = p == -1;
+      } else {
+        /* A parent is a set or an earlier non-combination element. */
+        ok = p >= 0 && (uint32_t)p < self &&
+             ((uint32_t)p < bf->dls_count || bf->elems[p - (int32_t)bf->dls_count].kind !=
+                                                 UB_ELEMENT_COMBO);
+      }
+      if (!ok || (k == 1 && r->kind == UB_ELEMENT_COMBO && p == r->parent[0])) {
+        ubk_error(log, name, where, "record %u (%s): parent %d invalid", d, r->name, (int)p);
+        return UB_ERR_INVALID_DATA;
+      }
+    }
+    for (uint32_t e = 0; e < d; e++)
+      if (recs[e].kind == r->kind && !strcmp(recs[e].name, r->name)) {
+        ubk_error(log, name, where, "record %u: name '%s' used twice", d, r->name);
+        return UB_ERR_INVALID_DATA;
+      }
     assert(r->texel_count == 0 || (r->texel_index && r->texel_sh));
     assert(r->probe_count == 0 || (r->probe_index && r->probe_sh));
+    assert(r->llg_probe_count == 0 || (r->llg_probe_index && r->llg_probe_sh));
     if (!isfinite(r->mean_intensity) || r->mean_intensity < 0.0f) {
-      ubk_error(log, name, where, "set %u (%s): mean intensity not finite and >= 0", d, r->name);
+      ubk_error(log, name, where, "record %u (%s): mean intensity not finite and >= 0", d, r->name);
       return UB_ERR_INVALID_DATA;
     }
-    for (uint32_t i = 0; i < r->texel_count; i++)
-      if (r->texel_index[i] >= pixels || (i && r->texel_index[i] <= r->texel_index[i - 1])) {
-        ubk_error(log, name, where, "set %u (%s): texel index %u at %u not increasing or >= %llu "
-                  "atlas pixels", d, r->name, r->texel_index[i], i, (unsigned long long)pixels);
-        return UB_ERR_INVALID_DATA;
-      }
-    for (uint32_t i = 0; i < r->probe_count; i++)
-      if (r->probe_index[i] >= bf->glg_probe_count ||
-          (i && r->probe_index[i] <= r->probe_index[i - 1])) {
-        ubk_error(log, name, where, "set %u (%s): probe index %u at %u not increasing or >= %u "
-                  "probes", d, r->name, r->probe_index[i], i, bf->glg_probe_count);
-        return UB_ERR_INVALID_DATA;
-      }
+    if (!sorted_below(r->texel_index, r->texel_count, pixels, &at)) {
+      ubk_error(log, name, where, "record %u (%s): texel index %u at %u not increasing or >= "
+                "%llu atlas pixels", d, r->name, r->texel_index[at], at,
+                (unsigned long long)pixels);
+      return UB_ERR_INVALID_DATA;
+    }
+    if (!sorted_below(r->probe_index, r->probe_count, bf->glg_probe_count, &at)) {
+      ubk_error(log, name, where, "record %u (%s): probe index %u at %u not increasing or >= %u "
+                "probes", d, r->name, r->probe_index[at], at, bf->glg_probe_count);
+      return UB_ERR_INVALID_DATA;
+    }
+    if (!sorted_below(r->llg_probe_index, r->llg_probe_count, llg_probes, &at)) {
+      ubk_error(log, name, where, "record %u (%s): LLG probe index %u at %u not increasing or "
+                ">= %llu LLG probes", d, r->name, r->llg_probe_index[at], at,
+                (unsigned long long)llg_probes);
+      return UB_ERR_INVALID_DATA;
+    }
     if (!all_finite(r->texel_sh, (size_t)r->texel_count * UB_SH1_FLOATS, &bad) ||
-        !all_finite(r->probe_sh, (size_t)r->probe_count * UB_GLG_SH_FLOATS, &bad)) {
-      ubk_error(log, name, where, "set %u (%s): non-finite SH", d, r->name);
+        !all_finite(r->probe_sh, (size_t)r->probe_count * UB_GLG_SH_FLOATS, &bad) ||
+        !all_finite(r->llg_probe_sh, (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS, &bad)) {
+      ubk_error(log, name, where, "record %u (%s): non-finite SH", d, r->name);
       return UB_ERR_INVALID_DATA;
     }
   }
@@ -392,7 +454,9 @@ static ub_result validate(const ub_bakefile *bf, const char *name, const ub_log 
   }
   ub_result r = validate_glg(bf, name, log);
   if (r == UB_OK)
-    r = validate_dls(bf, name, log);
+    r = validate_records(bf, 0, name, log);
+  if (r == UB_OK)
+    r = validate_records(bf, 1, name, log);
   if (r == UB_OK)
     r = validate_lights(bf, name, log);
   return r == UB_OK ? validate_llg(bf, name, log) : r;
@@ -624,28 +688,43 @@ static void wr_glgp(ubk_writer *w, const ub_bakefile *bf)
     wr_half(w, bf->glg_sh[i]);
 }
 
-static void wr_dlsr(ubk_writer *w, const ub_bakefile *bf)
+static uint64_t record_block(const ub_bakefile_record *r)
 {
-  wr_u32(w, bf->dls_count);
+  return 28u * (uint64_t)r->texel_count + 58u * (uint64_t)r->probe_count +
+         58u * (uint64_t)r->llg_probe_count;
+}
+
+/* Sections DLSR and ELEM: a count, the record headers, then each record's indices and
+ * half-precision SH (texel SH in the I_z-packed form, as ATLS). */
+static void wr_records(ubk_writer *w, const ub_bakefile *bf, const ub_bakefile_record *recs,
+                       uint32_t count)
+{
+  wr_u32(w, count);
   wr_u32(w, 0); /* reserved */
-  for (uint32_t d = 0; d < bf->dls_count; d++) {
-    const ub_bakefile_record *r = &bf->dls[d];
+  for (uint32_t d = 0; d < count; d++) {
+    const ub_bakefile_record *r = &recs[d];
     uint8_t name[64];
     memset(name, 0, sizeof name);
     size_t len = strnlen(r->name, sizeof name - 1);
     memcpy(name, r->name, len);
     wr_bytes(w, name, sizeof name, 1);
+    wr_u32(w, r->kind);
+    wr_u32(w, (uint32_t)r->parent[0]);
+    wr_u32(w, (uint32_t)r->parent[1]);
     wr_u32(w, r->light_count);
     wr_f32(w, r->mean_intensity);
     wr_u32(w, r->texel_count);
     wr_u32(w, r->probe_count);
+    wr_u32(w, r->llg_probe_count);
   }
-  for (uint32_t d = 0; d < bf->dls_count; d++) {
-    const ub_bakefile_record *r = &bf->dls[d];
+  for (uint32_t d = 0; d < count; d++) {
+    const ub_bakefile_record *r = &recs[d];
     for (uint32_t i = 0; i < r->texel_count; i++)
       wr_u32(w, r->texel_index[i]);
     for (uint32_t i = 0; i < r->probe_count; i++)
       wr_u32(w, r->probe_index[i]);
+    for (uint32_t i = 0; i < r->llg_probe_count; i++)
+      wr_u32(w, r->llg_probe_index[i]);
     for (uint32_t i = 0; i < r->texel_count; i++) {
       float sh[UB_SH1_FLOATS];
       memcpy(sh, r->texel_sh + (size_t)i * UB_SH1_FLOATS, sizeof sh);
@@ -657,7 +736,9 @@ static void wr_dlsr(ubk_writer *w, const ub_bakefile *bf)
     }
     for (size_t i = 0; i < (size_t)r->probe_count * UB_GLG_SH_FLOATS; i++)
       wr_half(w, r->probe_sh[i]);
-    uint64_t block = 28u * (uint64_t)r->texel_count + 58u * (uint64_t)r->probe_count;
+    for (size_t i = 0; i < (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS; i++)
+      wr_half(w, r->llg_probe_sh[i]);
+    uint64_t block = record_block(r);
     wr_zeros(w, (size_t)(align8(block) - block), 1);
   }
 }
@@ -775,6 +856,8 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
     order[sections++] = UB_SEC_LITE;
   if (bf->llg_count)
     order[sections++] = UB_SEC_LLGM;
+  if (bf->elem_count)
+    order[sections++] = UB_SEC_ELEM;
   size_t head_size = UB_UBK_HEADER_SIZE + (size_t)sections * UB_UBK_ENTRY_SIZE;
   wr_bytes(w, head, head_size, 0);
 
@@ -794,7 +877,7 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
   }
   if (bf->dls_count) {
     wr_begin(w, &sec[UB_SEC_DLSR], ub_sec_tags[UB_SEC_DLSR], 0);
-    wr_dlsr(w, bf);
+    wr_records(w, bf, bf->dls, bf->dls_count);
     wr_end(w, &sec[UB_SEC_DLSR]);
   }
   if (bf->light_count) {
@@ -806,6 +889,11 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
     wr_begin(w, &sec[UB_SEC_LLGM], ub_sec_tags[UB_SEC_LLGM], 0);
     wr_llgm(w, bf);
     wr_end(w, &sec[UB_SEC_LLGM]);
+  }
+  if (bf->elem_count) {
+    wr_begin(w, &sec[UB_SEC_ELEM], ub_sec_tags[UB_SEC_ELEM], 0);
+    wr_records(w, bf, bf->elems, bf->elem_count);
+    wr_end(w, &sec[UB_SEC_ELEM]);
   }
   wr_flush(w);
 
@@ -1140,10 +1228,10 @@ static ub_result parse_glgp(const ubk_reader *rd, const uint8_t *p, uint64_t siz
   return UB_OK;
 }
 
-static ub_result parse_dlsr(const ubk_reader *rd, const uint8_t *p, uint64_t size,
-                            ub_bakefile *bf)
+static ub_result parse_records(const ubk_reader *rd, const uint8_t *p, uint64_t size,
+                               const char *where, ub_bakefile_record **out_recs,
+                               uint32_t *out_count)
 {
-  static const char *where = "section DLSR";
   ubk_cursor c = {p, (size_t)size};
   uint32_t ns, reserved;
   if (!cur_u32(&c, &ns) || !cur_u32(&c, &reserved)) {
@@ -1151,59 +1239,70 @@ static ub_result parse_dlsr(const ubk_reader *rd, const uint8_t *p, uint64_t siz
               (unsigned long long)size);
     return UB_ERR_INVALID_DATA;
   }
-  if ((uint64_t)ns * UB_DLSR_SET_HEADER > size - 8) {
-    ubk_error(rd->log, rd->name, where, "%u sets do not fit in %llu bytes", ns,
+  if ((uint64_t)ns * UB_REC_HEADER > size - 8) {
+    ubk_error(rd->log, rd->name, where, "%u records do not fit in %llu bytes", ns,
               (unsigned long long)size);
     return UB_ERR_INVALID_DATA;
   }
-  /* Walk the set headers to check the exact size before allocating anything big. */
-  uint64_t expect = 8u + (uint64_t)ns * UB_DLSR_SET_HEADER;
+  /* Walk the headers to check the exact size before allocating anything big. */
+  uint64_t expect = 8u + (uint64_t)ns * UB_REC_HEADER;
   for (uint32_t d = 0; d < ns; d++) {
-    const uint8_t *h = p + 8 + (size_t)d * UB_DLSR_SET_HEADER;
-    uint64_t tc = le_get32(h + 72), pc = le_get32(h + 76);
-    expect += align8(28u * tc + 58u * pc);
+    const uint8_t *h = p + 8 + (size_t)d * UB_REC_HEADER;
+    uint64_t tc = le_get32(h + 84), pc = le_get32(h + 88), lc = le_get32(h + 92);
+    expect += align8(28u * tc + 58u * pc + 58u * lc);
     if (expect > size)
       break;
   }
   if (expect != size) {
-    ubk_error(rd->log, rd->name, where, "size %llu does not match its %u sets' counts",
+    ubk_error(rd->log, rd->name, where, "size %llu does not match its %u records' counts",
               (unsigned long long)size, ns);
     return UB_ERR_INVALID_DATA;
   }
-  bf->dls = calloc_array(ns, sizeof *bf->dls);
-  if (ns && !bf->dls) {
+  ub_bakefile_record *recs = calloc_array(ns, sizeof *recs);
+  if (ns && !recs) {
     ubk_error(rd->log, rd->name, where, "out of memory");
     return UB_ERR_OUT_OF_MEMORY;
   }
-  bf->dls_count = ns;
+  *out_recs = recs;
+  *out_count = ns;
   for (uint32_t d = 0; d < ns; d++) {
-    ub_bakefile_record *r = &bf->dls[d];
+    ub_bakefile_record *r = &recs[d];
     const uint8_t *nm;
+    uint32_t p0, p1;
     int ok = cur_take(&c, 64, &nm);
     assert(ok);
     memcpy(r->name, nm, 64);
-    ok = cur_u32(&c, &r->light_count) && cur_f32s(&c, &r->mean_intensity, 1) &&
-         cur_u32(&c, &r->texel_count) && cur_u32(&c, &r->probe_count);
+    ok = cur_u32(&c, &r->kind) && cur_u32(&c, &p0) && cur_u32(&c, &p1) &&
+         cur_u32(&c, &r->light_count) && cur_f32s(&c, &r->mean_intensity, 1) &&
+         cur_u32(&c, &r->texel_count) && cur_u32(&c, &r->probe_count) &&
+         cur_u32(&c, &r->llg_probe_count);
     assert(ok);
     (void)ok;
+    r->parent[0] = (int32_t)p0;
+    r->parent[1] = (int32_t)p1;
   }
   for (uint32_t d = 0; d < ns; d++) {
-    ub_bakefile_record *r = &bf->dls[d];
+    ub_bakefile_record *r = &recs[d];
     r->texel_index = calloc_array(r->texel_count, sizeof(uint32_t));
     r->probe_index = calloc_array(r->probe_count, sizeof(uint32_t));
+    r->llg_probe_index = calloc_array(r->llg_probe_count, sizeof(uint32_t));
     r->texel_sh = calloc_array((uint64_t)r->texel_count * UB_SH1_FLOATS, sizeof(float));
     r->probe_sh = calloc_array((uint64_t)r->probe_count * UB_GLG_SH_FLOATS, sizeof(float));
+    r->llg_probe_sh = calloc_array((uint64_t)r->llg_probe_count * UB_GLG_SH_FLOATS, sizeof(float));
     if ((r->texel_count && (!r->texel_index || !r->texel_sh)) ||
-        (r->probe_count && (!r->probe_index || !r->probe_sh))) {
+        (r->probe_count && (!r->probe_index || !r->probe_sh)) ||
+        (r->llg_probe_count && (!r->llg_probe_index || !r->llg_probe_sh))) {
       ubk_error(rd->log, rd->name, where, "out of memory");
       return UB_ERR_OUT_OF_MEMORY;
     }
-    uint64_t block = 28u * (uint64_t)r->texel_count + 58u * (uint64_t)r->probe_count;
+    uint64_t block = record_block(r);
     const uint8_t *pad;
     int ok = cur_u32s(&c, r->texel_index, r->texel_count) &&
              cur_u32s(&c, r->probe_index, r->probe_count) &&
+             cur_u32s(&c, r->llg_probe_index, r->llg_probe_count) &&
              cur_halves(&c, r->texel_sh, (size_t)r->texel_count * UB_SH1_FLOATS) &&
              cur_halves(&c, r->probe_sh, (size_t)r->probe_count * UB_GLG_SH_FLOATS) &&
+             cur_halves(&c, r->llg_probe_sh, (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS) &&
              cur_take(&c, (size_t)(align8(block) - block), &pad);
     assert(ok); /* guaranteed by the exact size walk above */
     (void)ok;
@@ -1211,15 +1310,15 @@ static ub_result parse_dlsr(const ubk_reader *rd, const uint8_t *p, uint64_t siz
   return UB_OK;
 }
 
-/* After ATLS and DLSR are parsed: the records' texel SH back from the I_z form. Indices
- * out of range are left for validate() to report. */
-static void unpack_dls_texels(ub_bakefile *bf)
+/* After ATLS and the records are parsed: the records' texel SH back from the I_z form.
+ * Indices out of range are left for validate() to report. */
+static void unpack_record_texels(ub_bakefile *bf, ub_bakefile_record *recs, uint32_t count)
 {
   uint64_t pixels = 0;
   for (uint32_t a = 0; a < bf->atlas_count; a++)
     pixels += (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
-  for (uint32_t d = 0; d < bf->dls_count; d++) {
-    ub_bakefile_record *r = &bf->dls[d];
+  for (uint32_t d = 0; d < count; d++) {
+    ub_bakefile_record *r = &recs[d];
     for (uint32_t i = 0; i < r->texel_count; i++) {
       if (r->texel_index[i] >= pixels)
         continue;
@@ -1367,6 +1466,11 @@ ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *nam
     ubk_error(log, rd.name, "header", "format version 0 is invalid");
     return UB_ERR_INVALID_DATA;
   }
+  if (version < UB_BAKEFILE_VERSION) {
+    ubk_error(log, rd.name, "header", "format version %u is older than this reader's (%u): "
+              "bake the level again", version, UB_BAKEFILE_VERSION);
+    return UB_ERR_UNSUPPORTED_VERSION;
+  }
   if (version > UB_BAKEFILE_VERSION) {
     ubk_error(log, rd.name, "header", "format version %u is newer than this reader (%u)",
               version, UB_BAKEFILE_VERSION);
@@ -1475,9 +1579,15 @@ ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *nam
   if (r == UB_OK && known[UB_SEC_GLGP])
     r = parse_glgp(&rd, known[UB_SEC_GLGP], known_size[UB_SEC_GLGP], bf);
   if (r == UB_OK && known[UB_SEC_DLSR])
-    r = parse_dlsr(&rd, known[UB_SEC_DLSR], known_size[UB_SEC_DLSR], bf);
-  if (r == UB_OK)
-    unpack_dls_texels(bf);
+    r = parse_records(&rd, known[UB_SEC_DLSR], known_size[UB_SEC_DLSR], "section DLSR",
+                      &bf->dls, &bf->dls_count);
+  if (r == UB_OK && known[UB_SEC_ELEM])
+    r = parse_records(&rd, known[UB_SEC_ELEM], known_size[UB_SEC_ELEM], "section ELEM",
+                      &bf->elems, &bf->elem_count);
+  if (r == UB_OK) {
+    unpack_record_texels(bf, bf->dls, bf->dls_count);
+    unpack_record_texels(bf, bf->elems, bf->elem_count);
+  }
   if (r == UB_OK && known[UB_SEC_LITE])
     r = parse_lite(&rd, known[UB_SEC_LITE], known_size[UB_SEC_LITE], bf);
   if (r == UB_OK && known[UB_SEC_LLGM])
@@ -1561,13 +1671,19 @@ void ub_bakefile_free(ub_bakefile *bf)
   free(bf->glg_neigh);
   free(bf->glg_planes);
   free(bf->glg_plane_of);
-  for (uint32_t d = 0; d < bf->dls_count; d++) {
-    free(bf->dls[d].texel_index);
-    free(bf->dls[d].texel_sh);
-    free(bf->dls[d].probe_index);
-    free(bf->dls[d].probe_sh);
+  for (int e = 0; e < 2; e++) {
+    ub_bakefile_record *recs = e ? bf->elems : bf->dls;
+    uint32_t count = e ? bf->elem_count : bf->dls_count;
+    for (uint32_t d = 0; d < count; d++) {
+      free(recs[d].texel_index);
+      free(recs[d].texel_sh);
+      free(recs[d].probe_index);
+      free(recs[d].probe_sh);
+      free(recs[d].llg_probe_index);
+      free(recs[d].llg_probe_sh);
+    }
+    free(recs);
   }
-  free(bf->dls);
   free(bf->lights);
   for (uint32_t i = 0; i < bf->llg_count; i++) {
     free(bf->llgs[i].probe_sh);

@@ -23,7 +23,7 @@
 extern "C" {
 #endif
 
-#define UB_BAKEFILE_VERSION 1u
+#define UB_BAKEFILE_VERSION 2u /* 2: record kinds, parents, LLG probes; section ELEM */
 #define UB_SH1_FLOATS 12 /* SH L1 × RGB, coefficient-major: [k*3 + c] */
 
 typedef struct ub_bakefile_atlas {
