@@ -43,9 +43,9 @@ static const uint8_t ub_ubk_magic[4] = {'U', 'B', 'K', 0};
 /* META, GEOM, ATLS are mandatory; GLGP (global light grid) and DLSR (dynamic light set
  * records) are optional: a reader without them still has the base lighting. */
 enum { UB_SEC_META = 0, UB_SEC_GEOM, UB_SEC_ATLS, UB_SEC_MANDATORY, UB_SEC_GLGP = UB_SEC_MANDATORY,
-       UB_SEC_DLSR, UB_SEC_LITE, UB_SEC_LLGM, UB_SEC_ELEM, UB_SEC_KNOWN };
+       UB_SEC_DLSR, UB_SEC_LITE, UB_SEC_LLGM, UB_SEC_ELEM, UB_SEC_TRIR, UB_SEC_KNOWN };
 static const char ub_sec_tags[UB_SEC_KNOWN][5] = {"META", "GEOM", "ATLS", "GLGP", "DLSR", "LITE",
-                                                  "LLGM", "ELEM"};
+                                                  "LLGM", "ELEM", "TRIR"};
 #define UB_LLGM_MODEL_HEADER 144 /* name[64], centre, axes, half, dims, V, T */
 #define UB_LLGM_MAX_DIM 64u
 #define UB_LLGM_MAX_SELF 65504.0f /* the half range */
@@ -457,6 +457,16 @@ static ub_result validate(const ub_bakefile *bf, const char *name, const ub_log 
     r = validate_records(bf, 0, name, log);
   if (r == UB_OK)
     r = validate_records(bf, 1, name, log);
+  for (uint32_t t = 0; r == UB_OK && bf->tri_role && t < bf->triangle_count; t++) {
+    uint32_t role = bf->tri_role[t] >> 24, e = bf->tri_role[t] & 0xFFFFFFu;
+    uint32_t want = role == UB_TRI_ROLE_OBJECT ? UB_ELEMENT_OBJECT : UB_ELEMENT_DOOR;
+    if (bf->tri_role[t] && (role < UB_TRI_ROLE_DOOR_CLOSED || role > UB_TRI_ROLE_OBJECT ||
+                            e >= bf->elem_count || bf->elems[e].kind != want)) {
+      ubk_error(log, name, "section TRIR", "triangle %u: role %u of element %u invalid", t,
+                role, e);
+      r = UB_ERR_INVALID_DATA;
+    }
+  }
   if (r == UB_OK)
     r = validate_lights(bf, name, log);
   return r == UB_OK ? validate_llg(bf, name, log) : r;
@@ -858,6 +868,8 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
     order[sections++] = UB_SEC_LLGM;
   if (bf->elem_count)
     order[sections++] = UB_SEC_ELEM;
+  if (bf->tri_role)
+    order[sections++] = UB_SEC_TRIR;
   size_t head_size = UB_UBK_HEADER_SIZE + (size_t)sections * UB_UBK_ENTRY_SIZE;
   wr_bytes(w, head, head_size, 0);
 
@@ -894,6 +906,16 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
     wr_begin(w, &sec[UB_SEC_ELEM], ub_sec_tags[UB_SEC_ELEM], 0);
     wr_records(w, bf, bf->elems, bf->elem_count);
     wr_end(w, &sec[UB_SEC_ELEM]);
+  }
+  if (bf->tri_role) {
+    wr_begin(w, &sec[UB_SEC_TRIR], ub_sec_tags[UB_SEC_TRIR], 0);
+    wr_u32(w, bf->triangle_count);
+    wr_u32(w, 0); /* reserved */
+    for (uint32_t t = 0; t < bf->triangle_count; t++)
+      wr_u32(w, bf->tri_role[t]);
+    wr_zeros(w, (size_t)(align8(4u * (uint64_t)bf->triangle_count) -
+                         4u * (uint64_t)bf->triangle_count), 1);
+    wr_end(w, &sec[UB_SEC_TRIR]);
   }
   wr_flush(w);
 
@@ -1361,6 +1383,29 @@ static ub_result parse_lite(const ubk_reader *rd, const uint8_t *p, uint64_t siz
   return UB_OK;
 }
 
+static ub_result parse_trir(const ubk_reader *rd, const uint8_t *p, uint64_t size,
+                            ub_bakefile *bf)
+{
+  static const char *where = "section TRIR";
+  ubk_cursor c = {p, (size_t)size};
+  uint32_t n, reserved;
+  if (!cur_u32(&c, &n) || !cur_u32(&c, &reserved) || n != bf->triangle_count ||
+      8u + align8(4u * (uint64_t)n) != size) {
+    ubk_error(rd->log, rd->name, where, "size %llu does not match the %u triangles",
+              (unsigned long long)size, bf->triangle_count);
+    return UB_ERR_INVALID_DATA;
+  }
+  bf->tri_role = calloc_array((uint64_t)n + 1, sizeof *bf->tri_role);
+  if (!bf->tri_role) {
+    ubk_error(rd->log, rd->name, where, "out of memory");
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  int ok = cur_u32s(&c, bf->tri_role, n);
+  assert(ok);
+  (void)ok;
+  return UB_OK;
+}
+
 static ub_result parse_llgm(const ubk_reader *rd, const uint8_t *p, uint64_t size,
                             ub_bakefile *bf)
 {
@@ -1592,6 +1637,8 @@ ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *nam
     r = parse_lite(&rd, known[UB_SEC_LITE], known_size[UB_SEC_LITE], bf);
   if (r == UB_OK && known[UB_SEC_LLGM])
     r = parse_llgm(&rd, known[UB_SEC_LLGM], known_size[UB_SEC_LLGM], bf);
+  if (r == UB_OK && known[UB_SEC_TRIR])
+    r = parse_trir(&rd, known[UB_SEC_TRIR], known_size[UB_SEC_TRIR], bf);
   if (r == UB_OK)
     r = validate(bf, rd.name, log);
   if (r != UB_OK) {
@@ -1684,6 +1731,7 @@ void ub_bakefile_free(ub_bakefile *bf)
     }
     free(recs);
   }
+  free(bf->tri_role);
   free(bf->lights);
   for (uint32_t i = 0; i < bf->llg_count; i++) {
     free(bf->llgs[i].probe_sh);

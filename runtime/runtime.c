@@ -483,6 +483,31 @@ ub_result ub_runtime_set_element(ub_runtime *rt, uint32_t element, float value)
   return set_value(rt, rt->bf->dls_count + element, rgb);
 }
 
+ub_result ub_runtime_element_value(const ub_runtime *rt, uint32_t element, float *out_value)
+{
+  assert(rt && out_value);
+  if (element >= rt->bf->elem_count || rt->bf->elems[element].kind == UB_ELEMENT_COMBO ||
+      !rt->value)
+    return UB_ERR_INVALID_ARGUMENT;
+  *out_value = rt->value[3 * ((size_t)rt->bf->dls_count + element)];
+  return UB_OK;
+}
+
+int ub_runtime_triangle_shown(const ub_runtime *rt, uint32_t t)
+{
+  assert(rt);
+  const ub_bakefile *bf = rt->bf;
+  if (!bf->tri_role || t >= bf->triangle_count || !bf->tri_role[t])
+    return 1;
+  uint32_t role = bf->tri_role[t] >> 24;
+  float v;
+  if (ub_runtime_element_value(rt, bf->tri_role[t] & 0xFFFFFFu, &v) != UB_OK)
+    return role != UB_TRI_ROLE_DOOR_OPEN; /* as baked */
+  if (role == UB_TRI_ROLE_DOOR_CLOSED)
+    return v < 0.5f;
+  return v >= 0.5f;
+}
+
 float ub_runtime_door_fraction(float a)
 {
   if (!isfinite(a))
