@@ -627,6 +627,23 @@ static const float *pixel_normal(const ub_bakefile *bf, uint32_t p)
   return NULL;
 }
 
+/* The power of two ≥ 1 that brings mx within the half range with margin (≤ 32768). */
+static float pow2_scale(double mx)
+{
+  float scale = 1.0f;
+  while (mx / scale > 32768.0 && scale < 1e30f)
+    scale *= 2.0f;
+  return scale;
+}
+
+static double max_abs(const float *v, size_t n)
+{
+  double mx = 0.0;
+  for (size_t i = 0; i < n; i++)
+    mx = fmax(mx, fabs((double)v[i]));
+  return mx;
+}
+
 /* Power-of-two scale that keeps every stored texel SH value (in its stored form) within
  * the half range with margin: 1 unless the level is brighter than ~32768 W/m² (a sun in
  * W/m² with a bright sky). Exact: a power of two changes no mantissa bit. */
@@ -644,10 +661,7 @@ static float atls_scale(const ub_bakefile *bf)
         mx = fmax(mx, fabs((double)sh[k]));
     }
   }
-  float scale = 1.0f;
-  while (mx / scale > 32768.0 && scale < 1e30f)
-    scale *= 2.0f;
-  return scale;
+  return pow2_scale(mx);
 }
 
 static void wr_atls(ubk_writer *w, const ub_bakefile *bf)
@@ -683,7 +697,8 @@ static void wr_glgp(ubk_writer *w, const ub_bakefile *bf)
   wr_u32(w, p);
   wr_u32(w, t);
   wr_u32(w, k);
-  wr_u32(w, 0); /* reserved */
+  float scale = pow2_scale(max_abs(bf->glg_sh, (size_t)p * UB_GLG_SH_FLOATS));
+  wr_f32(w, scale == 1.0f ? 0.0f : scale); /* SH scale (0 = 1) */
   for (size_t i = 0; i < (size_t)p * 3; i++)
     wr_f32(w, bf->glg_positions[i]);
   for (size_t i = 0; i < (size_t)t * 4; i++)
@@ -695,7 +710,7 @@ static void wr_glgp(ubk_writer *w, const ub_bakefile *bf)
   for (size_t i = 0; i < t; i++)
     wr_u32(w, bf->glg_plane_of ? bf->glg_plane_of[i] : UB_GLG_NO_PLANE_INDEX);
   for (size_t i = 0; i < (size_t)p * UB_GLG_SH_FLOATS; i++)
-    wr_half(w, bf->glg_sh[i]);
+    wr_half(w, bf->glg_sh[i] / scale);
 }
 
 static uint64_t record_block(const ub_bakefile_record *r)
@@ -709,8 +724,23 @@ static uint64_t record_block(const ub_bakefile_record *r)
 static void wr_records(ubk_writer *w, const ub_bakefile *bf, const ub_bakefile_record *recs,
                        uint32_t count)
 {
+  double mx = 0.0;
+  for (uint32_t d = 0; d < count; d++) {
+    const ub_bakefile_record *r = &recs[d];
+    for (uint32_t i = 0; i < r->texel_count; i++) {
+      float sh[UB_SH1_FLOATS];
+      memcpy(sh, r->texel_sh + (size_t)i * UB_SH1_FLOATS, sizeof sh);
+      const float *n = pixel_normal(bf, r->texel_index[i]);
+      if (n)
+        texel_pack(sh, n);
+      mx = fmax(mx, max_abs(sh, UB_SH1_FLOATS));
+    }
+    mx = fmax(mx, max_abs(r->probe_sh, (size_t)r->probe_count * UB_GLG_SH_FLOATS));
+    mx = fmax(mx, max_abs(r->llg_probe_sh, (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS));
+  }
+  float scale = pow2_scale(mx);
   wr_u32(w, count);
-  wr_u32(w, 0); /* reserved */
+  wr_f32(w, scale == 1.0f ? 0.0f : scale); /* SH scale (0 = 1) */
   for (uint32_t d = 0; d < count; d++) {
     const ub_bakefile_record *r = &recs[d];
     uint8_t name[64];
@@ -742,12 +772,12 @@ static void wr_records(ubk_writer *w, const ub_bakefile *bf, const ub_bakefile_r
       if (n)
         texel_pack(sh, n);
       for (int k = 0; k < UB_SH1_FLOATS; k++)
-        wr_half(w, sh[k]);
+        wr_half(w, sh[k] / scale);
     }
     for (size_t i = 0; i < (size_t)r->probe_count * UB_GLG_SH_FLOATS; i++)
-      wr_half(w, r->probe_sh[i]);
+      wr_half(w, r->probe_sh[i] / scale);
     for (size_t i = 0; i < (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS; i++)
-      wr_half(w, r->llg_probe_sh[i]);
+      wr_half(w, r->llg_probe_sh[i] / scale);
     uint64_t block = record_block(r);
     wr_zeros(w, (size_t)(align8(block) - block), 1);
   }
@@ -1206,12 +1236,33 @@ static ub_result parse_atls(const ubk_reader *rd, const uint8_t *p, uint64_t siz
   return UB_OK;
 }
 
+/* A section's SH scale field: 0 means 1; else a finite power of two ≥ 1 (any finite value
+ * ≥ 1 is accepted: the data is multiplied by it). Returns 0 (error logged) otherwise. */
+static int check_scale(const ubk_reader *rd, const char *where, float *scale)
+{
+  if (*scale == 0.0f)
+    *scale = 1.0f;
+  if (!isfinite(*scale) || *scale < 1.0f) {
+    ubk_error(rd->log, rd->name, where, "SH scale %g is not finite and >= 1", (double)*scale);
+    return 0;
+  }
+  return 1;
+}
+
+static void apply_scale(float *v, size_t n, float scale)
+{
+  if (scale != 1.0f)
+    for (size_t i = 0; i < n; i++)
+      v[i] *= scale;
+}
+
 static ub_result parse_glgp(const ubk_reader *rd, const uint8_t *p, uint64_t size,
                             ub_bakefile *bf)
 {
   ubk_cursor c = {p, (size_t)size};
-  uint32_t np, nt, nk, reserved;
-  if (!cur_u32(&c, &np) || !cur_u32(&c, &nt) || !cur_u32(&c, &nk) || !cur_u32(&c, &reserved)) {
+  uint32_t np, nt, nk;
+  float scale;
+  if (!cur_u32(&c, &np) || !cur_u32(&c, &nt) || !cur_u32(&c, &nk) || !cur_f32s(&c, &scale, 1)) {
     ubk_error(rd->log, rd->name, "section GLGP", "size %llu too small for the counts",
               (unsigned long long)size);
     return UB_ERR_INVALID_DATA;
@@ -1247,6 +1298,9 @@ static ub_result parse_glgp(const ubk_reader *rd, const uint8_t *p, uint64_t siz
            cur_halves(&c, bf->glg_sh, (size_t)np * UB_GLG_SH_FLOATS);
   assert(ok && c.left == 0); /* guaranteed by the exact size check above */
   (void)ok;
+  if (!check_scale(rd, "section GLGP", &scale))
+    return UB_ERR_INVALID_DATA;
+  apply_scale(bf->glg_sh, (size_t)np * UB_GLG_SH_FLOATS, scale);
   return UB_OK;
 }
 
@@ -1255,12 +1309,15 @@ static ub_result parse_records(const ubk_reader *rd, const uint8_t *p, uint64_t 
                                uint32_t *out_count)
 {
   ubk_cursor c = {p, (size_t)size};
-  uint32_t ns, reserved;
-  if (!cur_u32(&c, &ns) || !cur_u32(&c, &reserved)) {
+  uint32_t ns;
+  float scale;
+  if (!cur_u32(&c, &ns) || !cur_f32s(&c, &scale, 1)) {
     ubk_error(rd->log, rd->name, where, "size %llu too small for the count",
               (unsigned long long)size);
     return UB_ERR_INVALID_DATA;
   }
+  if (!check_scale(rd, where, &scale))
+    return UB_ERR_INVALID_DATA;
   if ((uint64_t)ns * UB_REC_HEADER > size - 8) {
     ubk_error(rd->log, rd->name, where, "%u records do not fit in %llu bytes", ns,
               (unsigned long long)size);
@@ -1328,6 +1385,9 @@ static ub_result parse_records(const ubk_reader *rd, const uint8_t *p, uint64_t 
              cur_take(&c, (size_t)(align8(block) - block), &pad);
     assert(ok); /* guaranteed by the exact size walk above */
     (void)ok;
+    apply_scale(r->texel_sh, (size_t)r->texel_count * UB_SH1_FLOATS, scale);
+    apply_scale(r->probe_sh, (size_t)r->probe_count * UB_GLG_SH_FLOATS, scale);
+    apply_scale(r->llg_probe_sh, (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS, scale);
   }
   return UB_OK;
 }
