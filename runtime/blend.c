@@ -93,6 +93,10 @@ struct ub_blend {
   const char **scr_src;
   const float **scr_rows;
   const float **scr_w;
+  /* AVX + F16C path (chosen at create): weight patterns and member sources. */
+  int avx;
+  float *wpat;           /* max(max_overlap, 1) × 32 floats, 32-byte aligned */
+  const char **avx_src;  /* max(max_overlap, 1) */
   size_t engine_bytes, record_bytes;
 };
 
@@ -258,6 +262,145 @@ typedef struct blend_call {
   void *user;
 } blend_call;
 
+#if BLEND_F16C
+/* The AVX + F16C path. A run of n consecutive receivers is n·S consecutive floats in base
+ * and out and n·S consecutive values in every member's record, and since S is a multiple
+ * of 3 the weight of flat position j is ω[j mod 3]: so a run is blended as one flat array,
+ * 24 floats (3 × 8 lanes, the period of the RGB pattern) at a time, with the halves
+ * converted in registers (no decode scratch). Per element the operations are those of
+ * blend_row_*: acc = base; acc = acc + ω·v per member in id order, products and sums
+ * rounded separately (no FMA): the same bits as the SSE2 and scalar kernels. */
+#define BLEND_AVX __attribute__((target("avx,f16c")))
+#define BLEND_AVX_INLINE static inline __attribute__((always_inline, target("avx,f16c")))
+
+BLEND_AVX_INLINE __m256 avx_load8(const char *src, size_t j, const int half)
+{
+  if (half)
+    return _mm256_cvtph_ps(_mm_loadu_si128((const __m128i *)(const void *)((const uint16_t *)(const void *)src + j)));
+  return _mm256_loadu_ps((const float *)(const void *)src + j);
+}
+
+BLEND_AVX_INLINE __m128 avx_load4(const char *src, size_t j, const int half)
+{
+  if (half)
+    return _mm_cvtph_ps(_mm_loadl_epi64((const __m128i *)(const void *)((const uint16_t *)(const void *)src + j)));
+  return _mm_loadu_ps((const float *)(const void *)src + j);
+}
+
+/* o[j] = bs[j] + Σ_m wp_m[j mod 24]·src_m[j], j < nf; wp_m = wpat + 32·m. */
+BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
+                               const char *const *src, const float *wpat, const uint32_t k,
+                               const size_t nf, const int half)
+{
+  size_t j = 0;
+  for (; j + 24 <= nf; j += 24) {
+    __m256 a0 = _mm256_loadu_ps(bs + j), a1 = _mm256_loadu_ps(bs + j + 8),
+           a2 = _mm256_loadu_ps(bs + j + 16);
+    for (uint32_t m = 0; m < k; m++) {
+      const float *wp = wpat + 32 * (size_t)m;
+      a0 = _mm256_add_ps(a0, _mm256_mul_ps(_mm256_load_ps(wp), avx_load8(src[m], j, half)));
+      a1 = _mm256_add_ps(a1, _mm256_mul_ps(_mm256_load_ps(wp + 8), avx_load8(src[m], j + 8, half)));
+      a2 = _mm256_add_ps(a2, _mm256_mul_ps(_mm256_load_ps(wp + 16), avx_load8(src[m], j + 16, half)));
+    }
+    _mm256_storeu_ps(o + j, a0);
+    _mm256_storeu_ps(o + j + 8, a1);
+    _mm256_storeu_ps(o + j + 16, a2);
+  }
+  for (; j + 8 <= nf; j += 8) {
+    const size_t ph = j % 24;
+    __m256 a = _mm256_loadu_ps(bs + j);
+    for (uint32_t m = 0; m < k; m++)
+      a = _mm256_add_ps(a, _mm256_mul_ps(_mm256_loadu_ps(wpat + 32 * (size_t)m + ph),
+                                         avx_load8(src[m], j, half)));
+    _mm256_storeu_ps(o + j, a);
+  }
+  for (; j + 4 <= nf; j += 4) {
+    const size_t ph = j % 24;
+    __m128 a = _mm_loadu_ps(bs + j);
+    for (uint32_t m = 0; m < k; m++)
+      a = _mm_add_ps(a, _mm_mul_ps(_mm_loadu_ps(wpat + 32 * (size_t)m + ph),
+                                   avx_load4(src[m], j, half)));
+    _mm_storeu_ps(o + j, a);
+  }
+  for (; j < nf; j++) {
+    float acc = bs[j];
+    for (uint32_t m = 0; m < k; m++) {
+      float v = half ? ub_half_to_float(((const uint16_t *)(const void *)src[m])[j])
+                     : ((const float *)(const void *)src[m])[j];
+      float t = wpat[32 * (size_t)m + j % 24] * v;
+      acc = acc + t;
+    }
+    o[j] = acc;
+  }
+}
+
+BLEND_AVX static void avx_flat_h(float *restrict o, const float *restrict bs,
+                                 const char *const *src, const float *wpat, uint32_t k,
+                                 size_t nf)
+{
+  avx_flat(o, bs, src, wpat, k, nf, 1);
+  _mm256_zeroupper();
+}
+
+BLEND_AVX static void avx_flat_f(float *restrict o, const float *restrict bs,
+                                 const char *const *src, const float *wpat, uint32_t k,
+                                 size_t nf)
+{
+  avx_flat(o, bs, src, wpat, k, nf, 0);
+  _mm256_zeroupper();
+}
+
+static void group_blend_avx(const blend_call *c, const blend_group *g, const uint32_t *act,
+                            uint32_t k)
+{
+  const ub_blend *b = c->b;
+  const uint32_t S = b->stride, gk = g->k_mode & ~GROUP_LIST;
+  const uint32_t *mem = b->members + g->member_off;
+  const uint32_t *d = b->data + g->data_off;
+  const uint32_t *idx0 = b->rec[mem[0]].receivers;
+  const size_t rstep = (size_t)S * b->value_size;
+  void (*flat)(float *restrict, const float *restrict, const char *const *, const float *,
+               uint32_t, size_t) = b->value_size == 2 ? avx_flat_h : avx_flat_f;
+  const char **src = b->avx_src;
+  float *wpat = b->wpat;
+  for (uint32_t m = 0; m < k; m++) {
+    const float *wt = b->weight + 3 * (size_t)mem[act[m]];
+    for (int j = 0; j < 24; j++)
+      wpat[32 * (size_t)m + j] = wt[j % 3];
+  }
+  float *out = c->out;
+  if (g->k_mode & GROUP_LIST) {
+    for (uint32_t u = 0; u < g->units; u++, d += gk) {
+      uint32_t r = idx0[d[0]];
+      for (uint32_t m = 0; m < k; m++)
+        src[m] = (const char *)b->rec[mem[act[m]]].values + (size_t)d[act[m]] * rstep;
+      float *o = out ? out + (size_t)r * S : c->scratch;
+      flat(o, b->base + (size_t)r * S, src, wpat, k, S);
+      if (c->fn)
+        c->fn(c->user, r, 1, o);
+    }
+    return;
+  }
+  /* With a callback, pieces of BLEND_CHUNK receivers, so it reads them from cache. */
+  const uint32_t chunk = c->fn ? BLEND_CHUNK : UINT32_MAX;
+  for (uint32_t u = 0; u < g->units; u++, d += 1 + gk) {
+    uint32_t len = d[0], r = idx0[d[1]];
+    for (uint32_t m = 0; m < k; m++)
+      src[m] = (const char *)b->rec[mem[act[m]]].values + (size_t)d[1 + act[m]] * rstep;
+    for (uint32_t i = 0; i < len;) {
+      uint32_t n = len - i < chunk ? len - i : chunk;
+      float *o = out ? out + (size_t)(r + i) * S : c->scratch;
+      flat(o, b->base + (size_t)(r + i) * S, src, wpat, k, (size_t)n * S);
+      if (c->fn)
+        c->fn(c->user, r + i, n, o);
+      for (uint32_t m = 0; m < k; m++)
+        src[m] += (size_t)n * rstep;
+      i += n;
+    }
+  }
+}
+#endif
+
 /* One group with k non-zero members act[0..k) (slots into the group's members). S and
  * (for k ≤ BLEND_SPECIALISED) k are compile-time constants at the fixed call sites. */
 BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const uint32_t *act,
@@ -405,6 +548,10 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
       act[k++] = m;
   if (k == 0)
     group_copy_base(c, g);
+#if BLEND_F16C
+  else if (b->avx)
+    group_blend_avx(c, g, act, k);
+#endif
   else
     group_blend(c, g, act, k);
 
@@ -591,6 +738,8 @@ void ub_blend_free(ub_blend *b)
   free(b->scratch);
   free(b->dec);
   free(b->scr_act);
+  free(b->wpat);
+  free((void *)b->avx_src);
   free((void *)b->scr_src);
   free((void *)b->scr_rows);
   free((void *)b->scr_w);
@@ -920,6 +1069,16 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
     if (!b->dec)
       return UB_ERR_OUT_OF_MEMORY;
   }
+#if BLEND_F16C
+  if (b->avx) {
+    size_t na = maxk ? maxk : 1;
+    b->wpat = aligned_alloc(32, na * 32 * sizeof(float));
+    b->avx_src = alloc_n(na, sizeof(char *), acc);
+    if (!b->wpat || !b->avx_src)
+      return UB_ERR_OUT_OF_MEMORY;
+    *acc += na * 32 * sizeof(float);
+  }
+#endif
   b->scr_act = alloc_n(sk, sizeof(uint32_t), acc);
   b->scr_src = alloc_n(sk, sizeof(char *), acc);
   b->scr_rows = alloc_n(sk, sizeof(float *), acc);
@@ -952,6 +1111,9 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
   b->value_size = desc->storage == UB_BLEND_FLOAT16 ? 2 : 4;
   b->kernel = S == 12 ? KERNEL_12 : S == 27 ? KERNEL_27 : KERNEL_ANY;
   b->decode = b->value_size == 2 ? pick_decoder((desc->flags & UB_BLEND_PORTABLE) != 0) : NULL;
+#if BLEND_F16C
+  b->avx = !(desc->flags & UB_BLEND_PORTABLE) && cpu_has_f16c();
+#endif
   b->base = desc->base;
   b->memberships = memberships;
   b->record_bytes = memberships * (sizeof(uint32_t) + (uint64_t)S * b->value_size);
