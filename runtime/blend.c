@@ -57,6 +57,7 @@ typedef struct blend_group {
   uint32_t receivers;
   uint32_t units;      /* runs or receivers */
   uint32_t k_mode;     /* k | GROUP_LIST */
+  uint32_t base_row;   /* UB_BLEND_OWN_BASE: the group's first row in obase */
 } blend_group;
 
 enum { KERNEL_12, KERNEL_27, KERNEL_ANY };
@@ -69,7 +70,8 @@ struct ub_blend {
   blend_decode_fn decode; /* half → float, NULL for float records */
   uint32_t touched, max_overlap, run_groups;
   uint64_t runs, memberships, data_words;
-  const float *base;
+  const float *base;     /* the caller's base, NULL with UB_BLEND_OWN_BASE */
+  float *obase;          /* UB_BLEND_OWN_BASE: touched receivers' base rows, group order */
   ub_blend_record *rec; /* copies of desc->elements */
   float *weight;        /* element_count × 3 */
   float *wexp;          /* element_count × wstride: weight[c] at every j ≡ c (mod 3) */
@@ -262,6 +264,24 @@ typedef struct blend_call {
   void *user;
 } blend_call;
 
+/* Base rows of a group's next unit (len receivers from r): the engine's own copy (stored
+ * in group order, so consecutive units are consecutive rows) or the caller's array. */
+BLEND_INLINE const float *unit_base(const ub_blend *b, const float **gb, uint32_t r,
+                                    uint32_t len)
+{
+  if (b->obase) {
+    const float *p = *gb;
+    *gb += (size_t)len * b->stride;
+    return p;
+  }
+  return b->base + (size_t)r * b->stride;
+}
+
+BLEND_INLINE const float *group_base(const ub_blend *b, const blend_group *g)
+{
+  return b->obase ? b->obase + (size_t)g->base_row * b->stride : NULL;
+}
+
 #if BLEND_F16C
 /* The AVX + F16C path. A run of n consecutive receivers is n·S consecutive floats in base
  * and out and n·S consecutive values in every member's record, and since S is a multiple
@@ -369,13 +389,14 @@ static void group_blend_avx(const blend_call *c, const blend_group *g, const uin
       wpat[32 * (size_t)m + j] = wt[j % 3];
   }
   float *out = c->out;
+  const float *gb = group_base(b, g);
   if (g->k_mode & GROUP_LIST) {
     for (uint32_t u = 0; u < g->units; u++, d += gk) {
       uint32_t r = idx0[d[0]];
       for (uint32_t m = 0; m < k; m++)
         src[m] = (const char *)b->rec[mem[act[m]]].values + (size_t)d[act[m]] * rstep;
       float *o = out ? out + (size_t)r * S : c->scratch;
-      flat(o, b->base + (size_t)r * S, src, wpat, k, S);
+      flat(o, unit_base(b, &gb, r, 1), src, wpat, k, S);
       if (c->fn)
         c->fn(c->user, r, 1, o);
     }
@@ -385,12 +406,13 @@ static void group_blend_avx(const blend_call *c, const blend_group *g, const uin
   const uint32_t chunk = c->fn ? BLEND_CHUNK : UINT32_MAX;
   for (uint32_t u = 0; u < g->units; u++, d += 1 + gk) {
     uint32_t len = d[0], r = idx0[d[1]];
+    const float *bs = unit_base(b, &gb, r, len);
     for (uint32_t m = 0; m < k; m++)
       src[m] = (const char *)b->rec[mem[act[m]]].values + (size_t)d[1 + act[m]] * rstep;
     for (uint32_t i = 0; i < len;) {
       uint32_t n = len - i < chunk ? len - i : chunk;
       float *o = out ? out + (size_t)(r + i) * S : c->scratch;
-      flat(o, b->base + (size_t)(r + i) * S, src, wpat, k, (size_t)n * S);
+      flat(o, bs + (size_t)i * S, src, wpat, k, (size_t)n * S);
       if (c->fn)
         c->fn(c->user, r + i, n, o);
       for (uint32_t m = 0; m < k; m++)
@@ -418,7 +440,7 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
   const uint32_t *idx0 = b->rec[mem[0]].receivers;
   const size_t rstep = (size_t)S * b->value_size; /* record row, bytes */
   const blend_decode_fn decode = b->decode;
-  const float *base = b->base;
+  const float *gb = group_base(b, g);
   float *out = c->out;
 
   /* Receivers per chunk: bounded by the decode scratch (half) and the streaming scratch. */
@@ -443,10 +465,11 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
         }
       }
       float *o = out ? out + (size_t)r * S : c->scratch;
+      const float *bs = unit_base(b, &gb, r, 1);
       if (fixed)
-        blend_row_fixed(o, base + (size_t)r * S, rows, w, k, S);
+        blend_row_fixed(o, bs, rows, w, k, S);
       else
-        blend_row_any(o, base + (size_t)r * S, rows, w, k, S);
+        blend_row_any(o, bs, rows, w, k, S);
       if (c->fn)
         c->fn(c->user, r, 1, o);
     }
@@ -454,7 +477,7 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
   }
   for (uint32_t u = 0; u < g->units; u++, d += 1 + gk) {
     uint32_t len = d[0], r = idx0[d[1]];
-    const float *bs = base + (size_t)r * S;
+    const float *bs = unit_base(b, &gb, r, len);
     for (uint32_t m = 0; m < k; m++)
       src[m] = (const char *)b->rec[mem[act[m]]].values + (size_t)d[1 + act[m]] * rstep;
     for (uint32_t i = 0; i < len;) {
@@ -522,10 +545,11 @@ static void group_copy_base(const blend_call *c, const blend_group *g)
   const uint32_t *d = b->data + g->data_off;
   const uint32_t *idx0 = b->rec[b->members[g->member_off]].receivers;
   const int list = (g->k_mode & GROUP_LIST) != 0;
+  const float *gb = group_base(b, g);
   for (uint32_t u = 0; u < g->units; u++) {
     uint32_t len = list ? 1 : d[0];
     uint32_t r = idx0[list ? d[0] : d[1]];
-    const float *bs = b->base + (size_t)r * S;
+    const float *bs = unit_base(b, &gb, r, len);
     if (c->out)
       memcpy(c->out + (size_t)r * S, bs, (size_t)len * S * sizeof(float));
     if (c->fn) /* streaming: the base rows are the result, no copy */
@@ -729,6 +753,7 @@ void ub_blend_free(ub_blend *b)
   free(b->dirty);
   free(b->dirty_list);
   free(b->groups);
+  free(b->obase);
   free(b->members);
   free(b->data);
   free(b->elem_off);
@@ -1008,6 +1033,7 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
     bg->receivers = n;
     bg->units = list ? n : runs;
     bg->k_mode = k | (list ? GROUP_LIST : 0);
+    bg->base_row = 0;
     words += list ? (uint64_t)n * k : (uint64_t)runs * (k + 1);
     if (!list) {
       b->run_groups++;
@@ -1037,6 +1063,21 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
     }
     assert(w == b->data + bg->data_off + (bg->k_mode & GROUP_LIST ? (uint64_t)n * k
                                                                    : (uint64_t)bg->units * (k + 1)));
+  }
+
+  /* 4b. UB_BLEND_OWN_BASE: the touched receivers' base rows, in group order. */
+  if (d->flags & UB_BLEND_OWN_BASE) {
+    b->obase = alloc_n((size_t)T * b->stride, sizeof(float), acc);
+    if (!b->obase)
+      return UB_ERR_OUT_OF_MEMORY;
+    uint32_t row = 0;
+    for (uint32_t g = 0; g < G; g++) {
+      b->groups[g].base_row = row;
+      const uint32_t *rs = t->order + t->g_start[g];
+      for (uint32_t i = 0; i < t->g_n[g]; i++, row++)
+        memcpy(b->obase + (size_t)row * b->stride, d->base + (size_t)rs[i] * b->stride,
+               (size_t)b->stride * sizeof(float));
+    }
   }
 
   /* 5. Element → groups holding it (ascending group id). */
@@ -1143,6 +1184,8 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
 
   if (out_values && desc->receiver_count)
     memcpy(out_values, desc->base, (size_t)desc->receiver_count * S * sizeof(float));
+  if (desc->flags & UB_BLEND_OWN_BASE)
+    b->base = NULL; /* never read again: the caller may free it */
   *out_blend = b;
   return UB_OK;
 
