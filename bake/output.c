@@ -159,9 +159,15 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
   fprintf(f, "  \"glg\": {\"probes\": %u, \"tets\": %u, \"leak_plane_tets\": %u, \"spacing\": %.4g},\n",
           st->glg_probes, st->glg_tets, st->glg_leak_tets, scene->glg_spacing);
   fprintf(f, "  \"llg\": {\"models\": %u, \"probes\": %u, \"invalid_probes\": %u, "
-             "\"visibility_rays\": %llu},\n",
+             "\"visibility_rays\": %llu, \"auto\": %u, \"auto_nodes\": [",
           llg ? llg->model_count : 0, llg ? llg->probe_count : 0, llg ? llg->invalid_count : 0,
-          llg ? (unsigned long long)llg->rays : 0ULL);
+          llg ? (unsigned long long)llg->rays : 0ULL, st->llg_auto_nodes);
+  for (uint32_t n = 0, k = 0; n < scene->node_count; n++)
+    if (scene->nodes[n].receiver_source == UB_RECEIVER_AUTO) {
+      fprintf(f, "%s", k++ ? ", " : "");
+      json_str(f, scene->nodes[n].name);
+    }
+  fprintf(f, "]},\n");
   fprintf(f, "  \"bounces\": %u,\n  \"bounce_energy\": [", st->bounces);
   for (uint32_t b = 0; b <= st->bounces && b <= UB_BAKE_MAX_BOUNCES; b++)
     fprintf(f, "%s%.6g", b ? ", " : "", st->bounce_energy[b]);

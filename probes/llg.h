@@ -1,7 +1,8 @@
 /* probes/llg.h — local light grids, baker side (UberBake §2.2; evaluation: ubake/llg.h).
  *
- * Which models: mesh nodes tagged `ubake_receiver: "llg"` (ub_node.receiver ==
- * UB_RECEIVER_LLG); nothing is made an LLG by default. Per model:
+ * Which models: mesh nodes with ub_node.receiver == UB_RECEIVER_LLG: tagged
+ * `ubake_receiver: "llg"`, or untagged small props whose lightmap charts would be poor,
+ * switched by ub_llg_auto_select() (criterion in probes/llg_auto.c). Per model:
  *   - box: the principal axes of its vertices (PCA) or the world axes, whichever box is
  *     smaller (also the world axes when PCA is degenerate), padded by 10% + 5 cm per side;
  *   - grid: probes on the box corners and evenly in between, about one per
@@ -74,6 +75,26 @@ typedef struct ub_llg_set {
 ub_result ub_llg_build(const ub_scene *scene, uint32_t vis_rays, uint32_t seed,
                        const ub_log *log, ub_llg_set *out);
 void ub_llg_free(ub_llg_set *set);
+
+/* LLG by default for small props (probes/llg_auto.c has the reasoning). */
+#define UB_LLG_AUTO_TEXELS_PER_CHART 8.0 /* covered texels per chart below this: poor */
+#define UB_LLG_AUTO_TINY_CHART 4u        /* a chart covering ≤ this many texels is tiny */
+#define UB_LLG_AUTO_TINY_SHARE 0.5       /* more than this share of tiny charts: poor */
+#define UB_LLG_AUTO_MAX_SIZE ((float)(UB_LLG_MAX_DIM - 1u) * UB_LLG_SPACING) /* metres */
+
+typedef struct ub_llg_auto_stats {
+  uint32_t considered;   /* untagged nodes with generated charts, small enough */
+  uint32_t switched;     /* of those, made LLG receivers (receiver_source UB_RECEIVER_AUTO) */
+  uint64_t texels_freed; /* their covered texels in the layout that was measured */
+  uint32_t charts_freed;
+} ub_llg_auto_stats;
+
+struct ub_lightmap;
+/* Makes untagged small props with poor lightmap charts LLG receivers, measured on lm (the
+ * layout built with every untagged node lightmapped). The caller rebuilds the lightmap
+ * when out->switched > 0. */
+ub_result ub_llg_auto_select(ub_scene *scene, const struct ub_lightmap *lm,
+                             ub_llg_auto_stats *out);
 
 #define UB_LLG_SELF_ITERATIONS 3
 
