@@ -234,9 +234,10 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
     uint32_t nv = 0;
     for (uint32_t i = 0; i < llg.model_count; i++)
       nv += llg.models[i].vertex_count;
-    stage_end(&sc, "%u model(s), %u probes (%u moved out of other geometry, %u filled), %u "
-              "vertices, %.2f M rays", llg.model_count, llg.probe_count, llg.moved_count,
-              llg.invalid_count, nv, llg.rays * 1e-6);
+    stage_end(&sc, "%u model(s) (%u share an instance's self-visibility), %u probes (%u moved "
+              "out of other geometry, %u filled), %u vertices, %.2f M rays", llg.model_count,
+              llg.vis_shared, llg.probe_count, llg.moved_count, llg.invalid_count, nv,
+              llg.rays * 1e-6);
   }
 
   /* plan */

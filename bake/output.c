@@ -284,6 +284,8 @@ static ub_result fill_llgs(const ub_scene *scene, const ub_llg_set *llg, const f
     o->probe_sh = (float *)(llg_sh + 27 * (size_t)m->probe_first);
     o->vertex_count = m->vertex_count;
     o->vis = m->vis;
+    o->vis_shared_from = m->vis_source != i ? m->vis_source + 1u : 0u;
+    memcpy(o->vis_rotation, m->vis_rot, sizeof o->vis_rotation);
     o->self = m->self;
     o->triangle_count = m->triangle_count;
     o->indices = m->local_indices;

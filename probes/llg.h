@@ -17,7 +17,13 @@
  *     the mean of its valid grid neighbours after each bounce (ub_llg_fill_invalid);
  *   - self-visibility per vertex: rays over the normal's hemisphere against the model's
  *     own triangles only (its own Embree scene), projected to SH L2 as V = 1 − O (O the
- *     occluded directions), so an unoccluded vertex has V ≡ 1 exactly;
+ *     occluded directions), so an unoccluded vertex has V ≡ 1 exactly. Instances of one
+ *     glTF mesh share it (UberBake §2.2): a model whose node uses the same mesh as an
+ *     earlier model, with the same local vertices and triangles, and whose transform
+ *     differs from it by a similarity (rotation or reflection, uniform scale,
+ *     translation; checked on every vertex and normal), takes the earlier model's V
+ *     rotated by R (ub_llg_sh_rotation) instead of tracing rays, and the .ubk stores V
+ *     once (docs/FORMAT.md, LLGM);
  *   - self-inter-reflection per vertex (ub_llg_self_bounce, after the pass): the
  *     irradiance along the vertex normal that the model's own surfaces reflect onto it —
  *     exactly the directions V removes. Cosine rays against the model's own triangles; at
@@ -51,6 +57,9 @@ typedef struct ub_llg_model {
   uint32_t vertex_count;
   uint32_t *vertices;      /* sorted scene vertex indices */
   float *vis;              /* vertex_count × 9: self-visibility SH L2 */
+  uint32_t vis_source;     /* model whose visibility this one carries along (itself when
+                              traced here; an earlier instance of the same mesh otherwise) */
+  float vis_rot[9];        /* row-major orthogonal R: vis(ω) = vis_source's (Rᵀω) */
   float *self;             /* vertex_count × 3: self-inter-reflection irradiance, W/m² */
   ub_rt *rt_self;          /* the model's own triangles */
   uint32_t triangle_count; /* the node's triangles, degenerate ones included */
@@ -66,6 +75,7 @@ typedef struct ub_llg_set {
   uint8_t *probe_valid;    /* probe_count */
   uint32_t invalid_count;   /* inside geometry, no free spot toward the centre: filled */
   uint32_t moved_count;     /* inside geometry, moved toward the centre to a free spot */
+  uint32_t vis_shared;      /* models whose visibility is an earlier instance's, rotated */
   ub_rt *rt_env;           /* the level without LLG models (NULL when model_count == 0) */
   uint64_t rays;           /* visibility + validity rays traced */
 } ub_llg_set;
