@@ -159,9 +159,15 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
   fprintf(f, "  \"glg\": {\"probes\": %u, \"tets\": %u, \"leak_plane_tets\": %u, \"spacing\": %.4g},\n",
           st->glg_probes, st->glg_tets, st->glg_leak_tets, scene->glg_spacing);
   fprintf(f, "  \"llg\": {\"models\": %u, \"probes\": %u, \"invalid_probes\": %u, "
-             "\"visibility_rays\": %llu},\n",
+             "\"visibility_rays\": %llu, \"auto\": %u, \"auto_nodes\": [",
           llg ? llg->model_count : 0, llg ? llg->probe_count : 0, llg ? llg->invalid_count : 0,
-          llg ? (unsigned long long)llg->rays : 0ULL);
+          llg ? (unsigned long long)llg->rays : 0ULL, st->llg_auto_nodes);
+  for (uint32_t n = 0, k = 0; n < scene->node_count; n++)
+    if (scene->nodes[n].receiver_source == UB_RECEIVER_AUTO) {
+      fprintf(f, "%s", k++ ? ", " : "");
+      json_str(f, scene->nodes[n].name);
+    }
+  fprintf(f, "]},\n");
   fprintf(f, "  \"bounces\": %u,\n  \"bounce_energy\": [", st->bounces);
   for (uint32_t b = 0; b <= st->bounces && b <= UB_BAKE_MAX_BOUNCES; b++)
     fprintf(f, "%s%.6g", b ? ", " : "", st->bounce_energy[b]);
@@ -278,6 +284,8 @@ static ub_result fill_llgs(const ub_scene *scene, const ub_llg_set *llg, const f
     o->probe_sh = (float *)(llg_sh + 27 * (size_t)m->probe_first);
     o->vertex_count = m->vertex_count;
     o->vis = m->vis;
+    o->vis_shared_from = m->vis_source != i ? m->vis_source + 1u : 0u;
+    memcpy(o->vis_rotation, m->vis_rot, sizeof o->vis_rotation);
     o->self = m->self;
     o->triangle_count = m->triangle_count;
     o->indices = m->local_indices;

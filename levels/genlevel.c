@@ -409,6 +409,9 @@ static const ParamDef common_params[] = {
     { "uv1_pad", 1, { 4 }, "texels of padding between uv1 rectangles and around the atlas border" },
     { "texel_size", 1, { 0 }, ">0: write scene extras ubake_texel_size (m per texel)" },
     { "glg_spacing", 1, { 0 }, ">0: write scene extras ubake_glg_spacing (m)" },
+    { "llg_prop", 1, { 0 }, "1: add a box node llg_prop tagged ubake_receiver llg (albedo 0.6)" },
+    { "llg_prop_at", 3, { 0, 0, 0 }, "llg_prop: centre of its bottom face, m" },
+    { "llg_prop_size", 3, { 0.4, 0.4, 0.4 }, "llg_prop: box size x, y, z, m" },
 };
 #define NCOMMON ((int)(sizeof common_params / sizeof common_params[0]))
 
@@ -806,6 +809,14 @@ static void build_room(void)
     Node *l = light_node("light", LIGHT_POINT, I, 1, 1, 1, vadd(o, v3(lp[0], lp[1], lp[2])));
     node_extra(l, "ubake_light", "static");
     if (marker) box_node("marker", mat, v3(-0.5, 0, -0.5), v3(0.5, 1, 0.5));
+    if (PI_("props")) {
+        /* LLG-by-default check: a 15 cm stool (poor charts: becomes an LLG), a 0.8 m crate
+         * (good charts: stays lightmapped), the same stool tagged lightmap (the tag wins). */
+        box_node("prop_stool", mat, vadd(o, v3(0.9, 0, 0.9)), vadd(o, v3(1.05, 0.15, 1.05)));
+        box_node("prop_crate", mat, vadd(o, v3(2.6, 0, 0.6)), vadd(o, v3(3.4, 0.8, 1.4)));
+        box_node("prop_tagged", mat, vadd(o, v3(0.9, 0, 2.9)), vadd(o, v3(1.05, 0.15, 3.05)));
+        node_extra(&S.nodes[S.nnode - 1], "ubake_receiver", "lightmap");
+    }
 }
 
 /* sunpatch: closed room (slabs) with a small window in the ceiling; a very
@@ -1165,7 +1176,8 @@ static const LevelDef g_levels[] = {
         { "albedo", 1, { 0.5 }, "albedo of every face" },
         { "intensity", 1, { 10 }, "point light intensity, W/sr" },
         { "light_pos", 3, { 2, 2, 2 }, "light position relative to the room corner, m" },
-        { "n", 1, { 1 }, "each face split into n x n quads" } } },
+        { "n", 1, { 1 }, "each face split into n x n quads" },
+        { "props", 1, { 0 }, "1: add untagged boxes prop_stool (0.15 m) and prop_crate (0.8 m), and prop_tagged (0.15 m, ubake_receiver lightmap)" } } },
     { "sunpatch", "Closed 4x3x4 m room, dim lamp, very bright sun through a small ceiling window (fireflies).",
       build_sunpatch,
       { { "sun", 1, { 1e5 }, "sun irradiance at normal incidence, W/m^2" },
@@ -1561,6 +1573,14 @@ static void generate(const LevelDef *L, const char *dir, const char *base, const
     g_level = L;
     scene_reset();
     L->build();
+    if (PI_("llg_prop")) {
+        const double *at = pv("llg_prop_at"), *sz = pv("llg_prop_size");
+        require(sz[0] > 0 && sz[1] > 0 && sz[2] > 0, "llg_prop_size > 0");
+        int mat = material("llg_prop", 0.6, 0.6, 0.6, 0);
+        box_node("llg_prop", mat, v3(at[0] - 0.5 * sz[0], at[1], at[2] - 0.5 * sz[2]),
+                 v3(at[0] + 0.5 * sz[0], at[1] + sz[1], at[2] + 0.5 * sz[2]));
+        node_extra(&S.nodes[S.nnode - 1], "ubake_receiver", "llg");
+    }
     if (PI_("uv1")) assign_uv1();
     write_gltf(dir, base, paramstr);
     scene_reset();

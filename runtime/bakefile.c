@@ -8,6 +8,7 @@
  * writer's input, so a file the writer accepts is a file the reader accepts and back.
  */
 #include "ubake/bakefile.h"
+#include "ubake/llg.h"
 
 #include <assert.h>
 #include <errno.h>
@@ -47,6 +48,8 @@ enum { UB_SEC_META = 0, UB_SEC_GEOM, UB_SEC_ATLS, UB_SEC_MANDATORY, UB_SEC_GLGP 
 static const char ub_sec_tags[UB_SEC_KNOWN][5] = {"META", "GEOM", "ATLS", "GLGP", "DLSR", "LITE",
                                                   "LLGM", "ELEM", "TRIR"};
 #define UB_LLGM_MODEL_HEADER 144 /* name[64], centre, axes, half, dims, V, T */
+#define UB_LLGM_MODEL_HEADER_SHARED 184 /* + shared-from, rotation[9] (flags bit 0) */
+#define UB_LLGM_FLAG_SHARED 1u
 #define UB_LLGM_MAX_DIM 64u
 #define UB_LLGM_MAX_SELF 65504.0f /* the half range */
 #define UB_LITE_SIZE 60 /* bytes per light */
@@ -377,6 +380,26 @@ static ub_result validate_llg(const ub_bakefile *bf, const char *name, const ub_
                   i, m->name, k / 3, m->indices[k], m->vertex_count);
         return UB_ERR_INVALID_DATA;
       }
+    if (m->vis_shared_from) {
+      uint32_t src = m->vis_shared_from - 1;
+      int rot_ok = src < i && bf->llgs[src].vis_shared_from == 0 &&
+                   bf->llgs[src].vertex_count == m->vertex_count &&
+                   all_finite(m->vis_rotation, 9, &bad);
+      for (int a = 0; rot_ok && a < 3; a++)
+        for (int b = 0; b <= a; b++) {
+          double d = 0.0;
+          for (int k = 0; k < 3; k++)
+            d += (double)m->vis_rotation[3 * a + k] * m->vis_rotation[3 * b + k];
+          if (fabs(d - (a == b ? 1.0 : 0.0)) > 1e-3)
+            rot_ok = 0;
+        }
+      if (!rot_ok) {
+        ubk_error(log, name, where, "model %u (%s): shares the self-visibility of model %u, "
+                  "which is not an earlier model with its own and %u vertices, or the "
+                  "rotation is not orthonormal", i, m->name, src, m->vertex_count);
+        return UB_ERR_INVALID_DATA;
+      }
+    }
   }
   return UB_OK;
 }
@@ -806,15 +829,22 @@ static void wr_lite(ubk_writer *w, const ub_bakefile *bf)
   wr_zeros(w, (size_t)(align8(block) - block), 1);
 }
 
-static uint64_t llgm_block_size(uint64_t np, uint64_t nv, uint64_t nt)
+/* own_vis: the model stores its self-visibility (not shared from an earlier instance). */
+static uint64_t llgm_block_size(uint64_t np, uint64_t nv, uint64_t nt, int own_vis)
 {
-  return 48u * nv + 12u * nt + 2u * UB_GLG_SH_FLOATS * np;
+  return (own_vis ? 48u : 30u) * nv + 12u * nt + 2u * UB_GLG_SH_FLOATS * np;
 }
 
 static void wr_llgm(ubk_writer *w, const ub_bakefile *bf)
 {
+  /* The shared layout only when some model shares: files without instances keep the
+   * original layout byte for byte. */
+  uint32_t flags = 0;
+  for (uint32_t i = 0; i < bf->llg_count; i++)
+    if (bf->llgs[i].vis_shared_from)
+      flags = UB_LLGM_FLAG_SHARED;
   wr_u32(w, bf->llg_count);
-  wr_u32(w, 0); /* reserved */
+  wr_u32(w, flags);
   for (uint32_t i = 0; i < bf->llg_count; i++) {
     const ub_bakefile_llg *m = &bf->llgs[i];
     uint8_t name[64];
@@ -831,6 +861,11 @@ static void wr_llgm(ubk_writer *w, const ub_bakefile *bf)
       wr_u32(w, m->dims[k]);
     wr_u32(w, m->vertex_count);
     wr_u32(w, m->triangle_count);
+    if (flags & UB_LLGM_FLAG_SHARED) {
+      wr_u32(w, m->vis_shared_from);
+      for (int k = 0; k < 9; k++)
+        wr_f32(w, m->vis_shared_from ? m->vis_rotation[k] : (k % 4 == 0 ? 1.0f : 0.0f));
+    }
   }
   for (uint32_t i = 0; i < bf->llg_count; i++) {
     const ub_bakefile_llg *m = &bf->llgs[i];
@@ -843,11 +878,11 @@ static void wr_llgm(ubk_writer *w, const ub_bakefile *bf)
       wr_u32(w, m->indices[k]);
     for (size_t k = 0; k < np * UB_GLG_SH_FLOATS; k++)
       wr_half(w, m->probe_sh[k]);
-    for (size_t k = 0; k < nv * 9; k++)
+    for (size_t k = 0; !m->vis_shared_from && k < nv * 9; k++)
       wr_half(w, m->vis[k]);
     for (size_t k = 0; k < nv * 3; k++)
       wr_half(w, m->self[k]);
-    uint64_t block = llgm_block_size(np, nv, m->triangle_count);
+    uint64_t block = llgm_block_size(np, nv, m->triangle_count, !m->vis_shared_from);
     wr_zeros(w, (size_t)(align8(block) - block), 1);
   }
 }
@@ -1471,21 +1506,38 @@ static ub_result parse_llgm(const ubk_reader *rd, const uint8_t *p, uint64_t siz
 {
   static const char *where = "section LLGM";
   ubk_cursor c = {p, (size_t)size};
-  uint32_t nm, reserved;
-  if (!cur_u32(&c, &nm) || !cur_u32(&c, &reserved)) {
+  uint32_t nm, flags;
+  if (!cur_u32(&c, &nm) || !cur_u32(&c, &flags)) {
     ubk_error(rd->log, rd->name, where, "size %llu too small for the count",
               (unsigned long long)size);
     return UB_ERR_INVALID_DATA;
   }
-  if ((uint64_t)nm * UB_LLGM_MODEL_HEADER > size - 8) {
+  if (flags & ~UB_LLGM_FLAG_SHARED) {
+    ubk_error(rd->log, rd->name, where, "unknown flags 0x%x", flags);
+    return UB_ERR_INVALID_DATA;
+  }
+  uint64_t hs = (flags & UB_LLGM_FLAG_SHARED) ? UB_LLGM_MODEL_HEADER_SHARED
+                                              : UB_LLGM_MODEL_HEADER;
+  if ((uint64_t)nm * hs > size - 8) {
     ubk_error(rd->log, rd->name, where, "%u models do not fit in %llu bytes", nm,
               (unsigned long long)size);
     return UB_ERR_INVALID_DATA;
   }
-  /* Walk the model headers: dims range and the exact size before allocating anything. */
-  uint64_t expect = 8u + (uint64_t)nm * UB_LLGM_MODEL_HEADER;
+  /* Walk the model headers: dims range, sharing and the exact size before allocating
+   * anything. */
+  uint64_t expect = 8u + (uint64_t)nm * hs;
   for (uint32_t i = 0; i < nm && expect <= size; i++) {
-    const uint8_t *h = p + 8 + (size_t)i * UB_LLGM_MODEL_HEADER;
+    const uint8_t *h = p + 8 + (size_t)i * hs;
+    uint32_t from = hs == UB_LLGM_MODEL_HEADER ? 0 : le_get32(h + 144);
+    if (from) {
+      const uint8_t *hsrc = from - 1 < i ? p + 8 + (size_t)(from - 1) * hs : NULL;
+      if (!hsrc || le_get32(hsrc + 144) != 0 || le_get32(hsrc + 136) != le_get32(h + 136)) {
+        ubk_error(rd->log, rd->name, where, "model %u: shares the self-visibility of model "
+                  "%u, which is not an earlier model with its own and the same vertex count",
+                  i, from - 1);
+        return UB_ERR_INVALID_DATA;
+      }
+    }
     uint64_t np = 1;
     for (int a = 0; a < 3; a++) {
       uint32_t d = le_get32(h + 124 + 4 * a);
@@ -1496,7 +1548,7 @@ static ub_result parse_llgm(const ubk_reader *rd, const uint8_t *p, uint64_t siz
       }
       np *= d;
     }
-    expect += align8(llgm_block_size(np, le_get32(h + 136), le_get32(h + 140)));
+    expect += align8(llgm_block_size(np, le_get32(h + 136), le_get32(h + 140), from == 0));
   }
   if (expect != size) {
     ubk_error(rd->log, rd->name, where, "size %llu does not match its %u models' counts",
@@ -1518,6 +1570,8 @@ static ub_result parse_llgm(const ubk_reader *rd, const uint8_t *p, uint64_t siz
     ok = cur_f32s(&c, m->center, 3) && cur_f32s(&c, m->axes, 9) &&
          cur_f32s(&c, m->half, 3) && cur_u32s(&c, m->dims, 3) &&
          cur_u32(&c, &m->vertex_count) && cur_u32(&c, &m->triangle_count);
+    if (hs == UB_LLGM_MODEL_HEADER_SHARED)
+      ok = ok && cur_u32(&c, &m->vis_shared_from) && cur_f32s(&c, m->vis_rotation, 9);
     assert(ok);
     (void)ok;
   }
@@ -1535,16 +1589,25 @@ static ub_result parse_llgm(const ubk_reader *rd, const uint8_t *p, uint64_t siz
       ubk_error(rd->log, rd->name, where, "out of memory");
       return UB_ERR_OUT_OF_MEMORY;
     }
-    uint64_t block = llgm_block_size(np, nv, m->triangle_count);
+    int own = m->vis_shared_from == 0;
+    uint64_t block = llgm_block_size(np, nv, m->triangle_count, own);
     const uint8_t *pad;
     int ok = cur_f32s(&c, m->positions, (size_t)nv * 3) &&
              cur_f32s(&c, m->normals, (size_t)nv * 3) &&
              cur_u32s(&c, m->indices, (size_t)m->triangle_count * 3) &&
              cur_halves(&c, m->probe_sh, (size_t)np * UB_GLG_SH_FLOATS) &&
-             cur_halves(&c, m->vis, (size_t)nv * 9) && cur_halves(&c, m->self, (size_t)nv * 3) &&
+             (!own || cur_halves(&c, m->vis, (size_t)nv * 9)) &&
+             cur_halves(&c, m->self, (size_t)nv * 3) &&
              cur_take(&c, (size_t)(align8(block) - block), &pad);
     assert(ok); /* guaranteed by the exact size walk above */
     (void)ok;
+    if (!own) { /* an instance: the earlier model's (already read) visibility, rotated */
+      const ub_bakefile_llg *src = &bf->llgs[m->vis_shared_from - 1];
+      float M[81];
+      ub_llg_sh_rotation(m->vis_rotation, M);
+      for (uint64_t v = 0; v < nv; v++)
+        ub_llg_sh_rotate(M, src->vis + 9 * v, m->vis + 9 * v);
+    }
   }
   return UB_OK;
 }

@@ -105,6 +105,11 @@ typedef struct ub_bakefile_llg {
                                vertex normal, W/m², ≥ 0 */
   uint32_t triangle_count;
   uint32_t *indices;        /* triangle_count × 3, < vertex_count */
+  /* Instances share one self-visibility: 0 = vis is this model's own (stored); k > 0 =
+   * vis is model k−1's (an earlier model with its own, same vertex count) carried along by
+   * vis_rotation, V(ω) = V_{k−1}(Rᵀω): the file stores it once, the reader fills vis. */
+  uint32_t vis_shared_from;
+  float vis_rotation[9];    /* row-major orthogonal R (used when vis_shared_from > 0) */
 } ub_bakefile_llg;
 
 typedef struct ub_bakefile {
