@@ -468,7 +468,9 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
     r = UB_ERR_INVALID_ARGUMENT;
     goto done;
   }
-  r = ub_bakefile_write(&bf, files.staged[files.count - 1], log);
+  uint64_t half_clamped = 0;
+  r = ub_bakefile_write_ex(&bf, files.staged[files.count - 1], log, &half_clamped);
+  stats->clamped_values += half_clamped; /* reported with the baker's own clamps */
   if (r != UB_OK)
     goto done;
   snprintf(stats->ubk_path, sizeof stats->ubk_path, "%s", files.final[files.count - 1]);

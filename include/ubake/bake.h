@@ -66,7 +66,8 @@ typedef struct ub_bake_stats {
   char stage_name[UB_BAKE_MAX_STAGES][24];
   double stage_seconds[UB_BAKE_MAX_STAGES];
   double total_seconds;
-  uint64_t clamped_values;               /* non-finite or negative values clamped */
+  uint64_t clamped_values;               /* non-finite or negative values clamped, and values
+                                            clamped to the half range in the .ubk */
   uint64_t backface_hits;                /* gather rays that hit the back of a surface */
   uint64_t unlit_hits;                   /* gather rays that hit a surface with no receiver */
   long peak_rss_kb;
