@@ -288,6 +288,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
     goto fail;
   stats.bounces = base.bounces;
   memcpy(stats.bounce_energy, base.bounce_energy, sizeof stats.bounce_energy);
+  stats.bounce_cap_tail = base.bounce_cap_tail;
   stats.rays_gather = base.rays_gather;
   stats.rays_shadow = base.rays_shadow;
   stats.rays_total = ub_rt_rays_traced(rt);

@@ -171,7 +171,13 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
   fprintf(f, "  \"bounces\": %u,\n  \"bounce_energy\": [", st->bounces);
   for (uint32_t b = 0; b <= st->bounces && b <= UB_BAKE_MAX_BOUNCES; b++)
     fprintf(f, "%s%.6g", b ? ", " : "", st->bounce_energy[b]);
-  fprintf(f, "],\n  \"stages\": [");
+  fprintf(f, "],\n  \"bounce_cap_reached\": %s, \"bounce_cap_missing_fraction\": ",
+          st->bounce_cap_tail > 0.0 ? "true" : "false");
+  if (isfinite(st->bounce_cap_tail))
+    fprintf(f, "%.6g,\n", st->bounce_cap_tail);
+  else
+    fprintf(f, "null,\n");
+  fprintf(f, "  \"stages\": [");
   for (uint32_t s = 0; s < st->stage_count; s++) {
     fprintf(f, "%s{\"name\": ", s ? ", " : "");
     json_str(f, st->stage_name[s]);

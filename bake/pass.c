@@ -1066,9 +1066,12 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   if (max_b > UB_BAKE_MAX_BOUNCES)
     max_b = UB_BAKE_MAX_BOUNCES;
   uint32_t b;
+  int converged = 0;
   for (b = 1; b <= (uint32_t)max_b; b++) {
-    if (src_energy <= 0.0)
+    if (src_energy <= 0.0) {
+      converged = 1;
       break; /* nothing to bounce */
+    }
     memset(tx->acc_sh, 0, (size_t)T * 12 * sizeof(double));
     memset(tx->acc_iz, 0, (size_t)T * 3 * sizeof(double));
     memset(pr->acc_sh, 0, (size_t)P * 27 * sizeof(double));
@@ -1123,6 +1126,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     int local_done = gaining <= (uint64_t)(UB_STOP_TEXEL_SHARE * (double)lit);
     if (d->bounces < 0 && local_done &&
         e <= d->stop_fraction * (total_energy - out->bounce_energy[0])) {
+      converged = 1;
       b++;
       break;
     }
@@ -1133,6 +1137,19 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     ub_llg_fill_invalid(llg, c.llg_prev);
   }
   out->bounces = b - 1;
+  if (d->bounces < 0 && !converged && out->bounces >= 2) {
+    /* The cap ended the series (albedo near 1: a furnace at 0.999 needs thousands of
+     * bounces). Estimate what is missing as the geometric tail of the last two bounces. */
+    double e1 = out->bounce_energy[out->bounces], e0 = out->bounce_energy[out->bounces - 1];
+    double ratio = e0 > 0.0 ? e1 / e0 : 0.0;
+    double tail = ratio < 1.0 ? e1 * ratio / (1.0 - ratio) : INFINITY;
+    out->bounce_cap_tail = total_energy > 0.0 ? tail / total_energy : 0.0;
+    ub_log_printf(log, UB_LOG_WARNING, "bounce cap %d reached before convergence: the last "
+                  "bounce added %.3f%%; the remaining bounces would add about %.3g%% more "
+                  "(geometric tail, ratio %.4f). Lower the albedo below ~0.99 or accept the "
+                  "bias", max_b, total_energy > 0 ? 100.0 * e1 / total_energy : 0.0,
+                  100.0 * out->bounce_cap_tail, ratio);
+  }
 
   /* Store: SH corrected so that its irradiance along the normal is the exact I_z. */
   out->sh = malloc((size_t)T * 12 * sizeof(float));

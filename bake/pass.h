@@ -77,6 +77,9 @@ typedef struct ub_pass_result {
   float *llg_direct, *llg_indirect;     /* llg->probe_count (0 without LLGs): likewise */
   uint32_t bounces;
   double bounce_energy[UB_BAKE_MAX_BOUNCES + 1];
+  /* When the bounce cap ended an auto-stop series: the missing energy estimated as the
+     geometric tail of the last two bounces, as a fraction of the total (warned); else 0. */
+  double bounce_cap_tail;
   uint64_t rays_gather, rays_shadow;
   uint64_t clamped, backface_hits, unlit_hits;
   uint64_t misses;               /* gather rays that left the level */

@@ -60,6 +60,8 @@ typedef struct ub_bake_stats {
   uint64_t rays_emissive, sky_hits, emitter_hits; /* effect counters of the base pass */
   uint32_t bounces;                      /* indirect bounces baked */
   double bounce_energy[UB_BAKE_MAX_BOUNCES + 1]; /* Σ luminance(E) per bounce, 0 = direct */
+  double bounce_cap_tail;  /* > 0: the bounce cap ended the series; the energy still missing
+                              (geometric tail) as a fraction of the total */
   uint64_t rays_total, rays_gather, rays_shadow;
   double gather_seconds;                 /* wall seconds spent in gather passes */
   uint32_t stage_count;
