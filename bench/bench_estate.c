@@ -152,6 +152,7 @@ int main(int argc, char **argv)
       texel = atof(argv[i + 1]);
   if (scale >= 1.0)
     extrapolate = 0;
+  setvbuf(stdout, NULL, _IOLBF, 0); /* progress shows when piped to a file */
   int threads = omp_get_max_threads();
   char dir[1024], name[64], level[1200], out[1100];
   snprintf(dir, sizeof dir, "%s/bench_out/estate", build);
