@@ -346,7 +346,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   stats.total_seconds = now_seconds() - t_start;
   ub_glg_bake glg = {tm, base.probe_sh, &leak};
   r = ub_output_write(scene, lm, &glg, &llg, base.llg_sh, dls, &dstats, elems, elem_count,
-                      &plan, &base, opt, &stats, log);
+                      orig_material, &plan, &base, opt, &stats, log);
   if (r != UB_OK)
     goto fail;
   stage_end(&sc, "%s", stats.ubk_path);

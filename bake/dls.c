@@ -148,6 +148,10 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
   uint8_t *enabled = calloc(s->light_count ? s->light_count : 1, 1);
   uint32_t *kt = malloc(((size_t)lm->texel_count + 1) * sizeof *kt);
   uint32_t *kp = malloc(((size_t)base->probe_count + 1) * sizeof *kp);
+  for (uint32_t d = 0; recs && d < s->dls_count; d++) {
+    recs[d].kind = UB_ELEMENT_DLS;
+    recs[d].parent[0] = recs[d].parent[1] = -1;
+  }
   uint32_t nlp = base->llg ? base->llg->probe_count : 0; /* LLG probes */
   uint32_t *kl = malloc(((size_t)nlp + 1) * sizeof *kl);
   if (!recs || !enabled || !kt || !kp || !kl) {
