@@ -425,14 +425,19 @@ static int cmd_info(int argc, char **argv)
       (unsigned long long)bf->glg_plane_count * 16;
   /* On-disk LLG bytes: per model header, f32 vertices/normals, u32 triangles, half SH,
    * half visibility and gain. */
-  unsigned long long llg_bytes = 0, llg_probes = 0, llg_vertices = 0;
+  unsigned long long llg_bytes = 0, llg_probes = 0, llg_vertices = 0, llg_shared = 0;
   for (uint32_t i = 0; i < bf->llg_count; i++) {
     const ub_bakefile_llg *m = &bf->llgs[i];
     unsigned long long np = (unsigned long long)m->dims[0] * m->dims[1] * m->dims[2];
     llg_probes += np;
     llg_vertices += m->vertex_count;
     llg_bytes += 144 + 54 * np + 48ULL * m->vertex_count + 12ULL * m->triangle_count;
+    if (m->vis_shared_from) /* instance: visibility stored once (+40 B headers each) */
+      llg_bytes -= 18ULL * m->vertex_count;
+    llg_shared += m->vis_shared_from != 0;
   }
+  if (llg_shared)
+    llg_bytes += 40ULL * bf->llg_count;
   if (json) {
     printf("{\"level\": \"%s\", \"bytes\": %lld, \"seed\": %u, \"bounces\": %u, "
            "\"vertices\": %u, \"triangles\": %u, \"atlases\": [",
@@ -480,9 +485,11 @@ static int cmd_info(int argc, char **argv)
       printf("  LLG: %u model(s), %llu probes, %llu vertices, %llu bytes\n", bf->llg_count,
              llg_probes, llg_vertices, llg_bytes);
       for (uint32_t i = 0; i < bf->llg_count; i++)
-        printf("    %-20s grid %u x %u x %u, %u vertices, %u triangles\n", bf->llgs[i].name,
+        printf("    %-20s grid %u x %u x %u, %u vertices, %u triangles%s%s\n", bf->llgs[i].name,
                bf->llgs[i].dims[0], bf->llgs[i].dims[1], bf->llgs[i].dims[2],
-               bf->llgs[i].vertex_count, bf->llgs[i].triangle_count);
+               bf->llgs[i].vertex_count, bf->llgs[i].triangle_count,
+               bf->llgs[i].vis_shared_from ? ", self-visibility of " : "",
+               bf->llgs[i].vis_shared_from ? bf->llgs[bf->llgs[i].vis_shared_from - 1].name : "");
     } else {
       printf("  LLG: none baked\n");
     }
