@@ -42,6 +42,9 @@ typedef struct ub_bake_options {
   float glg_spacing;      /* 0 = from the level (metres between coarse GLG probes) */
   int plan_all;           /* 1: force every effect on, no culling (to check the plan) */
   int plan_only;          /* 1: stop after printing the plan; write nothing */
+  double target_error;    /* > 0: adaptive sampling to this relative standard error per
+                             texel / GLG probe (e.g. 0.02), at most 16× the rays per bounce;
+                             0 = off (the base pass only) */
   ub_progress_fn progress;
   void *progress_user;
 } ub_bake_options;
@@ -64,6 +67,9 @@ typedef struct ub_bake_stats {
                               (geometric tail) as a fraction of the total */
   uint64_t rays_total, rays_gather, rays_shadow;
   double gather_seconds;                 /* wall seconds spent in gather passes */
+  uint64_t rays_adaptive;                /* rays of the adaptive rounds (target_error) */
+  double texel_rel_se_mean, texel_rel_se_p95; /* estimated relative standard error, lit
+                                                 texels (report.json: error_estimate) */
   uint32_t stage_count;
   char stage_name[UB_BAKE_MAX_STAGES][24];
   double stage_seconds[UB_BAKE_MAX_STAGES];
