@@ -173,6 +173,8 @@ static const char *BAKE_HELP =
     "  --threads N             worker threads (default: all cores)\n"
     "  --seed N                random seed (default 1)\n"
     "  --gather-rays N         override gather rays per texel per bounce\n"
+    "  --door-rays N           override guided gather rays per texel of a door pass\n"
+    "  --door-no-guiding       door passes gather with cosine rays only (comparison)\n"
     "  --texel-size M          override metres per lightmap texel\n"
     "  --glg-spacing M         override metres between coarse GLG probes\n"
     "  --json FILE             write the report here instead of DIR/NAME.report.json\n"
@@ -228,6 +230,13 @@ static int cmd_bake(int argc, char **argv)
         return usage_error("bake", "--gather-rays takes 1..1048576");
       opt.gather_rays = (uint32_t)n;
       i++;
+    } else if (!strcmp(a, "--door-rays") && v) {
+      if (!parse_uint(v, 1 << 20, &n) || n < 1)
+        return usage_error("bake", "--door-rays takes 1..1048576");
+      opt.door_rays = (uint32_t)n;
+      i++;
+    } else if (!strcmp(a, "--door-no-guiding")) {
+      opt.door_no_guiding = 1;
     } else if (!strcmp(a, "--texel-size") && v) {
       char *end;
       double t = strtod(v, &end);

@@ -42,6 +42,8 @@ typedef struct ub_bake_options {
   float glg_spacing;      /* 0 = from the level (metres between coarse GLG probes) */
   int plan_all;           /* 1: force every effect on, no culling (to check the plan) */
   int plan_only;          /* 1: stop after printing the plan; write nothing */
+  int door_no_guiding;    /* 1: door passes gather with cosine rays only (for comparison) */
+  uint32_t door_rays;     /* 0 = from quality: guided gather rays per texel of a door pass */
   ub_progress_fn progress;
   void *progress_user;
 } ub_bake_options;
