@@ -14,6 +14,7 @@
 
 #define PROBE_ID_BASE 0x40000000u
 #define KMEANS_ITERS 10
+#define UB_DOOR_MAX_BOUNCES 16 /* receiver-side bounces when the pass's count is automatic */
 
 static const double Y0 = 0.282094792;
 static const double Y1 = 0.488602512;
@@ -42,6 +43,7 @@ typedef struct door_ctx {
   float **img;               /* per atlas: w×h×4, base stored irradiance + coverage */
   ub_obb portal;
   ub_guide guide;
+  ub_guide cosine;           /* cosine/sphere only: further bounces (crossing rays add 0) */
   uint32_t nbox;
   ub_obb box[UB_DOOR_MAX_BOXES]; /* photon boxes inflated by UB_DOOR_BOX_MARGIN */
   uint8_t *box_lights;       /* nbox × light_count */
@@ -84,18 +86,20 @@ static void hit_normal(const ub_hit *h, const float w[3], float out_n[3], int *f
       out_n[i] = -out_n[i];
 }
 
-/* Base stored irradiance (W/m²) at barycentrics (u, v) of a lightmapped triangle. */
-static void base_irradiance(const door_ctx *c, uint32_t tri, float bu, float bv, float out[3])
+/* Irradiance (W/m²) stored in per-atlas images (w×h×4, rgb + coverage weight) at
+ * barycentrics (u, v) of a lightmapped triangle, bilinear over covered texels. */
+static void image_lookup(const ub_lightmap *lm, float *const *imgs, uint32_t tri, float bu,
+                         float bv, float out[3])
 {
   out[0] = out[1] = out[2] = 0.0f;
-  int32_t a = c->lm->tri_atlas[tri];
+  int32_t a = lm->tri_atlas[tri];
   if (a < 0)
     return;
-  const float *uv = c->lm->tri_uv + 6 * (size_t)tri;
+  const float *uv = lm->tri_uv + 6 * (size_t)tri;
   float u = (1.0f - bu - bv) * uv[0] + bu * uv[2] + bv * uv[4];
   float v = (1.0f - bu - bv) * uv[1] + bu * uv[3] + bv * uv[5];
-  const ub_atlas *at = &c->lm->atlases[a];
-  const float *img = c->img[a];
+  const ub_atlas *at = &lm->atlases[a];
+  const float *img = imgs[a];
   float x = u * (float)at->width - 0.5f, y = v * (float)at->height - 0.5f;
   float fx = floorf(x), fy = floorf(y), tx = x - fx, ty = y - fy;
   int x0 = (int)fx, y0 = (int)fy;
@@ -162,7 +166,7 @@ static void beyond_radiance(const door_ctx *c, const float x[3], const float w[3
     return;
   float E[3] = {0, 0, 0};
   if (front)
-    base_irradiance(c, h->tri, h->u, h->v, E);
+    image_lookup(c->lm, c->img, h->tri, h->u, h->v, E);
   float p[3] = {x[0] + w[0] * h->t, x[1] + w[1] * h->t, x[2] + w[2] * h->t}, po[3];
   ub_rt_offset_point(c->rt_open, p, n, po);
   for (uint32_t l = 0; l < s->light_count; l++) {
@@ -240,7 +244,7 @@ static void door_irradiance(const door_ctx *c, const float p[3], const float n[3
  * sh: nsh × 3 radiance SH (W/(m²·sr)), iz: irradiance along n (W/m²). */
 static void receiver_estimate(const door_ctx *c, const float *origins, uint32_t norg,
                               const float *n, uint32_t rid, uint32_t N, uint32_t nshadow,
-                              uint32_t nsh, double *sh, double iz[3])
+                              uint32_t nsh, double *sh, double iz[3], double out_b[3])
 {
   const ub_scene *s = c->s;
   for (uint32_t smp = 0; smp < N; smp++) {
@@ -254,6 +258,7 @@ static void receiver_estimate(const door_ctx *c, const float *origins, uint32_t 
     ub_hit h;
     trace(c->rt_open, x, w, INFINITY, &h);
     float L[3] = {0, 0, 0};
+    int bounced = 0;
     if (occluded(c->rt_leaf, x, w, h.tri == UB_RT_MISS ? INFINITY : h.t)) {
       beyond_radiance(c, x, w, &h, L); /* (a) through the door */
     } else if (h.tri != UB_RT_MISS) {  /* (b) one bounce on this side */
@@ -265,6 +270,7 @@ static void receiver_estimate(const door_ctx *c, const float *origins, uint32_t 
         for (int k = 0; k < 3; k++)
           p[k] = x[k] + w[k] * h.t;
         door_irradiance(c, p, nd, rid, smp, E);
+        bounced = 1;
         for (int k = 0; k < 3; k++)
           L[k] = alb[k] / (float)M_PI * E[k];
       }
@@ -281,6 +287,9 @@ static void receiver_estimate(const door_ctx *c, const float *origins, uint32_t 
       double cs = fmax(0.0, dot3(n, w));
       for (int ch = 0; ch < 3; ch++)
         iz[ch] += L[ch] * cs * wt;
+      if (bounced && out_b)
+        for (int ch = 0; ch < 3; ch++)
+          out_b[ch] += L[ch] * cs * wt;
     }
   }
   /* (c) static punctual lights through the door. */
@@ -449,28 +458,30 @@ static void sh1_fix_iz(const float n[3], const double iz[3], double sh[12], floa
 }
 
 /* Runs the estimator over a receiver list. Texels: out12 (T×12, written at the listed
- * texels), val (T: luminance of iz) and iz3 (T×3, optional). Probes: out27 (P×27), val. */
-static void run_texels(const door_ctx *c, const ub_pass_desc *pd, const uint32_t *list,
-                       uint32_t count, uint32_t rays, uint32_t nshadow, float *out12,
-                       float *val, float *iz3)
+ * texels), val (T: luminance of iz), iz3 (T×3) and ib3 (T×3: the one-bounce share (b),
+ * what a further bounce reads), each optional. Probes: out27 (P×27), val. */
+static void run_texels(const door_ctx *c, const uint32_t *list, uint32_t count, uint32_t rays,
+                       uint32_t nshadow, float *out12, float *val, float *iz3, float *ib3)
 {
   const ub_lightmap *lm = c->lm;
 #pragma omp parallel for schedule(dynamic, 16)
   for (uint32_t i = 0; i < count; i++) {
     uint32_t t = list ? list[i] : i;
-    double sh[27] = {0}, iz[3] = {0, 0, 0};
+    double sh[27] = {0}, iz[3] = {0, 0, 0}, ib[3] = {0, 0, 0};
     const float *n = lm->texel_normal + 3 * (size_t)t;
     receiver_estimate(c, lm->sample_pos + (size_t)t * UB_TEXEL_SAMPLES * 3, UB_TEXEL_SAMPLES,
-                      n, t, rays, nshadow, 4, sh, iz);
+                      n, t, rays, nshadow, 4, sh, iz, ib);
     if (out12)
       sh1_fix_iz(n, iz, sh, out12 + 12 * (size_t)t);
     if (val)
       val[t] = (float)lum(iz);
-    if (iz3)
-      for (int k = 0; k < 3; k++)
+    for (int k = 0; k < 3; k++) {
+      if (iz3)
         iz3[3 * (size_t)t + k] = (float)iz[k];
+      if (ib3)
+        ib3[3 * (size_t)t + k] = (float)ib[k];
+    }
   }
-  (void)pd;
 }
 
 static void run_probes(const door_ctx *c, const ub_pass_desc *pd, const uint32_t *list,
@@ -482,7 +493,7 @@ static void run_probes(const door_ctx *c, const ub_pass_desc *pd, const uint32_t
     uint32_t q = list ? list[i] : i;
     double sh[27] = {0}, iz[3] = {0, 0, 0};
     receiver_estimate(c, pd->probe_pos + 3 * (size_t)q, 1, NULL, PROBE_ID_BASE + q, rays,
-                      nshadow, 9, sh, iz);
+                      nshadow, 9, sh, iz, NULL);
     if (out27)
       for (int k = 0; k < 27; k++)
         out27[27 * (size_t)q + k] = isfinite(sh[k]) ? (float)sh[k] : 0.0f;
@@ -493,21 +504,71 @@ static void run_probes(const door_ctx *c, const ub_pass_desc *pd, const uint32_t
   }
 }
 
+/* Further bounces on the receiver side (series expansion, bounce k ≥ 2): gather rays from
+ * a receiver that do not cross the door read albedo/π × bounce k−1 of the door's light at
+ * their hit (bilinear from prev, the images of the kept texels' previous bounce; other
+ * texels count as 0). Adds to sh (nsh × 3) and iz. */
+static void bounce_estimate(const door_ctx *c, float *const *prev, const float *origins,
+                            uint32_t norg, const float *n, uint32_t rid, uint32_t N,
+                            uint32_t nsh, double *sh, double iz[3])
+{
+  const ub_scene *s = c->s;
+  for (uint32_t smp = 0; smp < N; smp++) {
+    const float *x = origins + 3 * (smp % norg);
+    float u[4] = {rnd(c, rid, smp, 0), rnd(c, rid, smp, 1), rnd(c, rid, smp, 2),
+                  rnd(c, rid, smp, 3)};
+    float w[3];
+    double pdf = ub_guide_sample(&c->cosine, x, n, u, w);
+    if (!(pdf > 0.0) || !isfinite(pdf))
+      continue;
+    ub_hit h;
+    trace(c->rt_open, x, w, INFINITY, &h);
+    if (h.tri == UB_RT_MISS || c->lm->tri_atlas[h.tri] < 0 ||
+        occluded(c->rt_leaf, x, w, h.t))
+      continue;
+    float nd[3], E[3], L[3];
+    int front;
+    hit_normal(&h, w, nd, &front);
+    if (!front)
+      continue;
+    image_lookup(c->lm, prev, h.tri, h.u, h.v, E);
+    const float *alb = s->materials[s->tri_material[h.tri]].albedo;
+    for (int k = 0; k < 3; k++)
+      L[k] = alb[k] / (float)M_PI * E[k];
+    if (L[0] == 0.0f && L[1] == 0.0f && L[2] == 0.0f)
+      continue;
+    double wt = 1.0 / (pdf * (double)N);
+    float y[9];
+    ub_sh2_eval_basis(w, y);
+    for (uint32_t k = 0; k < nsh; k++)
+      for (int ch = 0; ch < 3; ch++)
+        sh[k * 3 + ch] += (double)y[k] * L[ch] * wt;
+    if (n) {
+      double cs = fmax(0.0, dot3(n, w));
+      for (int ch = 0; ch < 3; ch++)
+        iz[ch] += L[ch] * cs * wt;
+    }
+  }
+}
+
+/* Per-atlas images (w×h×4) of per-texel irradiance iz (T×3), dilated 2 rings; *out_img
+ * NULL: allocated here, else refilled. */
 static ub_result build_images(const ub_lightmap *lm, const float *iz, float ***out_img)
 {
-  float **img = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *img);
+  float **img = *out_img ? *out_img : calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *img);
   if (!img)
     return UB_ERR_OUT_OF_MEMORY;
   for (uint32_t a = 0; a < lm->atlas_count; a++) {
     const ub_atlas *at = &lm->atlases[a];
     size_t npx = (size_t)at->width * at->height;
-    img[a] = calloc(npx * 4, sizeof(float));
+    if (!img[a])
+      img[a] = malloc(npx * 4 * sizeof(float));
+    if (img[a])
+      memset(img[a], 0, npx * 4 * sizeof(float));
     uint8_t *cov = calloc(npx, 1);
     if (!img[a] || !cov) {
       free(cov);
-      for (uint32_t b = 0; b <= a; b++)
-        free(img[b]);
-      free(img);
+      *out_img = img; /* the caller frees what was allocated */
       return UB_ERR_OUT_OF_MEMORY;
     }
     for (uint32_t i = 0; i < at->texel_count; i++) {
@@ -545,8 +606,11 @@ ub_result ub_door_bake(const ub_door_desc *dd, const ub_log *log,
   float *p27 = malloc(((size_t)P * 27 + 1) * sizeof *p27);
   uint32_t *kt = malloc(((size_t)T + 1) * sizeof *kt);
   uint32_t *kp = malloc(((size_t)P + 1) * sizeof *kp);
-  float **img = NULL;
+  float **img = NULL, **bimg = NULL;
+  float *ib = calloc((size_t)T * 3 + 1, sizeof *ib), *ib2 = calloc((size_t)T * 3 + 1, sizeof *ib2);
   ub_result r = UB_OK;
+  if (!ib || !ib2)
+    r = UB_ERR_OUT_OF_MEMORY;
   if (!recs || !open || !plights || !tval || !pval || !t12 || !p27 || !kt || !kp)
     r = UB_ERR_OUT_OF_MEMORY;
   if (r == UB_OK)
@@ -634,6 +698,7 @@ ub_result ub_door_bake(const ub_door_desc *dd, const ub_log *log,
         boxes[1 + j] = c.box[j];
         bw[1 + j] = fsum > 0.0 ? 0.5 * box_flux[j] / fsum : 0.0;
       }
+      ub_guide_init(&c.cosine, NULL, 0, NULL, 1.0);
       if (dd->guiding)
         ub_guide_init(&c.guide, boxes, 1 + c.nbox, bw, 0.3);
       else
@@ -647,7 +712,7 @@ ub_result ub_door_bake(const ub_door_desc *dd, const ub_log *log,
       double thr_t = 0.0, thr_p = 0.0;
       if (dd->influence_rays) {
         c.pass_id = 0x1000u + 2u * d;
-        run_texels(&c, pd, NULL, T, dd->influence_rays, 1, NULL, tval, NULL);
+        run_texels(&c, NULL, T, dd->influence_rays, 1, NULL, tval, NULL, NULL);
         run_probes(&c, pd, NULL, P, 2 * dd->influence_rays, 1, NULL, pval);
         double st_ = 0.0, sp_ = 0.0;
         uint32_t nt_ = 0, np_ = 0;
@@ -676,14 +741,68 @@ ub_result ub_door_bake(const ub_door_desc *dd, const ub_log *log,
       double t1 = now_s();
       out_stats->seconds_influence += t1 - t0;
       /* 2. Full quality over the kept receivers. */
+      uint32_t bounces_done = 1;
       c.pass_id = 0x1001u + 2u * d;
       memset(t12, 0, (size_t)T * 12 * sizeof *t12);
       float *dbg = dd->debug_texel_iz && dd->debug_door == d ? dd->debug_texel_iz : NULL;
       if (dbg)
         memset(dbg, 0, (size_t)T * 3 * sizeof *dbg);
       uint32_t nsh = pd->shadow_samples ? pd->shadow_samples : 1;
-      run_texels(&c, pd, kt, nkt, dd->rays, nsh, t12, NULL, dbg);
+      memset(ib, 0, (size_t)T * 3 * sizeof *ib);
+      memset(ib2, 0, (size_t)T * 3 * sizeof *ib2);
+      run_texels(&c, kt, nkt, dd->rays, nsh, t12, tval, dbg, ib);
       run_probes(&c, pd, kp, nkp, 2 * dd->rays, nsh, p27, NULL);
+      /* Further bounces on the receiver side, until one adds < stop_fraction. */
+      double e_total = 0.0;
+      for (uint32_t i = 0; i < nkt; i++)
+        e_total += tval[kt[i]];
+      uint32_t nb = 1, max_b = pd->bounces >= 0 ? (uint32_t)pd->bounces : UB_DOOR_MAX_BOUNCES;
+      uint32_t rays_b = dd->rays / 2 > 16 ? dd->rays / 2 : 16;
+      while (nb < max_b && r == UB_OK) {
+        r = build_images(lm, ib, &bimg);
+        if (r != UB_OK)
+          break;
+        nb++;
+        c.pass_id = 0x2000u + 32u * d + nb;
+        double e_k = 0.0;
+#pragma omp parallel for schedule(dynamic, 16) reduction(+ : e_k)
+        for (uint32_t i = 0; i < nkt; i++) {
+          uint32_t t = kt[i];
+          double sh[27] = {0}, iz[3] = {0, 0, 0};
+          const float *n = lm->texel_normal + 3 * (size_t)t;
+          bounce_estimate(&c, bimg, lm->sample_pos + (size_t)t * UB_TEXEL_SAMPLES * 3,
+                          UB_TEXEL_SAMPLES, n, t, rays_b, 4, sh, iz);
+          float add[12];
+          sh1_fix_iz(n, iz, sh, add);
+          for (int k = 0; k < 12; k++)
+            t12[12 * (size_t)t + k] += add[k];
+          for (int k = 0; k < 3; k++) {
+            ib2[3 * (size_t)t + k] = (float)iz[k];
+            if (dbg)
+              dbg[3 * (size_t)t + k] += (float)iz[k];
+          }
+          e_k += lum(iz);
+        }
+#pragma omp parallel for schedule(dynamic, 16)
+        for (uint32_t i = 0; i < nkp; i++) {
+          uint32_t q = kp[i];
+          double sh[27] = {0}, iz[3] = {0, 0, 0};
+          bounce_estimate(&c, bimg, pd->probe_pos + 3 * (size_t)q, 1, NULL,
+                          PROBE_ID_BASE + q, 2 * rays_b, 9, sh, iz);
+          for (int k = 0; k < 27; k++)
+            p27[27 * (size_t)q + k] += isfinite(sh[k]) ? (float)sh[k] : 0.0f;
+        }
+        float *tmp = ib;
+        ib = ib2;
+        ib2 = tmp;
+        int stop = !(e_k > pd->stop_fraction * e_total);
+        e_total += e_k;
+        if (stop)
+          break;
+      }
+      if (r != UB_OK)
+        break;
+      bounces_done = nb;
       out_stats->rays_full += ub_rt_rays_traced(rt_open) + ub_rt_rays_traced(rt_leaf) - rays1;
       out_stats->seconds_full += now_s() - t1;
       r = ub_dls_texel_record(lm, kt, nkt, t12, rec);
@@ -710,18 +829,25 @@ ub_result ub_door_bake(const ub_door_desc *dd, const ub_log *log,
       ub_log_printf(log, UB_LOG_INFO,
                     "  door %-16s: %u leaf triangles, %u of %u photons landed in %u box(es), "
                     "%u light(s) reach the portal; %u of %u texels and %u of %u probes in "
-                    "its influence (threshold %.3g W/m²), record %u pixels",
+                    "its influence (threshold %.3g W/m²), %u bounce(s) inside, record %u "
+                    "pixels",
                     rec->name, nleaf, landed, dd->photons, c.nbox, nlist, nkt, T, nkp, P,
-                    thr_t, rec->texel_count);
+                    thr_t, bounces_done, rec->texel_count);
     }
     free(c.box_lights);
     ub_rt_free(rt_open);
     ub_rt_free(rt_leaf);
   }
-  if (img)
-    for (uint32_t a = 0; a < lm->atlas_count; a++)
+  for (uint32_t a = 0; a < lm->atlas_count; a++) {
+    if (img)
       free(img[a]);
+    if (bimg)
+      free(bimg[a]);
+  }
   free(img);
+  free(bimg);
+  free(ib);
+  free(ib2);
   free(open);
   free(plights);
   free(tval);

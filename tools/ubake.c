@@ -515,7 +515,7 @@ static int cmd_query(int argc, char **argv)
 
 static const char *REFERENCE_HELP =
     "usage: ubake reference LEVEL.gltf --at X,Y,Z --normal X,Y,Z [--spp N] [--seed N]\n"
-    "          [--bounces N] [--threads N] [--dls NAME=W|R,G,B ...]\n"
+    "          [--bounces N] [--threads N] [--dls NAME=W|R,G,B ...] [--door NAME=0|1 ...]\n"
     "Brute-force path-traced irradiance (W/m², linear RGB) for the same path classes as the\n"
     "bake. Prints \"R G B\" on the first line and \"se R G B\" (standard error) on the second.\n";
 
@@ -527,6 +527,9 @@ static int cmd_reference(int argc, char **argv)
   ub_reference_params rp;
   ub_reference_params_init(&rp);
   int have_at = 0, have_n = 0;
+  char door_name[16][64];
+  float door_val[16];
+  uint32_t door_count = 0;
   for (int i = 0; i < argc; i++) {
     const char *a = argv[i];
     const char *v = i + 1 < argc ? argv[i + 1] : NULL;
@@ -568,6 +571,18 @@ static int cmd_reference(int argc, char **argv)
       if (!parse_dls_value(v, &state))
         return usage_error("reference", "--dls takes NAME=W or NAME=R,G,B");
       i++;
+    } else if (!strcmp(a, "--door") && v) {
+      /* Local parse until the shared cli_state carries doors. */
+      const char *eq = strchr(v, '=');
+      char *end = NULL;
+      float t = eq ? strtof(eq + 1, &end) : NAN;
+      if (!eq || eq == v || (size_t)(eq - v) >= sizeof door_name[0] || !end || *end ||
+          !(t >= 0.0f && t <= 1.0f) || door_count >= 16)
+        return usage_error("reference", "--door takes NAME=T, T = 0 (closed) or 1 (open)");
+      memcpy(door_name[door_count], v, (size_t)(eq - v));
+      door_name[door_count][eq - v] = '\0';
+      door_val[door_count++] = t;
+      i++;
     } else if (a[0] == '-') {
       return usage_error("reference", "unknown option or missing value");
     } else {
@@ -582,8 +597,28 @@ static int cmd_reference(int argc, char **argv)
   ub_rt *rt = NULL;
   ub_emitters *em = NULL;
   ub_result r = ub_scene_load(level, &log, &scene);
+  float *door_t = NULL;
+  if (r == UB_OK && scene->door_count) {
+    door_t = calloc(scene->door_count, sizeof *door_t);
+    if (!door_t)
+      r = UB_ERR_OUT_OF_MEMORY;
+  }
+  for (uint32_t k = 0; r == UB_OK && k < door_count; k++) {
+    uint32_t d;
+    for (d = 0; d < scene->door_count; d++)
+      if (!strcmp(scene->door_names[d], door_name[k]))
+        break;
+    if (d == scene->door_count) {
+      fprintf(stderr, "ubake: %s: no door named '%s'\n", level, door_name[k]);
+      ls.errors++;
+      r = UB_ERR_INVALID_ARGUMENT;
+      break;
+    }
+    door_t[d] = door_val[k];
+  }
   if (r == UB_OK)
-    r = ub_rt_create(scene, NULL, &log, &rt);
+    r = ub_reference_rt_create(scene, door_t, NULL, &log, &rt);
+  free(door_t);
   if (r == UB_OK)
     r = ub_emitters_build(scene, &em);
   float rgb[3], se[3];
