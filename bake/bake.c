@@ -178,6 +178,29 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   r = ub_lightmap_build(scene, rt, scene->texel_size, log, &lm);
   if (r != UB_OK)
     goto fail;
+  /* Small untagged props whose charts came out poor become LLG receivers (a tag always
+   * wins); the lightmap is then laid out again without them. */
+  {
+    ub_llg_auto_stats as;
+    r = ub_llg_auto_select(scene, lm, &as);
+    if (r != UB_OK)
+      goto fail;
+    stats.llg_auto_nodes = as.switched;
+    if (as.switched) {
+      ub_log_printf(log, UB_LOG_INFO, "  llg auto: %u of %u small untagged node(s) have poor "
+                    "lightmap charts (%u charts, %llu texels): made LLG receivers",
+                    as.switched, as.considered, as.charts_freed,
+                    (unsigned long long)as.texels_freed);
+      for (uint32_t n = 0; n < scene->node_count; n++)
+        if (scene->nodes[n].receiver_source == UB_RECEIVER_AUTO)
+          ub_log_printf(log, UB_LOG_INFO, "    llg auto: %s", scene->nodes[n].name);
+      ub_lightmap_free(lm);
+      lm = NULL;
+      r = ub_lightmap_build(scene, rt, scene->texel_size, log, &lm);
+      if (r != UB_OK)
+        goto fail;
+    }
+  }
   stats.atlases = lm->atlas_count;
   stats.texels = lm->texel_count;
   stats.backface_fixes = lm->backface_fixes;
@@ -212,9 +235,10 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
     uint32_t nv = 0;
     for (uint32_t i = 0; i < llg.model_count; i++)
       nv += llg.models[i].vertex_count;
-    stage_end(&sc, "%u model(s), %u probes (%u moved out of other geometry, %u filled), %u "
-              "vertices, %.2f M rays", llg.model_count, llg.probe_count, llg.moved_count,
-              llg.invalid_count, nv, llg.rays * 1e-6);
+    stage_end(&sc, "%u model(s) (%u share an instance's self-visibility), %u probes (%u moved "
+              "out of other geometry, %u filled), %u vertices, %.2f M rays", llg.model_count,
+              llg.vis_shared, llg.probe_count, llg.moved_count, llg.invalid_count, nv,
+              llg.rays * 1e-6);
   }
 
   /* plan */
@@ -346,7 +370,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   stats.total_seconds = now_seconds() - t_start;
   ub_glg_bake glg = {tm, base.probe_sh, &leak};
   r = ub_output_write(scene, lm, &glg, &llg, base.llg_sh, dls, &dstats, elems, elem_count,
-                      &plan, &base, opt, &stats, log);
+                      orig_material, &plan, &base, opt, &stats, log);
   if (r != UB_OK)
     goto fail;
   stage_end(&sc, "%s", stats.ubk_path);

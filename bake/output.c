@@ -159,9 +159,15 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
   fprintf(f, "  \"glg\": {\"probes\": %u, \"tets\": %u, \"leak_plane_tets\": %u, \"spacing\": %.4g},\n",
           st->glg_probes, st->glg_tets, st->glg_leak_tets, scene->glg_spacing);
   fprintf(f, "  \"llg\": {\"models\": %u, \"probes\": %u, \"invalid_probes\": %u, "
-             "\"visibility_rays\": %llu},\n",
+             "\"visibility_rays\": %llu, \"auto\": %u, \"auto_nodes\": [",
           llg ? llg->model_count : 0, llg ? llg->probe_count : 0, llg ? llg->invalid_count : 0,
-          llg ? (unsigned long long)llg->rays : 0ULL);
+          llg ? (unsigned long long)llg->rays : 0ULL, st->llg_auto_nodes);
+  for (uint32_t n = 0, k = 0; n < scene->node_count; n++)
+    if (scene->nodes[n].receiver_source == UB_RECEIVER_AUTO) {
+      fprintf(f, "%s", k++ ? ", " : "");
+      json_str(f, scene->nodes[n].name);
+    }
+  fprintf(f, "]},\n");
   fprintf(f, "  \"bounces\": %u,\n  \"bounce_energy\": [", st->bounces);
   for (uint32_t b = 0; b <= st->bounces && b <= UB_BAKE_MAX_BOUNCES; b++)
     fprintf(f, "%s%.6g", b ? ", " : "", st->bounce_energy[b]);
@@ -278,6 +284,8 @@ static ub_result fill_llgs(const ub_scene *scene, const ub_llg_set *llg, const f
     o->probe_sh = (float *)(llg_sh + 27 * (size_t)m->probe_first);
     o->vertex_count = m->vertex_count;
     o->vis = m->vis;
+    o->vis_shared_from = m->vis_source != i ? m->vis_source + 1u : 0u;
+    memcpy(o->vis_rotation, m->vis_rot, sizeof o->vis_rotation);
     o->self = m->self;
     o->triangle_count = m->triangle_count;
     o->indices = m->local_indices;
@@ -295,11 +303,54 @@ static ub_result fill_llgs(const ub_scene *scene, const ub_llg_set *llg, const f
   return UB_OK;
 }
 
+/* Per-triangle roles (section TRIR) for door leaves and show/hide objects that have a
+ * record; NULL when the level has none. */
+static ub_result tri_roles(const ub_scene *s, const ub_bakefile_record *elems, uint32_t n,
+                           uint32_t **out)
+{
+  *out = NULL;
+  if (!n)
+    return UB_OK;
+  uint32_t *role = NULL;
+  for (uint32_t i = 0; i < s->node_count; i++) {
+    const ub_node *nd = &s->nodes[i];
+    uint32_t r = 0, kind = UB_ELEMENT_DOOR;
+    const char *name = NULL;
+    if (nd->door >= 0) {
+      r = UB_TRI_ROLE_DOOR_CLOSED;
+      name = s->door_names[nd->door];
+    } else if (nd->door_open >= 0) {
+      r = UB_TRI_ROLE_DOOR_OPEN;
+      name = s->door_names[nd->door_open];
+    } else if (nd->semidynamic >= 0) {
+      r = UB_TRI_ROLE_OBJECT;
+      kind = UB_ELEMENT_OBJECT;
+      name = s->object_names[nd->semidynamic];
+    }
+    if (!r || !nd->triangle_count)
+      continue;
+    uint32_t e = 0;
+    while (e < n && !(elems[e].kind == kind && !strcmp(elems[e].name, name)))
+      e++;
+    if (e == n)
+      continue; /* no record: drawn as in the base */
+    if (!role) {
+      role = calloc((size_t)s->triangle_count + 1, sizeof *role);
+      if (!role)
+        return UB_ERR_OUT_OF_MEMORY;
+    }
+    for (uint32_t t = nd->first_triangle; t < nd->first_triangle + nd->triangle_count; t++)
+      role[t] = (r << 24) | e;
+  }
+  *out = role;
+  return UB_OK;
+}
+
 ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub_glg_bake *glg,
                           const ub_llg_set *llg, const float *llg_sh,
                           ub_bakefile_record *dls, const ub_dls_stats *dstats,
                           ub_bakefile_record *elems, uint32_t elem_count,
-                          const ub_plan *plan,
+                          const uint32_t *tri_material, const ub_plan *plan,
                           const ub_pass_result *base, const ub_bake_options *opt,
                           ub_bake_stats *stats, const ub_log *log)
 {
@@ -336,8 +387,12 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
     goto done;
   }
   for (uint32_t t = 0; t < scene->triangle_count; t++)
-    memcpy(bf.tri_albedo + 3 * (size_t)t, scene->materials[scene->tri_material[t]].albedo,
+    memcpy(bf.tri_albedo + 3 * (size_t)t,
+           scene->materials[(tri_material ? tri_material : scene->tri_material)[t]].albedo,
            3 * sizeof(float));
+  r = tri_roles(scene, elems, elems ? elem_count : 0, &bf.tri_role);
+  if (r != UB_OK)
+    goto done;
   bf.dls_count = dls ? scene->dls_count : 0;
   bf.dls = dls;
   bf.elem_count = elems ? elem_count : 0;
@@ -454,6 +509,7 @@ done:
     }
   free(bf.atlases);
   free(bf.tri_albedo);
+  free(bf.tri_role);
   free(bf.lights);
   for (uint32_t i = 0; bf.llgs && i < bf.llg_count; i++) {
     free(bf.llgs[i].positions);

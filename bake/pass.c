@@ -983,7 +983,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   pr->id_base = UB_PROBE_ID_BASE;
   pr->rt = d->rt;
   lg->count = LP;
-  lg->active = LP;
+  lg->index = d->llg_subset;
+  lg->active = d->llg_subset ? d->llg_subset_count : LP;
   lg->samples = llg ? llg->probe_pos : NULL;
   lg->spr = 1;
   lg->nsh = 9;
@@ -993,6 +994,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   lg->acc_sh = calloc((size_t)LP * 27 + 1, sizeof(double));
   lg->acc_sh_np = calloc((size_t)LP * 27 + 1, sizeof(double));
   double *llg_total = calloc((size_t)LP * 27 + 1, sizeof(double));
+  out->llg_direct = calloc((size_t)LP + 1, sizeof(float));
+  out->llg_indirect = calloc((size_t)LP + 1, sizeof(float));
   if (LP)
     c.llg_prev = calloc((size_t)LP * 27, sizeof(float));
   pr->acc_sh = calloc((size_t)P * 27 + 1, sizeof(double));
@@ -1003,7 +1006,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
             !tx->acc_src_np || !c.img ||
             !c.emitter_of || !pr->acc_sh || !probe_total || !out->texel_direct ||
             !out->texel_indirect || !out->probe_direct || !out->probe_indirect || !lg->acc_sh ||
-            !lg->acc_sh_np || !llg_total || (LP && !c.llg_prev);
+            !lg->acc_sh_np || !llg_total || (LP && !c.llg_prev) || !out->llg_direct ||
+            !out->llg_indirect;
   for (uint32_t a = 0; !oom && a < lm->atlas_count; a++) {
     c.img[a] = malloc((size_t)lm->atlases[a].width * lm->atlases[a].height * 4 * sizeof(float));
     oom = !c.img[a];
@@ -1044,6 +1048,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   build_images(&c, c.nee ? tx->acc_src_np : tx->acc_src);
   texel_lights_build(&c, c.nee ? tx->acc_src_np : tx->acc_src);
   /* LLG probes likewise: bounce 1 reads their non-punctual bounce 0 when NEE is on. */
+  for (uint32_t q = 0; q < LP; q++)
+    out->llg_direct[q] = (float)(M_PI * UB_Y0 * lum3d(lg->acc_sh + 27 * (size_t)q));
   for (size_t i = 0; i < (size_t)LP * 27; i++) {
     llg_total[i] = lg->acc_sh[i];
     c.llg_prev[i] = (float)(c.nee ? lg->acc_sh_np[i] : lg->acc_sh[i]);
@@ -1091,6 +1097,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       out->texel_indirect[t] += (float)lum3d(tx->acc_iz + 3 * (size_t)t);
     for (uint32_t q = 0; q < P; q++)
       out->probe_indirect[q] += (float)(M_PI * UB_Y0 * lum3d(pr->acc_sh + 27 * (size_t)q));
+    for (uint32_t q = 0; q < LP; q++)
+      out->llg_indirect[q] += (float)(M_PI * UB_Y0 * lum3d(lg->acc_sh + 27 * (size_t)q));
     total_energy += e;
     src_energy = outgoing_energy(&c, tx->acc_iz);
     ub_log_printf(log, UB_LOG_INFO, "  bounce %u: +%.3f%% energy", b,
@@ -1222,7 +1230,10 @@ void ub_pass_result_free(ub_pass_result *r)
   free(r->texel_indirect);
   free(r->probe_direct);
   free(r->probe_indirect);
+  free(r->llg_direct);
+  free(r->llg_indirect);
   r->texel_direct = r->texel_indirect = r->probe_direct = r->probe_indirect = NULL;
+  r->llg_direct = r->llg_indirect = NULL;
   r->sh = NULL;
   r->iz = NULL;
   r->probe_sh = NULL;

@@ -53,6 +53,8 @@ typedef struct ub_pass_desc {
   uint32_t texel_subset_count;
   const uint32_t *probe_subset;
   uint32_t probe_subset_count;
+  const uint32_t *llg_subset;    /* LLG probes (indices into llg->probe_pos), same rule */
+  uint32_t llg_subset_count;
   int bounces;                   /* -1 = until a bounce adds < stop_fraction of the total */
   double stop_fraction;          /* e.g. 0.005 */
   uint32_t seed;
@@ -72,6 +74,7 @@ typedef struct ub_pass_result {
    * including primary lights' unstored direct light) and through bounces ≥ 1. */
   float *texel_direct, *texel_indirect; /* texel_count */
   float *probe_direct, *probe_indirect; /* probe_count: DC (mean) irradiance */
+  float *llg_direct, *llg_indirect;     /* llg->probe_count (0 without LLGs): likewise */
   uint32_t bounces;
   double bounce_energy[UB_BAKE_MAX_BOUNCES + 1];
   uint64_t rays_gather, rays_shadow;

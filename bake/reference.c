@@ -14,8 +14,6 @@
  */
 #include "bake/reference.h"
 
-#include "bake/geomstate.h"
-
 #include <assert.h>
 #include <math.h>
 #include <omp.h>
@@ -510,32 +508,4 @@ ub_result ub_reference_irradiance(const ub_scene *scene, const ub_rt *rt,
   free(light_weight);
   free(light_on);
   return result;
-}
-
-ub_result ub_reference_rt_create(const ub_scene *scene, const float *door_t,
-                                 const uint8_t *object_shown, const ub_log *log,
-                                 ub_rt **out_rt)
-{
-  uint8_t *open = calloc(scene->door_count ? scene->door_count : 1, 1);
-  if (!open)
-    return UB_ERR_OUT_OF_MEMORY;
-  for (uint32_t d = 0; door_t && d < scene->door_count; d++) {
-    if (door_t[d] == 1.0f) {
-      open[d] = 1;
-    } else if (door_t[d] != 0.0f) {
-      ub_log_printf(log, UB_LOG_ERROR, "%s: door '%s': the reference takes T = 0 (closed) or "
-                    "1 (open), not %g", scene->path ? scene->path : "scene",
-                    scene->door_names[d], (double)door_t[d]);
-      free(open);
-      return UB_ERR_INVALID_ARGUMENT;
-    }
-  }
-  ub_geom_state st = {open, object_shown};
-  uint8_t *mask = ub_geom_mask(scene, &st);
-  free(open);
-  if (!mask)
-    return UB_ERR_OUT_OF_MEMORY;
-  ub_result r = ub_rt_create(scene, mask, log, out_rt);
-  free(mask);
-  return r;
 }

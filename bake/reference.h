@@ -64,15 +64,4 @@ ub_result ub_reference_irradiance(const ub_scene *scene, const ub_rt *rt,
                                   const ub_emitters *em, const ub_reference_params *params,
                                   float out_rgb[3], float out_stderr[3], const ub_log *log);
 
-/* The geometry of a door/object state for the reference, with real materials (the scene
- * must NOT have gone through ub_geom_prepare: a closed leaf keeps its albedo).
- * door_t: door_count opening fractions, NULL = all closed. T = 0: the closed leaf present,
- * the open-pose leaf absent; T = 1: the closed leaf absent, the open-pose leaf (if the
- * level has one) present. 0 < T < 1 is UB_ERR_INVALID_ARGUMENT (the reference has no
- * in-between pose), as is a non-finite T. object_shown: object_count bytes, NULL = all
- * shown. */
-ub_result ub_reference_rt_create(const ub_scene *scene, const float *door_t,
-                                 const uint8_t *object_shown, const ub_log *log,
-                                 ub_rt **out_rt);
-
 #endif

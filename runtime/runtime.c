@@ -26,8 +26,16 @@ struct ub_runtime {
   float *glg_win;          /* probes × 27: windowed per probe, what the GLG reads. A convex
                               blend of windowed probes keeps irradiance ≥ 0, so queries
                               need no windowing (which costs 1–15 µs when it triggers). */
-  ub_blend *lm_blend, *glg_blend;
-  ub_blend_record *lm_rec, *glg_rec;
+  ub_blend *lm_blend, *glg_blend, *llg_blend;
+  ub_blend_record *lm_rec, *glg_rec, *llg_rec;
+  /* Elements: the sets, then the file's doors/objects/combinations (ELEM). value is what
+   * the caller set (RGB), applied what the blends use (see runtime.h). */
+  uint32_t elem_total;
+  float *value, *applied;  /* elem_total × 3 */
+  /* LLG probes of all models in order (when records touch them): blended here, and the
+   * touched probes copied back into each model's grid, which queries read. */
+  float *llg_base, *llg_cur;
+  uint64_t *llg_first;     /* llg_count + 1 */
   ub_glg glg;            /* valid when has_glg */
   int has_glg;
   ub_ahd **ahd;          /* atlas_count arrays of width × height; zero for empty texels */
@@ -151,8 +159,15 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt->pixel_first);
   ub_blend_free(rt->lm_blend);
   ub_blend_free(rt->glg_blend);
+  ub_blend_free(rt->llg_blend);
   free(rt->lm_rec);
   free(rt->glg_rec);
+  free(rt->llg_rec);
+  free(rt->value);
+  free(rt->applied);
+  free(rt->llg_base);
+  free(rt->llg_cur);
+  free(rt->llg_first);
   free(rt->lm_base);
   free(rt->lm_cur);
   free(rt->glg_cur);
@@ -164,29 +179,91 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt);
 }
 
-/* Blend engines for the sets' lightmap and GLG records; every set starts at weight 1. */
-static ub_result setup_dls(ub_runtime *rt, const char *path, const ub_log *log)
+static const ub_bakefile_record *element_record(const ub_bakefile *bf, uint32_t e)
+{
+  return e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
+}
+
+/* The weight an element's record is applied with (see runtime.h). */
+static void element_applied(const ub_runtime *rt, uint32_t e, float out[3])
+{
+  const ub_bakefile_record *r = element_record(rt->bf, e);
+  if (r->kind == UB_ELEMENT_COMBO) {
+    float a[3], b[3];
+    element_applied(rt, (uint32_t)r->parent[0], a); /* parents are never combinations */
+    element_applied(rt, (uint32_t)r->parent[1], b);
+    for (int c = 0; c < 3; c++)
+      out[c] = a[c] * b[c];
+    return;
+  }
+  float baked = r->kind == UB_ELEMENT_OBJECT ? 1.0f : 0.0f;
+  for (int c = 0; c < 3; c++)
+    out[c] = rt->value[3 * (size_t)e + c] - baked;
+}
+
+static ub_result push_applied(ub_runtime *rt, uint32_t e)
+{
+  float w[3];
+  element_applied(rt, e, w);
+  memcpy(rt->applied + 3 * (size_t)e, w, sizeof w);
+  ub_result r = ub_blend_set_weight(rt->lm_blend, e, w);
+  if (r == UB_OK && rt->glg_blend)
+    r = ub_blend_set_weight(rt->glg_blend, e, w);
+  if (r == UB_OK && rt->llg_blend)
+    r = ub_blend_set_weight(rt->llg_blend, e, w);
+  return r;
+}
+
+/* Sets element e's value and re-applies it and every combination it is a parent of. */
+static ub_result set_value(ub_runtime *rt, uint32_t e, const float rgb[3])
+{
+  memcpy(rt->value + 3 * (size_t)e, rgb, 3 * sizeof(float));
+  ub_result r = push_applied(rt, e);
+  const ub_bakefile *bf = rt->bf;
+  for (uint32_t k = 0; r == UB_OK && k < bf->elem_count; k++)
+    if (bf->elems[k].kind == UB_ELEMENT_COMBO &&
+        (bf->elems[k].parent[0] == (int32_t)e || bf->elems[k].parent[1] == (int32_t)e))
+      r = push_applied(rt, bf->dls_count + k);
+  return r;
+}
+
+/* Blend engines for the elements' lightmap, GLG and LLG records; sets start at weight 1,
+ * doors closed, objects shown. */
+static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *log)
 {
   const ub_bakefile *bf = rt->bf;
+  uint32_t n = bf->dls_count + bf->elem_count;
+  rt->elem_total = n;
   uint64_t pixels = rt->pixel_first[bf->atlas_count];
   rt->lm_base = malloc((size_t)(pixels ? pixels : 1) * UB_SH1_FLOATS * sizeof(float));
   rt->lm_cur = malloc((size_t)(pixels ? pixels : 1) * UB_SH1_FLOATS * sizeof(float));
-  rt->lm_rec = calloc(bf->dls_count, sizeof *rt->lm_rec);
-  rt->glg_rec = calloc(bf->dls_count, sizeof *rt->glg_rec);
-  if (!rt->lm_base || !rt->lm_cur || !rt->lm_rec || !rt->glg_rec) {
-    ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic light sets", path);
+  rt->lm_rec = calloc(n, sizeof *rt->lm_rec);
+  rt->glg_rec = calloc(n, sizeof *rt->glg_rec);
+  rt->llg_rec = calloc(n, sizeof *rt->llg_rec);
+  rt->value = calloc((size_t)n * 3, sizeof *rt->value);
+  rt->applied = calloc((size_t)n * 3, sizeof *rt->applied);
+  rt->llg_first = calloc((size_t)bf->llg_count + 1, sizeof *rt->llg_first);
+  if (!rt->lm_base || !rt->lm_cur || !rt->lm_rec || !rt->glg_rec || !rt->llg_rec ||
+      !rt->value || !rt->applied || !rt->llg_first) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return UB_ERR_OUT_OF_MEMORY;
   }
   for (uint32_t a = 0; a < bf->atlas_count; a++)
     memcpy(rt->lm_base + rt->pixel_first[a] * UB_SH1_FLOATS, bf->atlases[a].sh,
            (size_t)(rt->pixel_first[a + 1] - rt->pixel_first[a]) * UB_SH1_FLOATS * sizeof(float));
-  for (uint32_t d = 0; d < bf->dls_count; d++) {
-    rt->lm_rec[d].receivers = bf->dls[d].texel_index;
-    rt->lm_rec[d].values = bf->dls[d].texel_sh;
-    rt->lm_rec[d].count = bf->dls[d].texel_count;
-    rt->glg_rec[d].receivers = bf->dls[d].probe_index;
-    rt->glg_rec[d].values = bf->dls[d].probe_sh;
-    rt->glg_rec[d].count = bf->dls[d].probe_count;
+  int any_llg = 0;
+  for (uint32_t e = 0; e < n; e++) {
+    const ub_bakefile_record *rc = element_record(bf, e);
+    rt->lm_rec[e].receivers = rc->texel_index;
+    rt->lm_rec[e].values = rc->texel_sh;
+    rt->lm_rec[e].count = rc->texel_count;
+    rt->glg_rec[e].receivers = rc->probe_index;
+    rt->glg_rec[e].values = rc->probe_sh;
+    rt->glg_rec[e].count = rc->probe_count;
+    rt->llg_rec[e].receivers = rc->llg_probe_index;
+    rt->llg_rec[e].values = rc->llg_probe_sh;
+    rt->llg_rec[e].count = rc->llg_probe_count;
+    any_llg |= rc->llg_probe_count > 0;
   }
   ub_blend_desc bd;
   memset(&bd, 0, sizeof bd);
@@ -195,7 +272,7 @@ static ub_result setup_dls(ub_runtime *rt, const char *path, const ub_log *log)
   bd.stride = UB_SH1_FLOATS;
   bd.base = rt->lm_base;
   bd.storage = UB_BLEND_FLOAT32;
-  bd.element_count = bf->dls_count;
+  bd.element_count = n;
   bd.elements = rt->lm_rec;
   ub_result r = ub_blend_create(&bd, log, rt->lm_cur, &rt->lm_blend);
   if (r != UB_OK)
@@ -210,10 +287,38 @@ static ub_result setup_dls(ub_runtime *rt, const char *path, const ub_log *log)
     if (r != UB_OK)
       return r;
   }
-  const float one[3] = {1.0f, 1.0f, 1.0f};
-  for (uint32_t d = 0; d < bf->dls_count; d++)
-    ub_runtime_set_dls(rt, d, one);
-  return ub_runtime_update(rt, NULL);
+  for (uint32_t m = 0; m < bf->llg_count; m++)
+    rt->llg_first[m + 1] = rt->llg_first[m] + (uint64_t)bf->llgs[m].dims[0] *
+                                                  bf->llgs[m].dims[1] * bf->llgs[m].dims[2];
+  uint64_t lp = rt->llg_first[bf->llg_count];
+  if (any_llg && lp) {
+    rt->llg_base = malloc((size_t)lp * 27 * sizeof(float));
+    rt->llg_cur = malloc((size_t)lp * 27 * sizeof(float));
+    if (!rt->llg_base || !rt->llg_cur) {
+      ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing LLG records", path);
+      return UB_ERR_OUT_OF_MEMORY;
+    }
+    for (uint32_t m = 0; m < bf->llg_count; m++)
+      memcpy(rt->llg_base + rt->llg_first[m] * 27, bf->llgs[m].probe_sh,
+             (size_t)(rt->llg_first[m + 1] - rt->llg_first[m]) * 27 * sizeof(float));
+    bd.name = "LLG probes";
+    bd.receiver_count = (uint32_t)lp;
+    bd.stride = 27;
+    bd.base = rt->llg_base;
+    bd.elements = rt->llg_rec;
+    r = ub_blend_create(&bd, log, rt->llg_cur, &rt->llg_blend);
+    if (r != UB_OK)
+      return r;
+  }
+  for (uint32_t e = 0; e < n && r == UB_OK; e++) {
+    uint32_t kind = element_record(bf, e)->kind;
+    float v = kind == UB_ELEMENT_DOOR ? 0.0f : 1.0f;
+    float rgb[3] = {v, v, v};
+    memcpy(rt->value + 3 * (size_t)e, rgb, sizeof rgb);
+  }
+  for (uint32_t e = 0; e < n && r == UB_OK; e++)
+    r = push_applied(rt, e);
+  return r == UB_OK ? ub_runtime_update(rt, NULL) : r;
 }
 
 ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
@@ -277,8 +382,8 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
     rt->glg_win = malloc(sh_bytes);
     if (!rt->glg_win)
       goto oom;
-    if (bf->dls_count) {
-      /* The sets blend into glg_cur; it starts as the base. */
+    if (bf->dls_count || bf->elem_count) {
+      /* The elements blend into glg_cur; it starts as the base. */
       rt->glg_cur = malloc(sh_bytes);
       if (!rt->glg_cur)
         goto oom;
@@ -296,8 +401,8 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
     }
     rt->has_glg = 1;
   }
-  if (bf->dls_count) {
-    r = setup_dls(rt, path, log);
+  if (bf->dls_count || bf->elem_count) {
+    r = setup_elements(rt, path, log);
     if (r != UB_OK) {
       ub_runtime_free(rt);
       return r;
@@ -337,10 +442,80 @@ ub_result ub_runtime_set_dls(ub_runtime *rt, uint32_t set, const float rgb[3])
   assert(rt && rgb);
   if (set >= rt->bf->dls_count || !isfinite(rgb[0]) || !isfinite(rgb[1]) || !isfinite(rgb[2]))
     return UB_ERR_INVALID_ARGUMENT;
-  ub_result r = ub_blend_set_weight(rt->lm_blend, set, rgb);
-  if (r == UB_OK && rt->glg_blend)
-    r = ub_blend_set_weight(rt->glg_blend, set, rgb);
-  return r;
+  return set_value(rt, set, rgb);
+}
+
+uint32_t ub_runtime_element_count(const ub_runtime *rt)
+{
+  assert(rt);
+  return rt->bf->elem_count;
+}
+
+int32_t ub_runtime_element_find(const ub_runtime *rt, ub_element_kind kind, const char *name)
+{
+  assert(rt && name);
+  for (uint32_t e = 0; e < rt->bf->elem_count; e++)
+    if (rt->bf->elems[e].kind == (uint32_t)kind && strcmp(rt->bf->elems[e].name, name) == 0)
+      return (int32_t)e;
+  return -1;
+}
+
+const char *ub_runtime_element_name(const ub_runtime *rt, uint32_t element)
+{
+  assert(rt);
+  return element < rt->bf->elem_count ? rt->bf->elems[element].name : NULL;
+}
+
+ub_element_kind ub_runtime_element_kind(const ub_runtime *rt, uint32_t element)
+{
+  assert(rt);
+  return element < rt->bf->elem_count ? (ub_element_kind)rt->bf->elems[element].kind
+                                      : UB_ELEMENT_DLS;
+}
+
+ub_result ub_runtime_set_element(ub_runtime *rt, uint32_t element, float value)
+{
+  assert(rt);
+  if (element >= rt->bf->elem_count || rt->bf->elems[element].kind == UB_ELEMENT_COMBO ||
+      !isfinite(value) || value < 0.0f || value > 1.0f)
+    return UB_ERR_INVALID_ARGUMENT;
+  const float rgb[3] = {value, value, value};
+  return set_value(rt, rt->bf->dls_count + element, rgb);
+}
+
+ub_result ub_runtime_element_value(const ub_runtime *rt, uint32_t element, float *out_value)
+{
+  assert(rt && out_value);
+  if (element >= rt->bf->elem_count || rt->bf->elems[element].kind == UB_ELEMENT_COMBO ||
+      !rt->value)
+    return UB_ERR_INVALID_ARGUMENT;
+  *out_value = rt->value[3 * ((size_t)rt->bf->dls_count + element)];
+  return UB_OK;
+}
+
+int ub_runtime_triangle_shown(const ub_runtime *rt, uint32_t t)
+{
+  assert(rt);
+  const ub_bakefile *bf = rt->bf;
+  if (!bf->tri_role || t >= bf->triangle_count || !bf->tri_role[t])
+    return 1;
+  uint32_t role = bf->tri_role[t] >> 24;
+  float v;
+  if (ub_runtime_element_value(rt, bf->tri_role[t] & 0xFFFFFFu, &v) != UB_OK)
+    return role != UB_TRI_ROLE_DOOR_OPEN; /* as baked */
+  if (role == UB_TRI_ROLE_DOOR_CLOSED)
+    return v < 0.5f;
+  return v >= 0.5f;
+}
+
+float ub_runtime_door_fraction(float a)
+{
+  if (!isfinite(a))
+    return 0.0f;
+  a = fabsf(a);
+  if (a >= (float)M_PI_2)
+    return 1.0f;
+  return 1.0f - cosf(a);
 }
 
 float ub_runtime_dls_weight_from_lights(const float *strengths, uint32_t count)
@@ -387,6 +562,22 @@ static void glg_touched(void *user, uint32_t first, uint32_t count, const float 
     ub_sh2_window(rt->glg_win + 27 * (size_t)q);
 }
 
+/* Copies the LLG probes the blend just wrote into their models' grids. */
+static void llg_touched(void *user, uint32_t first, uint32_t count, const float *rows)
+{
+  (void)rows;
+  ub_runtime *rt = user;
+  uint64_t lo = first, hi = (uint64_t)first + count;
+  for (uint32_t m = 0; m < rt->bf->llg_count && lo < hi; m++) {
+    uint64_t a0 = rt->llg_first[m], a1 = rt->llg_first[m + 1];
+    if (hi <= a0 || lo >= a1)
+      continue;
+    uint64_t s0 = lo > a0 ? lo : a0, s1 = hi < a1 ? hi : a1;
+    memcpy(rt->bf->llgs[m].probe_sh + (s0 - a0) * 27, rt->llg_cur + s0 * 27,
+           (size_t)(s1 - s0) * 27 * sizeof(float));
+  }
+}
+
 ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
 {
   assert(rt);
@@ -406,6 +597,14 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
     ub_blend_stats bs;
     ub_blend_update(rt->glg_blend, glg_touched, rt, rt->glg_cur, &bs);
     st.probes_written = bs.receivers;
+    st.bytes_read += bs.bytes_read;
+    st.bytes_written += bs.bytes_written;
+    st.groups += bs.groups;
+  }
+  if (rt->llg_blend) {
+    ub_blend_stats bs;
+    ub_blend_update(rt->llg_blend, llg_touched, rt, rt->llg_cur, &bs);
+    st.probes_written += bs.receivers;
     st.bytes_read += bs.bytes_read;
     st.bytes_written += bs.bytes_written;
     st.groups += bs.groups;

@@ -9,6 +9,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "bake/geomstate.h"
 #include "bake/lights.h"
 #include "bake/reference.h"
 #include "bake/rt.h"
@@ -85,36 +86,99 @@ static int parse_uint(const char *s, long max, long *out)
   return 1;
 }
 
-/* ---- state (--dls NAME=W|R,G,B) ---------------------------------------------------- */
+/* ---- state (--dls NAME=W|R,G,B, --door NAME=T, --object NAME=on|off|W) --------------- */
 
 #define UB_CLI_MAX_STATE 256
 
+enum { CLI_DLS = 0, CLI_DOOR = 1, CLI_OBJECT = 2 };
+
 typedef struct cli_state {
   uint32_t count;
+  int kind[UB_CLI_MAX_STATE];
   char name[UB_CLI_MAX_STATE][64];
-  float rgb[UB_CLI_MAX_STATE][3];
+  float rgb[UB_CLI_MAX_STATE][3]; /* DLS: RGB weight; door: t; object: visibility */
 } cli_state;
 
-/* Parses one "NAME=W" or "NAME=R,G,B" value; 0 on a malformed value. */
-static int parse_dls_value(const char *v, cli_state *st)
+static const char *cli_kind_name(int kind)
 {
-  const char *eq = strchr(v, '=');
-  if (!eq || eq == v || (size_t)(eq - v) >= sizeof st->name[0] || st->count >= UB_CLI_MAX_STATE)
+  return kind == CLI_DLS ? "dynamic light set" : kind == CLI_DOOR ? "door" : "show/hide object";
+}
+
+/* One state option: a = "--dls"|"--door"|"--object", v its value. Returns 1 when taken,
+ * 0 when a is not a state option, -1 (message printed) for a malformed value. */
+static int parse_state_arg(const char *cmd, const char *a, const char *v, cli_state *st)
+{
+  int kind = !strcmp(a, "--dls") ? CLI_DLS : !strcmp(a, "--door") ? CLI_DOOR
+             : !strcmp(a, "--object") ? CLI_OBJECT : -1;
+  if (kind < 0 || !v)
     return 0;
+  static const char *forms[] = {"--dls takes NAME=W or NAME=R,G,B (W >= 0)",
+                                "--door takes NAME=T with T in [0, 1] (0 closed, 1 open)",
+                                "--object takes NAME=on, NAME=off or NAME=W with W in [0, 1]"};
+  const char *eq = strchr(v, '=');
+  if (!eq || eq == v || (size_t)(eq - v) >= sizeof st->name[0] || st->count >= UB_CLI_MAX_STATE) {
+    usage_error(cmd, forms[kind]);
+    return -1;
+  }
   float rgb[3];
   char *end;
   errno = 0;
   double w = strtod(eq + 1, &end);
-  if (end != eq + 1 && *end == '\0' && !errno && isfinite(w)) {
+  int ok = 1;
+  if (kind == CLI_OBJECT && (!strcmp(eq + 1, "on") || !strcmp(eq + 1, "off"))) {
+    rgb[0] = rgb[1] = rgb[2] = !strcmp(eq + 1, "on") ? 1.0f : 0.0f;
+  } else if (end != eq + 1 && *end == '\0' && !errno && isfinite(w)) {
     rgb[0] = rgb[1] = rgb[2] = (float)w;
-  } else if (!parse_vec3(eq + 1, rgb)) {
-    return 0;
+    if (kind != CLI_DLS)
+      ok = w >= 0.0 && w <= 1.0;
+  } else {
+    ok = kind == CLI_DLS && parse_vec3(eq + 1, rgb);
   }
+  ok = ok && rgb[0] >= 0.0f && rgb[1] >= 0.0f && rgb[2] >= 0.0f;
+  if (!ok) {
+    usage_error(cmd, forms[kind]);
+    return -1;
+  }
+  st->kind[st->count] = kind;
   memcpy(st->name[st->count], v, (size_t)(eq - v));
   st->name[st->count][eq - v] = '\0';
   memcpy(st->rgb[st->count], rgb, sizeof rgb);
   st->count++;
   return 1;
+}
+
+/* Applies a state to a loaded run-time (then updates it). 0 on success; prints the
+ * problem (naming the file and the element) and returns 1 otherwise. */
+static int apply_state(ub_runtime *rt, const cli_state *st, const char *path)
+{
+  for (uint32_t k = 0; k < st->count; k++) {
+    ub_result r;
+    int32_t idx;
+    if (st->kind[k] == CLI_DLS) {
+      idx = ub_runtime_dls_find(rt, st->name[k]);
+      r = idx < 0 ? UB_ERR_INVALID_ARGUMENT : ub_runtime_set_dls(rt, (uint32_t)idx, st->rgb[k]);
+    } else {
+      idx = ub_runtime_element_find(rt, st->kind[k] == CLI_DOOR ? UB_ELEMENT_DOOR
+                                                                : UB_ELEMENT_OBJECT,
+                                    st->name[k]);
+      r = idx < 0 ? UB_ERR_INVALID_ARGUMENT : ub_runtime_set_element(rt, (uint32_t)idx, st->rgb[k][0]);
+    }
+    if (idx < 0) {
+      fprintf(stderr, "ubake: %s: no %s named '%s' in this file\n", path,
+              cli_kind_name(st->kind[k]), st->name[k]);
+      return 1;
+    }
+    if (r != UB_OK) {
+      fprintf(stderr, "ubake: %s: %s '%s': %s\n", path, cli_kind_name(st->kind[k]),
+              st->name[k], ub_result_string(r));
+      return 1;
+    }
+  }
+  if (st->count && ub_runtime_update(rt, NULL) != UB_OK) {
+    fprintf(stderr, "ubake: %s: run-time update failed\n", path);
+    return 1;
+  }
+  return 0;
 }
 
 /* ---- progress ---------------------------------------------------------------------- */
@@ -300,6 +364,29 @@ static int cmd_bake(int argc, char **argv)
   return 0;
 }
 
+/* Bytes of a record in the file (indices + half SH). */
+static unsigned long long record_bytes(const ub_bakefile_record *rc)
+{
+  return (unsigned long long)rc->texel_count * 28 + (unsigned long long)rc->probe_count * 58 +
+         (unsigned long long)rc->llg_probe_count * 58;
+}
+
+static const char *element_kind_name(uint32_t kind)
+{
+  return kind == UB_ELEMENT_DLS ? "set" : kind == UB_ELEMENT_DOOR ? "door"
+         : kind == UB_ELEMENT_OBJECT ? "object" : "combination";
+}
+
+/* Name of an element in the global numbering (sets, then ELEM records). */
+static const char *element_name(const ub_bakefile *bf, int32_t e)
+{
+  if (e >= 0 && (uint32_t)e < bf->dls_count)
+    return bf->dls[e].name;
+  if (e >= 0 && (uint32_t)e - bf->dls_count < bf->elem_count)
+    return bf->elems[e - (int32_t)bf->dls_count].name;
+  return "?";
+}
+
 /* ---- info -------------------------------------------------------------------------- */
 
 static const char *INFO_HELP = "usage: ubake info DIR/NAME.ubk [--json]\n"
@@ -371,11 +458,18 @@ static int cmd_info(int argc, char **argv)
            bf->glg_plane_count, glg_bytes, bf->llg_count, llg_probes, llg_vertices, llg_bytes);
     for (uint32_t d = 0; d < bf->dls_count; d++)
       printf("%s{\"name\": \"%s\", \"lights\": %u, \"texels\": %u, \"probes\": %u, "
-             "\"bytes\": %llu}",
+             "\"llg_probes\": %u, \"bytes\": %llu}",
              d ? ", " : "", bf->dls[d].name, bf->dls[d].light_count, bf->dls[d].texel_count,
-             bf->dls[d].probe_count,
-             (unsigned long long)bf->dls[d].texel_count * 28 +
-                 (unsigned long long)bf->dls[d].probe_count * 58);
+             bf->dls[d].probe_count, bf->dls[d].llg_probe_count, record_bytes(&bf->dls[d]));
+    printf("], \"elements\": [");
+    for (uint32_t e = 0; e < bf->elem_count; e++) {
+      const ub_bakefile_record *rc = &bf->elems[e];
+      printf("%s{\"name\": \"%s\", \"kind\": \"%s\", \"parents\": [%d, %d], "
+             "\"texels\": %u, \"probes\": %u, \"llg_probes\": %u, \"bytes\": %llu}",
+             e ? ", " : "", rc->name, element_kind_name(rc->kind), (int)rc->parent[0],
+             (int)rc->parent[1], rc->texel_count, rc->probe_count, rc->llg_probe_count,
+             record_bytes(rc));
+    }
     printf("]}\n");
   } else {
     printf("%s: level %s, %lld bytes, seed %u, %u bounces\n", path, bf->level_name, bytes,
@@ -404,9 +498,20 @@ static int cmd_info(int argc, char **argv)
     printf("  dynamic light sets: %u\n", bf->dls_count);
     for (uint32_t d = 0; d < bf->dls_count; d++) {
       const ub_bakefile_record *rc = &bf->dls[d];
-      printf("    %-20s %2u light(s), %8u texels, %6u GLG probes, %9llu bytes\n", rc->name,
-             rc->light_count, rc->texel_count, rc->probe_count,
-             (unsigned long long)rc->texel_count * 28 + (unsigned long long)rc->probe_count * 58);
+      printf("    %-20s %2u light(s), %8u texels, %6u GLG probes, %6u LLG probes, %9llu "
+             "bytes\n", rc->name, rc->light_count, rc->texel_count, rc->probe_count,
+             rc->llg_probe_count, record_bytes(rc));
+    }
+    printf("  doors, objects, combinations: %u\n", bf->elem_count);
+    for (uint32_t e = 0; e < bf->elem_count; e++) {
+      const ub_bakefile_record *rc = &bf->elems[e];
+      char parents[160] = "";
+      if (rc->kind == UB_ELEMENT_COMBO)
+        snprintf(parents, sizeof parents, " (%s × %s)", element_name(bf, rc->parent[0]),
+                 element_name(bf, rc->parent[1]));
+      printf("    %-11s %-20s %8u texels, %6u GLG probes, %6u LLG probes, %9llu bytes%s\n",
+             element_kind_name(rc->kind), rc->name, rc->texel_count, rc->probe_count,
+             rc->llg_probe_count, record_bytes(rc), parents);
     }
   }
   ub_bakefile_free(bf);
@@ -417,9 +522,12 @@ static int cmd_info(int argc, char **argv)
 
 static const char *QUERY_HELP =
     "usage: ubake query DIR/NAME.ubk --at X,Y,Z --normal X,Y,Z [--source auto|glg|llg|lightmap]\n"
-    "                   [--dls NAME=W|R,G,B ...]\n"
+    "                   [--dls NAME=W|R,G,B ...] [--door NAME=T ...] [--object NAME=on|off ...]\n"
     "Prints the baked irradiance \"R G B\" (W/m², linear) the run-time uses there.\n"
     "  --dls NAME=W        weight (or RGB tint) of a dynamic light set (default 1: as baked)\n"
+    "  --door NAME=T       opening fraction of a door, T in [0, 1] (default 0: closed; from\n"
+    "                      a hinge angle a: T = 1 - cos a, 1 beyond 90 degrees)\n"
+    "  --object NAME=V     on, off, or a visibility in [0, 1] to fade (default on)\n"
     "  --source lightmap   the lightmap of the closest lightmapped surface point\n"
     "  --source glg        the global light grid (tetrahedral probes), as a dynamic object\n"
     "  --source llg        the local light grid of the LLG model whose box holds the point\n"
@@ -434,6 +542,7 @@ static int cmd_query(int argc, char **argv)
   state.count = 0;
   float at[3], nrm[3];
   int have_at = 0, have_n = 0;
+  int k;
   for (int i = 0; i < argc; i++) {
     const char *a = argv[i];
     const char *v = i + 1 < argc ? argv[i + 1] : NULL;
@@ -453,9 +562,9 @@ static int cmd_query(int argc, char **argv)
     } else if (!strcmp(a, "--source") && v) {
       source = v;
       i++;
-    } else if (!strcmp(a, "--dls") && v) {
-      if (!parse_dls_value(v, &state))
-        return usage_error("query", "--dls takes NAME=W or NAME=R,G,B");
+    } else if ((k = parse_state_arg("query", a, v, &state)) != 0) {
+      if (k < 0)
+        return 1;
       i++;
     } else if (a[0] == '-') {
       return usage_error("query", "unknown option or missing value");
@@ -479,18 +588,10 @@ static int cmd_query(int argc, char **argv)
   ub_result r = ub_runtime_load(path, &log, &rt);
   if (r != UB_OK)
     return fail(&ls, r, path);
-  for (uint32_t k = 0; k < state.count; k++) {
-    int32_t set = ub_runtime_dls_find(rt, state.name[k]);
-    if (set < 0) {
-      fprintf(stderr, "ubake: %s: no dynamic light set named '%s' in this file\n", path,
-              state.name[k]);
-      ub_runtime_free(rt);
-      return 1;
-    }
-    ub_runtime_set_dls(rt, (uint32_t)set, state.rgb[k]);
+  if (apply_state(rt, &state, path)) {
+    ub_runtime_free(rt);
+    return 1;
   }
-  if (state.count)
-    ub_runtime_update(rt, NULL);
   float rgb[3], dist;
   /* auto: a point in space is answered by the GLG, as for a dynamic object. */
   if (!strcmp(source, "lightmap"))
@@ -516,8 +617,12 @@ static int cmd_query(int argc, char **argv)
 static const char *REFERENCE_HELP =
     "usage: ubake reference LEVEL.gltf --at X,Y,Z --normal X,Y,Z [--spp N] [--seed N]\n"
     "          [--bounces N] [--threads N] [--dls NAME=W|R,G,B ...] [--door NAME=0|1 ...]\n"
+    "          [--object NAME=on|off ...]\n"
     "Brute-force path-traced irradiance (W/m², linear RGB) for the same path classes as the\n"
-    "bake. Prints \"R G B\" on the first line and \"se R G B\" (standard error) on the second.\n";
+    "bake. Prints \"R G B\" on the first line and \"se R G B\" (standard error) on the second.\n"
+    "  --door NAME=0       the closed leaf, with its own albedo (default)\n"
+    "  --door NAME=1       the leaf removed, or in its open pose (ubake_door_open) if any\n"
+    "  --object NAME=off   the show/hide object removed (default: on, as designed)\n";
 
 static int cmd_reference(int argc, char **argv)
 {
@@ -527,9 +632,7 @@ static int cmd_reference(int argc, char **argv)
   ub_reference_params rp;
   ub_reference_params_init(&rp);
   int have_at = 0, have_n = 0;
-  char door_name[16][64];
-  float door_val[16];
-  uint32_t door_count = 0;
+  int k;
   for (int i = 0; i < argc; i++) {
     const char *a = argv[i];
     const char *v = i + 1 < argc ? argv[i + 1] : NULL;
@@ -567,21 +670,9 @@ static int cmd_reference(int argc, char **argv)
         return usage_error("reference", "--threads takes 1..1024");
       rp.threads = (int)n;
       i++;
-    } else if (!strcmp(a, "--dls") && v) {
-      if (!parse_dls_value(v, &state))
-        return usage_error("reference", "--dls takes NAME=W or NAME=R,G,B");
-      i++;
-    } else if (!strcmp(a, "--door") && v) {
-      /* Local parse until the shared cli_state carries doors. */
-      const char *eq = strchr(v, '=');
-      char *end = NULL;
-      float t = eq ? strtof(eq + 1, &end) : NAN;
-      if (!eq || eq == v || (size_t)(eq - v) >= sizeof door_name[0] || !end || *end ||
-          !(t >= 0.0f && t <= 1.0f) || door_count >= 16)
-        return usage_error("reference", "--door takes NAME=T, T = 0 (closed) or 1 (open)");
-      memcpy(door_name[door_count], v, (size_t)(eq - v));
-      door_name[door_count][eq - v] = '\0';
-      door_val[door_count++] = t;
+    } else if ((k = parse_state_arg("reference", a, v, &state)) != 0) {
+      if (k < 0)
+        return 1;
       i++;
     } else if (a[0] == '-') {
       return usage_error("reference", "unknown option or missing value");
@@ -597,56 +688,66 @@ static int cmd_reference(int argc, char **argv)
   ub_rt *rt = NULL;
   ub_emitters *em = NULL;
   ub_result r = ub_scene_load(level, &log, &scene);
-  float *door_t = NULL;
-  if (r == UB_OK && scene->door_count) {
-    door_t = calloc(scene->door_count, sizeof *door_t);
-    if (!door_t)
-      r = UB_ERR_OUT_OF_MEMORY;
-  }
-  for (uint32_t k = 0; r == UB_OK && k < door_count; k++) {
-    uint32_t d;
-    for (d = 0; d < scene->door_count; d++)
-      if (!strcmp(scene->door_names[d], door_name[k]))
-        break;
-    if (d == scene->door_count) {
-      fprintf(stderr, "ubake: %s: no door named '%s'\n", level, door_name[k]);
-      ls.errors++;
-      r = UB_ERR_INVALID_ARGUMENT;
-      break;
-    }
-    door_t[d] = door_val[k];
-  }
-  if (r == UB_OK)
-    r = ub_reference_rt_create(scene, door_t, NULL, &log, &rt);
-  free(door_t);
-  if (r == UB_OK)
-    r = ub_emitters_build(scene, &em);
   float rgb[3], se[3];
   float *weights = NULL;
-  if (r == UB_OK && scene->dls_count) {
-    weights = malloc((size_t)scene->dls_count * 3 * sizeof *weights);
-    if (!weights)
+  uint8_t *door_open = NULL, *shown = NULL, *mask = NULL;
+  if (r == UB_OK) {
+    weights = malloc(((size_t)scene->dls_count + 1) * 3 * sizeof *weights);
+    door_open = calloc((size_t)scene->door_count + 1, 1);
+    shown = malloc((size_t)scene->object_count + 1);
+    if (!weights || !door_open || !shown)
       r = UB_ERR_OUT_OF_MEMORY;
-    for (uint32_t d = 0; weights && d < scene->dls_count * 3; d++)
+  }
+  if (r == UB_OK) {
+    for (uint32_t d = 0; d < scene->dls_count * 3; d++)
       weights[d] = 1.0f;
-    rp.dls_weight = weights;
+    memset(shown, 1, (size_t)scene->object_count + 1);
+    rp.dls_weight = scene->dls_count ? weights : NULL;
   }
+  /* The state: DLS weights, and the geometry of doors (closed leaf with its own albedo,
+   * or the open pose / nothing) and objects (shown or not), as bake/geomstate.h. */
   for (uint32_t k = 0; r == UB_OK && k < state.count; k++) {
+    uint32_t n = state.kind[k] == CLI_DLS ? scene->dls_count
+                 : state.kind[k] == CLI_DOOR ? scene->door_count : scene->object_count;
+    char **names = state.kind[k] == CLI_DLS ? scene->dls_names
+                   : state.kind[k] == CLI_DOOR ? scene->door_names : scene->object_names;
     uint32_t d;
-    for (d = 0; d < scene->dls_count; d++)
-      if (!strcmp(scene->dls_names[d], state.name[k]))
+    for (d = 0; d < n; d++)
+      if (!strcmp(names[d], state.name[k]))
         break;
-    if (d == scene->dls_count) {
-      fprintf(stderr, "ubake: %s: no dynamic light set named '%s'\n", level, state.name[k]);
-      ls.errors++;
-      r = UB_ERR_INVALID_ARGUMENT;
-      break;
+    float w = state.rgb[k][0];
+    if (d == n) {
+      fprintf(stderr, "ubake: %s: no %s named '%s'\n", level, cli_kind_name(state.kind[k]),
+              state.name[k]);
+    } else if (state.kind[k] != CLI_DLS && w != 0.0f && w != 1.0f) {
+      fprintf(stderr, "ubake: %s: %s '%s': the reference traces the geometry as it is: "
+              "only 0 or 1 (closed/open, off/on)\n", level, cli_kind_name(state.kind[k]),
+              state.name[k]);
+    } else {
+      if (state.kind[k] == CLI_DLS)
+        memcpy(weights + 3 * d, state.rgb[k], 3 * sizeof(float));
+      else if (state.kind[k] == CLI_DOOR)
+        door_open[d] = w == 1.0f;
+      else
+        shown[d] = w == 1.0f;
+      continue;
     }
-    memcpy(weights + 3 * d, state.rgb[k], 3 * sizeof(float));
+    ls.errors++;
+    r = UB_ERR_INVALID_ARGUMENT;
   }
+  if (r == UB_OK) {
+    ub_geom_state gs = {door_open, shown};
+    mask = ub_geom_mask(scene, &gs);
+    r = mask ? ub_rt_create(scene, mask, &log, &rt) : UB_ERR_OUT_OF_MEMORY;
+  }
+  if (r == UB_OK)
+    r = ub_emitters_build(scene, &em);
   if (r == UB_OK)
     r = ub_reference_irradiance(scene, rt, em, &rp, rgb, se, &log);
   free(weights);
+  free(door_open);
+  free(shown);
+  free(mask);
   ub_emitters_free(em);
   ub_rt_free(rt);
   ub_scene_free(scene);
@@ -665,6 +766,7 @@ static int cmd_reference(int argc, char **argv)
 static const char *RENDER_HELP =
     "usage: ubake render DIR/NAME.ubk --camera EX,EY,EZ,TX,TY,TZ,FOVY -o OUT.png\n"
     "          [--size WxH] [--exposure EV] [--samples N] [--dls NAME=W|R,G,B ...]\n"
+    "          [--door NAME=T ...] [--object NAME=on|off|V ...]\n"
     "Renders the level from a camera as the run-time shows it: lightmaps on lightmapped\n"
     "geometry, the global light grid on the rest, plus the run-time direct light of the\n"
     "primary lights (with shadows), under the given state. Back faces are black.\n"
@@ -675,7 +777,9 @@ static const char *RENDER_HELP =
     "                      automatic from the 95th percentile of luminance; the EV used is\n"
     "                      printed, pass it back to compare states at the same exposure)\n"
     "  --samples N         N×N rays per pixel (default 1)\n"
-    "  --dls NAME=W        weight (or R,G,B tint) of a dynamic light set (default 1)\n";
+    "  --dls NAME=W        weight (or R,G,B tint) of a dynamic light set (default 1)\n"
+    "  --door NAME=T       opening fraction of a door in [0, 1] (default 0: closed)\n"
+    "  --object NAME=V     on, off or a visibility in [0, 1] (default on)\n";
 
 static int cmd_render(int argc, char **argv)
 {
@@ -684,19 +788,15 @@ static int cmd_render(int argc, char **argv)
   ub_render_params_default(&rp);
   int have_camera = 0, auto_exposure = 1;
   float ev = 0.0f;
-  int dls_arg_count = 0;
-  const char **dls_args = calloc((size_t)argc + 1, sizeof *dls_args);
-  if (!dls_args) {
-    fprintf(stderr, "ubake: out of memory\n");
-    return 1;
-  }
+  static cli_state state;
+  state.count = 0;
+  int sk;
   for (int i = 0; i < argc; i++) {
     const char *a = argv[i];
     const char *v = i + 1 < argc ? argv[i + 1] : NULL;
     char *end;
     if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
       fputs(RENDER_HELP, stdout);
-      free(dls_args);
       return 0;
     } else if (!strcmp(a, "--camera") && v) {
       float c[7];
@@ -710,7 +810,6 @@ static int cmd_render(int argc, char **argv)
         s = end + 1;
       }
       if (!ok) {
-        free(dls_args);
         return usage_error("render", "--camera takes EX,EY,EZ,TX,TY,TZ,FOVY (7 numbers)");
       }
       memcpy(rp.eye, c, sizeof rp.eye);
@@ -731,7 +830,6 @@ static int cmd_render(int argc, char **argv)
         ok = end != s && *end == '\0' && !errno;
       }
       if (!ok || w < 1 || h < 1 || w > 16384 || h > 16384) {
-        free(dls_args);
         return usage_error("render", "--size takes WxH, each 1..16384");
       }
       rp.width = (uint32_t)w;
@@ -741,7 +839,6 @@ static int cmd_render(int argc, char **argv)
       errno = 0;
       double x = strtod(v, &end);
       if (end == v || *end || errno || !isfinite(x) || fabs(x) > 64.0) {
-        free(dls_args);
         return usage_error("render", "--exposure takes an EV in [-64, 64]");
       }
       ev = (float)x;
@@ -750,95 +847,55 @@ static int cmd_render(int argc, char **argv)
     } else if (!strcmp(a, "--samples") && v) {
       long n;
       if (!parse_uint(v, 16, &n) || n < 1) {
-        free(dls_args);
         return usage_error("render", "--samples takes 1..16");
       }
       rp.samples = (uint32_t)n;
       i++;
-    } else if (!strcmp(a, "--dls") && v) {
-      dls_args[dls_arg_count++] = v;
+    } else if ((sk = parse_state_arg("render", a, v, &state)) != 0) {
+      if (sk < 0) {
+        return 1;
+      }
       i++;
-    } else if ((!strcmp(a, "--door") || !strcmp(a, "--object")) && v) {
-      fprintf(stderr, "ubake: render: %s: doors and show/hide objects are not baked yet\n", a);
-      free(dls_args);
-      return 1;
     } else if (a[0] == '-') {
-      free(dls_args);
       return usage_error("render", "unknown option or missing value");
     } else {
       path = a;
     }
   }
   if (!path || !have_camera || !out_png) {
-    free(dls_args);
     return usage_error("render", "need DIR/NAME.ubk, --camera and -o OUT.png");
   }
   cli_log_state ls = {0, 0, 0};
   ub_log log = {cli_log, &ls};
   if (ub_render_params_check(&rp, 0, &log) != UB_OK) {
-    free(dls_args);
     return 1;
   }
   double t0 = now_s();
   ub_runtime *rt = NULL;
   ub_result r = ub_runtime_load(path, &log, &rt);
   if (r != UB_OK) {
-    free(dls_args);
     return fail(&ls, r, path);
   }
   const ub_bakefile *bf = ub_runtime_bakefile(rt);
   uint32_t triangles = bf->triangle_count;
   double t_load = now_s() - t0;
 
-  /* State: one RGB weight per dynamic light set, by name; default 1 (as baked). */
+  /* State: one RGB weight per dynamic light set, by name; default 1 (as baked), for the
+   * run-time direct light of primary lights; doors and objects through the records. */
   float *weights = malloc(((size_t)bf->dls_count + 1) * 3 * sizeof *weights);
-  int bad = weights == NULL;
-  for (uint32_t s = 0; !bad && s < bf->dls_count * 3; s++)
-    weights[s] = 1.0f;
-  for (int k = 0; !bad && k < dls_arg_count; k++) {
-    const char *v = dls_args[k], *eq = strchr(v, '=');
-    float rgb[3];
-    int ok = eq && eq != v;
-    if (ok) {
-      errno = 0;
-      char *end;
-      double w = strtod(eq + 1, &end);
-      if (end != eq + 1 && *end == '\0' && !errno && isfinite(w))
-        rgb[0] = rgb[1] = rgb[2] = (float)w;
-      else
-        ok = parse_vec3(eq + 1, rgb);
-      ok = ok && rgb[0] >= 0.0f && rgb[1] >= 0.0f && rgb[2] >= 0.0f;
-    }
-    if (!ok) {
-      usage_error("render", "--dls takes NAME=W or NAME=R,G,B (weights >= 0)");
-      bad = 1;
-      break;
-    }
-    uint32_t s = 0;
-    while (s < bf->dls_count &&
-           !(strlen(bf->dls[s].name) == (size_t)(eq - v) && !strncmp(bf->dls[s].name, v, (size_t)(eq - v))))
-      s++;
-    if (s == bf->dls_count) {
-      fprintf(stderr, "ubake: %s: no dynamic light set named '%.*s' in this file\n", path,
-              (int)(eq - v), v);
-      bad = 1;
-      break;
-    }
-    memcpy(&weights[(size_t)s * 3], rgb, sizeof rgb);
-  }
-  free(dls_args);
-  if (bad) {
+  if (!weights || apply_state(rt, &state, path)) {
     if (!weights)
       fprintf(stderr, "ubake: out of memory\n");
     free(weights);
     ub_runtime_free(rt);
     return 1;
   }
-  /* The baked indirect part of each set (its records blended into the lightmaps/GLG). */
-  for (uint32_t s = 0; s < bf->dls_count && r == UB_OK; s++)
-    r = ub_runtime_set_dls(rt, s, &weights[(size_t)s * 3]);
-  if (r == UB_OK)
-    r = ub_runtime_update(rt, NULL);
+  for (uint32_t s = 0; s < bf->dls_count * 3; s++)
+    weights[s] = 1.0f;
+  for (uint32_t q = 0; q < state.count; q++)
+    if (state.kind[q] == CLI_DLS)
+      memcpy(&weights[3 * (size_t)ub_runtime_dls_find(rt, state.name[q])], state.rgb[q],
+             3 * sizeof(float));
   if (r != UB_OK) {
     free(weights);
     ub_runtime_free(rt);

@@ -56,6 +56,7 @@ typedef struct ub_bake_stats {
   uint32_t triangles, lights, emissive_triangles;
   uint32_t atlases, texels, backface_fixes;
   uint32_t glg_probes, glg_tets, glg_leak_tets;
+  uint32_t llg_auto_nodes;               /* untagged small props made LLG receivers */
   uint32_t dls_sets;                     /* dynamic light sets baked */
   uint32_t door_passes;                  /* door passes run (0: no door code ran) */
   uint64_t rays_emissive, sky_hits, emitter_hits; /* effect counters of the base pass */

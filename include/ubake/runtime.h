@@ -96,6 +96,40 @@ ub_result ub_runtime_set_dls(ub_runtime *rt, uint32_t set, const float rgb[3]);
  * mean (UberBake §3.1). */
 float ub_runtime_dls_weight_from_lights(const float *strengths, uint32_t count);
 
+/* ---- doors, show/hide objects, combinations ----------------------------------------
+ * Elements of the file's section ELEM (ub_bakefile.elems), each a sparse record blended
+ * exactly like a set. Every record is the element's lighting difference from the base
+ * state with everything else as baked (ubake/bakefile.h); the run-time applies it with
+ * the element's value minus the value baked into the base:
+ *   set        value = RGB weight (default 1)       baked 0: applied with w
+ *   door       value = opening fraction t in [0,1]  baked 0 (closed): applied with t
+ *              (default 0). From a hinge angle a: ub_runtime_door_fraction(a) = 1 − cos a,
+ *              the share of the doorway no longer covered by the leaf seen head-on; 1
+ *              from 90°.
+ *   object     value = visibility v in [0,1]        baked 1 (shown): applied with v − 1
+ *              (default 1; 0 hides, values between fade)
+ *   combination: applied with the product of its two parents' applied weights (the
+ *              mixed second difference of a door × set pass, or the pairwise correction
+ *              of two overlapping objects' shadows).
+ * Values take effect at the next ub_runtime_update(), which recomputes only receivers of
+ * changed elements (and of combinations of them). */
+uint32_t ub_runtime_element_count(const ub_runtime *rt);
+/* Index into the file's elements of the element of that kind and name, -1 if absent. */
+int32_t ub_runtime_element_find(const ub_runtime *rt, ub_element_kind kind, const char *name);
+const char *ub_runtime_element_name(const ub_runtime *rt, uint32_t element);
+ub_element_kind ub_runtime_element_kind(const ub_runtime *rt, uint32_t element);
+/* Sets a door's t or an object's v (finite, in [0, 1]). UB_ERR_INVALID_ARGUMENT for an
+ * element out of range, a combination (its weight follows its parents) or a bad value. */
+ub_result ub_runtime_set_element(ub_runtime *rt, uint32_t element, float value);
+/* The value last set (door t, object v; the default before any set). For combinations and
+ * out-of-range elements: UB_ERR_INVALID_ARGUMENT, out untouched. */
+ub_result ub_runtime_element_value(const ub_runtime *rt, uint32_t element, float *out_value);
+/* Whether triangle t of the file's geometry is present in the current state (section
+ * TRIR: a closed door leaf while t < 1/2, an open-pose leaf from 1/2, an object while
+ * v ≥ 1/2; every other triangle always). */
+int ub_runtime_triangle_shown(const ub_runtime *rt, uint32_t triangle);
+float ub_runtime_door_fraction(float hinge_angle_radians);
+
 typedef struct ub_runtime_update_stats {
   uint64_t texels_written, texels_reencoded, probes_written;
   uint64_t bytes_read, bytes_written;
