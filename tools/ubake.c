@@ -17,6 +17,7 @@
 #include "ubake/bakefile.h"
 #include "ubake/runtime.h"
 #include "ubake/scene.h"
+#include "tools/regress.h"
 #include "tools/sweep.h"
 
 typedef struct cli_log_state {
@@ -985,7 +986,8 @@ static const char *MAIN_HELP =
     "  query      baked irradiance at a point and normal\n"
     "  reference  path-traced ground truth at a point and normal\n"
     "  render     PNG of the level from a camera, as the run-time shows it\n"
-    "  sweep      accuracy vs bake time: a ladder of settings measured against ground truth\n";
+    "  sweep      accuracy vs bake time: a ladder of settings measured against ground truth\n"
+    "  regress    door-opening regression: query vs reference, doors closed and open\n";
 
 int main(int argc, char **argv)
 {
@@ -1004,6 +1006,7 @@ int main(int argc, char **argv)
   if (!strcmp(cmd, "reference"))
     return cmd_reference(argc - 2, argv + 2);
   if (!strcmp(cmd, "sweep")) return ub_cli_sweep(argc - 2, argv + 2);
+  if (!strcmp(cmd, "regress")) return ub_cli_regress(argc - 2, argv + 2);
   if (!strcmp(cmd, "render"))
     return cmd_render(argc - 2, argv + 2);
   fprintf(stderr, "ubake: unknown command '%s' (see 'ubake --help')\n", cmd);

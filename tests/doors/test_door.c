@@ -46,7 +46,7 @@ static const qpoint POINTS[] = {
 static void quiet(void *user, ub_log_level level, const char *msg)
 {
   (void)user;
-  if (level >= UB_LOG_WARNING)
+  if (level <= UB_LOG_WARNING)
     fprintf(stderr, "%s\n", msg);
 }
 
