@@ -20,6 +20,7 @@
 #include "bake/pass.h"
 #include "bake/plan.h"
 #include "bake/rt.h"
+#include "doors/door.h"
 #include "lightmaps/lightmap.h"
 #include "probes/leak.h"
 #include "probes/llg.h"
@@ -334,6 +335,29 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
               "M rays %.2f s",
               dstats.sets_baked, dstats.sets_empty, dstats.rays_influence * 1e-6,
               dstats.seconds_influence, dstats.rays_full * 1e-6, dstats.seconds_full);
+  }
+
+  /* doors: one pass each (doors/door.h), records S_open − S_base for their influence */
+  if (plan.door_passes) {
+    stage_begin(&sc, "doors");
+    ub_door_desc dd;
+    memset(&dd, 0, sizeof dd);
+    dd.base = &pd;
+    dd.base_result = &base;
+    dd.rays = plan.door_rays;
+    dd.influence_rays = plan.door_influence_rays;
+    dd.photons = plan.door_photons;
+    dd.guiding = !opt->door_no_guiding;
+    ub_door_stats ds;
+    r = ub_door_bake(&dd, log, &elems, &ds);
+    if (r != UB_OK)
+      goto fail;
+    elem_count = scene->door_count;
+    stats.door_passes = ds.doors_baked;
+    stage_end(&sc, "%u door(s) baked%s, %u photons in %u box(es); influence %.1f M rays %.2f "
+              "s, full %.1f M rays %.2f s", ds.doors_baked, dd.guiding ? "" : " (no guiding)",
+              ds.photons_deposited, ds.boxes, ds.rays_influence * 1e-6, ds.seconds_influence,
+              ds.rays_full * 1e-6, ds.seconds_full);
   }
 
   /* leak control: a separating plane for every tet that straddles a surface */

@@ -206,9 +206,9 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
           scene->triangle_count, scene->degenerate_count, scene->material_count,
           scene->light_count, st->emissive_triangles, scene->node_count,
           scene->has_sky ? "true" : "false");
-  fprintf(f, "  \"plan\": {\n    \"forced_all\": %s, \"ray_rate\": %.0f, \"doors\": 0, "
-             "\"door_passes\": 0,\n",
-          plan->forced ? "true" : "false", plan->ray_rate);
+  fprintf(f, "  \"plan\": {\n    \"forced_all\": %s, \"ray_rate\": %.0f, \"doors\": %u, "
+             "\"door_passes\": %u,\n",
+          plan->forced ? "true" : "false", plan->ray_rate, plan->doors, plan->door_passes);
   fprintf(f, "    \"passes\": [{\"name\": \"base\", \"lights\": %u, "
              "\"static_lights\": %u, \"primary_lights\": %u, \"sky\": %s, \"emissive\": %s, "
              "\"gather_rays\": %u, \"emissive_samples\": %u, \"shadow_samples\": %u, "
@@ -229,9 +229,9 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
   }
   fprintf(f, "],\n");
   fprintf(f, "    \"effect_counters\": {\"emissive_shadow_rays\": %llu, \"sky_gather_hits\": "
-             "%llu, \"emitter_gather_hits\": %llu, \"dls_passes\": %u, \"door_passes\": 0},\n",
+             "%llu, \"emitter_gather_hits\": %llu, \"dls_passes\": %u, \"door_passes\": %u},\n",
           (unsigned long long)st->rays_emissive, (unsigned long long)st->sky_hits,
-          (unsigned long long)st->emitter_hits, st->dls_sets);
+          (unsigned long long)st->emitter_hits, st->dls_sets, st->door_passes);
   fprintf(f, "    \"dls\": {\"sets\": %u, \"baked\": %u, \"reach_nothing\": %u, "
              "\"influence_rays\": %llu, \"influence_seconds\": %.4f, \"full_rays\": %llu, "
              "\"full_seconds\": %.4f, \"records\": [",

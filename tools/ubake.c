@@ -17,6 +17,7 @@
 #include "ubake/bakefile.h"
 #include "ubake/runtime.h"
 #include "ubake/scene.h"
+#include "tools/regress.h"
 #include "tools/sweep.h"
 
 typedef struct cli_log_state {
@@ -242,6 +243,8 @@ static const char *BAKE_HELP =
     "  --target-error E        adaptive sampling: after each bounce's first round, more\n"
     "                          rounds for the texels and probes whose estimated relative\n"
     "                          standard error is above E (e.g. 0.02), up to 16x the rays\n"
+    "  --door-rays N           override guided gather rays per texel of a door pass\n"
+    "  --door-no-guiding       door passes gather with cosine rays only (comparison)\n"
     "  --texel-size M          override metres per lightmap texel\n"
     "  --glg-spacing M         override metres between coarse GLG probes\n"
     "  --json FILE             write the report here instead of DIR/NAME.report.json\n"
@@ -304,6 +307,13 @@ static int cmd_bake(int argc, char **argv)
         return usage_error("bake", "--target-error takes a relative error in (0, 1), e.g. 0.02");
       opt.target_error = t;
       i++;
+    } else if (!strcmp(a, "--door-rays") && v) {
+      if (!parse_uint(v, 1 << 20, &n) || n < 1)
+        return usage_error("bake", "--door-rays takes 1..1048576");
+      opt.door_rays = (uint32_t)n;
+      i++;
+    } else if (!strcmp(a, "--door-no-guiding")) {
+      opt.door_no_guiding = 1;
     } else if (!strcmp(a, "--texel-size") && v) {
       char *end;
       double t = strtod(v, &end);
@@ -1000,7 +1010,8 @@ static const char *MAIN_HELP =
     "  query      baked irradiance at a point and normal\n"
     "  reference  path-traced ground truth at a point and normal\n"
     "  render     PNG of the level from a camera, as the run-time shows it\n"
-    "  sweep      accuracy vs bake time: a ladder of settings measured against ground truth\n";
+    "  sweep      accuracy vs bake time: a ladder of settings measured against ground truth\n"
+    "  regress    door-opening regression: query vs reference, doors closed and open\n";
 
 int main(int argc, char **argv)
 {
@@ -1019,6 +1030,7 @@ int main(int argc, char **argv)
   if (!strcmp(cmd, "reference"))
     return cmd_reference(argc - 2, argv + 2);
   if (!strcmp(cmd, "sweep")) return ub_cli_sweep(argc - 2, argv + 2);
+  if (!strcmp(cmd, "regress")) return ub_cli_regress(argc - 2, argv + 2);
   if (!strcmp(cmd, "render"))
     return cmd_render(argc - 2, argv + 2);
   fprintf(stderr, "ubake: unknown command '%s' (see 'ubake --help')\n", cmd);

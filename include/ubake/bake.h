@@ -45,6 +45,8 @@ typedef struct ub_bake_options {
   double target_error;    /* > 0: adaptive sampling to this relative standard error per
                              texel / GLG probe (e.g. 0.02), at most 16× the rays per bounce;
                              0 = off (the base pass only) */
+  int door_no_guiding;    /* 1: door passes gather with cosine rays only (for comparison) */
+  uint32_t door_rays;     /* 0 = from quality: guided gather rays per texel of a door pass */
   ub_progress_fn progress;
   void *progress_user;
 } ub_bake_options;
