@@ -21,6 +21,7 @@
 #include "bake/plan.h"
 #include "bake/rt.h"
 #include "doors/door.h"
+#include "doors/object.h"
 #include "lightmaps/lightmap.h"
 #include "probes/leak.h"
 #include "probes/llg.h"
@@ -358,6 +359,18 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
               "s, full %.1f M rays %.2f s", ds.doors_baked, dd.guiding ? "" : " (no guiding)",
               ds.photons_deposited, ds.boxes, ds.rays_influence * 1e-6, ds.seconds_influence,
               ds.rays_full * 1e-6, ds.seconds_full);
+  }
+
+  /* show/hide objects (doors/object.h): after any door records, objects then combinations */
+  if (scene->object_count) {
+    stage_begin(&sc, "objects");
+    ub_object_stats ost;
+    r = ub_object_bake(&pd, &plan, &base, dls, log, &elems, &elem_count, &ost);
+    if (r != UB_OK)
+      goto fail;
+    stats.rays_total = ub_rt_rays_traced(rt);
+    stage_end(&sc, "%u of %u object(s), %u pair correction(s), %u set × object, %.1f M rays",
+              ost.objects_baked, ost.objects, ost.pairs, ost.set_objects, ost.rays * 1e-6);
   }
 
   /* leak control: a separating plane for every tet that straddles a surface */

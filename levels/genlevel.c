@@ -756,6 +756,72 @@ static void build_hallway(void)
     }
 }
 
+/* inn: a tavern room and a cellar joined by a doorway (Öztürk & Akyüz's inn/dungeon
+ * scenes). Hearth (static) and cellar lamp (primary) in the base; candles on the red west
+ * wall (DLS "candles"), a torch in the cellar (DLS "torches"). Show/hide objects
+ * (ubake_semidynamic): a table, two barrels whose shadows from the hearth overlap on the
+ * floor around (2.4, 0, -1.0), and a chest in the cellar. */
+static void obj_box(const char *name, int mat, V3 mn, V3 mx)
+{
+    int m = mesh_new(name, mat);
+    add_box(m, mn, mx);
+    Node *n = mesh_node(name, m);
+    node_extra(n, "ubake_semidynamic", name);
+}
+
+static void build_inn(void)
+{
+    double w = P("wall"), alb = P("albedo"), hearth = P("hearth"), candle = P("candle");
+    double torch = P("torch"), lamp = P("lamp");
+    const double *red = pv("red");
+    require(w > 0 && alb >= 0 && alb < 1 && hearth >= 0 && candle >= 0 && torch >= 0 &&
+            lamp >= 0 && red[0] >= 0 && red[0] < 1 && red[1] >= 0 && red[1] < 1 &&
+            red[2] >= 0 && red[2] < 1,
+            "wall>0, 0<=albedo<1, intensities>=0, 0<=red<1");
+    int wm = material("plaster", alb, alb, alb, 0);
+    int rm = material("red_plaster", red[0], red[1], red[2], 0);
+    int woodm = material("wood", 0.45, 0.3, 0.18, 0);
+    const double H = 3.0, Z = 2.5, XA = -3.0, XB = 3.0, XC = 3.2, XD = 7.2, DZ = 0.5, DH = 2.0;
+    /* tavern x in [XA, XB], cellar x in [XC, XD], shared wall [XB, XC] with a doorway */
+    box_node("floor", wm, v3(XA - w, -w, -Z - w), v3(XD + w, 0, Z + w));
+    box_node("ceiling", wm, v3(XA - w, H, -Z - w), v3(XD + w, H + w, Z + w));
+    box_node("wall_west", rm, v3(XA - w, 0, -Z - w), v3(XA, H, Z + w));
+    box_node("wall_east", wm, v3(XD, 0, -Z - w), v3(XD + w, H, Z + w));
+    box_node("wall_north", wm, v3(XA, 0, -Z - w), v3(XD, H, -Z));
+    box_node("wall_south", wm, v3(XA, 0, Z), v3(XD, H, Z + w));
+    box_node("wall_mid_n", wm, v3(XB, 0, -Z), v3(XC, H, -DZ));
+    box_node("wall_mid_s", wm, v3(XB, 0, DZ), v3(XC, H, Z));
+    box_node("wall_mid_lintel", wm, v3(XB, DH, -DZ), v3(XC, H, DZ));
+    /* objects */
+    int tm = mesh_new("table", woodm);
+    add_box(tm, v3(-2.0, 0.72, 0.5), v3(-0.8, 0.78, 1.3));
+    static const double lx[2] = { -1.95, -0.91 }, lz[2] = { 0.55, 1.19 };
+    for (int i = 0; i < 2; i++)
+        for (int j = 0; j < 2; j++)
+            add_box(tm, v3(lx[i], 0.0, lz[j]), v3(lx[i] + 0.06, 0.72, lz[j] + 0.06));
+    Node *tn = mesh_node("table", tm);
+    node_extra(tn, "ubake_semidynamic", "table");
+    obj_box("barrel_1", woodm, v3(1.2, 0.0, -1.2), v3(1.6, 1.0, -0.8));
+    obj_box("barrel_2", woodm, v3(1.8, 0.0, -1.2), v3(2.2, 0.6, -0.8));
+    obj_box("chest", woodm, v3(5.0, 0.0, 1.2), v3(5.8, 0.5, 1.7));
+    /* lights */
+    Node *l = light_node("hearth", LIGHT_POINT, hearth, 1.0, 0.85, 0.7, v3(0.0, 2.5, -1.0));
+    node_extra(l, "ubake_light", "static");
+    l = light_node("cellar_lamp", LIGHT_POINT, lamp, 1, 1, 1, v3(6.0, 2.7, -1.5));
+    node_extra(l, "ubake_light", "primary");
+    static const double cz[2] = { 0.9, -0.9 };
+    for (int i = 0; i < 2; i++) {
+        char nm[16];
+        snprintf(nm, sizeof nm, "candle_%d", i + 1);
+        l = light_node(nm, LIGHT_POINT, candle, 1, 1, 1, v3(-2.75, 1.6, cz[i]));
+        node_extra(l, "ubake_light", "static");
+        node_extra(l, "ubake_dls", "candles");
+    }
+    l = light_node("torch", LIGHT_POINT, torch, 1.0, 0.7, 0.4, v3(7.0, 2.0, 0.0));
+    node_extra(l, "ubake_light", "static");
+    node_extra(l, "ubake_dls", "torches");
+}
+
 /* ---- hard numerical cases (tests/hard/) ---------------------------------- */
 
 /* grazing: black plane, directional light at `angle` degrees from its normal. */
@@ -1234,6 +1300,15 @@ static const LevelDef g_levels[] = {
       { { "intensity", 1, { 5 }, "each lamp, W/sr" },
         { "albedo", 1, { 0.6 }, "albedo of every surface" },
         { "lamp_y", 1, { 2.4 }, "lamp height, m" },
+        { "wall", 1, { 0.2 }, "wall/floor/ceiling thickness, m" } } },
+    { "inn", "Tavern + cellar joined by a doorway: hearth, cellar lamp (primary), candles and torch in DLS; show/hide table, barrel_1, barrel_2 (overlapping shadows), chest.",
+      build_inn,
+      { { "hearth", 1, { 6 }, "hearth intensity, W/sr (warm)" },
+        { "lamp", 1, { 3 }, "cellar lamp intensity, W/sr (primary)" },
+        { "candle", 1, { 1.5 }, "each candle, W/sr (DLS candles)" },
+        { "torch", 1, { 4 }, "torch intensity, W/sr (DLS torches)" },
+        { "albedo", 1, { 0.6 }, "plaster albedo" },
+        { "red", 3, { 0.75, 0.12, 0.08 }, "west wall albedo" },
         { "wall", 1, { 0.2 }, "wall/floor/ceiling thickness, m" } } },
     { "grazing", "Black plane, directional light at a grazing angle: E = sun*cos(angle).", build_grazing,
       { { "angle", 1, { 89.9 }, "angle between the light and the plane normal, degrees" },
