@@ -632,6 +632,21 @@ uint32_t ub_glg_locate_ex(const ub_glg *g, const float p[3], uint32_t *inout_tet
     return cache == GLG_NONE ? 0 : cache;
   }
   uint32_t start = cache;
+  if (start != GLG_NONE && !g->tet_flags[start]) {
+    /* Still inside the cached tet (the common case for a moving object): done. Tets can
+     * be much larger than a start-grid cell, so this comes before the distance test. */
+    float l[4];
+    rec_bary(&g->tet_data[start], p, l);
+    if (min4f(l) >= -GLG_EPS) {
+      if (info)
+        info->steps = 1;
+      memcpy(out_bary, l, sizeof l);
+      bary_finish(out_bary);
+      if (inout_tet_cache)
+        *inout_tet_cache = start;
+      return start;
+    }
+  }
   if (g->start_grid) {
     int far = 1;
     if (start != GLG_NONE) {
