@@ -187,6 +187,15 @@ int main(int argc, char **argv)
          (owned + (double)bf->glg_probe_count * (12 + 108) + (double)bf->glg_tet_count * 36) /
              bf->glg_probe_count,
          (double)owned / bf->glg_probe_count, 108);
+  /* A compact layout, computed from the counts (a proposal, not what the run-time does). */
+  double compact = (double)bf->glg_tet_count * (32 + 4 + 1) +
+                   (double)bf->glg_probe_count * (12 + 54 + 2) + (double)bf->glg_plane_count * 16;
+  printf("  compact layout (proposal): 32 B/tet (corners + neighbours, barycentrics from "
+         "positions) + 4 B/tet plane index + 1 B/tet plane sides + planes + positions f32 + "
+         "windowed SH once in half = %.1f B/probe (%.2f tets per probe are %.1f B of it); "
+         "probe payload alone (position + SH half) 66 B (target <= 64)\n",
+         compact / bf->glg_probe_count, (double)bf->glg_tet_count / bf->glg_probe_count,
+         (double)bf->glg_tet_count * 37 / bf->glg_probe_count);
   if (st.stage_count) {
     double probes = 0, lm = 0;
     for (uint32_t s = 0; s < st.stage_count; s++) {
