@@ -608,7 +608,7 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
   if (rt->llg_blend) {
     ub_blend_stats bs;
     ub_blend_update(rt->llg_blend, llg_touched, rt, rt->llg_cur, &bs);
-    st.probes_written += bs.receivers;
+    st.llg_probes_written = bs.receivers;
     st.bytes_read += bs.bytes_read;
     st.bytes_written += bs.bytes_written;
     st.groups += bs.groups;

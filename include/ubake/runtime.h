@@ -131,7 +131,8 @@ int ub_runtime_triangle_shown(const ub_runtime *rt, uint32_t triangle);
 float ub_runtime_door_fraction(float hinge_angle_radians);
 
 typedef struct ub_runtime_update_stats {
-  uint64_t texels_written, texels_reencoded, probes_written;
+  uint64_t texels_written, texels_reencoded, probes_written; /* probes: GLG */
+  uint64_t llg_probes_written;
   uint64_t bytes_read, bytes_written;
   uint32_t groups;
 } ub_runtime_update_stats;
