@@ -20,6 +20,8 @@
 #include "bake/pass.h"
 #include "bake/plan.h"
 #include "bake/rt.h"
+#include "doors/door.h"
+#include "doors/object.h"
 #include "lightmaps/lightmap.h"
 #include "probes/leak.h"
 #include "probes/llg.h"
@@ -277,6 +279,8 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   pd.stop_fraction = plan.stop_fraction;
   pd.seed = opt->seed;
   pd.pass_id = 0;
+  pd.target_error = opt->target_error > 0.0 && isfinite(opt->target_error) ? opt->target_error
+                                                                            : 0.0;
   pd.progress = opt->progress;
   pd.progress_user = opt->progress_user;
   pd.progress_base = 0.0;
@@ -288,7 +292,10 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
     goto fail;
   stats.bounces = base.bounces;
   memcpy(stats.bounce_energy, base.bounce_energy, sizeof stats.bounce_energy);
+  stats.bounce_cap_tail = base.bounce_cap_tail;
   stats.rays_gather = base.rays_gather;
+  stats.rays_adaptive = base.rays_adaptive;
+  pd.target_error = 0.0; /* dynamic light sets: their own sample counts, not adaptive */
   stats.rays_shadow = base.rays_shadow;
   stats.rays_total = ub_rt_rays_traced(rt);
   stats.clamped_values += base.clamped;
@@ -329,6 +336,41 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
               "M rays %.2f s",
               dstats.sets_baked, dstats.sets_empty, dstats.rays_influence * 1e-6,
               dstats.seconds_influence, dstats.rays_full * 1e-6, dstats.seconds_full);
+  }
+
+  /* doors: one pass each (doors/door.h), records S_open − S_base for their influence */
+  if (plan.door_passes) {
+    stage_begin(&sc, "doors");
+    ub_door_desc dd;
+    memset(&dd, 0, sizeof dd);
+    dd.base = &pd;
+    dd.base_result = &base;
+    dd.rays = plan.door_rays;
+    dd.influence_rays = plan.door_influence_rays;
+    dd.photons = plan.door_photons;
+    dd.guiding = !opt->door_no_guiding;
+    ub_door_stats ds;
+    r = ub_door_bake(&dd, log, &elems, &ds);
+    if (r != UB_OK)
+      goto fail;
+    elem_count = scene->door_count;
+    stats.door_passes = ds.doors_baked;
+    stage_end(&sc, "%u door(s) baked%s, %u photons in %u box(es); influence %.1f M rays %.2f "
+              "s, full %.1f M rays %.2f s", ds.doors_baked, dd.guiding ? "" : " (no guiding)",
+              ds.photons_deposited, ds.boxes, ds.rays_influence * 1e-6, ds.seconds_influence,
+              ds.rays_full * 1e-6, ds.seconds_full);
+  }
+
+  /* show/hide objects (doors/object.h): after any door records, objects then combinations */
+  if (scene->object_count) {
+    stage_begin(&sc, "objects");
+    ub_object_stats ost;
+    r = ub_object_bake(&pd, &plan, &base, dls, log, &elems, &elem_count, &ost);
+    if (r != UB_OK)
+      goto fail;
+    stats.rays_total = ub_rt_rays_traced(rt);
+    stage_end(&sc, "%u of %u object(s), %u pair correction(s), %u set × object, %.1f M rays",
+              ost.objects_baked, ost.objects, ost.pairs, ost.set_objects, ost.rays * 1e-6);
   }
 
   /* leak control: a separating plane for every tet that straddles a surface */

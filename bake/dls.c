@@ -46,7 +46,7 @@ void ub_dls_records_free(ub_bakefile_record *records, uint32_t count)
 /* The set's texel SH into sparse atlas pixels, with the same dilation as the base so
  * padding texels follow when the set is toggled (no seams under bilinear filtering).
  * Works per atlas on the bounding rectangle of the kept texels plus the dilation rings. */
-static ub_result texel_record(const ub_lightmap *lm, const uint32_t *kept, uint32_t nkept,
+ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint32_t nkept,
                               const float *sh, ub_bakefile_record *rec)
 {
   size_t cap = 0, n = 0;
@@ -253,7 +253,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
       break;
     out_stats->rays_full += full.rays_gather + full.rays_shadow;
     out_stats->seconds_full += now_s() - t0;
-    r = texel_record(lm, kt, nkt, full.sh, rec);
+    r = ub_dls_texel_record(lm, kt, nkt, full.sh, rec);
     if (r == UB_OK && nkp) {
       rec->probe_index = malloc((size_t)nkp * sizeof *rec->probe_index);
       rec->probe_sh = malloc((size_t)nkp * 27 * sizeof *rec->probe_sh);

@@ -103,6 +103,10 @@ int main(int argc, char **argv)
       sink += e[1];
     }
     coh_r[round] = N / (now_s() - t0);
+    if (getenv("UB_BENCH_COHERENT_ONLY")) { /* for profiling the coherent path */
+      rnd_r[round] = base_r[round] = 0.0;
+      continue;
+    }
     /* Random points in the level's bounds, one cache. */
     cache = UB_GLG_NO_CACHE;
     t0 = now_s();
@@ -124,6 +128,28 @@ int main(int argc, char **argv)
   }
   double coherent = median(coh_r, ROUNDS), random = median(rnd_r, ROUNDS),
          baseline = median(base_r, ROUNDS);
+  /* The coherent walk's locate statistics (one pass of the same path). */
+  double csteps = 0.0, cgrid = 0.0, cnew = 0.0;
+  {
+    float p[3] = {0.5f * (lo[0] + hi[0]), 0.5f * (lo[1] + hi[1]), 0.5f * (lo[2] + hi[2])};
+    float v[3] = {0.0062f, 0.0041f, 0.0066f};
+    uint32_t prev = UB_GLG_NO_CACHE;
+    cache = UB_GLG_NO_CACHE;
+    for (uint32_t i = 0; i < N; i++) {
+      for (int a = 0; a < 3; a++) {
+        p[a] += v[a];
+        if (p[a] < lo[a] || p[a] > hi[a])
+          v[a] = -v[a];
+      }
+      ub_glg_locate_info li;
+      float bary[4];
+      ub_glg_locate_ex(g, p, &cache, bary, &li);
+      csteps += li.steps;
+      cgrid += li.from_grid;
+      cnew += cache != prev;
+      prev = cache;
+    }
+  }
   /* Where the random queries spend their time: walk steps, outside the hull, fallbacks. */
   double steps = 0.0, hull_steps = 0.0, outside = 0.0, fallback = 0.0;
   cache = UB_GLG_NO_CACHE;
@@ -147,6 +173,9 @@ int main(int argc, char **argv)
          coh_r[ROUNDS - 1] * 1e-6);
   printf("  random points:              %.2f M queries/s per core (target >= 3); range "
          "%.2f..%.2f\n", random * 1e-6, rnd_r[0] * 1e-6, rnd_r[ROUNDS - 1] * 1e-6);
+  printf("  coherent walk: %.3f walk steps per query, a new tet every %.1f queries, %.3f%% "
+         "restarted from the start grid\n", csteps / N, N / (cnew > 0 ? cnew : 1),
+         100.0 * cgrid / N);
   printf("  random points: %.2f walk steps, %.2f hull steps per query; %.1f%% outside the "
          "hull, %.3f%% brute-force fallbacks\n", steps / M, hull_steps / M, 100.0 * outside / M,
          100.0 * fallback / M);
@@ -158,6 +187,15 @@ int main(int argc, char **argv)
          (owned + (double)bf->glg_probe_count * (12 + 108) + (double)bf->glg_tet_count * 36) /
              bf->glg_probe_count,
          (double)owned / bf->glg_probe_count, 108);
+  /* A compact layout, computed from the counts (a proposal, not what the run-time does). */
+  double compact = (double)bf->glg_tet_count * (32 + 4 + 1) +
+                   (double)bf->glg_probe_count * (12 + 54 + 2) + (double)bf->glg_plane_count * 16;
+  printf("  compact layout (proposal): 32 B/tet (corners + neighbours, barycentrics from "
+         "positions) + 4 B/tet plane index + 1 B/tet plane sides + planes + positions f32 + "
+         "windowed SH once in half = %.1f B/probe (%.2f tets per probe are %.1f B of it); "
+         "probe payload alone (position + SH half) 66 B (target <= 64)\n",
+         compact / bf->glg_probe_count, (double)bf->glg_tet_count / bf->glg_probe_count,
+         (double)bf->glg_tet_count * 37 / bf->glg_probe_count);
   if (st.stage_count) {
     double probes = 0, lm = 0;
     for (uint32_t s = 0; s < st.stage_count; s++) {

@@ -631,8 +631,9 @@ static void build_two_rooms(void)
 }
 
 /* sunroom: 5x3x5 m room with a 1x2 m doorway in the south (+z) wall, ground
- * plane outside, sun through the doorway, optional door leaf. */
-static void build_sunroom(void)
+ * plane outside, sun through the doorway, optional door leaf. The doorway's size, sill
+ * and the open pose's angle are arguments, so the door regression levels share it. */
+static void sunroom_build(double DW, double DH, double sill, double open_deg)
 {
     int door = PI_("door");
     double w = P("wall"), alb = P("albedo"), galb = P("ground_albedo"), E = P("sun");
@@ -643,7 +644,7 @@ static void build_sunroom(void)
             "wall>0, 0<=albedo<1, 0<=ground_albedo<1, sun>=0, 0<elev<=90, ground>6, sky>=0");
     int wm = material("wall", alb, alb, alb, 0);
     int gm = material("ground", galb, galb, galb, 0);
-    const double R = 2.5, H = 3.0, DW = 0.5, DH = 2.0;
+    const double R = 2.5, H = 3.0;
     double o = R + w; /* outer half-extent */
     box_node("floor", wm, v3(-o, -w, -o), v3(o, 0, o));
     box_node("ceiling", wm, v3(-o, H, -o), v3(o, H + w, o));
@@ -652,7 +653,9 @@ static void build_sunroom(void)
     box_node("wall_east", wm, v3(R, 0, -R), v3(o, H, R));
     box_node("wall_south_west", wm, v3(-o, 0, R), v3(-DW, H, o));
     box_node("wall_south_east", wm, v3(DW, 0, R), v3(o, H, o));
-    box_node("wall_south_lintel", wm, v3(-DW, DH, R), v3(DW, H, o));
+    box_node("wall_south_lintel", wm, v3(-DW, sill + DH, R), v3(DW, H, o));
+    if (sill > 0)
+        box_node("wall_south_sill", wm, v3(-DW, 0, R), v3(DW, sill, o));
     /* Ground: y=0, [-g/2,g/2]^2 minus the building footprint [-o,o]^2. */
     double g = 0.5 * gs;
     int m = mesh_new("ground", gm);
@@ -668,12 +671,13 @@ static void build_sunroom(void)
         /* Local frame: hinge axis = local +Y through the origin. */
         add_box(lm, v3(0, 0, 0), v3(2 * DW, DH, DT));
         Node *c = mesh_node("door_closed", lm);
-        node_translate(c, v3(-DW, 0, R));
+        node_translate(c, v3(-DW, sill, R));
         node_extra(c, "ubake_door", "front");
         Node *op = mesh_node("door_open", lm);
-        node_translate(op, v3(-DW, 0, R));
+        node_translate(op, v3(-DW, sill, R));
+        double ha = 0.5 * deg2rad(open_deg);
         op->has_r = 1;
-        op->r[0] = 0; op->r[1] = sin(M_PI / 4); op->r[2] = 0; op->r[3] = cos(M_PI / 4);
+        op->r[0] = 0; op->r[1] = sin(ha); op->r[2] = 0; op->r[3] = cos(ha);
         node_extra(op, "ubake_door_open", "front");
     }
     double e = deg2rad(el), a = deg2rad(az);
@@ -683,6 +687,50 @@ static void build_sunroom(void)
     node_extra(sn, "ubake_light", "static");
     S.has_sky = 1;
     memcpy(S.sky, sky, sizeof S.sky);
+}
+
+static void build_sunroom(void) { sunroom_build(0.5, 2.0, 0.0, 90.0); }
+
+/* door_small: the sunroom with a 10 cm square hatch 1.5 m up instead of the doorway: a
+ * tiny portal, sun through it lands far from the wall (door regression suite). */
+static void build_door_small(void) { sunroom_build(0.05, 0.1, 1.5, 90.0); }
+
+/* door_grazing: the sunroom whose open pose lies 10 degrees off the inner south wall,
+ * with a low sun from the side: light grazes the wall and the open leaf. */
+static void build_door_grazing(void) { sunroom_build(0.5, 2.0, 0.0, 170.0); }
+
+/* door_rooms: two 4x3x4 m rooms joined by a 1x2 m door in the shared wall (x=0), a lamp
+ * in room A (x<0), room B dark until the door opens; the open pose swings into B. */
+static void build_door_rooms(void)
+{
+    double w = P("wall"), alb = P("albedo"), I = P("intensity"), t = P("t");
+    require(w > 0 && alb >= 0 && alb < 1 && I >= 0 && t > 0.06 && t < 1,
+            "wall>0, 0<=albedo<1, intensity>=0, 0.06<t<1");
+    int mat = material("grey", alb, alb, alb, 0);
+    const double H = 3.0, Z = 2.0, X = 4.0, DW = 0.5, DH = 2.0, DT = 0.05;
+    double ht = 0.5 * t;
+    box_node("floor", mat, v3(-X - ht - w, -w, -Z - w), v3(X + ht + w, 0, Z + w));
+    box_node("ceiling", mat, v3(-X - ht - w, H, -Z - w), v3(X + ht + w, H + w, Z + w));
+    box_node("wall_west", mat, v3(-X - ht - w, 0, -Z), v3(-X - ht, H, Z));
+    box_node("wall_east", mat, v3(X + ht, 0, -Z), v3(X + ht + w, H, Z));
+    box_node("wall_north", mat, v3(-X - ht - w, 0, -Z - w), v3(X + ht + w, H, -Z));
+    box_node("wall_south", mat, v3(-X - ht - w, 0, Z), v3(X + ht + w, H, Z + w));
+    box_node("shared_north", mat, v3(-ht, 0, -Z), v3(ht, H, -DW));
+    box_node("shared_south", mat, v3(-ht, 0, DW), v3(ht, H, Z));
+    box_node("shared_lintel", mat, v3(-ht, DH, -DW), v3(ht, H, DW));
+    int dm = material("door", 0.5, 0.5, 0.5, 0);
+    int lm = mesh_new("door_leaf", dm);
+    add_box(lm, v3(0, 0, 0), v3(DT, DH, 2 * DW));
+    Node *c = mesh_node("door_closed", lm);
+    node_translate(c, v3(-0.5 * DT, 0, -DW));
+    node_extra(c, "ubake_door", "middle");
+    Node *op = mesh_node("door_open", lm);
+    node_translate(op, v3(-0.5 * DT, 0, -DW));
+    op->has_r = 1;
+    op->r[0] = 0; op->r[1] = sin(M_PI / 4); op->r[2] = 0; op->r[3] = cos(M_PI / 4);
+    node_extra(op, "ubake_door_open", "middle");
+    Node *l = light_node("lamp_a", LIGHT_POINT, I, 1, 1, 1, v3(-2.0, 2.0, 0.5));
+    node_extra(l, "ubake_light", "static");
 }
 
 /* hallway: 12x3x2.5 m corridor along x, four ceiling lamps in two DLS. */
@@ -707,6 +755,72 @@ static void build_hallway(void)
         node_extra(l, "ubake_light", i == 1 ? "primary" : "static");
         node_extra(l, "ubake_dls", i < 2 ? "hall_a" : "hall_b");
     }
+}
+
+/* inn: a tavern room and a cellar joined by a doorway (Öztürk & Akyüz's inn/dungeon
+ * scenes). Hearth (static) and cellar lamp (primary) in the base; candles on the red west
+ * wall (DLS "candles"), a torch in the cellar (DLS "torches"). Show/hide objects
+ * (ubake_semidynamic): a table, two barrels whose shadows from the hearth overlap on the
+ * floor around (2.4, 0, -1.0), and a chest in the cellar. */
+static void obj_box(const char *name, int mat, V3 mn, V3 mx)
+{
+    int m = mesh_new(name, mat);
+    add_box(m, mn, mx);
+    Node *n = mesh_node(name, m);
+    node_extra(n, "ubake_semidynamic", name);
+}
+
+static void build_inn(void)
+{
+    double w = P("wall"), alb = P("albedo"), hearth = P("hearth"), candle = P("candle");
+    double torch = P("torch"), lamp = P("lamp");
+    const double *red = pv("red");
+    require(w > 0 && alb >= 0 && alb < 1 && hearth >= 0 && candle >= 0 && torch >= 0 &&
+            lamp >= 0 && red[0] >= 0 && red[0] < 1 && red[1] >= 0 && red[1] < 1 &&
+            red[2] >= 0 && red[2] < 1,
+            "wall>0, 0<=albedo<1, intensities>=0, 0<=red<1");
+    int wm = material("plaster", alb, alb, alb, 0);
+    int rm = material("red_plaster", red[0], red[1], red[2], 0);
+    int woodm = material("wood", 0.45, 0.3, 0.18, 0);
+    const double H = 3.0, Z = 2.5, XA = -3.0, XB = 3.0, XC = 3.2, XD = 7.2, DZ = 0.5, DH = 2.0;
+    /* tavern x in [XA, XB], cellar x in [XC, XD], shared wall [XB, XC] with a doorway */
+    box_node("floor", wm, v3(XA - w, -w, -Z - w), v3(XD + w, 0, Z + w));
+    box_node("ceiling", wm, v3(XA - w, H, -Z - w), v3(XD + w, H + w, Z + w));
+    box_node("wall_west", rm, v3(XA - w, 0, -Z - w), v3(XA, H, Z + w));
+    box_node("wall_east", wm, v3(XD, 0, -Z - w), v3(XD + w, H, Z + w));
+    box_node("wall_north", wm, v3(XA, 0, -Z - w), v3(XD, H, -Z));
+    box_node("wall_south", wm, v3(XA, 0, Z), v3(XD, H, Z + w));
+    box_node("wall_mid_n", wm, v3(XB, 0, -Z), v3(XC, H, -DZ));
+    box_node("wall_mid_s", wm, v3(XB, 0, DZ), v3(XC, H, Z));
+    box_node("wall_mid_lintel", wm, v3(XB, DH, -DZ), v3(XC, H, DZ));
+    /* objects */
+    int tm = mesh_new("table", woodm);
+    add_box(tm, v3(-2.0, 0.72, 0.5), v3(-0.8, 0.78, 1.3));
+    static const double lx[2] = { -1.95, -0.91 }, lz[2] = { 0.55, 1.19 };
+    for (int i = 0; i < 2; i++)
+        for (int j = 0; j < 2; j++)
+            add_box(tm, v3(lx[i], 0.0, lz[j]), v3(lx[i] + 0.06, 0.72, lz[j] + 0.06));
+    Node *tn = mesh_node("table", tm);
+    node_extra(tn, "ubake_semidynamic", "table");
+    obj_box("barrel_1", woodm, v3(1.2, 0.0, -1.2), v3(1.6, 1.0, -0.8));
+    obj_box("barrel_2", woodm, v3(1.8, 0.0, -1.2), v3(2.2, 0.6, -0.8));
+    obj_box("chest", woodm, v3(5.0, 0.0, 1.2), v3(5.8, 0.5, 1.7));
+    /* lights */
+    Node *l = light_node("hearth", LIGHT_POINT, hearth, 1.0, 0.85, 0.7, v3(0.0, 2.5, -1.0));
+    node_extra(l, "ubake_light", "static");
+    l = light_node("cellar_lamp", LIGHT_POINT, lamp, 1, 1, 1, v3(6.0, 2.7, -1.5));
+    node_extra(l, "ubake_light", "primary");
+    static const double cz[2] = { 0.9, -0.9 };
+    for (int i = 0; i < 2; i++) {
+        char nm[16];
+        snprintf(nm, sizeof nm, "candle_%d", i + 1);
+        l = light_node(nm, LIGHT_POINT, candle, 1, 1, 1, v3(-2.75, 1.6, cz[i]));
+        node_extra(l, "ubake_light", "static");
+        node_extra(l, "ubake_dls", "candles");
+    }
+    l = light_node("torch", LIGHT_POINT, torch, 1.0, 0.7, 0.4, v3(7.0, 2.0, 0.0));
+    node_extra(l, "ubake_light", "static");
+    node_extra(l, "ubake_dls", "torches");
 }
 
 /* ---- hard numerical cases (tests/hard/) ---------------------------------- */
@@ -1091,10 +1205,13 @@ static void build_estate(void)
                 for (int l = 0; l < lps; l++) {
                     char nm[64];
                     snprintf(nm, sizeof nm, "lamp_%s_%d", set, l);
-                    double u = est_hash(seed, 7, (uint64_t)nsets, (uint64_t)l);
-                    double v = est_hash(seed, 8, (uint64_t)nsets, (uint64_t)l);
+                    double lx = x0 + est_hash(seed, 7, (uint64_t)nsets, (uint64_t)l) * ext;
+                    double lz = z0 + est_hash(seed, 8, (uint64_t)nsets, (uint64_t)l) * ext;
+                    /* keep clear of the hall's columns (at the grid points) */
+                    double gx = lx - L * floor(lx / L + 0.5), gz = lz - L * floor(lz / L + 0.5);
+                    if (fabs(gx) < 0.5 && fabs(gz) < 0.5) lx += gx < 0 ? -0.5 : 0.5;
                     Node *ln = light_node(nm, LIGHT_POINT, I / lps, 0.8 + 0.2 * warm, 0.9, 1.0 - 0.2 * warm,
-                                          v3(x0 + u * ext, ly, z0 + v * ext));
+                                          v3(lx, ly, lz));
                     node_extra(ln, "ubake_light", nsets % 2 ? "primary" : "static");
                     node_extra(ln, "ubake_dls", set);
                     nlights++;
@@ -1153,11 +1270,46 @@ static const LevelDef g_levels[] = {
         { "ground_albedo", 1, { 0.3 }, "ground albedo" },
         { "ground", 1, { 40 }, "ground side, m" },
         { "wall", 1, { 0.2 }, "wall/floor/ceiling thickness, m" } } },
+    { "door_small", "Sunroom with a 10 cm hatch 1.5 m up as the door: tiny portal far from the receivers.", build_door_small,
+      { { "door", 1, { 1 }, "0: no door leaves (doorway open)" },
+        { "sun", 1, { 5 }, "sun irradiance at normal incidence, W/m^2" },
+        { "elev", 1, { 20 }, "sun elevation, degrees" },
+        { "azim", 1, { 0 }, "sun azimuth, degrees (0: sun in the +z direction, 90: +x)" },
+        { "sky", 3, { 0.3, 0.4, 0.6 }, "sky radiance r,g,b" },
+        { "albedo", 1, { 0.6 }, "room albedo" },
+        { "ground_albedo", 1, { 0.3 }, "ground albedo" },
+        { "ground", 1, { 40 }, "ground side, m" },
+        { "wall", 1, { 0.2 }, "wall/floor/ceiling thickness, m" } } },
+    { "door_grazing", "Sunroom whose open leaf lies 10 degrees off the inner wall; low sun from the side.", build_door_grazing,
+      { { "door", 1, { 1 }, "0: no door leaves (doorway open)" },
+        { "sun", 1, { 5 }, "sun irradiance at normal incidence, W/m^2" },
+        { "elev", 1, { 25 }, "sun elevation, degrees" },
+        { "azim", 1, { 35 }, "sun azimuth, degrees (0: sun in the +z direction, 90: +x)" },
+        { "sky", 3, { 0.3, 0.4, 0.6 }, "sky radiance r,g,b" },
+        { "albedo", 1, { 0.6 }, "room albedo" },
+        { "ground_albedo", 1, { 0.3 }, "ground albedo" },
+        { "ground", 1, { 40 }, "ground side, m" },
+        { "wall", 1, { 0.2 }, "wall/floor/ceiling thickness, m" } } },
+    { "door_rooms", "Two rooms joined by a door; lamp in room A, room B lit only through the door.",
+      build_door_rooms,
+      { { "t", 1, { 0.2 }, "shared wall thickness, m" },
+        { "wall", 1, { 0.2 }, "outer slab thickness, m" },
+        { "albedo", 1, { 0.6 }, "albedo of every surface" },
+        { "intensity", 1, { 20 }, "lamp intensity, W/sr" } } },
     { "hallway", "12x3x2.5 m corridor, 4 ceiling lamps in DLS hall_a (1,2) / hall_b (3,4); lamp 2 primary.",
       build_hallway,
       { { "intensity", 1, { 5 }, "each lamp, W/sr" },
         { "albedo", 1, { 0.6 }, "albedo of every surface" },
         { "lamp_y", 1, { 2.4 }, "lamp height, m" },
+        { "wall", 1, { 0.2 }, "wall/floor/ceiling thickness, m" } } },
+    { "inn", "Tavern + cellar joined by a doorway: hearth, cellar lamp (primary), candles and torch in DLS; show/hide table, barrel_1, barrel_2 (overlapping shadows), chest.",
+      build_inn,
+      { { "hearth", 1, { 6 }, "hearth intensity, W/sr (warm)" },
+        { "lamp", 1, { 3 }, "cellar lamp intensity, W/sr (primary)" },
+        { "candle", 1, { 1.5 }, "each candle, W/sr (DLS candles)" },
+        { "torch", 1, { 4 }, "torch intensity, W/sr (DLS torches)" },
+        { "albedo", 1, { 0.6 }, "plaster albedo" },
+        { "red", 3, { 0.75, 0.12, 0.08 }, "west wall albedo" },
         { "wall", 1, { 0.2 }, "wall/floor/ceiling thickness, m" } } },
     { "grazing", "Black plane, directional light at a grazing angle: E = sun*cos(angle).", build_grazing,
       { { "angle", 1, { 89.9 }, "angle between the light and the plane normal, degrees" },

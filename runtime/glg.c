@@ -125,7 +125,7 @@ static int tet_bary_double(const ub_glg *g, uint32_t t, const float p[3], double
 }
 
 /* Clamp to [0, 1] and renormalise; a zero sum gives the centroid. */
-static void bary_finish(float l[4])
+static inline void bary_finish(float l[4])
 {
   float s = 0.0f;
   for (int i = 0; i < 4; i++) {
@@ -632,6 +632,21 @@ uint32_t ub_glg_locate_ex(const ub_glg *g, const float p[3], uint32_t *inout_tet
     return cache == GLG_NONE ? 0 : cache;
   }
   uint32_t start = cache;
+  if (start != GLG_NONE && !g->tet_flags[start]) {
+    /* Still inside the cached tet (the common case for a moving object): done. Tets can
+     * be much larger than a start-grid cell, so this comes before the distance test. */
+    float l[4];
+    rec_bary(&g->tet_data[start], p, l);
+    if (min4f(l) >= -GLG_EPS) {
+      if (info)
+        info->steps = 1;
+      memcpy(out_bary, l, sizeof l);
+      bary_finish(out_bary);
+      if (inout_tet_cache)
+        *inout_tet_cache = start;
+      return start;
+    }
+  }
   if (g->start_grid) {
     int far = 1;
     if (start != GLG_NONE) {
@@ -723,7 +738,19 @@ void ub_glg_sample(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
                    float out_sh[27])
 {
   float w[4];
-  uint32_t t = ub_glg_locate_ex(g, p, inout_tet_cache, w, NULL);
+  uint32_t t = inout_tet_cache ? *inout_tet_cache : GLG_NONE;
+  /* Fast path, the same answer as ub_glg_locate's first test: p (finite) still inside
+   * the cached, well-shaped tet. */
+  int hit = 0;
+  if (t < g->tet_count && !g->tet_flags[t] && isfinite(p[0] + p[1] + p[2])) {
+    rec_bary(&g->tet_data[t], p, w);
+    if (min4f(w) >= -GLG_EPS) {
+      bary_finish(w);
+      hit = 1;
+    }
+  }
+  if (!hit)
+    t = ub_glg_locate_ex(g, p, inout_tet_cache, w, NULL);
   leak_weights(g, t, p, w);
   interp4(g, g->tets + 4 * (size_t)t, w, out_sh);
 }

@@ -274,9 +274,13 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   bd.storage = UB_BLEND_FLOAT32;
   bd.element_count = n;
   bd.elements = rt->lm_rec;
+  bd.flags = UB_BLEND_OWN_BASE; /* keeps only the touched texels' base rows */
   ub_result r = ub_blend_create(&bd, log, rt->lm_cur, &rt->lm_blend);
   if (r != UB_OK)
     return r;
+  free(rt->lm_base);
+  rt->lm_base = NULL;
+  bd.flags = 0; /* the GLG base is the bakefile's array, kept anyway */
   if (rt->has_glg) {
     bd.name = "GLG probes";
     bd.receiver_count = bf->glg_probe_count;

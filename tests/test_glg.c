@@ -181,6 +181,11 @@ static void check_glg_on_mesh(const char *name, const ub_tetmesh *m)
     uint32_t c3 = UB_GLG_NO_CACHE;
     float out3[27];
     ub_glg_sample(&g, p, &c3, out3);
+    /* again with the cache now holding p's tet: the cached-tet fast path, same bits */
+    uint32_t c4 = cache;
+    float out4[27];
+    ub_glg_sample(&g, p, &c4, out4);
+    ASSERT_TRUE(c4 == cache && memcmp(out4, out, sizeof out) == 0);
     for (int i = 0; i < 27; i++) {
       worst_cache = fmax(worst_cache, fabs(out2[i] - out[i]) / scale);
       worst_cache = fmax(worst_cache, fabs(out3[i] - out[i]) / scale);
