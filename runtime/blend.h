@@ -25,9 +25,12 @@
  * (one length + one record position per member per run) or, when runs are short, as a
  * list (one record position per member per receiver); the receiver index itself is read
  * from the first member's record. Kernels are specialised for the stride (12, 27, other)
- * and 1..8 non-zero members; a generic kernel takes any count. Half records are decoded
- * exactly to float (F16C when the CPU has it, else SSE2 bit operations) a chunk of
- * consecutive receivers at a time into an L1 scratch, then blended in float. A group
+ * and 1..8 non-zero members; a generic kernel takes any count. On a CPU with AVX and
+ * F16C (checked at create, unless UB_BLEND_PORTABLE) one kernel blends each run of
+ * consecutive receivers as a flat array, 8 lanes at a time, converting half records in
+ * registers; otherwise half records are decoded exactly to float (SSE2 bit operations) a
+ * chunk of consecutive receivers at a time into an L1 scratch, then blended in float.
+ * Every path does the same float operations per value, so they give the same bits. A group
  * whose weights are all 0 copies base rows (the "light off" fast path). Elements with
  * weight 0 are skipped, so a receiver's value depends only on the current weights, never
  * on the update history: setting weights back gives bit-identical output.
