@@ -288,6 +288,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     out_stats->sets_baked++;
     out_stats->texels_kept += nkt;
     out_stats->probes_kept += nkp;
+    out_stats->llg_probes_kept += nkl;
     ub_log_printf(log, UB_LOG_INFO,
                   "  dls %-16s: %u light(s), %u of %u texels, %u of %u probes and %u of %u "
                   "LLG probes in its influence (threshold %.3g W/m²), record %u pixels",

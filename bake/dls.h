@@ -3,7 +3,8 @@
  * UberBake §3.1–3.2: lights tagged `ubake_dls: NAME` are left out of the base bake. Each
  * set first runs a cheap influence pass (direct light + 2 bounces, few rays); the
  * receivers it keeps are those lit directly, or whose indirect light exceeds 1% of the
- * mean indirect light of the directly lit texels (GLG probes likewise). The full-quality
+ * mean indirect light of the directly lit texels (GLG and LLG probes likewise: the record
+ * carries the LLG probes it keeps, llg_probe_index/llg_probe_sh). The full-quality
  * pass then simulates only those receivers, and its result is stored as a sparse, linear
  * record (ubake/bakefile.h). A set whose lights reach nothing is reported and costs
  * nothing more. The caller owns the records (ub_dls_records_free, NULL-safe).
@@ -22,6 +23,7 @@ typedef struct ub_dls_stats {
   uint64_t rays_influence, rays_full;
   double seconds_influence, seconds_full;
   uint64_t texels_kept, probes_kept;     /* summed over sets */
+  uint64_t llg_probes_kept;              /* LLG probes, summed over sets */
 } ub_dls_stats;
 
 /* base: the base pass's settings (scene, rays, lightmap, probes, sample budgets); the

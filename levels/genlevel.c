@@ -412,6 +412,7 @@ static const ParamDef common_params[] = {
     { "llg_prop", 1, { 0 }, "1: add a box node llg_prop tagged ubake_receiver llg (albedo 0.6)" },
     { "llg_prop_at", 3, { 0, 0, 0 }, "llg_prop: centre of its bottom face, m" },
     { "llg_prop_size", 3, { 0.4, 0.4, 0.4 }, "llg_prop: box size x, y, z, m" },
+    { "lights_dls", 1, { 0 }, "1: every light without a set joins dynamic light set \"lights\"" },
 };
 #define NCOMMON ((int)(sizeof common_params / sizeof common_params[0]))
 
@@ -1733,6 +1734,13 @@ static void generate(const LevelDef *L, const char *dir, const char *base, const
                  v3(at[0] + 0.5 * sz[0], at[1] + sz[1], at[2] + 0.5 * sz[2]));
         node_extra(&S.nodes[S.nnode - 1], "ubake_receiver", "llg");
     }
+    if (PI_("lights_dls"))
+        for (int i = 0; i < S.nnode; i++) {
+            Node *n = &S.nodes[i];
+            int has = 0;
+            for (int k = 0; k < n->nex; k++) has |= !strcmp(n->ex[k].key, "ubake_dls");
+            if (n->light >= 0 && !has) node_extra(n, "ubake_dls", "lights");
+        }
     if (PI_("uv1")) assign_uv1();
     write_gltf(dir, base, paramstr);
     scene_reset();

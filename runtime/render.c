@@ -9,6 +9,7 @@
 #include <string.h>
 
 #include "ubake/glg.h"
+#include "ubake/llg.h"
 
 /* BVH build: SAH bins per axis, the largest leaf SAH may choose, and the depth at which a
  * node becomes a leaf whatever its size (bounds the traversal stack). */
@@ -804,12 +805,22 @@ static void shade(const ub_renderer *r, const ub_render_params *p, const float o
   if (bf->tri_atlas[h.tri] >= 0) {
     if (ub_runtime_lightmap_at(r->rt, h.tri, h.b1, h.b2, n, e) != UB_OK)
       e[0] = e[1] = e[2] = 0.0f;
-  } else if (r->has_glg) {
-    float q[3];
-    for (int a = 0; a < 3; a++)
-      q[a] = x[a] + n[a] * (UB_RENDER_GLG_OFFSET + eps);
-    if (ub_runtime_query_glg(r->rt, q, n, tet_cache, e) != UB_OK)
+  } else {
+    /* An LLG model's own surface (inside its box): its LLG, as the game shades it;
+     * anything else unlit by a lightmap: the GLG. */
+    uint32_t mi = UINT32_MAX;
+    int llg = bf->llg_count && ub_runtime_query_llg_ex(r->rt, x, n, 0, e, &mi) == UB_OK &&
+              mi < bf->llg_count &&
+              ub_llg_box_distance(bf->llgs[mi].center, bf->llgs[mi].axes, bf->llgs[mi].half,
+                                  x) <= 0.0f;
+    if (!llg) {
       e[0] = e[1] = e[2] = 0.0f;
+      float q[3];
+      for (int a = 0; a < 3; a++)
+        q[a] = x[a] + n[a] * (UB_RENDER_GLG_OFFSET + eps);
+      if (r->has_glg && ub_runtime_query_glg(r->rt, q, n, tet_cache, e) != UB_OK)
+        e[0] = e[1] = e[2] = 0.0f;
+    }
   }
 
   if (r->primary_count) {

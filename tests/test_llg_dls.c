@@ -11,7 +11,10 @@
  *     probes (relative 1e-4);
  *   - `ubake query --source llg --dls …` prints the run-time's value (printed precision);
  *   - the LLG irradiance on the box's top and two side faces matches `reference` with the
- *     same DLS weights (2048 paths) within 3 s.e. + 5% (figures printed). */
+ *     same DLS weights (2048 paths) within 3 s.e. + 5% (figures printed).
+ * And the influence subset culls: `two_rooms --param lights_dls=1 --param llg_prop=1
+ * --param llg_prop_at=2,0,0` (the lamp of room A in set "lights", the prop in the closed
+ * room B) bakes a record with texels and no LLG probe. */
 #include <math.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -38,6 +41,35 @@ static const ub_log g_log = {test_log, NULL};
 
 static double lum(const float *c) { return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]; }
 
+static void test_culled(const char *build, const char *dir)
+{
+  char cmd[4096], level[1200], out[1200];
+  snprintf(cmd, sizeof cmd,
+           "'%s/ubake-genlevel' two_rooms -o '%s' --param lights_dls=1 --param llg_prop=1 "
+           "--param llg_prop_at=2,0,0 --name two_rooms_llg",
+           build, dir);
+  ASSERT_TRUE(system(cmd) == 0);
+  snprintf(level, sizeof level, "%s/two_rooms_llg.gltf", dir);
+  snprintf(out, sizeof out, "%s/bake_culled", dir);
+  ub_bake_options o;
+  ub_bake_options_default(&o);
+  o.quality = UB_QUALITY_DRAFT;
+  o.out_dir = out;
+  ub_bake_stats st;
+  ASSERT_OK(ub_bake_level(level, &o, &g_log, &st));
+  ub_bakefile *bf = NULL;
+  ASSERT_OK(ub_bakefile_read(st.ubk_path, &g_log, &bf));
+  ASSERT_TRUE(bf && bf->dls_count == 1 && bf->llg_count == 1);
+  if (bf && bf->dls_count == 1 && bf->llg_count == 1) {
+    const ub_bakefile_llg *m = &bf->llgs[0];
+    printf("  two_rooms: record %s: %u texels, %u of %u LLG probes (prop in the other room)\n",
+           bf->dls[0].name, bf->dls[0].texel_count, bf->dls[0].llg_probe_count,
+           m->dims[0] * m->dims[1] * m->dims[2]);
+    ASSERT_TRUE(bf->dls[0].texel_count > 0 && bf->dls[0].llg_probe_count == 0);
+  }
+  ub_bakefile_free(bf);
+}
+
 int main(void)
 {
   const char *b = getenv("UB_BUILD");
@@ -52,6 +84,7 @@ int main(void)
            "--param llg_prop_at=-3,0,0.5 --name hallway_llg",
            build, dir);
   ASSERT_TRUE(system(cmd) == 0);
+  test_culled(build, dir);
   snprintf(level, sizeof level, "%s/hallway_llg.gltf", dir);
   snprintf(out, sizeof out, "%s/bake", dir);
   ub_bake_options o;
