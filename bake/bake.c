@@ -278,6 +278,8 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   pd.stop_fraction = plan.stop_fraction;
   pd.seed = opt->seed;
   pd.pass_id = 0;
+  pd.target_error = opt->target_error > 0.0 && isfinite(opt->target_error) ? opt->target_error
+                                                                            : 0.0;
   pd.progress = opt->progress;
   pd.progress_user = opt->progress_user;
   pd.progress_base = 0.0;
@@ -289,7 +291,10 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
     goto fail;
   stats.bounces = base.bounces;
   memcpy(stats.bounce_energy, base.bounce_energy, sizeof stats.bounce_energy);
+  stats.bounce_cap_tail = base.bounce_cap_tail;
   stats.rays_gather = base.rays_gather;
+  stats.rays_adaptive = base.rays_adaptive;
+  pd.target_error = 0.0; /* dynamic light sets: their own sample counts, not adaptive */
   stats.rays_shadow = base.rays_shadow;
   stats.rays_total = ub_rt_rays_traced(rt);
   stats.clamped_values += base.clamped;

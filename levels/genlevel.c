@@ -1138,10 +1138,13 @@ static void build_estate(void)
                 for (int l = 0; l < lps; l++) {
                     char nm[64];
                     snprintf(nm, sizeof nm, "lamp_%s_%d", set, l);
-                    double u = est_hash(seed, 7, (uint64_t)nsets, (uint64_t)l);
-                    double v = est_hash(seed, 8, (uint64_t)nsets, (uint64_t)l);
+                    double lx = x0 + est_hash(seed, 7, (uint64_t)nsets, (uint64_t)l) * ext;
+                    double lz = z0 + est_hash(seed, 8, (uint64_t)nsets, (uint64_t)l) * ext;
+                    /* keep clear of the hall's columns (at the grid points) */
+                    double gx = lx - L * floor(lx / L + 0.5), gz = lz - L * floor(lz / L + 0.5);
+                    if (fabs(gx) < 0.5 && fabs(gz) < 0.5) lx += gx < 0 ? -0.5 : 0.5;
                     Node *ln = light_node(nm, LIGHT_POINT, I / lps, 0.8 + 0.2 * warm, 0.9, 1.0 - 0.2 * warm,
-                                          v3(x0 + u * ext, ly, z0 + v * ext));
+                                          v3(lx, ly, lz));
                     node_extra(ln, "ubake_light", nsets % 2 ? "primary" : "static");
                     node_extra(ln, "ubake_dls", set);
                     nlights++;

@@ -889,7 +889,15 @@ static void wr_llgm(ubk_writer *w, const ub_bakefile *bf)
 
 ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_log *log)
 {
+  return ub_bakefile_write_ex(bf, path, log, NULL);
+}
+
+ub_result ub_bakefile_write_ex(const ub_bakefile *bf, const char *path, const ub_log *log,
+                               uint64_t *out_clamped)
+{
   assert(bf && path);
+  if (out_clamped)
+    *out_clamped = 0;
   ub_result r = validate(bf, path, log);
   if (r != UB_OK)
     return r;
@@ -1025,9 +1033,11 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
     return UB_ERR_IO;
   }
   if (w->clamped && log)
-    ub_log_printf(log, UB_LOG_WARNING, "%s: sections ATLS/GLGP/DLSR/LLGM: %llu half value(s) "
-                  "beyond the half range clamped to +-%g", path, (unsigned long long)w->clamped,
-                  (double)UB_HALF_MAX);
+    ub_log_printf(log, UB_LOG_WARNING, "%s: %llu half value(s) beyond the half range clamped "
+                  "to +-%g (LLG probes or self-inter-reflection)", path,
+                  (unsigned long long)w->clamped, (double)UB_HALF_MAX);
+  if (out_clamped)
+    *out_clamped = w->clamped;
   free(tmp);
   free(w);
   return UB_OK;

@@ -163,6 +163,10 @@ typedef struct ub_bakefile {
 } ub_bakefile;
 
 ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_log *log);
+/* The same, also counting the values clamped to the half range (±65504) on the way; the
+ * SH of atlases, GLG probes and records are scaled instead, so only LLG data can clamp. */
+ub_result ub_bakefile_write_ex(const ub_bakefile *bf, const char *path, const ub_log *log,
+                               uint64_t *out_clamped);
 ub_result ub_bakefile_read(const char *path, const ub_log *log, ub_bakefile **out_bf);
 /* name: used in messages only (e.g. the file name). */
 ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *name,
