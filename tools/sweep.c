@@ -87,7 +87,9 @@ typedef struct sweep {
   const char *level, *out_dir;
   char name[64];
   int points, threads, repeat, keep_bakes, plot, verbose, quick, reuse_conv;
-  int sampling;            /* --ladder sampling: the gather-rays and adaptive ladders only */
+  int sampling;            /* --ladder sampling: the gather-rays and adaptive ladders only;
+                              2 (--ladder sampling-short): gather rays 64, 256 and targets
+                              0.2..0.02 (big levels) */
   uint32_t ref_spp, converged_rays, seed;
   ub_scene *scene;
   ub_rt *rt;
@@ -757,8 +759,9 @@ static void sw_build_ladder(sweep *s)
   s->nresults = 1;
   static const uint32_t rays_full[] = {16, 32, 64, 128, 256, 512, 1024};
   static const uint32_t rays_quick[] = {16, 64, 256};
-  const uint32_t *rays = s->quick ? rays_quick : rays_full;
-  int nrays = s->quick ? 3 : 7;
+  static const uint32_t rays_short[] = {64, 256};
+  const uint32_t *rays = s->quick ? rays_quick : s->sampling == 2 ? rays_short : rays_full;
+  int nrays = s->quick ? 3 : s->sampling == 2 ? 2 : 7;
   for (int i = 0; i < nrays; i++) {
     sweep_cfg c = SW_MIDDLE;
     c.gather_rays = rays[i];
@@ -791,7 +794,7 @@ static void sw_build_ladder(sweep *s)
   static const double targets_full[] = {0.2, 0.1, 0.05, 0.02, 0.01};
   static const double targets_quick[] = {0.1};
   const double *targets = s->quick ? targets_quick : targets_full;
-  int ntargets = s->quick ? 1 : 5;
+  int ntargets = s->quick ? 1 : s->sampling == 2 ? 4 : 5;
   for (int i = 0; i < ntargets; i++) {
     sweep_cfg c = SW_MIDDLE;
     c.gather_rays = SWEEP_ADAPTIVE_RAYS;
@@ -1107,7 +1110,8 @@ static const char *SWEEP_HELP =
     "                       rays, --target-error 0.2,0.1,0.05,0.02,0.01), presets\n"
     "                       draft,fast,high; quick (CI): gather rays 16,64,256, adaptive\n"
     "                       0.1, presets draft,fast; sampling: the gather-rays and adaptive\n"
-    "                       ladders of full only (uniform vs adaptive sampling)\n"
+    "                       ladders of full only (uniform vs adaptive sampling);\n"
+    "                       sampling-short: gather rays 64,256 and adaptive 0.2..0.02\n"
     "  --points N           ground-truth points, half lightmap, half GLG (default 64; quick 32)\n"
     "  --ref-spp N          reference paths per point (default 65536; quick 16384)\n"
     "  --converged-rays N   gather rays per texel of the converged bake (default 4096;\n"
@@ -1152,8 +1156,10 @@ int ub_cli_sweep(int argc, char **argv)
         s.quick = 1;
       else if (!strcmp(v, "sampling"))
         s.sampling = 1;
+      else if (!strcmp(v, "sampling-short"))
+        s.sampling = 2;
       else if (strcmp(v, "full"))
-        SW_USAGE("--ladder takes quick, full or sampling");
+        SW_USAGE("--ladder takes quick, full, sampling or sampling-short");
       i++;
     } else if (!strcmp(a, "--points") && v) {
       if (!sw_parse_uint(v, 1, 100000, &points))
