@@ -18,9 +18,11 @@ ub_result ub_geom_prepare(ub_scene *s, const ub_log *log, uint32_t **out_orig_ma
     ub_node *nd = &s->nodes[n];
     if (nd->door < 0 && nd->door_open < 0)
       continue;
-    if (nd->receiver != UB_RECEIVER_NONE && nd->triangle_count)
-      ub_log_printf(log, UB_LOG_INFO, "%s: node '%s' is a door leaf: not a receiver (doors "
-                    "move; their own shading comes from the GLG)", s->path, nd->name);
+    if (nd->receiver != UB_RECEIVER_NONE && nd->receiver_source == UB_RECEIVER_TAGGED &&
+        nd->triangle_count)
+      ub_log_printf(log, UB_LOG_WARNING, "%s: node '%s' is a door leaf: its ubake_receiver "
+                    "tag is ignored (doors move; their own shading comes from the GLG)",
+                    s->path, nd->name);
     nd->receiver = UB_RECEIVER_NONE;
     if (nd->door >= 0)
       closed_tris += nd->triangle_count;
