@@ -607,7 +607,7 @@ static int cmd_query(int argc, char **argv)
   if (strcmp(source, "auto") && strcmp(source, "lightmap") && strcmp(source, "glg") &&
       strcmp(source, "llg"))
     return usage_error("query", "--source takes auto, glg, llg or lightmap");
-  cli_log_state ls = {0, 0, 0};
+  cli_log_state ls = {0, 1, 0}; /* stdout is the answer: no info lines */
   ub_log log = {cli_log, &ls};
   ub_runtime *rt = NULL;
   ub_result r = ub_runtime_load(path, &log, &rt);
