@@ -1,7 +1,7 @@
 /* ubake-genlevel: synthetic test levels for ubake, written as glTF 2.0
  * (.gltf JSON + external .bin buffer).
  *
- *   ubake-genlevel --all -o DIR
+ *   ubake-genlevel --all -o DIR            (every level but estate, made by name only)
  *   ubake-genlevel NAME -o DIR [--param key=value ...] [--name BASE]
  *   ubake-genlevel --list | --help | NAME --help
  *
@@ -1542,6 +1542,7 @@ static void usage(FILE *f)
 {
     fprintf(f,
             "usage: %s --all -o DIR                  write every level as DIR/NAME.gltf + DIR/NAME.bin\n"
+            "                                           (but estate, big: by name only)\n"
             "       %s NAME -o DIR [--param k=v ...] [--name BASE]\n"
             "                                           one level (output DIR/BASE.gltf, BASE defaults to NAME)\n"
             "       %s --list                        level names\n"
