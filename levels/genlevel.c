@@ -938,7 +938,7 @@ static void build_estate(void)
             "0<scale<=1, 4<=room<=64, 2.5<=height<=20, 0<wall<=0.5, 0<=albedo<1, intensity>=0, "
             "0<=doors<=1, rooms>=0, 0<=overlap<=sets, 1<=lights_per_set<=16, 1<=hall<=8, 0<=props<=16, seed>=0");
     common_default("texel_size", 0.138);
-    common_default("glg_spacing", 0.88);
+    common_default("glg_spacing", 0.85);
     int nrooms = (int)lround(rooms_full * scale);
     int room_sets = (int)lround((sets_full - hall_sets) * scale);
     if (room_sets > 0 && nrooms < 1) nrooms = 1;
