@@ -1,7 +1,7 @@
 /* ubake-genlevel: synthetic test levels for ubake, written as glTF 2.0
  * (.gltf JSON + external .bin buffer).
  *
- *   ubake-genlevel --all -o DIR
+ *   ubake-genlevel --all -o DIR            (every level but estate, made by name only)
  *   ubake-genlevel NAME -o DIR [--param key=value ...] [--name BASE]
  *   ubake-genlevel --list | --help | NAME --help
  *
@@ -1064,7 +1064,7 @@ static void build_estate(void)
             "0<scale<=1, 4<=room<=64, 2.5<=height<=20, 0<wall<=0.5, 0<=albedo<1, intensity>=0, "
             "0<=doors<=1, rooms>=0, 0<=overlap<=sets, 1<=lights_per_set<=16, 1<=hall<=8, 0<=props<=16, seed>=0");
     common_default("texel_size", 0.138);
-    common_default("glg_spacing", 0.88);
+    common_default("glg_spacing", 0.85);
     int nrooms = (int)lround(rooms_full * scale);
     int room_sets = (int)lround((sets_full - hall_sets) * scale);
     if (room_sets > 0 && nrooms < 1) nrooms = 1;
@@ -1704,6 +1704,7 @@ static void usage(FILE *f)
 {
     fprintf(f,
             "usage: %s --all -o DIR                  write every level as DIR/NAME.gltf + DIR/NAME.bin\n"
+            "                                           (but estate, big: by name only)\n"
             "       %s NAME -o DIR [--param k=v ...] [--name BASE]\n"
             "                                           one level (output DIR/BASE.gltf, BASE defaults to NAME)\n"
             "       %s --list                        level names\n"

@@ -175,7 +175,10 @@ int main(void)
     char path[1400], base[256];
     snprintf(path, sizeof path, "%s/%s", dir, names[i]);
     snprintf(base, sizeof base, "%.*s", (int)(strlen(names[i]) - 5), names[i]);
-    if (names_dls(path)) {
+    /* the full estate (make estate writes it elsewhere) would bake for hours */
+    if (!strcmp(names[i], "estate.gltf"))
+      printf("%s: the full ESTATE-scale level, skipped\n", path);
+    else if (names_dls(path)) {
       check_level(path, base);
       checked++;
     }
