@@ -1062,7 +1062,7 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
         rec.parent[1] = (int32_t)s->dls_count + od[b].elem;
         uint32_t nkt = 0, nkp = 0;
         r = make_record(&jb, jb.t_sh, jb.t_iz, jb.p_sh, base_res->iz, base_res->probe_sh,
-                        UB_OBJ_KEEP, &rec, &nkt, &nkp);
+                        UB_OBJ_KEEP_COMBO, &rec, &nkt, &nkp);
         if (r == UB_OK)
           r = ub_records_append(io_elems, io_count, &rec, 1);
         if (r == UB_OK) {
@@ -1114,6 +1114,12 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
     for (uint32_t i = 0; i < sr->probe_count; i++)
       memcpy(set_probe + 27 * (size_t)sr->probe_index[i], sr->probe_sh + 27 * (size_t)i,
              27 * sizeof(float));
+    /* what a viewer sees there: base + the set (the combination's threshold is relative
+     * to it, not to the set alone: 0.1% of a dim set is invisible) */
+    for (size_t i = 0; i < (size_t)T * 3; i++)
+      scratch2[i] = base_res->iz[i] + scratch[i];
+    for (size_t i = 0; i < (size_t)base->probe_count * 27; i++)
+      set_probe[i] += base_res->probe_sh[i];
     for (uint32_t o = 0; o < O && r == UB_OK; o++) {
       if (!od[o].baked)
         continue;
@@ -1137,7 +1143,7 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
         double dsum = 0.0;
         for (uint32_t i = 0; i < js.nkt; i++)
           dsum += fabs(lum(js.t_iz + 3 * (size_t)i));
-        if (dsum > UB_OBJ_SET_KEEP * set_sum) {
+        if (dsum > 0.0) {
           ub_bakefile_record rec;
           memset(&rec, 0, sizeof rec);
           snprintf(rec.name, sizeof rec.name, "%.30s*%.30s", sr->name, s->object_names[o]);
@@ -1145,11 +1151,19 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
           rec.parent[0] = (int32_t)ds;
           rec.parent[1] = (int32_t)s->dls_count + od[o].elem;
           uint32_t nkt = 0, nkp = 0;
-          r = make_record(&js, js.t_sh, js.t_iz, js.p_sh, scratch, set_probe, UB_OBJ_KEEP, &rec,
-                          &nkt, &nkp);
-          if (r == UB_OK)
+          r = make_record(&js, js.t_sh, js.t_iz, js.p_sh, scratch2, set_probe, UB_OBJ_KEEP_COMBO,
+                          &rec, &nkt, &nkp);
+          int empty = r == UB_OK && nkt == 0 && nkp == 0;
+          if (r == UB_OK && !empty)
             r = ub_records_append(io_elems, io_count, &rec, 1);
-          if (r == UB_OK) {
+          if (empty) {
+            free(rec.texel_index);
+            free(rec.texel_sh);
+            free(rec.probe_index);
+            free(rec.probe_sh);
+            ub_log_printf(log, UB_LOG_INFO, "  set × object %s: nowhere > %.0f%% of the lighting: none",
+                          rec.name, 100 * UB_OBJ_KEEP_COMBO);
+          } else if (r == UB_OK) {
             out_stats->set_objects++;
             ub_log_printf(log, UB_LOG_INFO,
                           "  set × object %s: changes %.1f%% of the set's light in the region: "
@@ -1162,8 +1176,8 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
             free(rec.probe_sh);
           }
         } else {
-          ub_log_printf(log, UB_LOG_INFO, "  set × object %s*%s: changes %.2f%% ≤ %.0f%%: none",
-                        sr->name, s->object_names[o], 100.0 * dsum / set_sum, 100 * UB_OBJ_SET_KEEP);
+          ub_log_printf(log, UB_LOG_INFO, "  set × object %s*%s: changes nothing: none",
+                        sr->name, s->object_names[o]);
         }
       }
       job_free(&js);

@@ -228,10 +228,13 @@ int main(void)
     compare(rt, bs[k], "floor, lit beside barrel_1", 1.0f, 0.0f, -1.0f, 0, 1, 0, 1);
     if (k == 1 || k == 3) /* where barrel_1 stood */
       compare(rt, bs[k], "floor under barrel_1", 1.4f, 0.0f, -1.0f, 0, 1, 0, 1);
-    /* Both barrels hidden with the candles on, this point needs candles × barrel_1 ×
-     * barrel_2 (a set × pair record, not baked) and the base is already -7.5% here:
-     * printed, not asserted (it was -9.7% against a 9.0% tolerance when written). */
-    compare(rt, bs[k], "wall behind barrels", 2.99f, 0.5f, -1.0f, -1, 0, 0, k < 3);
+    /* The wall behind the barrels: with the candles on the base + candles record is
+     * already -7.5% here (all shown: a DLS error, not the objects'), so the assertion
+     * is with the candles off; with them on it is printed. */
+    state w = *bs[k];
+    compare(rt, &w, "wall behind barrels", 2.99f, 0.5f, -1.0f, -1, 0, 0, 0);
+    w.dls = "candles";
+    compare(rt, &w, "wall behind barrels", 2.99f, 0.5f, -1.0f, -1, 0, 0, 1);
   }
   /* the naive sum subtracts twice in the overlap: it must miss the reference */
   ub_runtime *naive = NULL;
