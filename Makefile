@@ -76,3 +76,13 @@ sweep: build
 	@for l in $(SWEEP_LEVELS); do n=$$(basename $$l .gltf); echo "== sweep $$l -> out/sweep/$$n"; \
 	  $(BUILD)/ubake sweep $$l -o out/sweep/$$n $(SWEEP_ARGS) || exit 1; done
 	@echo "sweep: out/sweep/<level>/sweep.csv and sweep.png"
+
+# The ESTATE-scale level (levels/README.md "estate"), not made by the build (big): writes
+# $(BUILD)/levels/estate.gltf and prints its plan (receivers, passes, estimates) without
+# baking. ESTATE_ARGS adds generator parameters (e.g. ESTATE_ARGS="--param scale=0.2").
+# The benchmark: $(BUILD)/bench_estate (reduced scale, extrapolated; --full for all of it).
+ESTATE_ARGS ?=
+.PHONY: estate
+estate: build
+	$(BUILD)/ubake-genlevel estate -o $(BUILD)/levels $(ESTATE_ARGS)
+	$(BUILD)/ubake bake $(BUILD)/levels/estate.gltf -o out/estate --quality draft --plan-only --no-progress

@@ -20,6 +20,7 @@
 #include "bake/pass.h"
 #include "bake/plan.h"
 #include "bake/rt.h"
+#include "doors/door.h"
 #include "doors/object.h"
 #include "lightmaps/lightmap.h"
 #include "probes/leak.h"
@@ -178,6 +179,29 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   r = ub_lightmap_build(scene, rt, scene->texel_size, log, &lm);
   if (r != UB_OK)
     goto fail;
+  /* Small untagged props whose charts came out poor become LLG receivers (a tag always
+   * wins); the lightmap is then laid out again without them. */
+  {
+    ub_llg_auto_stats as;
+    r = ub_llg_auto_select(scene, lm, &as);
+    if (r != UB_OK)
+      goto fail;
+    stats.llg_auto_nodes = as.switched;
+    if (as.switched) {
+      ub_log_printf(log, UB_LOG_INFO, "  llg auto: %u of %u small untagged node(s) have poor "
+                    "lightmap charts (%u charts, %llu texels): made LLG receivers",
+                    as.switched, as.considered, as.charts_freed,
+                    (unsigned long long)as.texels_freed);
+      for (uint32_t n = 0; n < scene->node_count; n++)
+        if (scene->nodes[n].receiver_source == UB_RECEIVER_AUTO)
+          ub_log_printf(log, UB_LOG_INFO, "    llg auto: %s", scene->nodes[n].name);
+      ub_lightmap_free(lm);
+      lm = NULL;
+      r = ub_lightmap_build(scene, rt, scene->texel_size, log, &lm);
+      if (r != UB_OK)
+        goto fail;
+    }
+  }
   stats.atlases = lm->atlas_count;
   stats.texels = lm->texel_count;
   stats.backface_fixes = lm->backface_fixes;
@@ -212,9 +236,10 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
     uint32_t nv = 0;
     for (uint32_t i = 0; i < llg.model_count; i++)
       nv += llg.models[i].vertex_count;
-    stage_end(&sc, "%u model(s), %u probes (%u moved out of other geometry, %u filled), %u "
-              "vertices, %.2f M rays", llg.model_count, llg.probe_count, llg.moved_count,
-              llg.invalid_count, nv, llg.rays * 1e-6);
+    stage_end(&sc, "%u model(s) (%u share an instance's self-visibility), %u probes (%u moved "
+              "out of other geometry, %u filled), %u vertices, %.2f M rays", llg.model_count,
+              llg.vis_shared, llg.probe_count, llg.moved_count, llg.invalid_count, nv,
+              llg.rays * 1e-6);
   }
 
   /* plan */
@@ -254,6 +279,8 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   pd.stop_fraction = plan.stop_fraction;
   pd.seed = opt->seed;
   pd.pass_id = 0;
+  pd.target_error = opt->target_error > 0.0 && isfinite(opt->target_error) ? opt->target_error
+                                                                            : 0.0;
   pd.progress = opt->progress;
   pd.progress_user = opt->progress_user;
   pd.progress_base = 0.0;
@@ -265,7 +292,10 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
     goto fail;
   stats.bounces = base.bounces;
   memcpy(stats.bounce_energy, base.bounce_energy, sizeof stats.bounce_energy);
+  stats.bounce_cap_tail = base.bounce_cap_tail;
   stats.rays_gather = base.rays_gather;
+  stats.rays_adaptive = base.rays_adaptive;
+  pd.target_error = 0.0; /* dynamic light sets: their own sample counts, not adaptive */
   stats.rays_shadow = base.rays_shadow;
   stats.rays_total = ub_rt_rays_traced(rt);
   stats.clamped_values += base.clamped;
@@ -308,6 +338,29 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
               dstats.seconds_influence, dstats.rays_full * 1e-6, dstats.seconds_full);
   }
 
+  /* doors: one pass each (doors/door.h), records S_open − S_base for their influence */
+  if (plan.door_passes) {
+    stage_begin(&sc, "doors");
+    ub_door_desc dd;
+    memset(&dd, 0, sizeof dd);
+    dd.base = &pd;
+    dd.base_result = &base;
+    dd.rays = plan.door_rays;
+    dd.influence_rays = plan.door_influence_rays;
+    dd.photons = plan.door_photons;
+    dd.guiding = !opt->door_no_guiding;
+    ub_door_stats ds;
+    r = ub_door_bake(&dd, log, &elems, &ds);
+    if (r != UB_OK)
+      goto fail;
+    elem_count = scene->door_count;
+    stats.door_passes = ds.doors_baked;
+    stage_end(&sc, "%u door(s) baked%s, %u photons in %u box(es); influence %.1f M rays %.2f "
+              "s, full %.1f M rays %.2f s", ds.doors_baked, dd.guiding ? "" : " (no guiding)",
+              ds.photons_deposited, ds.boxes, ds.rays_influence * 1e-6, ds.seconds_influence,
+              ds.rays_full * 1e-6, ds.seconds_full);
+  }
+
   /* show/hide objects (doors/object.h): after any door records, objects then combinations */
   if (scene->object_count) {
     stage_begin(&sc, "objects");
@@ -335,7 +388,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   stats.total_seconds = now_seconds() - t_start;
   ub_glg_bake glg = {tm, base.probe_sh, &leak};
   r = ub_output_write(scene, lm, &glg, &llg, base.llg_sh, dls, &dstats, elems, elem_count,
-                      &plan, &base, opt, &stats, log);
+                      orig_material, &plan, &base, opt, &stats, log);
   if (r != UB_OK)
     goto fail;
   stage_end(&sc, "%s", stats.ubk_path);

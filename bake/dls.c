@@ -1,6 +1,8 @@
 /* Dynamic light set passes and their sparse records (see dls.h). */
 #include "bake/dls.h"
 
+#include "probes/llg.h"
+
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -150,11 +152,14 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     recs[d].kind = UB_ELEMENT_DLS;
     recs[d].parent[0] = recs[d].parent[1] = -1;
   }
-  if (!recs || !enabled || !kt || !kp) {
+  uint32_t nlp = base->llg ? base->llg->probe_count : 0; /* LLG probes */
+  uint32_t *kl = malloc(((size_t)nlp + 1) * sizeof *kl);
+  if (!recs || !enabled || !kt || !kp || !kl) {
     free(recs);
     free(enabled);
     free(kt);
     free(kp);
+    free(kl);
     return UB_ERR_OUT_OF_MEMORY;
   }
   ub_result r = UB_OK;
@@ -192,6 +197,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     pd.pass_id = 2 + 2 * d;
     pd.texel_subset = NULL;
     pd.probe_subset = NULL;
+    pd.llg_subset = NULL;
     pd.progress = NULL;
     double t0 = now_s();
     ub_pass_result inf;
@@ -208,7 +214,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
         lit++;
       }
     double thr = lit ? UB_DLS_INFLUENCE_FRACTION * ind_sum / lit : 0.0;
-    uint32_t nkt = 0, nkp = 0;
+    uint32_t nkt = 0, nkp = 0, nkl = 0;
     /* --plan all keeps every receiver (no culling), to measure what culling drops. */
     for (uint32_t t = 0; t < lm->texel_count; t++)
       if (!plan->influence_culling || inf.texel_direct[t] > 0.0f || inf.texel_indirect[t] > thr)
@@ -216,8 +222,12 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     for (uint32_t q = 0; q < base->probe_count; q++)
       if (!plan->influence_culling || inf.probe_direct[q] > 0.0f || inf.probe_indirect[q] > thr)
         kp[nkp++] = q;
+    /* LLG probes: the GLG probes' rule (they are points in free space too). */
+    for (uint32_t q = 0; q < nlp; q++)
+      if (!plan->influence_culling || inf.llg_direct[q] > 0.0f || inf.llg_indirect[q] > thr)
+        kl[nkl++] = q;
     ub_pass_result_free(&inf);
-    if (nkt == 0 && nkp == 0) {
+    if (nkt == 0 && nkp == 0 && nkl == 0) {
       out_stats->sets_empty++;
       ub_log_printf(log, UB_LOG_INFO, "  dls %-16s: no receiver above the threshold: skipped",
                     rec->name);
@@ -233,6 +243,8 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     pd.texel_subset_count = nkt;
     pd.probe_subset = kp;
     pd.probe_subset_count = nkp;
+    pd.llg_subset = kl;
+    pd.llg_subset_count = nkl;
     pd.progress = NULL;
     t0 = now_s();
     ub_pass_result full;
@@ -256,6 +268,20 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
         }
       }
     }
+    if (r == UB_OK && nkl) {
+      rec->llg_probe_index = malloc((size_t)nkl * sizeof *rec->llg_probe_index);
+      rec->llg_probe_sh = malloc((size_t)nkl * 27 * sizeof *rec->llg_probe_sh);
+      if (!rec->llg_probe_index || !rec->llg_probe_sh) {
+        r = UB_ERR_OUT_OF_MEMORY;
+      } else {
+        rec->llg_probe_count = nkl;
+        for (uint32_t i = 0; i < nkl; i++) {
+          rec->llg_probe_index[i] = kl[i];
+          memcpy(rec->llg_probe_sh + 27 * (size_t)i, full.llg_sh + 27 * (size_t)kl[i],
+                 27 * sizeof(float));
+        }
+      }
+    }
     ub_pass_result_free(&full);
     if (r != UB_OK)
       break;
@@ -263,14 +289,15 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     out_stats->texels_kept += nkt;
     out_stats->probes_kept += nkp;
     ub_log_printf(log, UB_LOG_INFO,
-                  "  dls %-16s: %u light(s), %u of %u texels and %u of %u probes in its "
-                  "influence (threshold %.3g W/m²), record %u pixels",
-                  rec->name, reaching, nkt, lm->texel_count, nkp, base->probe_count, thr,
-                  rec->texel_count);
+                  "  dls %-16s: %u light(s), %u of %u texels, %u of %u probes and %u of %u "
+                  "LLG probes in its influence (threshold %.3g W/m²), record %u pixels",
+                  rec->name, reaching, nkt, lm->texel_count, nkp, base->probe_count, nkl, nlp,
+                  thr, rec->texel_count);
   }
   free(enabled);
   free(kt);
   free(kp);
+  free(kl);
   if (r != UB_OK) {
     ub_dls_records_free(recs, s->dls_count);
     return r;

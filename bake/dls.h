@@ -31,8 +31,9 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
                       ub_bakefile_record **out_records, ub_dls_stats *out_stats);
 void ub_dls_records_free(ub_bakefile_record *records, uint32_t count);
 
-/* A sparse texel record from per-texel SH (texel_count × 12) of the kept texels (sorted),
- * as atlas pixels with the base's dilation (used by doors/objects too). */
+/* Sparse atlas pixels of a record from per-texel SH (sh: texel_count × 12, read at the
+ * kept texels only), dilated like the base so padding follows (no seams under bilinear
+ * filtering). Fills rec->texel_count/texel_index/texel_sh; shared by DLS and door records. */
 ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint32_t nkept,
                               const float *sh, ub_bakefile_record *rec);
 

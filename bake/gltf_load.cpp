@@ -185,6 +185,7 @@ struct Tags {
   ub_light_class light_class = UB_LIGHT_STATIC;
   int32_t dls = -1;
   ub_receiver_kind receiver = UB_RECEIVER_LIGHTMAP;
+  bool receiver_tagged = false; /* ubake_receiver set on this node or an ancestor */
   int32_t door = -1;
   int32_t door_open = -1;
   int32_t semidynamic = -1;
@@ -198,6 +199,8 @@ struct NodeOut {
   uint32_t first_triangle;
   uint32_t triangle_count;
   bool has_mesh;
+  int32_t mesh = -1;   /* glTF mesh index */
+  float world[12] = {}; /* world transform, column-major 3×4 */
 };
 
 struct MaterialOut {
@@ -516,6 +519,7 @@ Tags Loader::node_tags(int idx, const Tags &parent)
       t.dls = dls_.intern(tag_string(idx, key, v));
     } else if (key == "ubake_receiver") {
       std::string s = v.IsString() ? v.Get<std::string>() : std::string();
+      t.receiver_tagged = true;
       if (s == "lightmap")
         t.receiver = UB_RECEIVER_LIGHTMAP;
       else if (s == "llg")
@@ -902,6 +906,10 @@ void Loader::traverse(int scene_idx)
       no.first_triangle = (uint32_t)(idx_.size() / 3);
       no.triangle_count = 0;
       no.has_mesh = n.mesh >= 0;
+      no.mesh = n.mesh;
+      for (int c = 0; c < 4; c++)
+        for (int r = 0; r < 3; r++)
+          no.world[3 * c + r] = (float)world.m[4 * c + r];
       nodes_.push_back(no);
       int32_t ub_node = (int32_t)nodes_.size() - 1;
       if (n.mesh >= 0)
@@ -1533,6 +1541,9 @@ ub_scene *Loader::to_c() const
         n.gltf_index = no.gltf_index;
         /* a light-only node carries no triangles and receives nothing */
         n.receiver = no.has_mesh ? no.tags.receiver : UB_RECEIVER_NONE;
+        n.receiver_source = no.tags.receiver_tagged ? UB_RECEIVER_TAGGED : UB_RECEIVER_DEFAULT;
+        n.mesh = no.has_mesh ? no.mesh : -1;
+        memcpy(n.world, no.world, sizeof n.world);
         n.door = no.tags.door;
         n.door_open = no.tags.door_open;
         n.semidynamic = no.tags.semidynamic;

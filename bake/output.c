@@ -16,7 +16,7 @@
 #include "ubake/bakefile.h"
 
 #define UB_DILATE_RINGS 4
-#define UB_MAX_OUTPUTS 64
+#define UB_MAX_OUTPUTS 256
 
 typedef struct out_files {
   char staged[UB_MAX_OUTPUTS][1024];
@@ -72,6 +72,117 @@ static void json_str(FILE *f, const char *s)
   fputc('"', f);
 }
 
+/* Error map channels (EXR stores them sorted): the texel's luminance irradiance along
+ * the normal E (W/m²), 1 where a texel is, its relative standard error (ub_rel_error) and
+ * its standard error (W/m²). */
+#define UB_ERR_EXR_CHANNELS 4
+static const char *const err_channel_names[UB_ERR_EXR_CHANNELS] = {"E", "covered", "rel_se",
+                                                                   "se"};
+/* False-colour PNG scale of the relative standard error (log): 0.1% blue … 10% red. */
+#define UB_ERR_PNG_MIN 0.001f
+#define UB_ERR_PNG_MAX 0.1f
+
+static double lum_f(const float *c)
+{
+  return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
+}
+
+static int cmp_float(const void *a, const void *b)
+{
+  float x = *(const float *)a, y = *(const float *)b;
+  return (x > y) - (x < y);
+}
+
+/* Relative standard error over the lit receivers (E > UB_ERR_LIT × mean E): count, mean,
+ * RMS, 95th percentile, max. */
+typedef struct err_summary {
+  uint32_t lit;
+  double mean, rms, p95, max;
+} err_summary;
+
+static void summarise_errors(const float *e, const float *se, uint32_t n, err_summary *out)
+{
+  memset(out, 0, sizeof *out);
+  if (!e || !se || n == 0)
+    return;
+  double floor_e = ub_err_floor(e, n), mean_e = floor_e / UB_ERR_FLOOR;
+  float *rel = malloc((size_t)n * sizeof *rel);
+  if (!rel)
+    return;
+  uint32_t m = 0;
+  double sum = 0.0, sum2 = 0.0;
+  for (uint32_t i = 0; i < n; i++) {
+    if (!(e[i] > UB_ERR_LIT * mean_e))
+      continue;
+    double r = ub_rel_error(se[i], e[i], floor_e);
+    if (!isfinite(r))
+      continue;
+    rel[m++] = (float)r;
+    sum += r;
+    sum2 += r * r;
+  }
+  if (m) {
+    qsort(rel, m, sizeof *rel, cmp_float);
+    out->lit = m;
+    out->mean = sum / m;
+    out->rms = sqrt(sum2 / m);
+    out->p95 = rel[(size_t)((m - 1) * 0.95)];
+    out->max = rel[m - 1];
+  }
+  free(rel);
+}
+
+static void json_err_summary(FILE *f, const char *name, const err_summary *s)
+{
+  fprintf(f, "\"%s\": {\"lit\": %u, \"mean_rel_se\": %.6g, \"rms_rel_se\": %.6g, "
+             "\"p95_rel_se\": %.6g, \"max_rel_se\": %.6g}",
+          name, s->lit, s->mean, s->rms, s->p95, s->max);
+}
+
+/* Luminance of every texel's irradiance along the normal and of every GLG probe's DC
+ * irradiance (the quantities the standard errors are of). */
+static ub_result receiver_lum(const ub_lightmap *lm, const ub_pass_result *base, uint32_t P,
+                              float **out_tx, float **out_pr)
+{
+  *out_tx = malloc(((size_t)lm->texel_count + 1) * sizeof(float));
+  *out_pr = malloc(((size_t)P + 1) * sizeof(float));
+  if (!*out_tx || !*out_pr)
+    return UB_ERR_OUT_OF_MEMORY;
+  for (uint32_t t = 0; t < lm->texel_count; t++)
+    (*out_tx)[t] = (float)lum_f(base->iz + 3 * (size_t)t);
+  for (uint32_t q = 0; q < P; q++)
+    (*out_pr)[q] = base->probe_direct[q] + base->probe_indirect[q];
+  return UB_OK;
+}
+
+/* Per atlas: the error map (EXR channels above) and the relative error for the PNG (−1
+ * where no texel is). */
+static ub_result error_atlas(const ub_lightmap *lm, const ub_pass_result *base,
+                             const float *e_tx, double floor_e, uint32_t a, float **out_exr,
+                             float **out_rel)
+{
+  const ub_atlas *at = &lm->atlases[a];
+  size_t npx = (size_t)at->width * at->height;
+  *out_exr = calloc(npx * UB_ERR_EXR_CHANNELS, sizeof(float));
+  *out_rel = malloc(npx * sizeof(float));
+  if (!*out_exr || !*out_rel)
+    return UB_ERR_OUT_OF_MEMORY;
+  for (size_t px = 0; px < npx; px++)
+    (*out_rel)[px] = -1.0f;
+  for (uint32_t i = 0; i < at->texel_count; i++) {
+    uint32_t t = at->first_texel + i;
+    size_t px = (size_t)lm->texel_xy[2 * t + 1] * at->width + lm->texel_xy[2 * t];
+    float rel = (float)ub_rel_error(base->texel_se[t], e_tx[t], floor_e);
+    float *o = *out_exr + UB_ERR_EXR_CHANNELS * px;
+    o[0] = e_tx[t];
+    o[1] = 1.0f;
+    o[2] = isfinite(rel) ? rel : 0.0f;
+    o[3] = base->texel_se[t];
+    (*out_rel)[px] = o[2];
+  }
+  return UB_OK;
+}
+
 static ub_result write_report(const char *path, const ub_scene *scene, const ub_lightmap *lm,
                               const ub_plan *plan, const ub_pass_result *base,
                               const ub_bakefile *bf, const ub_llg_set *llg,
@@ -95,9 +206,9 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
           scene->triangle_count, scene->degenerate_count, scene->material_count,
           scene->light_count, st->emissive_triangles, scene->node_count,
           scene->has_sky ? "true" : "false");
-  fprintf(f, "  \"plan\": {\n    \"forced_all\": %s, \"ray_rate\": %.0f, \"doors\": 0, "
-             "\"door_passes\": 0,\n",
-          plan->forced ? "true" : "false", plan->ray_rate);
+  fprintf(f, "  \"plan\": {\n    \"forced_all\": %s, \"ray_rate\": %.0f, \"doors\": %u, "
+             "\"door_passes\": %u,\n",
+          plan->forced ? "true" : "false", plan->ray_rate, plan->doors, plan->door_passes);
   fprintf(f, "    \"passes\": [{\"name\": \"base\", \"lights\": %u, "
              "\"static_lights\": %u, \"primary_lights\": %u, \"sky\": %s, \"emissive\": %s, "
              "\"gather_rays\": %u, \"emissive_samples\": %u, \"shadow_samples\": %u, "
@@ -118,9 +229,9 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
   }
   fprintf(f, "],\n");
   fprintf(f, "    \"effect_counters\": {\"emissive_shadow_rays\": %llu, \"sky_gather_hits\": "
-             "%llu, \"emitter_gather_hits\": %llu, \"dls_passes\": %u, \"door_passes\": 0},\n",
+             "%llu, \"emitter_gather_hits\": %llu, \"dls_passes\": %u, \"door_passes\": %u},\n",
           (unsigned long long)st->rays_emissive, (unsigned long long)st->sky_hits,
-          (unsigned long long)st->emitter_hits, st->dls_sets);
+          (unsigned long long)st->emitter_hits, st->dls_sets, st->door_passes);
   fprintf(f, "    \"dls\": {\"sets\": %u, \"baked\": %u, \"reach_nothing\": %u, "
              "\"influence_rays\": %llu, \"influence_seconds\": %.4f, \"full_rays\": %llu, "
              "\"full_seconds\": %.4f, \"records\": [",
@@ -159,13 +270,25 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
   fprintf(f, "  \"glg\": {\"probes\": %u, \"tets\": %u, \"leak_plane_tets\": %u, \"spacing\": %.4g},\n",
           st->glg_probes, st->glg_tets, st->glg_leak_tets, scene->glg_spacing);
   fprintf(f, "  \"llg\": {\"models\": %u, \"probes\": %u, \"invalid_probes\": %u, "
-             "\"visibility_rays\": %llu},\n",
+             "\"visibility_rays\": %llu, \"auto\": %u, \"auto_nodes\": [",
           llg ? llg->model_count : 0, llg ? llg->probe_count : 0, llg ? llg->invalid_count : 0,
-          llg ? (unsigned long long)llg->rays : 0ULL);
+          llg ? (unsigned long long)llg->rays : 0ULL, st->llg_auto_nodes);
+  for (uint32_t n = 0, k = 0; n < scene->node_count; n++)
+    if (scene->nodes[n].receiver_source == UB_RECEIVER_AUTO) {
+      fprintf(f, "%s", k++ ? ", " : "");
+      json_str(f, scene->nodes[n].name);
+    }
+  fprintf(f, "]},\n");
   fprintf(f, "  \"bounces\": %u,\n  \"bounce_energy\": [", st->bounces);
   for (uint32_t b = 0; b <= st->bounces && b <= UB_BAKE_MAX_BOUNCES; b++)
     fprintf(f, "%s%.6g", b ? ", " : "", st->bounce_energy[b]);
-  fprintf(f, "],\n  \"stages\": [");
+  fprintf(f, "],\n  \"bounce_cap_reached\": %s, \"bounce_cap_missing_fraction\": ",
+          st->bounce_cap_tail > 0.0 ? "true" : "false");
+  if (isfinite(st->bounce_cap_tail))
+    fprintf(f, "%.6g,\n", st->bounce_cap_tail);
+  else
+    fprintf(f, "null,\n");
+  fprintf(f, "  \"stages\": [");
   for (uint32_t s = 0; s < st->stage_count; s++) {
     fprintf(f, "%s{\"name\": ", s ? ", " : "");
     json_str(f, st->stage_name[s]);
@@ -180,6 +303,30 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
           (unsigned long long)st->rays_total, (unsigned long long)st->rays_gather,
           (unsigned long long)st->rays_shadow, st->gather_seconds, rps);
   fprintf(f, "  \"escaped_gather_rays\": %llu,\n", (unsigned long long)base->misses);
+  {
+    /* Standard error estimates (bake/pass.h): relative to max(E, floor × mean E). */
+    err_summary es_tx, es_pr;
+    float *e_tx = NULL, *e_pr = NULL;
+    if (receiver_lum(lm, base, st->glg_probes, &e_tx, &e_pr) == UB_OK) {
+      summarise_errors(e_tx, base->texel_se, lm->texel_count, &es_tx);
+      summarise_errors(e_pr, base->probe_se, st->glg_probes, &es_pr);
+    } else {
+      memset(&es_tx, 0, sizeof es_tx);
+      memset(&es_pr, 0, sizeof es_pr);
+    }
+    free(e_tx);
+    free(e_pr);
+    fprintf(f, "  \"error_estimate\": {\"floor\": %.3g, \"lit_above\": %.3g, ", UB_ERR_FLOOR,
+            UB_ERR_LIT);
+    json_err_summary(f, "texels", &es_tx);
+    fprintf(f, ", ");
+    json_err_summary(f, "probes", &es_pr);
+    fprintf(f, ",\n    \"target_error\": %.6g, \"adaptive_rounds\": %u, "
+               "\"adaptive_receiver_rounds\": %llu, \"adaptive_rays\": %llu},\n",
+            opt->target_error, base->adaptive_rounds,
+            (unsigned long long)base->adaptive_receivers,
+            (unsigned long long)base->rays_adaptive);
+  }
   fprintf(f, "  \"clamped_values\": %llu,\n  \"backface_hits\": %llu,\n  \"unlit_hits\": %llu,\n",
           (unsigned long long)st->clamped_values, (unsigned long long)st->backface_hits,
           (unsigned long long)st->unlit_hits);
@@ -278,6 +425,8 @@ static ub_result fill_llgs(const ub_scene *scene, const ub_llg_set *llg, const f
     o->probe_sh = (float *)(llg_sh + 27 * (size_t)m->probe_first);
     o->vertex_count = m->vertex_count;
     o->vis = m->vis;
+    o->vis_shared_from = m->vis_source != i ? m->vis_source + 1u : 0u;
+    memcpy(o->vis_rotation, m->vis_rot, sizeof o->vis_rotation);
     o->self = m->self;
     o->triangle_count = m->triangle_count;
     o->indices = m->local_indices;
@@ -295,11 +444,54 @@ static ub_result fill_llgs(const ub_scene *scene, const ub_llg_set *llg, const f
   return UB_OK;
 }
 
+/* Per-triangle roles (section TRIR) for door leaves and show/hide objects that have a
+ * record; NULL when the level has none. */
+static ub_result tri_roles(const ub_scene *s, const ub_bakefile_record *elems, uint32_t n,
+                           uint32_t **out)
+{
+  *out = NULL;
+  if (!n)
+    return UB_OK;
+  uint32_t *role = NULL;
+  for (uint32_t i = 0; i < s->node_count; i++) {
+    const ub_node *nd = &s->nodes[i];
+    uint32_t r = 0, kind = UB_ELEMENT_DOOR;
+    const char *name = NULL;
+    if (nd->door >= 0) {
+      r = UB_TRI_ROLE_DOOR_CLOSED;
+      name = s->door_names[nd->door];
+    } else if (nd->door_open >= 0) {
+      r = UB_TRI_ROLE_DOOR_OPEN;
+      name = s->door_names[nd->door_open];
+    } else if (nd->semidynamic >= 0) {
+      r = UB_TRI_ROLE_OBJECT;
+      kind = UB_ELEMENT_OBJECT;
+      name = s->object_names[nd->semidynamic];
+    }
+    if (!r || !nd->triangle_count)
+      continue;
+    uint32_t e = 0;
+    while (e < n && !(elems[e].kind == kind && !strcmp(elems[e].name, name)))
+      e++;
+    if (e == n)
+      continue; /* no record: drawn as in the base */
+    if (!role) {
+      role = calloc((size_t)s->triangle_count + 1, sizeof *role);
+      if (!role)
+        return UB_ERR_OUT_OF_MEMORY;
+    }
+    for (uint32_t t = nd->first_triangle; t < nd->first_triangle + nd->triangle_count; t++)
+      role[t] = (r << 24) | e;
+  }
+  *out = role;
+  return UB_OK;
+}
+
 ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub_glg_bake *glg,
                           const ub_llg_set *llg, const float *llg_sh,
                           ub_bakefile_record *dls, const ub_dls_stats *dstats,
                           ub_bakefile_record *elems, uint32_t elem_count,
-                          const ub_plan *plan,
+                          const uint32_t *tri_material, const ub_plan *plan,
                           const ub_pass_result *base, const ub_bake_options *opt,
                           ub_bake_stats *stats, const ub_log *log)
 {
@@ -314,8 +506,11 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
     ub_log_printf(log, UB_LOG_ERROR, "%s: cannot create folder: %s", staging, strerror(errno));
     return UB_ERR_IO;
   }
-  out_files files;
-  memset(&files, 0, sizeof files);
+  out_files *files = calloc(1, sizeof *files); /* 0.5 MB of names: not on the stack */
+  if (!files) {
+    rmdir(staging);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
 
   ub_bakefile bf;
   memset(&bf, 0, sizeof bf);
@@ -336,8 +531,12 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
     goto done;
   }
   for (uint32_t t = 0; t < scene->triangle_count; t++)
-    memcpy(bf.tri_albedo + 3 * (size_t)t, scene->materials[scene->tri_material[t]].albedo,
+    memcpy(bf.tri_albedo + 3 * (size_t)t,
+           scene->materials[(tri_material ? tri_material : scene->tri_material)[t]].albedo,
            3 * sizeof(float));
+  r = tri_roles(scene, elems, elems ? elem_count : 0, &bf.tri_role);
+  if (r != UB_OK)
+    goto done;
   bf.dls_count = dls ? scene->dls_count : 0;
   bf.dls = dls;
   bf.elem_count = elems ? elem_count : 0;
@@ -379,25 +578,64 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
       goto done;
   }
 
+  float *e_tx = NULL, *e_pr = NULL;
+  r = receiver_lum(lm, base, glg && glg->mesh ? glg->mesh->point_count : 0, &e_tx, &e_pr);
+  double floor_e = r == UB_OK ? ub_err_floor(e_tx, lm->texel_count) : 0.0;
+  if (r == UB_OK) {
+    err_summary es;
+    summarise_errors(e_tx, base->texel_se, lm->texel_count, &es);
+    stats->texel_rel_se_mean = es.mean;
+    stats->texel_rel_se_p95 = es.p95;
+  }
+  for (uint32_t a = 0; r == UB_OK && a < lm->atlas_count; a++) {
+    float *exr = NULL, *rel = NULL;
+    char name[256];
+    r = error_atlas(lm, base, e_tx, floor_e, a, &exr, &rel);
+    if (r == UB_OK) {
+      snprintf(name, sizeof name, "%s_error%u.exr", stats->level_name, a);
+      if (!add_file(files, staging, dir, name))
+        r = UB_ERR_INVALID_ARGUMENT;
+      else
+        r = ub_image_write_exr(files->staged[files->count - 1], lm->atlases[a].width,
+                               lm->atlases[a].height, UB_ERR_EXR_CHANNELS, err_channel_names,
+                               exr, log);
+    }
+    if (r == UB_OK) {
+      snprintf(name, sizeof name, "%s_error%u.png", stats->level_name, a);
+      if (!add_file(files, staging, dir, name))
+        r = UB_ERR_INVALID_ARGUMENT;
+      else
+        r = ub_image_write_png_false_colour(files->staged[files->count - 1],
+                                            lm->atlases[a].width, lm->atlases[a].height, rel,
+                                            UB_ERR_PNG_MIN, UB_ERR_PNG_MAX, log);
+    }
+    free(exr);
+    free(rel);
+  }
+  free(e_tx);
+  free(e_pr);
+  if (r != UB_OK)
+    goto done;
+
   for (uint32_t a = 0; a < lm->atlas_count; a++) {
     float *ahd = NULL, *irr = NULL;
     r = encode_atlas(lm, base, a, &bf.atlases[a], &ahd, &irr);
     char name[256];
     if (r == UB_OK) {
       snprintf(name, sizeof name, "%s_lm%u.exr", stats->level_name, a);
-      if (!add_file(&files, staging, dir, name))
+      if (!add_file(files, staging, dir, name))
         r = UB_ERR_INVALID_ARGUMENT;
       else
-        r = ub_image_write_exr(files.staged[files.count - 1], lm->atlases[a].width,
+        r = ub_image_write_exr(files->staged[files->count - 1], lm->atlases[a].width,
                              lm->atlases[a].height, UB_AHD_EXR_CHANNELS,
                              ub_ahd_exr_channel_names, ahd, log);
     }
     if (r == UB_OK) {
       snprintf(name, sizeof name, "%s_lm%u.png", stats->level_name, a);
-      if (!add_file(&files, staging, dir, name))
+      if (!add_file(files, staging, dir, name))
         r = UB_ERR_INVALID_ARGUMENT;
       else
-        r = ub_image_write_png_preview(files.staged[files.count - 1], lm->atlases[a].width,
+        r = ub_image_write_png_preview(files->staged[files->count - 1], lm->atlases[a].width,
                                      lm->atlases[a].height, irr, 1.0f, log);
     }
     free(ahd);
@@ -408,15 +646,17 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
 
   char name[256];
   snprintf(name, sizeof name, "%s.ubk", stats->level_name);
-  if (!add_file(&files, staging, dir, name)) {
+  if (!add_file(files, staging, dir, name)) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: output path too long", dir);
     r = UB_ERR_INVALID_ARGUMENT;
     goto done;
   }
-  r = ub_bakefile_write(&bf, files.staged[files.count - 1], log);
+  uint64_t half_clamped = 0;
+  r = ub_bakefile_write_ex(&bf, files->staged[files->count - 1], log, &half_clamped);
+  stats->clamped_values += half_clamped; /* reported with the baker's own clamps */
   if (r != UB_OK)
     goto done;
-  snprintf(stats->ubk_path, sizeof stats->ubk_path, "%s", files.final[files.count - 1]);
+  snprintf(stats->ubk_path, sizeof stats->ubk_path, "%s", files->final[files->count - 1]);
 
   /* The report last: it records the time and memory of everything before it. */
   char report_final[1024];
@@ -424,20 +664,20 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
     snprintf(report_final, sizeof report_final, "%s", opt->json_path);
   else
     snprintf(report_final, sizeof report_final, "%s/%s.report.json", dir, stats->level_name);
-  if (!add_file(&files, staging, dir, "report.json")) {
+  if (!add_file(files, staging, dir, "report.json")) {
     r = UB_ERR_INVALID_ARGUMENT;
     goto done;
   }
-  snprintf(files.final[files.count - 1], sizeof files.final[0], "%s", report_final);
-  r = write_report(files.staged[files.count - 1], scene, lm, plan, base, &bf, llg, dstats, opt,
+  snprintf(files->final[files->count - 1], sizeof files->final[0], "%s", report_final);
+  r = write_report(files->staged[files->count - 1], scene, lm, plan, base, &bf, llg, dstats, opt,
                    stats,
                    log);
   if (r != UB_OK)
     goto done;
 
-  for (uint32_t i = 0; i < files.count; i++) {
-    if (rename(files.staged[i], files.final[i]) != 0) {
-      ub_log_printf(log, UB_LOG_ERROR, "%s: cannot move into place: %s", files.final[i],
+  for (uint32_t i = 0; i < files->count; i++) {
+    if (rename(files->staged[i], files->final[i]) != 0) {
+      ub_log_printf(log, UB_LOG_ERROR, "%s: cannot move into place: %s", files->final[i],
                     strerror(errno));
       r = UB_ERR_IO;
       goto done;
@@ -445,7 +685,8 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
   }
 done:
   /* Renamed files are gone from staging already; this removes what a failure left. */
-  remove_staging(&files, staging);
+  remove_staging(files, staging);
+  free(files);
   if (bf.atlases)
     for (uint32_t a = 0; a < bf.atlas_count; a++) {
       free(bf.atlases[a].sh);
@@ -454,6 +695,7 @@ done:
     }
   free(bf.atlases);
   free(bf.tri_albedo);
+  free(bf.tri_role);
   free(bf.lights);
   for (uint32_t i = 0; bf.llgs && i < bf.llg_count; i++) {
     free(bf.llgs[i].positions);

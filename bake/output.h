@@ -20,12 +20,13 @@ typedef struct ub_glg_bake {
 
 /* llg: the LLG models (or NULL) and llg_sh their probes' SH (llg->probe_count × 27).
  * elems: door, object and combination records (or NULL), kinds in the order of
- * ubake/bakefile.h. */
+ * ubake/bakefile.h. tri_material: the materials to show (door leaves keep their own
+ * albedo in the file although the base bake saw them black), NULL = the scene's. */
 ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub_glg_bake *glg,
                           const ub_llg_set *llg, const float *llg_sh,
                           ub_bakefile_record *dls, const ub_dls_stats *dstats,
                           ub_bakefile_record *elems, uint32_t elem_count,
-                          const ub_plan *plan,
+                          const uint32_t *tri_material, const ub_plan *plan,
                           const ub_pass_result *base, const ub_bake_options *opt,
                           ub_bake_stats *stats, const ub_log *log);
 

@@ -46,6 +46,11 @@ typedef struct recv_set {
   double *acc_iz;        /* count × 3 (normal receivers), this bounce, stored result */
   double *acc_src;       /* count × 3, bounce 0 only: irradiance incl. primary lights */
   double *acc_src_np;    /* count × 3, bounce 0 only: its non-punctual part (sky, emitters) */
+  double *acc_var;       /* count, this bounce: variance of the stored result's luminance
+                            (texels: irradiance along the normal; probes: DC irradiance),
+                            estimated from the samples themselves (see stratified_var) */
+  double *acc_pvar;      /* count, this bounce: the part inherited from the noise of the
+                            lightmap it reads (prop_var); rounds do not reduce it */
 } recv_set;
 
 typedef struct pass_ctx {
@@ -69,6 +74,10 @@ typedef struct pass_ctx {
   int nee;                    /* bounce 1 takes punctual light at its hits by next-event
                                  estimation instead of reading the bounce-0 lightmap */
   uint32_t bounce;
+  float *prev_rel2;           /* texel: relative variance (var/E²) of what this bounce reads
+                                 from the lightmap (the previous bounce), or NULL */
+  uint32_t seed;              /* d->seed in a bounce's first round; a hash of it and the
+                                 round number in adaptive rounds (refine_bounce) */
   _Atomic uint64_t rays_gather, rays_shadow, clamped, backface, unlit, misses;
   _Atomic uint64_t rays_emissive, sky_hits, emitter_hits;
   _Atomic uint32_t blocks_done;
@@ -218,6 +227,15 @@ typedef struct shadow_rec {
   float dir[3];
   float e[3];       /* weights applied: SH gets e·Y(dir), I_z gets e·cos */
   float cos;
+  /* Variance groups: the samples of one receiver's estimate of one quantity (a near light's
+   * jittered footprint samples, its emissive samples, its texel-light samples), recorded
+   * contiguously; grp_first marks a group's first record, grp_n its sample count (records
+   * skipped before tracing count as zeros). grp_n 0: not random (fixed sample points).
+   * grp_k: the sample's index in its group; grp_kx: the group's samples are stratified on
+   * a grp_kx × grp_kx grid in index order (0: independent). */
+  uint32_t grp_n, grp_k;
+  uint8_t grp_first, grp_kx;
+  int32_t src_texel; /* texel-light samples: the texel whose previous-bounce value it reads */
 } shadow_rec;
 
 /* Scratch for a block's shadow rays; 0 (and the pass cancelled as out of memory) if it
@@ -236,6 +254,129 @@ static int shadow_alloc(pass_ctx *c, size_t cap, ub_ray **rays, shadow_rec **rec
   return 0;
 }
 
+/* Luminance a shadow record adds to its receiver's stored result: irradiance along the
+ * normal (texels), DC irradiance π·Y0·(Y0·e) = e/4 (probes); 0 if occluded or primary. */
+static double shadow_value(const recv_set *rs, const shadow_rec *sr, uint8_t occluded)
+{
+  if (occluded || sr->primary)
+    return 0.0;
+  double l = 0.2126 * sr->e[0] + 0.7152 * sr->e[1] + 0.0722 * sr->e[2];
+  return rs->normal ? l * sr->cos : 0.25 * l;
+}
+
+/* Variance of a sum Σc over n samples c[0..n) (each already divided by n), estimated
+ * from the samples. The first kx·ky samples are stratified (sample j in cell (j mod kx,
+ * j div kx) of a jittered grid): the plain sample variance would overstate their variance
+ * (it counts the variation between cells, which stratification removes), so cells are
+ * paired with a neighbour along a serpentine walk and Var ≈ Σ_pairs (c_a − c_b)²
+ * (collapsed strata; exact when paired cells have equal means, conservative otherwise).
+ * An unpaired last cell and the samples past the grid (independent over the whole domain)
+ * add (c − mean)². kx = ky = 0: all independent, the unbiased n/(n−1)·Σ(c − mean)². */
+static double stratified_var(const double *c, uint32_t n, uint32_t kx, uint32_t ky)
+{
+  if (n < 2)
+    return 0.0;
+  double sum = 0.0;
+  for (uint32_t j = 0; j < n; j++)
+    sum += c[j];
+  double mean = sum / n, v = 0.0;
+  uint32_t ns = kx * ky <= n ? kx * ky : 0, prev = 0;
+  for (uint32_t q = 0; q < ns; q++) {
+    uint32_t row = q / kx, col = q % kx;
+    uint32_t j = row * kx + (row & 1 ? kx - 1 - col : col);
+    if (q & 1) {
+      double dd = c[j] - c[prev];
+      v += dd * dd;
+    } else {
+      prev = j;
+    }
+  }
+  if (ns & 1)
+    v += (c[prev] - mean) * (c[prev] - mean);
+  for (uint32_t j = ns; j < n; j++)
+    v += (c[j] - mean) * (c[j] - mean);
+  if (ns == 0)
+    v *= (double)n / (n - 1);
+  return v > 0.0 && isfinite(v) ? v : 0.0;
+}
+
+/* One sample's reading of the previous bounce's lightmap: the texel and the luminance it
+ * added. */
+typedef struct prop_read {
+  uint32_t t;
+  double c;
+} prop_read;
+
+static int cmp_prop(const void *a, const void *b)
+{
+  uint32_t x = ((const prop_read *)a)->t, y = ((const prop_read *)b)->t;
+  return (x > y) - (x < y);
+}
+
+/* Variance a receiver inherits from the noise of the lightmap values its samples read:
+ * each texel t's value has relative variance rel2[t] (independent between texels), and
+ * every sample that read t scales with it, so Var ≈ Σ_t (Σ_{samples reading t} c)²·rel2[t]
+ * (samples reading the same texel err together). Reorders p. */
+static double prop_var(prop_read *p, uint32_t n, const float *rel2)
+{
+  if (!n || !rel2)
+    return 0.0;
+  qsort(p, n, sizeof *p, cmp_prop);
+  double v = 0.0;
+  for (uint32_t i = 0; i < n;) {
+    uint32_t j = i;
+    double sum = 0.0;
+    while (j < n && p[j].t == p[i].t)
+      sum += p[j++].c;
+    v += sum * sum * rel2[p[i].t];
+    i = j;
+  }
+  return v > 0.0 && isfinite(v) ? v : 0.0;
+}
+
+/* Adds each variance group's variance of its sum to its receiver's acc_var. */
+static void shadow_var(const recv_set *rs, uint32_t r0, const shadow_rec *rec,
+                       const uint8_t *occ, size_t n, const float *c_prev_rel2)
+{
+  uint32_t gmax = 0;
+  for (size_t j = 0; j < n; j++)
+    gmax = rec[j].grp_n > gmax ? rec[j].grp_n : gmax;
+  if (gmax < 2)
+    return;
+  double *buf = calloc(gmax, sizeof *buf);
+  prop_read *pr = malloc(gmax * sizeof *pr);
+  if (!buf || !pr) {
+    free(buf);
+    free(pr);
+    return; /* the estimate only: the bake itself goes on */
+  }
+  for (size_t j = 0; j < n;) {
+    size_t e = j + 1;
+    while (e < n && !rec[e].grp_first)
+      e++;
+    uint32_t gn = rec[j].grp_n;
+    if (gn > 1) {
+      memset(buf, 0, gn * sizeof *buf);
+      uint32_t np = 0;
+      for (size_t k = j; k < e; k++)
+        if (rec[k].grp_k < gn) {
+          buf[rec[k].grp_k] = shadow_value(rs, &rec[k], occ[k]);
+          if (rec[k].src_texel >= 0 && np < gmax) {
+            pr[np].t = (uint32_t)rec[k].src_texel;
+            pr[np++].c = buf[rec[k].grp_k];
+          }
+        }
+      uint32_t kx = rec[j].grp_kx;
+      uint32_t r = rs->index ? rs->index[r0 + rec[j].recv] : r0 + rec[j].recv;
+      rs->acc_var[r] += stratified_var(buf, gn, kx, kx);
+      rs->acc_pvar[r] += prop_var(pr, np, c_prev_rel2);
+    }
+    j = e;
+  }
+  free(buf);
+  free(pr);
+}
+
 /* Traces a block's shadow rays and adds the unoccluded ones to their receivers: the
  * stored result (not for primary lights), the next bounce's source (bounce 0) and its
  * non-punctual part. Frees the scratch. */
@@ -248,6 +389,8 @@ static void shadow_flush(pass_ctx *c, const recv_set *rs, uint32_t r0, ub_ray *r
   for (size_t j = 0; j < n; j++)
     nem += rec[j].emissive;
   atomic_fetch_add(&c->rays_emissive, nem);
+  if (rs->acc_var && rs->acc_pvar)
+    shadow_var(rs, r0, rec, occ, n, c->prev_rel2);
   for (size_t j = 0; j < n; j++) {
     if (occ[j])
       continue;
@@ -320,12 +463,13 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
           nk = UB_NEAR_SAMPLES;
         }
       }
+      int first = 1; /* the next record starts this light's variance group */
       for (uint32_t k = 0; k < nk; k++) {
         const float *p = rs->samples + ((size_t)r * rs->spr + k % rs->spr) * 3;
         float pn[3];
         if (near) {
           /* Stratified 4×4 jittered positions over the whole texel, on its plane. */
-          uint32_t h = ub_hash4(d->seed, d->pass_id * 0x10000u + 0x4000u + l, r, k);
+          uint32_t h = ub_hash4(c->seed, d->pass_id * 0x10000u + 0x4000u + l, r, k);
           float fx = ((float)(k % 4) + ub_u01(h)) * 0.25f;
           float fy = ((float)(k / 4) + ub_u01(ub_hash4(h, 3, 0, 0))) * 0.25f;
           float q[3];
@@ -348,6 +492,14 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
         for (int ch = 0; ch < 3; ch++)
           sr->e[ch] = e[ch] / (float)nk;
         sr->cos = cs;
+        /* Random only near the light (jittered 4×4 footprint samples); elsewhere the
+         * texel's fixed sample points: a quadrature, the same for every seed. */
+        sr->grp_n = near && !sr->primary ? nk : 0;
+        sr->grp_k = k;
+        sr->grp_kx = 4;
+        sr->grp_first = (uint8_t)first;
+        sr->src_texel = -1;
+        first = 0;
         ub_ray *ray = &rays[n];
         memcpy(ray->org, p, sizeof ray->org);
         memcpy(ray->dir, dir, sizeof dir);
@@ -356,8 +508,9 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
         n++;
       }
     }
+    int efirst = 1;
     for (uint32_t k = 0; k < ne; k++) {
-      uint32_t h = ub_hash4(d->seed, d->pass_id * 0x10000u + 0x8000u, rs->id_base + r, k);
+      uint32_t h = ub_hash4(c->seed, d->pass_id * 0x10000u + 0x8000u, rs->id_base + r, k);
       float u0 = ub_u01(h), u1 = ub_u01(ub_hash4(h, 1, 0, 0)), u2 = ub_u01(ub_hash4(h, 2, 0, 0));
       const float *p = rs->samples + ((size_t)r * rs->spr + k % rs->spr) * 3;
       float q[3], qn[3], le[3], pdf_area;
@@ -387,6 +540,12 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
         atomic_fetch_add(&c->clamped, 1);
         continue;
       }
+      sr->grp_n = ne;
+      sr->grp_k = k;
+      sr->grp_kx = 0;
+      sr->grp_first = (uint8_t)efirst;
+      sr->src_texel = -1;
+      efirst = 0;
       ub_ray *ray = &rays[n];
       memcpy(ray->org, p, sizeof ray->org);
       memcpy(ray->dir, w, sizeof w);
@@ -455,7 +614,7 @@ static float *nee_block(pass_ctx *c, const ub_rt *rt, const ub_ray *rays, const 
     }
     if (!(total > 0.0))
       continue;
-    double u = ub_u01(ub_hash4(d->seed, d->pass_id * 0x10000u + 0x2000u, id, (uint32_t)j)) * total;
+    double u = ub_u01(ub_hash4(c->seed, d->pass_id * 0x10000u + 0x2000u, id, (uint32_t)j)) * total;
     uint32_t pick = 0;
     double acc = 0.0;
     for (uint32_t l = 0; l < s->light_count; l++) {
@@ -508,8 +667,9 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
+    int first = 1;
     for (uint32_t k = 0; k < M; k++) {
-      uint32_t h = ub_hash4(d->seed, d->pass_id * 0x10000u + 0x1000u + c->bounce,
+      uint32_t h = ub_hash4(c->seed, d->pass_id * 0x10000u + 0x1000u + c->bounce,
                             rs->id_base + r, k);
       float u0 = ub_u01(h);
       uint32_t lo = 0, hi = T - 1;
@@ -552,6 +712,12 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
       sr->cos = cs;
       if (!finite3(sr->e))
         continue;
+      sr->grp_n = M;
+      sr->grp_k = k;
+      sr->grp_kx = 0;
+      sr->grp_first = (uint8_t)first;
+      sr->src_texel = (int32_t)t;
+      first = 0;
       ub_ray *ray = &rays[n];
       memcpy(ray->org, p, sizeof ray->org);
       memcpy(ray->dir, w, sizeof w);
@@ -626,7 +792,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
     for (uint32_t j = 0; j < N; j++) {
-      uint32_t h = ub_hash4(d->seed, d->pass_id * 0x10000u + c->bounce, rs->id_base + r, j);
+      uint32_t h = ub_hash4(c->seed, d->pass_id * 0x10000u + c->bounce, rs->id_base + r, j);
       float u1 = ub_u01(h), u2 = ub_u01(ub_hash4(h, 7, 0, 0));
       if (j < kx * ky) {
         u1 = ((float)(j % kx) + u1) / (float)kx;
@@ -673,6 +839,10 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
 
   uint64_t backface = 0, unlit = 0, clamped = 0, misses = 0, sky_hits = 0, emitter_hits = 0;
   uint32_t ne = (d->emissive && d->emitters) ? d->emitters->count : 0;
+  /* Per-ray luminance contributions of one receiver, for its variance (stratified_var). */
+  double *contrib = rs->acc_var ? malloc(N * sizeof *contrib) : NULL;
+  prop_read *prop = rs->acc_pvar && c->prev_rel2 ? malloc(N * sizeof *prop) : NULL;
+  uint32_t np = 0;
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
@@ -681,6 +851,9 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     double *src = rs->acc_src ? rs->acc_src + 3 * (size_t)r : NULL;
     double *src_np = rs->acc_src_np ? rs->acc_src_np + 3 * (size_t)r : NULL;
     double *sh_np = rs->acc_sh_np ? rs->acc_sh_np + (size_t)rs->nsh * 3 * r : NULL;
+    if (contrib)
+      memset(contrib, 0, N * sizeof *contrib);
+    np = 0;
     for (uint32_t j = 0; j < N; j++) {
       const ub_ray *ray = &rays[(size_t)i * N + j];
       const ub_hit *h = &hits[bucket[(size_t)i * N + j]];
@@ -767,6 +940,23 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
             for (int ch = 0; ch < 3; ch++)
               L[ch] = alb[ch] * (float)M_1_PI * e[ch];
           }
+          if (prop && uv && finite3(L)) {
+            /* The lightmap-read part of this sample and the texel under the hit (the
+             * bilinear lookup's nearest texel), for the propagated variance. */
+            const ub_atlas *at = &lm->atlases[a];
+            float b0 = 1.0f - h->u - h->v;
+            float u = b0 * uv[0] + h->u * uv[2] + h->v * uv[4];
+            float v = b0 * uv[1] + h->u * uv[3] + h->v * uv[5];
+            int64_t px = (int64_t)(u * (float)at->width), py = (int64_t)(v * (float)at->height);
+            px = px < 0 ? 0 : (px >= at->width ? at->width - 1 : px);
+            py = py < 0 ? 0 : (py >= at->height ? at->height - 1 : py);
+            int32_t t = at->texel_of[(size_t)py * at->width + (size_t)px];
+            double l = 0.2126 * L[0] + 0.7152 * L[1] + 0.0722 * L[2];
+            if (t >= 0) {
+              prop[np].t = (uint32_t)t;
+              prop[np++].c = nrm ? l * cs * wt : 0.25 * l * wt;
+            }
+          }
         }
         if (nee) {
           /* Punctual light at the hit: its own estimator, weight 1/(N·pdf). */
@@ -790,8 +980,19 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
       sh_accum(sh, rs->nsh, ray->dir, L, wt);
       if (sh_np)
         sh_accum(sh_np, rs->nsh, ray->dir, L, wt);
+      if (contrib) {
+        /* Texels: irradiance along the normal; probes: DC irradiance π·Y0·(Y0·L·wt). */
+        double l = 0.2126 * L[0] + 0.7152 * L[1] + 0.0722 * L[2];
+        contrib[j] = nrm ? l * cs * wt : 0.25 * l * wt;
+      }
     }
+    if (contrib)
+      rs->acc_var[r] += stratified_var(contrib, N, kx, ky);
+    if (prop)
+      rs->acc_pvar[r] += prop_var(prop, np, c->prev_rel2);
   }
+  free(contrib);
+  free(prop);
   atomic_fetch_add(&c->backface, backface);
   atomic_fetch_add(&c->unlit, unlit);
   atomic_fetch_add(&c->clamped, clamped);
@@ -919,6 +1120,274 @@ static void run_blocks(pass_ctx *c, int direct, int gather, const char *stage, d
   }
 }
 
+/* rel2[t]: relative variance of texel t's value as the next bounce reads it (read,
+ * count × 3), from this bounce's variance; the stored value stands in where the read part
+ * is smaller (bounce 0 with NEE: the read part is the non-punctual light only). */
+static void relative_variance(const pass_ctx *c, const double *read, float *rel2)
+{
+  const recv_set *tx = &c->sets[0];
+  for (uint32_t t = 0; t < tx->count; t++) {
+    double e = fmax(lum3d(read + 3 * (size_t)t), lum3d(tx->acc_iz + 3 * (size_t)t));
+    double v = tx->acc_var[t] + tx->acc_pvar[t];
+    double r = e > 0.0 ? v / (e * e) : 0.0;
+    rel2[t] = isfinite(r) && r > 0.0 ? (float)fmin(r, 1e6) : 0.0f;
+  }
+}
+
+double ub_err_floor(const float *e, uint32_t n)
+{
+  double sum = 0.0;
+  for (uint32_t i = 0; i < n; i++)
+    sum += isfinite(e[i]) ? e[i] : 0.0;
+  return n ? UB_ERR_FLOOR * sum / n : 0.0;
+}
+
+/* Luminance of receiver r's result in acc (texels: iz, count × 3; probes: SH, DC term). */
+static double recv_lum(const recv_set *rs, const double *acc, uint32_t r)
+{
+  return rs->texels ? lum3d(acc + 3 * (size_t)r)
+                    : M_PI * UB_Y0 * lum3d(acc + (size_t)rs->nsh * 3 * r);
+}
+
+/* Adaptive sampling of one bounce (desc.target_error). The bounce's first round is a
+ * pilot; from it each texel / GLG probe gets a number of rounds in all (see the plan
+ * below), each further round running the same kernels (direct and/or gather + texel
+ * lights, as run_blocks ran them) with its own seed (a hash of the pass seed and the
+ * round), averaged into the bounce's accumulators: after n rounds the estimate is the
+ * mean of n independent estimates, its variance the sum of theirs / n².
+ * Variance budget per bounce: the receiver's total allowed variance (target · max(E,
+ * floor))², minus what earlier bounces already hold, halved (so bounces 0, 1, 2, … get
+ * at most 1/2, 1/4, 1/8, … when each just meets its budget and the sum stays within the
+ * target), but never below a tenth of it (earlier bounces that overshot must not send
+ * this one to the cap for nothing). Deterministic: the plan reads only accumulated
+ * values, rounds are fixed blocks like the first. prev_*: results of the earlier
+ * bounces; var_prev_*: their summed variance. Returns 0, or -1 if cancelled / out of
+ * memory (c->cancelled set). */
+static int refine_bounce(pass_ctx *c, int direct, int gather, const char *stage, double share,
+                         const double *prev_tx, const double *prev_pr, const double *var_prev_tx,
+                         const double *var_prev_pr, ub_pass_result *out, const ub_log *log)
+{
+  const ub_pass_desc *d = c->d;
+  if (!(d->target_error > 0.0))
+    return 0;
+  uint32_t maxr = d->max_rounds ? d->max_rounds : UB_ADAPT_MAX_ROUNDS;
+  const double *prev[2] = {prev_tx, prev_pr}, *vprev[2] = {var_prev_tx, var_prev_pr};
+  enum { NARR = 6 };
+  double **acc[2][NARR];
+  size_t stride[2][NARR];
+  double *fresh[2][NARR];
+  uint16_t *nround[2] = {NULL, NULL};
+  uint32_t *idx[2] = {NULL, NULL};
+  double floor_e[2] = {0.0, 0.0};
+  const uint32_t *save_index[3];
+  uint32_t save_active[3];
+  memset(fresh, 0, sizeof fresh);
+  int res = 0;
+  uint64_t rays0 = atomic_load(&c->rays_gather) + atomic_load(&c->rays_shadow);
+  uint64_t refined = 0;
+  uint32_t round;
+  for (int k = 0; k < 2; k++) {
+    recv_set *rs = &c->sets[k];
+    acc[k][0] = &rs->acc_sh;
+    stride[k][0] = (size_t)rs->nsh * 3;
+    acc[k][1] = &rs->acc_iz;
+    acc[k][2] = &rs->acc_src;
+    acc[k][3] = &rs->acc_src_np;
+    stride[k][1] = stride[k][2] = stride[k][3] = 3;
+    acc[k][4] = &rs->acc_var;
+    acc[k][5] = &rs->acc_pvar;
+    stride[k][4] = stride[k][5] = 1;
+    for (int a = 0; a < NARR; a++)
+      if (*acc[k][a] && rs->count) {
+        fresh[k][a] = calloc((size_t)rs->count * stride[k][a], sizeof(double));
+        res |= !fresh[k][a];
+      }
+    nround[k] = calloc(rs->count + 1, sizeof(uint16_t));
+    idx[k] = malloc(((size_t)rs->active + 1) * sizeof(uint32_t));
+    res |= !nround[k] || !idx[k];
+    double sum = 0.0;
+    for (uint32_t i = 0; !res && i < rs->active; i++) {
+      uint32_t r = rs->index ? rs->index[i] : i;
+      sum += recv_lum(rs, prev[k], r) + recv_lum(rs, rs->acc_iz ? rs->acc_iz : rs->acc_sh, r);
+    }
+    floor_e[k] = rs->active ? UB_ERR_FLOOR * sum / rs->active : 0.0;
+  }
+  if (res) {
+    atomic_store(&c->cancelled, 2);
+    res = -1;
+    goto done;
+  }
+  for (int k = 0; k < 3; k++) {
+    save_index[k] = c->sets[k].index;
+    save_active[k] = c->sets[k].active;
+  }
+  /* Plan from the first round (the pilot), but not from the receiver's own pilot: a
+   * receiver whose sample count depended on its own samples would be biased (a pilot that
+   * caught a rare bright hit has a large variance, gets refined and averaged down, one
+   * that missed it is kept: −14% on cornell when tried). Each receiver's relative sampling
+   * variance and inherited variance are predicted from its neighbours' pilots (texels:
+   * the up to 8 covered atlas neighbours; probes: the mean over the other probes), whose
+   * samples are independent of its own, so every round, the pilot included, is averaged
+   * in unbiased. Rounds n (pilot included): the sampling variance / n must fit the budget
+   * left beside the inherited part (which rounds do not reduce), at least a tenth of the
+   * allowance; at most maxr. */
+  double t2 = d->target_error * d->target_error;
+  for (int k = 0; k < 2; k++) {
+    recv_set *rs = &c->sets[k];
+    if (!rs->acc_var)
+      continue;
+    const double *cur = rs->acc_iz ? rs->acc_iz : rs->acc_sh;
+    /* Per active receiver: relative sampling / inherited variance of its pilot. */
+    double *rmc = calloc(rs->count + 1, sizeof(double)), *rpv = calloc(rs->count + 1, sizeof(double));
+    double *epil = calloc(rs->count + 1, sizeof(double));
+    uint8_t *act = calloc(rs->count + 1, 1);
+    if (!rmc || !rpv || !epil || !act) {
+      free(rmc);
+      free(rpv);
+      free(epil);
+      free(act);
+      atomic_store(&c->cancelled, 2);
+      res = -1;
+      goto done;
+    }
+    double smc = 0.0, spv = 0.0;
+    for (uint32_t i = 0; i < save_active[k]; i++) {
+      uint32_t r = save_index[k] ? save_index[k][i] : i;
+      epil[r] = recv_lum(rs, cur, r);
+      double e = recv_lum(rs, prev[k], r) + epil[r];
+      double den = e > floor_e[k] ? e : floor_e[k];
+      act[r] = 1;
+      if (den > 0.0) {
+        rmc[r] = rs->acc_var[r] / (den * den);
+        rpv[r] = rs->acc_pvar[r] / (den * den);
+      }
+      smc += rmc[r];
+      spv += rpv[r];
+    }
+    for (uint32_t i = 0; i < save_active[k]; i++) {
+      uint32_t r = save_index[k] ? save_index[k][i] : i;
+      double mc = 0.0, pv = 0.0, ep = 0.0;
+      uint32_t nn = 0;
+      if (rs->texels) {
+        const ub_atlas *at = &c->lm->atlases[c->lm->texel_atlas[r]];
+        int x = (int)c->lm->texel_xy[2 * (size_t)r], y = (int)c->lm->texel_xy[2 * (size_t)r + 1];
+        for (int dy = -1; dy <= 1; dy++)
+          for (int dx = -1; dx <= 1; dx++) {
+            int xx = x + dx, yy = y + dy;
+            if ((!dx && !dy) || xx < 0 || yy < 0 || xx >= (int)at->width || yy >= (int)at->height)
+              continue;
+            int32_t q = at->texel_of[(size_t)yy * at->width + (size_t)xx];
+            if (q < 0 || !act[q])
+              continue;
+            mc += rmc[q];
+            pv += rpv[q];
+            ep += epil[q];
+            nn++;
+          }
+      } else if (save_active[k] > 1) {
+        mc = smc - rmc[r];
+        pv = spv - rpv[r];
+        nn = save_active[k] - 1;
+        ep = NAN; /* no neighbourhood: the light so far from earlier bounces only */
+      }
+      if (!nn)
+        continue; /* nothing independent to plan from: the pilot only */
+      mc /= nn;
+      pv /= nn;
+      double e = recv_lum(rs, prev[k], r) + (isfinite(ep) ? ep / nn : 0.0);
+      double den = e > floor_e[k] ? e : floor_e[k];
+      double vp = den > 0.0 ? vprev[k][r] / (den * den) : 0.0;
+      double budget = fmax(0.5 * (t2 - vp), 0.1 * t2);
+      if (mc + pv <= budget)
+        continue;
+      double room = fmax(budget - pv, 0.1 * t2);
+      double n = ceil(mc / room);
+      nround[k][r] = (uint16_t)(n > maxr ? maxr : n); /* rounds in all, pilot included */
+    }
+    free(rmc);
+    free(rpv);
+    free(epil);
+    free(act);
+  }
+  for (round = 1; round < maxr; round++) {
+    uint32_t nsel[2] = {0, 0};
+    for (int k = 0; k < 2; k++)
+      for (uint32_t i = 0; i < save_active[k]; i++) {
+        uint32_t r = save_index[k] ? save_index[k][i] : i;
+        if (nround[k][r] > round)
+          idx[k][nsel[k]++] = r;
+      }
+    if (nsel[0] + nsel[1] == 0)
+      break;
+    refined += nsel[0] + nsel[1];
+    for (int k = 0; k < 3; k++) {
+      recv_set *rs = &c->sets[k];
+      rs->index = k < 2 ? idx[k] : NULL;
+      rs->active = k < 2 ? nsel[k] : 0;
+      if (k == 2)
+        continue;
+      for (int a = 0; a < NARR; a++) {
+        if (!fresh[k][a])
+          continue;
+        for (uint32_t i = 0; i < nsel[k]; i++)
+          memset(fresh[k][a] + stride[k][a] * idx[k][i], 0, stride[k][a] * sizeof(double));
+        double *t = *acc[k][a];
+        *acc[k][a] = fresh[k][a];
+        fresh[k][a] = t;
+      }
+    }
+    c->seed = ub_hash4(d->seed, 0xada9u, round, 0);
+    run_blocks(c, direct, gather, stage, share, share);
+    c->seed = d->seed;
+    for (int k = 0; k < 3; k++) {
+      recv_set *rs = &c->sets[k];
+      rs->index = save_index[k];
+      rs->active = save_active[k];
+      if (k == 2)
+        continue;
+      for (int a = 0; a < NARR; a++) {
+        if (!fresh[k][a])
+          continue;
+        double *t = *acc[k][a]; /* this round's */
+        *acc[k][a] = fresh[k][a];
+        fresh[k][a] = t;
+        double *m = *acc[k][a];
+        size_t st = stride[k][a];
+        double n = (double)round; /* rounds averaged so far, the pilot included */
+        for (uint32_t i = 0; i < nsel[k]; i++) {
+          uint32_t r = idx[k][i];
+          for (size_t q = 0; q < st; q++) {
+            size_t o = st * r + q;
+            m[o] = a == 4 ? (n * n * m[o] + t[o]) / ((n + 1.0) * (n + 1.0))
+                          : (n * m[o] + t[o]) / (n + 1.0);
+          }
+        }
+      }
+    }
+    out->adaptive_rounds++;
+    if (atomic_load(&c->cancelled)) {
+      res = -1;
+      break;
+    }
+  }
+  {
+    uint64_t rays = atomic_load(&c->rays_gather) + atomic_load(&c->rays_shadow) - rays0;
+    out->rays_adaptive += rays;
+    out->adaptive_receivers += refined;
+    if (refined)
+      ub_log_printf(log, UB_LOG_INFO, "  %s: adaptive: %llu receiver-rounds, +%.2f M rays",
+                    stage, (unsigned long long)refined, rays * 1e-6);
+  }
+done:
+  for (int k = 0; k < 2; k++) {
+    for (int a = 0; a < NARR; a++)
+      free(fresh[k][a]);
+    free(nround[k]);
+    free(idx[k]);
+  }
+  return res;
+}
+
 ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *out)
 {
   const ub_scene *s = d->scene;
@@ -930,6 +1399,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   c.d = d;
   c.s = s;
   c.lm = lm;
+  c.seed = d->seed;
   atomic_init(&c.cancelled, 0);
 
   double *sh_total = calloc((size_t)T * 12, sizeof(double));
@@ -983,7 +1453,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   pr->id_base = UB_PROBE_ID_BASE;
   pr->rt = d->rt;
   lg->count = LP;
-  lg->active = LP;
+  lg->index = d->llg_subset;
+  lg->active = d->llg_subset ? d->llg_subset_count : LP;
   lg->samples = llg ? llg->probe_pos : NULL;
   lg->spr = 1;
   lg->nsh = 9;
@@ -993,6 +1464,30 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   lg->acc_sh = calloc((size_t)LP * 27 + 1, sizeof(double));
   lg->acc_sh_np = calloc((size_t)LP * 27 + 1, sizeof(double));
   double *llg_total = calloc((size_t)LP * 27 + 1, sizeof(double));
+  out->llg_direct = calloc((size_t)LP + 1, sizeof(float));
+  out->llg_indirect = calloc((size_t)LP + 1, sizeof(float));
+  /* Error estimates: this bounce's variance per texel / GLG probe, and the sum over
+   * bounces. Bounces are taken as independent (var_total = Σ_k var_k): each bounce's
+   * samples are fresh, and the error a receiver's bounce k inherits comes from other
+   * texels' bounce k−1 samples, not its own. Bounce k reads bounce k−1's noisy lightmap:
+   * that inherited noise is counted per bounce (acc_pvar, prop_var: the relative variance
+   * of each texel read, rel2, times the squared sum of what the samples reading it
+   * added). It matters where a few bright, noisy texels light a room (cornell: the
+   * ceiling next to the lamp makes bounce 1 noisy, and bounce 2 reads it); without it the
+   * estimate of the later bounces was 2× low there. What is still missed: the bilinear
+   * lookup is taken as its nearest texel, texels' errors as independent (dilation shares
+   * values), and errors inherited from further back than one bounce add only through
+   * rel2 (which holds a texel's whole bounce-k variance, inherited part included). Not
+   * included at all: the fixed per-texel sample points of far punctual lights (a
+   * quadrature, the same for every seed) and the bounces the auto-stop leaves out (a
+   * bias, not noise). */
+  tx->acc_var = calloc((size_t)T + 1, sizeof(double));
+  pr->acc_var = calloc((size_t)P + 1, sizeof(double));
+  tx->acc_pvar = calloc((size_t)T + 1, sizeof(double));
+  pr->acc_pvar = calloc((size_t)P + 1, sizeof(double));
+  float *rel2 = calloc((size_t)T + 1, sizeof(float));
+  double *var_tx = calloc((size_t)T + 1, sizeof(double));
+  double *var_pr = calloc((size_t)P + 1, sizeof(double));
   if (LP)
     c.llg_prev = calloc((size_t)LP * 27, sizeof(float));
   pr->acc_sh = calloc((size_t)P * 27 + 1, sizeof(double));
@@ -1003,7 +1498,9 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
             !tx->acc_src_np || !c.img ||
             !c.emitter_of || !pr->acc_sh || !probe_total || !out->texel_direct ||
             !out->texel_indirect || !out->probe_direct || !out->probe_indirect || !lg->acc_sh ||
-            !lg->acc_sh_np || !llg_total || (LP && !c.llg_prev);
+            !lg->acc_sh_np || !llg_total || (LP && !c.llg_prev) || !out->llg_direct ||
+            !out->llg_indirect || !tx->acc_var || !pr->acc_var || !var_tx || !var_pr ||
+            !tx->acc_pvar || !pr->acc_pvar || !rel2;
   for (uint32_t a = 0; !oom && a < lm->atlas_count; a++) {
     c.img[a] = malloc((size_t)lm->atlases[a].width * lm->atlases[a].height * 4 * sizeof(float));
     oom = !c.img[a];
@@ -1023,10 +1520,20 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   int gather0 = d->sky || (d->emissive && d->emitters && d->emitters->count);
   c.bounce = 0;
   run_blocks(&c, 1, gather0, "direct", 0.0, 0.25);
+  if (!atomic_load(&c.cancelled))
+    refine_bounce(&c, 1, gather0, "direct", 0.25, iz_total, probe_total, var_tx, var_pr, out,
+                  log);
   if (atomic_load(&c.cancelled)) {
     res = atomic_load(&c.cancelled) == 2 ? UB_ERR_OUT_OF_MEMORY : UB_ERR_CANCELLED;
     goto done;
   }
+  for (uint32_t t = 0; t < T; t++)
+    var_tx[t] += tx->acc_var[t] + tx->acc_pvar[t];
+  for (uint32_t q = 0; q < P; q++)
+    var_pr[q] += pr->acc_var[q] + pr->acc_pvar[q];
+  /* What bounce 1 reads (src or its non-punctual part), and its relative variance. */
+  relative_variance(&c, c.nee ? tx->acc_src_np : tx->acc_src, rel2);
+  c.prev_rel2 = rel2;
   double total_energy = energy_of(tx->acc_iz, T);
   double src_energy = outgoing_energy(&c, tx->acc_src);
   out->bounce_energy[0] = total_energy;
@@ -1044,6 +1551,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   build_images(&c, c.nee ? tx->acc_src_np : tx->acc_src);
   texel_lights_build(&c, c.nee ? tx->acc_src_np : tx->acc_src);
   /* LLG probes likewise: bounce 1 reads their non-punctual bounce 0 when NEE is on. */
+  for (uint32_t q = 0; q < LP; q++)
+    out->llg_direct[q] = (float)(M_PI * UB_Y0 * lum3d(lg->acc_sh + 27 * (size_t)q));
   for (size_t i = 0; i < (size_t)LP * 27; i++) {
     llg_total[i] = lg->acc_sh[i];
     c.llg_prev[i] = (float)(c.nee ? lg->acc_sh_np[i] : lg->acc_sh[i]);
@@ -1060,19 +1569,28 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   if (max_b > UB_BAKE_MAX_BOUNCES)
     max_b = UB_BAKE_MAX_BOUNCES;
   uint32_t b;
+  int converged = 0;
   for (b = 1; b <= (uint32_t)max_b; b++) {
-    if (src_energy <= 0.0)
+    if (src_energy <= 0.0) {
+      converged = 1;
       break; /* nothing to bounce */
+    }
     memset(tx->acc_sh, 0, (size_t)T * 12 * sizeof(double));
     memset(tx->acc_iz, 0, (size_t)T * 3 * sizeof(double));
     memset(pr->acc_sh, 0, (size_t)P * 27 * sizeof(double));
     memset(lg->acc_sh, 0, (size_t)LP * 27 * sizeof(double));
+    memset(tx->acc_var, 0, (size_t)T * sizeof(double));
+    memset(pr->acc_var, 0, (size_t)P * sizeof(double));
+    memset(tx->acc_pvar, 0, (size_t)T * sizeof(double));
+    memset(pr->acc_pvar, 0, (size_t)P * sizeof(double));
     c.bounce = b;
     char stage[32];
     snprintf(stage, sizeof stage, "bounce %u", b);
     double sh0 = 0.25 + 0.75 * (1.0 - pow(0.5, b - 1));
     double sh1 = 0.25 + 0.75 * (1.0 - pow(0.5, b));
     run_blocks(&c, 0, 1, stage, sh0, sh1);
+    if (!atomic_load(&c.cancelled))
+      refine_bounce(&c, 0, 1, stage, sh1, iz_total, probe_total, var_tx, var_pr, out, log);
     if (atomic_load(&c.cancelled)) {
       res = atomic_load(&c.cancelled) == 2 ? UB_ERR_OUT_OF_MEMORY : UB_ERR_CANCELLED;
       goto done;
@@ -1088,9 +1606,15 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     for (size_t i = 0; i < (size_t)LP * 27; i++)
       llg_total[i] += lg->acc_sh[i];
     for (uint32_t t = 0; t < T; t++)
+      var_tx[t] += tx->acc_var[t] + tx->acc_pvar[t];
+    for (uint32_t q = 0; q < P; q++)
+      var_pr[q] += pr->acc_var[q] + pr->acc_pvar[q];
+    for (uint32_t t = 0; t < T; t++)
       out->texel_indirect[t] += (float)lum3d(tx->acc_iz + 3 * (size_t)t);
     for (uint32_t q = 0; q < P; q++)
       out->probe_indirect[q] += (float)(M_PI * UB_Y0 * lum3d(pr->acc_sh + 27 * (size_t)q));
+    for (uint32_t q = 0; q < LP; q++)
+      out->llg_indirect[q] += (float)(M_PI * UB_Y0 * lum3d(lg->acc_sh + 27 * (size_t)q));
     total_energy += e;
     src_energy = outgoing_energy(&c, tx->acc_iz);
     ub_log_printf(log, UB_LOG_INFO, "  bounce %u: +%.3f%% energy", b,
@@ -1115,16 +1639,31 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     int local_done = gaining <= (uint64_t)(UB_STOP_TEXEL_SHARE * (double)lit);
     if (d->bounces < 0 && local_done &&
         e <= d->stop_fraction * (total_energy - out->bounce_energy[0])) {
+      converged = 1;
       b++;
       break;
     }
     build_images(&c, tx->acc_iz);
     texel_lights_build(&c, tx->acc_iz);
+    relative_variance(&c, tx->acc_iz, rel2);
     for (size_t i = 0; i < (size_t)LP * 27; i++)
       c.llg_prev[i] = (float)lg->acc_sh[i];
     ub_llg_fill_invalid(llg, c.llg_prev);
   }
   out->bounces = b - 1;
+  if (d->bounces < 0 && !converged && out->bounces >= 2) {
+    /* The cap ended the series (albedo near 1: a furnace at 0.999 needs thousands of
+     * bounces). Estimate what is missing as the geometric tail of the last two bounces. */
+    double e1 = out->bounce_energy[out->bounces], e0 = out->bounce_energy[out->bounces - 1];
+    double ratio = e0 > 0.0 ? e1 / e0 : 0.0;
+    double tail = ratio < 1.0 ? e1 * ratio / (1.0 - ratio) : INFINITY;
+    out->bounce_cap_tail = total_energy > 0.0 ? tail / total_energy : 0.0;
+    ub_log_printf(log, UB_LOG_WARNING, "bounce cap %d reached before convergence: the last "
+                  "bounce added %.3f%%; the remaining bounces would add about %.3g%% more "
+                  "(geometric tail, ratio %.4f). Lower the albedo below ~0.99 or accept the "
+                  "bias", max_b, total_energy > 0 ? 100.0 * e1 / total_energy : 0.0,
+                  100.0 * out->bounce_cap_tail, ratio);
+  }
 
   /* Store: SH corrected so that its irradiance along the normal is the exact I_z. */
   out->sh = malloc((size_t)T * 12 * sizeof(float));
@@ -1173,6 +1712,20 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     goto done;
   }
   ub_llg_fill_invalid(llg, out->llg_sh);
+  out->texel_se = malloc(((size_t)T + 1) * sizeof(float));
+  out->probe_se = malloc(((size_t)P + 1) * sizeof(float));
+  if (!out->texel_se || !out->probe_se) {
+    res = UB_ERR_OUT_OF_MEMORY;
+    goto done;
+  }
+  for (uint32_t t = 0; t < T; t++) {
+    float v = (float)sqrt(var_tx[t]);
+    out->texel_se[t] = isfinite(v) ? v : 0.0f;
+  }
+  for (uint32_t q = 0; q < P; q++) {
+    float v = (float)sqrt(var_pr[q]);
+    out->probe_se[q] = isfinite(v) ? v : 0.0f;
+  }
   out->rays_gather = atomic_load(&c.rays_gather);
   out->rays_shadow = atomic_load(&c.rays_shadow);
   out->clamped = atomic_load(&c.clamped) + clamped;
@@ -1201,6 +1754,13 @@ done:
   free(lg->acc_sh_np);
   free(llg_total);
   free(c.llg_prev);
+  free(tx->acc_var);
+  free(pr->acc_var);
+  free(tx->acc_pvar);
+  free(pr->acc_pvar);
+  free(rel2);
+  free(var_tx);
+  free(var_pr);
   if (c.img)
     for (uint32_t a = 0; a < lm->atlas_count; a++)
       free(c.img[a]);
@@ -1222,7 +1782,13 @@ void ub_pass_result_free(ub_pass_result *r)
   free(r->texel_indirect);
   free(r->probe_direct);
   free(r->probe_indirect);
+  free(r->llg_direct);
+  free(r->llg_indirect);
   r->texel_direct = r->texel_indirect = r->probe_direct = r->probe_indirect = NULL;
+  r->llg_direct = r->llg_indirect = NULL;
+  free(r->texel_se);
+  free(r->probe_se);
+  r->texel_se = r->probe_se = NULL;
   r->sh = NULL;
   r->iz = NULL;
   r->probe_sh = NULL;

@@ -53,10 +53,18 @@ typedef struct ub_pass_desc {
   uint32_t texel_subset_count;
   const uint32_t *probe_subset;
   uint32_t probe_subset_count;
+  const uint32_t *llg_subset;    /* LLG probes (indices into llg->probe_pos), same rule */
+  uint32_t llg_subset_count;
   int bounces;                   /* -1 = until a bounce adds < stop_fraction of the total */
   double stop_fraction;          /* e.g. 0.005 */
   uint32_t seed;
   uint32_t pass_id;
+  /* Adaptive sampling (0 = off): after each bounce's first round, receivers (texels, GLG
+   * probes) whose estimated relative standard error (ub_rel_error) is above target_error
+   * get further rounds of the same samples with new random numbers, averaged in, until
+   * they meet it or have had max_rounds rounds (0 = UB_ADAPT_MAX_ROUNDS). */
+  double target_error;
+  uint32_t max_rounds;
   ub_progress_fn progress;
   void *progress_user;
   double progress_base, progress_span; /* this pass's share of the whole bake */
@@ -72,8 +80,12 @@ typedef struct ub_pass_result {
    * including primary lights' unstored direct light) and through bounces ≥ 1. */
   float *texel_direct, *texel_indirect; /* texel_count */
   float *probe_direct, *probe_indirect; /* probe_count: DC (mean) irradiance */
+  float *llg_direct, *llg_indirect;     /* llg->probe_count (0 without LLGs): likewise */
   uint32_t bounces;
   double bounce_energy[UB_BAKE_MAX_BOUNCES + 1];
+  /* When the bounce cap ended an auto-stop series: the missing energy estimated as the
+     geometric tail of the last two bounces, as a fraction of the total (warned); else 0. */
+  double bounce_cap_tail;
   uint64_t rays_gather, rays_shadow;
   uint64_t clamped, backface_hits, unlit_hits;
   uint64_t misses;               /* gather rays that left the level */
@@ -81,7 +93,33 @@ typedef struct ub_pass_result {
    * emissive triangles, gather rays that added sky light or hit an emitter. */
   uint64_t rays_emissive, sky_hits, emitter_hits;
   double gather_seconds;
+  /* Standard error estimates (luminance, W/m²) from each receiver's own samples, bounces
+   * taken as independent: texels along the normal (of iz), probes of the DC irradiance
+   * (probe_direct + probe_indirect). Zero for receivers outside the influence subset. */
+  float *texel_se;               /* texel_count */
+  float *probe_se;               /* probe_count */
+  uint64_t rays_adaptive;        /* gather + shadow rays of the adaptive rounds */
+  uint32_t adaptive_rounds;      /* extra rounds run, summed over bounces */
+  uint64_t adaptive_receivers;   /* receiver-rounds refined, summed over rounds */
 } ub_pass_result;
+
+/* Adaptive sampling's round cap: 16 rounds = 16× the base rays at most, per bounce. */
+#define UB_ADAPT_MAX_ROUNDS 16
+/* Relative error of a receiver: se / max(E, UB_ERR_FLOOR × mean E over the set's lit
+ * receivers), so that receivers in near darkness (where nothing is visible) neither
+ * dominate the statistics nor take all the adaptive rays. */
+#define UB_ERR_FLOOR 0.1
+/* Lit: E above this share of the mean (as the bounce auto-stop counts texels). */
+#define UB_ERR_LIT 1e-3
+
+/* UB_ERR_FLOOR × the mean of e[0..n) (non-finite entries count as 0): the floor of
+ * ub_rel_error. */
+double ub_err_floor(const float *e, uint32_t n);
+static inline double ub_rel_error(double se, double e, double floor)
+{
+  double den = e > floor ? e : floor;
+  return den > 0.0 ? se / den : 0.0;
+}
 
 ub_result ub_pass_run(const ub_pass_desc *desc, const ub_log *log, ub_pass_result *out_result);
 void ub_pass_result_free(ub_pass_result *r);

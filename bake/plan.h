@@ -41,6 +41,11 @@ typedef struct ub_plan {
   double est_rays;             /* estimated rays of the base pass */
   double *dls_est_rays;        /* dls_count: estimated rays per set (0 = skipped) */
   double ray_rate;             /* measured rays/s on this level, all threads */
+  /* Doors (doors/door.h): one pass per door with a closed leaf; none without doors. */
+  uint32_t doors, door_passes;
+  uint32_t door_rays;          /* guided gather rays per texel of a door pass (probes 2x) */
+  uint32_t door_influence_rays; /* per texel of its influence pass (0: no culling) */
+  uint32_t door_photons;       /* shadow photon attempts per door */
 } ub_plan;
 
 ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitters *em,

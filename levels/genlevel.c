@@ -409,6 +409,9 @@ static const ParamDef common_params[] = {
     { "uv1_pad", 1, { 4 }, "texels of padding between uv1 rectangles and around the atlas border" },
     { "texel_size", 1, { 0 }, ">0: write scene extras ubake_texel_size (m per texel)" },
     { "glg_spacing", 1, { 0 }, ">0: write scene extras ubake_glg_spacing (m)" },
+    { "llg_prop", 1, { 0 }, "1: add a box node llg_prop tagged ubake_receiver llg (albedo 0.6)" },
+    { "llg_prop_at", 3, { 0, 0, 0 }, "llg_prop: centre of its bottom face, m" },
+    { "llg_prop_size", 3, { 0.4, 0.4, 0.4 }, "llg_prop: box size x, y, z, m" },
 };
 #define NCOMMON ((int)(sizeof common_params / sizeof common_params[0]))
 
@@ -627,8 +630,9 @@ static void build_two_rooms(void)
 }
 
 /* sunroom: 5x3x5 m room with a 1x2 m doorway in the south (+z) wall, ground
- * plane outside, sun through the doorway, optional door leaf. */
-static void build_sunroom(void)
+ * plane outside, sun through the doorway, optional door leaf. The doorway's size, sill
+ * and the open pose's angle are arguments, so the door regression levels share it. */
+static void sunroom_build(double DW, double DH, double sill, double open_deg)
 {
     int door = PI_("door");
     double w = P("wall"), alb = P("albedo"), galb = P("ground_albedo"), E = P("sun");
@@ -639,7 +643,7 @@ static void build_sunroom(void)
             "wall>0, 0<=albedo<1, 0<=ground_albedo<1, sun>=0, 0<elev<=90, ground>6, sky>=0");
     int wm = material("wall", alb, alb, alb, 0);
     int gm = material("ground", galb, galb, galb, 0);
-    const double R = 2.5, H = 3.0, DW = 0.5, DH = 2.0;
+    const double R = 2.5, H = 3.0;
     double o = R + w; /* outer half-extent */
     box_node("floor", wm, v3(-o, -w, -o), v3(o, 0, o));
     box_node("ceiling", wm, v3(-o, H, -o), v3(o, H + w, o));
@@ -648,7 +652,9 @@ static void build_sunroom(void)
     box_node("wall_east", wm, v3(R, 0, -R), v3(o, H, R));
     box_node("wall_south_west", wm, v3(-o, 0, R), v3(-DW, H, o));
     box_node("wall_south_east", wm, v3(DW, 0, R), v3(o, H, o));
-    box_node("wall_south_lintel", wm, v3(-DW, DH, R), v3(DW, H, o));
+    box_node("wall_south_lintel", wm, v3(-DW, sill + DH, R), v3(DW, H, o));
+    if (sill > 0)
+        box_node("wall_south_sill", wm, v3(-DW, 0, R), v3(DW, sill, o));
     /* Ground: y=0, [-g/2,g/2]^2 minus the building footprint [-o,o]^2. */
     double g = 0.5 * gs;
     int m = mesh_new("ground", gm);
@@ -664,12 +670,13 @@ static void build_sunroom(void)
         /* Local frame: hinge axis = local +Y through the origin. */
         add_box(lm, v3(0, 0, 0), v3(2 * DW, DH, DT));
         Node *c = mesh_node("door_closed", lm);
-        node_translate(c, v3(-DW, 0, R));
+        node_translate(c, v3(-DW, sill, R));
         node_extra(c, "ubake_door", "front");
         Node *op = mesh_node("door_open", lm);
-        node_translate(op, v3(-DW, 0, R));
+        node_translate(op, v3(-DW, sill, R));
+        double ha = 0.5 * deg2rad(open_deg);
         op->has_r = 1;
-        op->r[0] = 0; op->r[1] = sin(M_PI / 4); op->r[2] = 0; op->r[3] = cos(M_PI / 4);
+        op->r[0] = 0; op->r[1] = sin(ha); op->r[2] = 0; op->r[3] = cos(ha);
         node_extra(op, "ubake_door_open", "front");
     }
     double e = deg2rad(el), a = deg2rad(az);
@@ -679,6 +686,50 @@ static void build_sunroom(void)
     node_extra(sn, "ubake_light", "static");
     S.has_sky = 1;
     memcpy(S.sky, sky, sizeof S.sky);
+}
+
+static void build_sunroom(void) { sunroom_build(0.5, 2.0, 0.0, 90.0); }
+
+/* door_small: the sunroom with a 10 cm square hatch 1.5 m up instead of the doorway: a
+ * tiny portal, sun through it lands far from the wall (door regression suite). */
+static void build_door_small(void) { sunroom_build(0.05, 0.1, 1.5, 90.0); }
+
+/* door_grazing: the sunroom whose open pose lies 10 degrees off the inner south wall,
+ * with a low sun from the side: light grazes the wall and the open leaf. */
+static void build_door_grazing(void) { sunroom_build(0.5, 2.0, 0.0, 170.0); }
+
+/* door_rooms: two 4x3x4 m rooms joined by a 1x2 m door in the shared wall (x=0), a lamp
+ * in room A (x<0), room B dark until the door opens; the open pose swings into B. */
+static void build_door_rooms(void)
+{
+    double w = P("wall"), alb = P("albedo"), I = P("intensity"), t = P("t");
+    require(w > 0 && alb >= 0 && alb < 1 && I >= 0 && t > 0.06 && t < 1,
+            "wall>0, 0<=albedo<1, intensity>=0, 0.06<t<1");
+    int mat = material("grey", alb, alb, alb, 0);
+    const double H = 3.0, Z = 2.0, X = 4.0, DW = 0.5, DH = 2.0, DT = 0.05;
+    double ht = 0.5 * t;
+    box_node("floor", mat, v3(-X - ht - w, -w, -Z - w), v3(X + ht + w, 0, Z + w));
+    box_node("ceiling", mat, v3(-X - ht - w, H, -Z - w), v3(X + ht + w, H + w, Z + w));
+    box_node("wall_west", mat, v3(-X - ht - w, 0, -Z), v3(-X - ht, H, Z));
+    box_node("wall_east", mat, v3(X + ht, 0, -Z), v3(X + ht + w, H, Z));
+    box_node("wall_north", mat, v3(-X - ht - w, 0, -Z - w), v3(X + ht + w, H, -Z));
+    box_node("wall_south", mat, v3(-X - ht - w, 0, Z), v3(X + ht + w, H, Z + w));
+    box_node("shared_north", mat, v3(-ht, 0, -Z), v3(ht, H, -DW));
+    box_node("shared_south", mat, v3(-ht, 0, DW), v3(ht, H, Z));
+    box_node("shared_lintel", mat, v3(-ht, DH, -DW), v3(ht, H, DW));
+    int dm = material("door", 0.5, 0.5, 0.5, 0);
+    int lm = mesh_new("door_leaf", dm);
+    add_box(lm, v3(0, 0, 0), v3(DT, DH, 2 * DW));
+    Node *c = mesh_node("door_closed", lm);
+    node_translate(c, v3(-0.5 * DT, 0, -DW));
+    node_extra(c, "ubake_door", "middle");
+    Node *op = mesh_node("door_open", lm);
+    node_translate(op, v3(-0.5 * DT, 0, -DW));
+    op->has_r = 1;
+    op->r[0] = 0; op->r[1] = sin(M_PI / 4); op->r[2] = 0; op->r[3] = cos(M_PI / 4);
+    node_extra(op, "ubake_door_open", "middle");
+    Node *l = light_node("lamp_a", LIGHT_POINT, I, 1, 1, 1, v3(-2.0, 2.0, 0.5));
+    node_extra(l, "ubake_light", "static");
 }
 
 /* hallway: 12x3x2.5 m corridor along x, four ceiling lamps in two DLS. */
@@ -889,6 +940,14 @@ static void build_room(void)
     Node *l = light_node("light", LIGHT_POINT, I, 1, 1, 1, vadd(o, v3(lp[0], lp[1], lp[2])));
     node_extra(l, "ubake_light", "static");
     if (marker) box_node("marker", mat, v3(-0.5, 0, -0.5), v3(0.5, 1, 0.5));
+    if (PI_("props")) {
+        /* LLG-by-default check: a 15 cm stool (poor charts: becomes an LLG), a 0.8 m crate
+         * (good charts: stays lightmapped), the same stool tagged lightmap (the tag wins). */
+        box_node("prop_stool", mat, vadd(o, v3(0.9, 0, 0.9)), vadd(o, v3(1.05, 0.15, 1.05)));
+        box_node("prop_crate", mat, vadd(o, v3(2.6, 0, 0.6)), vadd(o, v3(3.4, 0.8, 1.4)));
+        box_node("prop_tagged", mat, vadd(o, v3(0.9, 0, 2.9)), vadd(o, v3(1.05, 0.15, 3.05)));
+        node_extra(&S.nodes[S.nnode - 1], "ubake_receiver", "lightmap");
+    }
 }
 
 /* sunpatch: closed room (slabs) with a small window in the ceiling; a very
@@ -955,6 +1014,239 @@ static void build_mis_edge(void)
     mesh_node("em_edgeon", m);
 }
 
+/* ---- scale level (UberBake Table 1, ESTATE) ----------------------------- */
+
+/* Deterministic uniform number in [0,1) from (seed, a, b, c): splitmix64 finaliser. */
+static double est_hash(uint64_t seed, uint64_t a, uint64_t b, uint64_t c)
+{
+    uint64_t z = seed * 0x9E3779B97F4A7C15ull ^ a * 0xBF58476D1CE4E5B9ull ^ b * 0x94D049BB133111EBull ^
+                 c * 0xD6E8FEB86659FD93ull;
+    z ^= z >> 30; z *= 0xBF58476D1CE4E5B9ull;
+    z ^= z >> 27; z *= 0x94D049BB133111EBull;
+    z ^= z >> 31;
+    return (double)(z >> 11) * (1.0 / 9007199254740992.0);
+}
+
+/* A common parameter (texel_size, glg_spacing) the user did not set takes this level's
+ * default (the writer reads it from g_val). */
+static void common_default(const char *key, double v)
+{
+    int i = param_index(g_level, key);
+    if (i < 0) die("internal: no common parameter %s", key);
+    if (!g_set[i]) g_val[i][0] = v;
+}
+
+/* Wall segment along `axis` (0: runs along x at z = c, 1: runs along z at x = c) from a to
+ * b, thickness w, height H, into mesh mi; door=1 cuts a dw x dh doorway in its middle
+ * (two jamb pieces and a lintel, closed boxes that touch). */
+static void est_wall(int mi, int axis, double c, double a, double b, double w, double H, int door,
+                     double dw, double dh)
+{
+    double h = 0.5 * w;
+#define EST_BOX(u0, u1, y0, y1)                                                               \
+    do {                                                                                      \
+        if (axis == 0) add_box(mi, v3((u0), (y0), c - h), v3((u1), (y1), c + h));             \
+        else add_box(mi, v3(c - h, (y0), (u0)), v3(c + h, (y1), (u1)));                       \
+    } while (0)
+    if (!door) {
+        EST_BOX(a, b, 0.0, H);
+    } else {
+        double m = 0.5 * (a + b);
+        EST_BOX(a, m - 0.5 * dw, 0.0, H);
+        EST_BOX(m + 0.5 * dw, b, 0.0, H);
+        EST_BOX(m - 0.5 * dw, m + 0.5 * dw, dh, H);
+    }
+#undef EST_BOX
+}
+
+/* estate: a one-storey manor of `rooms` square rooms on a grid around a great hall of
+ * hall x hall cells, doorways between some neighbours. `overlap` dynamic light sets share
+ * the hall (every hall texel sees all of them directly); the other sets are scattered
+ * over the rooms (0-4 per room); rooms without a set have one static lamp. Props
+ * (closed boxes tagged ubake_receiver: llg) stand in a 4x4 grid of slots per cell.
+ * `scale` shrinks rooms, room sets and props together; the hall stays. */
+static void build_estate(void)
+{
+    double scale = P("scale"), L = P("room"), H = P("height"), w = P("wall"), alb = P("albedo");
+    double I = P("intensity"), pdoor = P("doors");
+    int rooms_full = PI_("rooms"), sets_full = PI_("sets"), hall_sets = PI_("overlap");
+    int lps = PI_("lights_per_set"), hall = PI_("hall");
+    double props = P("props");
+    uint64_t seed = (uint64_t)PI_("seed");
+    require(scale > 0 && scale <= 1 && L >= 4 && L <= 64 && H >= 2.5 && H <= 20 && w > 0 && w <= 0.5 &&
+                alb >= 0 && alb < 1 && I >= 0 && pdoor >= 0 && pdoor <= 1 && rooms_full >= 0 &&
+                sets_full >= 0 && hall_sets >= 0 && hall_sets <= sets_full && lps >= 1 && lps <= 16 &&
+                hall >= 1 && hall <= 8 && props >= 0 && props <= 16 && P("seed") >= 0,
+            "0<scale<=1, 4<=room<=64, 2.5<=height<=20, 0<wall<=0.5, 0<=albedo<1, intensity>=0, "
+            "0<=doors<=1, rooms>=0, 0<=overlap<=sets, 1<=lights_per_set<=16, 1<=hall<=8, 0<=props<=16, seed>=0");
+    common_default("texel_size", 0.138);
+    common_default("glg_spacing", 0.88);
+    int nrooms = (int)lround(rooms_full * scale);
+    int room_sets = (int)lround((sets_full - hall_sets) * scale);
+    if (room_sets > 0 && nrooms < 1) nrooms = 1;
+    require(room_sets <= 4 * nrooms, "at most 4 sets per room (raise rooms or lower sets)");
+    /* Grid: the hall block in the middle, rooms fill the rest row by row. */
+    int cells = nrooms + hall * hall;
+    int cols = (int)ceil(sqrt((double)cells));
+    if (cols < hall) cols = hall;
+    int rows = (cells + cols - 1) / cols;
+    if (rows < hall) rows = hall;
+    int hx0 = (cols - hall) / 2, hz0 = (rows - hall) / 2;
+#define IN_HALL(i, j) ((i) >= hx0 && (i) < hx0 + hall && (j) >= hz0 && (j) < hz0 + hall)
+    /* Which cells are rooms: the first nrooms non-hall cells in row order (the last row
+     * may be partly empty: no floor, walls close the rooms around it). */
+    int *room_of = xrealloc(NULL, (size_t)cols * rows * sizeof *room_of);
+    int nr = 0;
+    for (int j = 0; j < rows; j++)
+        for (int i = 0; i < cols; i++) {
+            int c = j * cols + i;
+            room_of[c] = IN_HALL(i, j) ? -2 : (nr < nrooms ? nr++ : -1);
+        }
+    /* -2 hall, -1 empty (outside), >= 0 room index */
+#define CELL(i, j) ((i) < 0 || (j) < 0 || (i) >= cols || (j) >= rows ? -1 : room_of[(j) * cols + (i)])
+    int mat = material("plaster", alb, alb, alb, 0);
+    int pmat = material("furniture", 0.5 * alb + 0.1, 0.45 * alb + 0.05, 0.35 * alb, 0);
+    const double hw = 0.5 * w, DW = 1.2, DH = 2.4;
+    /* One mesh per occupied cell (floor, ceiling, the walls it owns); the hall's floor
+     * and ceiling are one quad each, in the mesh of its first cell. */
+    int *cmesh = xrealloc(NULL, (size_t)cols * rows * sizeof *cmesh);
+    for (int j = 0; j < rows; j++)
+        for (int i = 0; i < cols; i++) {
+            int k = CELL(i, j);
+            cmesh[j * cols + i] = -1;
+            if (k == -1) continue;
+            char nm[64];
+            if (k == -2) snprintf(nm, sizeof nm, "hall_%d_%d", i, j);
+            else snprintf(nm, sizeof nm, "room_%d_%d", i, j);
+            int m = mesh_new(nm, mat);
+            cmesh[j * cols + i] = m;
+            if (k >= 0 || (i == hx0 && j == hz0)) {
+                double x0 = i * L + hw, z0 = j * L + hw;
+                double x1 = (k >= 0 ? i + 1 : hx0 + hall) * L - hw, z1 = (k >= 0 ? j + 1 : hz0 + hall) * L - hw;
+                add_rect(m, 1, 0.0, v3(x0, 0, z0), v3(x1, 0, z1), +1, 1);
+                add_rect(m, 1, H, v3(x0, 0, z0), v3(x1, 0, z1), -1, 1);
+            }
+        }
+    /* Walls on grid lines between an occupied cell and anything different (a wall
+     * between two hall cells is left out); pillars at grid points next to any occupied
+     * cell (in the hall: columns). Each goes to the mesh of an occupied neighbour. */
+    int doors = 0, wall_segs = 0;
+    for (int orient = 0; orient < 2; orient++) /* 0: lines z = j*L, 1: lines x = i*L */
+        for (int a = 0; a <= (orient ? cols : rows); a++)
+            for (int b = 0; b < (orient ? rows : cols); b++) {
+                int ci = orient ? a : b, cj = orient ? b : a;     /* cell on the + side */
+                int pi = orient ? a - 1 : b, pj = orient ? b : a - 1; /* cell on the - side */
+                int kp = CELL(ci, cj), km = CELL(pi, pj);
+                if (kp == -1 && km == -1) continue;
+                if (kp == -2 && km == -2) continue;
+                int owner = kp != -1 ? cj * cols + ci : pj * cols + pi;
+                int door = kp != -1 && km != -1 && est_hash(seed, 1, (uint64_t)(orient * 4096 + a), (uint64_t)b) < pdoor;
+                est_wall(cmesh[owner], orient ? 1 : 0, a * L, b * L + hw, (b + 1) * L - hw, w, H, door, DW, DH);
+                doors += door;
+                wall_segs++;
+            }
+    for (int j = 0; j <= rows; j++)
+        for (int i = 0; i <= cols; i++) {
+            int owner = -1;
+            for (int q = 0; q < 4 && owner < 0; q++) {
+                int ci = i - (q & 1), cj = j - (q >> 1);
+                if (CELL(ci, cj) != -1) owner = cj * cols + ci;
+            }
+            if (owner < 0) continue;
+            add_box(cmesh[owner], v3(i * L - hw, 0, j * L - hw), v3(i * L + hw, H, j * L + hw));
+        }
+    for (int c = 0; c < cols * rows; c++)
+        if (cmesh[c] >= 0) mesh_node(S.meshes[cmesh[c]].name, cmesh[c]);
+    /* Props: up to 16 slots per cell (4x4), a box of 0.6-1.2 m footprint, 0.5-1.2 m tall. */
+    int nprops = 0;
+    const double slot = (L - w) / 4.0;
+    for (int j = 0; j < rows; j++)
+        for (int i = 0; i < cols; i++) {
+            if (CELL(i, j) == -1) continue;
+            /* props per cell: floor(props), one more with probability frac(props) */
+            int np = (int)props + (est_hash(seed, 9, (uint64_t)(j * cols + i), 0) < props - floor(props));
+            for (int s = 0; s < np; s++) {
+                /* slot s of a fixed permutation of the 16, so props spread over the cell */
+                static const int perm[16] = { 5, 10, 0, 15, 3, 12, 6, 9, 1, 14, 7, 8, 2, 13, 4, 11 };
+                int sx = perm[s] % 4, sz = perm[s] / 4;
+                double cx = i * L + hw + (sx + 0.5) * slot, cz = j * L + hw + (sz + 0.5) * slot;
+                double fx = 0.6 + 0.6 * est_hash(seed, 2, (uint64_t)(j * cols + i), (uint64_t)s);
+                double fz = 0.6 + 0.6 * est_hash(seed, 3, (uint64_t)(j * cols + i), (uint64_t)s);
+                double fy = 0.5 + 0.7 * est_hash(seed, 4, (uint64_t)(j * cols + i), (uint64_t)s);
+                if (fx > slot - 0.4) fx = slot - 0.4;
+                if (fz > slot - 0.4) fz = slot - 0.4;
+                char nm[64];
+                snprintf(nm, sizeof nm, "prop_%d_%d_%d", i, j, s);
+                int m = mesh_new(nm, pmat);
+                add_box(m, v3(cx - 0.5 * fx, 0, cz - 0.5 * fz), v3(cx + 0.5 * fx, fy, cz + 0.5 * fz));
+                Node *n = mesh_node(nm, m);
+                node_extra(n, "ubake_receiver", "llg");
+                nprops++;
+            }
+        }
+    /* Sets per room: room sets scattered by hash, at most 4 per room. */
+    int *nset = xrealloc(NULL, (size_t)(nrooms > 0 ? nrooms : 1) * sizeof *nset);
+    memset(nset, 0, (size_t)(nrooms > 0 ? nrooms : 1) * sizeof *nset);
+    for (int s = 0; s < room_sets; s++) {
+        int r = (int)(est_hash(seed, 5, (uint64_t)s, 0) * nrooms);
+        while (nset[r] >= 4) r = (r + 1) % nrooms;
+        nset[r]++;
+    }
+    int nlights = 0, nsets = 0, max_room_sets = 0;
+    const double ly = H - 0.6, margin = 1.0;
+    for (int j = 0; j < rows; j++)
+        for (int i = 0; i < cols; i++) {
+            int k = CELL(i, j);
+            if (k == -1 || (k == -2 && !(i == hx0 && j == hz0))) continue;
+            int span = k == -2 ? hall : 1;
+            double x0 = i * L + hw + margin, z0 = j * L + hw + margin;
+            double ext = span * L - w - 2 * margin;
+            int ns = k == -2 ? hall_sets : nset[k];
+            if (ns > max_room_sets && k >= 0) max_room_sets = ns;
+            if (ns == 0) {
+                char nm[64];
+                snprintf(nm, sizeof nm, "lamp_%d_%d", i, j);
+                Node *l = light_node(nm, LIGHT_POINT, I, 1.0, 0.95, 0.85,
+                                     v3(x0 + 0.5 * ext, ly, z0 + 0.5 * ext));
+                node_extra(l, "ubake_light", "static");
+                nlights++;
+                continue;
+            }
+            for (int s = 0; s < ns; s++, nsets++) {
+                char set[40];
+                if (k == -2) snprintf(set, sizeof set, "hall_%02d", s);
+                else snprintf(set, sizeof set, "room_%d_%d_%d", i, j, s);
+                /* warm or cool sets, alternately static and primary */
+                double warm = est_hash(seed, 6, (uint64_t)nsets, 0);
+                for (int l = 0; l < lps; l++) {
+                    char nm[64];
+                    snprintf(nm, sizeof nm, "lamp_%s_%d", set, l);
+                    double lx = x0 + est_hash(seed, 7, (uint64_t)nsets, (uint64_t)l) * ext;
+                    double lz = z0 + est_hash(seed, 8, (uint64_t)nsets, (uint64_t)l) * ext;
+                    /* keep clear of the hall's columns (at the grid points) */
+                    double gx = lx - L * floor(lx / L + 0.5), gz = lz - L * floor(lz / L + 0.5);
+                    if (fabs(gx) < 0.5 && fabs(gz) < 0.5) lx += gx < 0 ? -0.5 : 0.5;
+                    Node *ln = light_node(nm, LIGHT_POINT, I / lps, 0.8 + 0.2 * warm, 0.9, 1.0 - 0.2 * warm,
+                                          v3(lx, ly, lz));
+                    node_extra(ln, "ubake_light", nsets % 2 ? "primary" : "static");
+                    node_extra(ln, "ubake_dls", set);
+                    nlights++;
+                }
+            }
+        }
+    /* What was made, and the rough receiver budget: interior surface area / texel size^2
+     * (the baker adds chart padding), props' LLG grids (UB_LLG_SPACING 0.3 m, padded). */
+    printf("estate: %d x %d cells of %g m, %d rooms + hall %dx%d cells, %d wall segments (%d doorways), "
+           "%d sets (%d in the hall), %d lights, %d props (llg)\n",
+           cols, rows, L, nrooms, hall, hall, wall_segs, doors, nsets, hall_sets, nlights, nprops);
+    free(room_of);
+    free(cmesh);
+    free(nset);
+    (void)max_room_sets;
+#undef IN_HALL
+#undef CELL
+}
+
 static const LevelDef g_levels[] = {
     { "cornell", "Cornell box (2 m), closed by default; point light or emissive ceiling patch.", build_cornell,
       { { "open", 1, { 0 }, "1: omit the front wall (z=+1)" },
@@ -994,6 +1286,32 @@ static const LevelDef g_levels[] = {
         { "ground_albedo", 1, { 0.3 }, "ground albedo" },
         { "ground", 1, { 40 }, "ground side, m" },
         { "wall", 1, { 0.2 }, "wall/floor/ceiling thickness, m" } } },
+    { "door_small", "Sunroom with a 10 cm hatch 1.5 m up as the door: tiny portal far from the receivers.", build_door_small,
+      { { "door", 1, { 1 }, "0: no door leaves (doorway open)" },
+        { "sun", 1, { 5 }, "sun irradiance at normal incidence, W/m^2" },
+        { "elev", 1, { 20 }, "sun elevation, degrees" },
+        { "azim", 1, { 0 }, "sun azimuth, degrees (0: sun in the +z direction, 90: +x)" },
+        { "sky", 3, { 0.3, 0.4, 0.6 }, "sky radiance r,g,b" },
+        { "albedo", 1, { 0.6 }, "room albedo" },
+        { "ground_albedo", 1, { 0.3 }, "ground albedo" },
+        { "ground", 1, { 40 }, "ground side, m" },
+        { "wall", 1, { 0.2 }, "wall/floor/ceiling thickness, m" } } },
+    { "door_grazing", "Sunroom whose open leaf lies 10 degrees off the inner wall; low sun from the side.", build_door_grazing,
+      { { "door", 1, { 1 }, "0: no door leaves (doorway open)" },
+        { "sun", 1, { 5 }, "sun irradiance at normal incidence, W/m^2" },
+        { "elev", 1, { 25 }, "sun elevation, degrees" },
+        { "azim", 1, { 35 }, "sun azimuth, degrees (0: sun in the +z direction, 90: +x)" },
+        { "sky", 3, { 0.3, 0.4, 0.6 }, "sky radiance r,g,b" },
+        { "albedo", 1, { 0.6 }, "room albedo" },
+        { "ground_albedo", 1, { 0.3 }, "ground albedo" },
+        { "ground", 1, { 40 }, "ground side, m" },
+        { "wall", 1, { 0.2 }, "wall/floor/ceiling thickness, m" } } },
+    { "door_rooms", "Two rooms joined by a door; lamp in room A, room B lit only through the door.",
+      build_door_rooms,
+      { { "t", 1, { 0.2 }, "shared wall thickness, m" },
+        { "wall", 1, { 0.2 }, "outer slab thickness, m" },
+        { "albedo", 1, { 0.6 }, "albedo of every surface" },
+        { "intensity", 1, { 20 }, "lamp intensity, W/sr" } } },
     { "hallway", "12x3x2.5 m corridor, 4 ceiling lamps in DLS hall_a (1,2) / hall_b (3,4); lamp 2 primary.",
       build_hallway,
       { { "intensity", 1, { 5 }, "each lamp, W/sr" },
@@ -1029,7 +1347,8 @@ static const LevelDef g_levels[] = {
         { "albedo", 1, { 0.5 }, "albedo of every face" },
         { "intensity", 1, { 10 }, "point light intensity, W/sr" },
         { "light_pos", 3, { 2, 2, 2 }, "light position relative to the room corner, m" },
-        { "n", 1, { 1 }, "each face split into n x n quads" } } },
+        { "n", 1, { 1 }, "each face split into n x n quads" },
+        { "props", 1, { 0 }, "1: add untagged boxes prop_stool (0.15 m) and prop_crate (0.8 m), and prop_tagged (0.15 m, ubake_receiver lightmap)" } } },
     { "sunpatch", "Closed 4x3x4 m room, dim lamp, very bright sun through a small ceiling window (fireflies).",
       build_sunpatch,
       { { "sun", 1, { 1e5 }, "sun irradiance at normal incidence, W/m^2" },
@@ -1045,8 +1364,27 @@ static const LevelDef g_levels[] = {
       build_mis_edge,
       { { "le", 1, { 1 }, "emitter radiance, W/(m^2 sr)" },
         { "albedo", 1, { 0 }, "floor albedo" } } },
+    { "estate", "ESTATE-scale manor (UberBake Table 1): rooms around a great hall, 132 dynamic light sets, up to 16 per texel, LLG props; big: not in --all.",
+      build_estate,
+      { { "scale", 1, { 1 }, "fraction of the full estate: rooms, room sets and props scale with it; the hall stays" },
+        { "rooms", 1, { 100 }, "rooms at scale 1 (one grid cell each, besides the hall)" },
+        { "sets", 1, { 132 }, "dynamic light sets at scale 1, the hall's included" },
+        { "overlap", 1, { 16 }, "sets sharing the great hall: what a hall texel sees (the level's max overlap, plus leaks through doorways)" },
+        { "lights_per_set", 1, { 2 }, "point lamps per set (each intensity/lights_per_set)" },
+        { "hall", 1, { 3 }, "great hall side, in cells" },
+        { "props", 1, { 3.5 }, "LLG props (closed boxes, ubake_receiver llg) per cell, 0-16 (a fraction: some cells get one more)" },
+        { "room", 1, { 8 }, "cell side, m (walls centred on the grid lines)" },
+        { "height", 1, { 4 }, "storey height, m" },
+        { "doors", 1, { 0.5 }, "fraction of interior walls with a 1.2x2.4 m doorway" },
+        { "intensity", 1, { 20 }, "each room lamp / each set (split over its lamps), W/sr" },
+        { "albedo", 1, { 0.6 }, "albedo of walls, floors and ceilings" },
+        { "wall", 1, { 0.2 }, "wall thickness, m" },
+        { "seed", 1, { 1 }, "layout seed (doorways, sets per room, props, lamp places)" } } },
 };
 #define NLEVELS ((int)(sizeof g_levels / sizeof g_levels[0]))
+
+/* Big levels --all leaves out (generate them by name). */
+static int on_demand(const LevelDef *L) { return !strcmp(L->name, "estate"); }
 
 /* ------------------------------------------------------------------------ */
 /* Lightmap UVs (optional): one square grid cell per quad                    */
@@ -1406,6 +1744,14 @@ static void generate(const LevelDef *L, const char *dir, const char *base, const
     g_level = L;
     scene_reset();
     L->build();
+    if (PI_("llg_prop")) {
+        const double *at = pv("llg_prop_at"), *sz = pv("llg_prop_size");
+        require(sz[0] > 0 && sz[1] > 0 && sz[2] > 0, "llg_prop_size > 0");
+        int mat = material("llg_prop", 0.6, 0.6, 0.6, 0);
+        box_node("llg_prop", mat, v3(at[0] - 0.5 * sz[0], at[1], at[2] - 0.5 * sz[2]),
+                 v3(at[0] + 0.5 * sz[0], at[1] + sz[1], at[2] + 0.5 * sz[2]));
+        node_extra(&S.nodes[S.nnode - 1], "ubake_receiver", "llg");
+    }
     if (PI_("uv1")) assign_uv1();
     write_gltf(dir, base, paramstr);
     scene_reset();
@@ -1458,6 +1804,7 @@ int main(int argc, char **argv)
     if (all) {
         if (name || nkv || base) die("--all takes no level name, --param or --name");
         for (int i = 0; i < NLEVELS; i++) {
+            if (on_demand(&g_levels[i])) continue;
             params_defaults(&g_levels[i]);
             generate(&g_levels[i], outdir, g_levels[i].name, "");
         }

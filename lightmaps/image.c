@@ -203,6 +203,62 @@ static float select_kth(float *v, size_t n, size_t k)
   return v[k];
 }
 
+/* Writes 8-bit RGB pixels to tmp, then renames it to path. */
+static ub_result write_png8(const char *path, char *tmp, uint32_t width, uint32_t height,
+                            const uint8_t *out, const ub_log *log)
+{
+  if (!stbi_write_png(tmp, (int)width, (int)height, 3, out, (int)(width * 3))) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: cannot write PNG", path);
+    remove(tmp);
+    return UB_ERR_IO;
+  }
+  if (rename(tmp, path) != 0) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: cannot rename %s into place", path, tmp);
+    remove(tmp);
+    return UB_ERR_IO;
+  }
+  return UB_OK;
+}
+
+ub_result ub_image_write_png_false_colour(const char *path, uint32_t width, uint32_t height,
+                                          const float *v, float vmin, float vmax,
+                                          const ub_log *log)
+{
+  if (!path || !v || width == 0 || height == 0 || width > UB_IMAGE_MAX_SIDE ||
+      height > UB_IMAGE_MAX_SIDE || !(vmin > 0.0f) || !(vmax > vmin)) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: cannot write PNG: bad size %ux%u or range",
+                  path ? path : "(null)", width, height);
+    return UB_ERR_INVALID_ARGUMENT;
+  }
+  /* blue → cyan → green → yellow → red at t = 0, ¼, ½, ¾, 1 */
+  static const float ramp[5][3] = {{0.1f, 0.1f, 0.9f}, {0.0f, 0.8f, 0.9f}, {0.1f, 0.8f, 0.1f},
+                                   {0.95f, 0.9f, 0.1f}, {0.9f, 0.1f, 0.1f}};
+  size_t npx = (size_t)width * height;
+  uint8_t *out = calloc(npx * 3, 1);
+  char *tmp = tmp_path_for(path);
+  if (!out || !tmp) {
+    free(out);
+    free(tmp);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  float lmin = logf(vmin), lspan = logf(vmax) - lmin;
+  for (size_t i = 0; i < npx; i++) {
+    if (!(v[i] >= 0.0f) || !isfinite(v[i]))
+      continue; /* no data: black */
+    float t = v[i] > vmin ? (logf(v[i]) - lmin) / lspan : 0.0f;
+    t = t < 0.0f ? 0.0f : (t > 1.0f ? 1.0f : t);
+    float x = t * 4.0f;
+    int k = x >= 4.0f ? 3 : (int)x;
+    float f = x - (float)k;
+    for (int c = 0; c < 3; c++)
+      out[3 * i + c] = (uint8_t)(255.0f * ((1.0f - f) * ramp[k][c] + f * ramp[k + 1][c]) + 0.5f);
+  }
+  ub_result res = write_png8(path, tmp, width, height, out, log);
+  free(out);
+  free(tmp);
+  return res;
+}
+
 ub_result ub_image_write_png_preview(const char *path, uint32_t width, uint32_t height,
                                      const float *rgb, float exposure, const ub_log *log)
 {
@@ -243,16 +299,7 @@ ub_result ub_image_write_png_preview(const char *path, uint32_t width, uint32_t 
       out[3 * i + c] = (uint8_t)(v * 255.0f + 0.5f);
     }
   }
-  ub_result res = UB_OK;
-  if (!stbi_write_png(tmp, (int)width, (int)height, 3, out, (int)(width * 3))) {
-    ub_log_printf(log, UB_LOG_ERROR, "%s: cannot write PNG", path);
-    remove(tmp);
-    res = UB_ERR_IO;
-  } else if (rename(tmp, path) != 0) {
-    ub_log_printf(log, UB_LOG_ERROR, "%s: cannot rename %s into place", path, tmp);
-    remove(tmp);
-    res = UB_ERR_IO;
-  }
+  ub_result res = write_png8(path, tmp, width, height, out, log);
   free(lum);
   free(out);
   free(tmp);

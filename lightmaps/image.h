@@ -42,6 +42,13 @@ ub_result ub_image_write_exr(const char *path, uint32_t width, uint32_t height,
 ub_result ub_image_write_png_preview(const char *path, uint32_t width, uint32_t height,
                                      const float *rgb, float exposure, const ub_log *log);
 
+/* 8-bit false-colour PNG of a scalar image (width × height floats): log scale from vmin
+ * (blue) through cyan, green, yellow to vmax (red), clamped at both ends; negative, NaN or
+ * Inf pixels (no data) are black. Requires 0 < vmin < vmax. */
+ub_result ub_image_write_png_false_colour(const char *path, uint32_t width, uint32_t height,
+                                          const float *v, float vmin, float vmax,
+                                          const ub_log *log);
+
 typedef struct ub_image {
   uint32_t width, height, channels;
   char **channel_names; /* channels names, in the file's (sorted) order */

@@ -146,10 +146,100 @@ static void sphere_dir(float u1, float u2, float out[3])
   out[2] = r * sinf(phi);
 }
 
-/* Self-visibility of every vertex of model m against its own triangles. */
-static ub_result model_visibility(const ub_scene *s, ub_llg_model *m, uint32_t mi,
-                                  uint32_t vis_rays, uint32_t seed, const ub_log *log,
-                                  uint64_t *rays_out)
+/* 3×3 inverse of a column-major linear part (world[3c + r]), into row-major out; 0 when
+ * singular. */
+static int inverse3(const float w[12], double out[3][3])
+{
+  double a[3][3];
+  for (int r = 0; r < 3; r++)
+    for (int c = 0; c < 3; c++)
+      a[r][c] = w[3 * c + r];
+  double det = a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1]) -
+               a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0]) +
+               a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0]);
+  if (!(fabs(det) > 1e-12) || !isfinite(det))
+    return 0;
+  for (int r = 0; r < 3; r++)
+    for (int c = 0; c < 3; c++) {
+      int r1 = (c + 1) % 3, r2 = (c + 2) % 3, c1 = (r + 1) % 3, c2 = (r + 2) % 3;
+      out[r][c] = (a[r1][c1] * a[r2][c2] - a[r1][c2] * a[r2][c1]) / det;
+    }
+  return 1;
+}
+
+/* Can model j carry model i's self-visibility along? Instances of the same glTF mesh
+ * (same local vertices and triangles) whose world transforms differ by a similarity:
+ * L = A_j·A_i⁻¹ with LᵀL = σ²I; R = L/σ. Verified on every vertex (position within
+ * UB_LLG_SHARE_TOL of the model's size, normal within UB_LLG_SHARE_TOL) so a loader quirk
+ * or a hand-built scene never shares wrongly. */
+#define UB_LLG_SHARE_TOL 1e-3
+static int share_rotation(const ub_scene *s, const ub_llg_model *mi, const ub_llg_model *mj,
+                          float out_R[9])
+{
+  const ub_node *ni = &s->nodes[mi->node], *nj = &s->nodes[mj->node];
+  if (ni->mesh < 0 || ni->mesh != nj->mesh || mi->vertex_count != mj->vertex_count ||
+      mi->triangle_count != mj->triangle_count ||
+      memcmp(mi->local_indices, mj->local_indices,
+             (size_t)mi->triangle_count * 3 * sizeof *mi->local_indices) != 0)
+    return 0;
+  double inv[3][3], L[3][3];
+  if (!inverse3(ni->world, inv))
+    return 0;
+  for (int r = 0; r < 3; r++)
+    for (int c = 0; c < 3; c++) {
+      L[r][c] = 0.0;
+      for (int k = 0; k < 3; k++)
+        L[r][c] += (double)nj->world[3 * k + r] * inv[k][c];
+    }
+  double g[3][3], tr = 0.0;
+  for (int r = 0; r < 3; r++)
+    for (int c = 0; c < 3; c++) {
+      g[r][c] = L[0][r] * L[0][c] + L[1][r] * L[1][c] + L[2][r] * L[2][c];
+      tr += r == c ? g[r][c] : 0.0;
+    }
+  double s2 = tr / 3.0;
+  if (!(s2 > 1e-12) || !isfinite(s2))
+    return 0;
+  for (int r = 0; r < 3; r++)
+    for (int c = 0; c < 3; c++)
+      if (fabs(g[r][c] - (r == c ? s2 : 0.0)) > 1e-4 * s2)
+        return 0;
+  double sig = sqrt(s2), R[3][3];
+  for (int r = 0; r < 3; r++)
+    for (int c = 0; c < 3; c++)
+      R[r][c] = L[r][c] / sig;
+  /* Every vertex: p_j = L·(p_i − t_i) + t_j, n_j = R·n_i. */
+  double size = 0.0;
+  for (int a = 0; a < 3; a++)
+    size = fmax(size, 2.0 * mj->half[a]);
+  double tol = UB_LLG_SHARE_TOL * (size > 0.0 ? size : 1.0);
+  for (uint32_t v = 0; v < mi->vertex_count; v++) {
+    const float *pi = s->positions + 3 * (size_t)mi->vertices[v];
+    const float *pj = s->positions + 3 * (size_t)mj->vertices[v];
+    const float *qi = s->normals + 3 * (size_t)mi->vertices[v];
+    const float *qj = s->normals + 3 * (size_t)mj->vertices[v];
+    double d[3] = {pi[0] - ni->world[9], pi[1] - ni->world[10], pi[2] - ni->world[11]};
+    double ep = 0.0, en = 0.0;
+    for (int r = 0; r < 3; r++) {
+      double x = nj->world[9 + r] + L[r][0] * d[0] + L[r][1] * d[1] + L[r][2] * d[2];
+      double y = R[r][0] * qi[0] + R[r][1] * qi[1] + R[r][2] * qi[2];
+      ep += (x - pj[r]) * (x - pj[r]);
+      en += (y - qj[r]) * (y - qj[r]);
+    }
+    if (!(sqrt(ep) <= tol) || !(sqrt(en) <= UB_LLG_SHARE_TOL))
+      return 0;
+  }
+  for (int r = 0; r < 3; r++)
+    for (int c = 0; c < 3; c++)
+      out_R[3 * r + c] = (float)R[r][c];
+  return 1;
+}
+
+/* Self-visibility of every vertex of model m against its own triangles (or, for an
+ * instance of an earlier model, that model's rotated: no rays). */
+static ub_result model_visibility(const ub_scene *s, ub_llg_set *set, ub_llg_model *m,
+                                  uint32_t mi, uint32_t vis_rays, uint32_t seed,
+                                  const ub_log *log, uint64_t *rays_out)
 {
   uint8_t *mask = calloc(s->triangle_count ? s->triangle_count : 1, 1);
   if (!mask)
@@ -161,6 +251,22 @@ static ub_result model_visibility(const ub_scene *s, ub_llg_model *m, uint32_t m
   free(mask);
   if (r != UB_OK)
     return r;
+  m->vis_source = mi;
+  for (int k = 0; k < 9; k++)
+    m->vis_rot[k] = k % 4 == 0 ? 1.0f : 0.0f;
+  memset(m->self, 0, (size_t)m->vertex_count * 3 * sizeof *m->self);
+  for (uint32_t i = 0; i < mi; i++) {
+    const ub_llg_model *src = &set->models[i];
+    if (src->vis_source != i || !share_rotation(s, src, m, m->vis_rot))
+      continue;
+    float M[81];
+    ub_llg_sh_rotation(m->vis_rot, M);
+    for (uint32_t v = 0; v < m->vertex_count; v++)
+      ub_llg_sh_rotate(M, src->vis + 9 * (size_t)v, m->vis + 9 * (size_t)v);
+    m->vis_source = i;
+    set->vis_shared++;
+    return UB_OK;
+  }
   uint32_t K = vis_rays ? vis_rays : 256;
   uint32_t kx = (uint32_t)sqrtf((float)K);
   if (kx < 1)
@@ -341,7 +447,8 @@ ub_result ub_llg_build(const ub_scene *s, uint32_t vis_rays, uint32_t seed, cons
     model_box(s, m);
     m->probe_first = out->probe_count;
     out->probe_count += m->dims[0] * m->dims[1] * m->dims[2];
-    r = model_visibility(s, m, (uint32_t)out->node_model[n], vis_rays, seed, log, &out->rays);
+    r = model_visibility(s, out, m, (uint32_t)out->node_model[n], vis_rays, seed, log,
+                         &out->rays);
     if (r != UB_OK)
       goto fail;
   }

@@ -1,7 +1,8 @@
 /* probes/llg.h — local light grids, baker side (UberBake §2.2; evaluation: ubake/llg.h).
  *
- * Which models: mesh nodes tagged `ubake_receiver: "llg"` (ub_node.receiver ==
- * UB_RECEIVER_LLG); nothing is made an LLG by default. Per model:
+ * Which models: mesh nodes with ub_node.receiver == UB_RECEIVER_LLG: tagged
+ * `ubake_receiver: "llg"`, or untagged small props whose lightmap charts would be poor,
+ * switched by ub_llg_auto_select() (criterion in probes/llg_auto.c). Per model:
  *   - box: the principal axes of its vertices (PCA) or the world axes, whichever box is
  *     smaller (also the world axes when PCA is degenerate), padded by 10% + 5 cm per side;
  *   - grid: probes on the box corners and evenly in between, about one per
@@ -16,7 +17,13 @@
  *     the mean of its valid grid neighbours after each bounce (ub_llg_fill_invalid);
  *   - self-visibility per vertex: rays over the normal's hemisphere against the model's
  *     own triangles only (its own Embree scene), projected to SH L2 as V = 1 − O (O the
- *     occluded directions), so an unoccluded vertex has V ≡ 1 exactly;
+ *     occluded directions), so an unoccluded vertex has V ≡ 1 exactly. Instances of one
+ *     glTF mesh share it (UberBake §2.2): a model whose node uses the same mesh as an
+ *     earlier model, with the same local vertices and triangles, and whose transform
+ *     differs from it by a similarity (rotation or reflection, uniform scale,
+ *     translation; checked on every vertex and normal), takes the earlier model's V
+ *     rotated by R (ub_llg_sh_rotation) instead of tracing rays, and the .ubk stores V
+ *     once (docs/FORMAT.md, LLGM);
  *   - self-inter-reflection per vertex (ub_llg_self_bounce, after the pass): the
  *     irradiance along the vertex normal that the model's own surfaces reflect onto it —
  *     exactly the directions V removes. Cosine rays against the model's own triangles; at
@@ -50,6 +57,9 @@ typedef struct ub_llg_model {
   uint32_t vertex_count;
   uint32_t *vertices;      /* sorted scene vertex indices */
   float *vis;              /* vertex_count × 9: self-visibility SH L2 */
+  uint32_t vis_source;     /* model whose visibility this one carries along (itself when
+                              traced here; an earlier instance of the same mesh otherwise) */
+  float vis_rot[9];        /* row-major orthogonal R: vis(ω) = vis_source's (Rᵀω) */
   float *self;             /* vertex_count × 3: self-inter-reflection irradiance, W/m² */
   ub_rt *rt_self;          /* the model's own triangles */
   uint32_t triangle_count; /* the node's triangles, degenerate ones included */
@@ -65,6 +75,7 @@ typedef struct ub_llg_set {
   uint8_t *probe_valid;    /* probe_count */
   uint32_t invalid_count;   /* inside geometry, no free spot toward the centre: filled */
   uint32_t moved_count;     /* inside geometry, moved toward the centre to a free spot */
+  uint32_t vis_shared;      /* models whose visibility is an earlier instance's, rotated */
   ub_rt *rt_env;           /* the level without LLG models (NULL when model_count == 0) */
   uint64_t rays;           /* visibility + validity rays traced */
 } ub_llg_set;
@@ -74,6 +85,26 @@ typedef struct ub_llg_set {
 ub_result ub_llg_build(const ub_scene *scene, uint32_t vis_rays, uint32_t seed,
                        const ub_log *log, ub_llg_set *out);
 void ub_llg_free(ub_llg_set *set);
+
+/* LLG by default for small props (probes/llg_auto.c has the reasoning). */
+#define UB_LLG_AUTO_TEXELS_PER_CHART 8.0 /* covered texels per chart below this: poor */
+#define UB_LLG_AUTO_TINY_CHART 4u        /* a chart covering ≤ this many texels is tiny */
+#define UB_LLG_AUTO_TINY_SHARE 0.5       /* more than this share of tiny charts: poor */
+#define UB_LLG_AUTO_MAX_SIZE ((float)(UB_LLG_MAX_DIM - 1u) * UB_LLG_SPACING) /* metres */
+
+typedef struct ub_llg_auto_stats {
+  uint32_t considered;   /* untagged nodes with generated charts, small enough */
+  uint32_t switched;     /* of those, made LLG receivers (receiver_source UB_RECEIVER_AUTO) */
+  uint64_t texels_freed; /* their covered texels in the layout that was measured */
+  uint32_t charts_freed;
+} ub_llg_auto_stats;
+
+struct ub_lightmap;
+/* Makes untagged small props with poor lightmap charts LLG receivers, measured on lm (the
+ * layout built with every untagged node lightmapped). The caller rebuilds the lightmap
+ * when out->switched > 0. */
+ub_result ub_llg_auto_select(ub_scene *scene, const struct ub_lightmap *lm,
+                             ub_llg_auto_stats *out);
 
 #define UB_LLG_SELF_ITERATIONS 3
 

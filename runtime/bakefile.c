@@ -8,6 +8,7 @@
  * writer's input, so a file the writer accepts is a file the reader accepts and back.
  */
 #include "ubake/bakefile.h"
+#include "ubake/llg.h"
 
 #include <assert.h>
 #include <errno.h>
@@ -43,10 +44,12 @@ static const uint8_t ub_ubk_magic[4] = {'U', 'B', 'K', 0};
 /* META, GEOM, ATLS are mandatory; GLGP (global light grid) and DLSR (dynamic light set
  * records) are optional: a reader without them still has the base lighting. */
 enum { UB_SEC_META = 0, UB_SEC_GEOM, UB_SEC_ATLS, UB_SEC_MANDATORY, UB_SEC_GLGP = UB_SEC_MANDATORY,
-       UB_SEC_DLSR, UB_SEC_LITE, UB_SEC_LLGM, UB_SEC_ELEM, UB_SEC_KNOWN };
+       UB_SEC_DLSR, UB_SEC_LITE, UB_SEC_LLGM, UB_SEC_ELEM, UB_SEC_TRIR, UB_SEC_KNOWN };
 static const char ub_sec_tags[UB_SEC_KNOWN][5] = {"META", "GEOM", "ATLS", "GLGP", "DLSR", "LITE",
-                                                  "LLGM", "ELEM"};
+                                                  "LLGM", "ELEM", "TRIR"};
 #define UB_LLGM_MODEL_HEADER 144 /* name[64], centre, axes, half, dims, V, T */
+#define UB_LLGM_MODEL_HEADER_SHARED 184 /* + shared-from, rotation[9] (flags bit 0) */
+#define UB_LLGM_FLAG_SHARED 1u
 #define UB_LLGM_MAX_DIM 64u
 #define UB_LLGM_MAX_SELF 65504.0f /* the half range */
 #define UB_LITE_SIZE 60 /* bytes per light */
@@ -377,6 +380,26 @@ static ub_result validate_llg(const ub_bakefile *bf, const char *name, const ub_
                   i, m->name, k / 3, m->indices[k], m->vertex_count);
         return UB_ERR_INVALID_DATA;
       }
+    if (m->vis_shared_from) {
+      uint32_t src = m->vis_shared_from - 1;
+      int rot_ok = src < i && bf->llgs[src].vis_shared_from == 0 &&
+                   bf->llgs[src].vertex_count == m->vertex_count &&
+                   all_finite(m->vis_rotation, 9, &bad);
+      for (int a = 0; rot_ok && a < 3; a++)
+        for (int b = 0; b <= a; b++) {
+          double d = 0.0;
+          for (int k = 0; k < 3; k++)
+            d += (double)m->vis_rotation[3 * a + k] * m->vis_rotation[3 * b + k];
+          if (fabs(d - (a == b ? 1.0 : 0.0)) > 1e-3)
+            rot_ok = 0;
+        }
+      if (!rot_ok) {
+        ubk_error(log, name, where, "model %u (%s): shares the self-visibility of model %u, "
+                  "which is not an earlier model with its own and %u vertices, or the "
+                  "rotation is not orthonormal", i, m->name, src, m->vertex_count);
+        return UB_ERR_INVALID_DATA;
+      }
+    }
   }
   return UB_OK;
 }
@@ -457,6 +480,16 @@ static ub_result validate(const ub_bakefile *bf, const char *name, const ub_log 
     r = validate_records(bf, 0, name, log);
   if (r == UB_OK)
     r = validate_records(bf, 1, name, log);
+  for (uint32_t t = 0; r == UB_OK && bf->tri_role && t < bf->triangle_count; t++) {
+    uint32_t role = bf->tri_role[t] >> 24, e = bf->tri_role[t] & 0xFFFFFFu;
+    uint32_t want = role == UB_TRI_ROLE_OBJECT ? UB_ELEMENT_OBJECT : UB_ELEMENT_DOOR;
+    if (bf->tri_role[t] && (role < UB_TRI_ROLE_DOOR_CLOSED || role > UB_TRI_ROLE_OBJECT ||
+                            e >= bf->elem_count || bf->elems[e].kind != want)) {
+      ubk_error(log, name, "section TRIR", "triangle %u: role %u of element %u invalid", t,
+                role, e);
+      r = UB_ERR_INVALID_DATA;
+    }
+  }
   if (r == UB_OK)
     r = validate_lights(bf, name, log);
   return r == UB_OK ? validate_llg(bf, name, log) : r;
@@ -617,6 +650,23 @@ static const float *pixel_normal(const ub_bakefile *bf, uint32_t p)
   return NULL;
 }
 
+/* The power of two ≥ 1 that brings mx within the half range with margin (≤ 32768). */
+static float pow2_scale(double mx)
+{
+  float scale = 1.0f;
+  while (mx / scale > 32768.0 && scale < 1e30f)
+    scale *= 2.0f;
+  return scale;
+}
+
+static double max_abs(const float *v, size_t n)
+{
+  double mx = 0.0;
+  for (size_t i = 0; i < n; i++)
+    mx = fmax(mx, fabs((double)v[i]));
+  return mx;
+}
+
 /* Power-of-two scale that keeps every stored texel SH value (in its stored form) within
  * the half range with margin: 1 unless the level is brighter than ~32768 W/m² (a sun in
  * W/m² with a bright sky). Exact: a power of two changes no mantissa bit. */
@@ -634,10 +684,7 @@ static float atls_scale(const ub_bakefile *bf)
         mx = fmax(mx, fabs((double)sh[k]));
     }
   }
-  float scale = 1.0f;
-  while (mx / scale > 32768.0 && scale < 1e30f)
-    scale *= 2.0f;
-  return scale;
+  return pow2_scale(mx);
 }
 
 static void wr_atls(ubk_writer *w, const ub_bakefile *bf)
@@ -673,7 +720,8 @@ static void wr_glgp(ubk_writer *w, const ub_bakefile *bf)
   wr_u32(w, p);
   wr_u32(w, t);
   wr_u32(w, k);
-  wr_u32(w, 0); /* reserved */
+  float scale = pow2_scale(max_abs(bf->glg_sh, (size_t)p * UB_GLG_SH_FLOATS));
+  wr_f32(w, scale == 1.0f ? 0.0f : scale); /* SH scale (0 = 1) */
   for (size_t i = 0; i < (size_t)p * 3; i++)
     wr_f32(w, bf->glg_positions[i]);
   for (size_t i = 0; i < (size_t)t * 4; i++)
@@ -685,7 +733,7 @@ static void wr_glgp(ubk_writer *w, const ub_bakefile *bf)
   for (size_t i = 0; i < t; i++)
     wr_u32(w, bf->glg_plane_of ? bf->glg_plane_of[i] : UB_GLG_NO_PLANE_INDEX);
   for (size_t i = 0; i < (size_t)p * UB_GLG_SH_FLOATS; i++)
-    wr_half(w, bf->glg_sh[i]);
+    wr_half(w, bf->glg_sh[i] / scale);
 }
 
 static uint64_t record_block(const ub_bakefile_record *r)
@@ -699,8 +747,23 @@ static uint64_t record_block(const ub_bakefile_record *r)
 static void wr_records(ubk_writer *w, const ub_bakefile *bf, const ub_bakefile_record *recs,
                        uint32_t count)
 {
+  double mx = 0.0;
+  for (uint32_t d = 0; d < count; d++) {
+    const ub_bakefile_record *r = &recs[d];
+    for (uint32_t i = 0; i < r->texel_count; i++) {
+      float sh[UB_SH1_FLOATS];
+      memcpy(sh, r->texel_sh + (size_t)i * UB_SH1_FLOATS, sizeof sh);
+      const float *n = pixel_normal(bf, r->texel_index[i]);
+      if (n)
+        texel_pack(sh, n);
+      mx = fmax(mx, max_abs(sh, UB_SH1_FLOATS));
+    }
+    mx = fmax(mx, max_abs(r->probe_sh, (size_t)r->probe_count * UB_GLG_SH_FLOATS));
+    mx = fmax(mx, max_abs(r->llg_probe_sh, (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS));
+  }
+  float scale = pow2_scale(mx);
   wr_u32(w, count);
-  wr_u32(w, 0); /* reserved */
+  wr_f32(w, scale == 1.0f ? 0.0f : scale); /* SH scale (0 = 1) */
   for (uint32_t d = 0; d < count; d++) {
     const ub_bakefile_record *r = &recs[d];
     uint8_t name[64];
@@ -732,12 +795,12 @@ static void wr_records(ubk_writer *w, const ub_bakefile *bf, const ub_bakefile_r
       if (n)
         texel_pack(sh, n);
       for (int k = 0; k < UB_SH1_FLOATS; k++)
-        wr_half(w, sh[k]);
+        wr_half(w, sh[k] / scale);
     }
     for (size_t i = 0; i < (size_t)r->probe_count * UB_GLG_SH_FLOATS; i++)
-      wr_half(w, r->probe_sh[i]);
+      wr_half(w, r->probe_sh[i] / scale);
     for (size_t i = 0; i < (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS; i++)
-      wr_half(w, r->llg_probe_sh[i]);
+      wr_half(w, r->llg_probe_sh[i] / scale);
     uint64_t block = record_block(r);
     wr_zeros(w, (size_t)(align8(block) - block), 1);
   }
@@ -766,15 +829,22 @@ static void wr_lite(ubk_writer *w, const ub_bakefile *bf)
   wr_zeros(w, (size_t)(align8(block) - block), 1);
 }
 
-static uint64_t llgm_block_size(uint64_t np, uint64_t nv, uint64_t nt)
+/* own_vis: the model stores its self-visibility (not shared from an earlier instance). */
+static uint64_t llgm_block_size(uint64_t np, uint64_t nv, uint64_t nt, int own_vis)
 {
-  return 48u * nv + 12u * nt + 2u * UB_GLG_SH_FLOATS * np;
+  return (own_vis ? 48u : 30u) * nv + 12u * nt + 2u * UB_GLG_SH_FLOATS * np;
 }
 
 static void wr_llgm(ubk_writer *w, const ub_bakefile *bf)
 {
+  /* The shared layout only when some model shares: files without instances keep the
+   * original layout byte for byte. */
+  uint32_t flags = 0;
+  for (uint32_t i = 0; i < bf->llg_count; i++)
+    if (bf->llgs[i].vis_shared_from)
+      flags = UB_LLGM_FLAG_SHARED;
   wr_u32(w, bf->llg_count);
-  wr_u32(w, 0); /* reserved */
+  wr_u32(w, flags);
   for (uint32_t i = 0; i < bf->llg_count; i++) {
     const ub_bakefile_llg *m = &bf->llgs[i];
     uint8_t name[64];
@@ -791,6 +861,11 @@ static void wr_llgm(ubk_writer *w, const ub_bakefile *bf)
       wr_u32(w, m->dims[k]);
     wr_u32(w, m->vertex_count);
     wr_u32(w, m->triangle_count);
+    if (flags & UB_LLGM_FLAG_SHARED) {
+      wr_u32(w, m->vis_shared_from);
+      for (int k = 0; k < 9; k++)
+        wr_f32(w, m->vis_shared_from ? m->vis_rotation[k] : (k % 4 == 0 ? 1.0f : 0.0f));
+    }
   }
   for (uint32_t i = 0; i < bf->llg_count; i++) {
     const ub_bakefile_llg *m = &bf->llgs[i];
@@ -803,18 +878,26 @@ static void wr_llgm(ubk_writer *w, const ub_bakefile *bf)
       wr_u32(w, m->indices[k]);
     for (size_t k = 0; k < np * UB_GLG_SH_FLOATS; k++)
       wr_half(w, m->probe_sh[k]);
-    for (size_t k = 0; k < nv * 9; k++)
+    for (size_t k = 0; !m->vis_shared_from && k < nv * 9; k++)
       wr_half(w, m->vis[k]);
     for (size_t k = 0; k < nv * 3; k++)
       wr_half(w, m->self[k]);
-    uint64_t block = llgm_block_size(np, nv, m->triangle_count);
+    uint64_t block = llgm_block_size(np, nv, m->triangle_count, !m->vis_shared_from);
     wr_zeros(w, (size_t)(align8(block) - block), 1);
   }
 }
 
 ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_log *log)
 {
+  return ub_bakefile_write_ex(bf, path, log, NULL);
+}
+
+ub_result ub_bakefile_write_ex(const ub_bakefile *bf, const char *path, const ub_log *log,
+                               uint64_t *out_clamped)
+{
   assert(bf && path);
+  if (out_clamped)
+    *out_clamped = 0;
   ub_result r = validate(bf, path, log);
   if (r != UB_OK)
     return r;
@@ -858,6 +941,8 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
     order[sections++] = UB_SEC_LLGM;
   if (bf->elem_count)
     order[sections++] = UB_SEC_ELEM;
+  if (bf->tri_role)
+    order[sections++] = UB_SEC_TRIR;
   size_t head_size = UB_UBK_HEADER_SIZE + (size_t)sections * UB_UBK_ENTRY_SIZE;
   wr_bytes(w, head, head_size, 0);
 
@@ -894,6 +979,16 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
     wr_begin(w, &sec[UB_SEC_ELEM], ub_sec_tags[UB_SEC_ELEM], 0);
     wr_records(w, bf, bf->elems, bf->elem_count);
     wr_end(w, &sec[UB_SEC_ELEM]);
+  }
+  if (bf->tri_role) {
+    wr_begin(w, &sec[UB_SEC_TRIR], ub_sec_tags[UB_SEC_TRIR], 0);
+    wr_u32(w, bf->triangle_count);
+    wr_u32(w, 0); /* reserved */
+    for (uint32_t t = 0; t < bf->triangle_count; t++)
+      wr_u32(w, bf->tri_role[t]);
+    wr_zeros(w, (size_t)(align8(4u * (uint64_t)bf->triangle_count) -
+                         4u * (uint64_t)bf->triangle_count), 1);
+    wr_end(w, &sec[UB_SEC_TRIR]);
   }
   wr_flush(w);
 
@@ -938,9 +1033,11 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
     return UB_ERR_IO;
   }
   if (w->clamped && log)
-    ub_log_printf(log, UB_LOG_WARNING, "%s: sections ATLS/GLGP/DLSR/LLGM: %llu half value(s) "
-                  "beyond the half range clamped to +-%g", path, (unsigned long long)w->clamped,
-                  (double)UB_HALF_MAX);
+    ub_log_printf(log, UB_LOG_WARNING, "%s: %llu half value(s) beyond the half range clamped "
+                  "to +-%g (LLG probes or self-inter-reflection)", path,
+                  (unsigned long long)w->clamped, (double)UB_HALF_MAX);
+  if (out_clamped)
+    *out_clamped = w->clamped;
   free(tmp);
   free(w);
   return UB_OK;
@@ -1184,12 +1281,33 @@ static ub_result parse_atls(const ubk_reader *rd, const uint8_t *p, uint64_t siz
   return UB_OK;
 }
 
+/* A section's SH scale field: 0 means 1; else a finite power of two ≥ 1 (any finite value
+ * ≥ 1 is accepted: the data is multiplied by it). Returns 0 (error logged) otherwise. */
+static int check_scale(const ubk_reader *rd, const char *where, float *scale)
+{
+  if (*scale == 0.0f)
+    *scale = 1.0f;
+  if (!isfinite(*scale) || *scale < 1.0f) {
+    ubk_error(rd->log, rd->name, where, "SH scale %g is not finite and >= 1", (double)*scale);
+    return 0;
+  }
+  return 1;
+}
+
+static void apply_scale(float *v, size_t n, float scale)
+{
+  if (scale != 1.0f)
+    for (size_t i = 0; i < n; i++)
+      v[i] *= scale;
+}
+
 static ub_result parse_glgp(const ubk_reader *rd, const uint8_t *p, uint64_t size,
                             ub_bakefile *bf)
 {
   ubk_cursor c = {p, (size_t)size};
-  uint32_t np, nt, nk, reserved;
-  if (!cur_u32(&c, &np) || !cur_u32(&c, &nt) || !cur_u32(&c, &nk) || !cur_u32(&c, &reserved)) {
+  uint32_t np, nt, nk;
+  float scale;
+  if (!cur_u32(&c, &np) || !cur_u32(&c, &nt) || !cur_u32(&c, &nk) || !cur_f32s(&c, &scale, 1)) {
     ubk_error(rd->log, rd->name, "section GLGP", "size %llu too small for the counts",
               (unsigned long long)size);
     return UB_ERR_INVALID_DATA;
@@ -1225,6 +1343,9 @@ static ub_result parse_glgp(const ubk_reader *rd, const uint8_t *p, uint64_t siz
            cur_halves(&c, bf->glg_sh, (size_t)np * UB_GLG_SH_FLOATS);
   assert(ok && c.left == 0); /* guaranteed by the exact size check above */
   (void)ok;
+  if (!check_scale(rd, "section GLGP", &scale))
+    return UB_ERR_INVALID_DATA;
+  apply_scale(bf->glg_sh, (size_t)np * UB_GLG_SH_FLOATS, scale);
   return UB_OK;
 }
 
@@ -1233,12 +1354,15 @@ static ub_result parse_records(const ubk_reader *rd, const uint8_t *p, uint64_t 
                                uint32_t *out_count)
 {
   ubk_cursor c = {p, (size_t)size};
-  uint32_t ns, reserved;
-  if (!cur_u32(&c, &ns) || !cur_u32(&c, &reserved)) {
+  uint32_t ns;
+  float scale;
+  if (!cur_u32(&c, &ns) || !cur_f32s(&c, &scale, 1)) {
     ubk_error(rd->log, rd->name, where, "size %llu too small for the count",
               (unsigned long long)size);
     return UB_ERR_INVALID_DATA;
   }
+  if (!check_scale(rd, where, &scale))
+    return UB_ERR_INVALID_DATA;
   if ((uint64_t)ns * UB_REC_HEADER > size - 8) {
     ubk_error(rd->log, rd->name, where, "%u records do not fit in %llu bytes", ns,
               (unsigned long long)size);
@@ -1306,6 +1430,9 @@ static ub_result parse_records(const ubk_reader *rd, const uint8_t *p, uint64_t 
              cur_take(&c, (size_t)(align8(block) - block), &pad);
     assert(ok); /* guaranteed by the exact size walk above */
     (void)ok;
+    apply_scale(r->texel_sh, (size_t)r->texel_count * UB_SH1_FLOATS, scale);
+    apply_scale(r->probe_sh, (size_t)r->probe_count * UB_GLG_SH_FLOATS, scale);
+    apply_scale(r->llg_probe_sh, (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS, scale);
   }
   return UB_OK;
 }
@@ -1361,26 +1488,66 @@ static ub_result parse_lite(const ubk_reader *rd, const uint8_t *p, uint64_t siz
   return UB_OK;
 }
 
+static ub_result parse_trir(const ubk_reader *rd, const uint8_t *p, uint64_t size,
+                            ub_bakefile *bf)
+{
+  static const char *where = "section TRIR";
+  ubk_cursor c = {p, (size_t)size};
+  uint32_t n, reserved;
+  if (!cur_u32(&c, &n) || !cur_u32(&c, &reserved) || n != bf->triangle_count ||
+      8u + align8(4u * (uint64_t)n) != size) {
+    ubk_error(rd->log, rd->name, where, "size %llu does not match the %u triangles",
+              (unsigned long long)size, bf->triangle_count);
+    return UB_ERR_INVALID_DATA;
+  }
+  bf->tri_role = calloc_array((uint64_t)n + 1, sizeof *bf->tri_role);
+  if (!bf->tri_role) {
+    ubk_error(rd->log, rd->name, where, "out of memory");
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  int ok = cur_u32s(&c, bf->tri_role, n);
+  assert(ok);
+  (void)ok;
+  return UB_OK;
+}
+
 static ub_result parse_llgm(const ubk_reader *rd, const uint8_t *p, uint64_t size,
                             ub_bakefile *bf)
 {
   static const char *where = "section LLGM";
   ubk_cursor c = {p, (size_t)size};
-  uint32_t nm, reserved;
-  if (!cur_u32(&c, &nm) || !cur_u32(&c, &reserved)) {
+  uint32_t nm, flags;
+  if (!cur_u32(&c, &nm) || !cur_u32(&c, &flags)) {
     ubk_error(rd->log, rd->name, where, "size %llu too small for the count",
               (unsigned long long)size);
     return UB_ERR_INVALID_DATA;
   }
-  if ((uint64_t)nm * UB_LLGM_MODEL_HEADER > size - 8) {
+  if (flags & ~UB_LLGM_FLAG_SHARED) {
+    ubk_error(rd->log, rd->name, where, "unknown flags 0x%x", flags);
+    return UB_ERR_INVALID_DATA;
+  }
+  uint64_t hs = (flags & UB_LLGM_FLAG_SHARED) ? UB_LLGM_MODEL_HEADER_SHARED
+                                              : UB_LLGM_MODEL_HEADER;
+  if ((uint64_t)nm * hs > size - 8) {
     ubk_error(rd->log, rd->name, where, "%u models do not fit in %llu bytes", nm,
               (unsigned long long)size);
     return UB_ERR_INVALID_DATA;
   }
-  /* Walk the model headers: dims range and the exact size before allocating anything. */
-  uint64_t expect = 8u + (uint64_t)nm * UB_LLGM_MODEL_HEADER;
+  /* Walk the model headers: dims range, sharing and the exact size before allocating
+   * anything. */
+  uint64_t expect = 8u + (uint64_t)nm * hs;
   for (uint32_t i = 0; i < nm && expect <= size; i++) {
-    const uint8_t *h = p + 8 + (size_t)i * UB_LLGM_MODEL_HEADER;
+    const uint8_t *h = p + 8 + (size_t)i * hs;
+    uint32_t from = hs == UB_LLGM_MODEL_HEADER ? 0 : le_get32(h + 144);
+    if (from) {
+      const uint8_t *hsrc = from - 1 < i ? p + 8 + (size_t)(from - 1) * hs : NULL;
+      if (!hsrc || le_get32(hsrc + 144) != 0 || le_get32(hsrc + 136) != le_get32(h + 136)) {
+        ubk_error(rd->log, rd->name, where, "model %u: shares the self-visibility of model "
+                  "%u, which is not an earlier model with its own and the same vertex count",
+                  i, from - 1);
+        return UB_ERR_INVALID_DATA;
+      }
+    }
     uint64_t np = 1;
     for (int a = 0; a < 3; a++) {
       uint32_t d = le_get32(h + 124 + 4 * a);
@@ -1391,7 +1558,7 @@ static ub_result parse_llgm(const ubk_reader *rd, const uint8_t *p, uint64_t siz
       }
       np *= d;
     }
-    expect += align8(llgm_block_size(np, le_get32(h + 136), le_get32(h + 140)));
+    expect += align8(llgm_block_size(np, le_get32(h + 136), le_get32(h + 140), from == 0));
   }
   if (expect != size) {
     ubk_error(rd->log, rd->name, where, "size %llu does not match its %u models' counts",
@@ -1413,6 +1580,8 @@ static ub_result parse_llgm(const ubk_reader *rd, const uint8_t *p, uint64_t siz
     ok = cur_f32s(&c, m->center, 3) && cur_f32s(&c, m->axes, 9) &&
          cur_f32s(&c, m->half, 3) && cur_u32s(&c, m->dims, 3) &&
          cur_u32(&c, &m->vertex_count) && cur_u32(&c, &m->triangle_count);
+    if (hs == UB_LLGM_MODEL_HEADER_SHARED)
+      ok = ok && cur_u32(&c, &m->vis_shared_from) && cur_f32s(&c, m->vis_rotation, 9);
     assert(ok);
     (void)ok;
   }
@@ -1430,16 +1599,25 @@ static ub_result parse_llgm(const ubk_reader *rd, const uint8_t *p, uint64_t siz
       ubk_error(rd->log, rd->name, where, "out of memory");
       return UB_ERR_OUT_OF_MEMORY;
     }
-    uint64_t block = llgm_block_size(np, nv, m->triangle_count);
+    int own = m->vis_shared_from == 0;
+    uint64_t block = llgm_block_size(np, nv, m->triangle_count, own);
     const uint8_t *pad;
     int ok = cur_f32s(&c, m->positions, (size_t)nv * 3) &&
              cur_f32s(&c, m->normals, (size_t)nv * 3) &&
              cur_u32s(&c, m->indices, (size_t)m->triangle_count * 3) &&
              cur_halves(&c, m->probe_sh, (size_t)np * UB_GLG_SH_FLOATS) &&
-             cur_halves(&c, m->vis, (size_t)nv * 9) && cur_halves(&c, m->self, (size_t)nv * 3) &&
+             (!own || cur_halves(&c, m->vis, (size_t)nv * 9)) &&
+             cur_halves(&c, m->self, (size_t)nv * 3) &&
              cur_take(&c, (size_t)(align8(block) - block), &pad);
     assert(ok); /* guaranteed by the exact size walk above */
     (void)ok;
+    if (!own) { /* an instance: the earlier model's (already read) visibility, rotated */
+      const ub_bakefile_llg *src = &bf->llgs[m->vis_shared_from - 1];
+      float M[81];
+      ub_llg_sh_rotation(m->vis_rotation, M);
+      for (uint64_t v = 0; v < nv; v++)
+        ub_llg_sh_rotate(M, src->vis + 9 * v, m->vis + 9 * v);
+    }
   }
   return UB_OK;
 }
@@ -1592,6 +1770,8 @@ ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *nam
     r = parse_lite(&rd, known[UB_SEC_LITE], known_size[UB_SEC_LITE], bf);
   if (r == UB_OK && known[UB_SEC_LLGM])
     r = parse_llgm(&rd, known[UB_SEC_LLGM], known_size[UB_SEC_LLGM], bf);
+  if (r == UB_OK && known[UB_SEC_TRIR])
+    r = parse_trir(&rd, known[UB_SEC_TRIR], known_size[UB_SEC_TRIR], bf);
   if (r == UB_OK)
     r = validate(bf, rd.name, log);
   if (r != UB_OK) {
@@ -1684,6 +1864,7 @@ void ub_bakefile_free(ub_bakefile *bf)
     }
     free(recs);
   }
+  free(bf->tri_role);
   free(bf->lights);
   for (uint32_t i = 0; i < bf->llg_count; i++) {
     free(bf->llgs[i].probe_sh);

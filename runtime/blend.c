@@ -57,6 +57,7 @@ typedef struct blend_group {
   uint32_t receivers;
   uint32_t units;      /* runs or receivers */
   uint32_t k_mode;     /* k | GROUP_LIST */
+  uint32_t base_row;   /* UB_BLEND_OWN_BASE: the group's first row in obase */
 } blend_group;
 
 enum { KERNEL_12, KERNEL_27, KERNEL_ANY };
@@ -69,7 +70,8 @@ struct ub_blend {
   blend_decode_fn decode; /* half → float, NULL for float records */
   uint32_t touched, max_overlap, run_groups;
   uint64_t runs, memberships, data_words;
-  const float *base;
+  const float *base;     /* the caller's base, NULL with UB_BLEND_OWN_BASE */
+  float *obase;          /* UB_BLEND_OWN_BASE: touched receivers' base rows, group order */
   ub_blend_record *rec; /* copies of desc->elements */
   float *weight;        /* element_count × 3 */
   float *wexp;          /* element_count × wstride: weight[c] at every j ≡ c (mod 3) */
@@ -93,6 +95,10 @@ struct ub_blend {
   const char **scr_src;
   const float **scr_rows;
   const float **scr_w;
+  /* AVX + F16C path (chosen at create): weight patterns and member sources. */
+  int avx;
+  float *wpat;           /* max(max_overlap, 1) × 32 floats, 32-byte aligned */
+  const char **avx_src;  /* max(max_overlap, 1) */
   size_t engine_bytes, record_bytes;
 };
 
@@ -258,6 +264,165 @@ typedef struct blend_call {
   void *user;
 } blend_call;
 
+/* Base rows of a group's next unit (len receivers from r): the engine's own copy (stored
+ * in group order, so consecutive units are consecutive rows) or the caller's array. */
+BLEND_INLINE const float *unit_base(const ub_blend *b, const float **gb, uint32_t r,
+                                    uint32_t len)
+{
+  if (b->obase) {
+    const float *p = *gb;
+    *gb += (size_t)len * b->stride;
+    return p;
+  }
+  return b->base + (size_t)r * b->stride;
+}
+
+BLEND_INLINE const float *group_base(const ub_blend *b, const blend_group *g)
+{
+  return b->obase ? b->obase + (size_t)g->base_row * b->stride : NULL;
+}
+
+#if BLEND_F16C
+/* The AVX + F16C path. A run of n consecutive receivers is n·S consecutive floats in base
+ * and out and n·S consecutive values in every member's record, and since S is a multiple
+ * of 3 the weight of flat position j is ω[j mod 3]: so a run is blended as one flat array,
+ * 24 floats (3 × 8 lanes, the period of the RGB pattern) at a time, with the halves
+ * converted in registers (no decode scratch). Per element the operations are those of
+ * blend_row_*: acc = base; acc = acc + ω·v per member in id order, products and sums
+ * rounded separately (no FMA): the same bits as the SSE2 and scalar kernels. */
+#define BLEND_AVX __attribute__((target("avx,f16c")))
+#define BLEND_AVX_INLINE static inline __attribute__((always_inline, target("avx,f16c")))
+
+BLEND_AVX_INLINE __m256 avx_load8(const char *src, size_t j, const int half)
+{
+  if (half)
+    return _mm256_cvtph_ps(_mm_loadu_si128((const __m128i *)(const void *)((const uint16_t *)(const void *)src + j)));
+  return _mm256_loadu_ps((const float *)(const void *)src + j);
+}
+
+BLEND_AVX_INLINE __m128 avx_load4(const char *src, size_t j, const int half)
+{
+  if (half)
+    return _mm_cvtph_ps(_mm_loadl_epi64((const __m128i *)(const void *)((const uint16_t *)(const void *)src + j)));
+  return _mm_loadu_ps((const float *)(const void *)src + j);
+}
+
+/* o[j] = bs[j] + Σ_m wp_m[j mod 24]·src_m[j], j < nf; wp_m = wpat + 32·m. */
+BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
+                               const char *const *src, const float *wpat, const uint32_t k,
+                               const size_t nf, const int half)
+{
+  size_t j = 0;
+  for (; j + 24 <= nf; j += 24) {
+    __m256 a0 = _mm256_loadu_ps(bs + j), a1 = _mm256_loadu_ps(bs + j + 8),
+           a2 = _mm256_loadu_ps(bs + j + 16);
+    for (uint32_t m = 0; m < k; m++) {
+      const float *wp = wpat + 32 * (size_t)m;
+      a0 = _mm256_add_ps(a0, _mm256_mul_ps(_mm256_load_ps(wp), avx_load8(src[m], j, half)));
+      a1 = _mm256_add_ps(a1, _mm256_mul_ps(_mm256_load_ps(wp + 8), avx_load8(src[m], j + 8, half)));
+      a2 = _mm256_add_ps(a2, _mm256_mul_ps(_mm256_load_ps(wp + 16), avx_load8(src[m], j + 16, half)));
+    }
+    _mm256_storeu_ps(o + j, a0);
+    _mm256_storeu_ps(o + j + 8, a1);
+    _mm256_storeu_ps(o + j + 16, a2);
+  }
+  for (; j + 8 <= nf; j += 8) {
+    const size_t ph = j % 24;
+    __m256 a = _mm256_loadu_ps(bs + j);
+    for (uint32_t m = 0; m < k; m++)
+      a = _mm256_add_ps(a, _mm256_mul_ps(_mm256_loadu_ps(wpat + 32 * (size_t)m + ph),
+                                         avx_load8(src[m], j, half)));
+    _mm256_storeu_ps(o + j, a);
+  }
+  for (; j + 4 <= nf; j += 4) {
+    const size_t ph = j % 24;
+    __m128 a = _mm_loadu_ps(bs + j);
+    for (uint32_t m = 0; m < k; m++)
+      a = _mm_add_ps(a, _mm_mul_ps(_mm_loadu_ps(wpat + 32 * (size_t)m + ph),
+                                   avx_load4(src[m], j, half)));
+    _mm_storeu_ps(o + j, a);
+  }
+  for (; j < nf; j++) {
+    float acc = bs[j];
+    for (uint32_t m = 0; m < k; m++) {
+      float v = half ? ub_half_to_float(((const uint16_t *)(const void *)src[m])[j])
+                     : ((const float *)(const void *)src[m])[j];
+      float t = wpat[32 * (size_t)m + j % 24] * v;
+      acc = acc + t;
+    }
+    o[j] = acc;
+  }
+}
+
+BLEND_AVX static void avx_flat_h(float *restrict o, const float *restrict bs,
+                                 const char *const *src, const float *wpat, uint32_t k,
+                                 size_t nf)
+{
+  avx_flat(o, bs, src, wpat, k, nf, 1);
+  _mm256_zeroupper();
+}
+
+BLEND_AVX static void avx_flat_f(float *restrict o, const float *restrict bs,
+                                 const char *const *src, const float *wpat, uint32_t k,
+                                 size_t nf)
+{
+  avx_flat(o, bs, src, wpat, k, nf, 0);
+  _mm256_zeroupper();
+}
+
+static void group_blend_avx(const blend_call *c, const blend_group *g, const uint32_t *act,
+                            uint32_t k)
+{
+  const ub_blend *b = c->b;
+  const uint32_t S = b->stride, gk = g->k_mode & ~GROUP_LIST;
+  const uint32_t *mem = b->members + g->member_off;
+  const uint32_t *d = b->data + g->data_off;
+  const uint32_t *idx0 = b->rec[mem[0]].receivers;
+  const size_t rstep = (size_t)S * b->value_size;
+  void (*flat)(float *restrict, const float *restrict, const char *const *, const float *,
+               uint32_t, size_t) = b->value_size == 2 ? avx_flat_h : avx_flat_f;
+  const char **src = b->avx_src;
+  float *wpat = b->wpat;
+  for (uint32_t m = 0; m < k; m++) {
+    const float *wt = b->weight + 3 * (size_t)mem[act[m]];
+    for (int j = 0; j < 24; j++)
+      wpat[32 * (size_t)m + j] = wt[j % 3];
+  }
+  float *out = c->out;
+  const float *gb = group_base(b, g);
+  if (g->k_mode & GROUP_LIST) {
+    for (uint32_t u = 0; u < g->units; u++, d += gk) {
+      uint32_t r = idx0[d[0]];
+      for (uint32_t m = 0; m < k; m++)
+        src[m] = (const char *)b->rec[mem[act[m]]].values + (size_t)d[act[m]] * rstep;
+      float *o = out ? out + (size_t)r * S : c->scratch;
+      flat(o, unit_base(b, &gb, r, 1), src, wpat, k, S);
+      if (c->fn)
+        c->fn(c->user, r, 1, o);
+    }
+    return;
+  }
+  /* With a callback, pieces of BLEND_CHUNK receivers, so it reads them from cache. */
+  const uint32_t chunk = c->fn ? BLEND_CHUNK : UINT32_MAX;
+  for (uint32_t u = 0; u < g->units; u++, d += 1 + gk) {
+    uint32_t len = d[0], r = idx0[d[1]];
+    const float *bs = unit_base(b, &gb, r, len);
+    for (uint32_t m = 0; m < k; m++)
+      src[m] = (const char *)b->rec[mem[act[m]]].values + (size_t)d[1 + act[m]] * rstep;
+    for (uint32_t i = 0; i < len;) {
+      uint32_t n = len - i < chunk ? len - i : chunk;
+      float *o = out ? out + (size_t)(r + i) * S : c->scratch;
+      flat(o, bs + (size_t)i * S, src, wpat, k, (size_t)n * S);
+      if (c->fn)
+        c->fn(c->user, r + i, n, o);
+      for (uint32_t m = 0; m < k; m++)
+        src[m] += (size_t)n * rstep;
+      i += n;
+    }
+  }
+}
+#endif
+
 /* One group with k non-zero members act[0..k) (slots into the group's members). S and
  * (for k ≤ BLEND_SPECIALISED) k are compile-time constants at the fixed call sites. */
 BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const uint32_t *act,
@@ -275,7 +440,7 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
   const uint32_t *idx0 = b->rec[mem[0]].receivers;
   const size_t rstep = (size_t)S * b->value_size; /* record row, bytes */
   const blend_decode_fn decode = b->decode;
-  const float *base = b->base;
+  const float *gb = group_base(b, g);
   float *out = c->out;
 
   /* Receivers per chunk: bounded by the decode scratch (half) and the streaming scratch. */
@@ -300,10 +465,11 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
         }
       }
       float *o = out ? out + (size_t)r * S : c->scratch;
+      const float *bs = unit_base(b, &gb, r, 1);
       if (fixed)
-        blend_row_fixed(o, base + (size_t)r * S, rows, w, k, S);
+        blend_row_fixed(o, bs, rows, w, k, S);
       else
-        blend_row_any(o, base + (size_t)r * S, rows, w, k, S);
+        blend_row_any(o, bs, rows, w, k, S);
       if (c->fn)
         c->fn(c->user, r, 1, o);
     }
@@ -311,7 +477,7 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
   }
   for (uint32_t u = 0; u < g->units; u++, d += 1 + gk) {
     uint32_t len = d[0], r = idx0[d[1]];
-    const float *bs = base + (size_t)r * S;
+    const float *bs = unit_base(b, &gb, r, len);
     for (uint32_t m = 0; m < k; m++)
       src[m] = (const char *)b->rec[mem[act[m]]].values + (size_t)d[1 + act[m]] * rstep;
     for (uint32_t i = 0; i < len;) {
@@ -379,10 +545,11 @@ static void group_copy_base(const blend_call *c, const blend_group *g)
   const uint32_t *d = b->data + g->data_off;
   const uint32_t *idx0 = b->rec[b->members[g->member_off]].receivers;
   const int list = (g->k_mode & GROUP_LIST) != 0;
+  const float *gb = group_base(b, g);
   for (uint32_t u = 0; u < g->units; u++) {
     uint32_t len = list ? 1 : d[0];
     uint32_t r = idx0[list ? d[0] : d[1]];
-    const float *bs = b->base + (size_t)r * S;
+    const float *bs = unit_base(b, &gb, r, len);
     if (c->out)
       memcpy(c->out + (size_t)r * S, bs, (size_t)len * S * sizeof(float));
     if (c->fn) /* streaming: the base rows are the result, no copy */
@@ -405,6 +572,10 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
       act[k++] = m;
   if (k == 0)
     group_copy_base(c, g);
+#if BLEND_F16C
+  else if (b->avx)
+    group_blend_avx(c, g, act, k);
+#endif
   else
     group_blend(c, g, act, k);
 
@@ -582,6 +753,7 @@ void ub_blend_free(ub_blend *b)
   free(b->dirty);
   free(b->dirty_list);
   free(b->groups);
+  free(b->obase);
   free(b->members);
   free(b->data);
   free(b->elem_off);
@@ -591,6 +763,8 @@ void ub_blend_free(ub_blend *b)
   free(b->scratch);
   free(b->dec);
   free(b->scr_act);
+  free(b->wpat);
+  free((void *)b->avx_src);
   free((void *)b->scr_src);
   free((void *)b->scr_rows);
   free((void *)b->scr_w);
@@ -859,6 +1033,7 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
     bg->receivers = n;
     bg->units = list ? n : runs;
     bg->k_mode = k | (list ? GROUP_LIST : 0);
+    bg->base_row = 0;
     words += list ? (uint64_t)n * k : (uint64_t)runs * (k + 1);
     if (!list) {
       b->run_groups++;
@@ -888,6 +1063,21 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
     }
     assert(w == b->data + bg->data_off + (bg->k_mode & GROUP_LIST ? (uint64_t)n * k
                                                                    : (uint64_t)bg->units * (k + 1)));
+  }
+
+  /* 4b. UB_BLEND_OWN_BASE: the touched receivers' base rows, in group order. */
+  if (d->flags & UB_BLEND_OWN_BASE) {
+    b->obase = alloc_n((size_t)T * b->stride, sizeof(float), acc);
+    if (!b->obase)
+      return UB_ERR_OUT_OF_MEMORY;
+    uint32_t row = 0;
+    for (uint32_t g = 0; g < G; g++) {
+      b->groups[g].base_row = row;
+      const uint32_t *rs = t->order + t->g_start[g];
+      for (uint32_t i = 0; i < t->g_n[g]; i++, row++)
+        memcpy(b->obase + (size_t)row * b->stride, d->base + (size_t)rs[i] * b->stride,
+               (size_t)b->stride * sizeof(float));
+    }
   }
 
   /* 5. Element → groups holding it (ascending group id). */
@@ -920,6 +1110,16 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
     if (!b->dec)
       return UB_ERR_OUT_OF_MEMORY;
   }
+#if BLEND_F16C
+  if (b->avx) {
+    size_t na = maxk ? maxk : 1;
+    b->wpat = aligned_alloc(32, na * 32 * sizeof(float));
+    b->avx_src = alloc_n(na, sizeof(char *), acc);
+    if (!b->wpat || !b->avx_src)
+      return UB_ERR_OUT_OF_MEMORY;
+    *acc += na * 32 * sizeof(float);
+  }
+#endif
   b->scr_act = alloc_n(sk, sizeof(uint32_t), acc);
   b->scr_src = alloc_n(sk, sizeof(char *), acc);
   b->scr_rows = alloc_n(sk, sizeof(float *), acc);
@@ -952,6 +1152,9 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
   b->value_size = desc->storage == UB_BLEND_FLOAT16 ? 2 : 4;
   b->kernel = S == 12 ? KERNEL_12 : S == 27 ? KERNEL_27 : KERNEL_ANY;
   b->decode = b->value_size == 2 ? pick_decoder((desc->flags & UB_BLEND_PORTABLE) != 0) : NULL;
+#if BLEND_F16C
+  b->avx = !(desc->flags & UB_BLEND_PORTABLE) && cpu_has_f16c();
+#endif
   b->base = desc->base;
   b->memberships = memberships;
   b->record_bytes = memberships * (sizeof(uint32_t) + (uint64_t)S * b->value_size);
@@ -981,6 +1184,8 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
 
   if (out_values && desc->receiver_count)
     memcpy(out_values, desc->base, (size_t)desc->receiver_count * S * sizeof(float));
+  if (desc->flags & UB_BLEND_OWN_BASE)
+    b->base = NULL; /* never read again: the caller may free it */
   *out_blend = b;
   return UB_OK;
 

@@ -25,9 +25,12 @@
  * (one length + one record position per member per run) or, when runs are short, as a
  * list (one record position per member per receiver); the receiver index itself is read
  * from the first member's record. Kernels are specialised for the stride (12, 27, other)
- * and 1..8 non-zero members; a generic kernel takes any count. Half records are decoded
- * exactly to float (F16C when the CPU has it, else SSE2 bit operations) a chunk of
- * consecutive receivers at a time into an L1 scratch, then blended in float. A group
+ * and 1..8 non-zero members; a generic kernel takes any count. On a CPU with AVX and
+ * F16C (checked at create, unless UB_BLEND_PORTABLE) one kernel blends each run of
+ * consecutive receivers as a flat array, 8 lanes at a time, converting half records in
+ * registers; otherwise half records are decoded exactly to float (SSE2 bit operations) a
+ * chunk of consecutive receivers at a time into an L1 scratch, then blended in float.
+ * Every path does the same float operations per value, so they give the same bits. A group
  * whose weights are all 0 copies base rows (the "light off" fast path). Elements with
  * weight 0 are skipped, so a receiver's value depends only on the current weights, never
  * on the update history: setting weights back gives bit-identical output.
@@ -37,9 +40,9 @@
  * Lifecycle: ub_blend_create() → { ub_blend_set_weight()…, ub_blend_update() }… →
  * ub_blend_free() (NULL-safe). On failure nothing is allocated, *out_blend and
  * out_values are left untouched.
- * Ownership: the engine BORROWS base and every record's receivers/values: they must stay
- * valid and unchanged until ub_blend_free(). The desc and its elements array are copied
- * (pointers only) and may be freed after create. The out array is the caller's; pass
+ * Ownership: the engine BORROWS base (unless UB_BLEND_OWN_BASE) and every record's
+ * receivers/values: they must stay valid and unchanged until ub_blend_free(). The desc
+ * and its elements array are copied (pointers only) and may be freed after create. The out array is the caller's; pass
  * the same array to every update (to fill a new one: copy base, then ub_blend_update_all),
  * or always NULL (streaming).
  * Floating point: updates run with FTZ/DAZ cleared (restored on return), so results do not
@@ -64,7 +67,14 @@ extern "C" {
 #define UB_BLEND_MAX_STRIDE 48
 
 /* desc.flags */
-#define UB_BLEND_PORTABLE 1u /* baseline kernels only (no F16C half decode): for tests */
+#define UB_BLEND_PORTABLE 1u /* baseline kernels only (no AVX/F16C): for tests */
+/* The engine keeps its own copy of the base rows of the receivers some element touches
+ * (in group order, so a group's base rows are read as one stream) and never reads
+ * desc->base after create: the caller may free it. The rows no element touches are the
+ * caller's out array, set to base at create and never written again, so base and
+ * current share them. Memory: touched × stride × 4 bytes instead of receiver_count ×
+ * stride × 4 (ESTATE-like: 36% of texels touched). Same results, bit for bit. */
+#define UB_BLEND_OWN_BASE 2u
 
 typedef enum ub_blend_storage {
   UB_BLEND_FLOAT32 = 0, /* record values are float */
@@ -85,7 +95,7 @@ typedef struct ub_blend_desc {
   ub_blend_storage storage;  /* of every record's values */
   uint32_t element_count;
   const ub_blend_record *elements; /* element_count records; element id = index */
-  uint32_t flags;            /* 0, or UB_BLEND_PORTABLE */
+  uint32_t flags;            /* 0, or UB_BLEND_PORTABLE | UB_BLEND_OWN_BASE */
 } ub_blend_desc;
 
 /* Counters of one update (all for that call only). */

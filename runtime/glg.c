@@ -9,6 +9,10 @@
 
 #include "ubake/sh.h"
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 /* One cache line per walk step: λ1..3 = m·(p − o), λ0 = 1 − Σ; nb[i] ≥ 0 is the tet
  * opposite corner i, nb[i] < 0 is hull face −nb[i] − 1. Ill-conditioned and singular
  * tets have m = 0 (so λ = (1,0,0,0) "accepts" them) and are resolved by tet_flags. */
@@ -70,6 +74,13 @@ static void d3cross(const double a[3], const double b[3], double o[3])
   o[2] = z;
 }
 
+/* Minimum of four finite floats, inline (fminf is a libm call at -O2 on x86-64). */
+static inline float min4f(const float l[4])
+{
+  float a = l[0] < l[1] ? l[0] : l[1], b = l[2] < l[3] ? l[2] : l[3];
+  return a < b ? a : b;
+}
+
 static const float *probe_pos(const ub_glg *g, uint32_t i)
 {
   return g->positions + 3 * (size_t)i;
@@ -114,7 +125,7 @@ static int tet_bary_double(const ub_glg *g, uint32_t t, const float p[3], double
 }
 
 /* Clamp to [0, 1] and renormalise; a zero sum gives the centroid. */
-static void bary_finish(float l[4])
+static inline void bary_finish(float l[4])
 {
   float s = 0.0f;
   for (int i = 0; i < 4; i++) {
@@ -404,7 +415,7 @@ static float tet_min_bary(const ub_glg *g, uint32_t t, const float p[3])
   } else {
     rec_bary(&g->tet_data[t], p, l);
   }
-  return fminf(fminf(l[0], l[1]), fminf(l[2], l[3]));
+  return min4f(l);
 }
 
 static uint32_t brute_locate(const ub_glg *g, const float p[3], float bary[4],
@@ -426,7 +437,7 @@ static uint32_t brute_locate(const ub_glg *g, const float p[3], float bary[4],
     } else {
       rec_bary(&g->tet_data[t], p, l);
     }
-    float mn = fminf(fminf(l[0], l[1]), fminf(l[2], l[3]));
+    float mn = min4f(l);
     if (mn > best_min) {
       best_min = mn;
       best_t = t;
@@ -461,9 +472,20 @@ static uint32_t walk(const ub_glg *g, const float p[3], uint32_t t, float bary[4
     if (info)
       info->steps++;
     const struct ub_glg_tet *r = &g->tet_data[t];
+#if defined(__GNUC__)
+    /* This tet may be the answer: start loading what the interpolation reads of it
+     * (corners, flag, leak plane) while its walk record arrives (random queries are
+     * bound by these dependent cache misses). */
+    __builtin_prefetch(g->tets + 4 * (size_t)t);
+    __builtin_prefetch(g->tet_flags + t);
+    if (g->leak_plane_of) {
+      __builtin_prefetch(g->leak_plane_of + t);
+      __builtin_prefetch(g->leak_drop + t);
+    }
+#endif
     float l[4];
     rec_bary(r, p, l);
-    float mn = fminf(fminf(l[0], l[1]), fminf(l[2], l[3]));
+    float mn = min4f(l);
     if (mn >= -GLG_EPS) {
       uint8_t fl = g->tet_flags[t];
       if (!fl) {
@@ -499,7 +521,7 @@ static uint32_t walk(const ub_glg *g, const float p[3], uint32_t t, float bary[4
       }
       for (int i = 0; i < 4; i++)
         l[i] = (float)ld[i];
-      mn = fminf(fminf(l[0], l[1]), fminf(l[2], l[3]));
+      mn = min4f(l);
       if (mn >= -GLG_EPS) {
         memcpy(bary, l, sizeof l);
         bary_finish(bary);
@@ -610,6 +632,21 @@ uint32_t ub_glg_locate_ex(const ub_glg *g, const float p[3], uint32_t *inout_tet
     return cache == GLG_NONE ? 0 : cache;
   }
   uint32_t start = cache;
+  if (start != GLG_NONE && !g->tet_flags[start]) {
+    /* Still inside the cached tet (the common case for a moving object): done. Tets can
+     * be much larger than a start-grid cell, so this comes before the distance test. */
+    float l[4];
+    rec_bary(&g->tet_data[start], p, l);
+    if (min4f(l) >= -GLG_EPS) {
+      if (info)
+        info->steps = 1;
+      memcpy(out_bary, l, sizeof l);
+      bary_finish(out_bary);
+      if (inout_tet_cache)
+        *inout_tet_cache = start;
+      return start;
+    }
+  }
   if (g->start_grid) {
     int far = 1;
     if (start != GLG_NONE) {
@@ -640,46 +677,82 @@ uint32_t ub_glg_locate(const ub_glg *g, const float p[3], uint32_t *inout_tet_ca
 
 /* ---- interpolation ------------------------------------------------------------------ */
 
+/* Leak-control weights for tet t at p: w = λ·vis·side, renormalised (plain λ when all 0).
+ * The side of each corner w.r.t. the tet's leak plane is precomputed at init
+ * (leak_drop: bit i = corner i is dropped when p is on the + side, bit 4 + i when on the
+ * − side), so only p's side is evaluated here; the same float expressions as evaluating
+ * it at the query, so the same bits. */
+static inline void leak_weights(const ub_glg *g, uint32_t t, const float p[3], float w[4])
+{
+  uint32_t pl = g->leak_plane_of ? g->leak_plane_of[t] : UB_GLG_NO_LEAK_PLANE;
+  if (!g->corner_visible && pl == UB_GLG_NO_LEAK_PLANE)
+    return;
+  float vw[4] = {w[0], w[1], w[2], w[3]}, s = 0.0f;
+  if (g->corner_visible) {
+    const uint8_t *vis = g->corner_visible + 4 * (size_t)t;
+    for (int i = 0; i < 4; i++)
+      vw[i] *= (float)vis[i];
+  }
+  if (pl != UB_GLG_NO_LEAK_PLANE && isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2])) {
+    const float *n = g->leak_planes + 4 * (size_t)pl;
+    float sp = n[0] * p[0] + n[1] * p[1] + n[2] * p[2] + n[3];
+    unsigned drop = g->leak_drop[t] >> (sp >= 0.0f ? 0 : 4);
+    for (int i = 0; i < 4; i++)
+      if (drop >> i & 1u)
+        vw[i] = 0.0f;
+  }
+  for (int i = 0; i < 4; i++)
+    s += vw[i];
+  if (s > 0.0f) {
+    float inv = 1.0f / s;
+    for (int i = 0; i < 4; i++)
+      w[i] = vw[i] * inv;
+  }
+}
+
+/* out = Σ w_i·sh(v_i) over the four corners (a zero weight adds exactly 0). */
+static inline void interp4(const ub_glg *g, const uint32_t v[4], const float w[4],
+                           float out[27])
+{
+  const float *s0 = g->sh + 27 * (size_t)v[0], *s1 = g->sh + 27 * (size_t)v[1],
+              *s2 = g->sh + 27 * (size_t)v[2], *s3 = g->sh + 27 * (size_t)v[3];
+#if defined(__SSE2__)
+  const __m128 w0 = _mm_set1_ps(w[0]), w1 = _mm_set1_ps(w[1]), w2 = _mm_set1_ps(w[2]),
+               w3 = _mm_set1_ps(w[3]);
+  for (int k = 0; k < 24; k += 4) {
+    __m128 a = _mm_mul_ps(w0, _mm_loadu_ps(s0 + k));
+    a = _mm_add_ps(a, _mm_mul_ps(w1, _mm_loadu_ps(s1 + k)));
+    a = _mm_add_ps(a, _mm_mul_ps(w2, _mm_loadu_ps(s2 + k)));
+    a = _mm_add_ps(a, _mm_mul_ps(w3, _mm_loadu_ps(s3 + k)));
+    _mm_storeu_ps(out + k, a);
+  }
+  for (int k = 24; k < 27; k++)
+    out[k] = w[0] * s0[k] + w[1] * s1[k] + w[2] * s2[k] + w[3] * s3[k];
+#else
+  for (int k = 0; k < 27; k++)
+    out[k] = w[0] * s0[k] + w[1] * s1[k] + w[2] * s2[k] + w[3] * s3[k];
+#endif
+}
+
 void ub_glg_sample(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
                    float out_sh[27])
 {
   float w[4];
-  uint32_t t = ub_glg_locate_ex(g, p, inout_tet_cache, w, NULL);
-  const uint32_t *v = g->tets + 4 * (size_t)t;
-  uint32_t pl = g->leak_plane_of ? g->leak_plane_of[t] : UB_GLG_NO_LEAK_PLANE;
-  if (g->corner_visible || pl != UB_GLG_NO_LEAK_PLANE) {
-    float vw[4] = {w[0], w[1], w[2], w[3]}, s = 0.0f;
-    if (g->corner_visible) {
-      const uint8_t *vis = g->corner_visible + 4 * (size_t)t;
-      for (int i = 0; i < 4; i++)
-        vw[i] *= (float)vis[i];
-    }
-    if (pl != UB_GLG_NO_LEAK_PLANE && isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2])) {
-      const float *n = g->leak_planes + 4 * (size_t)pl;
-      float sp = n[0] * p[0] + n[1] * p[1] + n[2] * p[2] + n[3];
-      for (int i = 0; i < 4; i++) {
-        const float *x = probe_pos(g, v[i]);
-        float si = n[0] * x[0] + n[1] * x[1] + n[2] * x[2] + n[3];
-        if (sp >= 0.0f ? si < 0.0f : si > 0.0f)
-          vw[i] = 0.0f;
-      }
-    }
-    for (int i = 0; i < 4; i++)
-      s += vw[i];
-    if (s > 0.0f) {
-      float inv = 1.0f / s;
-      for (int i = 0; i < 4; i++)
-        w[i] = vw[i] * inv;
+  uint32_t t = inout_tet_cache ? *inout_tet_cache : GLG_NONE;
+  /* Fast path, the same answer as ub_glg_locate's first test: p (finite) still inside
+   * the cached, well-shaped tet. */
+  int hit = 0;
+  if (t < g->tet_count && !g->tet_flags[t] && isfinite(p[0] + p[1] + p[2])) {
+    rec_bary(&g->tet_data[t], p, w);
+    if (min4f(w) >= -GLG_EPS) {
+      bary_finish(w);
+      hit = 1;
     }
   }
-  memset(out_sh, 0, 27 * sizeof(float));
-  for (int i = 0; i < 4; i++) {
-    if (!(w[i] > 0.0f))
-      continue;
-    const float *s = g->sh + 27 * (size_t)v[i];
-    for (int k = 0; k < 27; k++)
-      out_sh[k] += w[i] * s[k];
-  }
+  if (!hit)
+    t = ub_glg_locate_ex(g, p, inout_tet_cache, w, NULL);
+  leak_weights(g, t, p, w);
+  interp4(g, g->tets + 4 * (size_t)t, w, out_sh);
 }
 
 void ub_glg_query(const ub_glg *g, const float p[3], const float n[3],
@@ -696,10 +769,26 @@ void ub_glg_query(const ub_glg *g, const float p[3], const float n[3],
     return;
   }
   float inv = 1.0f / sqrtf(l2);
-  float nn[3] = {n[0] * inv, n[1] * inv, n[2] * inv};
-  ub_sh2_irradiance(sh, nn, out_rgb);
-  for (int c = 0; c < 3; c++)
-    out_rgb[c] = out_rgb[c] > 0.0f ? out_rgb[c] : 0.0f;
+  float x = n[0] * inv, y = n[1] * inv, z = n[2] * inv;
+  /* ub_sh2_irradiance inline: the band factor times the basis, then 9 × RGB products. */
+  const float c[9] = {UB_SH_A0 * 0.282094791773878f,
+                      UB_SH_A1 * 0.488602511902920f * y,
+                      UB_SH_A1 * 0.488602511902920f * z,
+                      UB_SH_A1 * 0.488602511902920f * x,
+                      UB_SH_A2 * 1.092548430592079f * x * y,
+                      UB_SH_A2 * 1.092548430592079f * y * z,
+                      UB_SH_A2 * 0.315391565252520f * (3.0f * z * z - 1.0f),
+                      UB_SH_A2 * 1.092548430592079f * x * z,
+                      UB_SH_A2 * 0.546274215296040f * (x * x - y * y)};
+  float e0 = 0.0f, e1 = 0.0f, e2 = 0.0f;
+  for (int k = 0; k < 9; k++) {
+    e0 += c[k] * sh[3 * k];
+    e1 += c[k] * sh[3 * k + 1];
+    e2 += c[k] * sh[3 * k + 2];
+  }
+  out_rgb[0] = e0 > 0.0f ? e0 : 0.0f;
+  out_rgb[1] = e1 > 0.0f ? e1 : 0.0f;
+  out_rgb[2] = e2 > 0.0f ? e2 : 0.0f;
 }
 
 ub_result ub_glg_resample_llg(const ub_glg *g, const float center[3], const float axes[9],
@@ -1048,6 +1137,28 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
       h++;
     }
   }
+  if (g->leak_plane_of) {
+    /* Each corner's side of its tet's leak plane (see leak_weights). */
+    g->leak_drop = calloc(d->tet_count, 1);
+    if (!g->leak_drop) {
+      res = UB_ERR_OUT_OF_MEMORY;
+      goto fail;
+    }
+    for (uint32_t t = 0; t < d->tet_count; t++) {
+      uint32_t pl = g->leak_plane_of[t];
+      if (pl == UB_GLG_NO_LEAK_PLANE)
+        continue;
+      const float *n = g->leak_planes + 4 * (size_t)pl;
+      unsigned bits = 0;
+      for (int i = 0; i < 4; i++) {
+        const float *x = probe_pos(g, d->tets[4 * (size_t)t + i]);
+        float si = n[0] * x[0] + n[1] * x[1] + n[2] * x[2] + n[3];
+        bits |= (si < 0.0f ? 1u : 0u) << i;       /* dropped when p is on the + side */
+        bits |= (si > 0.0f ? 1u : 0u) << (4 + i); /* dropped when p is on the − side */
+      }
+      g->leak_drop[t] = (uint8_t)bits;
+    }
+  }
   res = build_hull_adjacency(g, log);
   if (res != UB_OK)
     goto fail;
@@ -1073,6 +1184,7 @@ void ub_glg_release(ub_glg *g)
     return;
   free(g->tet_data);
   free(g->tet_flags);
+  free(g->leak_drop);
   free(g->hull);
   free(g->start_grid);
   memset(g, 0, sizeof *g);
@@ -1083,6 +1195,6 @@ size_t ub_glg_owned_bytes(const ub_glg *g)
   if (!g || !g->tet_data)
     return 0;
   size_t cells = (size_t)g->grid_dim[0] * g->grid_dim[1] * g->grid_dim[2];
-  return (size_t)g->tet_count * (sizeof(struct ub_glg_tet) + 1) +
+  return (size_t)g->tet_count * (sizeof(struct ub_glg_tet) + 1 + (g->leak_drop ? 1 : 0)) +
          (size_t)g->hull_count * sizeof(struct ub_glg_hull) + cells * sizeof(uint32_t);
 }

@@ -70,6 +70,40 @@ static const tp_entry ub_llg_tp[] = {
   {8, 8, 6, -0.180223752f},
 };
 
+void ub_llg_sh_rotation(const float R[9], float out_M[81])
+{
+  /* icosahedron vertices (0, ±1, ±φ) and cyclic permutations, normalised */
+  const double phi = 1.6180339887498949, inv = 1.0 / sqrt(1.0 + phi * phi);
+  double acc[81] = {0};
+  for (int i = 0; i < 12; i++) {
+    double a = (i & 1) ? -1.0 : 1.0, b = (i & 2) ? -phi : phi, e[3];
+    int rot = i >> 2; /* 0, 1, 2: cyclic position */
+    e[rot] = 0.0;
+    e[(rot + 1) % 3] = a * inv;
+    e[(rot + 2) % 3] = b * inv;
+    float d[3] = {(float)e[0], (float)e[1], (float)e[2]}, rd[3], yd[9], yr[9];
+    for (int k = 0; k < 3; k++) /* Rᵀ d */
+      rd[k] = (float)((double)R[k] * e[0] + (double)R[3 + k] * e[1] + (double)R[6 + k] * e[2]);
+    ub_sh2_eval_basis(d, yd);
+    ub_sh2_eval_basis(rd, yr);
+    for (int k = 0; k < 9; k++)
+      for (int j = 0; j < 9; j++)
+        acc[9 * k + j] += (double)yd[k] * yr[j];
+  }
+  for (int k = 0; k < 81; k++)
+    out_M[k] = (float)(acc[k] * (4.0 * M_PI / 12.0));
+}
+
+void ub_llg_sh_rotate(const float M[81], const float in[9], float out[9])
+{
+  for (int k = 0; k < 9; k++) {
+    float s = 0.0f;
+    for (int j = 0; j < 9; j++)
+      s += M[9 * k + j] * in[j];
+    out[k] = s;
+  }
+}
+
 void ub_llg_sh_product(const float L[27], const float V[9], float out[27])
 {
   memset(out, 0, 27 * sizeof *out);

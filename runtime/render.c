@@ -578,8 +578,23 @@ ub_result ub_renderer_create(const ub_runtime *rt, const ub_log *log, ub_rendere
   r->rt = rt;
   r->bf = bf;
   r->has_glg = ub_runtime_glg(rt) != NULL;
-  ub_result res = ub_bvh_build(bf->positions, bf->vertex_count, bf->indices,
+  /* Triangles the state hides (door leaves, objects) become degenerate: never hit. */
+  uint32_t *idx = NULL;
+  if (bf->tri_role) {
+    idx = malloc(((size_t)bf->triangle_count * 3 + 1) * sizeof *idx);
+    if (!idx) {
+      ub_renderer_free(r);
+      goto oom;
+    }
+    for (uint32_t t = 0; t < bf->triangle_count; t++) {
+      int shown = ub_runtime_triangle_shown(rt, t);
+      for (int k = 0; k < 3; k++)
+        idx[3 * (size_t)t + k] = bf->indices[3 * (size_t)t + (shown ? k : 0)];
+    }
+  }
+  ub_result res = ub_bvh_build(bf->positions, bf->vertex_count, idx ? idx : bf->indices,
                                bf->triangle_count, &r->bvh);
+  free(idx);
   if (res == UB_ERR_OUT_OF_MEMORY) {
     ub_renderer_free(r);
     goto oom;

@@ -274,9 +274,13 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   bd.storage = UB_BLEND_FLOAT32;
   bd.element_count = n;
   bd.elements = rt->lm_rec;
+  bd.flags = UB_BLEND_OWN_BASE; /* keeps only the touched texels' base rows */
   ub_result r = ub_blend_create(&bd, log, rt->lm_cur, &rt->lm_blend);
   if (r != UB_OK)
     return r;
+  free(rt->lm_base);
+  rt->lm_base = NULL;
+  bd.flags = 0; /* the GLG base is the bakefile's array, kept anyway */
   if (rt->has_glg) {
     bd.name = "GLG probes";
     bd.receiver_count = bf->glg_probe_count;
@@ -481,6 +485,31 @@ ub_result ub_runtime_set_element(ub_runtime *rt, uint32_t element, float value)
     return UB_ERR_INVALID_ARGUMENT;
   const float rgb[3] = {value, value, value};
   return set_value(rt, rt->bf->dls_count + element, rgb);
+}
+
+ub_result ub_runtime_element_value(const ub_runtime *rt, uint32_t element, float *out_value)
+{
+  assert(rt && out_value);
+  if (element >= rt->bf->elem_count || rt->bf->elems[element].kind == UB_ELEMENT_COMBO ||
+      !rt->value)
+    return UB_ERR_INVALID_ARGUMENT;
+  *out_value = rt->value[3 * ((size_t)rt->bf->dls_count + element)];
+  return UB_OK;
+}
+
+int ub_runtime_triangle_shown(const ub_runtime *rt, uint32_t t)
+{
+  assert(rt);
+  const ub_bakefile *bf = rt->bf;
+  if (!bf->tri_role || t >= bf->triangle_count || !bf->tri_role[t])
+    return 1;
+  uint32_t role = bf->tri_role[t] >> 24;
+  float v;
+  if (ub_runtime_element_value(rt, bf->tri_role[t] & 0xFFFFFFu, &v) != UB_OK)
+    return role != UB_TRI_ROLE_DOOR_OPEN; /* as baked */
+  if (role == UB_TRI_ROLE_DOOR_CLOSED)
+    return v < 0.5f;
+  return v >= 0.5f;
 }
 
 float ub_runtime_door_fraction(float a)

@@ -813,14 +813,14 @@ static void test_writer_errors(void)
   bf->atlases[0].sh[5] = 1.0f;
   if (bf->glg_probe_count) {
     float keep = bf->glg_sh[0];
-    bf->glg_sh[0] = 1e6f;
+    bf->glg_sh[0] = 1e6f; /* scaled like the atlases since format 2: no clamp */
     cap.last[0] = 0;
     ASSERT_OK(ub_bakefile_write(bf, p, &log));
-    ASSERT_TRUE(strstr(cap.last, "clamped") != NULL);
+    ASSERT_TRUE(strstr(cap.last, "clamped") == NULL);
     rd = NULL;
     ASSERT_OK(ub_bakefile_read(p, NULL, &rd));
     if (rd)
-      ASSERT_TRUE(rd->glg_sh[0] == UB_HALF_MAX);
+      ASSERT_NEAR(rd->glg_sh[0], 1e6, 0.0, 1.0 / 2048.0);
     ub_bakefile_free(rd);
     bf->glg_sh[0] = keep;
   }
@@ -1010,6 +1010,42 @@ static void remove_tree(const char *dir)
   rmdir(dir);
 }
 
+/* Probe and record SH far beyond the half range (a sun of 1e6 W/m²) round-trip within
+ * half precision (2^-11 relative, 1e-3 with margin) thanks to the sections' power-of-two
+ * scales, instead of clamping at 65504. */
+static void test_bright_sections(void)
+{
+  ub_bakefile *bf = make_sample();
+  for (int i = 0; i < 5 * 27; i++)
+    bf->glg_sh[i] = (i % 2 ? 1.0f : -1.0f) * (float)(1e6 * (1 + i % 7));
+  bf->dls_count = 1;
+  bf->dls = calloc(1, sizeof *bf->dls);
+  ub_bakefile_record *r = &bf->dls[0];
+  snprintf(r->name, sizeof r->name, "sun");
+  r->parent[0] = r->parent[1] = -1;
+  r->probe_count = 2;
+  r->probe_index = malloc(2 * sizeof(uint32_t));
+  r->probe_index[0] = 1;
+  r->probe_index[1] = 4;
+  r->probe_sh = malloc(2 * 27 * sizeof(float));
+  for (int i = 0; i < 54; i++)
+    r->probe_sh[i] = (float)(3e5 + 1e4 * i);
+  char path[1200];
+  snprintf(path, sizeof path, "%s/bright.ubk", tmp_dir);
+  ASSERT_OK(ub_bakefile_write(bf, path, NULL));
+  ub_bakefile *rd = NULL;
+  ASSERT_OK(ub_bakefile_read(path, NULL, &rd));
+  if (rd) {
+    for (int i = 0; i < 5 * 27; i++)
+      ASSERT_NEAR(rd->glg_sh[i], bf->glg_sh[i], 0, 1e-3);
+    ASSERT_TRUE(rd->dls_count == 1);
+    for (int i = 0; rd->dls_count == 1 && i < 54; i++)
+      ASSERT_NEAR(rd->dls[0].probe_sh[i], r->probe_sh[i], 0, 1e-3);
+  }
+  ub_bakefile_free(rd);
+  ub_bakefile_free(bf);
+}
+
 int main(void)
 {
   const char *base = getenv("TMPDIR");
@@ -1023,6 +1059,7 @@ int main(void)
   test_hostile();
   test_writer_errors();
   test_runtime();
+  test_bright_sections();
   const char *corpus = getenv("UB_WRITE_FUZZ_CORPUS");
   if (corpus)
     write_corpus(corpus);

@@ -416,6 +416,18 @@ static void scenario(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, in
   ub_blend_desc dp = d;
   dp.flags = UB_BLEND_PORTABLE;
   ASSERT_OK(ub_blend_create(&dp, NULL, streamed, &bs));
+  /* A third engine with UB_BLEND_OWN_BASE, created from a copy of base that is poisoned
+   * (NaN) right after create: it must never read it again and give out's bits. */
+  float *own_out = malloc(sizeof(float) * nf), *base_copy = malloc(sizeof(float) * nf);
+  memcpy(base_copy, p.base, sizeof(float) * nf);
+  ub_blend *bo = NULL;
+  ub_blend_desc dow = d;
+  dow.base = base_copy;
+  dow.flags = UB_BLEND_OWN_BASE;
+  ASSERT_OK(ub_blend_create(&dow, NULL, own_out, &bo));
+  for (size_t i = 0; i < nf; i++)
+    base_copy[i] = NAN;
+  int bad_own = 0;
   uint8_t *changed = calloc(E, 1), *expect = calloc(R, 1);
   touch_log tl = {calloc(R, 1), 0, S, out, NULL, 0};
   touch_log ts = {calloc(R, 1), 0, S, NULL, streamed, 0};
@@ -439,6 +451,8 @@ static void scenario(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, in
       set_w(&p, b, e, rgb[0], rgb[1], rgb[2]);
       if (bs)
         ASSERT_OK(ub_blend_set_weight(bs, e, rgb));
+      if (bo)
+        ASSERT_OK(ub_blend_set_weight(bo, e, rgb));
     }
     memset(expect, 0, R);
     uint64_t nexp = 0;
@@ -471,11 +485,26 @@ static void scenario(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, in
         bad = 1; /* a row nobody reported changed */
     }
     bad_updates += bad;
+    if (bo) {
+      ub_blend_update(bo, NULL, NULL, own_out, NULL);
+      bad_own += memcmp(own_out, out, sizeof(float) * nf) != 0;
+    }
     for (int i = 0; i < 300; i++)
       bad_values += !check_receiver(&p, out, rnd_below(R));
   }
   ASSERT_TRUE(bad_updates == 0);
   ASSERT_TRUE(bad_values == 0);
+  ASSERT_TRUE(bo != NULL && bad_own == 0);
+  if (bo) { /* all off: the touched rows come back from the engine's copy, bit for bit */
+    float z[3] = {0, 0, 0};
+    for (uint32_t e = 0; e < E; e++)
+      ASSERT_OK(ub_blend_set_weight(bo, e, z));
+    ub_blend_update(bo, NULL, NULL, own_out, NULL);
+    ASSERT_TRUE(memcmp(own_out, p.base, sizeof(float) * nf) == 0);
+  }
+  ub_blend_free(bo);
+  free(own_out);
+  free(base_copy);
   ASSERT_TRUE(tl.rows_bad == 0);
   ASSERT_TRUE(bs != NULL);
   ub_blend_free(bs);

@@ -96,6 +96,12 @@ int main(void)
   copy_record(&bf->dls[0], &el[4], UB_ELEMENT_COMBO, "crate*barrel", 3, 4);
   bf->elems = el;
   bf->elem_count = 5;
+  /* Triangle roles: triangle 0 the door's closed leaf, 1 its open pose, 2 the crate. */
+  uint32_t *role = calloc(bf->triangle_count, sizeof *role);
+  role[0] = (UB_TRI_ROLE_DOOR_CLOSED << 24) | 0;
+  role[1] = (UB_TRI_ROLE_DOOR_OPEN << 24) | 0;
+  role[2] = (UB_TRI_ROLE_OBJECT << 24) | 1;
+  bf->tri_role = role;
   snprintf(path, sizeof path, "%s/elements.ubk", dir);
   snprintf(bad, sizeof bad, "%s/elements_bad.ubk", dir);
   ASSERT_OK(ub_bakefile_write(bf, path, NULL));
@@ -134,6 +140,20 @@ int main(void)
     ASSERT_NEAR(ub_runtime_door_fraction(0.0f), 0.0, 1e-7, 0);
     ASSERT_NEAR(ub_runtime_door_fraction((float)M_PI / 3), 0.5, 1e-6, 0);
     ASSERT_NEAR(ub_runtime_door_fraction(2.0f), 1.0, 0, 0);
+    /* Which triangles the state shows. */
+    ASSERT_TRUE(ub_runtime_triangle_shown(rt, 0) && !ub_runtime_triangle_shown(rt, 1) &&
+                ub_runtime_triangle_shown(rt, 2) && ub_runtime_triangle_shown(rt, 3));
+    ASSERT_OK(ub_runtime_set_element(rt, 0, 0.75f));
+    ASSERT_OK(ub_runtime_set_element(rt, 1, 0.25f));
+    ASSERT_TRUE(!ub_runtime_triangle_shown(rt, 0) && ub_runtime_triangle_shown(rt, 1) &&
+                !ub_runtime_triangle_shown(rt, 2) && ub_runtime_triangle_shown(rt, 3));
+    float val = -1.0f;
+    ASSERT_OK(ub_runtime_element_value(rt, 0, &val));
+    ASSERT_NEAR(val, 0.75, 0, 0);
+    ASSERT_TRUE(ub_runtime_element_value(rt, 3, &val) == UB_ERR_INVALID_ARGUMENT);
+    ASSERT_OK(ub_runtime_set_element(rt, 0, 0.0f));
+    ASSERT_OK(ub_runtime_set_element(rt, 1, 1.0f));
+    ASSERT_OK(ub_runtime_update(rt, NULL));
 
     const float *g0 = ub_runtime_glg_probe_sh(rt, 0);
     size_t nsh = (size_t)back->glg_probe_count * 27;
@@ -188,9 +208,14 @@ int main(void)
   snprintf(el[2].name, sizeof el[2].name, "crate"); /* repeated object name */
   ASSERT_TRUE(rejects(bf, bad));
   snprintf(el[2].name, sizeof el[2].name, "barrel");
+  role[2] = (UB_TRI_ROLE_DOOR_CLOSED << 24) | 1; /* a door role on an object */
+  ASSERT_TRUE(rejects(bf, bad));
+  role[2] = (UB_TRI_ROLE_OBJECT << 24) | 7; /* no such element */
+  ASSERT_TRUE(rejects(bf, bad));
+  role[2] = (UB_TRI_ROLE_OBJECT << 24) | 1;
   ASSERT_OK(ub_bakefile_write(bf, bad, NULL)); /* and fine again */
   bf->elems = NULL;
   bf->elem_count = 0;
-  ub_bakefile_free(bf);
+  ub_bakefile_free(bf); /* frees role */
   TEST_MAIN_END();
 }

@@ -181,6 +181,17 @@ static void check_glg_on_mesh(const char *name, const ub_tetmesh *m)
     uint32_t c3 = UB_GLG_NO_CACHE;
     float out3[27];
     ub_glg_sample(&g, p, &c3, out3);
+    /* again with the cache now holding p's tet: for a well-shaped tet that is the
+     * cached-tet fast path, the same tet and the same bits (a badly shaped one goes
+     * through the general locate, which may settle on a neighbour when p is on a face:
+     * the same values within the cache tolerance below) */
+    uint32_t c4 = cache;
+    float out4[27];
+    ub_glg_sample(&g, p, &c4, out4);
+    if (cache < g.tet_count && !g.tet_flags[cache])
+      ASSERT_TRUE(c4 == cache && memcmp(out4, out, sizeof out) == 0);
+    for (int i = 0; i < 27; i++)
+      worst_cache = fmax(worst_cache, fabs(out4[i] - out[i]) / scale);
     for (int i = 0; i < 27; i++) {
       worst_cache = fmax(worst_cache, fabs(out2[i] - out[i]) / scale);
       worst_cache = fmax(worst_cache, fabs(out3[i] - out[i]) / scale);

@@ -64,6 +64,7 @@ typedef struct sweep_cfg {
   int bounces;          /* -1 = auto */
   float texel_size;     /* metres; 0 = level default */
   float glg_spacing;    /* metres; 0 = level default */
+  double target_error;  /* adaptive sampling target (relative s.e.); 0 = off */
 } sweep_cfg;
 
 typedef struct sweep_result {
@@ -86,6 +87,7 @@ typedef struct sweep {
   const char *level, *out_dir;
   char name[64];
   int points, threads, repeat, keep_bakes, plot, verbose, quick, reuse_conv;
+  int sampling;            /* --ladder sampling: the gather-rays and adaptive ladders only */
   uint32_t ref_spp, converged_rays, seed;
   ub_scene *scene;
   ub_rt *rt;
@@ -308,6 +310,7 @@ static void sw_cfg_options(const sweep *s, const sweep_cfg *c, ub_bake_options *
   o->bounces = c->bounces;
   o->texel_size = c->texel_size;
   o->glg_spacing = c->glg_spacing;
+  o->target_error = c->target_error;
   o->threads = s->threads;
   o->seed = s->seed;
 }
@@ -716,10 +719,13 @@ static int sw_cfg_equal(const sweep *s, const sweep_cfg *a, const sweep_cfg *b)
 {
   return a->quality == b->quality && sw_resolved_rays(a) == sw_resolved_rays(b) &&
          a->bounces == b->bounces && sw_resolved_texel(s, a) == sw_resolved_texel(s, b) &&
-         sw_resolved_glg(s, a) == sw_resolved_glg(s, b);
+         sw_resolved_glg(s, a) == sw_resolved_glg(s, b) && a->target_error == b->target_error;
 }
 
-static const sweep_cfg SW_MIDDLE = {UB_QUALITY_FAST, 0, -1, 0.0f, 0.0f};
+static const sweep_cfg SW_MIDDLE = {UB_QUALITY_FAST, 0, -1, 0.0f, 0.0f, 0.0};
+/* The adaptive ladder: --target-error values from SWEEP_ADAPTIVE_RAYS base gather rays
+ * (the middle setting otherwise), to set beside the uniform gather-rays ladder. */
+#define SWEEP_ADAPTIVE_RAYS 64u
 
 static void sw_add_rung(sweep *s, const char *setting, const char *value, const char *note,
                         sweep_cfg cfg)
@@ -759,7 +765,7 @@ static void sw_build_ladder(sweep *s)
     snprintf(v, sizeof v, "%u", rays[i]);
     sw_add_rung(s, "gather_rays", v, "", c);
   }
-  if (!s->quick) {
+  if (!s->quick && !s->sampling) {
     for (int b = 1; b <= 4; b++) {
       sweep_cfg c = SW_MIDDLE;
       c.bounces = b == 4 ? -1 : b;
@@ -782,7 +788,19 @@ static void sw_build_ladder(sweep *s)
       sw_add_rung(s, "glg_spacing", v, note, c);
     }
   }
-  for (int q = UB_QUALITY_DRAFT; q <= (s->quick ? UB_QUALITY_FAST : UB_QUALITY_HIGH); q++) {
+  static const double targets_full[] = {0.2, 0.1, 0.05, 0.02, 0.01};
+  static const double targets_quick[] = {0.1};
+  const double *targets = s->quick ? targets_quick : targets_full;
+  int ntargets = s->quick ? 1 : 5;
+  for (int i = 0; i < ntargets; i++) {
+    sweep_cfg c = SW_MIDDLE;
+    c.gather_rays = SWEEP_ADAPTIVE_RAYS;
+    c.target_error = targets[i];
+    snprintf(v, sizeof v, "%g", targets[i]);
+    snprintf(note, sizeof note, "%ur", SWEEP_ADAPTIVE_RAYS);
+    sw_add_rung(s, "adaptive", v, note, c);
+  }
+  for (int q = UB_QUALITY_DRAFT; !s->sampling && q <= (s->quick ? UB_QUALITY_FAST : UB_QUALITY_HIGH); q++) {
     sweep_cfg c = SW_MIDDLE;
     c.quality = (ub_quality)q;
     sw_add_rung(s, "preset", ub_quality_name((ub_quality)q), "", c);
@@ -861,7 +879,7 @@ static int sw_plot(const sweep *s, double load_end)
           "# x axis: 3 = wall-clock seconds, 4 = core-seconds (steadier on a shared machine), 5 = rays\n"
           "xcol = 3\n"
           "set xlabel (xcol == 3 ? 'bake wall-clock seconds' : xcol == 4 ? 'bake core-seconds (CPU time)' : 'rays traced')\n"
-          "knobs = 'gather_rays bounces texel_size glg_spacing preset'\n"
+          "knobs = 'gather_rays bounces texel_size glg_spacing preset adaptive'\n"
           "sel(k, c) = strcol(1) eq k ? column(c) : NaN\n"
           "refnoise = %.6g\n"
           "set multiplot layout 2,2 title '%s: error vs bake time, one knob at a time from the "
@@ -959,7 +977,7 @@ static int sw_run(sweep *s)
   s->load_begin = sw_loadavg();
   printf("ubake sweep %s -> %s (%s ladder, %d points, %u spp reference, converged bake %u "
          "rays, %ld cores, load average %.2f)\n",
-         s->level, s->out_dir, s->quick ? "quick" : "full", s->points, s->ref_spp,
+         s->level, s->out_dir, s->quick ? "quick" : s->sampling ? "sampling" : "full", s->points, s->ref_spp,
          s->converged_rays, sysconf(_SC_NPROCESSORS_ONLN), s->load_begin);
   fflush(stdout);
   ub_result r = ub_scene_load(s->level, &log, &s->scene);
@@ -1083,9 +1101,13 @@ static const char *SWEEP_HELP =
     "rel_rmse_points, max_err_points, p95_err_points, rel_rmse_texels, ...) and DIR/sweep.png\n"
     "(gnuplot: error vs seconds, log-log, one curve per knob).\n"
     "  -o DIR               output folder (default out/sweep/LEVELNAME)\n"
-    "  --ladder quick|full  full (default): gather rays 16..1024, bounces 1,2,3,auto, texel\n"
-    "                       size x2,x1,x0.5, GLG spacing x2,x1,x0.5, presets draft,fast,high;\n"
-    "                       quick (CI): gather rays 16,64,256 and presets draft,fast\n"
+    "  --ladder quick|full|sampling\n"
+    "                       full (default): gather rays 16..1024, bounces 1,2,3,auto, texel\n"
+    "                       size x2,x1,x0.5, GLG spacing x2,x1,x0.5, adaptive (64 base gather\n"
+    "                       rays, --target-error 0.2,0.1,0.05,0.02,0.01), presets\n"
+    "                       draft,fast,high; quick (CI): gather rays 16,64,256, adaptive\n"
+    "                       0.1, presets draft,fast; sampling: the gather-rays and adaptive\n"
+    "                       ladders of full only (uniform vs adaptive sampling)\n"
     "  --points N           ground-truth points, half lightmap, half GLG (default 64; quick 32)\n"
     "  --ref-spp N          reference paths per point (default 65536; quick 16384)\n"
     "  --converged-rays N   gather rays per texel of the converged bake (default 4096;\n"
@@ -1128,8 +1150,10 @@ int ub_cli_sweep(int argc, char **argv)
     } else if (!strcmp(a, "--ladder") && v) {
       if (!strcmp(v, "quick"))
         s.quick = 1;
+      else if (!strcmp(v, "sampling"))
+        s.sampling = 1;
       else if (strcmp(v, "full"))
-        SW_USAGE("--ladder takes quick or full");
+        SW_USAGE("--ladder takes quick, full or sampling");
       i++;
     } else if (!strcmp(a, "--points") && v) {
       if (!sw_parse_uint(v, 1, 100000, &points))

@@ -17,6 +17,7 @@
 #include "ubake/bakefile.h"
 #include "ubake/runtime.h"
 #include "ubake/scene.h"
+#include "tools/regress.h"
 #include "tools/sweep.h"
 
 typedef struct cli_log_state {
@@ -230,13 +231,20 @@ static int on_progress(void *user, const char *stage, double sf, double tf)
 static const char *BAKE_HELP =
     "usage: ubake bake LEVEL.gltf|.glb -o DIR [options]\n"
     "Bakes the level: DIR/NAME.ubk, DIR/NAME_lm<i>.exr (AHD lightmaps, half float),\n"
-    "DIR/NAME_lm<i>.png (irradiance preview) and DIR/NAME.report.json.\n"
+    "DIR/NAME_lm<i>.png (irradiance preview), DIR/NAME_error<i>.exr/.png (estimated\n"
+    "relative standard error per texel: channels E, covered, rel_se, se; false colour,\n"
+    "log scale 0.1% blue .. 10% red) and DIR/NAME.report.json.\n"
     "  -o DIR                  output folder (created if missing)\n"
     "  --quality draft|fast|high  sample budget (default fast)\n"
     "  --bounces N             indirect bounces (default: until a bounce adds < 0.5%)\n"
     "  --threads N             worker threads (default: all cores)\n"
     "  --seed N                random seed (default 1)\n"
     "  --gather-rays N         override gather rays per texel per bounce\n"
+    "  --target-error E        adaptive sampling: after each bounce's first round, more\n"
+    "                          rounds for the texels and probes whose estimated relative\n"
+    "                          standard error is above E (e.g. 0.02), up to 16x the rays\n"
+    "  --door-rays N           override guided gather rays per texel of a door pass\n"
+    "  --door-no-guiding       door passes gather with cosine rays only (comparison)\n"
     "  --texel-size M          override metres per lightmap texel\n"
     "  --glg-spacing M         override metres between coarse GLG probes\n"
     "  --json FILE             write the report here instead of DIR/NAME.report.json\n"
@@ -292,6 +300,20 @@ static int cmd_bake(int argc, char **argv)
         return usage_error("bake", "--gather-rays takes 1..1048576");
       opt.gather_rays = (uint32_t)n;
       i++;
+    } else if (!strcmp(a, "--target-error") && v) {
+      char *end;
+      double t = strtod(v, &end);
+      if (end == v || *end || !(t > 0.0) || !(t < 1.0))
+        return usage_error("bake", "--target-error takes a relative error in (0, 1), e.g. 0.02");
+      opt.target_error = t;
+      i++;
+    } else if (!strcmp(a, "--door-rays") && v) {
+      if (!parse_uint(v, 1 << 20, &n) || n < 1)
+        return usage_error("bake", "--door-rays takes 1..1048576");
+      opt.door_rays = (uint32_t)n;
+      i++;
+    } else if (!strcmp(a, "--door-no-guiding")) {
+      opt.door_no_guiding = 1;
     } else if (!strcmp(a, "--texel-size") && v) {
       char *end;
       double t = strtod(v, &end);
@@ -351,7 +373,12 @@ static int cmd_bake(int argc, char **argv)
          st.level_name, st.texels, st.bounces, (st.rays_gather + st.rays_shadow) * 1e-6,
          rps * 1e-6, st.total_seconds, st.peak_rss_kb / 1024.0,
          (unsigned long long)st.clamped_values);
-  printf("wrote %s\n", st.ubk_path);
+  printf("estimated error: relative s.e. over lit texels mean %.2f%%, p95 %.2f%%",
+         100.0 * st.texel_rel_se_mean, 100.0 * st.texel_rel_se_p95);
+  if (opt.target_error > 0.0)
+    printf(" (target %.2f%%: adaptive rounds %.2f M rays)", 100.0 * opt.target_error,
+           st.rays_adaptive * 1e-6);
+  printf("\nwrote %s\n", st.ubk_path);
   return 0;
 }
 
@@ -425,14 +452,19 @@ static int cmd_info(int argc, char **argv)
       (unsigned long long)bf->glg_plane_count * 16;
   /* On-disk LLG bytes: per model header, f32 vertices/normals, u32 triangles, half SH,
    * half visibility and gain. */
-  unsigned long long llg_bytes = 0, llg_probes = 0, llg_vertices = 0;
+  unsigned long long llg_bytes = 0, llg_probes = 0, llg_vertices = 0, llg_shared = 0;
   for (uint32_t i = 0; i < bf->llg_count; i++) {
     const ub_bakefile_llg *m = &bf->llgs[i];
     unsigned long long np = (unsigned long long)m->dims[0] * m->dims[1] * m->dims[2];
     llg_probes += np;
     llg_vertices += m->vertex_count;
     llg_bytes += 144 + 54 * np + 48ULL * m->vertex_count + 12ULL * m->triangle_count;
+    if (m->vis_shared_from) /* instance: visibility stored once (+40 B headers each) */
+      llg_bytes -= 18ULL * m->vertex_count;
+    llg_shared += m->vis_shared_from != 0;
   }
+  if (llg_shared)
+    llg_bytes += 40ULL * bf->llg_count;
   if (json) {
     printf("{\"level\": \"%s\", \"bytes\": %lld, \"seed\": %u, \"bounces\": %u, "
            "\"vertices\": %u, \"triangles\": %u, \"atlases\": [",
@@ -480,9 +512,11 @@ static int cmd_info(int argc, char **argv)
       printf("  LLG: %u model(s), %llu probes, %llu vertices, %llu bytes\n", bf->llg_count,
              llg_probes, llg_vertices, llg_bytes);
       for (uint32_t i = 0; i < bf->llg_count; i++)
-        printf("    %-20s grid %u x %u x %u, %u vertices, %u triangles\n", bf->llgs[i].name,
+        printf("    %-20s grid %u x %u x %u, %u vertices, %u triangles%s%s\n", bf->llgs[i].name,
                bf->llgs[i].dims[0], bf->llgs[i].dims[1], bf->llgs[i].dims[2],
-               bf->llgs[i].vertex_count, bf->llgs[i].triangle_count);
+               bf->llgs[i].vertex_count, bf->llgs[i].triangle_count,
+               bf->llgs[i].vis_shared_from ? ", self-visibility of " : "",
+               bf->llgs[i].vis_shared_from ? bf->llgs[bf->llgs[i].vis_shared_from - 1].name : "");
     } else {
       printf("  LLG: none baked\n");
     }
@@ -976,7 +1010,8 @@ static const char *MAIN_HELP =
     "  query      baked irradiance at a point and normal\n"
     "  reference  path-traced ground truth at a point and normal\n"
     "  render     PNG of the level from a camera, as the run-time shows it\n"
-    "  sweep      accuracy vs bake time: a ladder of settings measured against ground truth\n";
+    "  sweep      accuracy vs bake time: a ladder of settings measured against ground truth\n"
+    "  regress    door-opening regression: query vs reference, doors closed and open\n";
 
 int main(int argc, char **argv)
 {
@@ -995,6 +1030,7 @@ int main(int argc, char **argv)
   if (!strcmp(cmd, "reference"))
     return cmd_reference(argc - 2, argv + 2);
   if (!strcmp(cmd, "sweep")) return ub_cli_sweep(argc - 2, argv + 2);
+  if (!strcmp(cmd, "regress")) return ub_cli_regress(argc - 2, argv + 2);
   if (!strcmp(cmd, "render"))
     return cmd_render(argc - 2, argv + 2);
   fprintf(stderr, "ubake: unknown command '%s' (see 'ubake --help')\n", cmd);

@@ -42,6 +42,11 @@ typedef struct ub_bake_options {
   float glg_spacing;      /* 0 = from the level (metres between coarse GLG probes) */
   int plan_all;           /* 1: force every effect on, no culling (to check the plan) */
   int plan_only;          /* 1: stop after printing the plan; write nothing */
+  double target_error;    /* > 0: adaptive sampling to this relative standard error per
+                             texel / GLG probe (e.g. 0.02), at most 16× the rays per bounce;
+                             0 = off (the base pass only) */
+  int door_no_guiding;    /* 1: door passes gather with cosine rays only (for comparison) */
+  uint32_t door_rays;     /* 0 = from quality: guided gather rays per texel of a door pass */
   ub_progress_fn progress;
   void *progress_user;
 } ub_bake_options;
@@ -54,18 +59,25 @@ typedef struct ub_bake_stats {
   uint32_t triangles, lights, emissive_triangles;
   uint32_t atlases, texels, backface_fixes;
   uint32_t glg_probes, glg_tets, glg_leak_tets;
+  uint32_t llg_auto_nodes;               /* untagged small props made LLG receivers */
   uint32_t dls_sets;                     /* dynamic light sets baked */
   uint32_t door_passes;                  /* door passes run (0: no door code ran) */
   uint64_t rays_emissive, sky_hits, emitter_hits; /* effect counters of the base pass */
   uint32_t bounces;                      /* indirect bounces baked */
   double bounce_energy[UB_BAKE_MAX_BOUNCES + 1]; /* Σ luminance(E) per bounce, 0 = direct */
+  double bounce_cap_tail;  /* > 0: the bounce cap ended the series; the energy still missing
+                              (geometric tail) as a fraction of the total */
   uint64_t rays_total, rays_gather, rays_shadow;
   double gather_seconds;                 /* wall seconds spent in gather passes */
+  uint64_t rays_adaptive;                /* rays of the adaptive rounds (target_error) */
+  double texel_rel_se_mean, texel_rel_se_p95; /* estimated relative standard error, lit
+                                                 texels (report.json: error_estimate) */
   uint32_t stage_count;
   char stage_name[UB_BAKE_MAX_STAGES][24];
   double stage_seconds[UB_BAKE_MAX_STAGES];
   double total_seconds;
-  uint64_t clamped_values;               /* non-finite or negative values clamped */
+  uint64_t clamped_values;               /* non-finite or negative values clamped, and values
+                                            clamped to the half range in the .ubk */
   uint64_t backface_hits;                /* gather rays that hit the back of a surface */
   uint64_t unlit_hits;                   /* gather rays that hit a surface with no receiver */
   long peak_rss_kb;

@@ -41,6 +41,12 @@ typedef struct ub_bakefile_atlas {
  * its weight is 1. Receiver indices are sorted and unique. Lightmap receivers are pixels
  * of the atlases taken in order (pixel = Σ_{b<a} W_b·H_b + y·W_a + x), padding included;
  * GLG receivers are probe indices. */
+enum {
+  UB_TRI_ROLE_DOOR_CLOSED = 1, /* a door's leaf in its closed pose: shown while t < 1/2 */
+  UB_TRI_ROLE_DOOR_OPEN = 2,   /* a door's leaf in its open pose: shown while t ≥ 1/2 */
+  UB_TRI_ROLE_OBJECT = 3       /* a show/hide object: shown while v ≥ 1/2 */
+};
+
 /* Kinds of dynamic element (ub_bakefile_record.kind). */
 typedef enum ub_element_kind {
   UB_ELEMENT_DLS = 0,     /* a dynamic light set (ub_bakefile.dls) */
@@ -99,6 +105,11 @@ typedef struct ub_bakefile_llg {
                                vertex normal, W/m², ≥ 0 */
   uint32_t triangle_count;
   uint32_t *indices;        /* triangle_count × 3, < vertex_count */
+  /* Instances share one self-visibility: 0 = vis is this model's own (stored); k > 0 =
+   * vis is model k−1's (an earlier model with its own, same vertex count) carried along by
+   * vis_rotation, V(ω) = V_{k−1}(Rᵀω): the file stores it once, the reader fills vis. */
+  uint32_t vis_shared_from;
+  float vis_rotation[9];    /* row-major orthogonal R (used when vis_shared_from > 0) */
 } ub_bakefile_llg;
 
 typedef struct ub_bakefile {
@@ -114,6 +125,10 @@ typedef struct ub_bakefile {
   int32_t *tri_atlas;       /* triangle_count: atlas index or -1 */
   float *tri_uv;            /* triangle_count × 6: lightmap UV per corner, [0,1] */
   float *tri_albedo;        /* triangle_count × 3: diffuse albedo, for rendering */
+  /* Section TRIR (NULL = every triangle static): triangle_count roles, 0 = static, else
+   * (role << 24) | elems index with role UB_TRI_ROLE_*: which element's state shows or
+   * hides the triangle (renderers draw the level as the state has it). */
+  uint32_t *tri_role;
 
   uint32_t atlas_count;
   ub_bakefile_atlas *atlases;
@@ -148,6 +163,10 @@ typedef struct ub_bakefile {
 } ub_bakefile;
 
 ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_log *log);
+/* The same, also counting the values clamped to the half range (±65504) on the way; the
+ * SH of atlases, GLG probes and records are scaled instead, so only LLG data can clamp. */
+ub_result ub_bakefile_write_ex(const ub_bakefile *bf, const char *path, const ub_log *log,
+                               uint64_t *out_clamped);
 ub_result ub_bakefile_read(const char *path, const ub_log *log, ub_bakefile **out_bf);
 /* name: used in messages only (e.g. the file name). */
 ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *name,

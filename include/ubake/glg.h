@@ -86,6 +86,7 @@ typedef struct ub_glg {
   /* owned, built by ub_glg_init */
   ub_glg_tet *tet_data;  /* per tet: inverse edge matrix, origin, neighbours/hull links */
   uint8_t *tet_flags;    /* per tet: 0 normal, 1 ill-conditioned (double), 2 singular */
+  uint8_t *leak_drop;    /* per tet with a leak plane: corners dropped on each side */
   uint32_t hull_count;
   ub_glg_hull *hull;     /* hull faces with hull-surface adjacency */
   uint32_t *start_grid;  /* a tet near the centre of each start-grid cell */

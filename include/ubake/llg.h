@@ -42,6 +42,15 @@ extern "C" {
  * out must not alias L. */
 void ub_llg_sh_product(const float L[27], const float V[9], float out[27]);
 
+/* Rotation of monochrome SH L2 (9 coefficients) by an orthogonal 3×3 matrix R (row-major;
+ * reflections allowed): out_M (9×9, row-major) maps the coefficients of f to those of
+ * g(ω) = f(Rᵀω), i.e. f carried along by R. Exact (up to rounding): the projection
+ * integrals have degree-4 integrands, summed over the 12 icosahedron vertices (a spherical
+ * 5-design). Used for instances sharing one self-visibility (docs/FORMAT.md, LLGM). */
+void ub_llg_sh_rotation(const float R[9], float out_M[81]);
+/* out = M · in (9 coefficients); out must not alias in. */
+void ub_llg_sh_rotate(const float M[81], const float in[9], float out[9]);
+
 /* Trilinear interpolation of the grid's probes at world point p (clamped to the box).
  * probe_sh: dims[0]·dims[1]·dims[2] × 27 floats. */
 void ub_llg_grid_sample(const float center[3], const float axes[9], const float half[3],

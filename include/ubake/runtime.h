@@ -121,6 +121,13 @@ ub_element_kind ub_runtime_element_kind(const ub_runtime *rt, uint32_t element);
 /* Sets a door's t or an object's v (finite, in [0, 1]). UB_ERR_INVALID_ARGUMENT for an
  * element out of range, a combination (its weight follows its parents) or a bad value. */
 ub_result ub_runtime_set_element(ub_runtime *rt, uint32_t element, float value);
+/* The value last set (door t, object v; the default before any set). For combinations and
+ * out-of-range elements: UB_ERR_INVALID_ARGUMENT, out untouched. */
+ub_result ub_runtime_element_value(const ub_runtime *rt, uint32_t element, float *out_value);
+/* Whether triangle t of the file's geometry is present in the current state (section
+ * TRIR: a closed door leaf while t < 1/2, an open-pose leaf from 1/2, an object while
+ * v ≥ 1/2; every other triangle always). */
+int ub_runtime_triangle_shown(const ub_runtime *rt, uint32_t triangle);
 float ub_runtime_door_fraction(float hinge_angle_radians);
 
 typedef struct ub_runtime_update_stats {

@@ -40,6 +40,14 @@ typedef enum ub_receiver_kind {
   UB_RECEIVER_NONE
 } ub_receiver_kind;
 
+/* Why a node has its receiver kind. */
+typedef enum ub_receiver_source {
+  UB_RECEIVER_DEFAULT = 0, /* no ubake_receiver tag: lightmap, unless the bake switches it */
+  UB_RECEIVER_TAGGED,      /* ubake_receiver on the node or an ancestor: always kept */
+  UB_RECEIVER_AUTO         /* set by the bake: a small prop with poor charts became an LLG
+                              (probes/llg.h, ub_llg_auto_select) */
+} ub_receiver_source;
+
 typedef struct ub_light {
   ub_light_type type;
   ub_light_class cls;
@@ -70,6 +78,10 @@ typedef struct ub_node {
   float texel_size;         /* metres per lightmap texel; 0 = level default */
   uint32_t first_triangle;  /* triangles [first, first+count) belong to this node */
   uint32_t triangle_count;
+  ub_receiver_source receiver_source;
+  int32_t mesh;             /* glTF mesh index (instances of one mesh share it), -1 = none */
+  float world[12];          /* world transform, column-major 3×4 (linear part, then the
+                               translation); vertices above are already transformed */
 } ub_node;
 
 /* Per-triangle flags. */

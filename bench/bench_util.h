@@ -1,0 +1,170 @@
+/* bench/bench_util.h — helpers the benchmarks share (header-only, static inline).
+ *
+ * - ub_bench_now(): monotonic seconds;
+ * - ub_bench_percentile(): a percentile of a sample (sorts it in place);
+ * - ub_bench_ceiling(): the ray-tracing ceiling of a scene — random incoherent
+ *   closest-hit and shadow rays from area-uniform surface points in uniform directions,
+ *   through the same Embree wrapper the baker uses, on all OpenMP threads — so a bake's
+ *   rays/s can be compared with what the machine does on that scene in the same run;
+ * - ub_bench_rss_kb(): current resident set size (VmRSS), for memory deltas;
+ * - ub_bench_load_average(): 1-minute load average (the machine is shared).
+ * Benchmarks print figures and assert nothing. */
+#ifndef UBAKE_BENCH_UTIL_H
+#define UBAKE_BENCH_UTIL_H
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "bake/lights.h"
+#include "bake/rt.h"
+#include "ubake/scene.h"
+
+#define UB_BENCH_CHUNK 4096
+
+static inline double ub_bench_now(void)
+{
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static inline int ub_bench_cmp_double(const void *a, const void *b)
+{
+  double x = *(const double *)a, y = *(const double *)b;
+  return (x > y) - (x < y);
+}
+
+/* p in [0,1]: the value at rank floor(p·(n−1)) of v sorted (v is sorted in place). */
+static inline double ub_bench_percentile(double *v, size_t n, double p)
+{
+  if (n == 0)
+    return 0.0;
+  qsort(v, n, sizeof *v, ub_bench_cmp_double);
+  size_t k = (size_t)(p * (double)(n - 1));
+  return v[k < n ? k : n - 1];
+}
+
+static inline void ub_bench_random_ray(const ub_scene *s, const ub_rt *rt, const float *cdf,
+                                       uint32_t i, ub_ray *r)
+{
+  uint32_t h = ub_hash4(99, i, 0, 0);
+  float u0 = ub_u01(h);
+  uint32_t lo = 0, hi = s->triangle_count - 1;
+  while (lo < hi) {
+    uint32_t mid = (lo + hi) / 2;
+    if (cdf[mid] > u0)
+      hi = mid;
+    else
+      lo = mid + 1;
+  }
+  const float *a = s->positions + 3 * s->indices[3 * lo];
+  const float *b = s->positions + 3 * s->indices[3 * lo + 1];
+  const float *c = s->positions + 3 * s->indices[3 * lo + 2];
+  float u1 = sqrtf(ub_u01(ub_hash4(h, 1, 0, 0))), u2 = ub_u01(ub_hash4(h, 2, 0, 0));
+  float p[3], nz = 2.0f * ub_u01(ub_hash4(h, 3, 0, 0)) - 1.0f;
+  float phi = 6.2831853f * ub_u01(ub_hash4(h, 4, 0, 0)), rr = sqrtf(fmaxf(0.0f, 1 - nz * nz));
+  for (int k = 0; k < 3; k++)
+    p[k] = (1 - u1) * a[k] + u1 * (1 - u2) * b[k] + u1 * u2 * c[k];
+  r->dir[0] = rr * cosf(phi);
+  r->dir[1] = nz;
+  r->dir[2] = rr * sinf(phi);
+  ub_rt_offset_point(rt, p, r->dir, r->org);
+  r->tnear = 0.0f;
+  r->tfar = INFINITY;
+}
+
+/* Closest-hit and shadow rays per second (all threads) on scene s traced with rt. */
+static inline void ub_bench_ceiling(const ub_scene *s, const ub_rt *rt, double *out_hit,
+                                    double *out_shadow)
+{
+  float *cdf = malloc(s->triangle_count * sizeof *cdf);
+  double acc = 0.0;
+  for (uint32_t t = 0; t < s->triangle_count; t++) {
+    const float *a = s->positions + 3 * s->indices[3 * t];
+    const float *b = s->positions + 3 * s->indices[3 * t + 1];
+    const float *c = s->positions + 3 * s->indices[3 * t + 2];
+    float e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+    float e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+    float x = e1[1] * e2[2] - e1[2] * e2[1], y = e1[2] * e2[0] - e1[0] * e2[2],
+          z = e1[0] * e2[1] - e1[1] * e2[0];
+    acc += 0.5 * sqrt(x * x + y * y + z * z);
+    cdf[t] = (float)acc;
+  }
+  for (uint32_t t = 0; t < s->triangle_count; t++)
+    cdf[t] /= (float)acc;
+  const uint32_t N = 4u << 20;
+  double t0 = ub_bench_now();
+#pragma omp parallel
+  {
+    ub_ray *rays = malloc(UB_BENCH_CHUNK * sizeof *rays);
+    ub_hit *hits = malloc(UB_BENCH_CHUNK * sizeof *hits);
+#pragma omp for schedule(dynamic, 1)
+    for (uint32_t c = 0; c < N / UB_BENCH_CHUNK; c++) {
+      for (uint32_t i = 0; i < UB_BENCH_CHUNK; i++)
+        ub_bench_random_ray(s, rt, cdf, c * UB_BENCH_CHUNK + i, &rays[i]);
+      ub_rt_intersect(rt, rays, UB_BENCH_CHUNK, hits);
+    }
+    free(rays);
+    free(hits);
+  }
+  *out_hit = N / (ub_bench_now() - t0);
+  t0 = ub_bench_now();
+#pragma omp parallel
+  {
+    ub_ray *rays = malloc(UB_BENCH_CHUNK * sizeof *rays);
+    uint8_t *occ = malloc(UB_BENCH_CHUNK);
+#pragma omp for schedule(dynamic, 1)
+    for (uint32_t c = 0; c < N / UB_BENCH_CHUNK; c++) {
+      for (uint32_t i = 0; i < UB_BENCH_CHUNK; i++) {
+        ub_bench_random_ray(s, rt, cdf, c * UB_BENCH_CHUNK + i, &rays[i]);
+        rays[i].tfar = 0.5f * ub_scene_extent(s) * ub_u01(ub_hash4(c, i, 5, 0));
+      }
+      ub_rt_occluded(rt, rays, UB_BENCH_CHUNK, occ);
+    }
+    free(rays);
+    free(occ);
+  }
+  *out_shadow = N / (ub_bench_now() - t0);
+  free(cdf);
+}
+
+/* A bake's gather + shadow rays per second against the ceiling for the same mix. */
+static inline double ub_bench_ceiling_ratio(double rays_gather, double rays_shadow,
+                                            double seconds, double hit, double shadow)
+{
+  double mix = (rays_gather + rays_shadow) / (rays_gather / hit + rays_shadow / shadow + 1e-30);
+  return (rays_gather + rays_shadow) / (seconds + 1e-30) / mix;
+}
+
+static inline long ub_bench_rss_kb(void)
+{
+  long kb = -1;
+  char line[256];
+  FILE *f = fopen("/proc/self/status", "r");
+  if (!f)
+    return -1;
+  while (fgets(line, sizeof line, f))
+    if (!strncmp(line, "VmRSS:", 6)) {
+      kb = strtol(line + 6, NULL, 10);
+      break;
+    }
+  fclose(f);
+  return kb;
+}
+
+static inline double ub_bench_load_average(void)
+{
+  double l = -1.0;
+  FILE *f = fopen("/proc/loadavg", "r");
+  if (f) {
+    if (fscanf(f, "%lf", &l) != 1)
+      l = -1.0;
+    fclose(f);
+  }
+  return l;
+}
+
+#endif

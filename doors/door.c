@@ -1,0 +1,865 @@
+/* The door pass (see door.h): portal sampling, clustered shadow photons, guided gather
+ * with MIS, per-box light lists, influence culling, sparse records. */
+#include "doors/door.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "bake/dls.h"
+#include "bake/geomstate.h"
+#include "ubake/sh.h"
+
+#define PROBE_ID_BASE 0x40000000u
+#define KMEANS_ITERS 10
+#define UB_DOOR_MAX_BOUNCES 16 /* receiver-side bounces when the pass's count is automatic */
+
+static const double Y0 = 0.282094792;
+static const double Y1 = 0.488602512;
+
+static double now_s(void)
+{
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static inline float dot3(const float a[3], const float b[3])
+{
+  return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+static inline double lum(const double v[3])
+{
+  return 0.2126 * v[0] + 0.7152 * v[1] + 0.0722 * v[2];
+}
+
+typedef struct door_ctx {
+  const ub_scene *s;
+  const ub_lightmap *lm;
+  const ub_rt *rt_open, *rt_leaf;
+  float **img;               /* per atlas: w×h×4, base stored irradiance + coverage */
+  ub_obb portal;
+  ub_guide guide;
+  ub_guide cosine;           /* cosine/sphere only: further bounces (crossing rays add 0) */
+  uint32_t nbox;
+  ub_obb box[UB_DOOR_MAX_BOXES]; /* photon boxes inflated by UB_DOOR_BOX_MARGIN */
+  uint8_t *box_lights;       /* nbox × light_count */
+  uint8_t *portal_lights;    /* light_count: base lights whose light reaches the portal */
+  const uint8_t *enabled;    /* light_count: base lights */
+  int sky;
+  const float *sky_rgb;
+  uint32_t seed, pass_id;
+} door_ctx;
+
+static inline float rnd(const door_ctx *c, uint32_t rid, uint32_t s, uint32_t dim)
+{
+  return ub_u01(ub_hash4(c->seed, c->pass_id * 64u + dim, rid, s));
+}
+
+static void trace(const ub_rt *rt, const float o[3], const float w[3], float tfar, ub_hit *h)
+{
+  ub_ray r = {{o[0], o[1], o[2]}, 0.0f, {w[0], w[1], w[2]}, tfar};
+  ub_rt_intersect(rt, &r, 1, h);
+}
+
+static int occluded(const ub_rt *rt, const float o[3], const float w[3], float tfar)
+{
+  ub_ray r = {{o[0], o[1], o[2]}, 0.0f, {w[0], w[1], w[2]}, tfar};
+  uint8_t occ = 0;
+  ub_rt_occluded(rt, &r, 1, &occ);
+  return occ;
+}
+
+/* Unit geometric normal of a hit, facing the side the ray came from; *front = 1 when that
+ * is the triangle's front side. */
+static void hit_normal(const ub_hit *h, const float w[3], float out_n[3], int *front)
+{
+  float l = sqrtf(dot3(h->ng, h->ng));
+  for (int i = 0; i < 3; i++)
+    out_n[i] = l > 0.0f ? h->ng[i] / l : 0.0f;
+  *front = dot3(out_n, w) < 0.0f;
+  if (!*front)
+    for (int i = 0; i < 3; i++)
+      out_n[i] = -out_n[i];
+}
+
+/* Irradiance (W/m²) stored in per-atlas images (w×h×4, rgb + coverage weight) at
+ * barycentrics (u, v) of a lightmapped triangle, bilinear over covered texels. */
+static void image_lookup(const ub_lightmap *lm, float *const *imgs, uint32_t tri, float bu,
+                         float bv, float out[3])
+{
+  out[0] = out[1] = out[2] = 0.0f;
+  int32_t a = lm->tri_atlas[tri];
+  if (a < 0)
+    return;
+  const float *uv = lm->tri_uv + 6 * (size_t)tri;
+  float u = (1.0f - bu - bv) * uv[0] + bu * uv[2] + bv * uv[4];
+  float v = (1.0f - bu - bv) * uv[1] + bu * uv[3] + bv * uv[5];
+  const ub_atlas *at = &lm->atlases[a];
+  const float *img = imgs[a];
+  float x = u * (float)at->width - 0.5f, y = v * (float)at->height - 0.5f;
+  float fx = floorf(x), fy = floorf(y), tx = x - fx, ty = y - fy;
+  int x0 = (int)fx, y0 = (int)fy;
+  double sum[3] = {0, 0, 0}, wsum = 0.0;
+  for (int j = 0; j < 2; j++)
+    for (int i = 0; i < 2; i++) {
+      int xi = x0 + i, yj = y0 + j;
+      xi = xi < 0 ? 0 : (xi >= (int)at->width ? (int)at->width - 1 : xi);
+      yj = yj < 0 ? 0 : (yj >= (int)at->height ? (int)at->height - 1 : yj);
+      float wt = (i ? tx : 1.0f - tx) * (j ? ty : 1.0f - ty);
+      const float *p = img + 4 * ((size_t)yj * at->width + (size_t)xi);
+      wt *= p[3];
+      for (int k = 0; k < 3; k++)
+        sum[k] += wt * p[k];
+      wsum += wt;
+    }
+  if (wsum > 1e-6)
+    for (int k = 0; k < 3; k++)
+      out[k] = (float)(sum[k] / wsum);
+}
+
+/* Direct light of one punctual light at p (offset), cosine about n applied (n NULL: none),
+ * counted only when its shadow ray crosses the closed leaf and the open geometry is clear.
+ * need_cross = 0: any unoccluded light counts (direct light beyond the door). */
+static int light_through(const door_ctx *c, const ub_light *L, const float p[3],
+                         const float *n, int need_cross, float out_e[3], float out_dir[3])
+{
+  float dist, e[3];
+  if (!ub_light_incident(L, p, out_dir, &dist, e))
+    return 0;
+  float cs = n ? dot3(n, out_dir) : 1.0f;
+  if (!(cs > 0.0f))
+    return 0;
+  float tfar = isfinite(dist) ? dist * (1.0f - 1e-4f) : INFINITY;
+  if (need_cross && !occluded(c->rt_leaf, p, out_dir, tfar))
+    return 0;
+  if (occluded(c->rt_open, p, out_dir, tfar))
+    return 0;
+  for (int k = 0; k < 3; k++)
+    out_e[k] = e[k] * cs;
+  return 1;
+}
+
+/* Outgoing radiance toward the ray at an open-geometry hit beyond the door (or the sky on a
+ * miss): the base's stored lighting + primary direct light + emission. */
+static void beyond_radiance(const door_ctx *c, const float x[3], const float w[3],
+                            const ub_hit *h, float out[3])
+{
+  out[0] = out[1] = out[2] = 0.0f;
+  if (h->tri == UB_RT_MISS) {
+    if (c->sky)
+      memcpy(out, c->sky_rgb, 3 * sizeof(float));
+    return;
+  }
+  const ub_scene *s = c->s;
+  const ub_material *m = &s->materials[s->tri_material[h->tri]];
+  float n[3];
+  int front;
+  hit_normal(h, w, n, &front);
+  if (front)
+    for (int k = 0; k < 3; k++)
+      out[k] = m->emission[k];
+  if (m->albedo[0] + m->albedo[1] + m->albedo[2] <= 0.0f)
+    return;
+  float E[3] = {0, 0, 0};
+  if (front)
+    image_lookup(c->lm, c->img, h->tri, h->u, h->v, E);
+  float p[3] = {x[0] + w[0] * h->t, x[1] + w[1] * h->t, x[2] + w[2] * h->t}, po[3];
+  ub_rt_offset_point(c->rt_open, p, n, po);
+  for (uint32_t l = 0; l < s->light_count; l++) {
+    if (!c->portal_lights[l] || s->lights[l].cls != UB_LIGHT_PRIMARY)
+      continue;
+    float e[3], dir[3];
+    if (light_through(c, &s->lights[l], po, n, 0, e, dir))
+      for (int k = 0; k < 3; k++)
+        E[k] += e[k];
+  }
+  for (int k = 0; k < 3; k++)
+    out[k] += m->albedo[k] / (float)M_PI * E[k];
+}
+
+/* E_P(D): irradiance at surface point p (normal n, facing the arriving ray) from light that
+ * crosses the door: punctual lights of the box p is in (else of the portal list) and one
+ * portal sample of what lies beyond. */
+static void door_irradiance(const door_ctx *c, const float p[3], const float n[3],
+                            uint32_t rid, uint32_t smp, float out[3])
+{
+  const ub_scene *s = c->s;
+  float po[3];
+  ub_rt_offset_point(c->rt_open, p, n, po);
+  double E[3] = {0, 0, 0};
+  const uint8_t *list = c->portal_lights;
+  uint8_t any_box = 0;
+  for (uint32_t j = 0; j < c->nbox; j++)
+    if (ub_obb_contains(&c->box[j], p)) {
+      any_box = 1;
+      break;
+    }
+  for (uint32_t l = 0; l < s->light_count; l++) {
+    int on = list[l];
+    if (any_box) {
+      on = 0;
+      for (uint32_t j = 0; j < c->nbox && !on; j++)
+        on = c->box_lights[(size_t)j * s->light_count + l] && ub_obb_contains(&c->box[j], p);
+    }
+    if (!on)
+      continue;
+    float e[3], dir[3];
+    if (light_through(c, &s->lights[l], po, n, 1, e, dir))
+      for (int k = 0; k < 3; k++)
+        E[k] += e[k];
+  }
+  /* One portal sample: sky, or the base's stored radiance beyond the door. */
+  float u[3] = {rnd(c, rid, smp, 20), rnd(c, rid, smp, 21), rnd(c, rid, smp, 22)};
+  float q[3], w[3];
+  ub_obb_point(&c->portal, u, q);
+  for (int k = 0; k < 3; k++)
+    w[k] = q[k] - po[k];
+  float len = sqrtf(dot3(w, w));
+  if (len > 0.0f) {
+    for (int k = 0; k < 3; k++)
+      w[k] /= len;
+    float cs = dot3(n, w);
+    double pdf = cs > 0.0f ? ub_obb_pdf(&c->portal, po, w) : 0.0;
+    if (pdf > 0.0 && isfinite(pdf)) {
+      ub_hit h;
+      trace(c->rt_open, po, w, INFINITY, &h);
+      if (occluded(c->rt_leaf, po, w, h.tri == UB_RT_MISS ? INFINITY : h.t)) {
+        float L[3];
+        beyond_radiance(c, po, w, &h, L);
+        for (int k = 0; k < 3; k++)
+          E[k] += L[k] * cs / pdf;
+      }
+    }
+  }
+  for (int k = 0; k < 3; k++)
+    out[k] = isfinite(E[k]) ? (float)E[k] : 0.0f;
+}
+
+/* One receiver: N guided gather rays (terms a, b) + static lights through the door (c).
+ * origins: norg ray origins (already offset); n: unit normal or NULL (point receiver).
+ * sh: nsh × 3 radiance SH (W/(m²·sr)), iz: irradiance along n (W/m²). */
+static void receiver_estimate(const door_ctx *c, const float *origins, uint32_t norg,
+                              const float *n, uint32_t rid, uint32_t N, uint32_t nshadow,
+                              uint32_t nsh, double *sh, double iz[3], double out_b[3])
+{
+  const ub_scene *s = c->s;
+  for (uint32_t smp = 0; smp < N; smp++) {
+    const float *x = origins + 3 * (smp % norg);
+    float u[4] = {rnd(c, rid, smp, 0), rnd(c, rid, smp, 1), rnd(c, rid, smp, 2),
+                  rnd(c, rid, smp, 3)};
+    float w[3];
+    double pdf = ub_guide_sample(&c->guide, x, n, u, w);
+    if (!(pdf > 0.0) || !isfinite(pdf))
+      continue;
+    ub_hit h;
+    trace(c->rt_open, x, w, INFINITY, &h);
+    float L[3] = {0, 0, 0};
+    int bounced = 0;
+    if (occluded(c->rt_leaf, x, w, h.tri == UB_RT_MISS ? INFINITY : h.t)) {
+      beyond_radiance(c, x, w, &h, L); /* (a) through the door */
+    } else if (h.tri != UB_RT_MISS) {  /* (b) one bounce on this side */
+      const float *alb = s->materials[s->tri_material[h.tri]].albedo;
+      if (alb[0] + alb[1] + alb[2] > 0.0f) {
+        float nd[3], p[3], E[3];
+        int front;
+        hit_normal(&h, w, nd, &front);
+        for (int k = 0; k < 3; k++)
+          p[k] = x[k] + w[k] * h.t;
+        door_irradiance(c, p, nd, rid, smp, E);
+        bounced = 1;
+        for (int k = 0; k < 3; k++)
+          L[k] = alb[k] / (float)M_PI * E[k];
+      }
+    }
+    if (L[0] == 0.0f && L[1] == 0.0f && L[2] == 0.0f)
+      continue;
+    double wt = 1.0 / (pdf * (double)N);
+    float y[9];
+    ub_sh2_eval_basis(w, y);
+    for (uint32_t k = 0; k < nsh; k++)
+      for (int ch = 0; ch < 3; ch++)
+        sh[k * 3 + ch] += (double)y[k] * L[ch] * wt;
+    if (n) {
+      double cs = fmax(0.0, dot3(n, w));
+      for (int ch = 0; ch < 3; ch++)
+        iz[ch] += L[ch] * cs * wt;
+      if (bounced && out_b)
+        for (int ch = 0; ch < 3; ch++)
+          out_b[ch] += L[ch] * cs * wt;
+    }
+  }
+  /* (c) static punctual lights through the door. */
+  for (uint32_t l = 0; l < s->light_count; l++) {
+    if (!c->portal_lights[l] || s->lights[l].cls != UB_LIGHT_STATIC)
+      continue;
+    for (uint32_t k = 0; k < nshadow; k++) {
+      float e[3], dir[3];
+      if (!light_through(c, &s->lights[l], origins + 3 * (k % norg), n, 1, e, dir))
+        continue;
+      /* e has the cosine applied; SH takes the radiance projection E⊥·Y(dir). */
+      float cs = n ? dot3(n, dir) : 1.0f;
+      float y[9];
+      ub_sh2_eval_basis(dir, y);
+      for (uint32_t j = 0; j < nsh; j++)
+        for (int ch = 0; ch < 3; ch++)
+          sh[j * 3 + ch] += (double)y[j] * (e[ch] / cs) / nshadow;
+      for (int ch = 0; ch < 3; ch++)
+        iz[ch] += (double)e[ch] / nshadow;
+    }
+  }
+}
+
+/* Shadow photons: uniform points on the portal box, a shadow ray toward a random base light
+ * (or the sky); when it gets through, the photon continues away from the light and lands
+ * on the first open-geometry hit. Clustered by weighted k-means into boxes with light
+ * lists. Fills c->nbox, c->box, c->box_lights, c->portal_lights; returns photons landed. */
+static uint32_t photons_build(door_ctx *c, uint32_t attempts, double *out_box_flux,
+                              int *oom)
+{
+  const ub_scene *s = c->s;
+  uint32_t nl = 0;
+  uint32_t *cand = malloc(((size_t)s->light_count + 1) * sizeof *cand);
+  float *pos = malloc((size_t)attempts * 3 * sizeof *pos);
+  float *flux = malloc((size_t)attempts * sizeof *flux);
+  uint32_t *from = malloc((size_t)attempts * sizeof *from);
+  uint32_t *asg = malloc((size_t)attempts * sizeof *asg);
+  float *pts = malloc((size_t)attempts * 3 * sizeof *pts);
+  if (!cand || !pos || !flux || !from || !asg || !pts) {
+    *oom = 1;
+    free(cand), free(pos), free(flux), free(from), free(asg), free(pts);
+    return 0;
+  }
+  for (uint32_t l = 0; l < s->light_count; l++)
+    if (c->enabled[l])
+      cand[nl++] = l;
+  if (c->sky)
+    cand[nl++] = UINT32_MAX;
+  uint32_t np = 0;
+  for (uint32_t i = 0; i < attempts && nl; i++) {
+    float u[3] = {rnd(c, 0xFFFFFFu, i, 40), rnd(c, 0xFFFFFFu, i, 41), rnd(c, 0xFFFFFFu, i, 42)};
+    float p[3], dir[3], e[3], dist = INFINITY;
+    ub_obb_point(&c->portal, u, p);
+    uint32_t pick = (uint32_t)(rnd(c, 0xFFFFFFu, i, 43) * (float)nl);
+    uint32_t l = cand[pick < nl ? pick : nl - 1];
+    if (l == UINT32_MAX) {
+      const float up[3] = {0, 1, 0};
+      ub_sample_cosine(up, rnd(c, 0xFFFFFFu, i, 44), rnd(c, 0xFFFFFFu, i, 45), dir);
+      memcpy(e, c->sky_rgb, sizeof e);
+      for (int k = 0; k < 3; k++)
+        e[k] *= (float)M_PI;
+    } else if (!ub_light_incident(&s->lights[l], p, dir, &dist, e)) {
+      continue;
+    }
+    float tfar = isfinite(dist) ? dist * (1.0f - 1e-4f) : INFINITY;
+    if (occluded(c->rt_open, p, dir, tfar))
+      continue;
+    if (l != UINT32_MAX)
+      c->portal_lights[l] = 1;
+    float back[3] = {-dir[0], -dir[1], -dir[2]};
+    ub_hit h;
+    trace(c->rt_open, p, back, INFINITY, &h);
+    if (h.tri == UB_RT_MISS)
+      continue;
+    float nd[3];
+    int front;
+    hit_normal(&h, back, nd, &front);
+    double ev[3] = {e[0], e[1], e[2]};
+    const float *alb = s->materials[s->tri_material[h.tri]].albedo;
+    float f = (float)(lum(ev) * fabs(dot3(nd, dir)) * (alb[0] + alb[1] + alb[2]) / 3.0);
+    if (!(f > 0.0f) || !isfinite(f))
+      continue;
+    for (int k = 0; k < 3; k++)
+      pos[3 * np + k] = p[k] + back[k] * h.t;
+    flux[np] = f;
+    from[np] = l;
+    np++;
+  }
+  c->nbox = 0;
+  uint32_t K = np / 16 < UB_DOOR_MAX_BOXES ? np / 16 : UB_DOOR_MAX_BOXES;
+  if (K > 0) {
+    double ctr[UB_DOOR_MAX_BOXES][3];
+    for (uint32_t j = 0; j < K; j++)
+      for (int k = 0; k < 3; k++)
+        ctr[j][k] = pos[3 * (size_t)((uint64_t)j * np / K) + k];
+    for (int it = 0; it < KMEANS_ITERS; it++) {
+      double acc[UB_DOOR_MAX_BOXES][4];
+      memset(acc, 0, sizeof acc);
+      for (uint32_t i = 0; i < np; i++) {
+        double best = INFINITY;
+        uint32_t bj = 0;
+        for (uint32_t j = 0; j < K; j++) {
+          double d2 = 0.0;
+          for (int k = 0; k < 3; k++)
+            d2 += (pos[3 * i + k] - ctr[j][k]) * (pos[3 * i + k] - ctr[j][k]);
+          if (d2 < best) {
+            best = d2;
+            bj = j;
+          }
+        }
+        asg[i] = bj;
+        for (int k = 0; k < 3; k++)
+          acc[bj][k] += flux[i] * pos[3 * i + k];
+        acc[bj][3] += flux[i];
+      }
+      for (uint32_t j = 0; j < K; j++)
+        if (acc[j][3] > 0.0)
+          for (int k = 0; k < 3; k++)
+            ctr[j][k] = acc[j][k] / acc[j][3];
+    }
+    c->box_lights = calloc((size_t)K * (s->light_count ? s->light_count : 1), 1);
+    if (!c->box_lights)
+      *oom = 1;
+    for (uint32_t j = 0; j < K && c->box_lights; j++) {
+      uint32_t m = 0;
+      double fsum = 0.0;
+      for (uint32_t i = 0; i < np; i++)
+        if (asg[i] == j) {
+          memcpy(pts + 3 * (size_t)m++, pos + 3 * (size_t)i, 3 * sizeof(float));
+          fsum += flux[i];
+        }
+      ub_obb b;
+      if (m < 2 || !ub_obb_fit(pts, m, UB_DOOR_BOX_MARGIN, &b))
+        continue;
+      uint32_t bj = c->nbox++;
+      c->box[bj] = b;
+      out_box_flux[bj] = fsum;
+      for (uint32_t i = 0; i < np; i++)
+        if (asg[i] == j && from[i] != UINT32_MAX)
+          c->box_lights[(size_t)bj * s->light_count + from[i]] = 1;
+    }
+  }
+  free(cand), free(pos), free(flux), free(from), free(asg), free(pts);
+  return np;
+}
+
+/* I_z-exact SH L1 (as bake/pass.c stores texels): add a cosine lobe about n so that the
+ * SH's irradiance along n equals iz. Linear in the light, so records stay additive. */
+static void sh1_fix_iz(const float n[3], const double iz[3], double sh[12], float out[12])
+{
+  const double K = M_PI * M_PI * (Y0 * Y0) + (2.0 * M_PI / 3.0) * (2.0 * M_PI / 3.0) * (Y1 * Y1);
+  const double h0 = Y0 * M_PI / K, h1 = Y1 * (2.0 * M_PI / 3.0) / K;
+  for (int ch = 0; ch < 3; ch++) {
+    double e_sh = M_PI * Y0 * sh[ch] + (2.0 * M_PI / 3.0) * Y1 *
+                                           (sh[3 + ch] * n[1] + sh[6 + ch] * n[2] +
+                                            sh[9 + ch] * n[0]);
+    double v = iz[ch] >= 0.0 && isfinite(iz[ch]) ? iz[ch] : 0.0;
+    double delta = v - e_sh;
+    sh[ch] += delta * h0;
+    sh[3 + ch] += delta * h1 * n[1];
+    sh[6 + ch] += delta * h1 * n[2];
+    sh[9 + ch] += delta * h1 * n[0];
+  }
+  for (int i = 0; i < 12; i++)
+    out[i] = isfinite(sh[i]) ? (float)sh[i] : 0.0f;
+}
+
+/* Runs the estimator over a receiver list. Texels: out12 (T×12, written at the listed
+ * texels), val (T: luminance of iz), iz3 (T×3) and ib3 (T×3: the one-bounce share (b),
+ * what a further bounce reads), each optional. Probes: out27 (P×27), val. */
+static void run_texels(const door_ctx *c, const uint32_t *list, uint32_t count, uint32_t rays,
+                       uint32_t nshadow, float *out12, float *val, float *iz3, float *ib3)
+{
+  const ub_lightmap *lm = c->lm;
+#pragma omp parallel for schedule(dynamic, 16)
+  for (uint32_t i = 0; i < count; i++) {
+    uint32_t t = list ? list[i] : i;
+    double sh[27] = {0}, iz[3] = {0, 0, 0}, ib[3] = {0, 0, 0};
+    const float *n = lm->texel_normal + 3 * (size_t)t;
+    receiver_estimate(c, lm->sample_pos + (size_t)t * UB_TEXEL_SAMPLES * 3, UB_TEXEL_SAMPLES,
+                      n, t, rays, nshadow, 4, sh, iz, ib);
+    if (out12)
+      sh1_fix_iz(n, iz, sh, out12 + 12 * (size_t)t);
+    if (val)
+      val[t] = (float)lum(iz);
+    for (int k = 0; k < 3; k++) {
+      if (iz3)
+        iz3[3 * (size_t)t + k] = (float)iz[k];
+      if (ib3)
+        ib3[3 * (size_t)t + k] = (float)ib[k];
+    }
+  }
+}
+
+static void run_probes(const door_ctx *c, const ub_pass_desc *pd, const uint32_t *list,
+                       uint32_t count, uint32_t rays, uint32_t nshadow, float *out27,
+                       float *val)
+{
+#pragma omp parallel for schedule(dynamic, 16)
+  for (uint32_t i = 0; i < count; i++) {
+    uint32_t q = list ? list[i] : i;
+    double sh[27] = {0}, iz[3] = {0, 0, 0};
+    receiver_estimate(c, pd->probe_pos + 3 * (size_t)q, 1, NULL, PROBE_ID_BASE + q, rays,
+                      nshadow, 9, sh, iz, NULL);
+    if (out27)
+      for (int k = 0; k < 27; k++)
+        out27[27 * (size_t)q + k] = isfinite(sh[k]) ? (float)sh[k] : 0.0f;
+    if (val) {
+      double dc[3] = {sh[0], sh[1], sh[2]};
+      val[q] = (float)lum(dc);
+    }
+  }
+}
+
+/* Further bounces on the receiver side (series expansion, bounce k ≥ 2): gather rays from
+ * a receiver that do not cross the door read albedo/π × bounce k−1 of the door's light at
+ * their hit (bilinear from prev, the images of the kept texels' previous bounce; other
+ * texels count as 0). Adds to sh (nsh × 3) and iz. */
+static void bounce_estimate(const door_ctx *c, float *const *prev, const float *origins,
+                            uint32_t norg, const float *n, uint32_t rid, uint32_t N,
+                            uint32_t nsh, double *sh, double iz[3])
+{
+  const ub_scene *s = c->s;
+  for (uint32_t smp = 0; smp < N; smp++) {
+    const float *x = origins + 3 * (smp % norg);
+    float u[4] = {rnd(c, rid, smp, 0), rnd(c, rid, smp, 1), rnd(c, rid, smp, 2),
+                  rnd(c, rid, smp, 3)};
+    float w[3];
+    double pdf = ub_guide_sample(&c->cosine, x, n, u, w);
+    if (!(pdf > 0.0) || !isfinite(pdf))
+      continue;
+    ub_hit h;
+    trace(c->rt_open, x, w, INFINITY, &h);
+    if (h.tri == UB_RT_MISS || c->lm->tri_atlas[h.tri] < 0 ||
+        occluded(c->rt_leaf, x, w, h.t))
+      continue;
+    float nd[3], E[3], L[3];
+    int front;
+    hit_normal(&h, w, nd, &front);
+    if (!front)
+      continue;
+    image_lookup(c->lm, prev, h.tri, h.u, h.v, E);
+    const float *alb = s->materials[s->tri_material[h.tri]].albedo;
+    for (int k = 0; k < 3; k++)
+      L[k] = alb[k] / (float)M_PI * E[k];
+    if (L[0] == 0.0f && L[1] == 0.0f && L[2] == 0.0f)
+      continue;
+    double wt = 1.0 / (pdf * (double)N);
+    float y[9];
+    ub_sh2_eval_basis(w, y);
+    for (uint32_t k = 0; k < nsh; k++)
+      for (int ch = 0; ch < 3; ch++)
+        sh[k * 3 + ch] += (double)y[k] * L[ch] * wt;
+    if (n) {
+      double cs = fmax(0.0, dot3(n, w));
+      for (int ch = 0; ch < 3; ch++)
+        iz[ch] += L[ch] * cs * wt;
+    }
+  }
+}
+
+/* Per-atlas images (w×h×4) of per-texel irradiance iz (T×3), dilated 2 rings; *out_img
+ * NULL: allocated here, else refilled. */
+static ub_result build_images(const ub_lightmap *lm, const float *iz, float ***out_img)
+{
+  float **img = *out_img ? *out_img : calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *img);
+  if (!img)
+    return UB_ERR_OUT_OF_MEMORY;
+  for (uint32_t a = 0; a < lm->atlas_count; a++) {
+    const ub_atlas *at = &lm->atlases[a];
+    size_t npx = (size_t)at->width * at->height;
+    if (!img[a])
+      img[a] = malloc(npx * 4 * sizeof(float));
+    if (img[a])
+      memset(img[a], 0, npx * 4 * sizeof(float));
+    uint8_t *cov = calloc(npx, 1);
+    if (!img[a] || !cov) {
+      free(cov);
+      *out_img = img; /* the caller frees what was allocated */
+      return UB_ERR_OUT_OF_MEMORY;
+    }
+    for (uint32_t i = 0; i < at->texel_count; i++) {
+      uint32_t t = at->first_texel + i;
+      size_t px = (size_t)lm->texel_xy[2 * t + 1] * at->width + lm->texel_xy[2 * t];
+      for (int ch = 0; ch < 3; ch++)
+        img[a][4 * px + ch] = iz[3 * (size_t)t + ch];
+      img[a][4 * px + 3] = 1.0f;
+      cov[px] = 1;
+    }
+    ub_lightmap_dilate(img[a], cov, at->width, at->height, 4, 2);
+    free(cov);
+  }
+  *out_img = img;
+  return UB_OK;
+}
+
+ub_result ub_door_bake(const ub_door_desc *dd, const ub_log *log,
+                       ub_bakefile_record **out_records, ub_door_stats *out_stats)
+{
+  const ub_pass_desc *pd = dd->base;
+  const ub_scene *s = pd->scene;
+  const ub_lightmap *lm = pd->lightmap;
+  memset(out_stats, 0, sizeof *out_stats);
+  *out_records = NULL;
+  if (s->door_count == 0)
+    return UB_OK;
+  uint32_t T = lm->texel_count, P = pd->probe_count;
+  ub_bakefile_record *recs = calloc(s->door_count, sizeof *recs);
+  uint8_t *open = calloc(s->door_count, 1);
+  uint8_t *plights = calloc(s->light_count ? s->light_count : 1, 1);
+  float *tval = malloc(((size_t)T + 1) * sizeof *tval);
+  float *pval = malloc(((size_t)P + 1) * sizeof *pval);
+  float *t12 = malloc(((size_t)T * 12 + 1) * sizeof *t12);
+  float *p27 = malloc(((size_t)P * 27 + 1) * sizeof *p27);
+  uint32_t *kt = malloc(((size_t)T + 1) * sizeof *kt);
+  uint32_t *kp = malloc(((size_t)P + 1) * sizeof *kp);
+  float **img = NULL, **bimg = NULL;
+  float *ib = calloc((size_t)T * 3 + 1, sizeof *ib), *ib2 = calloc((size_t)T * 3 + 1, sizeof *ib2);
+  ub_result r = UB_OK;
+  if (!ib || !ib2)
+    r = UB_ERR_OUT_OF_MEMORY;
+  if (!recs || !open || !plights || !tval || !pval || !t12 || !p27 || !kt || !kp)
+    r = UB_ERR_OUT_OF_MEMORY;
+  if (r == UB_OK)
+    r = build_images(lm, dd->base_result->iz, &img);
+  for (uint32_t d = 0; d < s->door_count && r == UB_OK; d++) {
+    ub_bakefile_record *rec = &recs[d];
+    snprintf(rec->name, sizeof rec->name, "%s", s->door_names[d]);
+    rec->kind = UB_ELEMENT_DOOR;
+    rec->parent[0] = rec->parent[1] = -1;
+    /* Portal = the OBB of the closed leaf's vertices. */
+    uint32_t nleaf = ub_geom_door_triangles(s, d, 0);
+    if (nleaf == 0) {
+      out_stats->doors_empty++;
+      ub_log_printf(log, UB_LOG_INFO, "  door %-16s: no closed leaf: skipped", rec->name);
+      continue;
+    }
+    float *pts = malloc((size_t)nleaf * 9 * sizeof *pts);
+    uint8_t *leaf_mask = calloc(s->triangle_count ? s->triangle_count : 1, 1);
+    if (!pts || !leaf_mask) {
+      free(pts);
+      free(leaf_mask);
+      r = UB_ERR_OUT_OF_MEMORY;
+      break;
+    }
+    uint32_t np = 0;
+    for (uint32_t t = 0; t < s->triangle_count; t++)
+      if (s->nodes[s->tri_node[t]].door == (int32_t)d &&
+          !(s->tri_flags[t] & UB_TRI_DEGENERATE)) {
+        leaf_mask[t] = 1;
+        for (int v = 0; v < 3; v++)
+          memcpy(pts + 3 * (size_t)np++, s->positions + 3 * (size_t)s->indices[3 * t + v],
+                 3 * sizeof(float));
+      }
+    door_ctx c;
+    memset(&c, 0, sizeof c);
+    c.s = s;
+    c.lm = lm;
+    c.img = img;
+    c.enabled = pd->light_enabled;
+    c.portal_lights = plights;
+    memset(plights, 0, s->light_count ? s->light_count : 1);
+    c.sky = pd->sky && s->has_sky;
+    c.sky_rgb = s->sky;
+    c.seed = pd->seed;
+    int fitted = ub_obb_fit(pts, np, 0.01f, &c.portal);
+    free(pts);
+    memset(open, 0, s->door_count);
+    open[d] = 1;
+    ub_geom_state st = {open, NULL};
+    uint8_t *open_mask = ub_geom_mask(s, &st);
+    ub_rt *rt_open = NULL, *rt_leaf = NULL;
+    if (!fitted || !open_mask) {
+      r = fitted ? UB_ERR_OUT_OF_MEMORY : UB_ERR_INVALID_DATA;
+    } else {
+      r = ub_rt_create(s, open_mask, log, &rt_open);
+      if (r == UB_OK)
+        r = ub_rt_create(s, leaf_mask, log, &rt_leaf);
+    }
+    free(open_mask);
+    free(leaf_mask);
+    if (r != UB_OK) {
+      ub_rt_free(rt_open);
+      ub_rt_free(rt_leaf);
+      break;
+    }
+    c.rt_open = rt_open;
+    c.rt_leaf = rt_leaf;
+    /* Shadow photons → boxes, light lists. */
+    double t0 = now_s();
+    c.pass_id = 0x1000u + 2u * d;
+    double box_flux[UB_DOOR_MAX_BOXES] = {0};
+    int oom = 0;
+    uint32_t landed = photons_build(&c, dd->photons, box_flux, &oom);
+    if (oom) {
+      r = UB_ERR_OUT_OF_MEMORY;
+    } else {
+      ub_obb boxes[1 + UB_DOOR_MAX_BOXES];
+      double bw[1 + UB_DOOR_MAX_BOXES];
+      boxes[0] = c.portal;
+      double fsum = 0.0;
+      for (uint32_t j = 0; j < c.nbox; j++)
+        fsum += box_flux[j];
+      bw[0] = c.nbox ? 0.5 : 1.0;
+      for (uint32_t j = 0; j < c.nbox; j++) {
+        boxes[1 + j] = c.box[j];
+        bw[1 + j] = fsum > 0.0 ? 0.5 * box_flux[j] / fsum : 0.0;
+      }
+      ub_guide_init(&c.cosine, NULL, 0, NULL, 1.0);
+      if (dd->guiding)
+        ub_guide_init(&c.guide, boxes, 1 + c.nbox, bw, 0.3);
+      else
+        ub_guide_init(&c.guide, NULL, 0, NULL, 1.0);
+      uint64_t rays0 = ub_rt_rays_traced(rt_open) + ub_rt_rays_traced(rt_leaf);
+      out_stats->rays_photons += rays0;
+      out_stats->photons_deposited += landed;
+      out_stats->boxes += c.nbox;
+      /* 1. Influence: a cheap pass over every receiver. */
+      uint32_t nkt = 0, nkp = 0;
+      double thr_t = 0.0, thr_p = 0.0;
+      if (dd->influence_rays) {
+        c.pass_id = 0x1000u + 2u * d;
+        run_texels(&c, NULL, T, dd->influence_rays, 1, NULL, tval, NULL, NULL);
+        run_probes(&c, pd, NULL, P, 2 * dd->influence_rays, 1, NULL, pval);
+        double st_ = 0.0, sp_ = 0.0;
+        uint32_t nt_ = 0, np_ = 0;
+        for (uint32_t t = 0; t < T; t++)
+          if (tval[t] > 0.0f)
+            st_ += tval[t], nt_++;
+        for (uint32_t q = 0; q < P; q++)
+          if (pval[q] > 0.0f)
+            sp_ += pval[q], np_++;
+        thr_t = nt_ ? UB_DOOR_INFLUENCE_FRACTION * st_ / nt_ : INFINITY;
+        thr_p = np_ ? UB_DOOR_INFLUENCE_FRACTION * sp_ / np_ : INFINITY;
+        for (uint32_t t = 0; t < T; t++)
+          if (tval[t] > thr_t)
+            kt[nkt++] = t;
+        for (uint32_t q = 0; q < P; q++)
+          if (pval[q] > thr_p)
+            kp[nkp++] = q;
+      } else {
+        for (uint32_t t = 0; t < T; t++)
+          kt[nkt++] = t;
+        for (uint32_t q = 0; q < P; q++)
+          kp[nkp++] = q;
+      }
+      uint64_t rays1 = ub_rt_rays_traced(rt_open) + ub_rt_rays_traced(rt_leaf);
+      out_stats->rays_influence += rays1 - rays0;
+      double t1 = now_s();
+      out_stats->seconds_influence += t1 - t0;
+      /* 2. Full quality over the kept receivers. */
+      uint32_t bounces_done = 1;
+      c.pass_id = 0x1001u + 2u * d;
+      memset(t12, 0, (size_t)T * 12 * sizeof *t12);
+      float *dbg = dd->debug_texel_iz && dd->debug_door == d ? dd->debug_texel_iz : NULL;
+      if (dbg)
+        memset(dbg, 0, (size_t)T * 3 * sizeof *dbg);
+      uint32_t nsh = pd->shadow_samples ? pd->shadow_samples : 1;
+      memset(ib, 0, (size_t)T * 3 * sizeof *ib);
+      memset(ib2, 0, (size_t)T * 3 * sizeof *ib2);
+      run_texels(&c, kt, nkt, dd->rays, nsh, t12, tval, dbg, ib);
+      run_probes(&c, pd, kp, nkp, 2 * dd->rays, nsh, p27, NULL);
+      /* Further bounces on the receiver side, until one adds < stop_fraction. */
+      double e_total = 0.0;
+      for (uint32_t i = 0; i < nkt; i++)
+        e_total += tval[kt[i]];
+      uint32_t nb = 1, max_b = pd->bounces >= 0 ? (uint32_t)pd->bounces : UB_DOOR_MAX_BOUNCES;
+      uint32_t rays_b = dd->rays / 2 > 16 ? dd->rays / 2 : 16;
+      while (nb < max_b && r == UB_OK) {
+        r = build_images(lm, ib, &bimg);
+        if (r != UB_OK)
+          break;
+        nb++;
+        c.pass_id = 0x2000u + 32u * d + nb;
+        double e_k = 0.0;
+#pragma omp parallel for schedule(dynamic, 16) reduction(+ : e_k)
+        for (uint32_t i = 0; i < nkt; i++) {
+          uint32_t t = kt[i];
+          double sh[27] = {0}, iz[3] = {0, 0, 0};
+          const float *n = lm->texel_normal + 3 * (size_t)t;
+          bounce_estimate(&c, bimg, lm->sample_pos + (size_t)t * UB_TEXEL_SAMPLES * 3,
+                          UB_TEXEL_SAMPLES, n, t, rays_b, 4, sh, iz);
+          float add[12];
+          sh1_fix_iz(n, iz, sh, add);
+          for (int k = 0; k < 12; k++)
+            t12[12 * (size_t)t + k] += add[k];
+          for (int k = 0; k < 3; k++) {
+            ib2[3 * (size_t)t + k] = (float)iz[k];
+            if (dbg)
+              dbg[3 * (size_t)t + k] += (float)iz[k];
+          }
+          e_k += lum(iz);
+        }
+#pragma omp parallel for schedule(dynamic, 16)
+        for (uint32_t i = 0; i < nkp; i++) {
+          uint32_t q = kp[i];
+          double sh[27] = {0}, iz[3] = {0, 0, 0};
+          bounce_estimate(&c, bimg, pd->probe_pos + 3 * (size_t)q, 1, NULL,
+                          PROBE_ID_BASE + q, 2 * rays_b, 9, sh, iz);
+          for (int k = 0; k < 27; k++)
+            p27[27 * (size_t)q + k] += isfinite(sh[k]) ? (float)sh[k] : 0.0f;
+        }
+        float *tmp = ib;
+        ib = ib2;
+        ib2 = tmp;
+        int stop = !(e_k > pd->stop_fraction * e_total);
+        e_total += e_k;
+        if (stop)
+          break;
+      }
+      if (r != UB_OK)
+        break;
+      bounces_done = nb;
+      out_stats->rays_full += ub_rt_rays_traced(rt_open) + ub_rt_rays_traced(rt_leaf) - rays1;
+      out_stats->seconds_full += now_s() - t1;
+      r = ub_dls_texel_record(lm, kt, nkt, t12, rec);
+      if (r == UB_OK && nkp) {
+        rec->probe_index = malloc((size_t)nkp * sizeof *rec->probe_index);
+        rec->probe_sh = malloc((size_t)nkp * 27 * sizeof *rec->probe_sh);
+        if (!rec->probe_index || !rec->probe_sh) {
+          r = UB_ERR_OUT_OF_MEMORY;
+        } else {
+          rec->probe_count = nkp;
+          for (uint32_t i = 0; i < nkp; i++) {
+            rec->probe_index[i] = kp[i];
+            memcpy(rec->probe_sh + 27 * (size_t)i, p27 + 27 * (size_t)kp[i],
+                   27 * sizeof(float));
+          }
+        }
+      }
+      uint32_t nlist = 0;
+      for (uint32_t l = 0; l < s->light_count; l++)
+        nlist += plights[l];
+      out_stats->doors_baked++;
+      out_stats->texels_kept += nkt;
+      out_stats->probes_kept += nkp;
+      ub_log_printf(log, UB_LOG_INFO,
+                    "  door %-16s: %u leaf triangles, %u of %u photons landed in %u box(es), "
+                    "%u light(s) reach the portal; %u of %u texels and %u of %u probes in "
+                    "its influence (threshold %.3g W/m²), %u bounce(s) inside, record %u "
+                    "pixels",
+                    rec->name, nleaf, landed, dd->photons, c.nbox, nlist, nkt, T, nkp, P,
+                    thr_t, bounces_done, rec->texel_count);
+    }
+    free(c.box_lights);
+    ub_rt_free(rt_open);
+    ub_rt_free(rt_leaf);
+  }
+  for (uint32_t a = 0; a < lm->atlas_count; a++) {
+    if (img)
+      free(img[a]);
+    if (bimg)
+      free(bimg[a]);
+  }
+  free(img);
+  free(bimg);
+  free(ib);
+  free(ib2);
+  free(open);
+  free(plights);
+  free(tval);
+  free(pval);
+  free(t12);
+  free(p27);
+  free(kt);
+  free(kp);
+  if (r != UB_OK) {
+    ub_dls_records_free(recs, s->door_count);
+    return r;
+  }
+  *out_records = recs;
+  return UB_OK;
+}

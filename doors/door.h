@@ -1,0 +1,77 @@
+/* doors/door.h — the door pass: what a door adds to the base when it opens (UberBake §4).
+ *
+ * The base bake sees every closed leaf as black (bake/geomstate.h), so no base path crosses
+ * it. A door's record is S_P = lighting(this door open) − lighting(base), restricted to the
+ * paths the closed leaf blocks. Formulation (per door, other doors closed):
+ *   rt_open = the base geometry − this closed leaf + this leaf's open pose (if any);
+ *   rt_leaf = this closed leaf alone.
+ * A ray segment "crosses the door" when rt_leaf occludes it. At each receiver x:
+ *  (a) through the door, L_x D* P R: gather rays that cross the door take, at the first
+ *      open-geometry hit X, the base bake's stored outgoing radiance there (albedo/π ×
+ *      stored irradiance at X, bilinear from the base lightmap) + albedo/π × the direct
+ *      light of primary lights at X (not stored in the base) + emission, or the sky on a
+ *      miss;
+ *  (b) one bounce inside, L_x P D R (+ L_x D+ P D R): gather rays that do not cross the
+ *      door and hit D take albedo/π × E_P(D), E_P = light at D that crosses the door:
+ *      punctual lights (shadow ray crosses the leaf, open geometry clear) + one portal
+ *      sample of (a) at D (sky or the base's stored radiance beyond);
+ *  (c) static punctual lights at x whose shadow ray crosses the door (primary lights'
+ *      direct light is the game's).
+ * (a) and (b) share one set of gather rays from one guide mixture (doors/guide.h):
+ * cosine (uniform sphere for probes) + the portal box (the closed leaf's OBB) + up to
+ * UB_DOOR_MAX_BOXES boxes around the shadow photons (points of the receiver side lit
+ * through the door), one-sample MIS with the balance heuristic. Every term is ≥ 0.
+ * Not simulated: the shadow the open leaf casts on paths that never cross the doorway,
+ * light bouncing on the receiver side more than once, light the receiver side sends back
+ * out through the door, and stored base light on geometry without a lightmap (LLG
+ * models, the open leaf): there only primary direct light and emission are used.
+ *
+ * Influence region: a cheap version of the pass (influence_rays, one shadow sample) over
+ * every texel and GLG probe; a receiver is kept when its luminance exceeds
+ * UB_DOOR_INFLUENCE_FRACTION × the mean over the receivers it reached (texels and probes
+ * each with their own mean). Only kept receivers are simulated at full quality and stored.
+ * LLG probes are not touched by door records yet.
+ *
+ * Determinism: random numbers are ub_hash4 of (seed, pass, receiver, sample).
+ * Ownership: the caller frees the records with ub_dls_records_free (bake/dls.h).
+ */
+#ifndef UBAKE_DOORS_DOOR_H
+#define UBAKE_DOORS_DOOR_H
+
+#include <stdint.h>
+
+#include "bake/pass.h"
+#include "doors/guide.h"
+#include "ubake/bakefile.h"
+
+#define UB_DOOR_MAX_BOXES 12              /* photon clusters (paper: 12) */
+#define UB_DOOR_INFLUENCE_FRACTION 0.01   /* of the mean over the receivers reached */
+#define UB_DOOR_BOX_MARGIN 0.15f          /* metres: photon boxes inflated (light lists) */
+
+typedef struct ub_door_desc {
+  const ub_pass_desc *base;          /* the base pass: scene, rt, lightmap, probes, seed */
+  const ub_pass_result *base_result; /* its stored irradiance (iz) at every texel */
+  uint32_t rays;                     /* gather rays per texel (probes: 2×) */
+  uint32_t influence_rays;           /* per texel in the influence pass (0: no culling) */
+  uint32_t photons;                  /* shadow photon attempts per door */
+  int guiding;                       /* 1: portal + photon boxes + cosine (MIS); 0: cosine */
+  /* Optional diagnostics: texel_count × 3 irradiance along the normal (W/m²) of door
+   * debug_door's record, before dilation (0 outside its influence). */
+  float *debug_texel_iz;
+  uint32_t debug_door;
+} ub_door_desc;
+
+typedef struct ub_door_stats {
+  uint32_t doors_baked, doors_empty;
+  uint32_t photons_deposited, boxes;     /* summed over doors */
+  uint64_t rays_influence, rays_full, rays_photons;
+  double seconds_influence, seconds_full;
+  uint64_t texels_kept, probes_kept;
+} ub_door_stats;
+
+/* One record per door (scene->door_count, kind UB_ELEMENT_DOOR, named after the door,
+ * parents -1; empty for a door without closed-leaf triangles). */
+ub_result ub_door_bake(const ub_door_desc *dd, const ub_log *log,
+                       ub_bakefile_record **out_records, ub_door_stats *out_stats);
+
+#endif

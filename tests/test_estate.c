@@ -1,0 +1,262 @@
+/* The ESTATE-scale level's small variant (build/levels/estate_small.gltf, made by
+ * ubake-genlevel estate with the parameters in CMakeLists.txt) bakes at draft, and:
+ * - the .ubk holds one record per set named in the glTF;
+ * - some covered texels are in >= 8 sets' records (the hall's sets overlap), computed
+ *   from the records themselves;
+ * - records are sparse: each set touches a minority of the level's texels and probes;
+ * - the run-time blend, after many toggles and tints of every set, returns bit for bit to
+ *   the all-on and the all-off state (texels decoded from AHD, GLG probe SH), and toggling
+ *   one set updates only about its own receivers. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "test_util.h"
+#include "ubake/bake.h"
+#include "ubake/bakefile.h"
+#include "ubake/runtime.h"
+
+#define MIN_MAX_OVERLAP 8   /* the level's hall has 8 sets */
+#define MAX_SET_SHARE 0.40  /* of the level's pixels (or probes) one set may touch */
+#define MAX_MEAN_SHARE 0.30 /* mean over sets */
+
+/* Distinct values of "ubake_dls" in a glTF file (the generator writes `"ubake_dls": "NAME"`). */
+static int gltf_set_count(const char *path)
+{
+  FILE *f = fopen(path, "rb");
+  if (!f)
+    return -1;
+  fseek(f, 0, SEEK_END);
+  long n = ftell(f);
+  fseek(f, 0, SEEK_SET);
+  char *s = malloc((size_t)n + 1);
+  if (!s || fread(s, 1, (size_t)n, f) != (size_t)n) {
+    fclose(f);
+    free(s);
+    return -1;
+  }
+  fclose(f);
+  s[n] = 0;
+  char names[256][64];
+  int count = 0;
+  for (const char *p = strstr(s, "\"ubake_dls\": \""); p; p = strstr(p + 1, "\"ubake_dls\": \"")) {
+    const char *a = p + strlen("\"ubake_dls\": \""), *b = strchr(a, '"');
+    if (!b || b - a >= 64)
+      break;
+    char nm[64];
+    memcpy(nm, a, (size_t)(b - a));
+    nm[b - a] = 0;
+    int seen = 0;
+    for (int i = 0; i < count && !seen; i++)
+      seen = !strcmp(names[i], nm);
+    if (!seen && count < 256)
+      memcpy(names[count++], nm, sizeof nm);
+  }
+  free(s);
+  return count;
+}
+
+/* Snapshot of the run-time state: irradiance along the normal of every covered texel (RGB)
+ * and every GLG probe's raw SH. */
+typedef struct snap {
+  float *tex, *glg;
+  size_t ntex, nglg;
+} snap;
+
+static void take(const ub_runtime *rt, snap *s)
+{
+  const ub_bakefile *f = ub_runtime_bakefile(rt);
+  size_t n = 0;
+  for (uint32_t a = 0; a < f->atlas_count; a++)
+    for (size_t px = 0; px < (size_t)f->atlases[a].width * f->atlases[a].height; px++)
+      n += f->atlases[a].coverage[px] == 1;
+  s->ntex = n;
+  s->tex = malloc((3 * n + 1) * sizeof *s->tex);
+  n = 0;
+  for (uint32_t a = 0; a < f->atlas_count; a++)
+    for (uint32_t y = 0; y < f->atlases[a].height; y++)
+      for (uint32_t x = 0; x < f->atlases[a].width; x++) {
+        size_t px = (size_t)y * f->atlases[a].width + x;
+        if (f->atlases[a].coverage[px] != 1)
+          continue;
+        ASSERT_OK(ub_runtime_texel_irradiance(rt, a, x, y, f->atlases[a].normal + 3 * px,
+                                              s->tex + 3 * n));
+        n++;
+      }
+  s->nglg = (size_t)f->glg_probe_count * 27;
+  s->glg = malloc((s->nglg + 1) * sizeof *s->glg);
+  const float *g = ub_runtime_glg_probe_sh(rt, 0);
+  if (g)
+    memcpy(s->glg, g, s->nglg * sizeof *g);
+}
+
+/* Number of floats that differ (bitwise). */
+static size_t diff(const snap *a, const snap *b)
+{
+  size_t d = 0;
+  for (size_t i = 0; i < 3 * a->ntex && i < 3 * b->ntex; i++)
+    d += memcmp(&a->tex[i], &b->tex[i], sizeof(float)) != 0;
+  for (size_t i = 0; i < a->nglg && i < b->nglg; i++)
+    d += memcmp(&a->glg[i], &b->glg[i], sizeof(float)) != 0;
+  return d;
+}
+
+static void set_all(ub_runtime *rt, float w)
+{
+  const float rgb[3] = {w, w, w};
+  for (uint32_t d = 0; d < ub_runtime_dls_count(rt); d++)
+    ASSERT_OK(ub_runtime_set_dls(rt, d, rgb));
+  ASSERT_OK(ub_runtime_update(rt, NULL));
+}
+
+static void check_records(const ub_bakefile *bf)
+{
+  size_t pixels = 0, covered = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++)
+    pixels += (size_t)bf->atlases[a].width * bf->atlases[a].height;
+  uint8_t *cov = calloc(pixels, 1);
+  uint16_t *over = calloc(pixels, sizeof *over);
+  size_t off = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    size_t n = (size_t)bf->atlases[a].width * bf->atlases[a].height;
+    for (size_t px = 0; px < n; px++)
+      covered += (cov[off + px] = bf->atlases[a].coverage[px] == 1);
+    off += n;
+  }
+  double share_sum = 0.0, share_max = 0.0, probe_share_max = 0.0;
+  for (uint32_t d = 0; d < bf->dls_count; d++) {
+    const ub_bakefile_record *r = &bf->dls[d];
+    for (uint32_t i = 0; i < r->texel_count; i++)
+      over[r->texel_index[i]]++;
+    double share = (double)r->texel_count / (double)pixels;
+    double pshare = bf->glg_probe_count ? (double)r->probe_count / bf->glg_probe_count : 0.0;
+    share_sum += share;
+    share_max = share > share_max ? share : share_max;
+    probe_share_max = pshare > probe_share_max ? pshare : probe_share_max;
+    ASSERT_TRUE(r->texel_count > 0); /* every set lights something */
+  }
+  uint32_t hist[33] = {0}, max_over = 0;
+  for (size_t px = 0; px < pixels; px++)
+    if (cov[px]) {
+      hist[over[px] > 32 ? 32 : over[px]]++;
+      max_over = over[px] > max_over ? over[px] : max_over;
+    }
+  printf("records: %u sets over %zu pixels (%zu covered); share of pixels per set: mean %.1f%%, "
+         "max %.1f%%; GLG probes per set: max %.1f%% of %u\n",
+         bf->dls_count, pixels, covered, 100.0 * share_sum / (bf->dls_count ? bf->dls_count : 1),
+         100.0 * share_max, 100.0 * probe_share_max, bf->glg_probe_count);
+  printf("overlap histogram of covered texels (sets: texels):");
+  for (uint32_t k = 0; k <= max_over && k <= 32; k++)
+    printf(" %u:%u", k, hist[k]);
+  printf("\nmax overlap %u (want >= %d)\n", max_over, MIN_MAX_OVERLAP);
+  ASSERT_TRUE(max_over >= MIN_MAX_OVERLAP);
+  ASSERT_TRUE(share_max < MAX_SET_SHARE);
+  ASSERT_TRUE(probe_share_max < MAX_SET_SHARE);
+  ASSERT_TRUE(share_sum / (bf->dls_count ? bf->dls_count : 1) < MAX_MEAN_SHARE);
+  free(cov);
+  free(over);
+}
+
+static void check_blend(const char *ubk, const ub_bakefile *bf)
+{
+  ub_runtime *rt = NULL;
+  ASSERT_OK(ub_runtime_load(ubk, NULL, &rt));
+  if (!rt)
+    return;
+  uint32_t nd = ub_runtime_dls_count(rt);
+  ASSERT_TRUE(nd == bf->dls_count);
+  snap on, off, s;
+  set_all(rt, 1.0f);
+  take(rt, &on);
+  set_all(rt, 0.0f);
+  take(rt, &off);
+  size_t on_off = diff(&on, &off);
+  printf("all on vs all off: %zu of %zu values differ\n", on_off, 3 * on.ntex + on.nglg);
+  ASSERT_TRUE(on_off > 0);
+  /* Toggle one set at a time from all-off: the update touches about its own record. */
+  int32_t hall = ub_runtime_dls_find(rt, "hall_00");
+  ASSERT_TRUE(hall >= 0);
+  if (hall >= 0) {
+    const float one[3] = {1, 1, 1};
+    ub_runtime_update_stats st;
+    ASSERT_OK(ub_runtime_set_dls(rt, (uint32_t)hall, one));
+    ASSERT_OK(ub_runtime_update(rt, &st));
+    const ub_bakefile_record *r = &bf->dls[hall];
+    printf("toggle hall_00 on: %llu texels written (record %u), %llu probes (record %u)\n",
+           (unsigned long long)st.texels_written, r->texel_count,
+           (unsigned long long)st.probes_written, r->probe_count);
+    ASSERT_TRUE(st.texels_written > 0 && st.texels_written <= r->texel_count);
+    ASSERT_TRUE(st.probes_written <= r->probe_count);
+    take(rt, &s);
+    ASSERT_TRUE(diff(&s, &off) > 0);
+    free(s.tex);
+    free(s.glg);
+  }
+  /* Many random toggles and tints, then back to all off / all on: identical bits. */
+  uint32_t h = 12345u;
+  for (int step = 0; step < 200; step++) {
+    h = h * 1664525u + 1013904223u;
+    uint32_t d = (h >> 8) % nd;
+    h = h * 1664525u + 1013904223u;
+    float w = (h >> 28) < 6 ? 0.0f : (float)((h >> 8) & 0xffff) / 32768.0f;
+    float rgb[3] = {w, w * 0.7f, w * 1.3f};
+    ASSERT_OK(ub_runtime_set_dls(rt, d, rgb));
+    if (step % 3 == 0)
+      ASSERT_OK(ub_runtime_update(rt, NULL));
+  }
+  ASSERT_OK(ub_runtime_update(rt, NULL));
+  set_all(rt, 0.0f);
+  take(rt, &s);
+  size_t d_off = diff(&s, &off);
+  free(s.tex);
+  free(s.glg);
+  set_all(rt, 1.0f);
+  take(rt, &s);
+  size_t d_on = diff(&s, &on);
+  printf("after 200 random toggles: all off differs in %zu values, all on in %zu (want 0)\n",
+         d_off, d_on);
+  ASSERT_TRUE(d_off == 0);
+  ASSERT_TRUE(d_on == 0);
+  free(s.tex);
+  free(s.glg);
+  free(on.tex);
+  free(on.glg);
+  free(off.tex);
+  free(off.glg);
+  ub_runtime_free(rt);
+}
+
+int main(void)
+{
+  const char *b = getenv("UB_BUILD");
+  char build[512], level[1024], dir[1024];
+  snprintf(build, sizeof build, "%s", b ? b : "build");
+  snprintf(level, sizeof level, "%s/levels/estate_small.gltf", build);
+  snprintf(dir, sizeof dir, "%s/test_out/estate", build);
+  int want_sets = gltf_set_count(level);
+  printf("%s: %d sets named in the glTF\n", level, want_sets);
+  ASSERT_TRUE(want_sets >= MIN_MAX_OVERLAP);
+  ub_bake_options o;
+  ub_bake_options_default(&o);
+  o.quality = UB_QUALITY_DRAFT;
+  o.bounces = 2; /* the structure is under test, not convergence: keep it under a minute */
+  o.out_dir = dir;
+  ub_bake_stats st;
+  ub_result r = ub_bake_level(level, &o, NULL, &st);
+  ASSERT_OK(r);
+  if (r != UB_OK)
+    TEST_MAIN_END();
+  printf("baked in %.1f s: %u texels, %u GLG probes, %u sets\n", st.total_seconds, st.texels,
+         st.glg_probes, st.dls_sets);
+  ub_bakefile *bf = NULL;
+  ASSERT_OK(ub_bakefile_read(st.ubk_path, NULL, &bf));
+  if (bf) {
+    ASSERT_TRUE((int)bf->dls_count == want_sets);
+    ASSERT_TRUE(st.dls_sets == bf->dls_count);
+    ASSERT_TRUE(bf->llg_count > 0);
+    check_records(bf);
+    check_blend(st.ubk_path, bf);
+  }
+  ub_bakefile_free(bf);
+  TEST_MAIN_END();
+}
