@@ -67,10 +67,15 @@ int main(int argc, char **argv)
     ncombo += bf->elems[e].kind == UB_ELEMENT_COMBO;
   }
   uint32_t ne = bf->elem_count;
+  uint32_t *role = bf->tri_role;
   bf->elem_count = 0;
+  bf->tri_role = NULL;
   snprintf(plain, sizeof plain, "%s/plain.ubk", dir);
   ub_result wr = ub_bakefile_write(bf, plain, NULL);
+  if (wr != UB_OK)
+    fprintf(stderr, "bench_objects: writing %s without elements: %s\n", plain, ub_result_string(wr));
   bf->elem_count = ne;
+  bf->tri_role = role;
   long full_b = file_size(st.ubk_path), plain_b = wr == UB_OK ? file_size(plain) : -1;
   printf("storage: %ld bytes with %u object + %u combination records (%llu texels, %llu probes), "
          "%ld bytes without: %.2fx\n",
@@ -88,6 +93,19 @@ int main(int argc, char **argv)
     if (ub_runtime_element_kind(rt, e) == UB_ELEMENT_OBJECT && obj < 0)
       obj = (int32_t)e;
   double t0 = now_s();
+  for (int i = 0; i < reps; i++)
+    ub_runtime_update(rt, NULL);
+  double idle = (now_s() - t0) / reps;
+  uint64_t written = 0;
+  t0 = now_s();
+  for (int i = 0; i < reps; i++) {
+    ub_runtime_update_stats us;
+    ub_runtime_set_element(rt, (uint32_t)obj, (float)(i & 1 ? 1.0 : 0.0));
+    ub_runtime_update(rt, &us);
+    written += us.texels_written;
+  }
+  double one_obj = (now_s() - t0) / reps;
+  t0 = now_s();
   for (int i = 0; i < reps; i++) {
     ub_runtime_set_element(rt, (uint32_t)obj, (float)(i & 1 ? 1.0 : 0.0));
     ub_runtime_update(rt, NULL);
@@ -115,6 +133,8 @@ int main(int argc, char **argv)
     ub_runtime_update(rt, NULL);
   }
   double all = (now_s() - t0) / reps;
+  printf("update (1 core): nothing changed %.3f ms; one object %.3f ms (%.0f texels written)\n",
+         idle * 1e3, one_obj * 1e3, (double)written / reps);
   printf("update (1 core): one object %.3f ms, one set %.3f ms, all %u objects + %u sets at once "
          "%.3f ms\n",
          one * 1e3, set * 1e3, nobjs, nd, all * 1e3);

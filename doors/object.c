@@ -124,6 +124,10 @@ typedef struct job {
   ub_obb box;
   ub_guide guide;
   const field *ls;            /* L_s: the stored lighting of this pass, shown geometry */
+  /* L_s per texel (texel_count × 12 SH, × 3 I_z), or NULL: texels under the object (their
+   * base sample points were moved off its back faces) get D = L_s − L_h with L_h traced
+   * from points on the texel itself in the hidden geometry. */
+  const float *ref_sh, *ref_iz;
   uint32_t pass_id;
   /* receivers (candidates) */
   const uint32_t *kt, *kp;
@@ -254,6 +258,112 @@ static void hit_radiance(job *j, const field *f, int with_sky, int which, const 
     primary_at(j, hp, hn, h->tri, id, k, which, p);
     for (int c = 0; c < 3; c++)
       L[c] += p[c];
+  }
+}
+
+/* World point of texel-space position (x + fx, y + fy) on the plane of the texel's
+ * triangle (as bake/pass.c's texel_plane_point). */
+static int texel_point(const ub_scene *s, const ub_lightmap *lm, uint32_t t, float fx, float fy,
+                       float out[3])
+{
+  uint32_t tri = lm->texel_tri[t];
+  const ub_atlas *at = &lm->atlases[lm->texel_atlas[t]];
+  const float *uv = lm->tri_uv + 6 * (size_t)tri;
+  float qu = ((float)lm->texel_xy[2 * t] + fx) / (float)at->width;
+  float qv = ((float)lm->texel_xy[2 * t + 1] + fy) / (float)at->height;
+  float e1u = uv[2] - uv[0], e1v = uv[3] - uv[1], e2u = uv[4] - uv[0], e2v = uv[5] - uv[1];
+  float det = e1u * e2v - e2u * e1v;
+  if (!(fabsf(det) > 1e-20f))
+    return 0;
+  float du = qu - uv[0], dv = qv - uv[1];
+  float b1 = (du * e2v - e2u * dv) / det, b2 = (e1u * dv - du * e1v) / det;
+  const float *p0 = s->positions + 3 * s->indices[3 * tri];
+  const float *p1 = s->positions + 3 * s->indices[3 * tri + 1];
+  const float *p2 = s->positions + 3 * s->indices[3 * tri + 2];
+  for (int k = 0; k < 3; k++)
+    out[k] = p0[k] + b1 * (p1[k] - p0[k]) + b2 * (p2[k] - p0[k]);
+  return isfinite(out[0]) && isfinite(out[1]) && isfinite(out[2]);
+}
+
+/* Is texel t under the object (its centre, just off the surface, inside the box)? */
+static int texel_covered(const job *j, uint32_t t)
+{
+  const ub_lightmap *lm = j->d->lightmap;
+  float q[3];
+  ub_rt_offset_point(j->rt_h, lm->texel_pos + 3 * (size_t)t, lm->texel_normal + 3 * (size_t)t, q);
+  return ub_obb_contains(&j->box, q);
+}
+
+/* L_h at a covered texel, first order: static direct + cosine gather of (L_s + P_h) [+ sky,
+ * emission] in the hidden geometry, from 2×2 stratified points on the texel itself. */
+static void hidden_first_order(job *j, uint32_t t, uint32_t nrays, ub_ray *rays, ub_hit *hits,
+                               double *sh, double *iz)
+{
+  const ub_pass_desc *d = j->d;
+  const ub_scene *s = d->scene;
+  const ub_lightmap *lm = d->lightmap;
+  const float *nrm = lm->texel_normal + 3 * (size_t)t;
+  float pts[4][3];
+  for (int k = 0; k < 4; k++) {
+    float q[3];
+    if (!texel_point(s, lm, t, 0.25f + 0.5f * (float)(k & 1), 0.25f + 0.5f * (float)(k >> 1), q))
+      memcpy(q, lm->texel_pos + 3 * (size_t)t, sizeof q);
+    ub_rt_offset_point(j->rt_h, q, nrm, pts[k]);
+  }
+  for (uint32_t l = 0; l < s->light_count; l++) {
+    const ub_light *L = &s->lights[l];
+    if (!j->lights[l] || L->cls == UB_LIGHT_PRIMARY)
+      continue;
+    for (int k = 0; k < 4; k++) {
+      float dir[3], dist, e[3];
+      if (!ub_light_incident(L, pts[k], dir, &dist, e))
+        continue;
+      float cs = dot3(nrm, dir);
+      if (cs <= 0.0f)
+        continue;
+      ub_ray r;
+      memcpy(r.org, pts[k], sizeof r.org);
+      memcpy(r.dir, dir, sizeof dir);
+      r.tnear = 0.0f;
+      r.tfar = isfinite(dist) ? dist * (1.0f - 1e-4f) : INFINITY;
+      uint8_t oh;
+      ub_rt_occluded(j->rt_h, &r, 1, &oh);
+      atomic_fetch_add(&j->rays, 1);
+      if (oh)
+        continue;
+      double ev[3] = {e[0] / 4.0, e[1] / 4.0, e[2] / 4.0};
+      sh_add(sh, 4, dir, ev, 1.0);
+      for (int c = 0; c < 3; c++)
+        iz[c] += ev[c] * cs;
+    }
+  }
+  uint32_t kx = (uint32_t)sqrtf((float)nrays);
+  kx = kx < 1 ? 1 : kx;
+  uint32_t ky = nrays / kx;
+  for (uint32_t k = 0; k < nrays; k++) {
+    uint32_t h = ub_hash4(d->seed, j->pass_id * 0x10000u + 0x180u, t, k);
+    float u1 = ub_u01(h), u2 = ub_u01(ub_hash4(h, 7, 0, 0));
+    if (k < kx * ky) {
+      u1 = ((float)(k % kx) + u1) / (float)kx;
+      u2 = ((float)(k / kx) + u2) / (float)ky;
+    }
+    memcpy(rays[k].org, pts[k & 3], sizeof rays[k].org);
+    ub_sample_cosine(nrm, u1, u2, rays[k].dir);
+    rays[k].tnear = 0.0f;
+    rays[k].tfar = INFINITY;
+  }
+  ub_rt_intersect(j->rt_h, rays, nrays, hits);
+  atomic_fetch_add(&j->rays, nrays);
+  for (uint32_t k = 0; k < nrays; k++) {
+    float cs = dot3(nrm, rays[k].dir);
+    if (cs <= 1e-4f)
+      continue;
+    double L[3];
+    hit_radiance(j, j->ls, 1, 2, &rays[k], &hits[k], t, k, L);
+    double wt = M_PI / (nrays * cs);
+    sh_add(sh, 4, rays[k].dir, L, wt);
+    for (int c = 0; c < 3; c++)
+      iz[c] += L[c] * cs * wt;
   }
 }
 
@@ -457,7 +567,15 @@ static ub_result job_run(job *j)
           uint32_t t = j->kt[i];
           const float *smp = lm->sample_pos + (size_t)t * UB_TEXEL_SAMPLES * 3;
           const float *nrm = lm->texel_normal + 3 * (size_t)t;
-          if (it == 0)
+          if (it == 0 && j->ref_sh && texel_covered(j, t)) {
+            /* D = L_s − L_h: the stored value minus a hidden-geometry estimate */
+            double *sh = b_sh + 12 * (size_t)i, *iz = b_iz + 3 * (size_t)i;
+            hidden_first_order(j, t, N, rays, hits, sh, iz);
+            for (int k = 0; k < 12; k++)
+              sh[k] = j->ref_sh[12 * (size_t)t + k] - sh[k];
+            for (int c = 0; c < 3; c++)
+              iz[c] = j->ref_iz[3 * (size_t)t + c] - iz[c];
+          } else if (it == 0)
             first_order(j, smp, UB_TEXEL_SAMPLES, nrm, t, 4, N, rays, hits, b_sh + 12 * (size_t)i,
                         b_iz + 3 * (size_t)i);
           else
@@ -683,9 +801,11 @@ ub_result ub_records_append(ub_bakefile_record **io_elems, uint32_t *io_count,
 }
 
 /* Per-texel irradiance along the normal of a set's record (pixel SH → texel). */
-static void record_texel_iz(const ub_lightmap *lm, const ub_bakefile_record *rec, float *out)
+static void record_texel_iz(const ub_lightmap *lm, const ub_bakefile_record *rec, float *out,
+                            float *out_sh)
 {
   memset(out, 0, (size_t)lm->texel_count * 3 * sizeof(float));
+  memset(out_sh, 0, (size_t)lm->texel_count * 12 * sizeof(float));
   for (uint32_t t = 0; t < lm->texel_count && rec->texel_count; t++) {
     uint32_t px = ub_dls_texel_pixel(lm, t);
     uint32_t lo = 0, hi = rec->texel_count;
@@ -699,6 +819,7 @@ static void record_texel_iz(const ub_lightmap *lm, const ub_bakefile_record *rec
     if (lo >= rec->texel_count || rec->texel_index[lo] != px)
       continue;
     const float *sh = rec->texel_sh + 12 * (size_t)lo;
+    memcpy(out_sh + 12 * (size_t)t, sh, 12 * sizeof(float));
     const float *n = lm->texel_normal + 3 * (size_t)t;
     for (int c = 0; c < 3; c++)
       out[3 * (size_t)t + c] = (float)(M_PI * Y0 * sh[c] +
@@ -811,6 +932,8 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
       break;
     job_init(&d->j, base, base->rt, d->rt_h, base->light_enabled, base->sky, base->emissive, d,
              &ls_base, 0x100u + 2 * o);
+    d->j.ref_sh = base_res->sh;
+    d->j.ref_iz = base_res->iz;
     r = region(&d->j, &d->kt, &d->kp);
     if (r == UB_OK)
       r = job_run(&d->j);
@@ -851,7 +974,8 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
   /* 2. pairwise corrections C_ab = D_a − D_a|b hidden, for overlapping records */
   float *scratch = calloc((size_t)T * 3 + 1, sizeof(float));
   float *scratch2 = calloc((size_t)T * 3 + 1, sizeof(float));
-  if (r == UB_OK && (!scratch || !scratch2))
+  float *scratch_sh = calloc((size_t)T * 12 + 1, sizeof(float));
+  if (r == UB_OK && (!scratch || !scratch2 || !scratch_sh))
     r = UB_ERR_OUT_OF_MEMORY;
   for (uint32_t a = 0; a < O && r == UB_OK; a++)
     for (uint32_t b = a + 1; b < O && r == UB_OK; b++) {
@@ -898,9 +1022,14 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
       free(mab);
       for (size_t i = 0; i < (size_t)T * 3; i++)
         scratch2[i] = base_res->iz[i];
-      for (uint32_t i = 0; i < od[b].j.nkt; i++)
+      for (size_t i = 0; i < (size_t)T * 12; i++)
+        scratch_sh[i] = base_res->sh[i];
+      for (uint32_t i = 0; i < od[b].j.nkt; i++) {
         for (int c = 0; c < 3; c++)
           scratch2[3 * (size_t)od[b].j.kt[i] + c] -= (float)od[b].j.t_iz[3 * (size_t)i + c];
+        for (int k = 0; k < 12; k++)
+          scratch_sh[12 * (size_t)od[b].j.kt[i] + k] -= (float)od[b].j.t_sh[12 * (size_t)i + k];
+      }
       field ls_b = {0, NULL};
       if (r == UB_OK && !field_build(lm, scratch2, &ls_b))
         r = UB_ERR_OUT_OF_MEMORY;
@@ -909,6 +1038,8 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
         /* same pass id as D_a: the same random numbers, so D_a − D_a|b is low-noise */
         job_init(&jb, base, rt_b, rt_ab, base->light_enabled, base->sky, base->emissive, &od[a],
                  &ls_b, od[a].j.pass_id);
+        jb.ref_sh = scratch_sh;
+        jb.ref_iz = scratch2;
         jb.kt = od[a].j.kt;
         jb.kp = od[a].j.kp;
         jb.nkt = od[a].j.nkt;
@@ -931,7 +1062,7 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
         rec.parent[1] = (int32_t)s->dls_count + od[b].elem;
         uint32_t nkt = 0, nkp = 0;
         r = make_record(&jb, jb.t_sh, jb.t_iz, jb.p_sh, base_res->iz, base_res->probe_sh,
-                        UB_OBJ_KEEP, &rec, &nkt, &nkp);
+                        UB_OBJ_KEEP_COMBO, &rec, &nkt, &nkp);
         if (r == UB_OK)
           r = ub_records_append(io_elems, io_count, &rec, 1);
         if (r == UB_OK) {
@@ -968,7 +1099,7 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
     }
     if (!nl)
       continue;
-    record_texel_iz(lm, sr, scratch);
+    record_texel_iz(lm, sr, scratch, scratch_sh);
     field ls_set = {0, NULL};
     if (!field_build(lm, scratch, &ls_set)) {
       r = UB_ERR_OUT_OF_MEMORY;
@@ -983,12 +1114,20 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
     for (uint32_t i = 0; i < sr->probe_count; i++)
       memcpy(set_probe + 27 * (size_t)sr->probe_index[i], sr->probe_sh + 27 * (size_t)i,
              27 * sizeof(float));
+    /* what a viewer sees there: base + the set (the combination's threshold is relative
+     * to it, not to the set alone: 0.1% of a dim set is invisible) */
+    for (size_t i = 0; i < (size_t)T * 3; i++)
+      scratch2[i] = base_res->iz[i] + scratch[i];
+    for (size_t i = 0; i < (size_t)base->probe_count * 27; i++)
+      set_probe[i] += base_res->probe_sh[i];
     for (uint32_t o = 0; o < O && r == UB_OK; o++) {
       if (!od[o].baked)
         continue;
       job js;
       job_init(&js, base, base->rt, od[o].rt_h, set_lights, 0, 0, &od[o], &ls_set,
                0x1000u + 64u * ds + o);
+      js.ref_sh = scratch_sh;
+      js.ref_iz = scratch;
       uint32_t *kt = NULL, *kp = NULL;
       r = region(&js, &kt, &kp);
       /* only receivers the set lights: its record covers them (or its lights cast
@@ -1004,7 +1143,7 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
         double dsum = 0.0;
         for (uint32_t i = 0; i < js.nkt; i++)
           dsum += fabs(lum(js.t_iz + 3 * (size_t)i));
-        if (dsum > UB_OBJ_SET_KEEP * set_sum) {
+        if (dsum > 0.0) {
           ub_bakefile_record rec;
           memset(&rec, 0, sizeof rec);
           snprintf(rec.name, sizeof rec.name, "%.30s*%.30s", sr->name, s->object_names[o]);
@@ -1012,11 +1151,19 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
           rec.parent[0] = (int32_t)ds;
           rec.parent[1] = (int32_t)s->dls_count + od[o].elem;
           uint32_t nkt = 0, nkp = 0;
-          r = make_record(&js, js.t_sh, js.t_iz, js.p_sh, scratch, set_probe, UB_OBJ_KEEP, &rec,
-                          &nkt, &nkp);
-          if (r == UB_OK)
+          r = make_record(&js, js.t_sh, js.t_iz, js.p_sh, scratch2, set_probe, UB_OBJ_KEEP_COMBO,
+                          &rec, &nkt, &nkp);
+          int empty = r == UB_OK && nkt == 0 && nkp == 0;
+          if (r == UB_OK && !empty)
             r = ub_records_append(io_elems, io_count, &rec, 1);
-          if (r == UB_OK) {
+          if (empty) {
+            free(rec.texel_index);
+            free(rec.texel_sh);
+            free(rec.probe_index);
+            free(rec.probe_sh);
+            ub_log_printf(log, UB_LOG_INFO, "  set × object %s: nowhere > %.0f%% of the lighting: none",
+                          rec.name, 100 * UB_OBJ_KEEP_COMBO);
+          } else if (r == UB_OK) {
             out_stats->set_objects++;
             ub_log_printf(log, UB_LOG_INFO,
                           "  set × object %s: changes %.1f%% of the set's light in the region: "
@@ -1029,8 +1176,8 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
             free(rec.probe_sh);
           }
         } else {
-          ub_log_printf(log, UB_LOG_INFO, "  set × object %s*%s: changes %.2f%% ≤ %.0f%%: none",
-                        sr->name, s->object_names[o], 100.0 * dsum / set_sum, 100 * UB_OBJ_SET_KEEP);
+          ub_log_printf(log, UB_LOG_INFO, "  set × object %s*%s: changes nothing: none",
+                        sr->name, s->object_names[o]);
         }
       }
       job_free(&js);
@@ -1043,6 +1190,7 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
   free(set_lights);
   free(scratch);
   free(scratch2);
+  free(scratch_sh);
   for (uint32_t o = 0; o < O; o++) {
     job_free(&od[o].j);
     free(od[o].kt);

@@ -821,6 +821,23 @@ static void build_inn(void)
     l = light_node("torch", LIGHT_POINT, torch, 1.0, 0.7, 0.4, v3(7.0, 2.0, 0.0));
     node_extra(l, "ubake_light", "static");
     node_extra(l, "ubake_dls", "torches");
+    /* scale variants (bench_objects: 8 sets x 8 objects): barrels along the south wall,
+     * sconces on the north wall, each sconce its own set */
+    int nb = PI_("extra_barrels"), nsc = PI_("sconces");
+    require(nb >= 0 && nb <= 8 && nsc >= 0 && nsc <= 8, "0<=extra_barrels<=8, 0<=sconces<=8");
+    for (int i = 0; i < nb; i++) {
+        char nm[32];
+        snprintf(nm, sizeof nm, "barrel_x%d", i + 1);
+        double x = -2.6 + 0.7 * i + (i >= 4 ? 3.4 : 0.0);
+        obj_box(nm, woodm, v3(x, 0.0, 1.9), v3(x + 0.4, 0.9, 2.3));
+    }
+    for (int i = 0; i < nsc; i++) {
+        char nm[32];
+        snprintf(nm, sizeof nm, "sconce_%d", i + 1);
+        l = light_node(nm, LIGHT_POINT, 1.0, 1.0, 0.8, 0.5, v3(-2.5 + 1.3 * i, 2.0, -2.3));
+        node_extra(l, "ubake_light", "static");
+        node_extra(l, "ubake_dls", nm);
+    }
 }
 
 /* ---- hard numerical cases (tests/hard/) ---------------------------------- */
@@ -1310,6 +1327,8 @@ static const LevelDef g_levels[] = {
         { "torch", 1, { 4 }, "torch intensity, W/sr (DLS torches)" },
         { "albedo", 1, { 0.6 }, "plaster albedo" },
         { "red", 3, { 0.75, 0.12, 0.08 }, "west wall albedo" },
+        { "extra_barrels", 1, { 0 }, "extra show/hide barrels along the south walls (0-8)" },
+        { "sconces", 1, { 0 }, "extra wall sconces on the north wall, each its own DLS (0-8)" },
         { "wall", 1, { 0.2 }, "wall/floor/ceiling thickness, m" } } },
     { "grazing", "Black plane, directional light at a grazing angle: E = sun*cos(angle).", build_grazing,
       { { "angle", 1, { 89.9 }, "angle between the light and the plane normal, degrees" },

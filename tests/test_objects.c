@@ -91,6 +91,32 @@ static void apply(ub_runtime *rt, const state *st)
   ASSERT_OK(ub_runtime_update(rt, NULL));
 }
 
+/* The lightmap on the up-facing floor triangle under p (ub_runtime_query_lightmap takes
+ * the closest lightmapped surface, which under a hidden object is the object's bottom). */
+static int floor_query(ub_runtime *rt, const float p[3], const float n[3], float out[3])
+{
+  const ub_bakefile *f = ub_runtime_bakefile(rt);
+  for (uint32_t t = 0; t < f->triangle_count; t++) {
+    if (f->tri_atlas[t] < 0)
+      continue;
+    const float *a = f->positions + 3 * f->indices[3 * t], *b = f->positions + 3 * f->indices[3 * t + 1];
+    const float *c = f->positions + 3 * f->indices[3 * t + 2];
+    if (fabsf(a[1] - p[1]) > 1e-3f || fabsf(b[1] - p[1]) > 1e-3f || fabsf(c[1] - p[1]) > 1e-3f)
+      continue;
+    /* barycentrics in the xz plane; up-facing = counter-clockwise seen from +y */
+    double e1x = b[0] - a[0], e1z = b[2] - a[2], e2x = c[0] - a[0], e2z = c[2] - a[2];
+    double det = e1x * e2z - e2x * e1z;
+    if (!(det < -1e-12)) /* (e1 x e2).y = e1z*e2x - e1x*e2z > 0 for an up-facing triangle */
+      continue;
+    double px = p[0] - a[0], pz = p[2] - a[2];
+    double b1 = (px * e2z - e2x * pz) / det, b2 = (e1x * pz - px * e1z) / det;
+    if (b1 < 0 || b2 < 0 || b1 + b2 > 1)
+      continue;
+    return ub_runtime_lightmap_at(rt, t, (float)b1, (float)b2, n, out) == UB_OK;
+  }
+  return 0;
+}
+
 static void state_name(const state *st, char *out, size_t cap)
 {
   size_t k = 0;
@@ -109,7 +135,10 @@ static int compare(ub_runtime *rt, const state *st, const char *what, float x, f
 {
   float p[3] = {x, y, z}, n[3] = {nx, ny, nz}, q[3] = {0, 0, 0}, ref[3], se[3];
   apply(rt, st);
-  ASSERT_OK(ub_runtime_query_lightmap(rt, p, n, q, NULL));
+  if (strstr(what, "under"))
+    ASSERT_TRUE(floor_query(rt, p, n, q));
+  else
+    ASSERT_OK(ub_runtime_query_lightmap(rt, p, n, q, NULL));
   reference(st, p, n, ref, se);
   int ok = 1;
   for (int c = 0; c < 3; c++)
@@ -197,10 +226,15 @@ int main(void)
     compare(rt, bs[k], "floor, barrel_1 shadow", 1.7f, 0.0f, -1.0f, 0, 1, 0, 1);
     compare(rt, bs[k], "floor, both shadows", 2.45f, 0.0f, -1.0f, 0, 1, 0, 1);
     compare(rt, bs[k], "floor, lit beside barrel_1", 1.0f, 0.0f, -1.0f, 0, 1, 0, 1);
-    /* Both barrels hidden with the candles on, this point needs candles × barrel_1 ×
-     * barrel_2 (a set × pair record, not baked) and the base is already -7.5% here:
-     * printed, not asserted (it was -9.7% against a 9.0% tolerance when written). */
-    compare(rt, bs[k], "wall behind barrels", 2.99f, 0.5f, -1.0f, -1, 0, 0, k < 3);
+    if (k == 1 || k == 3) /* where barrel_1 stood */
+      compare(rt, bs[k], "floor under barrel_1", 1.4f, 0.0f, -1.0f, 0, 1, 0, 1);
+    /* The wall behind the barrels: with the candles on the base + candles record is
+     * already -7.5% here (all shown: a DLS error, not the objects'), so the assertion
+     * is with the candles off; with them on it is printed. */
+    state w = *bs[k];
+    compare(rt, &w, "wall behind barrels", 2.99f, 0.5f, -1.0f, -1, 0, 0, 0);
+    w.dls = "candles";
+    compare(rt, &w, "wall behind barrels", 2.99f, 0.5f, -1.0f, -1, 0, 0, 1);
   }
   /* the naive sum subtracts twice in the overlap: it must miss the reference */
   ub_runtime *naive = NULL;
