@@ -121,38 +121,6 @@ static inline uint32_t dir_bucket(const float w[3])
   return (uint32_t)(iv * 8 + iu);
 }
 
-/* Bilinear lookup of bounce k-1 irradiance at lightmap uv, over filled texels only. */
-static void sample_image(const pass_ctx *c, uint32_t atlas, float u, float v, float out[3])
-{
-  const ub_atlas *a = &c->lm->atlases[atlas];
-  const float *img = c->img[atlas];
-  float x = u * (float)a->width - 0.5f, y = v * (float)a->height - 0.5f;
-  float fx = floorf(x), fy = floorf(y);
-  float tx = x - fx, ty = y - fy;
-  int x0 = (int)fx, y0 = (int)fy;
-  double sum[3] = {0, 0, 0}, wsum = 0.0;
-  for (int j = 0; j < 2; j++)
-    for (int i = 0; i < 2; i++) {
-      int xi = x0 + i, yj = y0 + j;
-      xi = xi < 0 ? 0 : (xi >= (int)a->width ? (int)a->width - 1 : xi);
-      yj = yj < 0 ? 0 : (yj >= (int)a->height ? (int)a->height - 1 : yj);
-      float w = (i ? tx : 1.0f - tx) * (j ? ty : 1.0f - ty);
-      const float *p = img + 4 * ((size_t)yj * a->width + (size_t)xi);
-      w *= p[3];
-      sum[0] += w * p[0];
-      sum[1] += w * p[1];
-      sum[2] += w * p[2];
-      wsum += w;
-    }
-  if (wsum > 1e-6) {
-    out[0] = (float)(sum[0] / wsum);
-    out[1] = (float)(sum[1] / wsum);
-    out[2] = (float)(sum[2] / wsum);
-  } else {
-    out[0] = out[1] = out[2] = 0.0f;
-  }
-}
-
 static void tri_normal(const ub_scene *s, uint32_t t, float out[3])
 {
   const float *a = s->positions + 3 * s->indices[3 * t];
@@ -181,37 +149,13 @@ static inline double gather_pdf(const float *nrm, const float w[3])
 #define UB_NEAR_TEXELS 6.0f
 #define UB_NEAR_SAMPLES 16
 
-/* World point of texel-space position (x + fx, y + fy) on the plane of the texel's owning
- * triangle (affine UV → world map; points past the triangle's edges stay in its plane). */
-static int texel_plane_point(const pass_ctx *c, uint32_t t, float fx, float fy, float out[3])
-{
-  const ub_lightmap *lm = c->lm;
-  const ub_scene *s = c->s;
-  uint32_t tri = lm->texel_tri[t];
-  const ub_atlas *at = &lm->atlases[lm->texel_atlas[t]];
-  const float *uv = lm->tri_uv + 6 * (size_t)tri;
-  float qu = ((float)lm->texel_xy[2 * t] + fx) / (float)at->width;
-  float qv = ((float)lm->texel_xy[2 * t + 1] + fy) / (float)at->height;
-  float e1u = uv[2] - uv[0], e1v = uv[3] - uv[1], e2u = uv[4] - uv[0], e2v = uv[5] - uv[1];
-  float det = e1u * e2v - e2u * e1v;
-  if (!(fabsf(det) > 1e-20f))
-    return 0;
-  float du = qu - uv[0], dv = qv - uv[1];
-  float b1 = (du * e2v - e2u * dv) / det, b2 = (e1u * dv - du * e1v) / det;
-  const float *p0 = s->positions + 3 * s->indices[3 * tri];
-  const float *p1 = s->positions + 3 * s->indices[3 * tri + 1];
-  const float *p2 = s->positions + 3 * s->indices[3 * tri + 2];
-  for (int k = 0; k < 3; k++)
-    out[k] = p0[k] + b1 * (p1[k] - p0[k]) + b2 * (p2[k] - p0[k]);
-  return isfinite(out[0]) && isfinite(out[1]) && isfinite(out[2]);
-}
-
 /* World width of a texel (metres) from its owning triangle's world/UV area ratio. */
 static float texel_world_size(const pass_ctx *c, uint32_t t)
 {
   float a[3], b[3], o[3];
-  if (!texel_plane_point(c, t, 0.0f, 0.0f, o) || !texel_plane_point(c, t, 1.0f, 0.0f, a) ||
-      !texel_plane_point(c, t, 0.0f, 1.0f, b))
+  if (!ub_lightmap_texel_point(c->s, c->lm, t, 0.0f, 0.0f, o) ||
+      !ub_lightmap_texel_point(c->s, c->lm, t, 1.0f, 0.0f, a) ||
+      !ub_lightmap_texel_point(c->s, c->lm, t, 0.0f, 1.0f, b))
     return 0.0f;
   float da = sqrtf((a[0] - o[0]) * (a[0] - o[0]) + (a[1] - o[1]) * (a[1] - o[1]) +
                    (a[2] - o[2]) * (a[2] - o[2]));
@@ -473,7 +417,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
           float fx = ((float)(k % 4) + ub_u01(h)) * 0.25f;
           float fy = ((float)(k / 4) + ub_u01(ub_hash4(h, 3, 0, 0))) * 0.25f;
           float q[3];
-          if (texel_plane_point(c, r, fx, fy, q)) {
+          if (ub_lightmap_texel_point(c->s, c->lm, r, fx, fy, q)) {
             ub_rt_offset_point(d->rt, q, nrm, pn);
             p = pn;
           }
@@ -683,7 +627,8 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
       uint32_t t = lo;
       float q[3];
       if (!(c->tl_area[t] > 0.0f) ||
-          !texel_plane_point(c, t, ub_u01(ub_hash4(h, 1, 0, 0)), ub_u01(ub_hash4(h, 2, 0, 0)), q))
+          !ub_lightmap_texel_point(c->s, c->lm, t, ub_u01(ub_hash4(h, 1, 0, 0)),
+                                   ub_u01(ub_hash4(h, 2, 0, 0)), q))
         continue;
       const float *tn = lm->texel_normal + 3 * (size_t)t;
       float qo[3];
@@ -933,7 +878,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
               }
             }
             if (!tl_hit)
-              sample_image(c, (uint32_t)a, u, v, e);
+              ub_lightmap_image_sample(c->lm, c->img[a], (uint32_t)a, u, v, e);
           }
           if (!tl_hit) {
             const float *alb = s->materials[s->tri_material[h->tri]].albedo;

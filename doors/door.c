@@ -98,27 +98,7 @@ static void image_lookup(const ub_lightmap *lm, float *const *imgs, uint32_t tri
   const float *uv = lm->tri_uv + 6 * (size_t)tri;
   float u = (1.0f - bu - bv) * uv[0] + bu * uv[2] + bv * uv[4];
   float v = (1.0f - bu - bv) * uv[1] + bu * uv[3] + bv * uv[5];
-  const ub_atlas *at = &lm->atlases[a];
-  const float *img = imgs[a];
-  float x = u * (float)at->width - 0.5f, y = v * (float)at->height - 0.5f;
-  float fx = floorf(x), fy = floorf(y), tx = x - fx, ty = y - fy;
-  int x0 = (int)fx, y0 = (int)fy;
-  double sum[3] = {0, 0, 0}, wsum = 0.0;
-  for (int j = 0; j < 2; j++)
-    for (int i = 0; i < 2; i++) {
-      int xi = x0 + i, yj = y0 + j;
-      xi = xi < 0 ? 0 : (xi >= (int)at->width ? (int)at->width - 1 : xi);
-      yj = yj < 0 ? 0 : (yj >= (int)at->height ? (int)at->height - 1 : yj);
-      float wt = (i ? tx : 1.0f - tx) * (j ? ty : 1.0f - ty);
-      const float *p = img + 4 * ((size_t)yj * at->width + (size_t)xi);
-      wt *= p[3];
-      for (int k = 0; k < 3; k++)
-        sum[k] += wt * p[k];
-      wsum += wt;
-    }
-  if (wsum > 1e-6)
-    for (int k = 0; k < 3; k++)
-      out[k] = (float)(sum[k] / wsum);
+  ub_lightmap_image_sample(lm, imgs[a], (uint32_t)a, u, v, out);
 }
 
 /* Direct light of one punctual light at p (offset), cosine about n applied (n NULL: none),

@@ -88,30 +88,6 @@ static int field_build(const ub_lightmap *lm, const float *iz, field *out)
   return 1;
 }
 
-static void field_sample(const ub_lightmap *lm, const field *f, uint32_t atlas, float u, float v,
-                         double out[3])
-{
-  const ub_atlas *a = &lm->atlases[atlas];
-  const float *img = f->img[atlas];
-  float x = u * (float)a->width - 0.5f, y = v * (float)a->height - 0.5f;
-  float fx = floorf(x), fy = floorf(y), tx = x - fx, ty = y - fy;
-  int x0 = (int)fx, y0 = (int)fy;
-  double sum[3] = {0, 0, 0}, wsum = 0.0;
-  for (int j = 0; j < 2; j++)
-    for (int i = 0; i < 2; i++) {
-      int xi = x0 + i, yj = y0 + j;
-      xi = xi < 0 ? 0 : (xi >= (int)a->width ? (int)a->width - 1 : xi);
-      yj = yj < 0 ? 0 : (yj >= (int)a->height ? (int)a->height - 1 : yj);
-      float w = (i ? tx : 1.0f - tx) * (j ? ty : 1.0f - ty);
-      const float *p = img + 4 * ((size_t)yj * a->width + (size_t)xi);
-      w *= p[3];
-      for (int c = 0; c < 3; c++)
-        sum[c] += w * p[c];
-      wsum += w;
-    }
-  for (int c = 0; c < 3; c++)
-    out[c] = wsum > 1e-6 ? sum[c] / wsum : 0.0;
-}
 
 /* ---- one difference pass ---------------------------------------------------------- */
 
@@ -242,8 +218,8 @@ static void hit_radiance(job *j, const field *f, int with_sky, int which, const 
     float b0 = 1.0f - h->u - h->v;
     float u = b0 * uv[0] + h->u * uv[2] + h->v * uv[4];
     float v = b0 * uv[1] + h->u * uv[3] + h->v * uv[5];
-    double e[3];
-    field_sample(lm, f, (uint32_t)a, u, v, e);
+    float e[3];
+    ub_lightmap_image_sample(lm, f->img[a], (uint32_t)a, u, v, e);
     for (int c = 0; c < 3; c++)
       L[c] += m->albedo[c] * M_1_PI * e[c];
   }
@@ -261,29 +237,6 @@ static void hit_radiance(job *j, const field *f, int with_sky, int which, const 
   }
 }
 
-/* World point of texel-space position (x + fx, y + fy) on the plane of the texel's
- * triangle (as bake/pass.c's texel_plane_point). */
-static int texel_point(const ub_scene *s, const ub_lightmap *lm, uint32_t t, float fx, float fy,
-                       float out[3])
-{
-  uint32_t tri = lm->texel_tri[t];
-  const ub_atlas *at = &lm->atlases[lm->texel_atlas[t]];
-  const float *uv = lm->tri_uv + 6 * (size_t)tri;
-  float qu = ((float)lm->texel_xy[2 * t] + fx) / (float)at->width;
-  float qv = ((float)lm->texel_xy[2 * t + 1] + fy) / (float)at->height;
-  float e1u = uv[2] - uv[0], e1v = uv[3] - uv[1], e2u = uv[4] - uv[0], e2v = uv[5] - uv[1];
-  float det = e1u * e2v - e2u * e1v;
-  if (!(fabsf(det) > 1e-20f))
-    return 0;
-  float du = qu - uv[0], dv = qv - uv[1];
-  float b1 = (du * e2v - e2u * dv) / det, b2 = (e1u * dv - du * e1v) / det;
-  const float *p0 = s->positions + 3 * s->indices[3 * tri];
-  const float *p1 = s->positions + 3 * s->indices[3 * tri + 1];
-  const float *p2 = s->positions + 3 * s->indices[3 * tri + 2];
-  for (int k = 0; k < 3; k++)
-    out[k] = p0[k] + b1 * (p1[k] - p0[k]) + b2 * (p2[k] - p0[k]);
-  return isfinite(out[0]) && isfinite(out[1]) && isfinite(out[2]);
-}
 
 /* Is texel t under the object (its centre, just off the surface, inside the box)? */
 static int texel_covered(const job *j, uint32_t t)
@@ -306,7 +259,8 @@ static void hidden_first_order(job *j, uint32_t t, uint32_t nrays, ub_ray *rays,
   float pts[4][3];
   for (int k = 0; k < 4; k++) {
     float q[3];
-    if (!texel_point(s, lm, t, 0.25f + 0.5f * (float)(k & 1), 0.25f + 0.5f * (float)(k >> 1), q))
+    if (!ub_lightmap_texel_point(s, lm, t, 0.25f + 0.5f * (float)(k & 1),
+                                 0.25f + 0.5f * (float)(k >> 1), q))
       memcpy(q, lm->texel_pos + 3 * (size_t)t, sizeof q);
     ub_rt_offset_point(j->rt_h, q, nrm, pts[k]);
   }

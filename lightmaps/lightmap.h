@@ -62,4 +62,16 @@ void ub_lightmap_free(ub_lightmap *lm);
 void ub_lightmap_dilate(float *image, const uint8_t *covered, uint32_t width, uint32_t height,
                         uint32_t channels, uint32_t passes);
 
+/* Bilinear lookup at lightmap UV (u, v) of atlas `atlas` in a per-atlas image of
+ * width × height × 4 floats (rgb + a coverage weight): only covered texels count, weighted
+ * by their coverage; 0 when none around. Used by every pass that reads stored lighting. */
+void ub_lightmap_image_sample(const ub_lightmap *lm, const float *img, uint32_t atlas, float u,
+                              float v, float out[3]);
+
+/* World point of texel t at (fx, fy) ∈ [0,1]² of its footprint, on its owning triangle's
+ * plane (affine UV → world map; points past the triangle's edges stay in its plane).
+ * 0 (out unspecified) for a degenerate UV triangle or a non-finite result. */
+int ub_lightmap_texel_point(const ub_scene *s, const ub_lightmap *lm, uint32_t t, float fx,
+                            float fy, float out[3]);
+
 #endif
