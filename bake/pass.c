@@ -955,26 +955,9 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
 /* Builds the per-atlas image of the irradiance a later bounce reads, dilated. */
 static void build_images(pass_ctx *c, const double *iz)
 {
-  const ub_lightmap *lm = c->lm;
-  for (uint32_t a = 0; a < lm->atlas_count; a++) {
-    const ub_atlas *at = &lm->atlases[a];
-    size_t npx = (size_t)at->width * at->height;
-    float *img = c->img[a];
-    uint8_t *cov = calloc(npx, 1);
-    memset(img, 0, npx * 4 * sizeof(float));
-    for (uint32_t i = 0; i < at->texel_count; i++) {
-      uint32_t t = at->first_texel + i;
-      size_t px = (size_t)lm->texel_xy[2 * t + 1] * at->width + lm->texel_xy[2 * t];
-      for (int ch = 0; ch < 3; ch++)
-        img[4 * px + ch] = (float)iz[3 * (size_t)t + ch];
-      img[4 * px + 3] = 1.0f;
-      if (cov)
-        cov[px] = 1;
-    }
-    if (cov)
-      ub_lightmap_dilate(img, cov, at->width, at->height, 4, 2);
-    free(cov);
-  }
+  /* Without memory for the dilation scratch the image is used undilated. */
+  for (uint32_t a = 0; a < c->lm->atlas_count; a++)
+    ub_lightmap_image_fill(c->lm, a, NULL, iz, c->img[a]);
 }
 
 /* Radiosity the next bounce could read: Σ albedo·E over texels (luminance). Zero means

@@ -543,24 +543,10 @@ static ub_result build_images(const ub_lightmap *lm, const float *iz, float ***o
     size_t npx = (size_t)at->width * at->height;
     if (!img[a])
       img[a] = malloc(npx * 4 * sizeof(float));
-    if (img[a])
-      memset(img[a], 0, npx * 4 * sizeof(float));
-    uint8_t *cov = calloc(npx, 1);
-    if (!img[a] || !cov) {
-      free(cov);
+    if (!img[a] || !ub_lightmap_image_fill(lm, a, iz, NULL, img[a])) {
       *out_img = img; /* the caller frees what was allocated */
       return UB_ERR_OUT_OF_MEMORY;
     }
-    for (uint32_t i = 0; i < at->texel_count; i++) {
-      uint32_t t = at->first_texel + i;
-      size_t px = (size_t)lm->texel_xy[2 * t + 1] * at->width + lm->texel_xy[2 * t];
-      for (int ch = 0; ch < 3; ch++)
-        img[a][4 * px + ch] = iz[3 * (size_t)t + ch];
-      img[a][4 * px + 3] = 1.0f;
-      cov[px] = 1;
-    }
-    ub_lightmap_dilate(img[a], cov, at->width, at->height, 4, 2);
-    free(cov);
   }
   *out_img = img;
   return UB_OK;

@@ -66,24 +66,12 @@ static int field_build(const ub_lightmap *lm, const float *iz, field *out)
   for (uint32_t a = 0; a < lm->atlas_count; a++) {
     const ub_atlas *at = &lm->atlases[a];
     size_t npx = (size_t)at->width * at->height;
-    float *img = calloc(npx * 4, sizeof(float));
-    uint8_t *cov = calloc(npx, 1);
+    float *img = malloc(npx * 4 * sizeof(float) + 1);
     out->img[a] = img;
-    if (!img || !cov) {
-      free(cov);
+    if (!img || !ub_lightmap_image_fill(lm, a, iz, NULL, img)) {
       field_free(out);
       return 0;
     }
-    for (uint32_t i = 0; i < at->texel_count; i++) {
-      uint32_t t = at->first_texel + i;
-      size_t px = (size_t)lm->texel_xy[2 * t + 1] * at->width + lm->texel_xy[2 * t];
-      for (int ch = 0; ch < 3; ch++)
-        img[4 * px + ch] = iz[3 * (size_t)t + ch];
-      img[4 * px + 3] = 1.0f;
-      cov[px] = 1;
-    }
-    ub_lightmap_dilate(img, cov, at->width, at->height, 4, 2);
-    free(cov);
   }
   return 1;
 }

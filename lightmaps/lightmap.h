@@ -68,6 +68,14 @@ void ub_lightmap_dilate(float *image, const uint8_t *covered, uint32_t width, ui
 void ub_lightmap_image_sample(const ub_lightmap *lm, const float *img, uint32_t atlas, float u,
                               float v, float out[3]);
 
+/* Fills atlas `atlas`'s image (width × height × 4: rgb, coverage 1 on covered texels)
+ * from per-texel irradiance (texel_count × 3: izf floats, or izd doubles when izf is
+ * NULL), zero elsewhere, then dilates it 2 rings so bilinear lookups see no dark seams.
+ * Returns 0 when the dilation's scratch could not be allocated (image filled, not
+ * dilated). */
+int ub_lightmap_image_fill(const ub_lightmap *lm, uint32_t atlas, const float *izf,
+                           const double *izd, float *img);
+
 /* World point of texel t at (fx, fy) ∈ [0,1]² of its footprint, on its owning triangle's
  * plane (affine UV → world map; points past the triangle's edges stay in its plane).
  * 0 (out unspecified) for a degenerate UV triangle or a non-finite result. */

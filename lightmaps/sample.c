@@ -1,5 +1,7 @@
 /* Reading stored lighting and texel footprints (see lightmap.h). */
 #include <math.h>
+#include <stdlib.h>
+#include <string.h>
 
 #include "lightmaps/lightmap.h"
 
@@ -49,4 +51,27 @@ int ub_lightmap_texel_point(const ub_scene *s, const ub_lightmap *lm, uint32_t t
   for (int k = 0; k < 3; k++)
     out[k] = p0[k] + b1 * (p1[k] - p0[k]) + b2 * (p2[k] - p0[k]);
   return isfinite(out[0]) && isfinite(out[1]) && isfinite(out[2]);
+}
+
+int ub_lightmap_image_fill(const ub_lightmap *lm, uint32_t atlas, const float *izf,
+                           const double *izd, float *img)
+{
+  const ub_atlas *at = &lm->atlases[atlas];
+  size_t npx = (size_t)at->width * at->height;
+  uint8_t *cov = calloc(npx ? npx : 1, 1);
+  memset(img, 0, npx * 4 * sizeof(float));
+  for (uint32_t i = 0; i < at->texel_count; i++) {
+    uint32_t t = at->first_texel + i;
+    size_t px = (size_t)lm->texel_xy[2 * t + 1] * at->width + lm->texel_xy[2 * t];
+    for (int ch = 0; ch < 3; ch++)
+      img[4 * px + ch] = izf ? izf[3 * (size_t)t + ch] : (float)izd[3 * (size_t)t + ch];
+    img[4 * px + 3] = 1.0f;
+    if (cov)
+      cov[px] = 1;
+  }
+  int ok = cov != NULL;
+  if (ok)
+    ub_lightmap_dilate(img, cov, at->width, at->height, 4, 2);
+  free(cov);
+  return ok;
 }
