@@ -25,6 +25,7 @@
 #define UB_LM_TILE 32          /* rasterisation tile side, texels */
 #define UB_LM_FIX_RAYS 8       /* per texel: 4 toward the samples, 4 along ±tangents */
 #define UB_LM_FIX_CHUNK 1024   /* texels per back-face-fix work item */
+#define UB_LM_FIX_REACH 3      /* texels: how far case (a) of the back-face fix looks */
 
 static double now_seconds(void)
 {
@@ -534,6 +535,44 @@ static void pull_point(const ub_rt *rt, const ub_ray *ray, const ub_hit *h, floa
     out[a] = hp[a] - ray->dir[a] * eps + side * ng[a] * eps;
 }
 
+/* Case (a) destination: the nearest covered texel of the same atlas, at most
+ * UB_LM_FIX_REACH texels away, whose own centre is not behind a surface and which lies on
+ * ti's plane next to it on the surface (same chart, not a chart packed alongside).
+ * Candidates are scanned in a fixed order and ties keep the first, so the choice does not
+ * depend on threads. -1 when there is none. */
+static int64_t outside_neighbour(const ub_lightmap *lm, const lm_rtri *rtri,
+                                 const uint8_t *inside, uint32_t ti)
+{
+  const ub_atlas *at = &lm->atlases[lm->texel_atlas[ti]];
+  int64_t x = lm->texel_xy[2 * (size_t)ti], y = lm->texel_xy[2 * (size_t)ti + 1];
+  const float *n = lm->texel_normal + 3 * (size_t)ti, *p = lm->texel_pos + 3 * (size_t)ti;
+  const lm_rtri *r = &rtri[lm->texel_tri[ti]];
+  float step = sqrtf(fmaxf(f3_dot(r->dpdx, r->dpdx), f3_dot(r->dpdy, r->dpdy)));
+  if (!(step > 0.0f) || !isfinite(step))
+    return -1;
+  int64_t best = -1;
+  int bd = 1 << 30;
+  for (int dy = -UB_LM_FIX_REACH; dy <= UB_LM_FIX_REACH; dy++)
+    for (int dx = -UB_LM_FIX_REACH; dx <= UB_LM_FIX_REACH; dx++) {
+      int d2 = dx * dx + dy * dy;
+      int64_t xx = x + dx, yy = y + dy;
+      if (d2 == 0 || d2 >= bd || xx < 0 || yy < 0 || xx >= at->width || yy >= at->height)
+        continue;
+      int32_t k = at->texel_of[(size_t)yy * at->width + (size_t)xx];
+      if (k < 0 || inside[k])
+        continue;
+      const float *nk = lm->texel_normal + 3 * (size_t)k, *pk = lm->texel_pos + 3 * (size_t)k;
+      float dp[3] = {pk[0] - p[0], pk[1] - p[1], pk[2] - p[2]};
+      float reach = (sqrtf((float)d2) + 1.5f) * step;
+      if (f3_dot(n, nk) < 0.99f || fabsf(f3_dot(dp, n)) > 0.25f * step ||
+          f3_dot(dp, dp) > reach * reach)
+        continue;
+      best = k;
+      bd = d2;
+    }
+  return best;
+}
+
 static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
 {
   ub_lightmap *lm = o->lm;
@@ -541,17 +580,22 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
   uint32_t nchunks = (lm->texel_count + UB_LM_FIX_CHUNK - 1) / UB_LM_FIX_CHUNK;
   uint64_t fixes = 0;
   int oom = 0;
-#pragma omp parallel reduction(+ : fixes)
+  /* Per texel, between the two passes: is P behind a surface (case (a)), and P or, in
+   * case (a), the fallback point in front of the nearest back face. */
+  uint8_t *inside = calloc(lm->texel_count ? lm->texel_count : 1, 1);
+  float *centre = malloc((size_t)(lm->texel_count ? lm->texel_count : 1) * 3 * sizeof *centre);
+  if (!inside || !centre) {
+    free(inside);
+    free(centre);
+    return UINT64_MAX;
+  }
+
+  /* pass 1: the 8 short rays per texel; classify P */
+#pragma omp parallel
   {
     ub_ray *rays = malloc((size_t)UB_LM_FIX_CHUNK * UB_LM_FIX_RAYS * sizeof *rays);
     ub_hit *hits = malloc((size_t)UB_LM_FIX_CHUNK * UB_LM_FIX_RAYS * sizeof *hits);
-    float *pos = malloc((size_t)UB_LM_FIX_CHUNK * 3 * sizeof *pos);
-    float *dist = malloc((size_t)UB_LM_FIX_CHUNK * 4 * sizeof *dist);
-    float *target = malloc((size_t)UB_LM_FIX_CHUNK * 4 * 3 * sizeof *target);
-    uint32_t *redo = malloc((size_t)UB_LM_FIX_CHUNK * sizeof *redo);
-    ub_ray *redo_rays = malloc((size_t)UB_LM_FIX_CHUNK * 4 * sizeof *redo_rays);
-    ub_hit *redo_hits = malloc((size_t)UB_LM_FIX_CHUNK * 4 * sizeof *redo_hits);
-    if (!rays || !hits || !pos || !dist || !target || !redo || !redo_rays || !redo_hits) {
+    if (!rays || !hits) {
 #pragma omp atomic write
       oom = 1;
     }
@@ -571,7 +615,7 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
         const lm_rtri *r = &rtri[lm->texel_tri[ti]];
         float P[3];
         ub_rt_offset_point(rt, lm->texel_pos + 3 * (size_t)ti, n, P);
-        memcpy(pos + 3 * i, P, sizeof P);
+        memcpy(centre + 3 * (size_t)ti, P, sizeof P);
         float dx2 = f3_dot(r->dpdx, r->dpdx), dy2 = f3_dot(r->dpdy, r->dpdy);
         float half_diag = 0.5f * sqrtf(dx2 + dy2);
         if (!(half_diag > 0.0f) || !isfinite(half_diag))
@@ -595,7 +639,6 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
         for (int j = 0; j < 4; j++) {
           float S[3], d[3], u[3];
           ub_rt_offset_point(rt, o->raw_samples + ((size_t)ti * 4 + j) * 3, n, S);
-          memcpy(target + (3 * (size_t)i * 4) + 3 * j, S, sizeof S);
           for (int a = 0; a < 3; a++)
             d[a] = S[a] - P[a];
           float len = unit3f(d, u);
@@ -605,7 +648,6 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
               tmp[a] = sx * T[a] + sy * B[a];
             unit3f(tmp, u);
           }
-          dist[4 * i + j] = len;
           ray_setup(&rr[j], P, u, fmaxf(len, half_diag));
         }
         const float *ax4[4] = {T, T, B, B};
@@ -617,9 +659,6 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
         }
       }
       ub_rt_intersect(rt, rays, m * UB_LM_FIX_RAYS, hits);
-
-      /* (a) texels whose centre is behind a surface */
-      uint32_t nredo = 0;
       for (uint32_t i = 0; i < m; i++) {
         const ub_hit *hh = hits + (size_t)i * UB_LM_FIX_RAYS;
         const ub_ray *rr = rays + (size_t)i * UB_LM_FIX_RAYS;
@@ -634,40 +673,94 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
           unit3f(hh[best].ng, ng);
           float eps = ub_rt_epsilon(rt, hp);
           for (int a = 0; a < 3; a++)
-            pos[3 * i + a] = hp[a] + ng[a] * eps;
-          redo[nredo++] = i;
+            centre[3 * (size_t)(t0 + i) + a] = hp[a] + ng[a] * eps; /* fallback */
+          inside[t0 + i] = 1;
         }
       }
-      /* trace the sample segments again from the moved centres */
-      if (nredo) {
-        for (uint32_t k = 0; k < nredo; k++) {
-          uint32_t i = redo[k];
-          for (int j = 0; j < 4; j++) {
-            float d[3], u[3];
-            const float *S = target + 3 * (size_t)i * 4 + 3 * j;
-            for (int a = 0; a < 3; a++)
-              d[a] = S[a] - pos[3 * i + a];
-            float len = unit3f(d, u);
-            dist[4 * i + j] = len;
-            if (len == 0.0f)
-              memcpy(u, lm->texel_normal + 3 * (size_t)(t0 + i), sizeof u);
-            ray_setup(&redo_rays[4 * (size_t)k + j], pos + 3 * i, u, len);
-          }
-        }
-        ub_rt_intersect(rt, redo_rays, nredo * 4, redo_hits);
-        for (uint32_t k = 0; k < nredo; k++)
-          for (int j = 0; j < 4; j++) {
-            hits[(size_t)redo[k] * UB_LM_FIX_RAYS + j] = redo_hits[4 * (size_t)k + j];
-            rays[(size_t)redo[k] * UB_LM_FIX_RAYS + j] = redo_rays[4 * (size_t)k + j];
-          }
+    }
+    free(rays);
+    free(hits);
+  }
+
+  /* pass 2: move the centres of case (a) toward their chart; pull the samples (b) */
+#pragma omp parallel reduction(+ : fixes)
+  {
+    ub_ray *rays = malloc((size_t)UB_LM_FIX_CHUNK * 4 * sizeof *rays);
+    ub_hit *hits = malloc((size_t)UB_LM_FIX_CHUNK * 4 * sizeof *hits);
+    ub_ray *nb_rays = malloc((size_t)UB_LM_FIX_CHUNK * sizeof *nb_rays);
+    ub_hit *nb_hits = malloc((size_t)UB_LM_FIX_CHUNK * sizeof *nb_hits);
+    uint32_t *nb_of = malloc((size_t)UB_LM_FIX_CHUNK * sizeof *nb_of);
+    float *pos = malloc((size_t)UB_LM_FIX_CHUNK * 3 * sizeof *pos);
+    float *P0 = malloc((size_t)UB_LM_FIX_CHUNK * 3 * sizeof *P0);
+    float *dist = malloc((size_t)UB_LM_FIX_CHUNK * 4 * sizeof *dist);
+    float *target = malloc((size_t)UB_LM_FIX_CHUNK * 4 * 3 * sizeof *target);
+    if (!rays || !hits || !nb_rays || !nb_hits || !nb_of || !pos || !P0 || !dist || !target) {
+#pragma omp atomic write
+      oom = 1;
+    }
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t chunk = 0; chunk < (int64_t)nchunks; chunk++) {
+      int stop;
+#pragma omp atomic read
+      stop = oom;
+      if (stop)
+        continue;
+      uint32_t t0 = (uint32_t)chunk * UB_LM_FIX_CHUNK;
+      uint32_t t1 = t0 + UB_LM_FIX_CHUNK < lm->texel_count ? t0 + UB_LM_FIX_CHUNK : lm->texel_count;
+      uint32_t m = t1 - t0;
+      /* (a) a ray from the chosen neighbour's centre to P; stop eps before its first hit */
+      uint32_t nnb = 0;
+      for (uint32_t i = 0; i < m; i++) {
+        uint32_t ti = t0 + i;
+        memcpy(pos + 3 * (size_t)i, centre + 3 * (size_t)ti, 3 * sizeof(float));
+        if (!inside[ti])
+          continue;
+        int64_t k = outside_neighbour(lm, rtri, inside, ti);
+        if (k < 0)
+          continue;
+        float d[3], u[3];
+        ub_rt_offset_point(rt, lm->texel_pos + 3 * (size_t)ti, lm->texel_normal + 3 * (size_t)ti,
+                           P0 + 3 * (size_t)i);
+        for (int a = 0; a < 3; a++)
+          d[a] = P0[3 * (size_t)i + a] - centre[3 * (size_t)k + a];
+        float len = unit3f(d, u);
+        if (len == 0.0f)
+          continue;
+        ray_setup(&nb_rays[nnb], centre + 3 * (size_t)k, u, len);
+        nb_of[nnb++] = i;
       }
-      /* (b) pull blocked samples; write the final, normal-offset sample points */
+      if (nnb)
+        ub_rt_intersect(rt, nb_rays, nnb, nb_hits);
+      for (uint32_t q = 0; q < nnb; q++) {
+        float *dst = pos + 3 * (size_t)nb_of[q];
+        if (nb_hits[q].tri != UB_RT_MISS && nb_hits[q].t < nb_rays[q].tfar)
+          pull_point(rt, &nb_rays[q], &nb_hits[q], dst);
+        else /* P is in plain view of the neighbour: it is on the neighbour's side */
+          memcpy(dst, P0 + 3 * (size_t)nb_of[q], 3 * sizeof(float));
+      }
+      /* (b) sample segments from the (moved) centres */
       for (uint32_t i = 0; i < m; i++) {
         uint32_t ti = t0 + i;
         const float *n = lm->texel_normal + 3 * (size_t)ti;
         for (int j = 0; j < 4; j++) {
-          const ub_hit *h = &hits[(size_t)i * UB_LM_FIX_RAYS + j];
-          const ub_ray *ray = &rays[(size_t)i * UB_LM_FIX_RAYS + j];
+          float *S = target + 3 * (size_t)i * 4 + 3 * j, d[3], u[3];
+          ub_rt_offset_point(rt, o->raw_samples + ((size_t)ti * 4 + j) * 3, n, S);
+          for (int a = 0; a < 3; a++)
+            d[a] = S[a] - pos[3 * i + a];
+          float len = unit3f(d, u);
+          dist[4 * i + j] = len;
+          if (len == 0.0f)
+            memcpy(u, n, sizeof u);
+          ray_setup(&rays[4 * (size_t)i + j], pos + 3 * i, u, len);
+        }
+      }
+      ub_rt_intersect(rt, rays, m * 4, hits);
+      for (uint32_t i = 0; i < m; i++) {
+        uint32_t ti = t0 + i;
+        const float *n = lm->texel_normal + 3 * (size_t)ti;
+        for (int j = 0; j < 4; j++) {
+          const ub_hit *h = &hits[4 * (size_t)i + j];
+          const ub_ray *ray = &rays[4 * (size_t)i + j];
           float *dst = lm->sample_pos + ((size_t)ti * UB_TEXEL_SAMPLES + j) * 3;
           if (h->tri != UB_RT_MISS && h->t < dist[4 * i + j]) {
             float q[3];
@@ -682,13 +775,16 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
     }
     free(rays);
     free(hits);
+    free(nb_rays);
+    free(nb_hits);
+    free(nb_of);
     free(pos);
+    free(P0);
     free(dist);
     free(target);
-    free(redo);
-    free(redo_rays);
-    free(redo_hits);
   }
+  free(inside);
+  free(centre);
   return oom ? UINT64_MAX : fixes;
 }
 
