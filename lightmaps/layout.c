@@ -26,6 +26,7 @@
 #define UB_LM_FIX_RAYS 8       /* per texel: 4 toward the samples, 4 along ±tangents */
 #define UB_LM_FIX_CHUNK 1024   /* texels per back-face-fix work item */
 #define UB_LM_FIX_REACH 3      /* texels: how far case (a) of the back-face fix looks */
+#define UB_LM_FIX_CANDS 8      /* neighbours case (a) tries, nearest first */
 
 static double now_seconds(void)
 {
@@ -488,16 +489,32 @@ static void texel_tile(const lm_ctx *c, const lm_atlas_work *aw, const lm_rtri *
  *   rays 4..7: P along ±T, ±B (the texel's x/y directions on the surface), half diagonal.
  *   (a) If the nearest hit of all 8 rays is a BACK face, P lies behind a surface: the
  *       level's back sides face solid space (closed geometry, like brush-based levels),
- *       so P is inside a wall. P moves to the front side of that face (hit point + its
- *       unit normal × eps) and the sample rays are traced again from there.
+ *       so P is inside a wall. P must not simply move to the front of that nearest back
+ *       face: for a floor slab running under a wall, a texel centred under the wall is
+ *       about as near the wall's OUTER face as its inner one, and on the outer side it
+ *       bakes outdoor light that the run-time's bilinear filter (and the bake's gather
+ *       rays, which read the same texels) carry onto the room's floor edge: a leak
+ *       (sunroom: 1.3 W/m² 5 cm inside the sealed room, test_hard_wall_junction).
+ *       The side to take is the side of the texel's own chart, where its neighbours are
+ *       read with it. So, once every texel is classified (pass 1), P moves toward the
+ *       nearest covered texel of the same atlas within UB_LM_FIX_REACH texels whose own
+ *       centre is not behind a surface and which lies on the same plane next to it
+ *       (outside_neighbour(); fixed scan order, so thread-independent): a ray from that
+ *       neighbour's centre P_n to P, and P becomes its first hit pulled back by eps
+ *       toward P_n (pull_point), i.e. the foot of the wall on the chart's visible side,
+ *       connected to P_n by a free segment; P itself if the segment is free. Only with
+ *       no such neighbour (no visible texel of the chart nearby: the texel is not
+ *       blended with any visible one) does P fall back to the front of the nearest back
+ *       face. The sample rays are then traced from the moved P.
  *   (b) Every sample whose segment from P (the moved P in case (a)) hits anything before
  *       reaching S_j is pulled to just before the first hit: hit − dir·eps, plus the hit
  *       face's normal turned toward P, × eps.
  * Why a fixed sample is inside the room: its segment from P is free of geometry up to
  * the first hit, and it stops eps before that hit, so it is connected to P by an
  * unobstructed path; P itself is either in front of every surface around it or, in case
- * (a), was moved to the front side of the surface it was behind. Samples whose segment
- * is free are left where they are. backface_fixes counts the sample points moved.
+ * (a), was moved to a point joined by a free segment to a neighbour of its chart that is
+ * (or, in the fallback, to the front side of the surface it was behind). Samples whose
+ * segment is free are left where they are. backface_fixes counts the sample points moved.
  * Finally every sample is offset along the texel normal (ub_rt_offset_point) so gather
  * rays leave without self-hits. */
 
@@ -535,13 +552,15 @@ static void pull_point(const ub_rt *rt, const ub_ray *ray, const ub_hit *h, floa
     out[a] = hp[a] - ray->dir[a] * eps + side * ng[a] * eps;
 }
 
-/* Case (a) destination: the nearest covered texel of the same atlas, at most
- * UB_LM_FIX_REACH texels away, whose own centre is not behind a surface and which lies on
- * ti's plane next to it on the surface (same chart, not a chart packed alongside).
- * Candidates are scanned in a fixed order and ties keep the first, so the choice does not
- * depend on threads. -1 when there is none. */
-static int64_t outside_neighbour(const ub_lightmap *lm, const lm_rtri *rtri,
-                                 const uint8_t *inside, uint32_t ti)
+/* Case (a) candidates: up to UB_LM_FIX_CANDS covered texels of the same atlas, at most
+ * UB_LM_FIX_REACH texels away, nearest first, whose own centre is not behind a surface
+ * and which lie on ti's plane next to it on the surface (same chart, not a chart packed
+ * alongside). "Not behind a surface" only means that no back face is within half a texel
+ * diagonal, so a candidate may still lie deep inside a thick wall: the caller only uses
+ * candidates that see a front face on their way to P. Fixed scan order, ties keep the
+ * first found: the choice does not depend on threads. Returns the count. */
+static int outside_candidates(const ub_lightmap *lm, const lm_rtri *rtri, const uint8_t *inside,
+                              uint32_t ti, uint32_t out_k[UB_LM_FIX_CANDS])
 {
   const ub_atlas *at = &lm->atlases[lm->texel_atlas[ti]];
   int64_t x = lm->texel_xy[2 * (size_t)ti], y = lm->texel_xy[2 * (size_t)ti + 1];
@@ -549,14 +568,14 @@ static int64_t outside_neighbour(const ub_lightmap *lm, const lm_rtri *rtri,
   const lm_rtri *r = &rtri[lm->texel_tri[ti]];
   float step = sqrtf(fmaxf(f3_dot(r->dpdx, r->dpdx), f3_dot(r->dpdy, r->dpdy)));
   if (!(step > 0.0f) || !isfinite(step))
-    return -1;
-  int64_t best = -1;
-  int bd = 1 << 30;
+    return 0;
+  int cnt = 0, cd[UB_LM_FIX_CANDS];
   for (int dy = -UB_LM_FIX_REACH; dy <= UB_LM_FIX_REACH; dy++)
     for (int dx = -UB_LM_FIX_REACH; dx <= UB_LM_FIX_REACH; dx++) {
       int d2 = dx * dx + dy * dy;
       int64_t xx = x + dx, yy = y + dy;
-      if (d2 == 0 || d2 >= bd || xx < 0 || yy < 0 || xx >= at->width || yy >= at->height)
+      if (d2 == 0 || (cnt == UB_LM_FIX_CANDS && d2 >= cd[cnt - 1]) || xx < 0 || yy < 0 ||
+          xx >= at->width || yy >= at->height)
         continue;
       int32_t k = at->texel_of[(size_t)yy * at->width + (size_t)xx];
       if (k < 0 || inside[k])
@@ -567,10 +586,20 @@ static int64_t outside_neighbour(const ub_lightmap *lm, const lm_rtri *rtri,
       if (f3_dot(n, nk) < 0.99f || fabsf(f3_dot(dp, n)) > 0.25f * step ||
           f3_dot(dp, dp) > reach * reach)
         continue;
-      best = k;
-      bd = d2;
+      int at_i = cnt < UB_LM_FIX_CANDS ? cnt : UB_LM_FIX_CANDS - 1;
+      while (at_i > 0 && cd[at_i - 1] > d2) { /* stable: equal distances keep scan order */
+        if (at_i < UB_LM_FIX_CANDS) {
+          cd[at_i] = cd[at_i - 1];
+          out_k[at_i] = out_k[at_i - 1];
+        }
+        at_i--;
+      }
+      cd[at_i] = d2;
+      out_k[at_i] = (uint32_t)k;
+      if (cnt < UB_LM_FIX_CANDS)
+        cnt++;
     }
-  return best;
+  return cnt;
 }
 
 static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
@@ -584,9 +613,11 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
    * case (a), the fallback point in front of the nearest back face. */
   uint8_t *inside = calloc(lm->texel_count ? lm->texel_count : 1, 1);
   float *centre = malloc((size_t)(lm->texel_count ? lm->texel_count : 1) * 3 * sizeof *centre);
-  if (!inside || !centre) {
+  float *face_n = malloc((size_t)(lm->texel_count ? lm->texel_count : 1) * 3 * sizeof *face_n);
+  if (!inside || !centre || !face_n) {
     free(inside);
     free(centre);
+    free(face_n);
     return UINT64_MAX;
   }
 
@@ -674,6 +705,7 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
           float eps = ub_rt_epsilon(rt, hp);
           for (int a = 0; a < 3; a++)
             centre[3 * (size_t)(t0 + i) + a] = hp[a] + ng[a] * eps; /* fallback */
+          memcpy(face_n + 3 * (size_t)(t0 + i), ng, sizeof ng);
           inside[t0 + i] = 1;
         }
       }
@@ -687,14 +719,13 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
   {
     ub_ray *rays = malloc((size_t)UB_LM_FIX_CHUNK * 4 * sizeof *rays);
     ub_hit *hits = malloc((size_t)UB_LM_FIX_CHUNK * 4 * sizeof *hits);
-    ub_ray *nb_rays = malloc((size_t)UB_LM_FIX_CHUNK * sizeof *nb_rays);
-    ub_hit *nb_hits = malloc((size_t)UB_LM_FIX_CHUNK * sizeof *nb_hits);
-    uint32_t *nb_of = malloc((size_t)UB_LM_FIX_CHUNK * sizeof *nb_of);
+    ub_ray *nb_rays = malloc((size_t)UB_LM_FIX_CHUNK * UB_LM_FIX_CANDS * sizeof *nb_rays);
+    ub_hit *nb_hits = malloc((size_t)UB_LM_FIX_CHUNK * UB_LM_FIX_CANDS * sizeof *nb_hits);
+    uint32_t *nb_of = malloc((size_t)UB_LM_FIX_CHUNK * UB_LM_FIX_CANDS * sizeof *nb_of);
     float *pos = malloc((size_t)UB_LM_FIX_CHUNK * 3 * sizeof *pos);
-    float *P0 = malloc((size_t)UB_LM_FIX_CHUNK * 3 * sizeof *P0);
     float *dist = malloc((size_t)UB_LM_FIX_CHUNK * 4 * sizeof *dist);
     float *target = malloc((size_t)UB_LM_FIX_CHUNK * 4 * 3 * sizeof *target);
-    if (!rays || !hits || !nb_rays || !nb_hits || !nb_of || !pos || !P0 || !dist || !target) {
+    if (!rays || !hits || !nb_rays || !nb_hits || !nb_of || !pos || !dist || !target) {
 #pragma omp atomic write
       oom = 1;
     }
@@ -708,35 +739,61 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
       uint32_t t0 = (uint32_t)chunk * UB_LM_FIX_CHUNK;
       uint32_t t1 = t0 + UB_LM_FIX_CHUNK < lm->texel_count ? t0 + UB_LM_FIX_CHUNK : lm->texel_count;
       uint32_t m = t1 - t0;
-      /* (a) a ray from the chosen neighbour's centre to P; stop eps before its first hit */
+      /* (a) rays from the candidates' centres to P. Those that meet a FRONT face before
+       * P come from the chart's open side. If one of them meets the nearest back face's
+       * plane, the fallback (the front of that face) is on the chart's side: it stays.
+       * Else the nearest such candidate's hit, pulled back by eps, is the new P; no such
+       * candidate: the fallback stays. */
       uint32_t nnb = 0;
       for (uint32_t i = 0; i < m; i++) {
         uint32_t ti = t0 + i;
         memcpy(pos + 3 * (size_t)i, centre + 3 * (size_t)ti, 3 * sizeof(float));
         if (!inside[ti])
           continue;
-        int64_t k = outside_neighbour(lm, rtri, inside, ti);
-        if (k < 0)
-          continue;
-        float d[3], u[3];
-        ub_rt_offset_point(rt, lm->texel_pos + 3 * (size_t)ti, lm->texel_normal + 3 * (size_t)ti,
-                           P0 + 3 * (size_t)i);
-        for (int a = 0; a < 3; a++)
-          d[a] = P0[3 * (size_t)i + a] - centre[3 * (size_t)k + a];
-        float len = unit3f(d, u);
-        if (len == 0.0f)
-          continue;
-        ray_setup(&nb_rays[nnb], centre + 3 * (size_t)k, u, len);
-        nb_of[nnb++] = i;
+        uint32_t cand[UB_LM_FIX_CANDS];
+        int nc = outside_candidates(lm, rtri, inside, ti, cand);
+        float P[3];
+        ub_rt_offset_point(rt, lm->texel_pos + 3 * (size_t)ti, lm->texel_normal + 3 * (size_t)ti, P);
+        for (int j = 0; j < nc; j++) {
+          float d[3], u[3];
+          const float *pk = centre + 3 * (size_t)cand[j];
+          for (int a = 0; a < 3; a++)
+            d[a] = P[a] - pk[a];
+          float len = unit3f(d, u);
+          if (len == 0.0f)
+            continue;
+          ray_setup(&nb_rays[nnb], pk, u, len);
+          nb_of[nnb++] = i;
+        }
       }
       if (nnb)
         ub_rt_intersect(rt, nb_rays, nnb, nb_hits);
       for (uint32_t q = 0; q < nnb; q++) {
-        float *dst = pos + 3 * (size_t)nb_of[q];
-        if (nb_hits[q].tri != UB_RT_MISS && nb_hits[q].t < nb_rays[q].tfar)
-          pull_point(rt, &nb_rays[q], &nb_hits[q], dst);
-        else /* P is in plain view of the neighbour: it is on the neighbour's side */
-          memcpy(dst, P0 + 3 * (size_t)nb_of[q], 3 * sizeof(float));
+        if (q > 0 && nb_of[q] == nb_of[q - 1])
+          continue; /* rays of one texel are contiguous; its first good one wins */
+        uint32_t i = nb_of[q], ti = t0 + i, first = UINT32_MAX;
+        const float *fn = face_n + 3 * (size_t)ti, *F = centre + 3 * (size_t)ti;
+        const lm_rtri *r = &rtri[lm->texel_tri[ti]];
+        float tol = 0.01f * sqrtf(fmaxf(f3_dot(r->dpdx, r->dpdx), f3_dot(r->dpdy, r->dpdy)));
+        int keep = 0;
+        for (uint32_t e = q; e < nnb && nb_of[e] == i; e++) {
+          const ub_hit *h = &nb_hits[e];
+          if (h->tri == UB_RT_MISS || !(h->t < nb_rays[e].tfar) ||
+              !(f3_dot(h->ng, nb_rays[e].dir) < 0.0f))
+            continue;
+          if (first == UINT32_MAX)
+            first = e;
+          float ng[3], hp[3], dF[3];
+          unit3f(h->ng, ng);
+          for (int a = 0; a < 3; a++) {
+            hp[a] = nb_rays[e].org[a] + nb_rays[e].dir[a] * h->t;
+            dF[a] = hp[a] - F[a];
+          }
+          if (f3_dot(ng, fn) > 0.99f && fabsf(f3_dot(fn, dF)) <= tol)
+            keep = 1; /* the nearest back face is the chart's own side: as before */
+        }
+        if (!keep && first != UINT32_MAX)
+          pull_point(rt, &nb_rays[first], &nb_hits[first], pos + 3 * (size_t)i);
       }
       /* (b) sample segments from the (moved) centres */
       for (uint32_t i = 0; i < m; i++) {
@@ -779,12 +836,12 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
     free(nb_hits);
     free(nb_of);
     free(pos);
-    free(P0);
     free(dist);
     free(target);
   }
   free(inside);
   free(centre);
+  free(face_n);
   return oom ? UINT64_MAX : fixes;
 }
 
