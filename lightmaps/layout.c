@@ -496,25 +496,27 @@ static void texel_tile(const lm_ctx *c, const lm_atlas_work *aw, const lm_rtri *
  *       rays, which read the same texels) carry onto the room's floor edge: a leak
  *       (sunroom: 1.3 W/m² 5 cm inside the sealed room, test_hard_wall_junction).
  *       The side to take is the side of the texel's own chart, where its neighbours are
- *       read with it. So, once every texel is classified (pass 1), P moves toward the
- *       nearest covered texel of the same atlas within UB_LM_FIX_REACH texels whose own
- *       centre is not behind a surface and which lies on the same plane next to it
- *       (outside_neighbour(); fixed scan order, so thread-independent): a ray from that
- *       neighbour's centre P_n to P, and P becomes its first hit pulled back by eps
- *       toward P_n (pull_point), i.e. the foot of the wall on the chart's visible side,
- *       connected to P_n by a free segment; P itself if the segment is free. Only with
- *       no such neighbour (no visible texel of the chart nearby: the texel is not
- *       blended with any visible one) does P fall back to the front of the nearest back
- *       face. The sample rays are then traced from the moved P.
+ *       read with it. So, once every texel is classified (pass 1), rays go from the
+ *       centres of up to UB_LM_FIX_CANDS nearby texels of the same chart whose centres
+ *       are not behind a surface (outside_candidates(); fixed order, thread-independent)
+ *       to P. A ray that meets a FRONT face before P comes from the chart's open side.
+ *       If one of them meets the nearest back face's plane, the old move (to the front
+ *       of that face) is on the chart's side and is kept: a floor under a wall between
+ *       two rooms still goes to the nearer room, as before. Otherwise P moves to the
+ *       first hit of the nearest such candidate, pulled back by eps toward it
+ *       (pull_point): the foot of the wall on the chart's side, joined to that
+ *       candidate's centre by a free segment. With no such candidate (no open texel of
+ *       the chart nearby, so no visible texel blends with this one) the old move stays.
+ *       The sample rays are then traced from the moved P.
  *   (b) Every sample whose segment from P (the moved P in case (a)) hits anything before
  *       reaching S_j is pulled to just before the first hit: hit − dir·eps, plus the hit
  *       face's normal turned toward P, × eps.
  * Why a fixed sample is inside the room: its segment from P is free of geometry up to
  * the first hit, and it stops eps before that hit, so it is connected to P by an
  * unobstructed path; P itself is either in front of every surface around it or, in case
- * (a), was moved to a point joined by a free segment to a neighbour of its chart that is
- * (or, in the fallback, to the front side of the surface it was behind). Samples whose
- * segment is free are left where they are. backface_fixes counts the sample points moved.
+ * (a), was moved to the front side of the surface it was behind, or to a point joined
+ * by a free segment to the centre of an open texel of its chart. Samples whose segment
+ * is free are left where they are. backface_fixes counts the sample points moved.
  * Finally every sample is offset along the texel normal (ub_rt_offset_point) so gather
  * rays leave without self-hits. */
 
