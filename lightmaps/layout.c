@@ -25,6 +25,8 @@
 #define UB_LM_TILE 32          /* rasterisation tile side, texels */
 #define UB_LM_FIX_RAYS 8       /* per texel: 4 toward the samples, 4 along ±tangents */
 #define UB_LM_FIX_CHUNK 1024   /* texels per back-face-fix work item */
+#define UB_LM_FIX_REACH 3      /* texels: how far case (a) of the back-face fix looks */
+#define UB_LM_FIX_CANDS 8      /* neighbours case (a) tries, nearest first */
 
 static double now_seconds(void)
 {
@@ -487,15 +489,33 @@ static void texel_tile(const lm_ctx *c, const lm_atlas_work *aw, const lm_rtri *
  *   rays 4..7: P along ±T, ±B (the texel's x/y directions on the surface), half diagonal.
  *   (a) If the nearest hit of all 8 rays is a BACK face, P lies behind a surface: the
  *       level's back sides face solid space (closed geometry, like brush-based levels),
- *       so P is inside a wall. P moves to the front side of that face (hit point + its
- *       unit normal × eps) and the sample rays are traced again from there.
+ *       so P is inside a wall. P must not simply move to the front of that nearest back
+ *       face: for a floor slab running under a wall, a texel centred under the wall is
+ *       about as near the wall's OUTER face as its inner one, and on the outer side it
+ *       bakes outdoor light that the run-time's bilinear filter (and the bake's gather
+ *       rays, which read the same texels) carry onto the room's floor edge: a leak
+ *       (sunroom: 1.3 W/m² 5 cm inside the sealed room, test_hard_wall_junction).
+ *       The side to take is the side of the texel's own chart, where its neighbours are
+ *       read with it. So, once every texel is classified (pass 1), rays go from the
+ *       centres of up to UB_LM_FIX_CANDS nearby texels of the same chart whose centres
+ *       are not behind a surface (outside_candidates(); fixed order, thread-independent)
+ *       to P. A ray that meets a FRONT face before P comes from the chart's open side.
+ *       If one of them meets the nearest back face's plane, the old move (to the front
+ *       of that face) is on the chart's side and is kept: a floor under a wall between
+ *       two rooms still goes to the nearer room, as before. Otherwise P moves to the
+ *       first hit of the nearest such candidate, pulled back by eps toward it
+ *       (pull_point): the foot of the wall on the chart's side, joined to that
+ *       candidate's centre by a free segment. With no such candidate (no open texel of
+ *       the chart nearby, so no visible texel blends with this one) the old move stays.
+ *       The sample rays are then traced from the moved P.
  *   (b) Every sample whose segment from P (the moved P in case (a)) hits anything before
  *       reaching S_j is pulled to just before the first hit: hit − dir·eps, plus the hit
  *       face's normal turned toward P, × eps.
  * Why a fixed sample is inside the room: its segment from P is free of geometry up to
  * the first hit, and it stops eps before that hit, so it is connected to P by an
  * unobstructed path; P itself is either in front of every surface around it or, in case
- * (a), was moved to the front side of the surface it was behind. Samples whose segment
+ * (a), was moved to the front side of the surface it was behind, or to a point joined
+ * by a free segment to the centre of an open texel of its chart. Samples whose segment
  * is free are left where they are. backface_fixes counts the sample points moved.
  * Finally every sample is offset along the texel normal (ub_rt_offset_point) so gather
  * rays leave without self-hits. */
@@ -534,6 +554,56 @@ static void pull_point(const ub_rt *rt, const ub_ray *ray, const ub_hit *h, floa
     out[a] = hp[a] - ray->dir[a] * eps + side * ng[a] * eps;
 }
 
+/* Case (a) candidates: up to UB_LM_FIX_CANDS covered texels of the same atlas, at most
+ * UB_LM_FIX_REACH texels away, nearest first, whose own centre is not behind a surface
+ * and which lie on ti's plane next to it on the surface (same chart, not a chart packed
+ * alongside). "Not behind a surface" only means that no back face is within half a texel
+ * diagonal, so a candidate may still lie deep inside a thick wall: the caller only uses
+ * candidates that see a front face on their way to P. Fixed scan order, ties keep the
+ * first found: the choice does not depend on threads. Returns the count. */
+static int outside_candidates(const ub_lightmap *lm, const lm_rtri *rtri, const uint8_t *inside,
+                              uint32_t ti, uint32_t out_k[UB_LM_FIX_CANDS])
+{
+  const ub_atlas *at = &lm->atlases[lm->texel_atlas[ti]];
+  int64_t x = lm->texel_xy[2 * (size_t)ti], y = lm->texel_xy[2 * (size_t)ti + 1];
+  const float *n = lm->texel_normal + 3 * (size_t)ti, *p = lm->texel_pos + 3 * (size_t)ti;
+  const lm_rtri *r = &rtri[lm->texel_tri[ti]];
+  float step = sqrtf(fmaxf(f3_dot(r->dpdx, r->dpdx), f3_dot(r->dpdy, r->dpdy)));
+  if (!(step > 0.0f) || !isfinite(step))
+    return 0;
+  int cnt = 0, cd[UB_LM_FIX_CANDS];
+  for (int dy = -UB_LM_FIX_REACH; dy <= UB_LM_FIX_REACH; dy++)
+    for (int dx = -UB_LM_FIX_REACH; dx <= UB_LM_FIX_REACH; dx++) {
+      int d2 = dx * dx + dy * dy;
+      int64_t xx = x + dx, yy = y + dy;
+      if (d2 == 0 || (cnt == UB_LM_FIX_CANDS && d2 >= cd[cnt - 1]) || xx < 0 || yy < 0 ||
+          xx >= at->width || yy >= at->height)
+        continue;
+      int32_t k = at->texel_of[(size_t)yy * at->width + (size_t)xx];
+      if (k < 0 || inside[k])
+        continue;
+      const float *nk = lm->texel_normal + 3 * (size_t)k, *pk = lm->texel_pos + 3 * (size_t)k;
+      float dp[3] = {pk[0] - p[0], pk[1] - p[1], pk[2] - p[2]};
+      float reach = (sqrtf((float)d2) + 1.5f) * step;
+      if (f3_dot(n, nk) < 0.99f || fabsf(f3_dot(dp, n)) > 0.25f * step ||
+          f3_dot(dp, dp) > reach * reach)
+        continue;
+      int at_i = cnt < UB_LM_FIX_CANDS ? cnt : UB_LM_FIX_CANDS - 1;
+      while (at_i > 0 && cd[at_i - 1] > d2) { /* stable: equal distances keep scan order */
+        if (at_i < UB_LM_FIX_CANDS) {
+          cd[at_i] = cd[at_i - 1];
+          out_k[at_i] = out_k[at_i - 1];
+        }
+        at_i--;
+      }
+      cd[at_i] = d2;
+      out_k[at_i] = (uint32_t)k;
+      if (cnt < UB_LM_FIX_CANDS)
+        cnt++;
+    }
+  return cnt;
+}
+
 static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
 {
   ub_lightmap *lm = o->lm;
@@ -541,17 +611,24 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
   uint32_t nchunks = (lm->texel_count + UB_LM_FIX_CHUNK - 1) / UB_LM_FIX_CHUNK;
   uint64_t fixes = 0;
   int oom = 0;
-#pragma omp parallel reduction(+ : fixes)
+  /* Per texel, between the two passes: is P behind a surface (case (a)), and P or, in
+   * case (a), the fallback point in front of the nearest back face. */
+  uint8_t *inside = calloc(lm->texel_count ? lm->texel_count : 1, 1);
+  float *centre = malloc((size_t)(lm->texel_count ? lm->texel_count : 1) * 3 * sizeof *centre);
+  float *face_n = malloc((size_t)(lm->texel_count ? lm->texel_count : 1) * 3 * sizeof *face_n);
+  if (!inside || !centre || !face_n) {
+    free(inside);
+    free(centre);
+    free(face_n);
+    return UINT64_MAX;
+  }
+
+  /* pass 1: the 8 short rays per texel; classify P */
+#pragma omp parallel
   {
     ub_ray *rays = malloc((size_t)UB_LM_FIX_CHUNK * UB_LM_FIX_RAYS * sizeof *rays);
     ub_hit *hits = malloc((size_t)UB_LM_FIX_CHUNK * UB_LM_FIX_RAYS * sizeof *hits);
-    float *pos = malloc((size_t)UB_LM_FIX_CHUNK * 3 * sizeof *pos);
-    float *dist = malloc((size_t)UB_LM_FIX_CHUNK * 4 * sizeof *dist);
-    float *target = malloc((size_t)UB_LM_FIX_CHUNK * 4 * 3 * sizeof *target);
-    uint32_t *redo = malloc((size_t)UB_LM_FIX_CHUNK * sizeof *redo);
-    ub_ray *redo_rays = malloc((size_t)UB_LM_FIX_CHUNK * 4 * sizeof *redo_rays);
-    ub_hit *redo_hits = malloc((size_t)UB_LM_FIX_CHUNK * 4 * sizeof *redo_hits);
-    if (!rays || !hits || !pos || !dist || !target || !redo || !redo_rays || !redo_hits) {
+    if (!rays || !hits) {
 #pragma omp atomic write
       oom = 1;
     }
@@ -571,7 +648,7 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
         const lm_rtri *r = &rtri[lm->texel_tri[ti]];
         float P[3];
         ub_rt_offset_point(rt, lm->texel_pos + 3 * (size_t)ti, n, P);
-        memcpy(pos + 3 * i, P, sizeof P);
+        memcpy(centre + 3 * (size_t)ti, P, sizeof P);
         float dx2 = f3_dot(r->dpdx, r->dpdx), dy2 = f3_dot(r->dpdy, r->dpdy);
         float half_diag = 0.5f * sqrtf(dx2 + dy2);
         if (!(half_diag > 0.0f) || !isfinite(half_diag))
@@ -595,7 +672,6 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
         for (int j = 0; j < 4; j++) {
           float S[3], d[3], u[3];
           ub_rt_offset_point(rt, o->raw_samples + ((size_t)ti * 4 + j) * 3, n, S);
-          memcpy(target + (3 * (size_t)i * 4) + 3 * j, S, sizeof S);
           for (int a = 0; a < 3; a++)
             d[a] = S[a] - P[a];
           float len = unit3f(d, u);
@@ -605,7 +681,6 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
               tmp[a] = sx * T[a] + sy * B[a];
             unit3f(tmp, u);
           }
-          dist[4 * i + j] = len;
           ray_setup(&rr[j], P, u, fmaxf(len, half_diag));
         }
         const float *ax4[4] = {T, T, B, B};
@@ -617,9 +692,6 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
         }
       }
       ub_rt_intersect(rt, rays, m * UB_LM_FIX_RAYS, hits);
-
-      /* (a) texels whose centre is behind a surface */
-      uint32_t nredo = 0;
       for (uint32_t i = 0; i < m; i++) {
         const ub_hit *hh = hits + (size_t)i * UB_LM_FIX_RAYS;
         const ub_ray *rr = rays + (size_t)i * UB_LM_FIX_RAYS;
@@ -634,40 +706,120 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
           unit3f(hh[best].ng, ng);
           float eps = ub_rt_epsilon(rt, hp);
           for (int a = 0; a < 3; a++)
-            pos[3 * i + a] = hp[a] + ng[a] * eps;
-          redo[nredo++] = i;
+            centre[3 * (size_t)(t0 + i) + a] = hp[a] + ng[a] * eps; /* fallback */
+          memcpy(face_n + 3 * (size_t)(t0 + i), ng, sizeof ng);
+          inside[t0 + i] = 1;
         }
       }
-      /* trace the sample segments again from the moved centres */
-      if (nredo) {
-        for (uint32_t k = 0; k < nredo; k++) {
-          uint32_t i = redo[k];
-          for (int j = 0; j < 4; j++) {
-            float d[3], u[3];
-            const float *S = target + 3 * (size_t)i * 4 + 3 * j;
-            for (int a = 0; a < 3; a++)
-              d[a] = S[a] - pos[3 * i + a];
-            float len = unit3f(d, u);
-            dist[4 * i + j] = len;
-            if (len == 0.0f)
-              memcpy(u, lm->texel_normal + 3 * (size_t)(t0 + i), sizeof u);
-            ray_setup(&redo_rays[4 * (size_t)k + j], pos + 3 * i, u, len);
-          }
+    }
+    free(rays);
+    free(hits);
+  }
+
+  /* pass 2: move the centres of case (a) toward their chart; pull the samples (b) */
+#pragma omp parallel reduction(+ : fixes)
+  {
+    ub_ray *rays = malloc((size_t)UB_LM_FIX_CHUNK * 4 * sizeof *rays);
+    ub_hit *hits = malloc((size_t)UB_LM_FIX_CHUNK * 4 * sizeof *hits);
+    ub_ray *nb_rays = malloc((size_t)UB_LM_FIX_CHUNK * UB_LM_FIX_CANDS * sizeof *nb_rays);
+    ub_hit *nb_hits = malloc((size_t)UB_LM_FIX_CHUNK * UB_LM_FIX_CANDS * sizeof *nb_hits);
+    uint32_t *nb_of = malloc((size_t)UB_LM_FIX_CHUNK * UB_LM_FIX_CANDS * sizeof *nb_of);
+    float *pos = malloc((size_t)UB_LM_FIX_CHUNK * 3 * sizeof *pos);
+    float *dist = malloc((size_t)UB_LM_FIX_CHUNK * 4 * sizeof *dist);
+    float *target = malloc((size_t)UB_LM_FIX_CHUNK * 4 * 3 * sizeof *target);
+    if (!rays || !hits || !nb_rays || !nb_hits || !nb_of || !pos || !dist || !target) {
+#pragma omp atomic write
+      oom = 1;
+    }
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t chunk = 0; chunk < (int64_t)nchunks; chunk++) {
+      int stop;
+#pragma omp atomic read
+      stop = oom;
+      if (stop)
+        continue;
+      uint32_t t0 = (uint32_t)chunk * UB_LM_FIX_CHUNK;
+      uint32_t t1 = t0 + UB_LM_FIX_CHUNK < lm->texel_count ? t0 + UB_LM_FIX_CHUNK : lm->texel_count;
+      uint32_t m = t1 - t0;
+      /* (a) rays from the candidates' centres to P. Those that meet a FRONT face before
+       * P come from the chart's open side. If one of them meets the nearest back face's
+       * plane, the fallback (the front of that face) is on the chart's side: it stays.
+       * Else the nearest such candidate's hit, pulled back by eps, is the new P; no such
+       * candidate: the fallback stays. */
+      uint32_t nnb = 0;
+      for (uint32_t i = 0; i < m; i++) {
+        uint32_t ti = t0 + i;
+        memcpy(pos + 3 * (size_t)i, centre + 3 * (size_t)ti, 3 * sizeof(float));
+        if (!inside[ti])
+          continue;
+        uint32_t cand[UB_LM_FIX_CANDS];
+        int nc = outside_candidates(lm, rtri, inside, ti, cand);
+        float P[3];
+        ub_rt_offset_point(rt, lm->texel_pos + 3 * (size_t)ti, lm->texel_normal + 3 * (size_t)ti, P);
+        for (int j = 0; j < nc; j++) {
+          float d[3], u[3];
+          const float *pk = centre + 3 * (size_t)cand[j];
+          for (int a = 0; a < 3; a++)
+            d[a] = P[a] - pk[a];
+          float len = unit3f(d, u);
+          if (len == 0.0f)
+            continue;
+          ray_setup(&nb_rays[nnb], pk, u, len);
+          nb_of[nnb++] = i;
         }
-        ub_rt_intersect(rt, redo_rays, nredo * 4, redo_hits);
-        for (uint32_t k = 0; k < nredo; k++)
-          for (int j = 0; j < 4; j++) {
-            hits[(size_t)redo[k] * UB_LM_FIX_RAYS + j] = redo_hits[4 * (size_t)k + j];
-            rays[(size_t)redo[k] * UB_LM_FIX_RAYS + j] = redo_rays[4 * (size_t)k + j];
-          }
       }
-      /* (b) pull blocked samples; write the final, normal-offset sample points */
+      if (nnb)
+        ub_rt_intersect(rt, nb_rays, nnb, nb_hits);
+      for (uint32_t q = 0; q < nnb; q++) {
+        if (q > 0 && nb_of[q] == nb_of[q - 1])
+          continue; /* rays of one texel are contiguous; its first good one wins */
+        uint32_t i = nb_of[q], ti = t0 + i, first = UINT32_MAX;
+        const float *fn = face_n + 3 * (size_t)ti, *F = centre + 3 * (size_t)ti;
+        const lm_rtri *r = &rtri[lm->texel_tri[ti]];
+        float tol = 0.01f * sqrtf(fmaxf(f3_dot(r->dpdx, r->dpdx), f3_dot(r->dpdy, r->dpdy)));
+        int keep = 0;
+        for (uint32_t e = q; e < nnb && nb_of[e] == i; e++) {
+          const ub_hit *h = &nb_hits[e];
+          if (h->tri == UB_RT_MISS || !(h->t < nb_rays[e].tfar) ||
+              !(f3_dot(h->ng, nb_rays[e].dir) < 0.0f))
+            continue;
+          if (first == UINT32_MAX)
+            first = e;
+          float ng[3], hp[3], dF[3];
+          unit3f(h->ng, ng);
+          for (int a = 0; a < 3; a++) {
+            hp[a] = nb_rays[e].org[a] + nb_rays[e].dir[a] * h->t;
+            dF[a] = hp[a] - F[a];
+          }
+          if (f3_dot(ng, fn) > 0.99f && fabsf(f3_dot(fn, dF)) <= tol)
+            keep = 1; /* the nearest back face is the chart's own side: as before */
+        }
+        if (!keep && first != UINT32_MAX)
+          pull_point(rt, &nb_rays[first], &nb_hits[first], pos + 3 * (size_t)i);
+      }
+      /* (b) sample segments from the (moved) centres */
       for (uint32_t i = 0; i < m; i++) {
         uint32_t ti = t0 + i;
         const float *n = lm->texel_normal + 3 * (size_t)ti;
         for (int j = 0; j < 4; j++) {
-          const ub_hit *h = &hits[(size_t)i * UB_LM_FIX_RAYS + j];
-          const ub_ray *ray = &rays[(size_t)i * UB_LM_FIX_RAYS + j];
+          float *S = target + 3 * (size_t)i * 4 + 3 * j, d[3], u[3];
+          ub_rt_offset_point(rt, o->raw_samples + ((size_t)ti * 4 + j) * 3, n, S);
+          for (int a = 0; a < 3; a++)
+            d[a] = S[a] - pos[3 * i + a];
+          float len = unit3f(d, u);
+          dist[4 * i + j] = len;
+          if (len == 0.0f)
+            memcpy(u, n, sizeof u);
+          ray_setup(&rays[4 * (size_t)i + j], pos + 3 * i, u, len);
+        }
+      }
+      ub_rt_intersect(rt, rays, m * 4, hits);
+      for (uint32_t i = 0; i < m; i++) {
+        uint32_t ti = t0 + i;
+        const float *n = lm->texel_normal + 3 * (size_t)ti;
+        for (int j = 0; j < 4; j++) {
+          const ub_hit *h = &hits[4 * (size_t)i + j];
+          const ub_ray *ray = &rays[4 * (size_t)i + j];
           float *dst = lm->sample_pos + ((size_t)ti * UB_TEXEL_SAMPLES + j) * 3;
           if (h->tri != UB_RT_MISS && h->t < dist[4 * i + j]) {
             float q[3];
@@ -682,13 +834,16 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
     }
     free(rays);
     free(hits);
+    free(nb_rays);
+    free(nb_hits);
+    free(nb_of);
     free(pos);
     free(dist);
     free(target);
-    free(redo);
-    free(redo_rays);
-    free(redo_hits);
   }
+  free(inside);
+  free(centre);
+  free(face_n);
   return oom ? UINT64_MAX : fixes;
 }
 
