@@ -337,6 +337,15 @@ int main(int argc, char **argv)
   double gbs = all_bytes / tall / 1e9, cgbs = 2.0 * (double)cn / tcpy / 1e9;
   printf("run-time: load %.2f s, resident +%.1f MB (base + %u sets' records %.1f MB on disk)\n", tl,
          (rss1 - rss0) / 1024.0, nd, rec_sum / 1048576.0);
+  {
+    /* Counted bytes: the RSS delta above also holds freed pages malloc keeps. */
+    ub_runtime_memory mu;
+    ub_runtime_memory_usage(rt, &mu);
+    const double M = 1048576.0;
+    printf("  run-time memory (counted): %.1f MB = geometry %.1f + lightmap %.1f + GLG %.1f + "
+           "LLG %.1f + records %.1f + blend engines %.1f\n", mu.total / M, mu.geometry / M,
+           mu.lightmap / M, mu.glg / M, mu.llg / M, mu.records / M, mu.blend / M);
+  }
   printf("  one set toggled (others on), best of %d: median %.3f ms, p90 %.3f ms, max %.3f ms; "
          "mean %.2f MB moved (target <= 0.1 ms)\n",
          PASSES, tmed, tp90, tmax, tog_bytes / (2.0 * nd) / 1e6);

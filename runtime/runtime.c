@@ -8,6 +8,8 @@
 #include <string.h>
 
 #include "runtime/blend.h"
+#include "runtime/half.h"
+#include "runtime/texel_sh.h"
 #include "ubake/ahd.h"
 #include "ubake/sh.h"
 
@@ -21,7 +23,15 @@ struct ub_runtime {
   float **enc_normal;    /* atlas_count arrays of width × height × 3: AHD encode normals */
   uint64_t *pixel_first; /* atlas_count + 1: first global pixel of each atlas */
   /* Dynamic light sets (when the file has any): blended SH, re-encoded where touched. */
-  float *lm_base, *lm_cur; /* Σ pixels × 12 */
+  float *lm_base, *lm_cur; /* Σ pixels × 12; lm_cur in the file's I_z form (below) */
+  /* Record values in half precision, as the file stores them (one pool per representation,
+   * each record's values divided by the pool's power-of-two scale, which the weights given
+   * to the blend are multiplied by: (w·s)·h and w·(s·h) round to the same float). Texel
+   * values, base and lm_cur are in the I_z form of runtime/texel_sh.h (L00 replaced by the
+   * irradiance along the texel's stored normal), where half rounding keeps I_z to half
+   * precision even under grazing light; readers unpack a texel before use (texel_sh_at). */
+  uint16_t *lm_half, *glg_half, *llg_half;
+  float lm_scale, glg_scale, llg_scale;
   float *glg_cur;          /* probes × 27: base + Σ sets (raw; NULL without sets) */
   float *glg_win;          /* probes × 27: windowed per probe, what the GLG reads. A convex
                               blend of windowed probes keeps irradiance ≥ 0, so queries
@@ -128,14 +138,25 @@ static ub_result encode_normals(const ub_bakefile_atlas *at, float **out_nrm)
   return UB_OK;
 }
 
-/* AHD of pixels [first, first + count) of an atlas from the given SH. */
-static void encode_pixels(const ub_bakefile_atlas *at, const float *sh, const float *nrm,
-                          ub_ahd *ahd, size_t first, size_t count)
+/* Texel i's SH L1 from an array in the I_z form (packed) or plain, into out. */
+static void texel_sh_at(const ub_bakefile_atlas *at, const float *sh, int packed, size_t i,
+                        float out[UB_SH1_FLOATS])
+{
+  float un[3];
+  memcpy(out, &sh[i * UB_SH1_FLOATS], UB_SH1_FLOATS * sizeof(float));
+  if (packed && ub_texel_normal(&at->normal[i * 3], un))
+    ub_texel_sh_unpack(out, un);
+}
+
+/* AHD of pixels [first, first + count) of an atlas from the given SH (packed: I_z form). */
+static void encode_pixels(const ub_bakefile_atlas *at, const float *sh, int packed,
+                          const float *nrm, ub_ahd *ahd, size_t first, size_t count)
 {
   for (size_t i = first; i < first + count; i++) {
     if (at->coverage[i] == 0)
       continue;
-    const float *v = &sh[i * UB_SH1_FLOATS];
+    float v[UB_SH1_FLOATS];
+    texel_sh_at(at, sh, packed, i, v);
     float n[3];
     memcpy(n, &nrm[i * 3], sizeof n);
     if (n[0] == 0.0f && n[1] == 0.0f && n[2] == 0.0f)
@@ -166,15 +187,24 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt->value);
   free(rt->applied);
   free(rt->llg_base);
-  free(rt->llg_cur);
-  free(rt->llg_first);
   free(rt->lm_base);
   free(rt->lm_cur);
-  free(rt->glg_cur);
   free(rt->glg_win);
+  free(rt->lm_half);
+  free(rt->glg_half);
+  free(rt->llg_half);
   free(rt->lit_tris);
   if (rt->has_glg)
     ub_glg_release(&rt->glg);
+  /* Detach the bake file's arrays that point into the current state (setup_elements). */
+  if (rt->glg_cur && rt->bf->glg_sh == rt->glg_cur)
+    rt->bf->glg_sh = NULL;
+  for (uint32_t m = 0; rt->llg_cur && m < rt->bf->llg_count; m++)
+    if (rt->bf->llgs[m].probe_sh == rt->llg_cur + rt->llg_first[m] * 27)
+      rt->bf->llgs[m].probe_sh = NULL;
+  free(rt->llg_cur);
+  free(rt->llg_first);
+  free(rt->glg_cur);
   ub_bakefile_free(rt->bf);
   free(rt);
 }
@@ -206,11 +236,19 @@ static ub_result push_applied(ub_runtime *rt, uint32_t e)
   float w[3];
   element_applied(rt, e, w);
   memcpy(rt->applied + 3 * (size_t)e, w, sizeof w);
-  ub_result r = ub_blend_set_weight(rt->lm_blend, e, w);
+  /* Each blend's records are stored ÷ its pool scale (a power of two): w × scale is exact
+   * and gives the same products. */
+  float wl[3], wg[3], wh[3];
+  for (int c = 0; c < 3; c++) {
+    wl[c] = w[c] * rt->lm_scale;
+    wg[c] = w[c] * rt->glg_scale;
+    wh[c] = w[c] * rt->llg_scale;
+  }
+  ub_result r = ub_blend_set_weight(rt->lm_blend, e, wl);
   if (r == UB_OK && rt->glg_blend)
-    r = ub_blend_set_weight(rt->glg_blend, e, w);
+    r = ub_blend_set_weight(rt->glg_blend, e, wg);
   if (r == UB_OK && rt->llg_blend)
-    r = ub_blend_set_weight(rt->llg_blend, e, w);
+    r = ub_blend_set_weight(rt->llg_blend, e, wh);
   return r;
 }
 
@@ -227,43 +265,141 @@ static ub_result set_value(ub_runtime *rt, uint32_t e, const float rgb[3])
   return r;
 }
 
-/* Blend engines for the elements' lightmap, GLG and LLG records; sets start at weight 1,
- * doors closed, objects shown. */
-static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *log)
+/* The power of two ≥ 1 that brings mx within the half range with margin (as the writer). */
+static float half_pool_scale(double mx)
+{
+  float s = 1.0f;
+  while (mx / s > 32768.0 && s < 1e30f)
+    s *= 2.0f;
+  return s;
+}
+
+/* Global pixel p's unit normal as the reader used it for the I_z form; 0 without one.
+ * *inout_atlas: a cursor (receivers are sorted), start at 0. */
+static int pixel_unit_normal(const ub_runtime *rt, uint64_t p, uint32_t *inout_atlas,
+                             float out_n[3])
 {
   const ub_bakefile *bf = rt->bf;
+  uint32_t a = *inout_atlas;
+  while (a + 1 < bf->atlas_count && p >= rt->pixel_first[a + 1])
+    a++;
+  *inout_atlas = a;
+  if (a >= bf->atlas_count || p < rt->pixel_first[a] || p >= rt->pixel_first[a + 1])
+    return 0;
+  return ub_texel_normal(&bf->atlases[a].normal[3 * (size_t)(p - rt->pixel_first[a])], out_n);
+}
+
+/* One representation's records as half: every record's float values (texels: in the I_z
+ * form) divided by a power-of-two scale into one pool; the float arrays are freed (set
+ * NULL in the run-time's bake file). Values that came from the file's halves come back
+ * bit for bit (a power-of-two scale is exact; the I_z re-pack of a texel is exact to
+ * float rounding, far below half rounding). */
+static ub_result records_to_half(ub_runtime *rt, int rep, ub_blend_record *recs,
+                                 uint16_t **out_pool, float *out_scale)
+{
+  ub_bakefile *bf = rt->bf;
+  uint32_t n = rt->elem_total;
+  uint32_t stride = rep == 0 ? UB_SH1_FLOATS : 27;
+  size_t total = 0;
+  double mx = 0.0;
+  for (uint32_t e = 0; e < n; e++) {
+    ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
+    uint32_t count = rep == 0 ? rc->texel_count : rep == 1 ? rc->probe_count : rc->llg_probe_count;
+    float *v = rep == 0 ? rc->texel_sh : rep == 1 ? rc->probe_sh : rc->llg_probe_sh;
+    uint32_t cursor = 0;
+    for (uint32_t i = 0; i < count; i++) {
+      float *row = v + (size_t)i * stride, un[3];
+      if (rep == 0 && pixel_unit_normal(rt, rc->texel_index[i], &cursor, un))
+        ub_texel_sh_pack(row, un); /* in place: the float array is dropped below */
+      for (uint32_t k = 0; k < stride; k++)
+        mx = fmax(mx, fabs((double)row[k]));
+    }
+    total += (size_t)count * stride;
+  }
+  float s = half_pool_scale(mx);
+  uint16_t *pool = malloc((total ? total : 1) * sizeof *pool);
+  if (!pool)
+    return UB_ERR_OUT_OF_MEMORY;
+  size_t at = 0;
+  for (uint32_t e = 0; e < n; e++) {
+    ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
+    uint32_t count = rep == 0 ? rc->texel_count : rep == 1 ? rc->probe_count : rc->llg_probe_count;
+    float **v = rep == 0 ? &rc->texel_sh : rep == 1 ? &rc->probe_sh : &rc->llg_probe_sh;
+    for (size_t i = 0; i < (size_t)count * stride; i++)
+      pool[at + i] = ub_half_from_float((*v)[i] / s);
+    recs[e].values = pool + at;
+    at += (size_t)count * stride;
+    free(*v);
+    *v = NULL;
+  }
+  *out_pool = pool;
+  *out_scale = s;
+  return UB_OK;
+}
+
+/* Blend engines for the elements' lightmap, GLG and LLG records; sets start at weight 1,
+ * doors closed, objects shown. Afterwards the run-time keeps one float copy of each
+ * representation's current state (lm_cur, glg_cur + the windowed glg_win, llg_cur), the
+ * base rows of the touched receivers inside the blends (UB_BLEND_OWN_BASE) and the
+ * records in half; the bake file's float copies are freed or point into the current state
+ * (runtime.h, ub_runtime_bakefile). */
+static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *log)
+{
+  ub_bakefile *bf = rt->bf;
   uint32_t n = bf->dls_count + bf->elem_count;
   rt->elem_total = n;
   uint64_t pixels = rt->pixel_first[bf->atlas_count];
   rt->lm_base = malloc((size_t)(pixels ? pixels : 1) * UB_SH1_FLOATS * sizeof(float));
-  rt->lm_cur = malloc((size_t)(pixels ? pixels : 1) * UB_SH1_FLOATS * sizeof(float));
   rt->lm_rec = calloc(n, sizeof *rt->lm_rec);
   rt->glg_rec = calloc(n, sizeof *rt->glg_rec);
   rt->llg_rec = calloc(n, sizeof *rt->llg_rec);
   rt->value = calloc((size_t)n * 3, sizeof *rt->value);
   rt->applied = calloc((size_t)n * 3, sizeof *rt->applied);
   rt->llg_first = calloc((size_t)bf->llg_count + 1, sizeof *rt->llg_first);
-  if (!rt->lm_base || !rt->lm_cur || !rt->lm_rec || !rt->glg_rec || !rt->llg_rec ||
+  if (!rt->lm_base || !rt->lm_rec || !rt->glg_rec || !rt->llg_rec ||
       !rt->value || !rt->applied || !rt->llg_first) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return UB_ERR_OUT_OF_MEMORY;
   }
-  for (uint32_t a = 0; a < bf->atlas_count; a++)
-    memcpy(rt->lm_base + rt->pixel_first[a] * UB_SH1_FLOATS, bf->atlases[a].sh,
-           (size_t)(rt->pixel_first[a + 1] - rt->pixel_first[a]) * UB_SH1_FLOATS * sizeof(float));
+  /* The base in the I_z form; the atlases' float SH are not needed any more (the AHD
+   * texels are encoded): freeing them first keeps the peak at two copies. */
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    ub_bakefile_atlas *at = &bf->atlases[a];
+    size_t texels = (size_t)(rt->pixel_first[a + 1] - rt->pixel_first[a]);
+    float *dst = rt->lm_base + rt->pixel_first[a] * UB_SH1_FLOATS;
+    memcpy(dst, at->sh, texels * UB_SH1_FLOATS * sizeof(float));
+    for (size_t i = 0; i < texels; i++) {
+      float un[3];
+      if (ub_texel_normal(&at->normal[3 * i], un))
+        ub_texel_sh_pack(dst + i * UB_SH1_FLOATS, un);
+    }
+    free(at->sh);
+    at->sh = NULL;
+  }
+  rt->lm_cur = malloc((size_t)(pixels ? pixels : 1) * UB_SH1_FLOATS * sizeof(float));
+  if (!rt->lm_cur) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
   int any_llg = 0;
   for (uint32_t e = 0; e < n; e++) {
     const ub_bakefile_record *rc = element_record(bf, e);
     rt->lm_rec[e].receivers = rc->texel_index;
-    rt->lm_rec[e].values = rc->texel_sh;
     rt->lm_rec[e].count = rc->texel_count;
     rt->glg_rec[e].receivers = rc->probe_index;
-    rt->glg_rec[e].values = rc->probe_sh;
     rt->glg_rec[e].count = rc->probe_count;
     rt->llg_rec[e].receivers = rc->llg_probe_index;
-    rt->llg_rec[e].values = rc->llg_probe_sh;
     rt->llg_rec[e].count = rc->llg_probe_count;
     any_llg |= rc->llg_probe_count > 0;
+  }
+  ub_result r = records_to_half(rt, 0, rt->lm_rec, &rt->lm_half, &rt->lm_scale);
+  if (r == UB_OK)
+    r = records_to_half(rt, 1, rt->glg_rec, &rt->glg_half, &rt->glg_scale);
+  if (r == UB_OK)
+    r = records_to_half(rt, 2, rt->llg_rec, &rt->llg_half, &rt->llg_scale);
+  if (r != UB_OK) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
+    return r;
   }
   ub_blend_desc bd;
   memset(&bd, 0, sizeof bd);
@@ -271,16 +407,15 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   bd.receiver_count = (uint32_t)pixels;
   bd.stride = UB_SH1_FLOATS;
   bd.base = rt->lm_base;
-  bd.storage = UB_BLEND_FLOAT32;
+  bd.storage = UB_BLEND_FLOAT16;
   bd.element_count = n;
   bd.elements = rt->lm_rec;
-  bd.flags = UB_BLEND_OWN_BASE; /* keeps only the touched texels' base rows */
-  ub_result r = ub_blend_create(&bd, log, rt->lm_cur, &rt->lm_blend);
+  bd.flags = UB_BLEND_OWN_BASE; /* keeps only the touched receivers' base rows */
+  r = ub_blend_create(&bd, log, rt->lm_cur, &rt->lm_blend);
   if (r != UB_OK)
     return r;
   free(rt->lm_base);
   rt->lm_base = NULL;
-  bd.flags = 0; /* the GLG base is the bakefile's array, kept anyway */
   if (rt->has_glg) {
     bd.name = "GLG probes";
     bd.receiver_count = bf->glg_probe_count;
@@ -290,6 +425,8 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     r = ub_blend_create(&bd, log, rt->glg_cur, &rt->glg_blend);
     if (r != UB_OK)
       return r;
+    free(bf->glg_sh);
+    bf->glg_sh = rt->glg_cur; /* the raw current state; detached in ub_runtime_free */
   }
   for (uint32_t m = 0; m < bf->llg_count; m++)
     rt->llg_first[m + 1] = rt->llg_first[m] + (uint64_t)bf->llgs[m].dims[0] *
@@ -313,6 +450,13 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     r = ub_blend_create(&bd, log, rt->llg_cur, &rt->llg_blend);
     if (r != UB_OK)
       return r;
+    free(rt->llg_base);
+    rt->llg_base = NULL;
+    /* Each model's grid (what queries read) becomes its slice of the blend's output. */
+    for (uint32_t m = 0; m < bf->llg_count; m++) {
+      free(bf->llgs[m].probe_sh);
+      bf->llgs[m].probe_sh = rt->llg_cur + rt->llg_first[m] * 27;
+    }
   }
   for (uint32_t e = 0; e < n && r == UB_OK; e++) {
     uint32_t kind = element_record(bf, e)->kind;
@@ -356,7 +500,7 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
       rt->ahd[a] = calloc(texels ? texels : 1, sizeof *rt->ahd[a]);
       if (!rt->ahd[a] || encode_normals(at, &rt->enc_normal[a]) != UB_OK)
         goto oom;
-      encode_pixels(at, at->sh, rt->enc_normal[a], rt->ahd[a], 0, texels);
+      encode_pixels(at, at->sh, 0, rt->enc_normal[a], rt->ahd[a], 0, texels);
     }
   }
   for (uint32_t t = 0; t < bf->triangle_count; t++)
@@ -549,7 +693,7 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
     if (hi <= a0 || lo >= a1)
       continue;
     uint64_t s0 = lo > a0 ? lo : a0, s1 = hi < a1 ? hi : a1;
-    encode_pixels(&rt->bf->atlases[a], rt->lm_cur + a0 * UB_SH1_FLOATS, rt->enc_normal[a],
+    encode_pixels(&rt->bf->atlases[a], rt->lm_cur + a0 * UB_SH1_FLOATS, 1, rt->enc_normal[a],
                   rt->ahd[a], (size_t)(s0 - a0), (size_t)(s1 - s0));
     tc->texels += s1 - s0;
   }
@@ -564,22 +708,6 @@ static void glg_touched(void *user, uint32_t first, uint32_t count, const float 
          (size_t)count * 27 * sizeof(float));
   for (uint32_t q = first; q < first + count; q++)
     ub_sh2_window(rt->glg_win + 27 * (size_t)q);
-}
-
-/* Copies the LLG probes the blend just wrote into their models' grids. */
-static void llg_touched(void *user, uint32_t first, uint32_t count, const float *rows)
-{
-  (void)rows;
-  ub_runtime *rt = user;
-  uint64_t lo = first, hi = (uint64_t)first + count;
-  for (uint32_t m = 0; m < rt->bf->llg_count && lo < hi; m++) {
-    uint64_t a0 = rt->llg_first[m], a1 = rt->llg_first[m + 1];
-    if (hi <= a0 || lo >= a1)
-      continue;
-    uint64_t s0 = lo > a0 ? lo : a0, s1 = hi < a1 ? hi : a1;
-    memcpy(rt->bf->llgs[m].probe_sh + (s0 - a0) * 27, rt->llg_cur + s0 * 27,
-           (size_t)(s1 - s0) * 27 * sizeof(float));
-  }
 }
 
 ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
@@ -607,7 +735,7 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
   }
   if (rt->llg_blend) {
     ub_blend_stats bs;
-    ub_blend_update(rt->llg_blend, llg_touched, rt, rt->llg_cur, &bs);
+    ub_blend_update(rt->llg_blend, NULL, NULL, rt->llg_cur, &bs); /* models read llg_cur */
     st.llg_probes_written = bs.receivers;
     st.bytes_read += bs.bytes_read;
     st.bytes_written += bs.bytes_written;
@@ -651,6 +779,51 @@ const ub_bakefile *ub_runtime_bakefile(const ub_runtime *rt)
 {
   assert(rt);
   return rt->bf;
+}
+
+void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
+{
+  assert(rt && out);
+  const ub_bakefile *bf = rt->bf;
+  ub_runtime_memory m;
+  memset(&m, 0, sizeof m);
+  const size_t F = sizeof(float), U = sizeof(uint32_t);
+  m.geometry = (size_t)bf->vertex_count * 3 * F +
+               (size_t)bf->triangle_count * (3 * U + sizeof(int32_t) + 9 * F) +
+               (bf->tri_role ? (size_t)bf->triangle_count * U : 0) +
+               (size_t)bf->light_count * sizeof(ub_bakefile_light) +
+               (size_t)bf->glg_probe_count * 3 * F +
+               (size_t)bf->glg_tet_count * (4 * U + 4 * sizeof(int32_t) + U) +
+               (size_t)bf->glg_plane_count * 4 * F + (size_t)rt->lit_count * U;
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    size_t t = (size_t)bf->atlases[a].width * bf->atlases[a].height;
+    m.geometry += t * (3 * F + 1);
+    m.lightmap += t * (sizeof(ub_ahd) + 3 * F) + (bf->atlases[a].sh ? t * UB_SH1_FLOATS * F : 0);
+  }
+  m.lightmap += rt->lm_cur ? (size_t)rt->pixel_first[bf->atlas_count] * UB_SH1_FLOATS * F : 0;
+  for (uint32_t i = 0; i < bf->llg_count; i++) {
+    const ub_bakefile_llg *g = &bf->llgs[i];
+    size_t np = (size_t)g->dims[0] * g->dims[1] * g->dims[2];
+    m.geometry += (size_t)g->vertex_count * (3 + 3 + 9 + 3) * F + (size_t)g->triangle_count * 3 * U;
+    if (!rt->llg_cur)
+      m.llg += np * 27 * F;
+  }
+  if (rt->llg_cur)
+    m.llg += (size_t)rt->llg_first[bf->llg_count] * 27 * F;
+  if (rt->has_glg)
+    m.glg = (size_t)bf->glg_probe_count * 27 * F * 2 + ub_glg_owned_bytes(&rt->glg); /* raw + windowed */
+  uint32_t n = bf->dls_count + bf->elem_count;
+  for (uint32_t e = 0; e < n; e++) {
+    const ub_bakefile_record *r = element_record(bf, e);
+    size_t h = r->texel_sh ? F : 2, g = r->probe_sh ? F : 2, l = r->llg_probe_sh ? F : 2;
+    m.records += (size_t)r->texel_count * (U + UB_SH1_FLOATS * h) +
+                 (size_t)r->probe_count * (U + 27 * g) + (size_t)r->llg_probe_count * (U + 27 * l);
+  }
+  m.blend = (rt->lm_blend ? ub_blend_memory_bytes(rt->lm_blend) : 0) +
+            (rt->glg_blend ? ub_blend_memory_bytes(rt->glg_blend) : 0) +
+            (rt->llg_blend ? ub_blend_memory_bytes(rt->llg_blend) : 0);
+  m.total = m.geometry + m.lightmap + m.glg + m.llg + m.records + m.blend;
+  *out = m;
 }
 
 ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint32_t x,
@@ -807,6 +980,7 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
    * normals), then one AHD encode: filtering the AHD parameters themselves (non-linear)
    * is off by up to 40% along the normal between texels that are each exact. */
   const float *shs = rt->lm_cur ? rt->lm_cur + rt->pixel_first[atlas] * UB_SH1_FLOATS : at->sh;
+  int packed = rt->lm_cur != NULL;
   const float *nrms = rt->enc_normal[atlas];
   double sw = 0, sh[UB_SH1_FLOATS] = {0}, nn[3] = {0, 0, 0};
   for (int k = 0; k < 4; k++) {
@@ -820,8 +994,10 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
     if (!(wt > 0.0))
       continue;
     sw += wt;
+    float ts[UB_SH1_FLOATS];
+    texel_sh_at(at, shs, packed, i, ts);
     for (int c = 0; c < UB_SH1_FLOATS; c++)
-      sh[c] += wt * shs[i * UB_SH1_FLOATS + c];
+      sh[c] += wt * ts[c];
     for (int c = 0; c < 3; c++)
       nn[c] += wt * nrms[i * 3 + c];
   }

@@ -13,6 +13,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "runtime/blend.h"
+#include "runtime/texel_sh.h"
 #include "test_util.h"
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
@@ -49,6 +51,109 @@ static double check_state(const ub_runtime *rt, const ub_bakefile *bf, const flo
     worst = err > worst ? err : worst;
   }
   free(want);
+  return worst;
+}
+
+/* The run-time keeps record values in half (the file's precision). GLG probe records are
+ * the file's halves times a power of two, so re-rounding them to half is exact: the
+ * run-time's raw GLG SH must equal, bit for bit, a blend of the file's float records with
+ * the same weights (same kernel family, same float operations). */
+static int glg_equals_float_blend(const ub_runtime *rt, const ub_bakefile *bf,
+                                  const float applied[][3], uint32_t n)
+{
+  size_t np = bf->glg_probe_count;
+  ub_blend_record *recs = calloc(n, sizeof *recs);
+  float *out = malloc(np * 27 * sizeof *out);
+  for (uint32_t e = 0; e < n; e++) {
+    const ub_bakefile_record *r = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
+    recs[e].receivers = r->probe_index;
+    recs[e].values = r->probe_sh;
+    recs[e].count = r->probe_count;
+  }
+  ub_blend_desc d = {"GLG float records", (uint32_t)np, 27, bf->glg_sh, UB_BLEND_FLOAT32, n,
+                     recs, 0};
+  ub_blend *b = NULL;
+  int same = 0;
+  if (ub_blend_create(&d, NULL, out, &b) == UB_OK) {
+    for (uint32_t e = 0; e < n; e++)
+      ub_blend_set_weight(b, e, applied[e]);
+    ub_blend_update_all(b, NULL, NULL, out, NULL);
+    same = !memcmp(out, ub_runtime_glg_probe_sh(rt, 0), np * 27 * sizeof *out);
+  }
+  ub_blend_free(b);
+  free(out);
+  free(recs);
+  return same;
+}
+
+/* Lightmap texels (records in half, in the file's I_z form): the irradiance decoded along
+ * each covered texel's normal against base + Σ applied·record from the file's floats.
+ * Returns the worst error relative to |base I_z| + Σ|applied·record I_z| (what half
+ * rounding of each stored I_z is relative to: ≤ 2^-11 each). */
+static double check_texels(const ub_runtime *rt, const ub_bakefile *bf, const float applied[][3],
+                           uint32_t n)
+{
+  uint64_t pixels = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++)
+    pixels += (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
+  double *sum = calloc(pixels * 12, sizeof *sum), *mag = calloc(pixels * 3, sizeof *mag);
+  float (*nrm)[3] = calloc(pixels, sizeof *nrm);
+  uint8_t *ok = calloc(pixels, 1);
+  uint64_t p0 = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    for (size_t i = 0; i < (size_t)at->width * at->height; i++) {
+      ok[p0 + i] = at->coverage[i] != 0 && ub_texel_normal(&at->normal[3 * i], nrm[p0 + i]);
+      for (int k = 0; k < 12; k++)
+        sum[(p0 + i) * 12 + k] = at->sh[i * 12 + k];
+    }
+    p0 += (uint64_t)at->width * at->height;
+  }
+  for (uint64_t p = 0; p < pixels; p++) {
+    float f[12];
+    for (int k = 0; k < 12; k++)
+      f[k] = (float)sum[p * 12 + k];
+    for (int c = 0; c < 3 && ok[p]; c++)
+      mag[p * 3 + c] = fabs(M_PI * 0.282094791773878143 * f[c] + ub_texel_sh_linear(f, nrm[p], c));
+  }
+  for (uint32_t e = 0; e < n; e++) {
+    const ub_bakefile_record *r = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
+    for (uint32_t i = 0; i < r->texel_count; i++) {
+      uint64_t p = r->texel_index[i];
+      const float *v = &r->texel_sh[12 * (size_t)i];
+      for (int k = 0; k < 12; k++)
+        sum[p * 12 + k] += (double)applied[e][k % 3] * v[k];
+      for (int c = 0; c < 3 && ok[p]; c++)
+        mag[p * 3 + c] += fabs(applied[e][c] * (M_PI * 0.282094791773878143 * v[c] +
+                                                ub_texel_sh_linear(v, nrm[p], c)));
+    }
+  }
+  double worst = 0.0;
+  p0 = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    for (uint32_t y = 0; y < at->height; y++)
+      for (uint32_t x = 0; x < at->width; x++) {
+        uint64_t p = p0 + (uint64_t)y * at->width + x;
+        if (!ok[p])
+          continue;
+        float f[12], got[3];
+        for (int k = 0; k < 12; k++)
+          f[k] = (float)sum[p * 12 + k];
+        if (ub_runtime_texel_irradiance(rt, a, x, y, nrm[p], got) != UB_OK)
+          return INFINITY;
+        for (int c = 0; c < 3; c++) {
+          double want = M_PI * 0.282094791773878143 * f[c] + ub_texel_sh_linear(f, nrm[p], c);
+          double err = fabs(got[c] - fmax(want, 0.0)) / (mag[p * 3 + c] + 1e-6);
+          worst = err > worst ? err : worst;
+        }
+      }
+    p0 += (uint64_t)at->width * at->height;
+  }
+  free(sum);
+  free(mag);
+  free(nrm);
+  free(ok);
   return worst;
 }
 
@@ -164,6 +269,10 @@ int main(void)
     double e0 = check_state(rt, back, def, 7);
     printf("default state: worst relative error %.2e\n", e0);
     ASSERT_TRUE(e0 < 1e-5);
+    ASSERT_TRUE(glg_equals_float_blend(rt, back, def, 7));
+    double t0 = check_texels(rt, back, def, 7);
+    printf("default state, texels (half records): worst error %.2e of the I_z magnitudes\n", t0);
+    ASSERT_TRUE(t0 < 1e-3);
 
     const float tint[3] = {0.5f, 1.0f, 2.0f};
     ASSERT_OK(ub_runtime_set_dls(rt, 0, tint));
@@ -176,6 +285,10 @@ int main(void)
     double e1 = check_state(rt, back, st1, 7);
     printf("tinted set, door half open, objects faded/hidden: worst relative error %.2e\n", e1);
     ASSERT_TRUE(e1 < 1e-5);
+    ASSERT_TRUE(glg_equals_float_blend(rt, back, st1, 7));
+    double t1 = check_texels(rt, back, st1, 7);
+    printf("same state, texels (half records): worst error %.2e of the I_z magnitudes\n", t1);
+    ASSERT_TRUE(t1 < 1e-3);
 
     /* Back to the default: identical bits. */
     const float one[3] = {1, 1, 1};

@@ -38,8 +38,29 @@ typedef struct ub_runtime ub_runtime;
 ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out);
 void ub_runtime_free(ub_runtime *rt);
 
-/* The loaded bake file, read-only, owned by rt. */
+/* The loaded bake file, read-only, owned by rt. When the file has dynamic elements (sets,
+ * doors, objects), the run-time keeps one float copy of each representation's current
+ * state and the records in half precision (as the file stores them), so this bake file
+ * differs from one read with ub_bakefile_read(): every record's texel_sh, probe_sh and
+ * llg_probe_sh are NULL (indices and counts are kept); atlases[a].sh are NULL (read the
+ * lightmap through the queries); glg_sh and llgs[m].probe_sh hold the CURRENT raw state
+ * (base + Σ weight·record, as ub_runtime_glg_probe_sh(rt, 0)), updated by
+ * ub_runtime_update(). Without elements it is the file as read. */
 const ub_bakefile *ub_runtime_bakefile(const ub_runtime *rt);
+
+/* Bytes the run-time holds (its own arrays and its bake file's), by what they serve. */
+typedef struct ub_runtime_memory {
+  size_t geometry;  /* triangles, vertices, UVs, albedo, roles, lights; atlas normals and
+                       coverage; GLG positions, tets, leak planes; LLG model meshes,
+                       visibility, self terms */
+  size_t lightmap;  /* AHD texels, encode normals, texel SH (current state, or the file's) */
+  size_t glg;       /* raw current + windowed SH, the GLG's acceleration data */
+  size_t llg;       /* LLG probe SH (current state) */
+  size_t records;   /* element records: receiver indices + values */
+  size_t blend;     /* the blend engines: tables, weights, touched receivers' base rows */
+  size_t total;     /* the sum */
+} ub_runtime_memory;
+void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out_memory);
 
 /* Baked irradiance (W/m², linear RGB) at the lightmapped surface point closest to p
  * (world, metres), for the unit normal n (normalised here), from the bilinearly filtered
