@@ -465,13 +465,19 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
      * reach (dls.h); --plan all (no culling) keeps every receiver. */
     uint32_t nct = lm->texel_count, ncp = base->probe_count, ncl = nlp;
     ub_dls_reach reach = {.unbounded = 1};
+    /* the plan's bound when it traced one (same lights, seed and set), else traced here */
+    int own = plan->influence_culling && !(plan->dls_reach && d < plan->dls_reach_count);
     if (plan->influence_culling) {
       double tr = now_s();
-      r = ub_dls_reach_build(s, base->rt, enabled, lo, hi, base->seed, d, &reach);
-      if (r != UB_OK)
-        break;
+      if (own) {
+        r = ub_dls_reach_build(s, base->rt, enabled, lo, hi, base->seed, d, &reach);
+        if (r != UB_OK)
+          break;
+        out_stats->rays_influence += reach.rays;
+      } else {
+        reach = plan->dls_reach[d];
+      }
       out_stats->rays_reach += reach.rays;
-      out_stats->rays_influence += reach.rays;
       if (!reach.unbounded) {
         nct = ncp = ncl = 0;
         for (uint32_t t = 0; t < lm->texel_count; t++)
@@ -485,7 +491,8 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
           if (ub_dls_reach_point(&reach, base->llg->probe_pos + 3 * (size_t)q))
             cl[ncl++] = q;
       }
-      ub_dls_reach_free(&reach);
+      if (own)
+        ub_dls_reach_free(&reach);
       double dt = now_s() - tr;
       out_stats->seconds_reach += dt;
       out_stats->seconds_influence += dt;

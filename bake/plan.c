@@ -188,6 +188,16 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
    * the receivers its influence pass sees; the full pass sees at most those, and at most
    * the share its lights can shine on (range, cone, facing). */
   uint8_t *en = calloc(nl, 1);
+  if (out->influence_culling && scene->dls_count) {
+    out->dls_reach = calloc(scene->dls_count, sizeof *out->dls_reach);
+    out->dls_reach_count = out->dls_reach ? scene->dls_count : 0;
+    for (uint32_t d = 0; d < out->dls_reach_count; d++)
+      out->dls_reach[d].unbounded = 1; /* sets skipped: no bound */
+  }
+  if (out->influence_culling && scene->dls_count && !out->dls_reach) {
+    free(en);
+    en = NULL;
+  }
   float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
   if (!en) {
     free(set_reaches);
@@ -212,8 +222,8 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
       }
     }
     double cand = 1.0, photon_rays = 0.0;
-    if (out->influence_culling) {
-      ub_dls_reach rb;
+    if (out->influence_culling && out->dls_reach) {
+      ub_dls_reach *rbp = &out->dls_reach[d], rb;
       ub_result rr = ub_dls_reach_build(scene, rt, en, lo, hi, opt->seed, d, &rb);
       if (rr != UB_OK) {
         free(en);
@@ -229,7 +239,7 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
         cand = (double)n / lm->texel_count;
       }
       photon_rays = (double)rb.rays;
-      ub_dls_reach_free(&rb);
+      *rbp = rb; /* kept for the set's pass */
     }
     out->dls_candidates[d] = cand;
     double Tc = cand * T, Pc = cand * P;
@@ -304,6 +314,11 @@ void ub_plan_free(ub_plan *plan)
   free(plan->dls_est_rays);
   free(plan->dls_candidates);
   plan->dls_candidates = NULL;
+  for (uint32_t d = 0; plan->dls_reach && d < plan->dls_reach_count; d++)
+    ub_dls_reach_free(&plan->dls_reach[d]);
+  free(plan->dls_reach);
+  plan->dls_reach = NULL;
+  plan->dls_reach_count = 0;
   plan->base_light_enabled = NULL;
   plan->light_skip = NULL;
   plan->dls_light_reaches = NULL;

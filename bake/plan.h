@@ -44,6 +44,10 @@ typedef struct ub_plan {
    * receivers its influence pass will see (1 without culling); probes are estimated at
    * the same share. */
   double *dls_candidates;
+  /* dls_count reach bounds (bake/dls.h) traced by the plan and reused by the sets' passes
+   * (NULL without culling); dls_reach_count entries, freed by ub_plan_free. */
+  struct ub_dls_reach *dls_reach;
+  uint32_t dls_reach_count;
   double ray_rate;             /* measured rays/s on this level, all threads */
   /* Doors (doors/door.h): one pass per door with a closed leaf; none without doors. */
   uint32_t doors, door_passes;
