@@ -379,13 +379,11 @@ int ub_dls_reach_texel(const ub_dls_reach *r, const float p[3], const float n[3]
     return 1;
   float q[3] = {p[0] + 0.25f * r->cell * n[0], p[1] + 0.25f * r->cell * n[1],
                 p[2] + 0.25f * r->cell * n[2]};
-  if (reach_near(r, q) & facing_bits(n))
-    return 1;
-  /* Photons crossing the free space just in front of it: 2 cells out, so that the 27
-   * voxels around never reach behind the surface (into the room beyond a thin wall). */
-  float q2[3] = {p[0] + 2.0f * r->cell * n[0], p[1] + 2.0f * r->cell * n[1],
-                 p[2] + 2.0f * r->cell * n[2]};
-  return (reach_near(r, q2) & 0x40) != 0;
+  /* Any photon hit or crossing within one cell of its open side. (Requiring a hit on a
+   * surface facing its way, to keep light from leaking past walls thinner than a cell,
+   * dropped 1.24% of an estate_small hall set's light against --plan all, 0.96% before
+   * the bound; without it 0.98%.) */
+  return reach_near(r, q) != 0;
 }
 
 int ub_dls_reach_point(const ub_dls_reach *r, const float p[3])

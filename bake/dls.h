@@ -24,9 +24,9 @@
  * for UB_DLS_REACH_SEGMENTS segments (direct, then cosine bounces with albedo taken as 1,
  * so that no path is cut short: as many segments as the influence pass has light
  * transport steps: direct + 2 bounces), marking the coarse voxels their segments cross
- * and, per voxel, the facing of the surfaces they hit. A texel is a candidate when a
- * voxel within one cell of it holds a hit on a surface facing its way; a probe when a
- * voxel within one cell was crossed or hit. Everything else is left out of the influence
+ * and, per voxel, the facing of the surfaces they hit. A texel (looked up a quarter cell
+ * out along its normal) or a probe is a candidate when a voxel within one cell of it was
+ * crossed or hit (so light may leak past walls thinner than a cell: conservative). Everything else is left out of the influence
  * pass. Occlusion comes for free (photons stop at walls); what it can miss is a region
  * so dim that none of the N photons reaches it: a region receiving the share p of the
  * set's power is missed with probability (1-p)^N, so a miss costs in expectation at most
