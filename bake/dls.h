@@ -18,12 +18,56 @@
 
 #define UB_DLS_INFLUENCE_FRACTION 0.01 /* of the mean indirect of directly lit texels */
 
+/* Reach bound (before the influence pass): a set's light can only arrive where its
+ * photons can go. From each light of the set, UB_DLS_REACH_PHOTONS photons (point: the
+ * sphere, spot: its outer cone, the first segment clipped at the glTF range) are traced
+ * for UB_DLS_REACH_SEGMENTS segments (direct, then cosine bounces with albedo taken as 1,
+ * so that no path is cut short: as many segments as the influence pass has light
+ * transport steps: direct + 2 bounces), marking the coarse voxels their segments cross
+ * and, per voxel, the facing of the surfaces they hit. A texel (looked up a quarter cell
+ * out along its normal) or a probe is a candidate when a voxel within one cell of it was
+ * crossed or hit (so light may leak past walls thinner than a cell: conservative). Everything else is left out of the influence
+ * pass. Occlusion comes for free (photons stop at walls); what it can miss is a region
+ * so dim that none of the N photons reaches it: a region receiving the share p of the
+ * set's power is missed with probability (1-p)^N, so a miss costs in expectation at most
+ * max_p p·e^(−Np) = 1/(e·N) of the set's power per region (tests/test_plan.c measures the
+ * bound against --plan all). A set with a directional light has no bound. */
+#define UB_DLS_REACH_PHOTONS 16384u /* per light */
+#define UB_DLS_REACH_SEGMENTS 3u
+#define UB_DLS_REACH_CELLS 96u      /* voxels along the level's longest side */
+
+typedef struct ub_dls_reach {
+  int unbounded;              /* every receiver is a candidate (directional light) */
+  float org[3], cell;         /* grid origin (world) and voxel side (m) */
+  uint32_t dim[3];
+  uint8_t *mask;              /* dim[0]·dim[1]·dim[2]: bits 0-5 hit facing ±x,±y,±z; 6 crossed */
+  uint64_t rays;              /* photon rays traced */
+} ub_dls_reach;
+
+/* Grid over [lo, hi] (the receivers' bounds; points outside are always candidates);
+ * photons of the lights with enabled[l] != 0. Random numbers hash(seed, set, photon,
+ * segment): the same bound for any thread count. Free with ub_dls_reach_free. */
+ub_result ub_dls_reach_build(const ub_scene *scene, const ub_rt *rt, const uint8_t *enabled,
+                             const float lo[3], const float hi[3], uint32_t seed,
+                             uint32_t set, ub_dls_reach *out);
+void ub_dls_reach_free(ub_dls_reach *r);
+/* Grows the box [lo, hi] to hold p (non-finite coordinates ignored). */
+void ub_dls_bounds_add(const float p[3], float lo[3], float hi[3]);
+/* Candidate tests: a texel at p with unit normal n; a probe (point in free space) at p. */
+int ub_dls_reach_texel(const ub_dls_reach *r, const float p[3], const float n[3]);
+int ub_dls_reach_point(const ub_dls_reach *r, const float p[3]);
+
 typedef struct ub_dls_stats {
   uint32_t sets_baked, sets_empty;
   uint64_t rays_influence, rays_full;
   double seconds_influence, seconds_full;
   uint64_t texels_kept, probes_kept;     /* summed over sets */
   uint64_t llg_probes_kept;              /* LLG probes, summed over sets */
+  /* Reach bound: receivers given to the influence pass, summed over sets, and the
+   * photon rays that bounded them (counted in rays_influence too). */
+  uint64_t texels_candidate, probes_candidate, llg_probes_candidate;
+  uint64_t rays_reach;
+  double seconds_reach;
 } ub_dls_stats;
 
 /* base: the base pass's settings (scene, rays, lightmap, probes, sample budgets); the

@@ -1,6 +1,7 @@
 /* Bake plan: which effects this level calls for (see plan.h). */
 #include "bake/plan.h"
 
+#include "bake/dls.h"
 #include "bake/geomstate.h"
 
 #include <math.h>
@@ -93,8 +94,9 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
   out->light_reach = calloc(nl, sizeof *out->light_reach);
   uint8_t *set_reaches = calloc(scene->dls_count ? scene->dls_count : 1, 1);
   out->dls_est_rays = calloc(scene->dls_count ? scene->dls_count : 1, sizeof(double));
+  out->dls_candidates = calloc(scene->dls_count ? scene->dls_count : 1, sizeof(double));
   if (!out->base_light_enabled || !out->light_skip || !out->dls_light_reaches ||
-      !out->light_reach || !set_reaches || !out->dls_est_rays) {
+      !out->light_reach || !set_reaches || !out->dls_est_rays || !out->dls_candidates) {
     free(set_reaches);
     ub_plan_free(out);
     return UB_ERR_OUT_OF_MEMORY;
@@ -181,23 +183,75 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
   /* A base pass with nothing emitting traces nothing (no bounce has a source). */
   int base_emits = out->base_lights || out->sky || out->emissive;
   out->est_rays = base_emits ? direct + (T * out->gather_rays + P * out->probe_rays) * b : 0.0;
+  /* Sets: the reach bound of each (the photons dls.c traces before its influence pass,
+   * over a grid spanning the texels and the sets' lights: probes lie among them) gives
+   * the receivers its influence pass sees; the full pass sees at most those, and at most
+   * the share its lights can shine on (range, cone, facing). */
+  uint8_t *en = calloc(nl, 1);
+  if (out->influence_culling && scene->dls_count) {
+    out->dls_reach = calloc(scene->dls_count, sizeof *out->dls_reach);
+    out->dls_reach_count = out->dls_reach ? scene->dls_count : 0;
+    for (uint32_t d = 0; d < out->dls_reach_count; d++)
+      out->dls_reach[d].unbounded = 1; /* sets skipped: no bound */
+  }
+  if (out->influence_culling && scene->dls_count && !out->dls_reach) {
+    free(en);
+    en = NULL;
+  }
+  float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  if (!en) {
+    free(set_reaches);
+    ub_plan_free(out);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  for (uint32_t t = 0; t < lm->texel_count; t++)
+    ub_dls_bounds_add(lm->texel_pos + 3 * (size_t)t, lo, hi);
+  for (uint32_t l = 0; l < scene->light_count; l++)
+    if (scene->lights[l].dls >= 0 && scene->lights[l].type != UB_LIGHT_DIRECTIONAL)
+      ub_dls_bounds_add(scene->lights[l].position, lo, hi);
   for (uint32_t d = 0; d < scene->dls_count; d++) {
     if (!set_reaches[d])
       continue;
     double reach = 0.0;
     uint32_t nlight = 0;
-    for (uint32_t l = 0; l < scene->light_count; l++)
-      if (scene->lights[l].dls == (int32_t)d && out->dls_light_reaches[l]) {
+    for (uint32_t l = 0; l < scene->light_count; l++) {
+      en[l] = scene->lights[l].dls == (int32_t)d && out->dls_light_reaches[l];
+      if (en[l]) {
         reach = fmax(reach, out->light_reach[l]);
         nlight++;
       }
-    /* influence: direct + 2 bounces on everything; full: the reachable share. */
-    double inf = (T + P) * nlight + 2.0 * (T * out->influence_rays + P * 2 * out->influence_rays);
-    double frac = out->influence_culling ? fmin(1.0, 1.2 * reach) : 1.0;
+    }
+    double cand = 1.0, photon_rays = 0.0;
+    if (out->influence_culling && out->dls_reach) {
+      ub_dls_reach *rbp = &out->dls_reach[d], rb;
+      ub_result rr = ub_dls_reach_build(scene, rt, en, lo, hi, opt->seed, d, &rb);
+      if (rr != UB_OK) {
+        free(en);
+        free(set_reaches);
+        ub_plan_free(out);
+        return rr;
+      }
+      if (!rb.unbounded && lm->texel_count) {
+        uint64_t n = 0;
+        for (uint32_t t = 0; t < lm->texel_count; t++)
+          n += ub_dls_reach_texel(&rb, lm->texel_pos + 3 * (size_t)t,
+                                  lm->texel_normal + 3 * (size_t)t);
+        cand = (double)n / lm->texel_count;
+      }
+      photon_rays = (double)rb.rays;
+      *rbp = rb; /* kept for the set's pass */
+    }
+    out->dls_candidates[d] = cand;
+    double Tc = cand * T, Pc = cand * P;
+    /* influence: direct + 2 bounces on the candidates; full: the reachable share. */
+    double inf = photon_rays + (Tc + Pc) * nlight +
+                 2.0 * (Tc * out->influence_rays + Pc * 2 * out->influence_rays);
+    double frac = out->influence_culling ? fmin(cand, 1.2 * reach) : 1.0;
     double full = frac * ((T * out->shadow_samples + P) * nlight +
                           (T * out->gather_rays + P * out->probe_rays) * b);
     out->dls_est_rays[d] = (out->influence_culling ? inf : 0.0) + full;
   }
+  free(en);
   out->ray_rate = measure_ray_rate(rt, lm);
   free(set_reaches);
   return UB_OK;
@@ -228,14 +282,20 @@ void ub_plan_print(const ub_plan *plan, const ub_scene *scene, const ub_log *log
   ub_log_printf(log, UB_LOG_INFO, "  pass base: est. %.1f M rays, %.1f s at %.2f M rays/s",
                 plan->est_rays * 1e-6, plan->est_rays / plan->ray_rate, plan->ray_rate * 1e-6);
   for (uint32_t d = 0; d < scene->dls_count; d++)
-    if (plan->dls_est_rays[d] > 0)
-      ub_log_printf(log, UB_LOG_INFO, "  pass dls %s: est. %.1f M rays, %.1f s%s",
-                    scene->dls_names[d], plan->dls_est_rays[d] * 1e-6,
-                    plan->dls_est_rays[d] / plan->ray_rate,
-                    plan->influence_culling ? " (influence-culled)" : "");
-    else
+    if (plan->dls_est_rays[d] > 0) {
+      if (plan->influence_culling)
+        ub_log_printf(log, UB_LOG_INFO, "  pass dls %s: est. %.1f M rays, %.1f s "
+                      "(influence-culled; reach bound %.1f%% of texels)",
+                      scene->dls_names[d], plan->dls_est_rays[d] * 1e-6,
+                      plan->dls_est_rays[d] / plan->ray_rate, 100.0 * plan->dls_candidates[d]);
+      else
+        ub_log_printf(log, UB_LOG_INFO, "  pass dls %s: est. %.1f M rays, %.1f s",
+                      scene->dls_names[d], plan->dls_est_rays[d] * 1e-6,
+                      plan->dls_est_rays[d] / plan->ray_rate);
+    } else {
       ub_log_printf(log, UB_LOG_INFO, "  pass dls %s: skipped, its lights reach no receiver",
                     scene->dls_names[d]);
+    }
   for (uint32_t l = 0; l < scene->light_count; l++)
     if (plan->light_skip[l] != UB_SKIP_NONE && plan->light_skip[l] != UB_SKIP_IN_DLS)
       ub_log_printf(log, UB_LOG_INFO, "  light %u (%s): skipped: %s", l,
@@ -252,6 +312,13 @@ void ub_plan_free(ub_plan *plan)
   free(plan->dls_light_reaches);
   free(plan->light_reach);
   free(plan->dls_est_rays);
+  free(plan->dls_candidates);
+  plan->dls_candidates = NULL;
+  for (uint32_t d = 0; plan->dls_reach && d < plan->dls_reach_count; d++)
+    ub_dls_reach_free(&plan->dls_reach[d]);
+  free(plan->dls_reach);
+  plan->dls_reach = NULL;
+  plan->dls_reach_count = 0;
   plan->base_light_enabled = NULL;
   plan->light_skip = NULL;
   plan->dls_light_reaches = NULL;

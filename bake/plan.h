@@ -40,6 +40,14 @@ typedef struct ub_plan {
   uint32_t dls_passes;         /* sets with at least one light that reaches a receiver */
   double est_rays;             /* estimated rays of the base pass */
   double *dls_est_rays;        /* dls_count: estimated rays per set (0 = skipped) */
+  /* dls_count: share of the level's texels inside the set's reach bound (bake/dls.h), the
+   * receivers its influence pass will see (1 without culling); probes are estimated at
+   * the same share. */
+  double *dls_candidates;
+  /* dls_count reach bounds (bake/dls.h) traced by the plan and reused by the sets' passes
+   * (NULL without culling); dls_reach_count entries, freed by ub_plan_free. */
+  struct ub_dls_reach *dls_reach;
+  uint32_t dls_reach_count;
   double ray_rate;             /* measured rays/s on this level, all threads */
   /* Doors (doors/door.h): one pass per door with a closed leaf; none without doors. */
   uint32_t doors, door_passes;
