@@ -34,8 +34,9 @@ test: build
 test-sanitize: deps
 	cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=Debug -DUB_SANITIZE=ON >/dev/null
 	cmake --build build-asan -j $(JOBS)
-	@# timings mean nothing in a Debug + ASan build: UB_NO_TIMING turns their asserts off
-	cd build-asan && UB_NO_TIMING=1 ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 ctest --output-on-failure -j $(JOBS) --timeout 1800
+	@# timings mean nothing in a Debug + ASan build: UB_NO_TIMING turns their asserts off.
+	@# Any ASan/UBSan report fails its test (-fno-sanitize-recover=all, halt_on_error).
+	cd build-asan && UB_NO_TIMING=1 ASAN_OPTIONS=detect_leaks=1:halt_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 ctest --output-on-failure -j $(JOBS) --timeout 1800
 
 bench: build
 	@for b in $(BUILD)/bench_*; do echo "== $$b"; UB_BUILD=$(BUILD) $$b || exit 1; done
