@@ -38,8 +38,8 @@ test-sanitize: deps
 	@# Any ASan/UBSan report fails its test (-fno-sanitize-recover=all, halt_on_error).
 	@# -LE slow leaves out the tests labelled slow in CMakeLists.txt (test_plan_oa_dm4,
 	@# test_estate_plan, test_bake_cornell, test_bake_two_rooms, test_bake_glg_cornell,
-	@# test_render, test_hard_two_rooms): 2.5-8 min each under ASan, ~29 min in all with
-	@# them on a quiet 2-core machine, ~14 without; they still run in make test.
+	@# test_hard_two_rooms): 2.5-8 min each under ASan, ~24 min in all with them on a
+	@# quiet 2-core machine, ~12 without; they still run in make test.
 	cd build-asan && UB_NO_TIMING=1 ASAN_OPTIONS=detect_leaks=1:halt_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 ctest --output-on-failure -j $(JOBS) --timeout 1800 -LE slow
 
 bench: build
