@@ -53,8 +53,10 @@ ub_result ub_dls_reach_build(const ub_scene *scene, const ub_rt *rt, const uint8
 void ub_dls_reach_free(ub_dls_reach *r);
 /* Grows the box [lo, hi] to hold p (non-finite coordinates ignored). */
 void ub_dls_bounds_add(const float p[3], float lo[3], float hi[3]);
-/* Candidate tests: a texel at p with unit normal n; a probe (point in free space) at p. */
-int ub_dls_reach_texel(const ub_dls_reach *r, const float p[3], const float n[3]);
+/* Candidate tests: texel t of lm (its centre and its sample points: a centre under a wall
+ * junction stays where it is while the back-face fix moves its samples into the room
+ * that lights them, lightmaps/layout.c); a probe (point in free space) at p. */
+int ub_dls_reach_texel(const ub_dls_reach *r, const ub_lightmap *lm, uint32_t t);
 int ub_dls_reach_point(const ub_dls_reach *r, const float p[3]);
 
 typedef struct ub_dls_stats {

@@ -234,8 +234,7 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
       if (!rb.unbounded && lm->texel_count) {
         uint64_t n = 0;
         for (uint32_t t = 0; t < lm->texel_count; t++)
-          n += ub_dls_reach_texel(&rb, lm->texel_pos + 3 * (size_t)t,
-                                  lm->texel_normal + 3 * (size_t)t);
+          n += ub_dls_reach_texel(&rb, lm, t);
         cand = (double)n / lm->texel_count;
       }
       photon_rays = (double)rb.rays;

@@ -84,8 +84,7 @@ static void check_level(const char *path, const char *name)
     ASSERT_OK(ub_dls_reach_build(s, rt, en, lo, hi, o.seed, d, &rb));
     uint32_t nc = 0;
     for (uint32_t t = 0; t < T; t++)
-      if (ub_dls_reach_texel(&rb, lm->texel_pos + 3 * (size_t)t,
-                             lm->texel_normal + 3 * (size_t)t))
+      if (ub_dls_reach_texel(&rb, lm, t))
         cand[nc++] = t;
     ub_dls_reach_free(&rb);
     /* The influence pass of ub_dls_bake at draft (64 gather rays → 16 influence rays). */

@@ -281,8 +281,8 @@ static void test_real_levels(void)
     ASSERT_NEAR(s->texel_size, 0.25, 0, 0);
     ASSERT_NEAR(s->glg_spacing, 2.0, 0, 0);
     ASSERT_TRUE(check_invariants(s) == lv[i].disagree); /* normals agree with winding */
-    if (getenv("UB_NO_TIMING") == NULL)
-      ASSERT_TRUE(dt < 2.0);
+    /* the load time is printed, not asserted: tests make no timed assertions (bench_bake
+     * reports the loader's seconds) */
     for (uint32_t l = 0; l < s->light_count; l++)
       if (s->lights[l].type == UB_LIGHT_DIRECTIONAL) /* the sun shines straight down */
         ASSERT_NEAR(s->lights[l].direction[1], -1.0, 1e-6, 0);
