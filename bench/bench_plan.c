@@ -1,12 +1,15 @@
 /* bench_plan — what the bake plan saves: planned vs --plan all (every effect forced on, no
  * culling) seconds per level, with the planned estimate and the difference in the
  * level's mean lightmap irradiance. Prints; asserts nothing.
- * usage: bench_plan [--quality draft|fast|high] LEVEL...   (default: the synthetic hallway
- * and sunroom from UB_BUILD/levels) */
+ * usage: bench_plan [--quality draft|fast|high] [--estate-scale S] LEVEL...
+ * Default levels: every shipped level — the synthetic levels in UB_BUILD/levels, the real
+ * levels in UB_SHARED (default ../shared/levels/real) — and the ESTATE-scale level
+ * generated at scale S (default 0.05, as bench_estate; 0 leaves it out). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <dirent.h>
 
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
@@ -38,24 +41,69 @@ int main(int argc, char **argv)
 {
   const char *build = getenv("UB_BUILD") ? getenv("UB_BUILD") : "build";
   ub_quality q = UB_QUALITY_DRAFT;
-  const char *levels[32];
-  char def[2][1024];
-  int nl = 0;
-  for (int i = 1; i < argc && nl < 32; i++) {
+  enum { MAXL = 64 };
+  const char *levels[MAXL];
+  static char def[MAXL][1024];
+  int nl = 0, nd = 0;
+  double estate_scale = 0.05;
+  for (int i = 1; i < argc && nl < MAXL; i++) {
     if (!strcmp(argv[i], "--quality") && i + 1 < argc) {
       i++;
       q = !strcmp(argv[i], "high") ? UB_QUALITY_HIGH
                                    : (!strcmp(argv[i], "fast") ? UB_QUALITY_FAST : UB_QUALITY_DRAFT);
+    } else if (!strcmp(argv[i], "--estate-scale") && i + 1 < argc) {
+      estate_scale = strtod(argv[++i], NULL);
+    } else if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
+      printf("usage: bench_plan [--quality draft|fast|high] [--estate-scale S] [LEVEL...]\n"
+             "Bakes each level planned and with --plan all; prints seconds, their ratio and\n"
+             "the difference of the mean lightmap irradiance. Default: every level in\n"
+             "UB_BUILD/levels, the real levels in UB_SHARED, and the ESTATE-scale level at\n"
+             "scale S (default 0.05; 0: left out).\n");
+      return 0;
     } else {
       levels[nl++] = argv[i];
     }
   }
   if (nl == 0) {
-    snprintf(def[0], sizeof def[0], "%s/levels/hallway.gltf", build);
-    snprintf(def[1], sizeof def[1], "%s/levels/sunroom.gltf", build);
-    levels[nl++] = def[0];
-    levels[nl++] = def[1];
+    /* the synthetic levels, sorted by name */
+    char dirp[768];
+    snprintf(dirp, sizeof dirp, "%s/levels", build);
+    DIR *dd = opendir(dirp);
+    for (struct dirent *e; dd && (e = readdir(dd)) != NULL && nd < MAXL - 8;) {
+      size_t n = strlen(e->d_name);
+      if (n > 5 && !strcmp(e->d_name + n - 5, ".gltf"))
+        snprintf(def[nd++], sizeof def[0], "%s/%.250s", dirp, e->d_name);
+    }
+    if (dd)
+      closedir(dd);
+    qsort(def, (size_t)nd, sizeof def[0], (int (*)(const void *, const void *))strcmp);
+    const char *shared = getenv("UB_SHARED") ? getenv("UB_SHARED") : "../shared/levels/real";
+    static const char *real[] = {"oa_dm4", "q3dm6ish", "kaos"};
+    for (int r = 0; r < 3; r++) {
+      snprintf(def[nd], sizeof def[0], "%s/%s/%s.gltf", shared, real[r], real[r]);
+      FILE *f = fopen(def[nd], "rb");
+      if (f) {
+        fclose(f);
+        nd++;
+      } else {
+        printf("  (%s not found: left out)\n", def[nd]);
+      }
+    }
+    if (estate_scale > 0) {
+      char cmd[4096];
+      snprintf(cmd, sizeof cmd,
+               "'%s/ubake-genlevel' estate -o '%s/bench_out' --name estate_plan "
+               "--param scale=%.17g > /dev/null",
+               build, build, estate_scale);
+      if (system(cmd) == 0)
+        snprintf(def[nd++], sizeof def[0], "%s/bench_out/estate_plan.gltf", build);
+      else
+        fprintf(stderr, "bench_plan: could not generate the ESTATE-scale level\n");
+    }
+    for (int i = 0; i < nd; i++)
+      levels[nl++] = def[i];
   }
+  double sum_p = 0.0, sum_a = 0.0;
   printf("bench_plan (%s): planned bake vs --plan all\n", ub_quality_name(q));
   printf("  %-44s %9s %9s %7s %10s\n", "level", "planned s", "all s", "ratio", "mean diff");
   for (int l = 0; l < nl; l++) {
@@ -73,13 +121,18 @@ int main(int argc, char **argv)
     }
     if (!ok) {
       fprintf(stderr, "bench_plan: bake of %s failed\n", levels[l]);
-      return 1;
+      continue;
     }
+    fflush(stdout);
     double ma = mean_irradiance(st[0].ubk_path), mb = mean_irradiance(st[1].ubk_path);
-    printf("  %-44s %9.2f %9.2f %7.2f %9.3f%%\n", levels[l], st[0].total_seconds,
+    sum_p += st[0].total_seconds;
+    sum_a += st[1].total_seconds;
+    const char *base = strrchr(levels[l], '/');
+    printf("  %-44s %9.2f %9.2f %7.2f %9.3f%%\n", base ? base + 1 : levels[l], st[0].total_seconds,
            st[1].total_seconds, st[0].total_seconds / st[1].total_seconds,
            mb > 0 ? 100.0 * (mb - ma) / mb : 0.0);
   }
+  printf("  %-44s %9.2f %9.2f %7.2f\n", "all levels", sum_p, sum_a, sum_a > 0 ? sum_p / sum_a : 0.0);
   printf("ratio = planned / forced seconds; mean diff = relative difference of the mean "
          "lightmap irradiance (forced - planned) / forced\n");
   return 0;

@@ -910,6 +910,7 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
   memset(&g, 0, sizeof g);
   lm_rtri *rtri = NULL;
   lm_atlas_work *aw = NULL;
+  uint32_t naw = 0; /* entries of aw */
   uint32_t *gen_w = NULL, *gen_h = NULL;
   uint32_t gen_count = 0;
   float *raw_samples = NULL;
@@ -1031,6 +1032,7 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
   lm->chart_count = g.chart_count;
   lm->atlases = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *lm->atlases);
   aw = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *aw);
+  naw = aw ? lm->atlas_count : 0;
   if (!lm->atlases || !aw) {
     res = UB_ERR_OUT_OF_MEMORY;
     goto fail;
@@ -1230,7 +1232,12 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
                   t_raster - t_charts, t_end - t_raster);
   }
 
-  for (uint32_t a = 0; a < lm->atlas_count; a++) {
+  *out_lightmap = lm;
+  lm = NULL; /* handed over; the cleanup below frees only the scratch */
+  res = UB_OK;
+
+fail:
+  for (uint32_t a = 0; a < naw; a++) {
     free(aw[a].tris);
     free(aw[a].tile_start);
     free(aw[a].tile_tris);
@@ -1246,27 +1253,8 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
   free(c.tri_n);
   free(c.tri_area);
   free(c.tri_kind);
-  *out_lightmap = lm;
-  return UB_OK;
-
-fail:
-  if (aw)
-    for (uint32_t a = 0; a < lm->atlas_count; a++) {
-      free(aw[a].tris);
-      free(aw[a].tile_start);
-      free(aw[a].tile_tris);
-      free(aw[a].owner);
-      free(aw[a].overlap);
-    }
-  free(aw);
-  free(raw_samples);
-  free(rtri);
-  free(gen_w);
-  free(gen_h);
-  ub_lm_charts_free(&g);
-  free(c.tri_n);
-  free(c.tri_area);
-  free(c.tri_kind);
+  if (res == UB_OK)
+    return UB_OK;
   ub_lightmap_free(lm);
   if (res == UB_ERR_OUT_OF_MEMORY)
     ub_log_printf(log, UB_LOG_ERROR, "lightmap: out of memory");
