@@ -207,8 +207,10 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
           scene->light_count, st->emissive_triangles, scene->node_count,
           scene->has_sky ? "true" : "false");
   fprintf(f, "  \"plan\": {\n    \"forced_all\": %s, \"ray_rate\": %.0f, \"doors\": %u, "
-             "\"door_passes\": %u,\n",
-          plan->forced ? "true" : "false", plan->ray_rate, plan->doors, plan->door_passes);
+             "\"door_passes\": %u, \"bounce_ratio\": %.4f, \"estimated_bounces\": %u, "
+             "\"actual_bounces\": %u,\n",
+          plan->forced ? "true" : "false", plan->ray_rate, plan->doors, plan->door_passes,
+          plan->bounce_ratio, plan->est_bounces, base->bounces);
   fprintf(f, "    \"passes\": [{\"name\": \"base\", \"lights\": %u, "
              "\"static_lights\": %u, \"primary_lights\": %u, \"sky\": %s, \"emissive\": %s, "
              "\"gather_rays\": %u, \"emissive_samples\": %u, \"shadow_samples\": %u, "

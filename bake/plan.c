@@ -48,19 +48,42 @@ static double now_s(void)
 }
 
 /* Rays per second of this level's scene on this machine: a short burst of cosine rays
- * from texel sample points, all threads. Used only to turn planned rays into seconds. */
-static double measure_ray_rate(const ub_rt *rt, const ub_lightmap *lm)
+ * from texel sample points, all threads. Used only to turn planned rays into seconds.
+ * The same burst, continued as random walks for UB_PLAN_WALK segments, gives the level's
+ * bounce ratio: W_k = mean product of the luminance albedos met along the first k
+ * segments (an escaped ray ends its walk), each walk weighted by the direct light of the
+ * base pass's punctual lights at its start texel (one light picked per walk, shadow ray;
+ * uniform weights when the pass has none), ratio = W_k / W_(k-1) of the last segment —
+ * the share of a bounce's light the next bounce brings back once the light has spread
+ * (the dominant eigenvalue of the transport, which a plain mean albedo underestimates in
+ * closed rooms), for the bounce count of ub_plan_bounces. */
+#define UB_PLAN_WALK 4
+static double measure_ray_rate(const ub_scene *s, const ub_rt *rt, const ub_lightmap *lm,
+                               const uint8_t *light_on, double *out_ratio)
 {
+  uint32_t lit_lights[64], nll = 0;
+  for (uint32_t l = 0; l < s->light_count && nll < 64; l++)
+    if (light_on[l])
+      lit_lights[nll++] = l;
+  *out_ratio = 0.0;
   if (lm->texel_count == 0)
     return 1e6;
-  const uint32_t per = 4096, chunks = 16;
+  enum { PER = 4096, CHUNKS = 16 };
+  double w_sum[CHUNKS][UB_PLAN_WALK + 1];
+  memset(w_sum, 0, sizeof w_sum);
   double t0 = now_s();
-#pragma omp parallel for schedule(dynamic, 1)
-  for (uint32_t c = 0; c < chunks; c++) {
-    ub_ray *rays = malloc(per * sizeof *rays);
-    ub_hit *hits = malloc(per * sizeof *hits);
-    if (rays && hits) {
-      for (uint32_t i = 0; i < per; i++) {
+  uint64_t traced = 0;
+#pragma omp parallel for schedule(dynamic, 1) reduction(+ : traced)
+  for (uint32_t c = 0; c < CHUNKS; c++) {
+    ub_ray *rays = malloc(PER * sizeof *rays);
+    ub_hit *hits = malloc(PER * sizeof *hits);
+    float *w = malloc(PER * sizeof *w);
+    uint32_t *alive = malloc(PER * sizeof *alive);
+    ub_ray *shadow = nll ? malloc(PER * sizeof *shadow) : NULL;
+    uint8_t *occl = nll ? malloc(PER) : NULL;
+    if (rays && hits && w && alive && (!nll || (shadow && occl))) {
+      uint32_t n = PER;
+      for (uint32_t i = 0; i < PER; i++) {
         uint32_t h = ub_hash4(0x51a7, c, i, 0);
         uint32_t t = h % lm->texel_count;
         memcpy(rays[i].org, lm->sample_pos + ((size_t)t * UB_TEXEL_SAMPLES) * 3,
@@ -69,14 +92,101 @@ static double measure_ray_rate(const ub_rt *rt, const ub_lightmap *lm)
                          ub_u01(ub_hash4(h, 2, 0, 0)), rays[i].dir);
         rays[i].tnear = 0.0f;
         rays[i].tfar = INFINITY;
+        w[i] = 1.0f;
+        alive[i] = i;
+        if (nll) {
+          /* the walk's weight: direct light of one base light at the start (× nll) */
+          const ub_light *L = &s->lights[lit_lights[ub_hash4(h, 3, 0, 0) % nll]];
+          float dir[3], dist, e[3];
+          const float *n = lm->texel_normal + 3 * (size_t)t;
+          float cs = 0.0f;
+          if (ub_light_incident(L, rays[i].org, dir, &dist, e))
+            cs = n[0] * dir[0] + n[1] * dir[1] + n[2] * dir[2];
+          w[i] = cs > 0.0f ? (float)nll * cs * (0.2126f * e[0] + 0.7152f * e[1] + 0.0722f * e[2])
+                           : 0.0f;
+          memcpy(shadow[i].org, rays[i].org, sizeof shadow[i].org);
+          memcpy(shadow[i].dir, dir, sizeof shadow[i].dir);
+          shadow[i].tnear = 0.0f;
+          shadow[i].tfar = cs > 0.0f && isfinite(dist) ? dist * 0.999f : INFINITY;
+        }
       }
-      ub_rt_intersect(rt, rays, per, hits);
+      if (nll) {
+        ub_rt_occluded(rt, shadow, PER, occl);
+        traced += PER;
+        for (uint32_t i = 0; i < PER; i++)
+          if (occl[i] || !isfinite(w[i]))
+            w[i] = 0.0f;
+      }
+      for (uint32_t i = 0; i < PER; i++)
+        w_sum[c][0] += w[i];
+      for (int k = 1; k <= UB_PLAN_WALK && n; k++) {
+        ub_rt_intersect(rt, rays, n, hits);
+        traced += n;
+        uint32_t m = 0;
+        for (uint32_t i = 0; i < n; i++) {
+          const ub_hit *hh = &hits[i];
+          if (hh->tri == UB_RT_MISS || hh->tri >= s->triangle_count || !(w[i] > 0.0f))
+            continue;
+          const float *a = s->materials[s->tri_material[hh->tri]].albedo;
+          float wi = w[i] * (0.2126f * a[0] + 0.7152f * a[1] + 0.0722f * a[2]);
+          if (!(wi > 0.0f))
+            continue;
+          w_sum[c][k] += wi;
+          /* continue from the hit, on the side the ray came from */
+          float ng[3], len = sqrtf(hh->ng[0] * hh->ng[0] + hh->ng[1] * hh->ng[1] +
+                                   hh->ng[2] * hh->ng[2]);
+          if (!(len > 0.0f))
+            continue;
+          float side = (hh->ng[0] * rays[i].dir[0] + hh->ng[1] * rays[i].dir[1] +
+                        hh->ng[2] * rays[i].dir[2]) < 0.0f ? 1.0f : -1.0f;
+          for (int j = 0; j < 3; j++)
+            ng[j] = side * hh->ng[j] / len;
+          float p[3];
+          for (int j = 0; j < 3; j++)
+            p[j] = rays[i].org[j] + rays[i].dir[j] * hh->t;
+          ub_ray *r = &rays[m];
+          ub_rt_offset_point(rt, p, ng, r->org);
+          uint32_t hsh = ub_hash4(0x51a7, c, alive[i], (uint32_t)k);
+          ub_sample_cosine(ng, ub_u01(ub_hash4(hsh, 1, 0, 0)), ub_u01(ub_hash4(hsh, 2, 0, 0)),
+                           r->dir);
+          r->tnear = 0.0f;
+          r->tfar = INFINITY;
+          w[m] = wi;
+          alive[m] = alive[i];
+          m++;
+        }
+        n = m;
+      }
     }
     free(rays);
     free(hits);
+    free(w);
+    free(alive);
+    free(shadow);
+    free(occl);
   }
-  double dt = now_s() - t0;
-  return dt > 0 ? (double)per * chunks / dt : 1e6;
+  double dt = now_s() - t0, W[UB_PLAN_WALK + 1] = {0};
+  for (int c = 0; c < CHUNKS; c++)
+    for (int k = 0; k <= UB_PLAN_WALK; k++)
+      W[k] += w_sum[c][k];
+  *out_ratio = W[UB_PLAN_WALK - 1] > 0.0 ? W[UB_PLAN_WALK] / W[UB_PLAN_WALK - 1] : 0.0;
+  return dt > 0 ? (double)traced / dt : 1e6;
+}
+
+uint32_t ub_plan_bounces(double ratio, double stop_fraction, uint32_t cap)
+{
+  /* Bounce k ≥ 1 carries e1·r^(k−1); the pass stops after the first k with
+   * e_k ≤ stop·(e_1 + … + e_k) (bake/pass.c, over the level). */
+  if (!(ratio > 0.0))
+    return 1;
+  double ek = 1.0, sum = 0.0;
+  for (uint32_t k = 1; k <= cap; k++) {
+    sum += ek;
+    if (ek <= stop_fraction * sum)
+      return k;
+    ek *= ratio;
+  }
+  return cap;
 }
 
 ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitters *em,
@@ -175,7 +285,11 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
 
   /* Estimates: rays per pass, and seconds from this machine's measured ray rate. */
   double T = lm->texel_count, P = probe_count;
-  int b = opt->bounces < 0 ? 4 : opt->bounces;
+  out->ray_rate = measure_ray_rate(scene, rt, lm, out->base_light_enabled, &out->bounce_ratio);
+  out->est_bounces = opt->bounces < 0 ? ub_plan_bounces(out->bounce_ratio, out->stop_fraction,
+                                                         UB_BAKE_MAX_BOUNCES)
+                                      : (uint32_t)opt->bounces;
+  double b = out->est_bounces;
   double direct = T * ((double)out->base_lights * out->shadow_samples + out->emissive_samples +
                        ((out->sky || out->emissive) ? out->gather_rays : 0)) +
                   P * ((double)out->base_lights + out->emissive_samples +
@@ -251,7 +365,6 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
     out->dls_est_rays[d] = (out->influence_culling ? inf : 0.0) + full;
   }
   free(en);
-  out->ray_rate = measure_ray_rate(rt, lm);
   free(set_reaches);
   return UB_OK;
 }
@@ -265,9 +378,11 @@ void ub_plan_print(const ub_plan *plan, const ub_scene *scene, const ub_log *log
                 plan->emissive ? "yes" : "no (no emissive sampling)", plan->static_lights,
                 plan->primary_lights, plan->skipped_lights, plan->dls_passes);
   ub_log_printf(log, UB_LOG_INFO, "  samples: %u gather rays/texel, %u/probe, %u emissive, %u "
-                "shadow; bounces until < %.2f%% energy",
+                "shadow; bounces until < %.2f%% energy (estimated %u: a gather ray brings "
+                "back %.2f of the light)",
                 plan->gather_rays, plan->probe_rays, plan->emissive_samples,
-                plan->shadow_samples, 100 * plan->stop_fraction);
+                plan->shadow_samples, 100 * plan->stop_fraction, plan->est_bounces,
+                plan->bounce_ratio);
   if (plan->door_passes == 0)
     ub_log_printf(log, UB_LOG_INFO, "  doors: %u, no door pass", plan->doors);
   for (uint32_t d = 0; d < scene->door_count; d++)

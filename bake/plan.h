@@ -49,6 +49,8 @@ typedef struct ub_plan {
   struct ub_dls_reach *dls_reach;
   uint32_t dls_reach_count;
   double ray_rate;             /* measured rays/s on this level, all threads */
+  double bounce_ratio;         /* mean albedo a cosine gather ray finds (misses count 0) */
+  uint32_t est_bounces;        /* bounces the estimates assume (ub_plan_bounces when auto) */
   /* Doors (doors/door.h): one pass per door with a closed leaf; none without doors. */
   uint32_t doors, door_passes;
   uint32_t door_rays;          /* guided gather rays per texel of a door pass (probes 2x) */
@@ -63,5 +65,10 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
 void ub_plan_print(const ub_plan *plan, const ub_scene *scene, const ub_log *log);
 void ub_plan_free(ub_plan *plan);
 const char *ub_light_skip_reason(ub_light_skip s);
+
+/* Bounces an auto-stop pass runs when each bounce brings back the share `ratio` of the
+ * last and the pass stops once a bounce adds <= stop_fraction of the indirect light so
+ * far (bake/pass.c); at most cap. */
+uint32_t ub_plan_bounces(double ratio, double stop_fraction, uint32_t cap);
 
 #endif

@@ -13,6 +13,7 @@
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
 #include "ubake/runtime.h"
+#include "bake/plan.h"
 
 static char g_build[512];
 
@@ -205,6 +206,50 @@ static void test_dls_culling(void)
   ub_bakefile_free(fb);
 }
 
+/* A number after "key": in a report.json (NaN when absent). */
+static double report_number(const char *ubk_path, const char *key)
+{
+  char path[1100], needle[128];
+  snprintf(path, sizeof path, "%s", ubk_path);
+  char *dot = strrchr(path, '.');
+  if (dot)
+    snprintf(dot, sizeof path - (size_t)(dot - path), ".report.json");
+  FILE *f = fopen(path, "rb");
+  if (!f)
+    return NAN;
+  static char buf[1 << 20];
+  size_t n = fread(buf, 1, sizeof buf - 1, f);
+  fclose(f);
+  buf[n] = 0;
+  snprintf(needle, sizeof needle, "\"%s\": ", key);
+  const char *at = strstr(buf, needle);
+  return at ? strtod(at + strlen(needle), NULL) : NAN;
+}
+
+/* The plan's cost estimate: the bounce count of an auto-stop pass from the level's bounce
+ * ratio. Closed form: with ratio r each bounce carries r times the last, and the pass stops
+ * at the first k with r^(k-1) <= stop·(1 + r + … + r^(k-1)). In the furnace (a closed box,
+ * albedo 0.5, every gather ray hits a wall) r is the albedo, and the bake runs exactly
+ * that many bounces. */
+static void test_estimate(void)
+{
+  ASSERT_TRUE(ub_plan_bounces(0.5, 0.005, 64) == 8); /* 0.5^7 = 0.0078 <= 0.005·1.992 */
+  ASSERT_TRUE(ub_plan_bounces(0.0, 0.005, 64) == 1);
+  ASSERT_TRUE(ub_plan_bounces(0.999, 0.005, 64) == 64);
+  ASSERT_TRUE(ub_plan_bounces(0.9, 0.005, 64) == 30); /* 0.9^29 = 0.0471 <= 0.005·9.53 */
+  char path[1024];
+  snprintf(path, sizeof path, "%s/levels/furnace.gltf", g_build);
+  ub_bake_stats st;
+  if (!bake(path, "estimate", UB_QUALITY_DRAFT, 0, &st))
+    return;
+  double ratio = report_number(st.ubk_path, "bounce_ratio");
+  double est = report_number(st.ubk_path, "estimated_bounces");
+  printf("furnace: bounce ratio %.4f (albedo 0.5), bounces estimated %.0f, run %u\n", ratio, est,
+         st.bounces);
+  ASSERT_NEAR(ratio, 0.5, 0.01, 0);
+  ASSERT_TRUE(fabs(est - (double)st.bounces) <= 1.0);
+}
+
 int main(int argc, char **argv)
 {
   const char *b = getenv("UB_BUILD");
@@ -212,6 +257,8 @@ int main(int argc, char **argv)
   const char *only = argc > 1 ? argv[1] : NULL;
   if (!only || !strcmp(only, "counters"))
     test_counters();
+  if (!only || !strcmp(only, "counters"))
+    test_estimate();
   if (!only || !strcmp(only, "dls_culling"))
     test_dls_culling();
   if (!only || !strcmp(only, "oa_dm4")) {
