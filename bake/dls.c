@@ -528,6 +528,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     pd.probe_subset_count = ncp;
     pd.llg_subset = sub ? cl : NULL;
     pd.llg_subset_count = ncl;
+    pd.keep_bounce_iz = 2;
     pd.progress = NULL;
     double t0 = now_s();
     ub_pass_result inf;
@@ -536,28 +537,58 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
       break;
     out_stats->rays_influence += inf.rays_gather + inf.rays_shadow;
     out_stats->seconds_influence += now_s() - t0;
+    /* The rule sees direct + 2 bounces; the full pass runs until converged, and a texel
+     * far from the lights gets most of its light from the later bounces. Its indirect is
+     * extrapolated by the geometric tail of its own bounce 2 (ratio r = e2/e1 of the
+     * influence pass): est = I + B2·r/(1−r). (Without it, at full bounces estate_small's
+     * hall sets lost 1.3-1.5% of their light to culling, above the 1% the rule means.) */
+    double r2 = inf.bounce_energy[1] > 0.0 ? inf.bounce_energy[2] / inf.bounce_energy[1] : 0.0;
+    r2 = r2 < 0.0 ? 0.0 : (r2 > 0.95 ? 0.95 : r2);
+    double tail = r2 / (1.0 - r2);
+    const float *b2 = inf.texel_bounce_iz ? inf.texel_bounce_iz + (size_t)lm->texel_count * 3
+                                          : NULL;
+    float *est = malloc(((size_t)lm->texel_count + 1) * sizeof *est);
+    if (!est) {
+      ub_pass_result_free(&inf);
+      r = UB_ERR_OUT_OF_MEMORY;
+      break;
+    }
     double ind_sum = 0.0;
     uint64_t lit = 0;
-    for (uint32_t t = 0; t < lm->texel_count; t++)
+    for (uint32_t t = 0; t < lm->texel_count; t++) {
+      double last = b2 ? 0.2126 * b2[3 * (size_t)t] + 0.7152 * b2[3 * (size_t)t + 1] +
+                             0.0722 * b2[3 * (size_t)t + 2]
+                       : 0.0;
+      est[t] = (float)(inf.texel_indirect[t] + (last > 0.0 ? last * tail : 0.0));
       if (inf.texel_direct[t] > 0.0f) {
-        ind_sum += inf.texel_indirect[t];
+        ind_sum += est[t];
         lit++;
       }
+    }
     double thr = lit ? UB_DLS_INFLUENCE_FRACTION * ind_sum / lit : 0.0;
+    /* Probes: the same tail on their (DC) indirect, no per-probe bounce split: the
+     * level's share of bounce 2 in the first two. */
+    double ptail = 1.0 + (inf.bounce_energy[1] + inf.bounce_energy[2] > 0.0
+                              ? tail * inf.bounce_energy[2] /
+                                    (inf.bounce_energy[1] + inf.bounce_energy[2])
+                              : 0.0);
     uint32_t nkt = 0, nkp = 0, nkl = 0;
     /* --plan all keeps every receiver (no culling), to measure what culling drops. */
     for (uint32_t t = 0; t < lm->texel_count; t++)
-      if (!plan->influence_culling || inf.texel_direct[t] > 0.0f || inf.texel_indirect[t] > thr)
+      if (!plan->influence_culling || inf.texel_direct[t] > 0.0f || est[t] > thr)
         kt[nkt++] = t;
+    free(est);
     for (uint32_t q = 0; q < base->probe_count; q++)
-      if (!plan->influence_culling || inf.probe_direct[q] > 0.0f || inf.probe_indirect[q] > thr)
+      if (!plan->influence_culling || inf.probe_direct[q] > 0.0f ||
+          inf.probe_indirect[q] * ptail > thr)
         kp[nkp++] = q;
     /* LLG probes: the GLG probes' rule (they are points in free space too). */
     for (uint32_t q = 0; q < nlp; q++)
-      if (!plan->influence_culling || inf.llg_direct[q] > 0.0f || inf.llg_indirect[q] > thr)
+      if (!plan->influence_culling || inf.llg_direct[q] > 0.0f ||
+          inf.llg_indirect[q] * ptail > thr)
         kl[nkl++] = q;
-    ub_pass_result_free(&inf);
     if (nkt == 0 && nkp == 0 && nkl == 0) {
+      ub_pass_result_free(&inf);
       out_stats->sets_empty++;
       ub_log_printf(log, UB_LOG_INFO, "  dls %-16s: no receiver above the threshold: skipped",
                     rec->name);
@@ -575,10 +606,16 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     pd.probe_subset_count = nkp;
     pd.llg_subset = kl;
     pd.llg_subset_count = nkl;
+    /* The culled texels are not simulated, but the influence pass's estimate of their
+     * bounces 1-2 (and its geometric tail) still lights the kept ones: without it, the
+     * kept texels of estate_small's sets missed 0.5-1.5% of their light at full bounces. */
+    pd.outside_bounce_iz = plan->influence_culling ? inf.texel_bounce_iz : NULL;
+    pd.outside_bounces = inf.texel_bounce_iz ? 2 : 0;
     pd.progress = NULL;
     t0 = now_s();
     ub_pass_result full;
     r = ub_pass_run(&pd, NULL, &full);
+    ub_pass_result_free(&inf);
     if (r != UB_OK)
       break;
     out_stats->rays_full += full.rays_gather + full.rays_shadow;

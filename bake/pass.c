@@ -1337,6 +1337,16 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   double *probe_total = calloc((size_t)P * 27 + 1, sizeof(double));
   out->texel_direct = calloc((size_t)T + 1, sizeof(float));
   out->texel_indirect = calloc((size_t)T + 1, sizeof(float));
+  if (d->keep_bounce_iz)
+    out->texel_bounce_iz = calloc((size_t)T * 3 * d->keep_bounce_iz + 1, sizeof(float));
+  /* texels outside the subset whose estimated bounce light is fed to the images */
+  uint8_t *outside = d->outside_bounce_iz && d->outside_bounces && d->texel_subset
+                         ? malloc((size_t)T + 1) : NULL;
+  if (outside) {
+    memset(outside, 1, (size_t)T);
+    for (uint32_t i = 0; i < d->texel_subset_count; i++)
+      outside[d->texel_subset[i]] = 0;
+  }
   out->probe_direct = calloc((size_t)P + 1, sizeof(float));
   out->probe_indirect = calloc((size_t)P + 1, sizeof(float));
   recv_set *tx = &c.sets[0], *pr = &c.sets[1], *lg = &c.sets[2];
@@ -1425,7 +1435,9 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
             !c.tl_rad || !c.tl_cdf || !c.tl_area ||
             !tx->acc_src_np || !c.img ||
             !c.emitter_of || !pr->acc_sh || !probe_total || !out->texel_direct ||
-            !out->texel_indirect || !out->probe_direct || !out->probe_indirect || !lg->acc_sh ||
+            !out->texel_indirect || (d->keep_bounce_iz && !out->texel_bounce_iz) ||
+            (d->outside_bounce_iz && d->outside_bounces && d->texel_subset && !outside) ||
+            !out->probe_direct || !out->probe_indirect || !lg->acc_sh ||
             !lg->acc_sh_np || !llg_total || (LP && !c.llg_prev) || !out->llg_direct ||
             !out->llg_indirect || !tx->acc_var || !pr->acc_var || !var_tx || !var_pr ||
             !tx->acc_pvar || !pr->acc_pvar || !rel2;
@@ -1539,6 +1551,9 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       var_pr[q] += pr->acc_var[q] + pr->acc_pvar[q];
     for (uint32_t t = 0; t < T; t++)
       out->texel_indirect[t] += (float)lum3d(tx->acc_iz + 3 * (size_t)t);
+    if (b <= d->keep_bounce_iz)
+      for (size_t i = 0; i < (size_t)T * 3; i++)
+        out->texel_bounce_iz[(size_t)(b - 1) * T * 3 + i] = (float)tx->acc_iz[i];
     for (uint32_t q = 0; q < P; q++)
       out->probe_indirect[q] += (float)(M_PI * UB_Y0 * lum3d(pr->acc_sh + 27 * (size_t)q));
     for (uint32_t q = 0; q < LP; q++)
@@ -1570,6 +1585,17 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       converged = 1;
       b++;
       break;
+    }
+    if (outside) {
+      /* The unsimulated texels' bounce b, estimated: what the next bounce gathers. */
+      uint32_t k = b < d->outside_bounces ? b : d->outside_bounces;
+      double last = out->bounce_energy[k];
+      double scale = b <= d->outside_bounces ? 1.0 : (last > 0.0 ? e / last : 0.0);
+      const float *src = d->outside_bounce_iz + (size_t)(k - 1) * T * 3;
+      for (uint32_t t = 0; t < T; t++)
+        if (outside[t])
+          for (int j = 0; j < 3; j++)
+            tx->acc_iz[3 * (size_t)t + j] = scale * src[3 * (size_t)t + j];
     }
     build_images(&c, tx->acc_iz);
     texel_lights_build(&c, tx->acc_iz);
@@ -1667,6 +1693,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
 done:
   if (res != UB_OK)
     ub_pass_result_free(out);
+  free(outside);
   free(sh_total);
   free(iz_total);
   free(tx->acc_sh);
@@ -1708,6 +1735,8 @@ void ub_pass_result_free(ub_pass_result *r)
   r->llg_sh = NULL;
   free(r->texel_direct);
   free(r->texel_indirect);
+  free(r->texel_bounce_iz);
+  r->texel_bounce_iz = NULL;
   free(r->probe_direct);
   free(r->probe_indirect);
   free(r->llg_direct);

@@ -55,6 +55,16 @@ typedef struct ub_pass_desc {
   uint32_t probe_subset_count;
   const uint32_t *llg_subset;    /* LLG probes (indices into llg->probe_pos), same rule */
   uint32_t llg_subset_count;
+  /* Bounce light of the texels outside texel_subset (a cheaper pass's estimate, e.g. the
+   * influence pass's keep_bounce_iz): they are not simulated, but their light still
+   * bounces: bounce k's image (what bounce k+1 gathers) holds outside_bounce_iz's bounce k
+   * (texel_count × 3 I_z RGB per bounce, bounce k at offset (k−1)·texel_count·3) for
+   * k ≤ outside_bounces, and beyond that its last bounce scaled by this pass's own bounce
+   * energies (e_k / e_last). NULL: outside texels are dark. */
+  const float *outside_bounce_iz;
+  uint32_t outside_bounces;
+  /* Keep each texel's I_z of bounces 1..keep_bounce_iz in the result (texel_bounce_iz). */
+  uint32_t keep_bounce_iz;
   int bounces;                   /* -1 = until a bounce adds < stop_fraction of the total */
   double stop_fraction;          /* e.g. 0.005 */
   uint32_t seed;
@@ -81,6 +91,8 @@ typedef struct ub_pass_result {
   float *texel_direct, *texel_indirect; /* texel_count */
   float *probe_direct, *probe_indirect; /* probe_count: DC (mean) irradiance */
   float *llg_direct, *llg_indirect;     /* llg->probe_count (0 without LLGs): likewise */
+  float *texel_bounce_iz;        /* desc keep_bounce_iz > 0: texel_count × 3 per bounce 1..keep
+                                    (zero past the last bounce run), else NULL */
   uint32_t bounces;
   double bounce_energy[UB_BAKE_MAX_BOUNCES + 1];
   /* When the bounce cap ended an auto-stop series: the missing energy estimated as the
