@@ -375,6 +375,58 @@ int main(int argc, char **argv)
            "whole draft bake %.2f s (probes are gathered inside the same passes)\n",
            probes, lm, st.total_seconds);
   }
+  /* Optional second argument, a .ubk with dynamic light sets (e.g. estate_small): how much
+   * of a one-set toggle (set off + update, set on + update) the re-windowing of the
+   * touched GLG probes takes, with ub_sh2_window and with the reference search (timed on
+   * the same probes' raw SH right after the update). */
+  if (argc > 2) {
+    ub_runtime *rs = NULL;
+    if (ub_runtime_load(argv[2], NULL, &rs) == UB_OK && ub_runtime_glg(rs) &&
+        ub_runtime_dls_count(rs)) {
+      const ub_bakefile *bs = ub_runtime_bakefile(rs);
+      uint32_t np = bs->glg_probe_count, sets = ub_runtime_dls_count(rs);
+      float *before = malloc((size_t)np * 27 * sizeof *before), sh[27];
+      double t_upd = 0.0, t_fast = 0.0, t_ref = 0.0;
+      uint64_t probes = 0;
+      for (int rep = 0; rep < 3; rep++)
+        for (uint32_t e = 0; e < sets; e++)
+          for (int on = 0; on < 2; on++) {
+            const float w[3] = {(float)on, (float)on, (float)on};
+            memcpy(before, ub_runtime_glg_probe_sh(rs, 0), (size_t)np * 27 * sizeof *before);
+            ub_runtime_set_dls(rs, e, w);
+            ub_runtime_update_stats us;
+            double t0 = now_s();
+            ub_runtime_update(rs, &us);
+            t_upd += now_s() - t0;
+            /* the touched probes are those whose raw SH changed */
+            const float *cur = ub_runtime_glg_probe_sh(rs, 0);
+            for (uint32_t q = 0; q < np; q++) {
+              if (!memcmp(before + 27 * (size_t)q, cur + 27 * (size_t)q, sizeof sh))
+                continue;
+              probes++;
+              memcpy(sh, cur + 27 * (size_t)q, sizeof sh);
+              t0 = now_s();
+              ub_sh2_window(sh);
+              t_fast += now_s() - t0;
+              memcpy(sh, cur + 27 * (size_t)q, sizeof sh);
+              t0 = now_s();
+              ub_sh2_window_reference(sh);
+              t_ref += now_s() - t0;
+              sink += sh[3];
+            }
+          }
+      printf("  %s: %u sets toggled off/on x3: update %.3f ms per toggle, of which "
+             "re-windowing ~%.3f ms (%.0f%%; %.1f probes/toggle); the reference windowing "
+             "would take %.3f ms (%.0f%% of an update with it)\n",
+             argv[2], sets, 1e3 * t_upd / (6.0 * sets), 1e3 * t_fast / (6.0 * sets),
+             100.0 * t_fast / t_upd, probes / (6.0 * sets), 1e3 * t_ref / (6.0 * sets),
+             100.0 * t_ref / (t_upd - t_fast + t_ref));
+      free(before);
+    } else {
+      printf("  %s: no GLG with dynamic light sets, toggle figures skipped\n", argv[2]);
+    }
+    ub_runtime_free(rs);
+  }
   printf("  (checksum %.3g)\n", sink);
   ub_glg_release(&gh);
   free(sh_half);

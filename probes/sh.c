@@ -379,6 +379,77 @@ static int surely_nonnegative(const float sh[27], int c, double target, int tigh
   return e0 - bn - lam >= target;
 }
 
+/* Second, still closed-form sufficient test, for what the first cannot pass (most smooth
+ * probes with a strong l=2 band): the trust-region dual without an eigendecomposition.
+ * For any λ < μ_min(M), min_n E ≥ e0 + g(λ), g(λ) = λ − ¼·bᵀ(M − λI)⁻¹b (concave). λ_lo
+ * = the smallest eigenvalue from the trigonometric formula, lowered by a safety margin
+ * for acos's rounding, is below μ_min; start at λ_lo − |b|/2 (where the optimum lies
+ * for β along the μ_min axis) and take ≤ 3 safeguarded Newton steps on g, each a 3×3
+ * adjugate solve. Returns 1 when the bound reaches target (no exact minimum needed). */
+static int dual_bound_ok(const float sh[27], int c, double target)
+{
+  const double A0 = 3.14159265358979323846, A1 = A0 * 2.0 / 3.0, A2 = A0 / 4.0;
+  double L[9];
+  for (int k = 0; k < 9; k++)
+    L[k] = sh[k * 3 + c];
+  double e0 = A0 * (double)SH_C0 * L[0];
+  double b[3] = {A1 * (double)SH_C1 * L[3], A1 * (double)SH_C1 * L[1],
+                 A1 * (double)SH_C1 * L[2]};
+  double c20 = A2 * (double)SH_C20 * L[6], c22 = A2 * (double)SH_C22 * L[8];
+  double c2 = A2 * (double)SH_C2 * 0.5;
+  double m00 = -c20 + c22, m11 = -c20 - c22, m22 = 2.0 * c20, m01 = c2 * L[4],
+         m02 = c2 * L[7], m12 = c2 * L[5];
+  double f2 = m00 * m00 + m11 * m11 + m22 * m22 + 2.0 * (m01 * m01 + m02 * m02 + m12 * m12);
+  double bn = sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
+  double size = e0 + bn + sqrt(f2);
+  if (!(f2 > 0.0)) /* no l=2: min = e0 − |b| exactly */
+    return e0 - bn - 1e-12 * size >= target;
+  /* smallest eigenvalue of the traceless M: 2p·cos(φ + 2π/3), p = ‖M‖_F/√6 */
+  double pp = sqrt(f2 / 6.0);
+  double B00 = m00 / pp, B11 = m11 / pp, B22 = m22 / pp, B01 = m01 / pp, B02 = m02 / pp,
+         B12 = m12 / pp;
+  double detB = B00 * (B11 * B22 - B12 * B12) - B01 * (B01 * B22 - B12 * B02) +
+                B02 * (B01 * B12 - B11 * B02);
+  double r = 0.5 * detB;
+  r = r < -1.0 ? -1.0 : r > 1.0 ? 1.0 : r;
+  double phi = acos(r) / 3.0;
+  double lam_lo = 2.0 * pp * cos(phi + 2.0943951023931957) - 1e-6 * pp;
+  if (!(bn > 0.0))
+    return e0 + lam_lo - 1e-12 * size >= target;
+  double lam = lam_lo - 0.5 * bn;
+  double best = -HUGE_VAL;
+  for (int it = 0; it < 4; it++) {
+    /* A = M − λI (positive definite for λ < μ_min); x = A⁻¹b by the adjugate */
+    double a00 = m00 - lam, a11 = m11 - lam, a22 = m22 - lam;
+    double j00 = a11 * a22 - m12 * m12, j01 = m02 * m12 - m01 * a22, j02 = m01 * m12 - a11 * m02;
+    double j11 = a00 * a22 - m02 * m02, j12 = m01 * m02 - a00 * m12, j22 = a00 * a11 - m01 * m01;
+    double det = a00 * j00 + m01 * j01 + m02 * j02;
+    if (!(det > 0.0) || !(a00 > 0.0) || !(j22 > 0.0))
+      break; /* not positive definite (rounding near μ_min): keep the best so far */
+    double inv = 1.0 / det;
+    double x0 = (j00 * b[0] + j01 * b[1] + j02 * b[2]) * inv,
+           x1 = (j01 * b[0] + j11 * b[1] + j12 * b[2]) * inv,
+           x2 = (j02 * b[0] + j12 * b[1] + j22 * b[2]) * inv;
+    double g = lam - 0.25 * (b[0] * x0 + b[1] * x1 + b[2] * x2);
+    if (g > best)
+      best = g;
+    if (e0 + best - 1e-12 * size >= target)
+      return 1;
+    /* g' = 1 − ¼|x|², g'' = −½·xᵀA⁻¹x */
+    double y0 = (j00 * x0 + j01 * x1 + j02 * x2) * inv, y1 = (j01 * x0 + j11 * x1 + j12 * x2) * inv,
+           y2 = (j02 * x0 + j12 * x1 + j22 * x2) * inv;
+    double g1 = 1.0 - 0.25 * (x0 * x0 + x1 * x1 + x2 * x2);
+    double g2 = -0.5 * (x0 * y0 + x1 * y1 + x2 * y2);
+    if (!(g2 < 0.0))
+      break;
+    double next = lam - g1 / g2;
+    if (!(next < lam_lo))
+      next = 0.5 * (lam + lam_lo);
+    lam = next;
+  }
+  return 0;
+}
+
 /* The window of one channel by the original search: regula falsi on phase 1 when t = 1 is
  * feasible, else a golden-section hunt for a feasible t, else phase 2. ~10–40 exact
  * minima per channel. */
@@ -502,6 +573,8 @@ static unsigned window_impl(float sh[27], int fast)
     const double target =
         (double)UB_SH2_WINDOW_MARGIN * 3.14159265358979323846 * (double)SH_C0 * sh[c];
     if (surely_nonnegative(sh, c, target, fast))
+      continue;
+    if (fast && dual_bound_ok(sh, c, target))
       continue;
     sh_quad q;
     sh_quad_build(sh, c, &q);

@@ -480,6 +480,56 @@ static void test_window_bound_worst_case(void)
          "kept, %d below windowed; worst min E / DC E %+.2e\n", skipped, caught, worst);
 }
 
+/* Search for a probe the closed-form skip tests wrongly pass: random l=1/l=2 bands
+ * (including pure l=2, l=1 along an axis, degenerate and near-degenerate eigenvalues),
+ * the DC set a hair (1e-4) below what the exact minimum needs for the margin: every one
+ * must be windowed, and afterwards be non-negative; a hair above, none may go negative. */
+static void test_window_skip_search(void)
+{
+  int below_windowed = 0, above_kept = 0;
+  const int trials = 20000;
+  for (int trial = 0; trial < trials; trial++) {
+    float sh[27];
+    ub_sh2_zero(sh);
+    int kind = trial % 5;
+    for (int k = 1; k < 9; k++) {
+      double v = 2.0 * rnd() - 1.0;
+      if (kind == 1 && k < 4)
+        v = 0.0; /* pure l=2 */
+      if (kind == 2 && k != 2 && k < 4)
+        v = 0.0; /* l=1 along z */
+      if (kind == 3 && k >= 4 && k != 6)
+        v = 0.0; /* l=2 a Y20 lobe: eigenvalues (−2a, a, a) or (2a, −a, −a) */
+      if (kind == 4 && k >= 4)
+        v *= 1e-3; /* nearly no l=2 */
+      for (int c = 0; c < 3; c++)
+        sh[k * 3 + c] = (float)(v * (c + 1));
+    }
+    float m[3];
+    ub_sh2_irradiance_min(sh, m); /* DC = 0: the band part's minimum, < 0 */
+    int above = trial & 1;
+    for (int c = 0; c < 3; c++) {
+      double need = -m[c] / (1.0 - 1e-5); /* e0 reaching the margin exactly */
+      double e0 = need * (above ? 1.0 + 1e-4 : 1.0 - 1e-4);
+      sh[c] = (float)(e0 / (PI_D * 0.282094791773878));
+    }
+    float before[27];
+    memcpy(before, sh, sizeof before);
+    unsigned f = ub_sh2_window(sh);
+    if (!above) {
+      ASSERT_TRUE((f & 7u) == 7u);
+      below_windowed += (f & 7u) == 7u;
+    } else {
+      above_kept += f == 0;
+    }
+    ub_sh2_irradiance_min(sh, m);
+    ASSERT_TRUE(m[0] >= 0.0f && m[1] >= 0.0f && m[2] >= 0.0f);
+  }
+  printf("skip-test search, %d probes with DC 1e-4 around the exact need: %d of %d below "
+         "windowed, %d of %d above left unchanged\n", trials, below_windowed,
+         trials / 2, above_kept, trials / 2);
+}
+
 int main(void)
 {
   test_orthonormal();
@@ -492,5 +542,6 @@ int main(void)
   test_window_hostile();
   test_window_fast_vs_reference();
   test_window_bound_worst_case();
+  test_window_skip_search();
   TEST_MAIN_END();
 }
