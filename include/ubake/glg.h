@@ -34,6 +34,12 @@
  *     is already non-negative for every normal. ub_glg_sample returns the raw
  *     interpolation (radiance, as the LLG resample needs it).
  *
+ *   - Speed: one query = the cached-tet test (or a walk), leak weights, a 4 × 27
+ *     interpolation (AVX when the CPU has it, else SSE2; the same bits) and the cosine
+ *     convolution. Random points are bound by the walk's dependent cache misses;
+ *     ub_glg_query_batch overlaps them across queries. Probe SH may be float or half
+ *     (sh_half, F16C; with a per-probe power-of-two exponent, 55 B/probe).
+ *
  * Lifecycle: ub_glg_init builds the owned acceleration data; ub_glg_release frees it
  * (NULL-safe, idempotent). Borrowed arrays (positions, sh, tets, leak data) must
  * outlive the ub_glg and keep their values (sh may be updated in place by the run-time,
