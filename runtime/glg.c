@@ -802,7 +802,7 @@ static inline void interp4(const ub_glg *g, const uint32_t v[4], const float w[4
 {
   if (g->sh_half) {
     float ws[4] = {w[0], w[1], w[2], w[3]};
-    if (g->sh_half_exp) /* w·2^e: exact (the exponents are validated at init) */
+    if (g->sh_half_exp) /* w·2^e: exact unless it underflows (|e| ≤ 100, checked at init) */
       for (int i = 0; i < 4; i++) {
         union { uint32_t u; float f; } x = {(uint32_t)(127 + g->sh_half_exp[v[i]]) << 23};
         ws[i] *= x.f;
