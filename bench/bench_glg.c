@@ -4,8 +4,13 @@
  * walk (a moving object: consecutive points 1 cm apart, one tet cache) and for random
  * points in the level's bounds, single thread; prints tets, probes, bytes per probe, the
  * run-time GLG memory and the bake seconds spent on probes vs lightmaps. Asserts nothing.
- * Baseline in the same run: a plain 27-float SH evaluation loop (the cost floor of the
- * irradiance step alone). */
+ * Also: random points through ub_glg_query_batch, the GLG reading half SH (speed and the
+ * irradiance difference it makes), a byte breakdown per probe, and the per-update
+ * windowing cost (ub_sh2_window vs the reference search on every probe's raw SH).
+ * Baselines in the same run: a plain 27-float SH evaluation loop (the cost floor of the
+ * irradiance step alone), a dependent random read over an array the size of the GLG's
+ * tet records (ns per cache miss: a random query is a chain of such misses) and memcpy
+ * bandwidth. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -13,6 +18,7 @@
 #include <time.h>
 
 #include "bake/lights.h"
+#include "runtime/half.h"
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
 #include "ubake/glg.h"
@@ -85,6 +91,67 @@ int main(int argc, char **argv)
     for (int a = 0; a < 3; a++)
       pts[3 * i + a] = lo[a] + (hi[a] - lo[a]) * ub_u01(ub_hash4(5, i, a, 0));
   uint32_t cache;
+  /* The same GLG reading windowed SH in half (what a 54 B/probe run-time store would be). */
+  uint16_t *sh_half = malloc((size_t)bf->glg_probe_count * 27 * sizeof *sh_half);
+  int8_t *sh_exp = malloc(bf->glg_probe_count);
+  const float *win = ub_runtime_glg_probe_sh(rt, 1);
+  for (uint32_t q = 0; q < bf->glg_probe_count; q++) {
+    /* per-probe power of two: the largest coefficient near 2^14 in half */
+    float mx = 0.0f;
+    for (int k = 0; k < 27; k++)
+      mx = fmaxf(mx, fabsf(win[27 * (size_t)q + k]));
+    int e = mx > 0.0f ? (int)ceilf(log2f(mx)) - 14 : 0;
+    e = e < -100 ? -100 : e > 100 ? 100 : e;
+    sh_exp[q] = (int8_t)e;
+    for (int k = 0; k < 27; k++)
+      sh_half[27 * (size_t)q + k] = ub_half_from_float(ldexpf(win[27 * (size_t)q + k], -e));
+  }
+  ub_glg gh;
+  {
+    ub_glg_desc d;
+    memset(&d, 0, sizeof d);
+    d.probe_count = bf->glg_probe_count;
+    d.positions = bf->glg_positions;
+    d.sh_half = sh_half;
+    d.sh_half_exp = sh_exp;
+    d.tet_count = bf->glg_tet_count;
+    d.tets = bf->glg_tets;
+    d.neigh = bf->glg_neigh;
+    d.leak_plane_count = bf->glg_plane_count;
+    d.leak_planes = bf->glg_planes;
+    d.leak_plane_of = bf->glg_plane_of;
+    d.sh_windowed = 1;
+    if (!d.neigh || ub_glg_init(&gh, &d, NULL) != UB_OK) {
+      fprintf(stderr, "bench_glg: half-SH GLG init failed\n");
+      return 1;
+    }
+  }
+  float *nrm = malloc((size_t)M * 3 * sizeof *nrm), *rgb = malloc((size_t)M * 3 * sizeof *rgb);
+  for (uint32_t i = 0; i < M; i++)
+    nrm[3 * i] = 0.0f, nrm[3 * i + 1] = 1.0f, nrm[3 * i + 2] = 0.0f;
+  /* Dependent random reads (a pointer chase through a random cycle) over an array the
+   * size of the tet records: the latency of one miss where the GLG lives. */
+  size_t chase_n = (size_t)bf->glg_tet_count * 64 / sizeof(uint32_t) / 16; /* one per line */
+  uint32_t *chase = malloc(chase_n * 16 * sizeof *chase);
+  {
+    uint32_t *perm = malloc(chase_n * sizeof *perm);
+    for (size_t i = 0; i < chase_n; i++)
+      perm[i] = (uint32_t)i;
+    for (size_t i = chase_n - 1; i > 0; i--) {
+      size_t j = ub_hash4(9, (uint32_t)i, 0, 0) % (i + 1);
+      uint32_t t = perm[i];
+      perm[i] = perm[j];
+      perm[j] = t;
+    }
+    for (size_t i = 0; i < chase_n; i++)
+      chase[16 * (size_t)perm[i]] = perm[(i + 1) % chase_n];
+    free(perm);
+  }
+  size_t mc_bytes = (size_t)64 << 20;
+  char *mc_a = malloc(mc_bytes), *mc_b = malloc(mc_bytes);
+  memset(mc_a, 1, mc_bytes);
+  memset(mc_b, 2, mc_bytes);
+  double bat_r[ROUNDS], half_r[ROUNDS], halfb_r[ROUNDS], lat_r[ROUNDS], mc_r[ROUNDS];
   for (int round = 0; round < ROUNDS; round++) {
     /* Coherent: a walk 1 cm per step, bouncing inside the bounds (the same path each
      * round). */
@@ -104,7 +171,8 @@ int main(int argc, char **argv)
     }
     coh_r[round] = N / (now_s() - t0);
     if (getenv("UB_BENCH_COHERENT_ONLY")) { /* for profiling the coherent path */
-      rnd_r[round] = base_r[round] = 0.0;
+      rnd_r[round] = base_r[round] = bat_r[round] = half_r[round] = halfb_r[round] = 0.0;
+      lat_r[round] = mc_r[round] = 0.0;
       continue;
     }
     /* Random points in the level's bounds, one cache. */
@@ -116,6 +184,38 @@ int main(int argc, char **argv)
       sink += e[1];
     }
     rnd_r[round] = M / (now_s() - t0);
+    /* The same random points as one batch (no caches). */
+    t0 = now_s();
+    ub_glg_query_batch(g, M, pts, nrm, NULL, rgb);
+    bat_r[round] = M / (now_s() - t0);
+    sink += rgb[1];
+    /* Half SH: one by one (one cache) and batched. */
+    cache = UB_GLG_NO_CACHE;
+    t0 = now_s();
+    for (uint32_t i = 0; i < M; i++) {
+      float n[3] = {0, 1, 0}, e[3];
+      ub_glg_query(&gh, pts + 3 * i, n, &cache, e);
+      sink += e[1];
+    }
+    half_r[round] = M / (now_s() - t0);
+    t0 = now_s();
+    ub_glg_query_batch(&gh, M, pts, nrm, NULL, rgb);
+    halfb_r[round] = M / (now_s() - t0);
+    sink += rgb[1];
+    /* Miss latency: 2M dependent reads. */
+    {
+      uint32_t at = 0;
+      const uint32_t steps = 2000000;
+      t0 = now_s();
+      for (uint32_t i = 0; i < steps; i++)
+        at = chase[16 * (size_t)at];
+      lat_r[round] = (now_s() - t0) / steps;
+      sink += at;
+    }
+    t0 = now_s();
+    memcpy(mc_b, mc_a, mc_bytes);
+    mc_r[round] = mc_bytes / (now_s() - t0);
+    sink += mc_b[round];
     /* Baseline: SH irradiance alone over probe SH (no location, no interpolation). */
     t0 = now_s();
     for (uint32_t i = 0, q = 0; i < N; i++) {
@@ -127,7 +227,47 @@ int main(int argc, char **argv)
     base_r[round] = N / (now_s() - t0);
   }
   double coherent = median(coh_r, ROUNDS), random = median(rnd_r, ROUNDS),
-         baseline = median(base_r, ROUNDS);
+         baseline = median(base_r, ROUNDS), batch = median(bat_r, ROUNDS),
+         half1 = median(half_r, ROUNDS), halfb = median(halfb_r, ROUNDS),
+         lat = median(lat_r, ROUNDS), mcbw = median(mc_r, ROUNDS);
+  /* Half SH vs float: irradiance difference at the random points, relative to the
+   * point's mean irradiance (E for the normal and its opposite, summed). */
+  double half_err = 0.0;
+  for (uint32_t i = 0; i < M; i++) {
+    float n[3] = {0.48f, 0.6f, 0.64f}, m[3] = {-0.48f, -0.6f, -0.64f}, a[3], b[3], a2[3], b2[3];
+    uint32_t c1 = UB_GLG_NO_CACHE, c2 = UB_GLG_NO_CACHE;
+    ub_glg_query(g, pts + 3 * i, n, &c1, a);
+    ub_glg_query(&gh, pts + 3 * i, n, &c2, b);
+    ub_glg_query(g, pts + 3 * i, m, &c1, a2);
+    ub_glg_query(&gh, pts + 3 * i, m, &c2, b2);
+    for (int c = 0; c < 3; c++) {
+      double ref = a[c] + a2[c];
+      if (ref > 0.0)
+        half_err = fmax(half_err, fmax(fabs(a[c] - b[c]), fabs(a2[c] - b2[c])) / ref);
+    }
+  }
+  /* Windowing every probe's raw SH (what a re-blend costs per touched probe). */
+  double win_fast = 0.0, win_ref = 0.0;
+  unsigned win_count = 0;
+  {
+    const float *raw = ub_runtime_glg_probe_sh(rt, 0);
+    float sh[27];
+    uint32_t np = bf->glg_probe_count;
+    double t0 = now_s();
+    for (uint32_t q = 0; q < np; q++) {
+      memcpy(sh, raw + 27 * (size_t)q, sizeof sh);
+      win_count += ub_sh2_window(sh) != 0;
+      sink += sh[3];
+    }
+    win_fast = (now_s() - t0) / np;
+    t0 = now_s();
+    for (uint32_t q = 0; q < np; q++) {
+      memcpy(sh, raw + 27 * (size_t)q, sizeof sh);
+      ub_sh2_window_reference(sh);
+      sink += sh[3];
+    }
+    win_ref = (now_s() - t0) / np;
+  }
   /* The coherent walk's locate statistics (one pass of the same path). */
   double csteps = 0.0, cgrid = 0.0, cnew = 0.0;
   {
@@ -179,8 +319,35 @@ int main(int argc, char **argv)
   printf("  random points: %.2f walk steps, %.2f hull steps per query; %.1f%% outside the "
          "hull, %.3f%% brute-force fallbacks\n", steps / M, hull_steps / M, 100.0 * outside / M,
          100.0 * fallback / M);
+  printf("  random points, batched (ub_glg_query_batch, no caches): %.2f M queries/s (x%.2f "
+         "the one-by-one rate)\n", batch * 1e-6, batch / random);
+  printf("  half SH + per-probe exponent (55 B/probe): coherent n/a, random %.2f M/s one by one, %.2f M/s batched; "
+         "max |E_half - E_float| = %.1e x (E(n) + E(-n))\n", half1 * 1e-6, halfb * 1e-6,
+         half_err);
   printf("  baseline SH irradiance only: %.2f M/s; coherent/baseline = %.2f\n", baseline * 1e-6,
          coherent / baseline);
+  printf("  baseline dependent miss over %.1f MB: %.0f ns; random query = %.1f misses' time "
+         "(batched %.1f); memcpy %.2f GB/s\n", chase_n * 64.0 / 1e6, lat * 1e9,
+         1.0 / (random * lat), 1.0 / (batch * lat), mcbw * 1e-9);
+  printf("  windowing every probe's raw SH: %.2f us/probe (reference search %.2f us, x%.2f); "
+         "%u of %u probes windowed\n", win_fast * 1e6, win_ref * 1e6, win_ref / win_fast,
+         win_count, bf->glg_probe_count);
+  {
+    ub_glg_memory gm, hm;
+    ub_glg_memory_usage(g, &gm);
+    ub_glg_memory_usage(&gh, &hm);
+    double np = bf->glg_probe_count;
+    printf("  query-time bytes per probe (float SH / half SH): SH %.1f / %.1f, positions %.1f, "
+           "tet walk records %.1f (64 B x %.2f tets), tet corners %.1f, flags %.1f, leak planes "
+           "%.1f, hull %.1f, start grid %.1f; total %.1f / %.1f (target <= 64)\n",
+           gm.sh / np, hm.sh / np, gm.positions / np, gm.walk_records / np,
+           bf->glg_tet_count / np, gm.tet_corners / np, gm.tet_flags / np, gm.leak / np,
+           gm.hull / np, gm.start_grid / np, gm.total / np, hm.total / np);
+    ub_runtime_memory rm;
+    ub_runtime_memory_usage(rt, &rm);
+    printf("  run-time GLG total (ub_runtime_memory_usage .glg, float SH raw + windowed + "
+           "owned): %.1f B/probe\n", rm.glg / np);
+  }
   printf("  bytes per probe: %.1f in the file (positions f32, SH L2 half, tets, neighbours, "
          "planes), %.1f in the run-time (+ walk tables %.1f; SH as float %d)\n",
          file_bytes / bf->glg_probe_count,
@@ -208,7 +375,67 @@ int main(int argc, char **argv)
            "whole draft bake %.2f s (probes are gathered inside the same passes)\n",
            probes, lm, st.total_seconds);
   }
+  /* Optional second argument, a .ubk with dynamic light sets (e.g. estate_small): how much
+   * of a one-set toggle (set off + update, set on + update) the re-windowing of the
+   * touched GLG probes takes, with ub_sh2_window and with the reference search (timed on
+   * the same probes' raw SH right after the update). */
+  if (argc > 2) {
+    ub_runtime *rs = NULL;
+    if (ub_runtime_load(argv[2], NULL, &rs) == UB_OK && ub_runtime_glg(rs) &&
+        ub_runtime_dls_count(rs)) {
+      const ub_bakefile *bs = ub_runtime_bakefile(rs);
+      uint32_t np = bs->glg_probe_count, sets = ub_runtime_dls_count(rs);
+      float *before = malloc((size_t)np * 27 * sizeof *before), sh[27];
+      double t_upd = 0.0, t_fast = 0.0, t_ref = 0.0;
+      uint64_t probes = 0;
+      for (int rep = 0; rep < 3; rep++)
+        for (uint32_t e = 0; e < sets; e++)
+          for (int on = 0; on < 2; on++) {
+            const float w[3] = {(float)on, (float)on, (float)on};
+            memcpy(before, ub_runtime_glg_probe_sh(rs, 0), (size_t)np * 27 * sizeof *before);
+            ub_runtime_set_dls(rs, e, w);
+            ub_runtime_update_stats us;
+            double t0 = now_s();
+            ub_runtime_update(rs, &us);
+            t_upd += now_s() - t0;
+            /* the touched probes are those whose raw SH changed */
+            const float *cur = ub_runtime_glg_probe_sh(rs, 0);
+            for (uint32_t q = 0; q < np; q++) {
+              if (!memcmp(before + 27 * (size_t)q, cur + 27 * (size_t)q, sizeof sh))
+                continue;
+              probes++;
+              memcpy(sh, cur + 27 * (size_t)q, sizeof sh);
+              t0 = now_s();
+              ub_sh2_window(sh);
+              t_fast += now_s() - t0;
+              memcpy(sh, cur + 27 * (size_t)q, sizeof sh);
+              t0 = now_s();
+              ub_sh2_window_reference(sh);
+              t_ref += now_s() - t0;
+              sink += sh[3];
+            }
+          }
+      printf("  %s: %u sets toggled off/on x3: update %.3f ms per toggle, of which "
+             "re-windowing ~%.3f ms (%.0f%%; %.1f probes/toggle); the reference windowing "
+             "would take %.3f ms (%.0f%% of an update with it)\n",
+             argv[2], sets, 1e3 * t_upd / (6.0 * sets), 1e3 * t_fast / (6.0 * sets),
+             100.0 * t_fast / t_upd, probes / (6.0 * sets), 1e3 * t_ref / (6.0 * sets),
+             100.0 * t_ref / (t_upd - t_fast + t_ref));
+      free(before);
+    } else {
+      printf("  %s: no GLG with dynamic light sets, toggle figures skipped\n", argv[2]);
+    }
+    ub_runtime_free(rs);
+  }
   printf("  (checksum %.3g)\n", sink);
+  ub_glg_release(&gh);
+  free(sh_half);
+  free(sh_exp);
+  free(nrm);
+  free(rgb);
+  free(chase);
+  free(mc_a);
+  free(mc_b);
   free(pts);
   ub_runtime_free(rt);
   return 0;

@@ -164,8 +164,42 @@ static void sh_quad_build(const float sh[27], int c, sh_quad *out)
   }
 }
 
-/* min over |n| = 1 of e0 + w1·b·n + w2·nᵀMn (a lower bound, tight). */
+/* min over |n| = 1 of e0 + w1·b·n + w2·nᵀMn (a lower bound, tight). If out_n is not
+ * NULL it receives the minimiser (approximately; unit length) in M's eigenbasis, which
+ * gives the derivative of the minimum along a window path (envelope theorem). */
+static double sh_quad_min_n(const sh_quad *q, double w1, double w2, double *out_n,
+                            double *inout_delta);
 static double sh_quad_min(const sh_quad *q, double w1, double w2)
+{
+  return sh_quad_min_n(q, w1, w2, NULL, NULL);
+}
+
+/* The minimiser from the secular-equation shift δ (gap_i + δ > 0 where β_i ≠ 0): n_i =
+ * −w1·β_i / (2(gap_i + δ)); the hard case (δ = 0) fills the μ_min axis up to unit length. */
+static void quad_argmin(const double be[3], const double gap[3], double delta, double out_n[3])
+{
+  double s = 0.0;
+  for (int i = 0; i < 3; i++) {
+    double d = gap[i] + delta;
+    out_n[i] = be[i] != 0.0 && d > 0.0 ? -0.5 * be[i] / d : 0.0;
+    s += out_n[i] * out_n[i];
+  }
+  if (s < 1.0 && be[0] == 0.0)
+    out_n[0] = sqrt(1.0 - s), s = 1.0;
+  if (s > 0.0) {
+    double inv = 1.0 / sqrt(s);
+    for (int i = 0; i < 3; i++)
+      out_n[i] *= inv;
+  } else {
+    out_n[0] = 1.0;
+  }
+}
+
+/* inout_delta: if not NULL and > 0, where the Newton iteration starts (the shift of a
+ * nearby problem: a search along a window path converges in 1–3 steps instead of ~10);
+ * receives the final shift. Any start gives the same certified bound. */
+static double sh_quad_min_n(const sh_quad *q, double w1, double w2, double *out_n,
+                            double *inout_delta)
 {
   double mu[3], bb[3], bnorm2 = 0.0;
   for (int i = 0; i < 3; i++) {
@@ -174,8 +208,11 @@ static double sh_quad_min(const sh_quad *q, double w1, double w2)
     bb[i] = 0.25 * be * be; /* ¼β² */
     bnorm2 += be * be;
   }
-  if (!(bnorm2 > 0.0))
+  if (!(bnorm2 > 0.0)) {
+    if (out_n)
+      out_n[0] = 1.0, out_n[1] = 0.0, out_n[2] = 0.0;
     return q->e0 + mu[0];
+  }
   /* δ = μ_min − λ > 0; φ(δ) = Σ ¼β_i²/(μ_i − μ_min + δ)², decreasing; root of φ = 1
    * lies in [|β_0|/2, |β|/2]. gap_i = μ_i − μ_min ≥ 0. */
   double gap[3] = {0.0, mu[1] - mu[0], mu[2] - mu[0]};
@@ -203,12 +240,18 @@ static double sh_quad_min(const sh_quad *q, double w1, double w2)
       for (int i = 1; i < 3; i++)
         if (bb[i] != 0.0)
           g -= bb[i] / gap[i];
+      if (out_n) {
+        double be[3] = {w1 * q->beta[0], w1 * q->beta[1], w1 * q->beta[2]};
+        quad_argmin(be, gap, 0.0, out_n);
+      }
       return q->e0 + g;
     }
   }
   if (lo > hi)
     lo = hi;
   delta = hi;
+  if (inout_delta && *inout_delta > lo && *inout_delta < hi)
+    delta = *inout_delta;
   for (int it = 0; it < 100; it++) {
     /* h(δ) = φ^(-1/2) − 1, increasing and nearly linear: Newton, bracketed. */
     double phi = 0.0, dphi = 0.0;
@@ -253,6 +296,12 @@ static double sh_quad_min(const sh_quad *q, double w1, double w2)
   }
   if (best == -HUGE_VAL) /* δ = 0 with β = 0 on μ_min only */
     best = mu[0];
+  if (out_n) {
+    double be[3] = {w1 * q->beta[0], w1 * q->beta[1], w1 * q->beta[2]};
+    quad_argmin(be, gap, delta, out_n);
+  }
+  if (inout_delta)
+    *inout_delta = delta;
   return q->e0 + best;
 }
 
@@ -308,8 +357,11 @@ static double window_root(const sh_quad *q, int phase, double t_hi, double f_hi,
   return b;
 }
 
-/* Cheap sufficient test: E(n) ≥ e0 − |b| − ‖M‖_F for every unit n. */
-static int surely_nonnegative(const float sh[27], int c, double target)
+/* Cheap sufficient test: E(n) ≥ e0 − |b| + λ_min(M) for every unit n. M is traceless, so
+ * λ_min ≥ −√(2/3)·‖M‖_F (with λ1 + λ2 + λ3 = 0, λ2² + λ3² ≥ λ1²/2, so ‖M‖_F² ≥ 1.5·λ1²;
+ * equality for eigenvalues (−2a, a, a), e.g. a pure Y20 lobe). `tight` = 0 is the older,
+ * looser −‖M‖_F (kept for ub_sh2_window_reference). */
+static int surely_nonnegative(const float sh[27], int c, double target, int tight)
 {
   const double A0 = 3.14159265358979323846, A1 = A0 * 2.0 / 3.0, A2 = A0 / 4.0;
   double e0 = A0 * (double)SH_C0 * sh[c];
@@ -321,11 +373,185 @@ static int surely_nonnegative(const float sh[27], int c, double target)
   double c2 = A2 * (double)SH_C2 * 0.5, c20 = A2 * (double)SH_C20 * sh[6 * 3 + c],
          c22 = A2 * (double)SH_C22 * sh[8 * 3 + c];
   double l4 = sh[4 * 3 + c], l5 = sh[5 * 3 + c], l7 = sh[7 * 3 + c];
-  double mf = sqrt(2.0 * c2 * c2 * (l4 * l4 + l5 * l5 + l7 * l7) + 6.0 * c20 * c20 + 2.0 * c22 * c22);
-  return e0 - bn - mf >= target;
+  double mf2 = 2.0 * c2 * c2 * (l4 * l4 + l5 * l5 + l7 * l7) + 6.0 * c20 * c20 + 2.0 * c22 * c22;
+  /* (1 − 1e-12): rounding of the bound itself, so it stays a bound */
+  double lam = sqrt((tight ? 2.0 / 3.0 : 1.0) * mf2) * (1.0 + 1e-12);
+  return e0 - bn - lam >= target;
 }
 
-unsigned ub_sh2_window(float sh[27])
+/* Second, still closed-form sufficient test, for what the first cannot pass (most smooth
+ * probes with a strong l=2 band): the trust-region dual without an eigendecomposition.
+ * For any λ < μ_min(M), min_n E ≥ e0 + g(λ), g(λ) = λ − ¼·bᵀ(M − λI)⁻¹b (concave). λ_lo
+ * = the smallest eigenvalue from the trigonometric formula, lowered by a safety margin
+ * for acos's rounding, is below μ_min; start at λ_lo − |b|/2 (where the optimum lies
+ * for β along the μ_min axis) and take ≤ 3 safeguarded Newton steps on g, each a 3×3
+ * adjugate solve. Returns 1 when the bound reaches target (no exact minimum needed). */
+static int dual_bound_ok(const float sh[27], int c, double target)
+{
+  const double A0 = 3.14159265358979323846, A1 = A0 * 2.0 / 3.0, A2 = A0 / 4.0;
+  double L[9];
+  for (int k = 0; k < 9; k++)
+    L[k] = sh[k * 3 + c];
+  double e0 = A0 * (double)SH_C0 * L[0];
+  double b[3] = {A1 * (double)SH_C1 * L[3], A1 * (double)SH_C1 * L[1],
+                 A1 * (double)SH_C1 * L[2]};
+  double c20 = A2 * (double)SH_C20 * L[6], c22 = A2 * (double)SH_C22 * L[8];
+  double c2 = A2 * (double)SH_C2 * 0.5;
+  double m00 = -c20 + c22, m11 = -c20 - c22, m22 = 2.0 * c20, m01 = c2 * L[4],
+         m02 = c2 * L[7], m12 = c2 * L[5];
+  double f2 = m00 * m00 + m11 * m11 + m22 * m22 + 2.0 * (m01 * m01 + m02 * m02 + m12 * m12);
+  double bn = sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
+  double size = e0 + bn + sqrt(f2);
+  if (!(f2 > 0.0)) /* no l=2: min = e0 − |b| exactly */
+    return e0 - bn - 1e-12 * size >= target;
+  /* smallest eigenvalue of the traceless M: 2p·cos(φ + 2π/3), p = ‖M‖_F/√6 */
+  double pp = sqrt(f2 / 6.0);
+  double B00 = m00 / pp, B11 = m11 / pp, B22 = m22 / pp, B01 = m01 / pp, B02 = m02 / pp,
+         B12 = m12 / pp;
+  double detB = B00 * (B11 * B22 - B12 * B12) - B01 * (B01 * B22 - B12 * B02) +
+                B02 * (B01 * B12 - B11 * B02);
+  double r = 0.5 * detB;
+  r = r < -1.0 ? -1.0 : r > 1.0 ? 1.0 : r;
+  double phi = acos(r) / 3.0;
+  double lam_lo = 2.0 * pp * cos(phi + 2.0943951023931957) - 1e-6 * pp;
+  if (!(bn > 0.0))
+    return e0 + lam_lo - 1e-12 * size >= target;
+  double lam = lam_lo - 0.5 * bn;
+  double best = -HUGE_VAL;
+  for (int it = 0; it < 4; it++) {
+    /* A = M − λI (positive definite for λ < μ_min); x = A⁻¹b by the adjugate */
+    double a00 = m00 - lam, a11 = m11 - lam, a22 = m22 - lam;
+    double j00 = a11 * a22 - m12 * m12, j01 = m02 * m12 - m01 * a22, j02 = m01 * m12 - a11 * m02;
+    double j11 = a00 * a22 - m02 * m02, j12 = m01 * m02 - a00 * m12, j22 = a00 * a11 - m01 * m01;
+    double det = a00 * j00 + m01 * j01 + m02 * j02;
+    if (!(det > 0.0) || !(a00 > 0.0) || !(j22 > 0.0))
+      break; /* not positive definite (rounding near μ_min): keep the best so far */
+    double inv = 1.0 / det;
+    double x0 = (j00 * b[0] + j01 * b[1] + j02 * b[2]) * inv,
+           x1 = (j01 * b[0] + j11 * b[1] + j12 * b[2]) * inv,
+           x2 = (j02 * b[0] + j12 * b[1] + j22 * b[2]) * inv;
+    double g = lam - 0.25 * (b[0] * x0 + b[1] * x1 + b[2] * x2);
+    if (g > best)
+      best = g;
+    if (e0 + best - 1e-12 * size >= target)
+      return 1;
+    /* g' = 1 − ¼|x|², g'' = −½·xᵀA⁻¹x */
+    double y0 = (j00 * x0 + j01 * x1 + j02 * x2) * inv, y1 = (j01 * x0 + j11 * x1 + j12 * x2) * inv,
+           y2 = (j02 * x0 + j12 * x1 + j22 * x2) * inv;
+    double g1 = 1.0 - 0.25 * (x0 * x0 + x1 * x1 + x2 * x2);
+    double g2 = -0.5 * (x0 * y0 + x1 * y1 + x2 * y2);
+    if (!(g2 < 0.0))
+      break;
+    double next = lam - g1 / g2;
+    if (!(next < lam_lo))
+      next = 0.5 * (lam + lam_lo);
+    lam = next;
+  }
+  return 0;
+}
+
+/* The window of one channel by the original search: regula falsi on phase 1 when t = 1 is
+ * feasible, else a golden-section hunt for a feasible t, else phase 2. ~10–40 exact
+ * minima per channel. */
+static void window_search_reference(const sh_quad *q, double target, double *w1, double *w2)
+{
+  double f1 = window_min(q, 1, 1.0);
+  if (f1 >= target) {
+    double t = window_root(q, 1, 1.0, f1, target);
+    *w1 = 1.0 - 0.5 * t;
+    *w2 = 1.0 - t;
+    return;
+  }
+  /* min(t) is concave, so its feasible set is an interval: golden-section search
+   * towards the peak, stopping at the first feasible t; the answer lies before it. */
+  const double gr = 0.6180339887498949;
+  double a = 0.0, b = 1.0;
+  double x1 = b - gr * (b - a), x2 = a + gr * (b - a);
+  double fx1 = window_min(q, 1, x1), fx2 = window_min(q, 1, x2);
+  double feas = -1.0, ffeas = 0.0;
+  for (int it = 0; it < 40; it++) {
+    if (fx1 >= target || fx2 >= target) {
+      feas = fx1 >= target ? x1 : x2;
+      ffeas = fx1 >= target ? fx1 : fx2;
+      break;
+    }
+    if (fx1 < fx2) {
+      a = x1;
+      x1 = x2;
+      fx1 = fx2;
+      x2 = a + gr * (b - a);
+      fx2 = window_min(q, 1, x2);
+    } else {
+      b = x2;
+      x2 = x1;
+      fx2 = fx1;
+      x1 = b - gr * (b - a);
+      fx1 = window_min(q, 1, x1);
+    }
+  }
+  if (feas >= 0.0) {
+    double t = window_root(q, 1, feas, ffeas, target);
+    *w1 = 1.0 - 0.5 * t;
+    *w2 = 1.0 - t;
+  } else {
+    /* Not a non-negative function (or only the margin is missing): drop l=2 and
+     * shrink l=1. At s = 1 only the DC remains, which is ≥ target. */
+    double s = window_root(q, 2, 1.0, window_min(q, 2, 1.0), target);
+    *w1 = 0.5 * (1.0 - s);
+    *w2 = 0.0;
+  }
+}
+
+#define WINDOW_T_TOL 1e-7 /* the window parameter is found to this (as the reference) */
+
+/* The same window by Newton's method on the concave f(t) = min_n E_t(n) (phase 1,
+ * w1 = 1 − t/2, w2 = 1 − t), started at t = 0 where f < target. f' is the derivative of
+ * E_t at the current minimiser n* (envelope theorem): −½β·n* − Σμ_i n*_i². The tangent of
+ * a concave function lies above it, so every Newton iterate stays at or left of the
+ * smallest feasible t (never past it, never into a later feasible interval) and the
+ * iteration converges to it quadratically; each iterate is nudged by the tolerance, so
+ * the first feasible one is within it of the answer (~3 exact minima per channel, each
+ * warm-started from the previous shift). f' ≤ 0 at an infeasible t, or a tangent root past
+ * t = 1, proves phase 1 has no feasible t: phase 2 (w2 = 0) has the closed form
+ * min = e0 − w1·|b|. Anything unusual (slow convergence, rounding) falls back to the
+ * reference search. f0: f(0), already computed, with its minimiser n0. */
+static void window_search_fast(const sh_quad *q, double target, double f0, const double n0[3],
+                               double delta0, double *w1, double *w2)
+{
+  double t = 0.0, f = f0, n[3] = {n0[0], n0[1], n0[2]}, delta = delta0;
+  for (int it = 0; it < 12; it++) {
+    double bn = q->beta[0] * n[0] + q->beta[1] * n[1] + q->beta[2] * n[2];
+    double mn = q->mu[0] * n[0] * n[0] + q->mu[1] * n[1] * n[1] + q->mu[2] * n[2] * n[2];
+    double d = -0.5 * bn - mn;
+    if (!(d > 0.0))
+      goto phase2;
+    double tn = t + (target - f) / d;
+    if (!(tn <= 1.0)) {
+      if (window_min(q, 1, 1.0) >= target)
+        break; /* the tangent argument failed by rounding: search */
+      goto phase2;
+    }
+    /* The smallest feasible t is ≥ tn: evaluating at tn + tol, a feasible answer is
+     * within tol of it; an infeasible one is a valid next Newton point. */
+    t = tn + WINDOW_T_TOL < 1.0 ? tn + WINDOW_T_TOL : 1.0;
+    f = sh_quad_min_n(q, 1.0 - 0.5 * t, 1.0 - t, n, &delta);
+    if (f >= target) {
+      *w1 = 1.0 - 0.5 * t;
+      *w2 = 1.0 - t;
+      return;
+    }
+  }
+  window_search_reference(q, target, w1, w2);
+  return;
+phase2:;
+  double bnorm = sqrt(q->beta[0] * q->beta[0] + q->beta[1] * q->beta[1] +
+                      q->beta[2] * q->beta[2]);
+  double w = bnorm > 0.0 ? (q->e0 - target) / bnorm * (1.0 - 1e-9) : 0.5;
+  *w1 = w < 0.0 ? 0.0 : (w > 0.5 ? 0.5 : w);
+  *w2 = 0.0;
+}
+
+static unsigned window_impl(float sh[27], int fast)
 {
   unsigned flags = 0;
   for (int c = 0; c < 3; c++) {
@@ -346,58 +572,21 @@ unsigned ub_sh2_window(float sh[27])
     }
     const double target =
         (double)UB_SH2_WINDOW_MARGIN * 3.14159265358979323846 * (double)SH_C0 * sh[c];
-    if (surely_nonnegative(sh, c, target))
+    if (surely_nonnegative(sh, c, target, fast))
+      continue;
+    if (fast && dual_bound_ok(sh, c, target))
       continue;
     sh_quad q;
     sh_quad_build(sh, c, &q);
-    if (sh_quad_min(&q, 1.0, 1.0) >= target)
+    double n0[3], delta0 = 0.0;
+    double f0 = sh_quad_min_n(&q, 1.0, 1.0, n0, &delta0);
+    if (f0 >= target)
       continue;
     double w1, w2;
-    double f1 = window_min(&q, 1, 1.0);
-    if (f1 >= target) {
-      double t = window_root(&q, 1, 1.0, f1, target);
-      w1 = 1.0 - 0.5 * t;
-      w2 = 1.0 - t;
-    } else {
-      /* min(t) is concave, so its feasible set is an interval: golden-section search
-       * towards the peak, stopping at the first feasible t; the answer lies before it. */
-      const double gr = 0.6180339887498949;
-      double a = 0.0, b = 1.0;
-      double x1 = b - gr * (b - a), x2 = a + gr * (b - a);
-      double fx1 = window_min(&q, 1, x1), fx2 = window_min(&q, 1, x2);
-      double feas = -1.0, ffeas = 0.0;
-      for (int it = 0; it < 40; it++) {
-        if (fx1 >= target || fx2 >= target) {
-          feas = fx1 >= target ? x1 : x2;
-          ffeas = fx1 >= target ? fx1 : fx2;
-          break;
-        }
-        if (fx1 < fx2) {
-          a = x1;
-          x1 = x2;
-          fx1 = fx2;
-          x2 = a + gr * (b - a);
-          fx2 = window_min(&q, 1, x2);
-        } else {
-          b = x2;
-          x2 = x1;
-          fx2 = fx1;
-          x1 = b - gr * (b - a);
-          fx1 = window_min(&q, 1, x1);
-        }
-      }
-      if (feas >= 0.0) {
-        double t = window_root(&q, 1, feas, ffeas, target);
-        w1 = 1.0 - 0.5 * t;
-        w2 = 1.0 - t;
-      } else {
-        /* Not a non-negative function (or only the margin is missing): drop l=2 and
-         * shrink l=1. At s = 1 only the DC remains, which is ≥ target. */
-        double s = window_root(&q, 2, 1.0, window_min(&q, 2, 1.0), target);
-        w1 = 0.5 * (1.0 - s);
-        w2 = 0.0;
-      }
-    }
+    if (fast)
+      window_search_fast(&q, target, f0, n0, delta0, &w1, &w2);
+    else
+      window_search_reference(&q, target, &w1, &w2);
     for (int k = 1; k < 4; k++)
       sh[k * 3 + c] = (float)(sh[k * 3 + c] * w1);
     for (int k = 4; k < 9; k++)
@@ -405,4 +594,14 @@ unsigned ub_sh2_window(float sh[27])
     flags |= UB_SH2_WINDOWED(c);
   }
   return flags;
+}
+
+unsigned ub_sh2_window(float sh[27])
+{
+  return window_impl(sh, 1);
+}
+
+unsigned ub_sh2_window_reference(float sh[27])
+{
+  return window_impl(sh, 0);
 }

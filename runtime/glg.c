@@ -7,10 +7,15 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "runtime/half.h"
 #include "ubake/sh.h"
 
 #if defined(__SSE2__)
 #include <emmintrin.h>
+#endif
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <immintrin.h>
+#define GLG_HAVE_AVX_PATH 1
 #endif
 
 /* One cache line per walk step: λ1..3 = m·(p − o), λ0 = 1 − Σ; nb[i] ≥ 0 is the tet
@@ -40,10 +45,15 @@ _Static_assert(sizeof(struct ub_glg_tet) == 64, "walk record is one cache line")
 #define GLG_SINGULAR_Q 1e-13    /* below this: singular, use the closest face */
 #define GLG_BRUTE_ACCEPT -1e-3  /* brute force: accept the best tet above this */
 #define GLG_RING_CAP 256        /* faces around one hull vertex */
+#define GLG_NEAR_BARY -0.25f    /* cached tet still "near" p: min barycentric above this */
 #define GLG_FLAG_ILL 1
 #define GLG_FLAG_SINGULAR 2
 #define GLG_NONE 0xFFFFFFFFu
 #define GLG_CACHE_HULL 0x80000000u /* cache value: outside, at hull face (low bits) */
+#ifndef GLG_GRID_CELLS_PER_PROBE
+#define GLG_GRID_CELLS_PER_PROBE 2.0 /* start-grid density: 8 B per probe; walks of ~2.5
+                                         tets from a random point on kaos (0.5: 3.3) */
+#endif
 
 static const int face_of[4][3] = {{1, 2, 3}, {0, 3, 2}, {0, 1, 3}, {0, 2, 1}};
 
@@ -650,9 +660,13 @@ uint32_t ub_glg_locate_ex(const ub_glg *g, const float p[3], uint32_t *inout_tet
   if (g->start_grid) {
     int far = 1;
     if (start != GLG_NONE) {
+      /* Near the cached tet, in its own units (barycentrics: a big tet in open space
+       * stays near for a long way) or within two grid cells: walk from it. */
       const float *o = g->tet_data[start].o;
       float dx = p[0] - o[0], dy = p[1] - o[1], dz = p[2] - o[2];
       far = dx * dx + dy * dy + dz * dz > g->grid_far2;
+      if (far && g->tet_flags[start] != GLG_FLAG_SINGULAR)
+        far = !(tet_min_bary(g, start, p) >= GLG_NEAR_BARY);
     }
     if (far) {
       start = grid_start(g, p);
@@ -710,12 +724,12 @@ static inline void leak_weights(const ub_glg *g, uint32_t t, const float p[3], f
   }
 }
 
-/* out = Σ w_i·sh(v_i) over the four corners (a zero weight adds exactly 0). */
-static inline void interp4(const ub_glg *g, const uint32_t v[4], const float w[4],
-                           float out[27])
+/* out = Σ w_i·sh(v_i) over the four corners (a zero weight adds exactly 0), summed left
+ * to right ((w0·s0 + w1·s1) + w2·s2) + w3·s3 in every path, so the SSE2, AVX and scalar
+ * paths give the same bits for float SH; half SH is converted exactly first. */
+static inline void interp4_sse(const float *s0, const float *s1, const float *s2,
+                               const float *s3, const float w[4], float out[27])
 {
-  const float *s0 = g->sh + 27 * (size_t)v[0], *s1 = g->sh + 27 * (size_t)v[1],
-              *s2 = g->sh + 27 * (size_t)v[2], *s3 = g->sh + 27 * (size_t)v[3];
 #if defined(__SSE2__)
   const __m128 w0 = _mm_set1_ps(w[0]), w1 = _mm_set1_ps(w[1]), w2 = _mm_set1_ps(w[2]),
                w3 = _mm_set1_ps(w[3]);
@@ -734,32 +748,91 @@ static inline void interp4(const ub_glg *g, const uint32_t v[4], const float w[4
 #endif
 }
 
-void ub_glg_sample(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
-                   float out_sh[27])
+#if defined(GLG_HAVE_AVX_PATH)
+/* 27 = 8 + 8 + 8 + the last 8 from 19 (lanes 19..23 computed twice, identically). */
+__attribute__((target("avx"))) static void interp4_avx(const float *s0, const float *s1,
+                                                       const float *s2, const float *s3,
+                                                       const float w[4], float out[27])
 {
-  float w[4];
-  uint32_t t = inout_tet_cache ? *inout_tet_cache : GLG_NONE;
-  /* Fast path, the same answer as ub_glg_locate's first test: p (finite) still inside
-   * the cached, well-shaped tet. */
-  int hit = 0;
-  if (t < g->tet_count && !g->tet_flags[t] && isfinite(p[0] + p[1] + p[2])) {
-    rec_bary(&g->tet_data[t], p, w);
-    if (min4f(w) >= -GLG_EPS) {
-      bary_finish(w);
-      hit = 1;
-    }
+  const __m256 w0 = _mm256_set1_ps(w[0]), w1 = _mm256_set1_ps(w[1]),
+               w2 = _mm256_set1_ps(w[2]), w3 = _mm256_set1_ps(w[3]);
+  static const int at[4] = {0, 8, 16, 19};
+  for (int j = 0; j < 4; j++) {
+    int k = at[j];
+    __m256 a = _mm256_mul_ps(w0, _mm256_loadu_ps(s0 + k));
+    a = _mm256_add_ps(a, _mm256_mul_ps(w1, _mm256_loadu_ps(s1 + k)));
+    a = _mm256_add_ps(a, _mm256_mul_ps(w2, _mm256_loadu_ps(s2 + k)));
+    a = _mm256_add_ps(a, _mm256_mul_ps(w3, _mm256_loadu_ps(s3 + k)));
+    _mm256_storeu_ps(out + k, a);
   }
-  if (!hit)
-    t = ub_glg_locate_ex(g, p, inout_tet_cache, w, NULL);
-  leak_weights(g, t, p, w);
-  interp4(g, g->tets + 4 * (size_t)t, w, out_sh);
 }
 
-void ub_glg_query(const ub_glg *g, const float p[3], const float n[3],
-                  uint32_t *inout_tet_cache, float out_rgb[3])
+__attribute__((target("avx,f16c"))) static void interp4_f16c(const uint16_t *s0,
+                                                             const uint16_t *s1,
+                                                             const uint16_t *s2,
+                                                             const uint16_t *s3,
+                                                             const float w[4], float out[27])
 {
-  float sh[27];
-  ub_glg_sample(g, p, inout_tet_cache, sh);
+  const __m256 w0 = _mm256_set1_ps(w[0]), w1 = _mm256_set1_ps(w[1]),
+               w2 = _mm256_set1_ps(w[2]), w3 = _mm256_set1_ps(w[3]);
+  static const int at[4] = {0, 8, 16, 19};
+  for (int j = 0; j < 4; j++) {
+    int k = at[j];
+#define GLG_H8(s) _mm256_cvtph_ps(_mm_loadu_si128((const __m128i *)(const void *)((s) + k)))
+    __m256 a = _mm256_mul_ps(w0, GLG_H8(s0));
+    a = _mm256_add_ps(a, _mm256_mul_ps(w1, GLG_H8(s1)));
+    a = _mm256_add_ps(a, _mm256_mul_ps(w2, GLG_H8(s2)));
+    a = _mm256_add_ps(a, _mm256_mul_ps(w3, GLG_H8(s3)));
+#undef GLG_H8
+    _mm256_storeu_ps(out + k, a);
+  }
+}
+#endif
+
+static void interp4_half_scalar(const uint16_t *s0, const uint16_t *s1, const uint16_t *s2,
+                                const uint16_t *s3, const float w[4], float out[27])
+{
+  for (int k = 0; k < 27; k++)
+    out[k] = w[0] * ub_half_to_float(s0[k]) + w[1] * ub_half_to_float(s1[k]) +
+             w[2] * ub_half_to_float(s2[k]) + w[3] * ub_half_to_float(s3[k]);
+}
+
+static inline void interp4(const ub_glg *g, const uint32_t v[4], const float w[4],
+                           float out[27])
+{
+  if (g->sh_half) {
+    float ws[4] = {w[0], w[1], w[2], w[3]};
+    if (g->sh_half_exp) /* w·2^e: exact unless it underflows (|e| ≤ 100, checked at init) */
+      for (int i = 0; i < 4; i++) {
+        union { uint32_t u; float f; } x = {(uint32_t)(127 + g->sh_half_exp[v[i]]) << 23};
+        ws[i] *= x.f;
+      }
+    w = ws;
+    const uint16_t *h0 = g->sh_half + 27 * (size_t)v[0], *h1 = g->sh_half + 27 * (size_t)v[1],
+                   *h2 = g->sh_half + 27 * (size_t)v[2], *h3 = g->sh_half + 27 * (size_t)v[3];
+#if defined(GLG_HAVE_AVX_PATH)
+    if (g->simd) {
+      interp4_f16c(h0, h1, h2, h3, w, out);
+      return;
+    }
+#endif
+    interp4_half_scalar(h0, h1, h2, h3, w, out);
+    return;
+  }
+  const float *s0 = g->sh + 27 * (size_t)v[0], *s1 = g->sh + 27 * (size_t)v[1],
+              *s2 = g->sh + 27 * (size_t)v[2], *s3 = g->sh + 27 * (size_t)v[3];
+#if defined(GLG_HAVE_AVX_PATH)
+  if (g->simd) {
+    interp4_avx(s0, s1, s2, s3, w, out);
+    return;
+  }
+#endif
+  interp4_sse(s0, s1, s2, s3, w, out);
+}
+
+/* Irradiance from interpolated SH (windowed here unless the probes were). */
+static void shade(const ub_glg *g, float sh[27], const float n[3], float out_rgb[3])
+{
   if (!g->sh_windowed)
     ub_sh2_window(sh);
   float l2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
@@ -789,6 +862,157 @@ void ub_glg_query(const ub_glg *g, const float p[3], const float n[3],
   out_rgb[0] = e0 > 0.0f ? e0 : 0.0f;
   out_rgb[1] = e1 > 0.0f ? e1 : 0.0f;
   out_rgb[2] = e2 > 0.0f ? e2 : 0.0f;
+}
+
+void ub_glg_sample(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
+                   float out_sh[27])
+{
+  float w[4];
+  uint32_t t = inout_tet_cache ? *inout_tet_cache : GLG_NONE;
+  /* Fast path, the same answer as ub_glg_locate's first test: p (finite) still inside
+   * the cached, well-shaped tet. */
+  int hit = 0;
+  if (t < g->tet_count && !g->tet_flags[t] && isfinite(p[0] + p[1] + p[2])) {
+    rec_bary(&g->tet_data[t], p, w);
+    if (min4f(w) >= -GLG_EPS) {
+      bary_finish(w);
+      hit = 1;
+    }
+  }
+  if (!hit)
+    t = ub_glg_locate_ex(g, p, inout_tet_cache, w, NULL);
+  leak_weights(g, t, p, w);
+  interp4(g, g->tets + 4 * (size_t)t, w, out_sh);
+}
+
+void ub_glg_query(const ub_glg *g, const float p[3], const float n[3],
+                  uint32_t *inout_tet_cache, float out_rgb[3])
+{
+  float sh[27];
+  ub_glg_sample(g, p, inout_tet_cache, sh);
+  shade(g, sh, n, out_rgb);
+}
+
+/* Batches of GLG_BATCH queries in stages, each stage issuing the next loads of every
+ * query before any is waited for: random queries are bound by dependent cache misses
+ * (start grid → tet record → corners → probe SH), and this keeps ~GLG_BATCH of them in
+ * flight instead of one. The same answers as ub_glg_query, query by query. */
+#define GLG_BATCH 16
+
+void ub_glg_query_batch(const ub_glg *g, uint32_t count, const float *points,
+                        const float *normals, uint32_t *inout_tet_caches, float *out_rgb)
+{
+  assert(g && g->tet_data && (points || !count) && (normals || !count) && (out_rgb || !count));
+  for (uint32_t b0 = 0; b0 < count; b0 += GLG_BATCH) {
+    uint32_t nb = count - b0 < GLG_BATCH ? count - b0 : GLG_BATCH;
+    uint32_t cache[GLG_BATCH], tet[GLG_BATCH];
+    float bary[GLG_BATCH][4];
+    /* 1: where each walk starts (the caller's cache, else the start grid) */
+    for (uint32_t i = 0; i < nb; i++) {
+      const float *p = points + 3 * (size_t)(b0 + i);
+      uint32_t c = inout_tet_caches ? inout_tet_caches[b0 + i] : GLG_NONE;
+      if (c >= g->tet_count && !(c != GLG_NONE && (c & GLG_CACHE_HULL)) && g->start_grid &&
+          isfinite(p[0] + p[1] + p[2]))
+        c = grid_start(g, p);
+      cache[i] = c;
+#if defined(__GNUC__)
+      if (c < g->tet_count) {
+        __builtin_prefetch(&g->tet_data[c]);
+        __builtin_prefetch(g->tets + 4 * (size_t)c);
+      }
+#endif
+    }
+    /* 2: walk all of them a step at a time, round-robin, so the next record of every
+     * walk is in flight at once; anything but a plain step in a well-shaped tet (hull,
+     * badly shaped tets, long walks, hull caches, non-finite points) finishes through
+     * ub_glg_locate_ex from where the walk got to. */
+    uint32_t at[GLG_BATCH], prev[GLG_BATCH], steps[GLG_BATCH], active[GLG_BATCH], na = 0;
+    for (uint32_t i = 0; i < nb; i++) {
+      const float *p = points + 3 * (size_t)(b0 + i);
+      if (cache[i] < g->tet_count && isfinite(p[0] + p[1] + p[2])) {
+        at[i] = cache[i];
+        prev[i] = GLG_NONE;
+        steps[i] = 0;
+        active[na++] = i;
+      } else {
+        tet[i] = ub_glg_locate_ex(g, p, &cache[i], bary[i], NULL);
+      }
+    }
+    while (na) {
+      uint32_t keep = 0;
+      for (uint32_t j = 0; j < na; j++) {
+        uint32_t i = active[j], t = at[i];
+        const float *p = points + 3 * (size_t)(b0 + i);
+        const struct ub_glg_tet *r = &g->tet_data[t];
+        int finish = g->tet_flags[t] != 0 || steps[i] >= 64;
+        if (!finish) {
+          float l[4];
+          rec_bary(r, p, l);
+          if (min4f(l) >= -GLG_EPS) {
+            memcpy(bary[i], l, sizeof l);
+            bary_finish(bary[i]);
+            tet[i] = t;
+            cache[i] = t;
+            continue;
+          }
+          /* walk()'s choice: the most negative face, never straight back */
+          int k = -1;
+          float kv = -GLG_EPS;
+          for (int f = 0; f < 4; f++)
+            if (l[f] < kv && !(r->nb[f] >= 0 && (uint32_t)r->nb[f] == prev[i])) {
+              kv = l[f];
+              k = f;
+            }
+          for (int f = 0; f < 4; f++)
+            if (r->nb[f] < 0 && l[f] < -GLG_EPS)
+              k = -1; /* beyond a hull face: the hull projection */
+          if (k < 0 || r->nb[k] < 0) {
+            finish = 1;
+          } else {
+            prev[i] = t;
+            at[i] = (uint32_t)r->nb[k];
+            steps[i]++;
+#if defined(__GNUC__)
+            __builtin_prefetch(&g->tet_data[at[i]]);
+            __builtin_prefetch(g->tets + 4 * (size_t)at[i]);
+#endif
+            active[keep++] = i;
+            continue;
+          }
+        }
+        cache[i] = t;
+        tet[i] = ub_glg_locate_ex(g, p, &cache[i], bary[i], NULL);
+      }
+      na = keep;
+    }
+    /* the corners' probe SH and the leak planes for stage 3 */
+    for (uint32_t i = 0; i < nb; i++) {
+#if defined(__GNUC__)
+      const uint32_t *v = g->tets + 4 * (size_t)tet[i];
+      for (int k = 0; k < 4; k++) {
+        const char *row = g->sh_half ? (const char *)(g->sh_half + 27 * (size_t)v[k])
+                                     : (const char *)(g->sh + 27 * (size_t)v[k]);
+        __builtin_prefetch(row);
+        __builtin_prefetch(row + 64);
+      }
+      if (g->leak_plane_of) {
+        uint32_t pl = g->leak_plane_of[tet[i]];
+        if (pl != UB_GLG_NO_LEAK_PLANE)
+          __builtin_prefetch(g->leak_planes + 4 * (size_t)pl);
+      }
+#endif
+    }
+    /* 3: weights, interpolation, irradiance */
+    for (uint32_t i = 0; i < nb; i++) {
+      const float *p = points + 3 * (size_t)(b0 + i);
+      float sh[27];
+      leak_weights(g, tet[i], p, bary[i]);
+      interp4(g, g->tets + 4 * (size_t)tet[i], bary[i], sh);
+      shade(g, sh, normals + 3 * (size_t)(b0 + i), out_rgb + 3 * (size_t)(b0 + i));
+      if (inout_tet_caches)
+        inout_tet_caches[b0 + i] = cache[i];
+    }
+  }
 }
 
 ub_result ub_glg_resample_llg(const ub_glg *g, const float center[3], const float axes[9],
@@ -915,7 +1139,7 @@ static ub_result build_start_grid(ub_glg *g)
       ext[a] = 1e-6 * diag;
   if (!(diag > 0.0))
     return UB_ERR_INVALID_DATA;
-  double cells = g->probe_count / 2.0 + 1.0;
+  double cells = g->probe_count * GLG_GRID_CELLS_PER_PROBE + 1.0;
   if (cells > (double)(1u << 22))
     cells = (double)(1u << 22);
   double s = cbrt(ext[0] * ext[1] * ext[2] / cells);
@@ -962,7 +1186,7 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
   if (!g)
     return UB_ERR_INVALID_ARGUMENT;
   memset(g, 0, sizeof *g);
-  if (!d || !d->positions || !d->sh || !d->tets || !d->neigh || d->probe_count < 4 ||
+  if (!d || !d->positions || (!d->sh && !d->sh_half) || !d->tets || !d->neigh || d->probe_count < 4 ||
       d->tet_count < 1) {
     ub_log_printf(log, UB_LOG_ERROR, "glg: missing arrays or fewer than 4 probes / 1 tet");
     return UB_ERR_INVALID_ARGUMENT;
@@ -978,13 +1202,27 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
       return UB_ERR_INVALID_DATA;
     }
   for (size_t i = 0; i < 27 * (size_t)d->probe_count; i++)
-    if (!isfinite(d->sh[i])) {
+    if (d->sh_half ? !ub_half_is_finite(d->sh_half[i]) : !isfinite(d->sh[i])) {
       ub_log_printf(log, UB_LOG_ERROR, "glg: probe %zu SH is not finite", i / 27);
       return UB_ERR_INVALID_DATA;
     }
   g->probe_count = d->probe_count;
   g->positions = d->positions;
-  g->sh = d->sh;
+  g->sh = d->sh_half ? NULL : d->sh;
+  g->sh_half = d->sh_half;
+  g->sh_half_exp = d->sh_half ? d->sh_half_exp : NULL;
+  if (g->sh_half_exp)
+    for (uint32_t q = 0; q < d->probe_count; q++)
+      if (g->sh_half_exp[q] < -100 || g->sh_half_exp[q] > 100) {
+        ub_log_printf(log, UB_LOG_ERROR, "glg: probe %u SH exponent %d out of range", q,
+                      g->sh_half_exp[q]);
+        memset(g, 0, sizeof *g);
+        return UB_ERR_INVALID_DATA;
+      }
+#if defined(GLG_HAVE_AVX_PATH)
+  __builtin_cpu_init();
+  g->simd = __builtin_cpu_supports("avx") && (!d->sh_half || __builtin_cpu_supports("f16c"));
+#endif
   g->tet_count = d->tet_count;
   g->tets = d->tets;
   g->corner_visible = d->corner_visible;
@@ -1197,4 +1435,27 @@ size_t ub_glg_owned_bytes(const ub_glg *g)
   size_t cells = (size_t)g->grid_dim[0] * g->grid_dim[1] * g->grid_dim[2];
   return (size_t)g->tet_count * (sizeof(struct ub_glg_tet) + 1 + (g->leak_drop ? 1 : 0)) +
          (size_t)g->hull_count * sizeof(struct ub_glg_hull) + cells * sizeof(uint32_t);
+}
+
+void ub_glg_memory_usage(const ub_glg *g, ub_glg_memory *out)
+{
+  assert(out);
+  memset(out, 0, sizeof *out);
+  if (!g || !g->tet_data)
+    return;
+  size_t np = g->probe_count, nt = g->tet_count;
+  out->positions = np * 3 * sizeof(float);
+  out->sh = np * (g->sh_half ? 27 * sizeof(uint16_t) + (g->sh_half_exp ? 1 : 0)
+                             : 27 * sizeof(float));
+  out->walk_records = nt * sizeof(struct ub_glg_tet);
+  out->tet_corners = nt * 4 * sizeof(uint32_t);
+  out->tet_flags = nt;
+  if (g->leak_plane_of)
+    out->leak = nt * (sizeof(uint32_t) + 1) + (size_t)g->leak_plane_count * 4 * sizeof(float);
+  if (g->corner_visible)
+    out->leak += nt * 4;
+  out->hull = (size_t)g->hull_count * sizeof(struct ub_glg_hull);
+  out->start_grid = (size_t)g->grid_dim[0] * g->grid_dim[1] * g->grid_dim[2] * sizeof(uint32_t);
+  out->total = out->positions + out->sh + out->walk_records + out->tet_corners +
+               out->tet_flags + out->leak + out->hull + out->start_grid;
 }

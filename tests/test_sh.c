@@ -335,6 +335,201 @@ static void test_window_hostile(void)
   ASSERT_TRUE(m >= -1e-6 * PI_D * 0.282095 * 0.001);
 }
 
+
+/* One random SH the way probes come: physical (1–4 lobes/deltas, some ambient) or, with
+ * probability ~1/3, Monte Carlo noise (bands of random sign and size around a positive DC:
+ * most of a draft bake's probes need windowing, many in phase 2). */
+static void random_probe_sh(float sh[27])
+{
+  ub_sh2_zero(sh);
+  if (rnd() < 0.35) {
+    double dc = pow(10.0, 3.0 * rnd() - 1.0), amp = dc * (0.1 + 2.0 * rnd());
+    for (int c = 0; c < 3; c++)
+      sh[c] = (float)(dc * (0.2 + rnd()));
+    for (int i = 3; i < 27; i++)
+      sh[i] = (float)(amp * (2.0 * rnd() - 1.0) * (i < 12 ? 1.0 : 0.6));
+    return;
+  }
+  int lobes = 1 + (int)(rnd() * 4);
+  for (int l = 0; l < lobes; l++) {
+    float d[3], L[3];
+    rnd_dir(d);
+    double s = pow(10.0, 4.0 * rnd() - 1.0);
+    for (int c = 0; c < 3; c++)
+      L[c] = (float)(s * (0.05 + rnd()));
+    ub_sh2_add(sh, d, L, 1.0f);
+  }
+  if (rnd() < 0.3)
+    for (int c = 0; c < 3; c++)
+      sh[c] += (float)rnd();
+}
+
+/* ub_sh2_window (closed-form test, Newton search) against the original bracketing search:
+ * same flags, same DC, the window parameters agree, never a negative irradiance. */
+static void test_window_fast_vs_reference(void)
+{
+  const int trials = 20000;
+  double worst_dw = 0.0, worst_min = HUGE_VAL, tf = 0.0, tr = 0.0;
+  int windowed = 0, stronger = 0, ref_early = 0;
+  for (int trial = 0; trial < trials; trial++) {
+    float raw[27], a[27], b[27];
+    random_probe_sh(raw);
+    memcpy(a, raw, sizeof a);
+    memcpy(b, raw, sizeof b);
+    double t0 = now_s();
+    unsigned fa = ub_sh2_window(a);
+    double t1 = now_s();
+    unsigned fb = ub_sh2_window_reference(b);
+    tf += t1 - t0;
+    tr += now_s() - t1;
+    ASSERT_TRUE(fa == fb);
+    windowed += fa != 0;
+    for (int c = 0; c < 3; c++) {
+      ASSERT_TRUE(a[c] == raw[c]);
+      /* each band's scale factor: w = windowed / raw (from the largest coefficient) */
+      for (int band = 1; band <= 2; band++) {
+        int k0 = band == 1 ? 1 : 4, k1 = band == 1 ? 4 : 9, kb = k0;
+        for (int k = k0; k < k1; k++)
+          if (fabsf(raw[k * 3 + c]) > fabsf(raw[kb * 3 + c]))
+            kb = k;
+        if (raw[kb * 3 + c] == 0.0f)
+          continue;
+        double wa = (double)a[kb * 3 + c] / raw[kb * 3 + c],
+               wb = (double)b[kb * 3 + c] / raw[kb * 3 + c];
+        stronger += wa < wb - 1e-6; /* the fast window attenuates more than the reference */
+        /* The reference stops once min E is within 1.5× the margin, which for a lone
+         * delta can happen right at t = 1 (w1 = ½, w2 = 0): it then over-windows; the
+         * Newton search finds the smallest window. Elsewhere they agree. */
+        int ref_at_t1 = band == 1 ? fabs(wb - 0.5) < 1e-7 : wb == 0.0;
+        if (fabs(wa - wb) > 5e-5) {
+          ASSERT_TRUE(ref_at_t1 && wa > wb);
+          ref_early += band == 1;
+          continue;
+        }
+        worst_dw = fmax(worst_dw, fabs(wa - wb));
+      }
+      double e0 = PI_D * 0.282095 * raw[c];
+      if (!(e0 > 0.0))
+        continue;
+      float mm[3];
+      ub_sh2_irradiance_min(a, mm);
+      double m = fmin(mm[c], dense_min(a, c, 300));
+      worst_min = fmin(worst_min, m / e0);
+      ASSERT_TRUE(m >= 0.0);
+    }
+  }
+  ASSERT_TRUE(stronger == 0);
+  printf("window fast vs reference, %d probes (%d windowed): max |w_fast - w_ref| %.2e "
+         "(%d channels where the reference stopped early at w2 = 0, fast keeps more), "
+         "worst min E / DC E %+.2e; %.2f us vs %.2f us per probe (x%.1f)\n",
+         trials, windowed, worst_dw, ref_early, worst_min, 1e6 * tf / trials,
+         1e6 * tr / trials, tr / tf);
+}
+
+/* The closed-form skip test E0 ≥ |b| + √(2/3)·‖M‖_F is exact for its worst case: M with
+ * eigenvalues (−2a, a, a) (a negative Y20 lobe about an axis) and b pointing along that
+ * axis, in any orientation. Build that SH in rotated frames a hair above and below the
+ * bound's threshold: above, ub_sh2_window leaves it unchanged and its exact minimum is
+ * still ≥ 0; below, it must window. */
+static void test_window_bound_worst_case(void)
+{
+  int skipped = 0, caught = 0;
+  double worst = HUGE_VAL;
+  for (int trial = 0; trial < 2000; trial++) {
+    float ax[3];
+    rnd_dir(ax);
+    /* radiance SH of E(n) = e0 + β·(ax·n) − 2a·(ax·n)² + a·(1 − (ax·n)²) … built from the
+     * basis: a Y20-type term about ax is Σ_m of the rotated l=2 functions; simplest
+     * exact route: project E's radiance through the basis at many directions is slow,
+     * so use the addition theorem: P2(ax·n) = 4π/5 Σ_m Y2m(ax) Y2m(n). */
+    float y[9];
+    ub_sh2_eval_basis(ax, y);
+    double a = 0.1 + rnd(), beta = 0.1 + 2.0 * rnd();
+    /* irradiance l=2 part: −2a·P2(ax·n) has eigenvalues (−2a, a, a) along ax; radiance
+     * coefficient = irradiance coefficient / Â_2; likewise l=1: −β·(ax·n) */
+    float sh[27];
+    ub_sh2_zero(sh);
+    for (int k = 4; k < 9; k++)
+      for (int c = 0; c < 3; c++)
+        sh[k * 3 + c] = (float)(-2.0 * a * (4.0 * PI_D / 5.0) * y[k] / (PI_D / 4.0));
+    for (int k = 1; k < 4; k++)
+      for (int c = 0; c < 3; c++)
+        sh[k * 3 + c] = (float)(-beta * (4.0 * PI_D / 3.0) * y[k] / (2.0 * PI_D / 3.0));
+    /* min over n = e0 − β − 2a at n = ax; the DC needed for the margin: */
+    double need = beta + 2.0 * a;
+    double e0 = need / (1.0 - 1e-5) * (trial & 1 ? 1.0 + 1e-4 : 1.0 - 1e-4);
+    for (int c = 0; c < 3; c++)
+      sh[c] = (float)(e0 / (PI_D * 0.282094791773878));
+    float before[27], mm[3];
+    memcpy(before, sh, sizeof before);
+    ub_sh2_irradiance_min(sh, mm);
+    ASSERT_NEAR(mm[0], e0 - need, 1e-4 * need, 0.0); /* the construction is right */
+    unsigned f = ub_sh2_window(sh);
+    if (trial & 1) {
+      ASSERT_TRUE(f == 0);
+      skipped += f == 0;
+    } else {
+      ASSERT_TRUE(f != 0);
+      caught += f != 0;
+    }
+    ub_sh2_irradiance_min(sh, mm);
+    worst = fmin(worst, mm[0] / e0);
+    ASSERT_TRUE(mm[0] >= 0.0f && mm[1] >= 0.0f && mm[2] >= 0.0f);
+  }
+  printf("window skip bound at its worst case (b along the -2a axis): %d above threshold "
+         "kept, %d below windowed; worst min E / DC E %+.2e\n", skipped, caught, worst);
+}
+
+/* Search for a probe the closed-form skip tests wrongly pass: random l=1/l=2 bands
+ * (including pure l=2, l=1 along an axis, degenerate and near-degenerate eigenvalues),
+ * the DC set a hair (1e-4) below what the exact minimum needs for the margin: every one
+ * must be windowed, and afterwards be non-negative; a hair above, none may go negative. */
+static void test_window_skip_search(void)
+{
+  int below_windowed = 0, above_kept = 0;
+  const int trials = 20000;
+  for (int trial = 0; trial < trials; trial++) {
+    float sh[27];
+    ub_sh2_zero(sh);
+    int kind = trial % 5;
+    for (int k = 1; k < 9; k++) {
+      double v = 2.0 * rnd() - 1.0;
+      if (kind == 1 && k < 4)
+        v = 0.0; /* pure l=2 */
+      if (kind == 2 && k != 2 && k < 4)
+        v = 0.0; /* l=1 along z */
+      if (kind == 3 && k >= 4 && k != 6)
+        v = 0.0; /* l=2 a Y20 lobe: eigenvalues (−2a, a, a) or (2a, −a, −a) */
+      if (kind == 4 && k >= 4)
+        v *= 1e-3; /* nearly no l=2 */
+      for (int c = 0; c < 3; c++)
+        sh[k * 3 + c] = (float)(v * (c + 1));
+    }
+    float m[3];
+    ub_sh2_irradiance_min(sh, m); /* DC = 0: the band part's minimum, < 0 */
+    int above = trial & 1;
+    for (int c = 0; c < 3; c++) {
+      double need = -m[c] / (1.0 - 1e-5); /* e0 reaching the margin exactly */
+      double e0 = need * (above ? 1.0 + 1e-4 : 1.0 - 1e-4);
+      sh[c] = (float)(e0 / (PI_D * 0.282094791773878));
+    }
+    float before[27];
+    memcpy(before, sh, sizeof before);
+    unsigned f = ub_sh2_window(sh);
+    if (!above) {
+      ASSERT_TRUE((f & 7u) == 7u);
+      below_windowed += (f & 7u) == 7u;
+    } else {
+      above_kept += f == 0;
+    }
+    ub_sh2_irradiance_min(sh, m);
+    ASSERT_TRUE(m[0] >= 0.0f && m[1] >= 0.0f && m[2] >= 0.0f);
+  }
+  printf("skip-test search, %d probes with DC 1e-4 around the exact need: %d of %d below "
+         "windowed, %d of %d above left unchanged\n", trials, below_windowed,
+         trials / 2, above_kept, trials / 2);
+}
+
 int main(void)
 {
   test_orthonormal();
@@ -345,5 +540,8 @@ int main(void)
   test_window_random();
   test_window_smooth();
   test_window_hostile();
+  test_window_fast_vs_reference();
+  test_window_bound_worst_case();
+  test_window_skip_search();
   TEST_MAIN_END();
 }

@@ -7,9 +7,12 @@
  * probes' SH barycentrically and convolves with the cosine lobe for a normal.
  *
  *   - Point location: walk from *inout_tet_cache across the face with the most negative
- *     barycentric (never straight back). If the cache is invalid (UB_GLG_NO_CACHE) or
- *     far from p, the walk starts from a coarse start grid built at init. After
- *     walk_cap steps (4·cbrt(tets) + 64) it falls back to a brute-force scan.
+ *     barycentric (never straight back); each tet's barycentric matrix and origin are
+ *     precomputed in a 64-byte record with its neighbours, so one step is one cache line.
+ *     If the cache is invalid (UB_GLG_NO_CACHE) or far from p (beyond two grid cells and
+ *     beyond 2 tet sizes), the walk starts from a start grid built at init (2 cells per
+ *     probe, each holding the tet at its centre). After walk_cap steps (4·cbrt(tets) +
+ *     64) it falls back to a brute-force scan.
  *   - Outside the probes' convex hull: p is projected onto the hull (closest point on the
  *     closest hull face, found by a local search over hull faces with a brute-force
  *     fallback) and interpolated there. Projection onto a convex set is continuous, so
@@ -30,6 +33,12 @@
  *     itself (sh_windowed = 1) the query skips it: a convex combination of windowed probes
  *     is already non-negative for every normal. ub_glg_sample returns the raw
  *     interpolation (radiance, as the LLG resample needs it).
+ *
+ *   - Speed: one query = the cached-tet test (or a walk), leak weights, a 4 × 27
+ *     interpolation (AVX when the CPU has it, else SSE2; the same bits) and the cosine
+ *     convolution. Random points are bound by the walk's dependent cache misses;
+ *     ub_glg_query_batch overlaps them across queries. Probe SH may be float or half
+ *     (sh_half, F16C; with a per-probe power-of-two exponent, 55 B/probe).
  *
  * Lifecycle: ub_glg_init builds the owned acceleration data; ub_glg_release frees it
  * (NULL-safe, idempotent). Borrowed arrays (positions, sh, tets, leak data) must
@@ -55,7 +64,13 @@ extern "C" {
 typedef struct ub_glg_desc {
   uint32_t probe_count;
   const float *positions; /* probe_count × 3, metres */
-  const float *sh;        /* probe_count × 27, radiance SH L2, W/(m²·sr), windowed */
+  const float *sh;        /* probe_count × 27, radiance SH L2, W/(m²·sr), windowed; or NULL
+                             when sh_half is given */
+  const uint16_t *sh_half; /* optional instead of sh: the same in IEEE half (54 B/probe;
+                             ~2^-11 relative rounding per coefficient) */
+  const int8_t *sh_half_exp; /* with sh_half, optional: probe q's values are
+                             sh_half·2^sh_half_exp[q] (55 B/probe: no subnormals in dark
+                             probes next to bright ones); NULL: exponent 0 */
   uint32_t tet_count;
   const uint32_t *tets;  /* tet_count × 4 probe indices (either orientation) */
   const int32_t *neigh;  /* tet_count × 4, neigh[4t+i] = tet opposite corner i, −1 on hull */
@@ -76,6 +91,8 @@ typedef struct ub_glg {
   uint32_t probe_count;
   const float *positions;
   const float *sh;
+  const uint16_t *sh_half; /* non-NULL: probes read from here instead of sh */
+  const int8_t *sh_half_exp;
   uint32_t tet_count;
   const uint32_t *tets;
   const uint8_t *corner_visible;
@@ -95,6 +112,7 @@ typedef struct ub_glg {
   uint32_t walk_cap;      /* steps before the brute-force fallback */
   uint32_t ill_tet_count; /* tets evaluated in double / singular */
   uint32_t singular_tet_count;
+  int simd;               /* 1: AVX (+F16C for sh_half) interpolation, checked at init */
 } ub_glg;
 
 /* Optional diagnostics of one locate. */
@@ -132,6 +150,13 @@ void ub_glg_sample(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
 void ub_glg_query(const ub_glg *g, const float p[3], const float n[3],
                   uint32_t *inout_tet_cache, float out_rgb[3]);
 
+/* count queries at once (points, normals: count × 3; out_rgb: count × 3), the same answers
+ * as count calls of ub_glg_query. inout_tet_caches: count caches (each as above) or NULL
+ * (every walk starts from the start grid). Many independent queries (particles, a frame's
+ * dynamic objects) go ~2–4× faster this way than one by one: their cache misses overlap. */
+void ub_glg_query_batch(const ub_glg *g, uint32_t count, const float *points,
+                        const float *normals, uint32_t *inout_tet_caches, float *out_rgb);
+
 /* Resamples the GLG at the nx × ny × nz grid points of an oriented box (the dynamic LLG
  * atlas of a moving object). Grid points span the box corner to corner:
  *   p(ix,iy,iz) = center + Σ_a s_a·half_extents[a]·axes[a], s_a = −1 + 2·i_a/(n_a − 1)
@@ -144,6 +169,21 @@ ub_result ub_glg_resample_llg(const ub_glg *g, const float center[3], const floa
 
 /* Bytes owned by g (per-tet records, flags, hull, start grid). */
 size_t ub_glg_owned_bytes(const ub_glg *g);
+
+/* What a query reads, in bytes, borrowed and owned (the run-time's other copies of the
+ * probe SH, e.g. the raw blend state, are the caller's to add). */
+typedef struct ub_glg_memory {
+  size_t positions;    /* probes × 12 (hull projection, badly shaped tets) */
+  size_t sh;           /* probes × 108 (float) or × 54 (half; + 1 with exponents) */
+  size_t walk_records; /* tets × 64: barycentric matrix, origin, neighbours */
+  size_t tet_corners;  /* tets × 16 (borrowed tets) */
+  size_t tet_flags;    /* tets × 1 */
+  size_t leak;         /* tets × (4 plane index + 1 sides) + planes × 16 (+ tets × 4 vis) */
+  size_t hull;         /* hull faces × 32 */
+  size_t start_grid;   /* cells × 4 */
+  size_t total;
+} ub_glg_memory;
+void ub_glg_memory_usage(const ub_glg *g, ub_glg_memory *out);
 
 #ifdef __cplusplus
 }

@@ -85,10 +85,18 @@ void ub_sh2_irradiance_min(const float sh[27], float out_min_rgb[3]);
  * a non-negative function, e.g. Monte Carlo noise, or a delta-like lobe whose minimum at
  * t = 1 is exactly 0), w2 = 0 and w1 goes from ½ down to what is needed (0 at worst).
  * A channel with DC < 0 or any non-finite coefficient is set to zero.
- * Cost: a cheap sufficient test (E0 ≥ |b| + ‖M‖_F) passes smooth SH in a few ns per
- * channel; otherwise an exact minimum (~1 µs) and, if windowing is needed, ~15 µs.
+ * Cost: two closed-form sufficient tests, E0 ≥ |b| + √(2/3)·‖M‖_F (M traceless; a few
+ * ns) and the trust-region dual at ≤ 4 points without an eigendecomposition (~50 ns),
+ * pass nearly every probe that needs no window; otherwise one exact minimum (~1 µs) and,
+ * if windowing is needed, a Newton search on the concave minimum-vs-window curve (~3
+ * more minima; phase 2 in closed form).
  * Returns UB_SH2_WINDOWED / UB_SH2_ZEROED bits (0 = unchanged). */
 unsigned ub_sh2_window(float sh[27]);
+
+/* The same window found by the original bracketing search (regula falsi / golden section,
+ * ~10–40 exact minima per channel) and the looser test E0 ≥ |b| + ‖M‖_F: the reference
+ * the tests compare ub_sh2_window with (the window parameter agrees to ~1e-7). */
+unsigned ub_sh2_window_reference(float sh[27]);
 
 #ifdef __cplusplus
 }
