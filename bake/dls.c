@@ -511,7 +511,8 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     out_stats->texels_candidate += nct;
     out_stats->probes_candidate += ncp;
     out_stats->llg_probes_candidate += ncl;
-    /* 1. Influence: direct + 2 bounces at a low sample count over the candidates. */
+    /* 1. Influence: direct + UB_DLS_INFLUENCE_BOUNCES bounces at a low sample count over
+     * the candidates. */
     ub_pass_desc pd = *base;
     pd.light_enabled = enabled;
     pd.emissive = 0;
@@ -519,7 +520,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     pd.gather_rays = plan->influence_rays;
     pd.probe_rays = 2 * plan->influence_rays;
     pd.shadow_samples = 1;
-    pd.bounces = 2;
+    pd.bounces = UB_DLS_INFLUENCE_BOUNCES;
     pd.pass_id = 2 + 2 * d;
     int sub = plan->influence_culling && !reach.unbounded;
     pd.texel_subset = sub ? ct : NULL;
@@ -528,7 +529,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     pd.probe_subset_count = ncp;
     pd.llg_subset = sub ? cl : NULL;
     pd.llg_subset_count = ncl;
-    pd.keep_bounce_iz = 2;
+    pd.keep_bounce_iz = UB_DLS_INFLUENCE_BOUNCES;
     pd.progress = NULL;
     double t0 = now_s();
     ub_pass_result inf;
@@ -537,16 +538,19 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
       break;
     out_stats->rays_influence += inf.rays_gather + inf.rays_shadow;
     out_stats->seconds_influence += now_s() - t0;
-    /* The rule sees direct + 2 bounces; the full pass runs until converged, and a texel
+    /* The rule sees direct + NB bounces; the full pass runs until converged, and a texel
      * far from the lights gets most of its light from the later bounces. Its indirect is
-     * extrapolated by the geometric tail of its own bounce 2 (ratio r = e2/e1 of the
-     * influence pass): est = I + B2·r/(1−r). (Without it, at full bounces estate_small's
+     * extrapolated by the geometric tail of its own last bounce (ratio r = e_NB/e_(NB−1)
+     * of the influence pass): est = I + B_NB·r/(1−r). (Without it, at full bounces estate_small's
      * hall sets lost 1.3-1.5% of their light to culling, above the 1% the rule means.) */
-    double r2 = inf.bounce_energy[1] > 0.0 ? inf.bounce_energy[2] / inf.bounce_energy[1] : 0.0;
+    const uint32_t NB = UB_DLS_INFLUENCE_BOUNCES;
+    double r2 = inf.bounce_energy[NB - 1] > 0.0 ? inf.bounce_energy[NB] / inf.bounce_energy[NB - 1]
+                                                : 0.0;
     r2 = r2 < 0.0 ? 0.0 : (r2 > 0.95 ? 0.95 : r2);
     double tail = r2 / (1.0 - r2);
-    const float *b2 = inf.texel_bounce_iz ? inf.texel_bounce_iz + (size_t)lm->texel_count * 3
-                                          : NULL;
+    const float *b2 = inf.texel_bounce_iz
+                          ? inf.texel_bounce_iz + (size_t)(NB - 1) * lm->texel_count * 3
+                          : NULL;
     float *est = malloc(((size_t)lm->texel_count + 1) * sizeof *est);
     if (!est) {
       ub_pass_result_free(&inf);
@@ -568,10 +572,10 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     double thr = lit ? UB_DLS_INFLUENCE_FRACTION * ind_sum / lit : 0.0;
     /* Probes: the same tail on their (DC) indirect, no per-probe bounce split: the
      * level's share of bounce 2 in the first two. */
-    double ptail = 1.0 + (inf.bounce_energy[1] + inf.bounce_energy[2] > 0.0
-                              ? tail * inf.bounce_energy[2] /
-                                    (inf.bounce_energy[1] + inf.bounce_energy[2])
-                              : 0.0);
+    double ind_e = 0.0;
+    for (uint32_t k = 1; k <= NB; k++)
+      ind_e += inf.bounce_energy[k];
+    double ptail = 1.0 + (ind_e > 0.0 ? tail * inf.bounce_energy[NB] / ind_e : 0.0);
     uint32_t nkt = 0, nkp = 0, nkl = 0;
     /* --plan all keeps every receiver (no culling), to measure what culling drops. */
     for (uint32_t t = 0; t < lm->texel_count; t++)
@@ -610,7 +614,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
      * bounces 1-2 (and its geometric tail) still lights the kept ones: without it, the
      * kept texels of estate_small's sets missed 0.5-1.5% of their light at full bounces. */
     pd.outside_bounce_iz = plan->influence_culling ? inf.texel_bounce_iz : NULL;
-    pd.outside_bounces = inf.texel_bounce_iz ? 2 : 0;
+    pd.outside_bounces = inf.texel_bounce_iz ? UB_DLS_INFLUENCE_BOUNCES : 0;
     pd.progress = NULL;
     t0 = now_s();
     ub_pass_result full;

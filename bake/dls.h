@@ -1,11 +1,13 @@
 /* bake/dls.h — dynamic light sets: one pass each, limited to the receivers they reach.
  *
  * UberBake §3.1–3.2: lights tagged `ubake_dls: NAME` are left out of the base bake. Each
- * set first runs a cheap influence pass (direct light + 2 bounces, few rays); the
- * receivers it keeps are those lit directly, or whose indirect light exceeds 1% of the
- * mean indirect light of the directly lit texels (GLG and LLG probes likewise: the record
+ * set first runs a cheap influence pass (direct light + UB_DLS_INFLUENCE_BOUNCES bounces,
+ * few rays; the paper has 2); the receivers it keeps are those lit directly, or whose
+ * indirect light (extrapolated past the last bounce by its geometric tail) exceeds 1% of
+ * the mean indirect light of the directly lit texels (GLG and LLG probes likewise: the record
  * carries the LLG probes it keeps, llg_probe_index/llg_probe_sh). The full-quality
- * pass then simulates only those receivers, and its result is stored as a sparse, linear
+ * pass then simulates only those receivers (the culled texels' influence-pass bounces
+ * still light them: ub_pass_desc.outside_bounce_iz), and its result is stored as a sparse, linear
  * record (ubake/bakefile.h). A set whose lights reach nothing is reported and costs
  * nothing more. The caller owns the records (ub_dls_records_free, NULL-safe).
  */
@@ -17,13 +19,17 @@
 #include "ubake/bakefile.h"
 
 #define UB_DLS_INFLUENCE_FRACTION 0.01 /* of the mean indirect of directly lit texels */
+/* Bounces of the influence pass (paper §3.2: 2). */
+#ifndef UB_DLS_INFLUENCE_BOUNCES
+#define UB_DLS_INFLUENCE_BOUNCES 4u
+#endif
 
 /* Reach bound (before the influence pass): a set's light can only arrive where its
  * photons can go. From each light of the set, UB_DLS_REACH_PHOTONS photons (point: the
  * sphere, spot: its outer cone, the first segment clipped at the glTF range) are traced
  * for UB_DLS_REACH_SEGMENTS segments (direct, then cosine bounces with albedo taken as 1,
  * so that no path is cut short: as many segments as the influence pass has light
- * transport steps: direct + 2 bounces), marking the coarse voxels their segments cross
+ * transport steps: direct + UB_DLS_INFLUENCE_BOUNCES bounces), marking the coarse voxels their segments cross
  * and, per voxel, the facing of the surfaces they hit. A texel (looked up a quarter cell
  * out along its normal) or a probe is a candidate when a voxel within one cell of it was
  * crossed or hit (so light may leak past walls thinner than a cell: conservative). Everything else is left out of the influence
@@ -33,7 +39,7 @@
  * max_p p·e^(−Np) = 1/(e·N) of the set's power per region (tests/test_plan.c measures the
  * bound against --plan all). A set with a directional light has no bound. */
 #define UB_DLS_REACH_PHOTONS 16384u /* per light */
-#define UB_DLS_REACH_SEGMENTS 3u
+#define UB_DLS_REACH_SEGMENTS (UB_DLS_INFLUENCE_BOUNCES + 1u)
 #define UB_DLS_REACH_CELLS 96u      /* voxels along the level's longest side */
 
 typedef struct ub_dls_reach {

@@ -356,9 +356,11 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
     }
     out->dls_candidates[d] = cand;
     double Tc = cand * T, Pc = cand * P;
-    /* influence: direct + 2 bounces on the candidates; full: the reachable share. */
+    /* influence: direct + UB_DLS_INFLUENCE_BOUNCES bounces on the candidates; full: the
+     * reachable share. */
     double inf = photon_rays + (Tc + Pc) * nlight +
-                 2.0 * (Tc * out->influence_rays + Pc * 2 * out->influence_rays);
+                 (double)UB_DLS_INFLUENCE_BOUNCES *
+                     (Tc * out->influence_rays + Pc * 2 * out->influence_rays);
     double frac = out->influence_culling ? fmin(cand, 1.2 * reach) : 1.0;
     double full = frac * ((T * out->shadow_samples + P) * nlight +
                           (T * out->gather_rays + P * out->probe_rays) * b);
