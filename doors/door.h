@@ -66,7 +66,8 @@ typedef struct ub_door_stats {
   uint32_t photons_deposited, boxes;     /* summed over doors */
   uint64_t rays_influence, rays_full, rays_photons;
   double seconds_influence, seconds_full;
-  uint64_t texels_kept, probes_kept;
+  uint64_t texels_kept, probes_kept, llg_probes_kept;
+  uint32_t combos_baked, combos_skipped; /* door × set combinations (ub_door_combine) */
 } ub_door_stats;
 
 /* One record per door (scene->door_count, kind UB_ELEMENT_DOOR, named after the door,
