@@ -10,6 +10,7 @@
 
 #include "bake/dls.h"
 #include "bake/geomstate.h"
+#include "doors/object.h"
 #include "probes/llg.h"
 #include "ubake/sh.h"
 
@@ -1000,4 +1001,117 @@ ub_result ub_door_bake(const ub_door_desc *dd, const ub_log *log,
   }
   *out_records = recs;
   return UB_OK;
+}
+
+/* Entries common to two ascending index lists. */
+static uint32_t common_count(const uint32_t *a, uint32_t na, const uint32_t *b, uint32_t nb)
+{
+  uint32_t i = 0, j = 0, n = 0;
+  while (i < na && j < nb) {
+    if (a[i] < b[j])
+      i++;
+    else if (a[i] > b[j])
+      j++;
+    else
+      n++, i++, j++;
+  }
+  return n;
+}
+
+ub_result ub_door_combine(const ub_door_desc *dd, ub_plan *plan,
+                          const ub_bakefile_record *dls, const ub_log *log,
+                          ub_bakefile_record **io_elems, uint32_t *io_count,
+                          ub_door_stats *io_stats)
+{
+  const ub_pass_desc *pd = dd->base;
+  const ub_scene *s = pd->scene;
+  const ub_lightmap *lm = pd->lightmap;
+  if (plan->combo_count == 0)
+    return UB_OK;
+  uint32_t T = lm->texel_count, P = pd->probe_count;
+  uint32_t L = pd->llg ? pd->llg->probe_count : 0;
+  door_work w;
+  float *iz = malloc(((size_t)T * 3 + 1) * sizeof *iz);
+  float *sh = malloc(((size_t)T * 12 + 1) * sizeof *sh);
+  uint8_t *lights = calloc(s->light_count + 1, 1);
+  ub_result r = UB_OK;
+  if (!work_alloc(&w, s, T, P, L) || !iz || !sh || !lights)
+    r = UB_ERR_OUT_OF_MEMORY;
+  for (uint32_t k = 0; k < plan->combo_count && r == UB_OK; k++) {
+    ub_plan_combo *pc = &plan->combos[k];
+    const char *dn = s->door_names[pc->door];
+    if (pc->set < 0 || !dls || (uint32_t)pc->set >= s->dls_count) {
+      io_stats->combos_skipped++;
+      ub_log_printf(log, UB_LOG_INFO, "  combination %s x %s: %s", dn, pc->name, pc->why);
+      continue;
+    }
+    /* The door's own record: elements [0, door_count) are the doors, in order. */
+    const ub_bakefile_record *drec = pc->door < *io_count ? &(*io_elems)[pc->door] : NULL;
+    const ub_bakefile_record *srec = &dls[pc->set];
+    if (!drec || drec->kind != UB_ELEMENT_DOOR || strcmp(drec->name, dn)) {
+      r = UB_ERR_INVALID_ARGUMENT;
+      break;
+    }
+    uint32_t ct = common_count(drec->texel_index, drec->texel_count, srec->texel_index,
+                               srec->texel_count);
+    uint32_t cp = common_count(drec->probe_index, drec->probe_count, srec->probe_index,
+                               srec->probe_count);
+    uint32_t cl = common_count(drec->llg_probe_index, drec->llg_probe_count,
+                               srec->llg_probe_index, srec->llg_probe_count);
+    if (ct + cp + cl == 0) {
+      pc->baked = 0;
+      snprintf(pc->why, sizeof pc->why, "skipped: tagged, but the influence regions do not "
+               "overlap (door %u / set %u pixels, %u / %u probes)", drec->texel_count,
+               srec->texel_count, drec->probe_count, srec->probe_count);
+      io_stats->combos_skipped++;
+      ub_log_printf(log, UB_LOG_INFO, "  combination %s x %s: %s", dn, pc->name, pc->why);
+      continue;
+    }
+    /* L_set(open) − L_set(closed): the door pass with the set's lights, reading the set's
+     * stored lighting (its record) where the base pass reads the base. */
+    ub_record_texel_iz(lm, srec, iz, sh);
+    float **img = NULL;
+    r = build_images(lm, iz, &img);
+    for (uint32_t l = 0; l < s->light_count; l++)
+      lights[l] = s->lights[l].dls == pc->set && plan->dls_light_reaches[l];
+    ub_bakefile_record rec;
+    memset(&rec, 0, sizeof rec);
+    snprintf(rec.name, sizeof rec.name, "%.30s*%.30s", s->dls_names[pc->set], dn);
+    rec.kind = UB_ELEMENT_COMBO;
+    rec.parent[0] = pc->set;
+    rec.parent[1] = (int32_t)(s->dls_count + pc->door);
+    if (r == UB_OK) {
+      door_job jb = {pc->door, lights, 0, 0, img,
+                     0x10000u * (1u + ((uint32_t)pc->set & 0x1FFu))};
+      r = door_one(dd, &jb, &w, log, &rec, io_stats);
+    }
+    for (uint32_t a = 0; img && a < lm->atlas_count; a++)
+      free(img[a]);
+    free(img);
+    int empty = !rec.texel_count && !rec.probe_count && !rec.llg_probe_count;
+    if (r == UB_OK && !empty)
+      r = ub_records_append(io_elems, io_count, &rec, 1);
+    if (r != UB_OK || empty) {
+      free(rec.texel_index), free(rec.texel_sh), free(rec.probe_index), free(rec.probe_sh);
+      free(rec.llg_probe_index), free(rec.llg_probe_sh);
+      if (r != UB_OK)
+        break;
+    }
+    pc->baked = !empty;
+    snprintf(pc->why, sizeof pc->why, "%s: tagged, influence regions overlap in %u texel "
+             "pixels, %u probes, %u LLG probes%s", empty ? "skipped" : "baked", ct, cp, cl,
+             empty ? ", but the correction is empty" : "");
+    if (empty)
+      io_stats->combos_skipped++;
+    else
+      io_stats->combos_baked++;
+    ub_log_printf(log, UB_LOG_INFO, "  combination %s x %s: %s (record %u pixels, %u "
+                  "probes, %u LLG probes)", dn, pc->name, pc->why, rec.texel_count,
+                  rec.probe_count, rec.llg_probe_count);
+  }
+  work_free(&w, lm);
+  free(iz);
+  free(sh);
+  free(lights);
+  return r;
 }

@@ -41,6 +41,7 @@
 #include <stdint.h>
 
 #include "bake/pass.h"
+#include "bake/plan.h"
 #include "doors/guide.h"
 #include "ubake/bakefile.h"
 
@@ -74,5 +75,20 @@ typedef struct ub_door_stats {
  * parents -1; empty for a door without closed-leaf triangles). */
 ub_result ub_door_bake(const ub_door_desc *dd, const ub_log *log,
                        ub_bakefile_record **out_records, ub_door_stats *out_stats);
+
+/* Door × set combinations (issue 5 item 4; the paper's Fig. 9): for each candidate in
+ * plan->combos (a set named by the door's `ubake_combine` tag) whose influence region
+ * overlaps the door's (the door record and the set record share a texel pixel, a GLG
+ * probe or an LLG probe), bakes the product correction
+ *   C = L(both) − L(door only) − L(set only) + L(neither) = L_set(open) − L_set(closed)
+ * by the door pass with the set's lights and the set's stored lighting (its record) in
+ * place of the base's: one COMBO record, parents (set, dls_count + door), applied by the
+ * run-time with w_set · t_door. *io_elems must start with the door_count door records of
+ * ub_door_bake (in order); call it after the objects (combinations come last in the
+ * element list). Fills each combo's baked/why and logs one line per candidate. */
+ub_result ub_door_combine(const ub_door_desc *dd, ub_plan *plan,
+                          const ub_bakefile_record *dls, const ub_log *log,
+                          ub_bakefile_record **io_elems, uint32_t *io_count,
+                          ub_door_stats *io_stats);
 
 #endif

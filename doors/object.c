@@ -742,8 +742,7 @@ ub_result ub_records_append(ub_bakefile_record **io_elems, uint32_t *io_count,
   return UB_OK;
 }
 
-/* Per-texel irradiance along the normal of a set's record (pixel SH → texel). */
-static void record_texel_iz(const ub_lightmap *lm, const ub_bakefile_record *rec, float *out,
+void ub_record_texel_iz(const ub_lightmap *lm, const ub_bakefile_record *rec, float *out,
                             float *out_sh)
 {
   memset(out, 0, (size_t)lm->texel_count * 3 * sizeof(float));
@@ -1041,7 +1040,7 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
     }
     if (!nl)
       continue;
-    record_texel_iz(lm, sr, scratch, scratch_sh);
+    ub_record_texel_iz(lm, sr, scratch, scratch_sh);
     field ls_set = {0, NULL};
     if (!field_build(lm, scratch, &ls_set)) {
       r = UB_ERR_OUT_OF_MEMORY;

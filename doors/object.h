@@ -78,6 +78,12 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
                          const ub_log *log, ub_bakefile_record **io_elems, uint32_t *io_count,
                          ub_object_stats *out_stats);
 
+/* Per-texel irradiance along the normal (out: texel_count × 3, W/m²) and SH (out_sh:
+ * texel_count × 12) of a sparse record (its pixel SH read at each texel's pixel; 0 where
+ * the record has none). */
+void ub_record_texel_iz(const ub_lightmap *lm, const ub_bakefile_record *rec, float *out,
+                        float *out_sh);
+
 /* Appends n records (moved: the caller must not free their arrays) to an element array. */
 ub_result ub_records_append(ub_bakefile_record **io_elems, uint32_t *io_count,
                             const ub_bakefile_record *add, uint32_t n);
