@@ -28,7 +28,10 @@
  * from the box centre, plus the half diagonal) and a box corner lies above the texel's
  * horizon (it can see the object). The object's own texels are never in its record.
  * After the pass a candidate is kept when |D| (luminance) > UB_OBJ_KEEP × its base
- * lighting. Not simulated: LLG probes, and gather hits on LLG-lit models (read as 0).
+ * lighting. LLG probes are receivers of the object's own record (candidates like GLG
+ * probes, rays against the level without LLG models, kept like GLG probes against the
+ * base grid; not for an object that is itself an LLG model); pair and set × object
+ * combinations have none. Not simulated: gather hits on LLG-lit models (read as 0).
  *
  * Combinations (kind UB_ELEMENT_COMBO, appended after the objects):
  *  - pairwise shadow correction (paper Fig. 17): for objects a, b whose records overlap
