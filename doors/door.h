@@ -1,36 +1,41 @@
-/* doors/door.h — the door pass: what a door adds to the base when it opens (UberBake §4).
+/* doors/door.h — the door pass: what a door changes in the base when it opens (UberBake
+ * §4, with the closed-door bounce of its §6.2).
  *
- * The base bake sees every closed leaf as black (bake/geomstate.h), so no base path crosses
- * it. A door's record is S_P = lighting(this door open) − lighting(base), restricted to the
- * paths the closed leaf blocks. Formulation (per door, other doors closed):
+ * The base bake sees every closed leaf with its albedo, lightmapped (bake/geomstate.h): no
+ * base path crosses it, light bounces off it (S_C). A door's record is
+ * S_O − S_C = lighting(this door open) − lighting(base). Formulation (per door, other
+ * doors closed):
  *   rt_open = the base geometry − this closed leaf + this leaf's open pose (if any);
  *   rt_leaf = this closed leaf alone.
- * A ray segment "crosses the door" when rt_leaf occludes it. At each receiver x:
- *  (a) through the door, L_x D* P R: gather rays that cross the door take, at the first
- *      open-geometry hit X, the base bake's stored outgoing radiance there (albedo/π ×
- *      stored irradiance at X, bilinear from the base lightmap) + albedo/π × the direct
- *      light of primary lights at X (not stored in the base) + emission, or the sky on a
- *      miss;
- *  (b) one bounce inside, L_x P D R (+ L_x D+ P D R): gather rays that do not cross the
- *      door and hit D take albedo/π × E_P(D), E_P = light at D that crosses the door:
- *      punctual lights (shadow ray crosses the leaf, open geometry clear) + one portal
- *      sample of (a) at D (sky or the base's stored radiance beyond);
+ * A ray segment "crosses the door" when rt_leaf intersects it. What a crossing ray adds is
+ * what it sees open minus what it saw on the leaf:
+ *   beyond − leaf = [albedo/π × (stored irradiance at the first open-geometry hit X,
+ *   bilinear from the base lightmap, + primary lights' direct light at X) + emission, or
+ *   the sky on a miss] − [albedo/π × (the leaf's stored irradiance + primary direct) +
+ *   emission at the leaf hit].
+ * At each receiver x:
+ *  (a) through the door, L_x D* P R (and −S_C's first bounce): gather rays that cross;
+ *  (b) one bounce inside, L_x P D R: gather rays that do not cross and hit D take albedo/π
+ *      × E(D), E = light at D that crosses the door: punctual lights (shadow ray crosses
+ *      the leaf, open geometry clear) + one portal sample of beyond − leaf;
  *  (c) static punctual lights at x whose shadow ray crosses the door (primary lights'
- *      direct light is the game's).
+ *      direct light is the game's);
+ *  then further receiver-side bounces (series expansion over the kept texels).
  * (a) and (b) share one set of gather rays from one guide mixture (doors/guide.h):
  * cosine (uniform sphere for probes) + the portal box (the closed leaf's OBB) + up to
  * UB_DOOR_MAX_BOXES boxes around the shadow photons (points of the receiver side lit
- * through the door), one-sample MIS with the balance heuristic. Every term is ≥ 0.
+ * through the door), one-sample MIS with the balance heuristic. Records are signed.
+ * Receivers: texels (not the door's own leaf: it keeps its closed lighting), GLG probes
+ * and LLG probes (rays against the level without LLG models, door open, as the LLG pass).
  * Not simulated: the shadow the open leaf casts on paths that never cross the doorway,
- * light bouncing on the receiver side more than once, light the receiver side sends back
- * out through the door, and stored base light on geometry without a lightmap (LLG
- * models, the open leaf): there only primary direct light and emission are used.
+ * light the receiver side sends back out through the door, the leaf's far-side bounce in
+ * the stored light beyond (gone when open), stored base light on geometry without a
+ * lightmap (LLG models, the open leaf): there only primary direct light and emission.
  *
  * Influence region: a cheap version of the pass (influence_rays, one shadow sample) over
- * every texel and GLG probe; a receiver is kept when its luminance exceeds
- * UB_DOOR_INFLUENCE_FRACTION × the mean over the receivers it reached (texels and probes
- * each with their own mean). Only kept receivers are simulated at full quality and stored.
- * LLG probes are not touched by door records yet.
+ * every receiver; one is kept when |luminance| exceeds UB_DOOR_INFLUENCE_FRACTION × the
+ * mean over the receivers it reached (texels, GLG and LLG probes each with their own
+ * mean). Only kept receivers are simulated at full quality and stored.
  *
  * Determinism: random numbers are ub_hash4 of (seed, pass, receiver, sample).
  * Ownership: the caller frees the records with ub_dls_records_free (bake/dls.h).
