@@ -381,7 +381,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
     r = ub_door_combine(&dd, &plan, dls, log, &elems, &elem_count, &cs);
     if (r != UB_OK)
       goto fail;
-    stage_end(&sc, "%u door x set combination(s) baked, %u skipped; %.1f M rays %.2f s",
+    stage_end(&sc, "%u combination(s) baked, %u skipped; %.1f M rays %.2f s",
               cs.combos_baked, cs.combos_skipped, (cs.rays_influence + cs.rays_full) * 1e-6,
               cs.seconds_influence + cs.seconds_full);
   }

@@ -116,21 +116,29 @@ static ub_result plan_combos(const ub_scene *s, const uint8_t *set_reaches, ub_p
       c += out->combo_count++;
       memset(c, 0, sizeof *c);
       c->door = (uint32_t)nd->door;
-      c->set = -1;
+      c->set = c->other = -1;
       snprintf(c->name, sizeof c->name, "%s", name);
       for (uint32_t d = 0; d < s->dls_count; d++)
         if (!strcmp(s->dls_names[d], name))
           c->set = (int32_t)d;
-      int is_door = 0;
-      for (uint32_t d = 0; d < s->door_count; d++)
-        is_door |= !strcmp(s->door_names[d], name);
+      for (uint32_t d = 0; c->set < 0 && d < s->door_count; d++)
+        if (!strcmp(s->door_names[d], name))
+          c->other = (int32_t)d;
+      int listed = 0; /* the same pair tagged on the other door */
+      for (uint32_t k = 0; c->other >= 0 && k + 1 < out->combo_count; k++)
+        listed |= out->combos[k].door == (uint32_t)c->other &&
+                  out->combos[k].other == nd->door;
       if (c->set >= 0 && !set_reaches[c->set])
         snprintf(c->why, sizeof c->why, "skipped: set %s reaches no receiver", name);
       else if (c->set >= 0)
         snprintf(c->why, sizeof c->why, "tagged: baked if the influence regions overlap");
-      else if (is_door)
-        snprintf(c->why, sizeof c->why, "skipped: door x door combinations are not "
-                 "implemented (the doors' records are summed)");
+      else if (c->other == nd->door)
+        c->other = -1, snprintf(c->why, sizeof c->why, "skipped: a door with itself");
+      else if (listed)
+        c->other = -1, snprintf(c->why, sizeof c->why, "skipped: already listed as door %s "
+                                "x %s", name, s->door_names[nd->door]);
+      else if (c->other >= 0)
+        snprintf(c->why, sizeof c->why, "tagged: baked if the influence regions overlap");
       else
         snprintf(c->why, sizeof c->why, "skipped: %s is not a dynamic light set or a door",
                  name);

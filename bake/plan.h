@@ -23,11 +23,13 @@ typedef enum ub_light_skip {
 } ub_light_skip;
 
 /* A combination the level asks for (`ubake_combine` on a door's closed leaf, README):
- * door × set, baked as one product-correction record when the two influence regions
- * overlap (doors/door.h, ub_door_combine). */
+ * door × set or door × door, baked as one product-correction record when the two
+ * influence regions overlap (doors/door.h, ub_door_combine). Neither a set nor another
+ * door (or a pair already listed): never baked, `why` says so. */
 typedef struct ub_plan_combo {
   uint32_t door;    /* the tagged door */
-  int32_t set;      /* dynamic light set, -1 = the name is not a set (never baked) */
+  int32_t set;      /* dynamic light set, -1 = the name is not a set */
+  int32_t other;    /* the other door of a door × door pair, -1 = none */
   char name[64];    /* the name as tagged */
   int baked;        /* set by the door-combination stage: 1 baked, 0 skipped */
   char why[192];    /* reason, for the log and the report */

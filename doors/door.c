@@ -672,6 +672,15 @@ typedef struct door_job {
   int sky, emissive;
   float **img;           /* per atlas: stored irradiance of these emitters, door closed */
   uint32_t pass_base;    /* added to every pass id (0: the door's own record) */
+  /* door × door: another door open in every geometry of the pass (UINT32_MAX: none) and
+   * the base geometry with it open (NULL: pd->rt) */
+  uint32_t other_open;
+  const ub_rt *rt_base;
+  /* fixed = 1: no influence pass, the receivers are w->kt/kp/kl[0, nkt/nkp/nkl) as
+   * given; no_record = 1: results left in w->t12/p27/l27. Out: the kept counts. */
+  int fixed, no_record;
+  uint32_t nkt, nkp, nkl;
+  const char *label;     /* log label ("door", "combination") */
 } door_job;
 
 /* Sorted kept lists → the record's sparse arrays (probes and LLG probes). */
@@ -714,7 +723,7 @@ static double keep_influenced(const float *val, uint32_t n, const uint8_t *skip,
   return thr;
 }
 
-static ub_result door_one(const ub_door_desc *dd, const door_job *jb, door_work *w,
+static ub_result door_one(const ub_door_desc *dd, door_job *jb, door_work *w,
                           const ub_log *log, ub_bakefile_record *rec, ub_door_stats *st)
 {
   const ub_pass_desc *pd = dd->base;
@@ -756,6 +765,8 @@ static ub_result door_one(const ub_door_desc *dd, const door_job *jb, door_work 
   free(pts);
   memset(w->open, 0, s->door_count + 1);
   w->open[d] = 1;
+  if (jb->other_open < s->door_count)
+    w->open[jb->other_open] = 1;
   ub_geom_state gs = {w->open, NULL};
   uint8_t *open_mask = ub_geom_mask(s, &gs);
   ub_rt *rt_open = NULL, *rt_leaf = NULL, *rt_env = NULL;
@@ -784,7 +795,7 @@ static ub_result door_one(const ub_door_desc *dd, const door_job *jb, door_work 
   }
   c.rt_open = rt_open;
   c.rt_leaf = rt_leaf;
-  c.rt_base = pd->rt;
+  c.rt_base = jb->rt_base ? jb->rt_base : pd->rt;
   door_ctx ce = c; /* LLG probes: the same, rays against the level without LLG models */
   ce.rt_open = rt_env;
   /* Shadow photons → boxes, light lists. */
@@ -838,7 +849,7 @@ static ub_result door_one(const ub_door_desc *dd, const door_job *jb, door_work 
     skip_l[q] = llg->probe_valid && !llg->probe_valid[q];
   uint32_t nkt = 0, nkp = 0, nkl = 0;
   c.pass_id = ce.pass_id = jb->pass_base + 0x1000u + 2u * d;
-  int cull = dd->influence_rays > 0;
+  int cull = dd->influence_rays > 0 && !jb->fixed;
   if (cull) {
     run_texels(&c, NULL, T, dd->influence_rays, 1, NULL, w->tval, NULL, NULL);
     run_probes(&c, pd->probe_pos, PROBE_ID_BASE, NULL, P, 2 * dd->influence_rays, 1, NULL,
@@ -847,9 +858,15 @@ static ub_result door_one(const ub_door_desc *dd, const door_job *jb, door_work 
       run_probes(&ce, llg->probe_pos, LLG_ID_BASE, NULL, L, 2 * dd->influence_rays, 1, NULL,
                  w->lval);
   }
-  double thr_t = keep_influenced(cull ? w->tval : NULL, T, skip_t, w->kt, &nkt);
-  keep_influenced(cull ? w->pval : NULL, P, NULL, w->kp, &nkp);
-  keep_influenced(cull ? w->lval : NULL, L, skip_l, w->kl, &nkl);
+  double thr_t = 0.0;
+  if (jb->fixed) {
+    nkt = jb->nkt, nkp = jb->nkp, nkl = jb->nkl;
+  } else {
+    thr_t = keep_influenced(cull ? w->tval : NULL, T, skip_t, w->kt, &nkt);
+    keep_influenced(cull ? w->pval : NULL, P, NULL, w->kp, &nkp);
+    keep_influenced(cull ? w->lval : NULL, L, skip_l, w->kl, &nkl);
+  }
+  jb->nkt = nkt, jb->nkp = nkp, jb->nkl = nkl;
   free(skip_t);
   free(skip_l);
   uint64_t rays1 = RAYS_NOW();
@@ -926,12 +943,13 @@ static ub_result door_one(const ub_door_desc *dd, const door_job *jb, door_work 
   if (r == UB_OK) {
     st->rays_full += RAYS_NOW() - rays1;
     st->seconds_full += now_s() - t1;
-    r = ub_dls_texel_record(lm, w->kt, nkt, w->t12, rec);
+    if (!jb->no_record)
+      r = ub_dls_texel_record(lm, w->kt, nkt, w->t12, rec);
   }
 #undef RAYS_NOW
-  if (r == UB_OK)
+  if (r == UB_OK && !jb->no_record)
     r = probe_record(w->kp, nkp, w->p27, &rec->probe_count, &rec->probe_index, &rec->probe_sh);
-  if (r == UB_OK)
+  if (r == UB_OK && !jb->no_record)
     r = probe_record(w->kl, nkl, w->l27, &rec->llg_probe_count, &rec->llg_probe_index,
                      &rec->llg_probe_sh);
   if (r == UB_OK) {
@@ -946,7 +964,7 @@ static ub_result door_one(const ub_door_desc *dd, const door_job *jb, door_work 
                   "%u light(s) reach the portal; %u of %u texels, %u of %u probes and %u of "
                   "%u LLG probes in its influence (threshold %.3g W/m²), %u bounce(s) inside, "
                   "record %u pixels",
-                  jb->pass_base ? "combination" : "door", rec->name, nleaf, landed, dd->photons,
+                  jb->label ? jb->label : "door", rec->name, nleaf, landed, dd->photons,
                   c.nbox, nlist, nkt, T, nkp, P, nkl, L, thr_t, nb, rec->texel_count);
   }
   free(c.box_lights);
@@ -986,7 +1004,8 @@ ub_result ub_door_bake(const ub_door_desc *dd, const ub_log *log,
       ub_log_printf(log, UB_LOG_INFO, "  door %-16s: no closed leaf: skipped", rec->name);
       continue;
     }
-    door_job jb = {d, pd->light_enabled, pd->sky, pd->emissive, img, 0};
+    door_job jb = {d, pd->light_enabled, pd->sky, pd->emissive, img, 0, UINT32_MAX, NULL,
+                   0, 0, 0, 0, 0, "door"};
     r = door_one(dd, &jb, &w, log, rec, out_stats);
     if (r == UB_OK)
       out_stats->doors_baked++;
@@ -1018,6 +1037,133 @@ static uint32_t common_count(const uint32_t *a, uint32_t na, const uint32_t *b, 
   return n;
 }
 
+/* Door × door (a = pc->door, b = pc->other): C = L(both) − L(a) − L(b) + L(none) =
+ * S_a|b open − S_a. Door a's pass runs twice with the same random numbers as its own
+ * record (correlated, so the difference is low-noise): in the state "b open" (b's closed
+ * leaf gone, its open pose in, the stored lighting base + b's record) with its own
+ * influence, then in the base state over the same receivers. */
+static ub_result door_pair(const ub_door_desc *dd, ub_plan_combo *pc, const ub_log *log,
+                           door_work *w, ub_bakefile_record **io_elems, uint32_t *io_count,
+                           ub_door_stats *st)
+{
+  const ub_pass_desc *pd = dd->base;
+  const ub_scene *s = pd->scene;
+  const ub_lightmap *lm = pd->lightmap;
+  uint32_t a = pc->door, b = (uint32_t)pc->other;
+  uint32_t T = lm->texel_count, P = pd->probe_count;
+  uint32_t L = pd->llg ? pd->llg->probe_count : 0;
+  if (a >= *io_count || b >= *io_count || (*io_elems)[a].kind != UB_ELEMENT_DOOR ||
+      (*io_elems)[b].kind != UB_ELEMENT_DOOR)
+    return UB_ERR_INVALID_ARGUMENT;
+  const ub_bakefile_record *ra = &(*io_elems)[a], *rb = &(*io_elems)[b];
+  uint32_t ct = common_count(ra->texel_index, ra->texel_count, rb->texel_index, rb->texel_count);
+  uint32_t cp = common_count(ra->probe_index, ra->probe_count, rb->probe_index, rb->probe_count);
+  uint32_t cl = common_count(ra->llg_probe_index, ra->llg_probe_count, rb->llg_probe_index,
+                             rb->llg_probe_count);
+  if (ct + cp + cl == 0) {
+    pc->baked = 0;
+    snprintf(pc->why, sizeof pc->why, "skipped: tagged, but the influence regions do not "
+             "overlap (door %u / door %u pixels)", ra->texel_count, rb->texel_count);
+    st->combos_skipped++;
+    ub_log_printf(log, UB_LOG_INFO, "  combination %s x %s: %s", s->door_names[a], pc->name,
+                  pc->why);
+    return UB_OK;
+  }
+  float *iz = malloc(((size_t)T * 3 + 1) * sizeof *iz);
+  float *sh = malloc(((size_t)T * 12 + 1) * sizeof *sh);
+  float *c12 = malloc(((size_t)T * 12 + 1) * sizeof *c12);
+  float *c27 = malloc(((size_t)P * 27 + 1) * sizeof *c27);
+  float *cl27 = malloc(((size_t)L * 27 + 1) * sizeof *cl27);
+  uint8_t *mask = NULL;
+  float **img_b = NULL, **img_0 = NULL;
+  ub_rt *rt_b = NULL;
+  ub_bakefile_record rec;
+  memset(&rec, 0, sizeof rec);
+  ub_result r = iz && sh && c12 && c27 && cl27 ? UB_OK : UB_ERR_OUT_OF_MEMORY;
+  if (r == UB_OK) {
+    ub_record_texel_iz(lm, rb, iz, sh);
+    for (size_t i = 0; i < (size_t)T * 3; i++)
+      iz[i] += dd->base_result->iz[i];
+    r = build_images(lm, iz, &img_b);
+  }
+  if (r == UB_OK)
+    r = build_images(lm, dd->base_result->iz, &img_0);
+  if (r == UB_OK) {
+    memset(w->open, 0, s->door_count + 1);
+    w->open[b] = 1;
+    ub_geom_state gs = {w->open, NULL};
+    mask = ub_geom_mask(s, &gs);
+    r = mask ? ub_rt_create(s, mask, log, &rt_b) : UB_ERR_OUT_OF_MEMORY;
+  }
+  snprintf(rec.name, sizeof rec.name, "%.30s*%.30s", s->door_names[a], s->door_names[b]);
+  rec.kind = UB_ELEMENT_COMBO;
+  rec.parent[0] = (int32_t)(s->dls_count + a);
+  rec.parent[1] = (int32_t)(s->dls_count + b);
+  door_job jb = {a, pd->light_enabled, pd->sky, pd->emissive, img_b, 0, b, rt_b,
+                 0, 1, 0, 0, 0, "combination"};
+  if (r == UB_OK)
+    r = door_one(dd, &jb, w, log, &rec, st);
+  if (r == UB_OK) {
+    for (uint32_t i = 0; i < jb.nkt; i++)
+      memcpy(c12 + 12 * (size_t)w->kt[i], w->t12 + 12 * (size_t)w->kt[i], 12 * sizeof(float));
+    for (uint32_t i = 0; i < jb.nkp; i++)
+      memcpy(c27 + 27 * (size_t)w->kp[i], w->p27 + 27 * (size_t)w->kp[i], 27 * sizeof(float));
+    for (uint32_t i = 0; i < jb.nkl; i++)
+      memcpy(cl27 + 27 * (size_t)w->kl[i], w->l27 + 27 * (size_t)w->kl[i], 27 * sizeof(float));
+    door_job j0 = {a, pd->light_enabled, pd->sky, pd->emissive, img_0, 0, UINT32_MAX, NULL,
+                   1, 1, jb.nkt, jb.nkp, jb.nkl, "combination base"};
+    r = door_one(dd, &j0, w, log, &rec, st);
+  }
+  if (r == UB_OK) {
+    for (uint32_t i = 0; i < jb.nkt; i++)
+      for (int k = 0; k < 12; k++)
+        c12[12 * (size_t)w->kt[i] + k] -= w->t12[12 * (size_t)w->kt[i] + k];
+    for (uint32_t i = 0; i < jb.nkp; i++)
+      for (int k = 0; k < 27; k++)
+        c27[27 * (size_t)w->kp[i] + k] -= w->p27[27 * (size_t)w->kp[i] + k];
+    for (uint32_t i = 0; i < jb.nkl; i++)
+      for (int k = 0; k < 27; k++)
+        cl27[27 * (size_t)w->kl[i] + k] -= w->l27[27 * (size_t)w->kl[i] + k];
+    r = ub_dls_texel_record(lm, w->kt, jb.nkt, c12, &rec);
+  }
+  if (r == UB_OK)
+    r = probe_record(w->kp, jb.nkp, c27, &rec.probe_count, &rec.probe_index, &rec.probe_sh);
+  if (r == UB_OK)
+    r = probe_record(w->kl, jb.nkl, cl27, &rec.llg_probe_count, &rec.llg_probe_index,
+                     &rec.llg_probe_sh);
+  int empty = !rec.texel_count && !rec.probe_count && !rec.llg_probe_count;
+  if (r == UB_OK && !empty)
+    r = ub_records_append(io_elems, io_count, &rec, 1);
+  if (r != UB_OK || empty) {
+    free(rec.texel_index), free(rec.texel_sh), free(rec.probe_index), free(rec.probe_sh);
+    free(rec.llg_probe_index), free(rec.llg_probe_sh);
+  }
+  if (r == UB_OK) {
+    pc->baked = !empty;
+    snprintf(pc->why, sizeof pc->why, "%s: tagged, influence regions overlap in %u texel "
+             "pixels, %u probes, %u LLG probes%s", empty ? "skipped" : "baked", ct, cp, cl,
+             empty ? ", but the correction is empty" : "");
+    if (empty)
+      st->combos_skipped++;
+    else
+      st->combos_baked++;
+    ub_log_printf(log, UB_LOG_INFO, "  combination %s x %s: %s (record %u pixels, %u "
+                  "probes, %u LLG probes)", s->door_names[a], pc->name, pc->why,
+                  empty ? 0 : rec.texel_count, empty ? 0 : rec.probe_count,
+                  empty ? 0 : rec.llg_probe_count);
+  }
+  for (uint32_t k = 0; k < lm->atlas_count; k++) {
+    if (img_b)
+      free(img_b[k]);
+    if (img_0)
+      free(img_0[k]);
+  }
+  free(img_b), free(img_0), free(mask);
+  ub_rt_free(rt_b);
+  free(iz), free(sh), free(c12), free(c27), free(cl27);
+  return r;
+}
+
 ub_result ub_door_combine(const ub_door_desc *dd, ub_plan *plan,
                           const ub_bakefile_record *dls, const ub_log *log,
                           ub_bakefile_record **io_elems, uint32_t *io_count,
@@ -1040,6 +1186,10 @@ ub_result ub_door_combine(const ub_door_desc *dd, ub_plan *plan,
   for (uint32_t k = 0; k < plan->combo_count && r == UB_OK; k++) {
     ub_plan_combo *pc = &plan->combos[k];
     const char *dn = s->door_names[pc->door];
+    if (pc->other >= 0 && (uint32_t)pc->other < s->door_count) {
+      r = door_pair(dd, pc, log, &w, io_elems, io_count, io_stats);
+      continue;
+    }
     if (pc->set < 0 || !dls || (uint32_t)pc->set >= s->dls_count) {
       io_stats->combos_skipped++;
       ub_log_printf(log, UB_LOG_INFO, "  combination %s x %s: %s", dn, pc->name, pc->why);
@@ -1082,7 +1232,8 @@ ub_result ub_door_combine(const ub_door_desc *dd, ub_plan *plan,
     rec.parent[1] = (int32_t)(s->dls_count + pc->door);
     if (r == UB_OK) {
       door_job jb = {pc->door, lights, 0, 0, img,
-                     0x10000u * (1u + ((uint32_t)pc->set & 0x1FFu))};
+                     0x10000u * (1u + ((uint32_t)pc->set & 0x1FFu)), UINT32_MAX, NULL, 0, 0,
+                     0, 0, 0, "combination"};
       r = door_one(dd, &jb, &w, log, &rec, io_stats);
     }
     for (uint32_t a = 0; img && a < lm->atlas_count; a++)

@@ -81,14 +81,18 @@ typedef struct ub_door_stats {
 ub_result ub_door_bake(const ub_door_desc *dd, const ub_log *log,
                        ub_bakefile_record **out_records, ub_door_stats *out_stats);
 
-/* Door × set combinations (issue 5 item 4; the paper's Fig. 9): for each candidate in
- * plan->combos (a set named by the door's `ubake_combine` tag) whose influence region
- * overlaps the door's (the door record and the set record share a texel pixel, a GLG
- * probe or an LLG probe), bakes the product correction
- *   C = L(both) − L(door only) − L(set only) + L(neither) = L_set(open) − L_set(closed)
- * by the door pass with the set's lights and the set's stored lighting (its record) in
- * place of the base's: one COMBO record, parents (set, dls_count + door), applied by the
- * run-time with w_set · t_door. *io_elems must start with the door_count door records of
+/* Combinations (issue 5 item 4; the paper's Fig. 9): for each candidate in plan->combos
+ * (a set or a door named by the door's `ubake_combine` tag) whose influence region
+ * overlaps the door's (the two records share a texel pixel, a GLG probe or an LLG probe),
+ * bakes the product correction C = L(both) − L(door only) − L(other only) + L(neither):
+ *  - door × set: C = L_set(open) − L_set(closed), the door pass with the set's lights and
+ *    the set's stored lighting (its record) in place of the base's; parents (set,
+ *    dls_count + door), applied with w_set · t;
+ *  - door a × door b: C = S_a|b open − S_a, door a's pass in the state "b open" (b's leaf
+ *    gone, its open pose in, stored lighting base + b's record) with its own influence,
+ *    minus the same pass in the base state over the same receivers with the same random
+ *    numbers (correlated); parents (dls_count + a, dls_count + b), applied with t_a · t_b.
+ * One COMBO record each. *io_elems must start with the door_count door records of
  * ub_door_bake (in order); call it after the objects (combinations come last in the
  * element list). Fills each combo's baked/why and logs one line per candidate. */
 ub_result ub_door_combine(const ub_door_desc *dd, ub_plan *plan,

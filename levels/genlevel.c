@@ -763,6 +763,54 @@ static void build_door_combo(void)
                      PI_("combine") ? "lamp_b" : NULL, PI_("black_leaf"));
 }
 
+/* door_chain: three 3x3x4 m rooms A | B | C along x joined by doors "ab" (x=-1.5) and
+ * "bc" (x=+1.5) in line, lamp in A: room C sees the lamp only with both doors open, the
+ * door x door case. Leaves 0.5 albedo, open poses swing 90 degrees into B and C; "bc"
+ * carries ubake_combine: ab (combine=0: untagged). */
+static void build_door_chain(void)
+{
+    double w = P("wall"), alb = P("albedo"), I = P("intensity"), t = P("t");
+    require(w > 0 && alb >= 0 && alb < 1 && I >= 0 && t > 0.06 && t < 1,
+            "wall>0, 0<=albedo<1, intensity>=0, 0.06<t<1");
+    int mat = material("grey", alb, alb, alb, 0);
+    const double H = 3.0, Z = 2.0, X = 4.5, XW = 1.5, DW = 0.5, DH = 2.0, DT = 0.05;
+    double ht = 0.5 * t;
+    box_node("floor", mat, v3(-X - w, -w, -Z - w), v3(X + w, 0, Z + w));
+    box_node("ceiling", mat, v3(-X - w, H, -Z - w), v3(X + w, H + w, Z + w));
+    box_node("wall_west", mat, v3(-X - w, 0, -Z), v3(-X, H, Z));
+    box_node("wall_east", mat, v3(X, 0, -Z), v3(X + w, H, Z));
+    box_node("wall_north", mat, v3(-X - w, 0, -Z - w), v3(X + w, H, -Z));
+    box_node("wall_south", mat, v3(-X - w, 0, Z), v3(X + w, H, Z + w));
+    int dm = material("door", 0.5, 0.5, 0.5, 0);
+    int lm = mesh_new("door_leaf", dm);
+    add_box(lm, v3(0, 0, 0), v3(DT, DH, 2 * DW));
+    static const char *names[2] = { "ab", "bc" };
+    for (int k = 0; k < 2; k++) {
+        double xc = k ? XW : -XW;
+        char nm[32];
+        snprintf(nm, sizeof nm, "shared_%s_north", names[k]);
+        box_node(nm, mat, v3(xc - ht, 0, -Z), v3(xc + ht, H, -DW));
+        snprintf(nm, sizeof nm, "shared_%s_south", names[k]);
+        box_node(nm, mat, v3(xc - ht, 0, DW), v3(xc + ht, H, Z));
+        snprintf(nm, sizeof nm, "shared_%s_lintel", names[k]);
+        box_node(nm, mat, v3(xc - ht, DH, -DW), v3(xc + ht, H, DW));
+        snprintf(nm, sizeof nm, "door_%s_closed", names[k]);
+        Node *c = mesh_node(nm, lm);
+        node_translate(c, v3(xc - 0.5 * DT, 0, -DW));
+        node_extra(c, "ubake_door", names[k]);
+        if (k == 1 && PI_("combine"))
+            node_extra(c, "ubake_combine", "ab");
+        snprintf(nm, sizeof nm, "door_%s_open", names[k]);
+        Node *op = mesh_node(nm, lm);
+        node_translate(op, v3(xc - 0.5 * DT, 0, -DW));
+        op->has_r = 1;
+        op->r[0] = 0; op->r[1] = sin(M_PI / 4); op->r[2] = 0; op->r[3] = cos(M_PI / 4);
+        node_extra(op, "ubake_door_open", names[k]);
+    }
+    Node *l = light_node("lamp_a", LIGHT_POINT, I, 1, 1, 1, v3(-3.0, 2.0, 0.3));
+    node_extra(l, "ubake_light", "static");
+}
+
 /* hallway: 12x3x2.5 m corridor along x, four ceiling lamps in two DLS. */
 static void build_hallway(void)
 {
@@ -1355,6 +1403,13 @@ static const LevelDef g_levels[] = {
         { "lamp_b_at", 3, { 2.0, 2.0, -0.5 }, "lamp B position, m (room B: x>0)" },
         { "combine", 1, { 1 }, "1: the door node carries ubake_combine: lamp_b" },
         { "black_leaf", 1, { 0 }, "1: closed leaf tagged ubake_receiver none (black in the base: no S_C)" } } },
+    { "door_chain", "Rooms A | B | C joined by doors ab and bc in line, lamp in A; bc tagged ubake_combine ab (door x door).",
+      build_door_chain,
+      { { "t", 1, { 0.2 }, "shared wall thickness, m" },
+        { "wall", 1, { 0.2 }, "outer slab thickness, m" },
+        { "albedo", 1, { 0.6 }, "albedo of every surface but the leaves (0.5)" },
+        { "intensity", 1, { 20 }, "lamp intensity, W/sr" },
+        { "combine", 1, { 1 }, "1: door bc carries ubake_combine: ab" } } },
     { "hallway", "12x3x2.5 m corridor, 4 ceiling lamps in DLS hall_a (1,2) / hall_b (3,4); lamp 2 primary.",
       build_hallway,
       { { "intensity", 1, { 5 }, "each lamp, W/sr" },
