@@ -339,10 +339,10 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   }
 
   /* doors: one pass each (doors/door.h), records S_open − S_base for their influence */
+  ub_door_desc dd;
+  memset(&dd, 0, sizeof dd);
   if (plan.door_passes) {
     stage_begin(&sc, "doors");
-    ub_door_desc dd;
-    memset(&dd, 0, sizeof dd);
     dd.base = &pd;
     dd.base_result = &base;
     dd.rays = plan.door_rays;
@@ -371,6 +371,19 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
     stats.rays_total = ub_rt_rays_traced(rt);
     stage_end(&sc, "%u of %u object(s), %u pair correction(s), %u set × object, %.1f M rays",
               ost.objects_baked, ost.objects, ost.pairs, ost.set_objects, ost.rays * 1e-6);
+  }
+
+  /* door × set combinations (doors/door.h): tagged, regions overlapping; listed last */
+  if (plan.combo_count && plan.door_passes) {
+    stage_begin(&sc, "combinations");
+    ub_door_stats cs;
+    memset(&cs, 0, sizeof cs);
+    r = ub_door_combine(&dd, &plan, dls, log, &elems, &elem_count, &cs);
+    if (r != UB_OK)
+      goto fail;
+    stage_end(&sc, "%u combination(s) baked, %u skipped; %.1f M rays %.2f s",
+              cs.combos_baked, cs.combos_skipped, (cs.rays_influence + cs.rays_full) * 1e-6,
+              cs.seconds_influence + cs.seconds_full);
   }
 
   /* leak control: a separating plane for every tet that straddles a surface */

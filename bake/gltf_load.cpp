@@ -190,6 +190,7 @@ struct Tags {
   int32_t door_open = -1;
   int32_t semidynamic = -1;
   float texel_size = 0.0f;
+  std::string combine; /* ubake_combine: names of sets/doors combined with this door */
 };
 
 struct NodeOut {
@@ -534,6 +535,8 @@ Tags Loader::node_tags(int idx, const Tags &parent)
       t.door = doors_.intern(tag_string(idx, key, v));
     } else if (key == "ubake_door_open") {
       t.door_open = doors_.intern(tag_string(idx, key, v));
+    } else if (key == "ubake_combine") {
+      t.combine = tag_string(idx, key, v);
     } else if (key == "ubake_semidynamic") {
       t.semidynamic = objects_.intern(tag_string(idx, key, v));
     } else if (key == "ubake_texel_size") {
@@ -1548,6 +1551,8 @@ ub_scene *Loader::to_c() const
         n.door_open = no.tags.door_open;
         n.semidynamic = no.tags.semidynamic;
         n.texel_size = no.tags.texel_size;
+        if (ok && !no.tags.combine.empty())
+          ok = (n.combine = dup_string(no.tags.combine)) != nullptr;
         n.first_triangle = no.first_triangle;
         n.triangle_count = no.triangle_count;
         ok = (n.name = dup_string(no.name)) != nullptr;

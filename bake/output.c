@@ -229,6 +229,16 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
     fprintf(f, ", \"estimated_rays\": %.0f, \"skipped\": %s}", plan->dls_est_rays[d],
             plan->dls_est_rays[d] > 0 ? "false" : "true");
   }
+  for (uint32_t k = 0; k < plan->combo_count; k++) {
+    char nm[160];
+    snprintf(nm, sizeof nm, "combination door %s x %s", scene->door_names[plan->combos[k].door],
+             plan->combos[k].name);
+    fprintf(f, ", {\"name\": ");
+    json_str(f, nm);
+    fprintf(f, ", \"baked\": %s, \"why\": ", plan->combos[k].baked ? "true" : "false");
+    json_str(f, plan->combos[k].why);
+    fprintf(f, "}");
+  }
   fprintf(f, "],\n");
   fprintf(f, "    \"effect_counters\": {\"emissive_shadow_rays\": %llu, \"sky_gather_hits\": "
              "%llu, \"emitter_gather_hits\": %llu, \"dls_passes\": %u, \"door_passes\": %u},\n",

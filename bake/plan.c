@@ -5,6 +5,7 @@
 #include "bake/geomstate.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -189,6 +190,73 @@ uint32_t ub_plan_bounces(double ratio, double stop_fraction, uint32_t cap)
   return cap;
 }
 
+/* Combinations the level tags: `ubake_combine: "A,B"` on a door's closed leaf names sets
+ * (or doors) combined with it. A name that is a set becomes a candidate (the door pass
+ * stage bakes it when the influence regions overlap); any other name is listed as
+ * skipped with the reason. */
+static ub_result plan_combos(const ub_scene *s, const uint8_t *set_reaches, ub_plan *out)
+{
+  for (uint32_t n = 0; n < s->node_count; n++) {
+    const ub_node *nd = &s->nodes[n];
+    if (nd->door < 0 || !nd->combine)
+      continue;
+    const char *p = nd->combine;
+    while (*p) {
+      while (*p == ',' || *p == ' ')
+        p++;
+      size_t len = strcspn(p, ",");
+      while (len && p[len - 1] == ' ')
+        len--;
+      if (!len)
+        break;
+      char name[64];
+      snprintf(name, sizeof name, "%.*s", (int)(len < 63 ? len : 63), p);
+      p += len;
+      while (*p && *p != ',')
+        p++;
+      int dup = 0;
+      for (uint32_t k = 0; k < out->combo_count; k++)
+        dup |= out->combos[k].door == (uint32_t)nd->door && !strcmp(out->combos[k].name, name);
+      if (dup)
+        continue;
+      ub_plan_combo *c = realloc(out->combos, (out->combo_count + 1) * sizeof *c);
+      if (!c)
+        return UB_ERR_OUT_OF_MEMORY;
+      out->combos = c;
+      c += out->combo_count++;
+      memset(c, 0, sizeof *c);
+      c->door = (uint32_t)nd->door;
+      c->set = c->other = -1;
+      snprintf(c->name, sizeof c->name, "%s", name);
+      for (uint32_t d = 0; d < s->dls_count; d++)
+        if (!strcmp(s->dls_names[d], name))
+          c->set = (int32_t)d;
+      for (uint32_t d = 0; c->set < 0 && d < s->door_count; d++)
+        if (!strcmp(s->door_names[d], name))
+          c->other = (int32_t)d;
+      int listed = 0; /* the same pair tagged on the other door */
+      for (uint32_t k = 0; c->other >= 0 && k + 1 < out->combo_count; k++)
+        listed |= out->combos[k].door == (uint32_t)c->other &&
+                  out->combos[k].other == nd->door;
+      if (c->set >= 0 && !set_reaches[c->set])
+        snprintf(c->why, sizeof c->why, "skipped: set %s reaches no receiver", name);
+      else if (c->set >= 0)
+        snprintf(c->why, sizeof c->why, "tagged: baked if the influence regions overlap");
+      else if (c->other == nd->door)
+        c->other = -1, snprintf(c->why, sizeof c->why, "skipped: a door with itself");
+      else if (listed)
+        c->other = -1, snprintf(c->why, sizeof c->why, "skipped: already listed as door %s "
+                                "x %s", name, s->door_names[nd->door]);
+      else if (c->other >= 0)
+        snprintf(c->why, sizeof c->why, "tagged: baked if the influence regions overlap");
+      else
+        snprintf(c->why, sizeof c->why, "skipped: %s is not a dynamic light set or a door",
+                 name);
+    }
+  }
+  return UB_OK;
+}
+
 ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitters *em,
                         const ub_lightmap *lm, uint32_t probe_count,
                         const ub_bake_options *opt, const ub_log *log, ub_plan *out)
@@ -281,6 +349,11 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
   out->door_rays = opt->door_rays ? opt->door_rays : out->gather_rays;
   out->door_influence_rays = out->influence_culling ? out->influence_rays : 0;
   out->door_photons = 8192;
+  if (plan_combos(scene, set_reaches, out) != UB_OK) {
+    free(set_reaches);
+    ub_plan_free(out);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
   out->pass_count = 1 + out->dls_passes + out->door_passes;
 
   /* Estimates: rays per pass, and seconds from this machine's measured ray rate. */
@@ -395,6 +468,10 @@ void ub_plan_print(const ub_plan *plan, const ub_scene *scene, const ub_log *log
     else
       ub_log_printf(log, UB_LOG_INFO, "  pass door %s: skipped, no closed leaf",
                     scene->door_names[d]);
+  for (uint32_t k = 0; k < plan->combo_count; k++)
+    ub_log_printf(log, UB_LOG_INFO, "  combination door %s x %s: %s",
+                  scene->door_names[plan->combos[k].door], plan->combos[k].name,
+                  plan->combos[k].why);
   ub_log_printf(log, UB_LOG_INFO, "  pass base: est. %.1f M rays, %.1f s at %.2f M rays/s",
                 plan->est_rays * 1e-6, plan->est_rays / plan->ray_rate, plan->ray_rate * 1e-6);
   for (uint32_t d = 0; d < scene->dls_count; d++)
@@ -428,6 +505,9 @@ void ub_plan_free(ub_plan *plan)
   free(plan->dls_light_reaches);
   free(plan->light_reach);
   free(plan->dls_est_rays);
+  free(plan->combos);
+  plan->combos = NULL;
+  plan->combo_count = 0;
   free(plan->dls_candidates);
   plan->dls_candidates = NULL;
   for (uint32_t d = 0; plan->dls_reach && d < plan->dls_reach_count; d++)

@@ -22,6 +22,19 @@ typedef enum ub_light_skip {
   UB_SKIP_IN_DLS         /* baked in its dynamic light set's pass, not the base */
 } ub_light_skip;
 
+/* A combination the level asks for (`ubake_combine` on a door's closed leaf, README):
+ * door × set or door × door, baked as one product-correction record when the two
+ * influence regions overlap (doors/door.h, ub_door_combine). Neither a set nor another
+ * door (or a pair already listed): never baked, `why` says so. */
+typedef struct ub_plan_combo {
+  uint32_t door;    /* the tagged door */
+  int32_t set;      /* dynamic light set, -1 = the name is not a set */
+  int32_t other;    /* the other door of a door × door pair, -1 = none */
+  char name[64];    /* the name as tagged */
+  int baked;        /* set by the door-combination stage: 1 baked, 0 skipped */
+  char why[192];    /* reason, for the log and the report */
+} ub_plan_combo;
+
 typedef struct ub_plan {
   int forced;                  /* --plan all: every effect on, no culling (for checking) */
   uint32_t pass_count;
@@ -56,6 +69,8 @@ typedef struct ub_plan {
   uint32_t door_rays;          /* guided gather rays per texel of a door pass (probes 2x) */
   uint32_t door_influence_rays; /* per texel of its influence pass (0: no culling) */
   uint32_t door_photons;       /* shadow photon attempts per door */
+  uint32_t combo_count;        /* tagged door × name pairs, in door then tag order */
+  ub_plan_combo *combos;
 } ub_plan;
 
 ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitters *em,

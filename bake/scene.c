@@ -32,7 +32,7 @@ void ub_scene_free(ub_scene *scene)
   free(scene->materials);
   if (scene->nodes)
     for (uint32_t i = 0; i < scene->node_count; i++)
-      free(scene->nodes[i].name);
+      free(scene->nodes[i].name), free(scene->nodes[i].combine);
   free(scene->nodes);
   free(scene->lights);
   free_names(scene->dls_names, scene->dls_count);

@@ -11,6 +11,7 @@
 
 #include "bake/dls.h"
 #include "bake/geomstate.h"
+#include "probes/llg.h"
 #include "doors/guide.h"
 #include "ubake/sh.h"
 
@@ -82,6 +83,9 @@ static int field_build(const ub_lightmap *lm, const float *iz, field *out)
 typedef struct job {
   const ub_pass_desc *d;
   const ub_rt *rt_s, *rt_h;   /* shown / hidden geometry */
+  /* LLG probes (the object's own record only; NULL: none): the same two geometries
+   * without the LLG models, as LLG probes see the level (probes/llg.h) */
+  const ub_rt *rt_s_env, *rt_h_env;
   const uint8_t *lights;      /* light_count: lights of this pass */
   int sky, emissive;          /* non-punctual emitters of this pass */
   const uint8_t *tri_obj;     /* triangle_count: 1 = the toggled object */
@@ -94,10 +98,10 @@ typedef struct job {
   const float *ref_sh, *ref_iz;
   uint32_t pass_id;
   /* receivers (candidates) */
-  const uint32_t *kt, *kp;
-  uint32_t nkt, nkp;
+  const uint32_t *kt, *kp, *kl;
+  uint32_t nkt, nkp, nkl;
   /* results over the candidates */
-  double *t_sh, *t_iz, *p_sh; /* nkt × 12, nkt × 3, nkp × 27 */
+  double *t_sh, *t_iz, *p_sh, *l_sh; /* nkt × 12, nkt × 3, nkp × 27, nkl × 27 */
   _Atomic uint64_t rays;
 } job;
 
@@ -471,11 +475,20 @@ static ub_result job_run(job *j)
   j->t_sh = calloc((size_t)j->nkt * 12 + 1, sizeof(double));
   j->t_iz = calloc((size_t)j->nkt * 3 + 1, sizeof(double));
   j->p_sh = calloc((size_t)j->nkp * 27 + 1, sizeof(double));
+  j->l_sh = calloc((size_t)j->nkl * 27 + 1, sizeof(double));
+  double *b_l = calloc((size_t)j->nkl * 27 + 1, sizeof(double));
+  /* LLG probes: the same job, rays against the level without LLG models */
+  job jl = *j;
+  jl.rt_s = j->rt_s_env ? j->rt_s_env : j->rt_s;
+  jl.rt_h = j->rt_h_env ? j->rt_h_env : j->rt_h;
+  atomic_init(&jl.rays, 0);
   double *b_sh = calloc((size_t)j->nkt * 12 + 1, sizeof(double));
   double *b_iz = calloc((size_t)j->nkt * 3 + 1, sizeof(double));
   double *b_p = calloc((size_t)j->nkp * 27 + 1, sizeof(double));
   float *prev_iz = calloc((size_t)T * 3 + 1, sizeof(float));
-  if (!j->t_sh || !j->t_iz || !j->p_sh || !b_sh || !b_iz || !b_p || !prev_iz) {
+  if (!j->t_sh || !j->t_iz || !j->p_sh || !j->l_sh || !b_l || !b_sh || !b_iz || !b_p ||
+      !prev_iz) {
+    free(b_l);
     free(b_sh);
     free(b_iz);
     free(b_p);
@@ -492,7 +505,8 @@ static ub_result job_run(job *j)
     memset(b_sh, 0, (size_t)j->nkt * 12 * sizeof(double));
     memset(b_iz, 0, (size_t)j->nkt * 3 * sizeof(double));
     memset(b_p, 0, (size_t)j->nkp * 27 * sizeof(double));
-    uint32_t nall = j->nkt + j->nkp;
+    memset(b_l, 0, (size_t)j->nkl * 27 * sizeof(double));
+    uint32_t nall = j->nkt + j->nkp + j->nkl;
 #pragma omp parallel
     {
       ub_ray *rays = malloc((size_t)NMAX * sizeof *rays);
@@ -523,6 +537,15 @@ static ub_result job_run(job *j)
           else
             gather_prev(j, &prev, smp, UB_TEXEL_SAMPLES, nrm, t, (uint32_t)it, 4, NI, rays, hits,
                         b_sh + 12 * (size_t)i, b_iz + 3 * (size_t)i);
+        } else if (i >= j->nkt + j->nkp) {
+          uint32_t q = j->kl[i - j->nkt - j->nkp];
+          const float *pp = d->llg->probe_pos + 3 * (size_t)q;
+          uint32_t id = 0x80000000u + q;
+          double *dst = b_l + 27 * (size_t)(i - j->nkt - j->nkp);
+          if (it == 0)
+            first_order(&jl, pp, 1, NULL, id, 9, NP, rays, hits, dst, NULL);
+          else
+            gather_prev(&jl, &prev, pp, 1, NULL, id, (uint32_t)it, 9, NPI, rays, hits, dst, NULL);
         } else {
           uint32_t q = j->kp[i - j->nkt];
           const float *pp = d->probe_pos + 3 * (size_t)q;
@@ -545,6 +568,8 @@ static ub_result job_run(job *j)
       j->t_iz[i] += b_iz[i];
     for (size_t i = 0; i < (size_t)j->nkp * 27; i++)
       j->p_sh[i] += b_p[i];
+    for (size_t i = 0; i < (size_t)j->nkl * 27; i++)
+      j->l_sh[i] += b_l[i];
     for (uint32_t i = 0; i < j->nkt; i++)
       e += fabs(lum(b_iz + 3 * (size_t)i));
     total += e;
@@ -562,6 +587,8 @@ static ub_result job_run(job *j)
       oom = 1;
   }
   field_free(&prev);
+  atomic_fetch_add(&j->rays, atomic_load(&jl.rays));
+  free(b_l);
   free(b_sh);
   free(b_iz);
   free(b_p);
@@ -593,7 +620,8 @@ static void job_free(job *j)
   free(j->t_sh);
   free(j->t_iz);
   free(j->p_sh);
-  j->t_sh = j->t_iz = j->p_sh = NULL;
+  free(j->l_sh);
+  j->t_sh = j->t_iz = j->p_sh = j->l_sh = NULL;
 }
 
 /* ---- influence region ------------------------------------------------------------- */
@@ -629,8 +657,9 @@ static int candidate(const job *j, const float p[3], const float *nrm, float rea
   return 0;
 }
 
-/* Fills j->kt/kp (caller frees) with the candidates of the job's lights and box. */
-static ub_result region(job *j, uint32_t **kt, uint32_t **kp)
+/* Fills j->kt/kp (caller frees) with the candidates of the job's lights and box; kl
+ * (may be NULL: none) with the LLG probes' when the job has LLG geometries. */
+static ub_result region(job *j, uint32_t **kt, uint32_t **kp, uint32_t **kl)
 {
   const ub_pass_desc *d = j->d;
   const ub_lightmap *lm = d->lightmap;
@@ -657,6 +686,19 @@ static ub_result region(job *j, uint32_t **kt, uint32_t **kp)
     if (candidate(j, d->probe_pos + 3 * (size_t)q, NULL, reach2))
       (*kp)[np++] = q;
   (void)s;
+  uint32_t nl = 0;
+  const struct ub_llg_set *llg = d->llg;
+  if (kl && j->rt_h_env && llg && llg->probe_count) {
+    *kl = malloc((size_t)llg->probe_count * sizeof **kl);
+    if (!*kl)
+      return UB_ERR_OUT_OF_MEMORY;
+    for (uint32_t q = 0; q < llg->probe_count; q++)
+      if ((!llg->probe_valid || llg->probe_valid[q]) &&
+          candidate(j, llg->probe_pos + 3 * (size_t)q, NULL, reach2))
+        (*kl)[nl++] = q;
+    j->kl = *kl;
+  }
+  j->nkl = nl;
   j->kt = *kt;
   j->kp = *kp;
   j->nkt = nt;
@@ -671,8 +713,8 @@ static ub_result region(job *j, uint32_t **kt, uint32_t **kp)
  * NULL: keep every non-zero). Returns the kept count in *out_kept. */
 static ub_result make_record(const job *j, const double *t_sh, const double *t_iz,
                              const double *p_sh, const float *ref_iz, const float *ref_probe,
-                             double keep, ub_bakefile_record *rec, uint32_t *out_kt,
-                             uint32_t *out_kp)
+                             const float *ref_llg, double keep, ub_bakefile_record *rec,
+                             uint32_t *out_kt, uint32_t *out_kp)
 {
   const ub_lightmap *lm = j->d->lightmap;
   uint32_t T = lm->texel_count;
@@ -723,6 +765,29 @@ static ub_result make_record(const job *j, const double *t_sh, const double *t_i
     np++;
   }
   rec->probe_count = np;
+  /* LLG probes (the object's own record): kept like GLG probes, against the base grid */
+  if (j->nkl) {
+    rec->llg_probe_index = malloc((size_t)j->nkl * sizeof *rec->llg_probe_index);
+    rec->llg_probe_sh = malloc((size_t)j->nkl * 27 * sizeof *rec->llg_probe_sh);
+    if (!rec->llg_probe_index || !rec->llg_probe_sh)
+      return UB_ERR_OUT_OF_MEMORY;
+    uint32_t nl = 0;
+    for (uint32_t i = 0; i < j->nkl; i++) {
+      uint32_t q = j->kl[i];
+      const double *v = j->l_sh + 27 * (size_t)i;
+      double a = fabs(lum(v));
+      double r = ref_llg ? fabs(0.2126 * ref_llg[27 * (size_t)q] + 0.7152 * ref_llg[27 * (size_t)q + 1] +
+                                0.0722 * ref_llg[27 * (size_t)q + 2])
+                         : 0.0;
+      if (!(a > keep * r) || !(a > 0.0))
+        continue;
+      rec->llg_probe_index[nl] = q;
+      for (int k = 0; k < 27; k++)
+        rec->llg_probe_sh[27 * (size_t)nl + k] = (float)v[k];
+      nl++;
+    }
+    rec->llg_probe_count = nl;
+  }
   *out_kt = nk;
   *out_kp = np;
   return UB_OK;
@@ -742,8 +807,7 @@ ub_result ub_records_append(ub_bakefile_record **io_elems, uint32_t *io_count,
   return UB_OK;
 }
 
-/* Per-texel irradiance along the normal of a set's record (pixel SH → texel). */
-static void record_texel_iz(const ub_lightmap *lm, const ub_bakefile_record *rec, float *out,
+void ub_record_texel_iz(const ub_lightmap *lm, const ub_bakefile_record *rec, float *out,
                             float *out_sh)
 {
   memset(out, 0, (size_t)lm->texel_count * 3 * sizeof(float));
@@ -777,7 +841,8 @@ typedef struct obj_data {
   ub_obb box;
   ub_rt *rt_h;         /* base minus the object */
   job j;               /* its base-lights job: candidates and D over them */
-  uint32_t *kt, *kp;
+  uint32_t *kt, *kp, *kl;
+  ub_rt *rt_h_env;     /* base minus the object minus the LLG models (NULL: no LLG) */
   int32_t elem;        /* index in the element array */
   double sum;          /* Σ|D| (luminance) over texels */
 } obj_data;
@@ -869,6 +934,15 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
       break;
     }
     r = ub_rt_create(s, mask, log, &d->rt_h);
+    const ub_llg_set *llg = base->llg && base->llg->probe_count ? base->llg : NULL;
+    int obj_is_llg = 0;
+    for (uint32_t n = 0; llg && n < s->node_count; n++)
+      if (llg->node_model[n] >= 0) {
+        obj_is_llg |= s->nodes[n].semidynamic == (int32_t)o;
+        memset(mask + s->nodes[n].first_triangle, 0, s->nodes[n].triangle_count);
+      }
+    if (r == UB_OK && llg && !obj_is_llg)
+      r = ub_rt_create(s, mask, log, &d->rt_h_env);
     free(mask);
     if (r != UB_OK)
       break;
@@ -876,7 +950,11 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
              &ls_base, 0x100u + 2 * o);
     d->j.ref_sh = base_res->sh;
     d->j.ref_iz = base_res->iz;
-    r = region(&d->j, &d->kt, &d->kp);
+    if (d->rt_h_env) {
+      d->j.rt_s_env = llg->rt_env;
+      d->j.rt_h_env = d->rt_h_env;
+    }
+    r = region(&d->j, &d->kt, &d->kp, &d->kl);
     if (r == UB_OK)
       r = job_run(&d->j);
     if (r != UB_OK)
@@ -889,6 +967,7 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
     rec.parent[0] = rec.parent[1] = -1;
     uint32_t nkt = 0, nkp = 0;
     r = make_record(&d->j, d->j.t_sh, d->j.t_iz, d->j.p_sh, base_res->iz, base_res->probe_sh,
+                    base_res->llg_sh,
                     UB_OBJ_KEEP, &rec, &nkt, &nkp);
     if (r == UB_OK)
       r = ub_records_append(io_elems, io_count, &rec, 1);
@@ -897,6 +976,8 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
       free(rec.texel_sh);
       free(rec.probe_index);
       free(rec.probe_sh);
+      free(rec.llg_probe_index);
+      free(rec.llg_probe_sh);
       break;
     }
     d->elem = (int32_t)(*io_count - 1);
@@ -908,9 +989,10 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
     out_stats->probes_kept += nkp;
     ub_log_printf(log, UB_LOG_INFO,
                   "  object %-14s: %u tris, %u/%u texels and %u/%u probes in its region, kept "
-                  "%u texels %u probes, record %u pixels, %.2f M rays",
+                  "%u texels %u probes %u of %u LLG probes, record %u pixels, %.2f M rays",
                   rec.name, ntri, d->j.nkt, T, d->j.nkp, base->probe_count, nkt, nkp,
-                  rec.texel_count, atomic_load(&d->j.rays) * 1e-6);
+                  rec.llg_probe_count, d->j.nkl, rec.texel_count,
+                  atomic_load(&d->j.rays) * 1e-6);
   }
   (void)first_obj;
   /* 2. pairwise corrections C_ab = D_a − D_a|b hidden, for overlapping records */
@@ -1003,7 +1085,7 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
         rec.parent[0] = (int32_t)s->dls_count + od[a].elem;
         rec.parent[1] = (int32_t)s->dls_count + od[b].elem;
         uint32_t nkt = 0, nkp = 0;
-        r = make_record(&jb, jb.t_sh, jb.t_iz, jb.p_sh, base_res->iz, base_res->probe_sh,
+        r = make_record(&jb, jb.t_sh, jb.t_iz, jb.p_sh, base_res->iz, base_res->probe_sh, NULL,
                         UB_OBJ_KEEP_COMBO, &rec, &nkt, &nkp);
         if (r == UB_OK)
           r = ub_records_append(io_elems, io_count, &rec, 1);
@@ -1041,7 +1123,7 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
     }
     if (!nl)
       continue;
-    record_texel_iz(lm, sr, scratch, scratch_sh);
+    ub_record_texel_iz(lm, sr, scratch, scratch_sh);
     field ls_set = {0, NULL};
     if (!field_build(lm, scratch, &ls_set)) {
       r = UB_ERR_OUT_OF_MEMORY;
@@ -1071,7 +1153,7 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
       js.ref_sh = scratch_sh;
       js.ref_iz = scratch;
       uint32_t *kt = NULL, *kp = NULL;
-      r = region(&js, &kt, &kp);
+      r = region(&js, &kt, &kp, NULL);
       /* only receivers the set lights: its record covers them (or its lights cast
          through the box onto them) */
       double set_sum = 0.0;
@@ -1093,7 +1175,7 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
           rec.parent[0] = (int32_t)ds;
           rec.parent[1] = (int32_t)s->dls_count + od[o].elem;
           uint32_t nkt = 0, nkp = 0;
-          r = make_record(&js, js.t_sh, js.t_iz, js.p_sh, scratch2, set_probe, UB_OBJ_KEEP_COMBO,
+          r = make_record(&js, js.t_sh, js.t_iz, js.p_sh, scratch2, set_probe, NULL, UB_OBJ_KEEP_COMBO,
                           &rec, &nkt, &nkp);
           int empty = r == UB_OK && nkt == 0 && nkp == 0;
           if (r == UB_OK && !empty)
@@ -1137,6 +1219,8 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
     job_free(&od[o].j);
     free(od[o].kt);
     free(od[o].kp);
+    free(od[o].kl);
+    ub_rt_free(od[o].rt_h_env);
     free(od[o].tri);
     ub_rt_free(od[o].rt_h);
   }

@@ -28,7 +28,10 @@
  * from the box centre, plus the half diagonal) and a box corner lies above the texel's
  * horizon (it can see the object). The object's own texels are never in its record.
  * After the pass a candidate is kept when |D| (luminance) > UB_OBJ_KEEP × its base
- * lighting. Not simulated: LLG probes, and gather hits on LLG-lit models (read as 0).
+ * lighting. LLG probes are receivers of the object's own record (candidates like GLG
+ * probes, rays against the level without LLG models, kept like GLG probes against the
+ * base grid; not for an object that is itself an LLG model); pair and set × object
+ * combinations have none. Not simulated: gather hits on LLG-lit models (read as 0).
  *
  * Combinations (kind UB_ELEMENT_COMBO, appended after the objects):
  *  - pairwise shadow correction (paper Fig. 17): for objects a, b whose records overlap
@@ -77,6 +80,12 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
                          const ub_pass_result *base_res, const ub_bakefile_record *dls,
                          const ub_log *log, ub_bakefile_record **io_elems, uint32_t *io_count,
                          ub_object_stats *out_stats);
+
+/* Per-texel irradiance along the normal (out: texel_count × 3, W/m²) and SH (out_sh:
+ * texel_count × 12) of a sparse record (its pixel SH read at each texel's pixel; 0 where
+ * the record has none). */
+void ub_record_texel_iz(const ub_lightmap *lm, const ub_bakefile_record *rec, float *out,
+                        float *out_sh);
 
 /* Appends n records (moved: the caller must not free their arrays) to an element array. */
 ub_result ub_records_append(ub_bakefile_record **io_elems, uint32_t *io_count,

@@ -76,6 +76,8 @@ typedef struct ub_node {
   int32_t door_open;        /* index into door_names, -1 = none (leaf in open pose) */
   int32_t semidynamic;      /* index into object_names, -1 = none */
   float texel_size;         /* metres per lightmap texel; 0 = level default */
+  char *combine;            /* ubake_combine (on a door leaf): comma-separated names of the
+                               sets or doors baked in combination with it; NULL = none */
   uint32_t first_triangle;  /* triangles [first, first+count) belong to this node */
   uint32_t triangle_count;
   ub_receiver_source receiver_source;
