@@ -90,9 +90,9 @@ sweep: build
 # paste that into README. Run it under nice on a shared machine: nice -n 10 make sweep-presets
 SWEEP_PRESET_ARGS_cornell ?= --points 64 --ref-spp 65536 --converged-rays 4096
 SWEEP_PRESET_ARGS_sunroom ?= --points 64 --ref-spp 65536 --converged-rays 4096
-SWEEP_PRESET_ARGS_oa_dm4 ?= --points 128 --ref-spp 16384 --converged-rays 4096
-SWEEP_PRESET_ARGS_q3dm6ish ?= --points 128 --ref-spp 16384 --converged-rays 4096
-SWEEP_PRESET_ARGS_kaos ?= --points 64 --ref-spp 16384 --converged-rays 2048
+SWEEP_PRESET_ARGS_oa_dm4 ?= --points 128 --ref-spp 65536 --converged-rays 4096
+SWEEP_PRESET_ARGS_q3dm6ish ?= --points 128 --ref-spp 65536 --converged-rays 2048
+SWEEP_PRESET_ARGS_kaos ?= --points 128 --ref-spp 32768 --converged-rays 2048
 sweep-presets: build
 	@$(foreach l,$(SWEEP_LEVELS),echo "== sweep presets $(l) -> out/sweep/$(basename $(notdir $(l)))" && \
 	  $(BUILD)/ubake sweep $(l) -o out/sweep/$(basename $(notdir $(l))) --ladder presets \
