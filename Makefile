@@ -90,13 +90,17 @@ sweep: build
 # paste that into README. Run it under nice on a shared machine: nice -n 10 make sweep-presets
 SWEEP_PRESET_ARGS_cornell ?= --points 64 --ref-spp 65536 --converged-rays 4096
 SWEEP_PRESET_ARGS_sunroom ?= --points 64 --ref-spp 65536 --converged-rays 4096
-SWEEP_PRESET_ARGS_oa_dm4 ?= --points 128 --ref-spp 65536 --converged-rays 4096
+SWEEP_PRESET_ARGS_oa_dm4 ?= --points 128 --ref-spp 65536 --converged-rays 2048
 SWEEP_PRESET_ARGS_q3dm6ish ?= --points 128 --ref-spp 65536 --converged-rays 2048
 SWEEP_PRESET_ARGS_kaos ?= --points 128 --ref-spp 32768 --converged-rays 2048
 sweep-presets: build
 	@$(foreach l,$(SWEEP_LEVELS),echo "== sweep presets $(l) -> out/sweep/$(basename $(notdir $(l)))" && \
 	  $(BUILD)/ubake sweep $(l) -o out/sweep/$(basename $(notdir $(l))) --ladder presets \
 	    $(SWEEP_PRESET_ARGS_$(basename $(notdir $(l)))) $(SWEEP_ARGS) &&) true
+	@$(sweep_join_presets)
+# Only the joining (after levels were swept one at a time).
+.PHONY: sweep-table
+sweep-table:
 	@$(sweep_join_presets)
 
 # out/sweep/presets.md from the levels' presets.md, in SWEEP_LEVELS order: the table header
