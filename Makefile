@@ -76,11 +76,42 @@ SWEEP_ARGS ?=
 SWEEP_LEVELS ?= $(BUILD)/levels/cornell.gltf $(BUILD)/levels/sunroom.gltf \
   $(wildcard $(SHARED_LEVELS)/oa_dm4/oa_dm4.gltf $(SHARED_LEVELS)/q3dm6ish/q3dm6ish.gltf \
              $(SHARED_LEVELS)/kaos/kaos.gltf)
-.PHONY: sweep
+.PHONY: sweep sweep-presets
 sweep: build
 	@for l in $(SWEEP_LEVELS); do n=$$(basename $$l .gltf); echo "== sweep $$l -> out/sweep/$$n"; \
 	  $(BUILD)/ubake sweep $$l -o out/sweep/$$n $(SWEEP_ARGS) || exit 1; done
-	@echo "sweep: out/sweep/<level>/sweep.csv and sweep.png"
+	@$(sweep_join_presets)
+	@echo "sweep: out/sweep/<level>/sweep.csv and sweep.png; out/sweep/presets.md"
+
+# README "The presets, measured": the three presets only (`--ladder presets`), each level with
+# the options below (cornell, sunroom and oa_dm4 took ~70 min at load average 6-22 on the
+# shared 2-core machine, most of it oa_dm4's converged bake; q3dm6ish and kaos take hours;
+# SWEEP_PRESET_ARGS_<level> overrides one level, SWEEP_ARGS adds to all), then the
+# levels' DIR/presets.md joined into out/sweep/presets.md (one table, the commit on top):
+# paste that into README. Run it under nice on a shared machine: nice -n 10 make sweep-presets
+SWEEP_PRESET_ARGS_cornell ?= --points 64 --ref-spp 65536 --converged-rays 4096
+SWEEP_PRESET_ARGS_sunroom ?= --points 64 --ref-spp 65536 --converged-rays 4096
+SWEEP_PRESET_ARGS_oa_dm4 ?= --points 128 --ref-spp 65536 --converged-rays 2048
+SWEEP_PRESET_ARGS_q3dm6ish ?= --points 64 --ref-spp 32768 --converged-rays 2048
+SWEEP_PRESET_ARGS_kaos ?= --points 64 --ref-spp 32768 --converged-rays 2048
+sweep-presets: build
+	@$(foreach l,$(SWEEP_LEVELS),echo "== sweep presets $(l) -> out/sweep/$(basename $(notdir $(l)))" && \
+	  $(BUILD)/ubake sweep $(l) -o out/sweep/$(basename $(notdir $(l))) --ladder presets \
+	    $(SWEEP_PRESET_ARGS_$(basename $(notdir $(l)))) $(SWEEP_ARGS) &&) true
+	@$(sweep_join_presets)
+# Only the joining (after levels were swept one at a time).
+.PHONY: sweep-table
+sweep-table:
+	@$(sweep_join_presets)
+
+# out/sweep/presets.md from the levels' presets.md, in SWEEP_LEVELS order: the table header
+# once, every level's rows, then every level's line saying how it was measured.
+define sweep_join_presets
+f=; for l in $(SWEEP_LEVELS); do p=out/sweep/$$(basename $$l .gltf)/presets.md; [ -f $$p ] && f="$$f $$p"; done; \
+if [ -n "$$f" ]; then { echo "Commit $$(git rev-parse --short HEAD)$$(git diff --quiet HEAD -- . 2>/dev/null || echo ' + uncommitted changes'), $$(date -u +'%Y-%m-%d %H:%M UTC'), $$(nproc) cores ($$(sed -n 's/^model name[[:space:]]*: //p' /proc/cpuinfo | head -1)), load average now $$(cut -d' ' -f1-3 /proc/loadavg)."; echo; \
+  awk 'FNR <= 2 && NR != FNR { next } /^\|/' $$f; echo; awk '!/^\|/ && NF { print "- " $$0 }' $$f; } > out/sweep/presets.md; \
+  echo "sweep: out/sweep/presets.md (the README table)"; fi
+endef
 
 # The ESTATE-scale level (levels/README.md "estate"), not made by the build (big): writes
 # out/estate/estate.gltf (not in $(BUILD)/levels, whose levels the tests bake) and prints

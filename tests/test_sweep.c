@@ -70,12 +70,14 @@ int main(void)
   const char *build = getenv("UB_BUILD");
   if (!build)
     build = ".";
-  char level[1024], out[1024], csv[1100], png[1100], refs[1100];
+  char level[1024], out[1024], csv[1100], png[1100], refs[1100], md[1100];
   snprintf(level, sizeof level, "%s/levels/cornell.gltf", build);
   snprintf(out, sizeof out, "%s/test_out/sweep", build);
   snprintf(csv, sizeof csv, "%s/sweep.csv", out);
   snprintf(png, sizeof png, "%s/sweep.png", out);
   snprintf(refs, sizeof refs, "%s/reference_points.csv", out);
+  snprintf(md, sizeof md, "%s/presets.md", out);
+  remove(md);
   remove(csv);
   remove(png);
   remove(refs); /* trace the references in this run: the cache is tested below */
@@ -111,6 +113,7 @@ int main(void)
 
   double secs[MAX_ROWS], pts[MAX_ROWS], lm[MAX_ROWS], tex[MAX_ROWS], rays[MAX_ROWS];
   int ng = 0, npreset = 0;
+  const row *preset_rows[MAX_ROWS];
   for (int i = 0; i < nrows; i++) {
     const row *r = &rows[i];
     printf("  %-12s %-6s %7.2f s %7.2f core-s %6.2f M rays  points %6.2f%%  lightmap points "
@@ -127,7 +130,8 @@ int main(void)
       rays[ng] = r->rays;
       ng++;
     }
-    npreset += !strcmp(r->setting, "preset");
+    if (!strcmp(r->setting, "preset"))
+      preset_rows[npreset++] = r;
   }
   ASSERT_TRUE(ng == 3);
   ASSERT_TRUE(npreset == 2);
@@ -141,6 +145,36 @@ int main(void)
   check_decreasing("points", pts, ng);
   check_decreasing("lightmap points", lm, ng);
   check_decreasing("texels", tex, ng);
+
+  /* presets.md: the table header, one row per preset rung with the CSV's figures (wall
+   * seconds and texel error as printed), then the line saying how they were measured. */
+  FILE *mf = fopen(md, "r");
+  ASSERT_TRUE(mf != NULL);
+  if (mf) {
+    char hdr[2048] = "";
+    ASSERT_TRUE(fgets(hdr, 1024, mf) && fgets(hdr + strlen(hdr), 1024, mf));
+    ASSERT_TRUE(!strcmp(hdr, PRESETS_MD_HEADER));
+    for (int i = 0; i < npreset; i++) {
+      const row *r = preset_rows[i];
+      char want[256], ms[32], tx[32];
+      snprintf(ms, sizeof ms, "%.*f", r->seconds < 10.0 ? 2 : 1, r->seconds);
+      snprintf(tx, sizeof tx, "%.2f%%", 100 * r->rmse_texels);
+      snprintf(want, sizeof want, "| cornell | %s | %s |", r->value, ms);
+      ASSERT_TRUE(fgets(line, sizeof line, mf) != NULL);
+      if (strncmp(line, want, strlen(want)) != 0)
+        fprintf(stderr, "presets.md row %d: '%s' does not start with '%s'\n", i, line, want);
+      ASSERT_TRUE(!strncmp(line, want, strlen(want)));
+      size_t n = strlen(line);
+      while (n && (line[n - 1] == '\n' || line[n - 1] == ' ' || line[n - 1] == '|'))
+        line[--n] = '\0';
+      ASSERT_TRUE(n >= strlen(tx) && !strcmp(line + n - strlen(tx), tx));
+    }
+    ASSERT_TRUE(fgets(line, sizeof line, mf) && !strcmp(line, "\n"));
+    ASSERT_TRUE(fgets(line, sizeof line, mf) &&
+                !strncmp(line, "cornell: 16 points", strlen("cornell: 16 points")) &&
+                strstr(line, "--ladder quick") != NULL);
+    fclose(mf);
+  }
 
   /* The plot (when gnuplot is installed) and the reference cache (one row per point). */
   FILE *g = popen("command -v gnuplot", "r");

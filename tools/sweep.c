@@ -87,6 +87,9 @@ typedef struct sweep {
   const char *level, *out_dir;
   char name[64];
   int points, threads, repeat, keep_bakes, plot, verbose, quick, reuse_conv;
+  int presets;             /* --ladder presets: the three presets only (the README table) */
+  int argc;                /* the command line after "sweep", quoted in presets.md */
+  char **argv;
   int sampling;            /* --ladder sampling: the gather-rays and adaptive ladders only;
                               2 (--ladder sampling-short): gather rays 64, 256 and targets
                               0.2..0.02 (big levels) */
@@ -761,14 +764,14 @@ static void sw_build_ladder(sweep *s)
   static const uint32_t rays_quick[] = {16, 64, 256};
   static const uint32_t rays_short[] = {64, 256};
   const uint32_t *rays = s->quick ? rays_quick : s->sampling == 2 ? rays_short : rays_full;
-  int nrays = s->quick ? 3 : s->sampling == 2 ? 2 : 7;
+  int nrays = s->presets ? 0 : s->quick ? 3 : s->sampling == 2 ? 2 : 7;
   for (int i = 0; i < nrays; i++) {
     sweep_cfg c = SW_MIDDLE;
     c.gather_rays = rays[i];
     snprintf(v, sizeof v, "%u", rays[i]);
     sw_add_rung(s, "gather_rays", v, "", c);
   }
-  if (!s->quick && !s->sampling) {
+  if (!s->quick && !s->sampling && !s->presets) {
     for (int b = 1; b <= 4; b++) {
       sweep_cfg c = SW_MIDDLE;
       c.bounces = b == 4 ? -1 : b;
@@ -794,7 +797,7 @@ static void sw_build_ladder(sweep *s)
   static const double targets_full[] = {0.2, 0.1, 0.05, 0.02, 0.01};
   static const double targets_quick[] = {0.1};
   const double *targets = s->quick ? targets_quick : targets_full;
-  int ntargets = s->quick ? 1 : s->sampling == 2 ? 4 : 5;
+  int ntargets = s->presets ? 0 : s->quick ? 1 : s->sampling == 2 ? 4 : 5;
   for (int i = 0; i < ntargets; i++) {
     sweep_cfg c = SW_MIDDLE;
     c.gather_rays = SWEEP_ADAPTIVE_RAYS;
@@ -852,6 +855,77 @@ static int sw_write_csv(const sweep *s)
     sw_csv_num(f, s->ref_noise);
     fputc('\n', f);
   }
+  if (fclose(f) != 0 || rename(tmp, path) != 0) {
+    fprintf(stderr, "ubake: %s: cannot write: %s\n", path, strerror(errno));
+    return 0;
+  }
+  return 1;
+}
+
+/* A percentage cell of presets.md ("–" when not applicable). */
+static void sw_md_pct(FILE *f, double v, int decimals)
+{
+  if (isfinite(v))
+    fprintf(f, " %.*f%% |", decimals, 100 * v);
+  else
+    fputs(" – |", f);
+}
+
+/* The header of presets.md's table (also what `make sweep-presets` keeps once when it joins
+ * the levels' tables). */
+static const char *PRESETS_MD_HEADER =
+    "| level | preset | wall s | core-s | rays | rel RMSE, all points | p95, all points | "
+    "rel RMSE, lightmap points | rel RMSE, GLG points | rel RMSE, texels vs converged |\n"
+    "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n";
+
+/* DIR/presets.md: the preset rungs measured so far as the rows of README's "The presets,
+ * measured" table, then one line saying how they were measured. Nothing if the ladder has
+ * no preset rung. */
+static int sw_write_presets_md(const sweep *s, double load_now)
+{
+  int any = 0;
+  for (int i = 0; i < s->nrungs; i++)
+    any |= !strcmp(s->rungs[i].setting, "preset") && s->results[s->rungs[i].result].done;
+  if (!any)
+    return 1;
+  char path[1280], tmp[1300];
+  snprintf(path, sizeof path, "%s/presets.md", s->out_dir);
+  snprintf(tmp, sizeof tmp, "%s.tmp", path);
+  FILE *f = fopen(tmp, "w");
+  if (!f) {
+    fprintf(stderr, "ubake: %s: cannot write: %s\n", tmp, strerror(errno));
+    return 0;
+  }
+  fputs(PRESETS_MD_HEADER, f);
+  for (int i = 0; i < s->nrungs; i++) {
+    const sweep_rung *r = &s->rungs[i];
+    const sweep_result *m = &s->results[r->result];
+    if (strcmp(r->setting, "preset") || !m->done)
+      continue;
+    fprintf(f, "| %s | %s | %.*f | %.*f | %.1f M |", s->name, r->value,
+            m->seconds < 10.0 ? 2 : 1, m->seconds, m->core_seconds < 10.0 ? 2 : 1,
+            m->core_seconds, m->rays * 1e-6);
+    sw_md_pct(f, m->rmse_pts, 1);
+    sw_md_pct(f, m->p95_pts, 1);
+    sw_md_pct(f, m->rmse_lm, 2);
+    sw_md_pct(f, m->rmse_glg, 1);
+    sw_md_pct(f, m->rmse_texels, 2);
+    fputc('\n', f);
+  }
+  fprintf(f, "\n%s: %d points (%d lightmap, %d GLG), reference %u spp (its noise %.2f%% "
+             "relative RMS s.e.), ",
+          s->name, s->npts, s->nlm, s->nglg, s->ref_spp,
+          isfinite(s->ref_noise) ? 100 * s->ref_noise : 0.0);
+  if (s->conv)
+    fprintf(f, "converged bake %u gather rays (%u texels), ", s->converged_rays,
+            s->conv_texels);
+  else
+    fputs("no converged bake, ", f);
+  fprintf(f, "%ld cores, load average %.2f at start, %.2f now; `ubake sweep",
+          sysconf(_SC_NPROCESSORS_ONLN), s->load_begin, load_now);
+  for (int i = 0; i < s->argc; i++)
+    fprintf(f, " %s", s->argv[i]);
+  fputs("`\n", f);
   if (fclose(f) != 0 || rename(tmp, path) != 0) {
     fprintf(stderr, "ubake: %s: cannot write: %s\n", path, strerror(errno));
     return 0;
@@ -980,7 +1054,8 @@ static int sw_run(sweep *s)
   s->load_begin = sw_loadavg();
   printf("ubake sweep %s -> %s (%s ladder, %d points, %u spp reference, converged bake %u "
          "rays, %ld cores, load average %.2f)\n",
-         s->level, s->out_dir, s->quick ? "quick" : s->sampling ? "sampling" : "full", s->points, s->ref_spp,
+         s->level, s->out_dir,
+         s->quick ? "quick" : s->presets ? "presets" : s->sampling ? "sampling" : "full", s->points, s->ref_spp,
          s->converged_rays, sysconf(_SC_NPROCESSORS_ONLN), s->load_begin);
   fflush(stdout);
   ub_result r = ub_scene_load(s->level, &log, &s->scene);
@@ -1011,15 +1086,20 @@ static int sw_run(sweep *s)
 
   /* 1. The middle setting (the fast preset), kept for picking the points. It is baked again
    * in its place in the ladder, so that its time is taken next to its neighbours' (the
-   * load of a shared machine drifts over a long sweep). */
-  printf("sweep: [middle] fast preset (%u gather rays, auto bounces, texel %.4g m, GLG "
+   * load of a shared machine drifts over a long sweep). The presets ladder picks them from
+   * a draft bake instead: the points depend only on the atlas and the GLG, which the preset
+   * does not change, and draft costs a quarter of fast. */
+  sweep_cfg midc = s->cfgs[0];
+  if (s->presets)
+    midc.quality = UB_QUALITY_DRAFT;
+  printf("sweep: [middle] %s preset (%u gather rays, auto bounces, texel %.4g m, GLG "
          "spacing %.4g m)\n",
-         sw_resolved_rays(&s->cfgs[0]), s->texel0, s->glg0);
+         ub_quality_name(midc.quality), sw_resolved_rays(&midc), s->texel0, s->glg0);
   fflush(stdout);
   snprintf(dir, sizeof dir, "%s/middle", bakes);
   ub_bake_stats st;
   double sec, core;
-  if (!sw_bake(s, &s->cfgs[0], s->seed, dir, "middle", 0, &st, &sec, &core))
+  if (!sw_bake(s, &midc, s->seed, dir, "middle", 0, &st, &sec, &core))
     return 0;
   ub_runtime *mid = sw_load(s, st.ubk_path);
   if (!mid)
@@ -1058,6 +1138,10 @@ static int sw_run(sweep *s)
       ub_runtime_free(mid);
       return 0;
     }
+    const ub_bakefile *cf = ub_runtime_bakefile(s->conv);
+    for (uint32_t at = 0; at < cf->atlas_count; at++)
+      for (size_t px = 0; px < (size_t)cf->atlases[at].width * cf->atlases[at].height; px++)
+        s->conv_texels += cf->atlases[at].coverage[px] == 1;
   }
   ub_runtime_free(mid);
 
@@ -1083,7 +1167,7 @@ static int sw_run(sweep *s)
         return 0;
     }
     sw_print_result(rg, &s->results[rg->result]);
-    if (!sw_write_csv(s))
+    if (!sw_write_csv(s) || !sw_write_presets_md(s, sw_loadavg()))
       return 0;
   }
   double load_end = sw_loadavg();
@@ -1102,16 +1186,18 @@ static const char *SWEEP_HELP =
     "points and GLG points, traced once, cached in DIR/reference_points.csv) and a converged\n"
     "bake at every texel. Writes DIR/sweep.csv (setting, value, seconds, core_seconds, rays,\n"
     "rel_rmse_points, max_err_points, p95_err_points, rel_rmse_texels, ...) and DIR/sweep.png\n"
-    "(gnuplot: error vs seconds, log-log, one curve per knob).\n"
+    "(gnuplot: error vs seconds, log-log, one curve per knob); with preset rungs also\n"
+    "DIR/presets.md (README's preset table rows and how they were measured).\n"
     "  -o DIR               output folder (default out/sweep/LEVELNAME)\n"
-    "  --ladder quick|full|sampling\n"
+    "  --ladder quick|full|presets|sampling|sampling-short\n"
     "                       full (default): gather rays 16..1024, bounces 1,2,3,auto, texel\n"
     "                       size x2,x1,x0.5, GLG spacing x2,x1,x0.5, adaptive (64 base gather\n"
     "                       rays, --target-error 0.2,0.1,0.05,0.02,0.01), presets\n"
     "                       draft,fast,high; quick (CI): gather rays 16,64,256, adaptive\n"
     "                       0.1, presets draft,fast; sampling: the gather-rays and adaptive\n"
     "                       ladders of full only (uniform vs adaptive sampling);\n"
-    "                       sampling-short: gather rays 64,256 and adaptive 0.2..0.02\n"
+    "                       sampling-short: gather rays 64,256 and adaptive 0.2..0.02;\n"
+    "                       presets: draft,fast,high only (README's preset table)\n"
     "  --points N           ground-truth points, half lightmap, half GLG (default 64; quick 32)\n"
     "  --ref-spp N          reference paths per point (default 65536; quick 16384)\n"
     "  --converged-rays N   gather rays per texel of the converged bake (default 4096;\n"
@@ -1133,6 +1219,8 @@ int ub_cli_sweep(int argc, char **argv)
 {
   sweep s;
   memset(&s, 0, sizeof s);
+  s.argc = argc;
+  s.argv = argv;
   s.seed = 1;
   s.plot = 1;
   long points = -1, spp = -1, conv = -1, n;
@@ -1154,12 +1242,14 @@ int ub_cli_sweep(int argc, char **argv)
     } else if (!strcmp(a, "--ladder") && v) {
       if (!strcmp(v, "quick"))
         s.quick = 1;
+      else if (!strcmp(v, "presets"))
+        s.presets = 1;
       else if (!strcmp(v, "sampling"))
         s.sampling = 1;
       else if (!strcmp(v, "sampling-short"))
         s.sampling = 2;
       else if (strcmp(v, "full"))
-        SW_USAGE("--ladder takes quick, full, sampling or sampling-short");
+        SW_USAGE("--ladder takes quick, full, presets, sampling or sampling-short");
       i++;
     } else if (!strcmp(a, "--points") && v) {
       if (!sw_parse_uint(v, 1, 100000, &points))

@@ -8,7 +8,8 @@
  *     DIR/reference_points.csv, so a rerun (or a resumed run) traces nothing twice;
  *   - a converged bake (many gather rays, same texel size) at every covered texel.
  * Writes DIR/sweep.csv (rewritten after every rung), DIR/sweep.gp and DIR/sweep.png
- * (gnuplot: error vs seconds, log-log, one curve per knob).
+ * (gnuplot: error vs seconds, log-log, one curve per knob), and, when the ladder has preset
+ * rungs, DIR/presets.md: README's preset table rows (`--ladder presets` bakes only those).
  *
  * Part of the command-line program: it prints progress and errors itself. Returns the
  * process exit status (0 ok, 1 error). argv holds the arguments after "sweep".
