@@ -6,6 +6,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "runtime/blend.h"
 #include "runtime/half.h"
@@ -710,11 +711,19 @@ static void glg_touched(void *user, uint32_t first, uint32_t count, const float 
     ub_sh2_window(rt->glg_win + 27 * (size_t)q);
 }
 
+static double rt_now(void)
+{
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
 ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
 {
   assert(rt);
   ub_runtime_update_stats st;
   memset(&st, 0, sizeof st);
+  double t0 = out_stats ? rt_now() : 0.0, t1 = t0, t2 = t0;
   if (rt->lm_blend) {
     touched_ctx tc = {rt, 0};
     ub_blend_stats bs;
@@ -725,6 +734,8 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
     st.bytes_written += bs.bytes_written;
     st.groups += bs.groups;
   }
+  if (out_stats)
+    t1 = rt_now();
   if (rt->glg_blend) {
     ub_blend_stats bs;
     ub_blend_update(rt->glg_blend, glg_touched, rt, rt->glg_cur, &bs);
@@ -733,6 +744,8 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
     st.bytes_written += bs.bytes_written;
     st.groups += bs.groups;
   }
+  if (out_stats)
+    t2 = rt_now();
   if (rt->llg_blend) {
     ub_blend_stats bs;
     ub_blend_update(rt->llg_blend, NULL, NULL, rt->llg_cur, &bs); /* models read llg_cur */
@@ -741,8 +754,12 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
     st.bytes_written += bs.bytes_written;
     st.groups += bs.groups;
   }
-  if (out_stats)
+  if (out_stats) {
+    st.seconds_lightmap = t1 - t0;
+    st.seconds_glg = t2 - t1;
+    st.seconds_llg = rt_now() - t2;
     *out_stats = st;
+  }
   return UB_OK;
 }
 
@@ -1031,8 +1048,9 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
   return 1;
 }
 
-ub_result ub_runtime_query_lightmap(const ub_runtime *rt, const float p[3], const float n[3],
-                                    float out_rgb[3], float *out_distance)
+ub_result ub_runtime_query_lightmap_ex(const ub_runtime *rt, const float p[3],
+                                       const float n[3], float out_rgb[3],
+                                       ub_runtime_lightmap_hit *out_hit)
 {
   assert(rt && p && n && out_rgb);
   if (rt->lit_count == 0)
@@ -1041,12 +1059,16 @@ ub_result ub_runtime_query_lightmap(const ub_runtime *rt, const float p[3], cons
   if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2]) || !normalise3(n, nn))
     return UB_ERR_INVALID_ARGUMENT;
 
+  /* The closest lightmapped surface point among the triangles the current state shows
+   * (a hidden object's or door leaf's surface is not in the level now: its texels hold
+   * the lighting it had when shown); the closest hidden one is remembered for the hit. */
   const ub_bakefile *bf = rt->bf;
   double pd[3] = {p[0], p[1], p[2]};
-  double best_d2 = INFINITY, best_bary[3] = {1, 0, 0};
-  uint32_t best_tri = rt->lit_tris[0];
+  double best_d2 = INFINITY, best_bary[3] = {1, 0, 0}, hid_d2 = INFINITY;
+  uint32_t best_tri = UINT32_MAX, hid_tri = UINT32_MAX;
   for (uint32_t k = 0; k < rt->lit_count; k++) {
     uint32_t t = rt->lit_tris[k];
+    int shown = ub_runtime_triangle_shown(rt, t);
     double v[3][3];
     for (int j = 0; j < 3; j++) {
       const float *pos = &bf->positions[(size_t)bf->indices[(size_t)t * 3 + j] * 3];
@@ -1057,12 +1079,19 @@ ub_result ub_runtime_query_lightmap(const ub_runtime *rt, const float p[3], cons
     bary_point(v[0], v[1], v[2], bary, q);
     sub3d(pd, q, d);
     double d2 = dot3d(d, d);
-    if (d2 < best_d2) {
+    if (!shown) {
+      if (d2 < hid_d2) {
+        hid_d2 = d2;
+        hid_tri = t;
+      }
+    } else if (d2 < best_d2) {
       best_d2 = d2;
       best_tri = t;
       memcpy(best_bary, bary, sizeof bary);
     }
   }
+  if (best_tri == UINT32_MAX)
+    return UB_ERR_NOT_BAKED; /* every lightmapped triangle is hidden */
 
   const float *uv = &bf->tri_uv[(size_t)best_tri * 6];
   double u = best_bary[0] * uv[0] + best_bary[1] * uv[2] + best_bary[2] * uv[4];
@@ -1072,9 +1101,29 @@ ub_result ub_runtime_query_lightmap(const ub_runtime *rt, const float p[3], cons
     ub_ahd_irradiance(&ahd, nn, out_rgb);
   else
     out_rgb[0] = out_rgb[1] = out_rgb[2] = 0.0f;
-  if (out_distance)
-    *out_distance = (float)sqrt(best_d2);
+  if (out_hit) {
+    ub_runtime_lightmap_hit h;
+    h.triangle = best_tri;
+    h.distance = (float)sqrt(best_d2);
+    h.hidden_closer = hid_d2 < best_d2;
+    h.hidden_triangle = h.hidden_closer ? hid_tri : UINT32_MAX;
+    h.hidden_element = -1;
+    if (h.hidden_closer && bf->tri_role && bf->tri_role[hid_tri])
+      h.hidden_element = (int32_t)(bf->tri_role[hid_tri] & 0xFFFFFFu);
+    h.hidden_distance = h.hidden_closer ? (float)sqrt(hid_d2) : INFINITY;
+    *out_hit = h;
+  }
   return UB_OK;
+}
+
+ub_result ub_runtime_query_lightmap(const ub_runtime *rt, const float p[3], const float n[3],
+                                    float out_rgb[3], float *out_distance)
+{
+  ub_runtime_lightmap_hit h;
+  ub_result r = ub_runtime_query_lightmap_ex(rt, p, n, out_rgb, &h);
+  if (r == UB_OK && out_distance)
+    *out_distance = h.distance;
+  return r;
 }
 
 ub_result ub_runtime_lightmap_at(const ub_runtime *rt, uint32_t tri, float b1, float b2,
@@ -1084,7 +1133,7 @@ ub_result ub_runtime_lightmap_at(const ub_runtime *rt, uint32_t tri, float b1, f
   const ub_bakefile *bf = rt->bf;
   float nn[3];
   if (tri >= bf->triangle_count || bf->tri_atlas[tri] < 0 || !isfinite(b1) ||
-      !isfinite(b2) || !normalise3(n, nn))
+      !isfinite(b2) || !normalise3(n, nn) || !ub_runtime_triangle_shown(rt, tri))
     return UB_ERR_INVALID_ARGUMENT;
   const float *uv = &bf->tri_uv[(size_t)tri * 6];
   float b0 = 1.0f - b1 - b2;
