@@ -97,7 +97,10 @@ struct ub_blend {
   const float **scr_w;
   /* AVX + F16C path (chosen at create): weight patterns and member sources. */
   int avx;
-  float *wpat;           /* max(max_overlap, 1) × 32 floats, 32-byte aligned */
+  float *wpat;           /* element_count × 32 floats, 32-byte aligned: each element's
+                            weight repeated over 24 lanes (the RGB period of 8-lane
+                            vectors), kept by set_weight so a group only picks pointers */
+  const float **avx_w;   /* max(max_overlap, 1): the non-zero members' patterns */
   const char **avx_src;  /* max(max_overlap, 1) */
   size_t engine_bytes, record_bytes;
 };
@@ -307,20 +310,20 @@ BLEND_AVX_INLINE __m128 avx_load4(const char *src, size_t j, const int half)
   return _mm_loadu_ps((const float *)(const void *)src + j);
 }
 
-/* o[j] = bs[j] + Σ_m wp_m[j mod 24]·src_m[j], j < nf; wp_m = wpat + 32·m. */
+/* o[j] = bs[j] + Σ_m wp[m][j mod 24]·src_m[j], j < nf. */
 BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
-                               const char *const *src, const float *wpat, const uint32_t k,
-                               const size_t nf, const int half)
+                               const char *const *src, const float *const *wp,
+                               const uint32_t k, const size_t nf, const int half)
 {
   size_t j = 0;
   for (; j + 24 <= nf; j += 24) {
     __m256 a0 = _mm256_loadu_ps(bs + j), a1 = _mm256_loadu_ps(bs + j + 8),
            a2 = _mm256_loadu_ps(bs + j + 16);
     for (uint32_t m = 0; m < k; m++) {
-      const float *wp = wpat + 32 * (size_t)m;
-      a0 = _mm256_add_ps(a0, _mm256_mul_ps(_mm256_load_ps(wp), avx_load8(src[m], j, half)));
-      a1 = _mm256_add_ps(a1, _mm256_mul_ps(_mm256_load_ps(wp + 8), avx_load8(src[m], j + 8, half)));
-      a2 = _mm256_add_ps(a2, _mm256_mul_ps(_mm256_load_ps(wp + 16), avx_load8(src[m], j + 16, half)));
+      const float *w = wp[m];
+      a0 = _mm256_add_ps(a0, _mm256_mul_ps(_mm256_load_ps(w), avx_load8(src[m], j, half)));
+      a1 = _mm256_add_ps(a1, _mm256_mul_ps(_mm256_load_ps(w + 8), avx_load8(src[m], j + 8, half)));
+      a2 = _mm256_add_ps(a2, _mm256_mul_ps(_mm256_load_ps(w + 16), avx_load8(src[m], j + 16, half)));
     }
     _mm256_storeu_ps(o + j, a0);
     _mm256_storeu_ps(o + j + 8, a1);
@@ -330,16 +333,14 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
     const size_t ph = j % 24;
     __m256 a = _mm256_loadu_ps(bs + j);
     for (uint32_t m = 0; m < k; m++)
-      a = _mm256_add_ps(a, _mm256_mul_ps(_mm256_loadu_ps(wpat + 32 * (size_t)m + ph),
-                                         avx_load8(src[m], j, half)));
+      a = _mm256_add_ps(a, _mm256_mul_ps(_mm256_loadu_ps(wp[m] + ph), avx_load8(src[m], j, half)));
     _mm256_storeu_ps(o + j, a);
   }
   for (; j + 4 <= nf; j += 4) {
     const size_t ph = j % 24;
     __m128 a = _mm_loadu_ps(bs + j);
     for (uint32_t m = 0; m < k; m++)
-      a = _mm_add_ps(a, _mm_mul_ps(_mm_loadu_ps(wpat + 32 * (size_t)m + ph),
-                                   avx_load4(src[m], j, half)));
+      a = _mm_add_ps(a, _mm_mul_ps(_mm_loadu_ps(wp[m] + ph), avx_load4(src[m], j, half)));
     _mm_storeu_ps(o + j, a);
   }
   for (; j < nf; j++) {
@@ -347,7 +348,7 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
     for (uint32_t m = 0; m < k; m++) {
       float v = half ? ub_half_to_float(((const uint16_t *)(const void *)src[m])[j])
                      : ((const float *)(const void *)src[m])[j];
-      float t = wpat[32 * (size_t)m + j % 24] * v;
+      float t = wp[m][j % 24] * v;
       acc = acc + t;
     }
     o[j] = acc;
@@ -355,18 +356,18 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
 }
 
 BLEND_AVX static void avx_flat_h(float *restrict o, const float *restrict bs,
-                                 const char *const *src, const float *wpat, uint32_t k,
+                                 const char *const *src, const float *const *wp, uint32_t k,
                                  size_t nf)
 {
-  avx_flat(o, bs, src, wpat, k, nf, 1);
+  avx_flat(o, bs, src, wp, k, nf, 1);
   _mm256_zeroupper();
 }
 
 BLEND_AVX static void avx_flat_f(float *restrict o, const float *restrict bs,
-                                 const char *const *src, const float *wpat, uint32_t k,
+                                 const char *const *src, const float *const *wp, uint32_t k,
                                  size_t nf)
 {
-  avx_flat(o, bs, src, wpat, k, nf, 0);
+  avx_flat(o, bs, src, wp, k, nf, 0);
   _mm256_zeroupper();
 }
 
@@ -379,15 +380,13 @@ static void group_blend_avx(const blend_call *c, const blend_group *g, const uin
   const uint32_t *d = b->data + g->data_off;
   const uint32_t *idx0 = b->rec[mem[0]].receivers;
   const size_t rstep = (size_t)S * b->value_size;
-  void (*flat)(float *restrict, const float *restrict, const char *const *, const float *,
-               uint32_t, size_t) = b->value_size == 2 ? avx_flat_h : avx_flat_f;
+  void (*flat)(float *restrict, const float *restrict, const char *const *,
+               const float *const *, uint32_t, size_t) =
+      b->value_size == 2 ? avx_flat_h : avx_flat_f;
   const char **src = b->avx_src;
-  float *wpat = b->wpat;
-  for (uint32_t m = 0; m < k; m++) {
-    const float *wt = b->weight + 3 * (size_t)mem[act[m]];
-    for (int j = 0; j < 24; j++)
-      wpat[32 * (size_t)m + j] = wt[j % 3];
-  }
+  const float **wpat = b->avx_w;
+  for (uint32_t m = 0; m < k; m++)
+    wpat[m] = b->wpat + 32 * (size_t)mem[act[m]];
   float *out = c->out;
   const float *gb = group_base(b, g);
   if (g->k_mode & GROUP_LIST) {
@@ -701,6 +700,9 @@ ub_result ub_blend_set_weight(ub_blend *b, uint32_t element, const float rgb[3])
   float *we = b->wexp + (size_t)element * b->wstride;
   for (uint32_t j = 0; j < b->wstride; j++)
     we[j] = w[j % 3];
+  if (b->wpat)
+    for (int j = 0; j < 24; j++)
+      b->wpat[32 * (size_t)element + j] = w[j % 3];
   b->nonzero[element] = w[0] != 0.0f || w[1] != 0.0f || w[2] != 0.0f;
   if (!b->dirty[element]) {
     b->dirty[element] = 1;
@@ -765,6 +767,7 @@ void ub_blend_free(ub_blend *b)
   free(b->scr_act);
   free(b->wpat);
   free((void *)b->avx_src);
+  free((void *)b->avx_w);
   free((void *)b->scr_src);
   free((void *)b->scr_rows);
   free((void *)b->scr_w);
@@ -1112,12 +1115,14 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
   }
 #if BLEND_F16C
   if (b->avx) {
-    size_t na = maxk ? maxk : 1;
-    b->wpat = aligned_alloc(32, na * 32 * sizeof(float));
+    size_t na = maxk ? maxk : 1, ne = E ? E : 1;
+    b->wpat = aligned_alloc(32, ne * 32 * sizeof(float));
     b->avx_src = alloc_n(na, sizeof(char *), acc);
-    if (!b->wpat || !b->avx_src)
+    b->avx_w = alloc_n(na, sizeof(float *), acc);
+    if (!b->wpat || !b->avx_src || !b->avx_w)
       return UB_ERR_OUT_OF_MEMORY;
-    *acc += na * 32 * sizeof(float);
+    memset(b->wpat, 0, ne * 32 * sizeof(float)); /* every weight starts at 0 */
+    *acc += ne * 32 * sizeof(float);
   }
 #endif
   b->scr_act = alloc_n(sk, sizeof(uint32_t), acc);

@@ -16,12 +16,20 @@
 
 /* Texels searched around a query whose four bilinear neighbours are all empty. */
 #define UB_RT_EMPTY_SEARCH_RADIUS 4
-/* A stored normal shorter than this is treated as absent (padding, degenerate). */
-#define UB_RT_MIN_NORMAL_LENGTH 0.5f
+
+typedef struct ub_rt_fallback {
+  uint32_t count;
+  uint32_t *pixel; /* count, ascending */
+  float *normal;   /* count × 3, unit or zero */
+} ub_rt_fallback;
 
 struct ub_runtime {
   ub_bakefile *bf;
-  float **enc_normal;    /* atlas_count arrays of width × height × 3: AHD encode normals */
+  /* AHD encode normals: a covered texel's own stored normal (ub_texel_normal, made when
+   * needed), else the normal of the nearest texel that has one, kept here for those few
+   * texels only (per atlas, pixels ascending; a zero normal: none in the atlas, the SH's
+   * own direction is used). */
+  ub_rt_fallback *fallback; /* atlas_count */
   uint64_t *pixel_first; /* atlas_count + 1: first global pixel of each atlas */
   /* Dynamic light sets (when the file has any): blended SH, re-encoded where touched. */
   float *lm_base, *lm_cur; /* Σ pixels × 12; lm_cur in the file's I_z form (below) */
@@ -85,30 +93,34 @@ static void sh_dominant_direction(const float sh[UB_SH1_FLOATS], float out_n[3])
   }
 }
 
-/* Per-pixel encode normals of one atlas: a texel's stored normal, or for texels without a
- * usable one the normal of the nearest texel (8-connected multi-source BFS) that has one;
- * -1 in out_src where no texel of the atlas has a normal (the SH's own direction is used). */
-static ub_result encode_normals(const ub_bakefile_atlas *at, float **out_nrm)
+/* Encode normals of one atlas's covered texels without a usable normal of their own: the
+ * normal of the nearest texel (8-connected multi-source BFS) that has one; zero where no
+ * texel of the atlas has a normal (the SH's own direction is used). */
+static ub_result encode_fallbacks(const ub_bakefile_atlas *at, ub_rt_fallback *out)
 {
-  size_t texels = (size_t)at->width * at->height;
-  float *nrm = malloc(texels * 3 * sizeof *nrm);
-  float *res = calloc(texels * 3, sizeof *res);
+  size_t texels = (size_t)at->width * at->height, need = 0;
+  float un[3];
+  for (size_t i = 0; i < texels; i++)
+    need += at->coverage[i] != 0 && !ub_texel_normal(&at->normal[i * 3], un);
+  memset(out, 0, sizeof *out);
+  if (!need)
+    return UB_OK;
   int32_t *src = malloc(texels * sizeof *src);   /* texel whose normal is used, -1 none */
   uint32_t *queue = malloc(texels * sizeof *queue);
-  if (!nrm || !res || !src || !queue) {
-    free(nrm);
-    free(res);
+  out->pixel = malloc(need * sizeof *out->pixel);
+  out->normal = calloc(need * 3, sizeof *out->normal);
+  if (!src || !queue || !out->pixel || !out->normal) {
     free(src);
     free(queue);
+    free(out->pixel);
+    free(out->normal);
+    memset(out, 0, sizeof *out);
     return UB_ERR_OUT_OF_MEMORY;
   }
   size_t head = 0, tail = 0;
   for (size_t i = 0; i < texels; i++) {
-    const float *n = &at->normal[i * 3];
-    double l2 = (double)n[0] * n[0] + (double)n[1] * n[1] + (double)n[2] * n[2];
     src[i] = -1;
-    if (at->coverage[i] != 0 && l2 >= (double)UB_RT_MIN_NORMAL_LENGTH * UB_RT_MIN_NORMAL_LENGTH &&
-        normalise3(n, &nrm[i * 3])) {
+    if (at->coverage[i] != 0 && ub_texel_normal(&at->normal[i * 3], un)) {
       src[i] = (int32_t)i;
       queue[tail++] = (uint32_t)i;
     }
@@ -128,38 +140,59 @@ static ub_result encode_normals(const ub_bakefile_atlas *at, float **out_nrm)
         queue[tail++] = (uint32_t)j;
       }
   }
-  /* A zero vector marks "no normal anywhere": encode_pixels uses the SH's direction. */
   for (size_t i = 0; i < texels; i++)
-    if (src[i] >= 0)
-      memcpy(&res[i * 3], &nrm[(size_t)src[i] * 3], 3 * sizeof(float));
-  free(nrm);
+    if (at->coverage[i] != 0 && !ub_texel_normal(&at->normal[i * 3], un)) {
+      out->pixel[out->count] = (uint32_t)i;
+      if (src[i] >= 0)
+        ub_texel_normal(&at->normal[(size_t)src[i] * 3], &out->normal[out->count * 3]);
+      out->count++;
+    }
   free(src);
   free(queue);
-  *out_nrm = res;
   return UB_OK;
 }
 
-/* Texel i's SH L1 from an array in the I_z form (packed) or plain, into out. */
-static void texel_sh_at(const ub_bakefile_atlas *at, const float *sh, int packed, size_t i,
-                        float out[UB_SH1_FLOATS])
+/* The encode normal of covered texel i (unit, or zero: use the SH's direction); returns
+ * whether it is the texel's own normal (then the I_z form unpacks with it). */
+static int encode_normal(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, size_t i,
+                         float out_n[3])
 {
-  float un[3];
-  memcpy(out, &sh[i * UB_SH1_FLOATS], UB_SH1_FLOATS * sizeof(float));
-  if (packed && ub_texel_normal(&at->normal[i * 3], un))
-    ub_texel_sh_unpack(out, un);
+  if (ub_texel_normal(&at->normal[i * 3], out_n))
+    return 1;
+  size_t lo = 0, hi = fb->count;
+  while (lo < hi) {
+    size_t mid = (lo + hi) / 2;
+    if (fb->pixel[mid] < i)
+      lo = mid + 1;
+    else
+      hi = mid;
+  }
+  if (lo < fb->count && fb->pixel[lo] == i)
+    memcpy(out_n, &fb->normal[lo * 3], 3 * sizeof(float));
+  else
+    out_n[0] = out_n[1] = out_n[2] = 0.0f;
+  return 0;
+}
+
+/* Covered texel i's SH L1 from an array in the I_z form (packed) or plain, into out_sh, and
+ * its encode normal into out_n (see encode_normal). */
+static void texel_sh_at(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, const float *sh,
+                        int packed, size_t i, float out_sh[UB_SH1_FLOATS], float out_n[3])
+{
+  memcpy(out_sh, &sh[i * UB_SH1_FLOATS], UB_SH1_FLOATS * sizeof(float));
+  if (encode_normal(at, fb, i, out_n) && packed)
+    ub_texel_sh_unpack(out_sh, out_n);
 }
 
 /* AHD of pixels [first, first + count) of an atlas from the given SH (packed: I_z form). */
-static void encode_pixels(const ub_bakefile_atlas *at, const float *sh, int packed,
-                          const float *nrm, ub_ahd *ahd, size_t first, size_t count)
+static void encode_pixels(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, const float *sh,
+                          int packed, ub_ahd *ahd, size_t first, size_t count)
 {
   for (size_t i = first; i < first + count; i++) {
     if (at->coverage[i] == 0)
       continue;
-    float v[UB_SH1_FLOATS];
-    texel_sh_at(at, sh, packed, i, v);
-    float n[3];
-    memcpy(n, &nrm[i * 3], sizeof n);
+    float v[UB_SH1_FLOATS], n[3];
+    texel_sh_at(at, fb, sh, packed, i, v, n);
     if (n[0] == 0.0f && n[1] == 0.0f && n[2] == 0.0f)
       sh_dominant_direction(v, n);
     ub_ahd_encode(v, n, &ahd[i]);
@@ -174,10 +207,12 @@ void ub_runtime_free(ub_runtime *rt)
     for (uint32_t a = 0; a < rt->bf->atlas_count; a++)
       free(rt->ahd[a]);
   free(rt->ahd);
-  if (rt->enc_normal)
-    for (uint32_t a = 0; a < rt->bf->atlas_count; a++)
-      free(rt->enc_normal[a]);
-  free(rt->enc_normal);
+  if (rt->fallback)
+    for (uint32_t a = 0; a < rt->bf->atlas_count; a++) {
+      free(rt->fallback[a].pixel);
+      free(rt->fallback[a].normal);
+    }
+  free(rt->fallback);
   free(rt->pixel_first);
   ub_blend_free(rt->lm_blend);
   ub_blend_free(rt->glg_blend);
@@ -492,16 +527,16 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
         rt->pixel_first[a] + (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
   if (bf->atlas_count) {
     rt->ahd = calloc(bf->atlas_count, sizeof *rt->ahd);
-    rt->enc_normal = calloc(bf->atlas_count, sizeof *rt->enc_normal);
-    if (!rt->ahd || !rt->enc_normal)
+    rt->fallback = calloc(bf->atlas_count, sizeof *rt->fallback);
+    if (!rt->ahd || !rt->fallback)
       goto oom;
     for (uint32_t a = 0; a < bf->atlas_count; a++) {
       const ub_bakefile_atlas *at = &bf->atlases[a];
       size_t texels = (size_t)at->width * at->height;
       rt->ahd[a] = calloc(texels ? texels : 1, sizeof *rt->ahd[a]);
-      if (!rt->ahd[a] || encode_normals(at, &rt->enc_normal[a]) != UB_OK)
+      if (!rt->ahd[a] || encode_fallbacks(at, &rt->fallback[a]) != UB_OK)
         goto oom;
-      encode_pixels(at, at->sh, 0, rt->enc_normal[a], rt->ahd[a], 0, texels);
+      encode_pixels(at, &rt->fallback[a], at->sh, 0, rt->ahd[a], 0, texels);
     }
   }
   for (uint32_t t = 0; t < bf->triangle_count; t++)
@@ -694,7 +729,7 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
     if (hi <= a0 || lo >= a1)
       continue;
     uint64_t s0 = lo > a0 ? lo : a0, s1 = hi < a1 ? hi : a1;
-    encode_pixels(&rt->bf->atlases[a], rt->lm_cur + a0 * UB_SH1_FLOATS, 1, rt->enc_normal[a],
+    encode_pixels(&rt->bf->atlases[a], &rt->fallback[a], rt->lm_cur + a0 * UB_SH1_FLOATS, 1,
                   rt->ahd[a], (size_t)(s0 - a0), (size_t)(s1 - s0));
     tc->texels += s1 - s0;
   }
@@ -815,7 +850,8 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     size_t t = (size_t)bf->atlases[a].width * bf->atlases[a].height;
     m.geometry += t * (3 * F + 1);
-    m.lightmap += t * (sizeof(ub_ahd) + 3 * F) + (bf->atlases[a].sh ? t * UB_SH1_FLOATS * F : 0);
+    m.lightmap += t * sizeof(ub_ahd) + (bf->atlases[a].sh ? t * UB_SH1_FLOATS * F : 0) +
+                  (rt->fallback ? (size_t)rt->fallback[a].count * (U + 3 * F) : 0);
   }
   m.lightmap += rt->lm_cur ? (size_t)rt->pixel_first[bf->atlas_count] * UB_SH1_FLOATS * F : 0;
   for (uint32_t i = 0; i < bf->llg_count; i++) {
@@ -998,7 +1034,6 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
    * is off by up to 40% along the normal between texels that are each exact. */
   const float *shs = rt->lm_cur ? rt->lm_cur + rt->pixel_first[atlas] * UB_SH1_FLOATS : at->sh;
   int packed = rt->lm_cur != NULL;
-  const float *nrms = rt->enc_normal[atlas];
   double sw = 0, sh[UB_SH1_FLOATS] = {0}, nn[3] = {0, 0, 0};
   for (int k = 0; k < 4; k++) {
     int64_t x = x0 + (k & 1), y = y0 + (k >> 1);
@@ -1011,12 +1046,12 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
     if (!(wt > 0.0))
       continue;
     sw += wt;
-    float ts[UB_SH1_FLOATS];
-    texel_sh_at(at, shs, packed, i, ts);
+    float ts[UB_SH1_FLOATS], tn[3];
+    texel_sh_at(at, &rt->fallback[atlas], shs, packed, i, ts, tn);
     for (int c = 0; c < UB_SH1_FLOATS; c++)
       sh[c] += wt * ts[c];
     for (int c = 0; c < 3; c++)
-      nn[c] += wt * nrms[i * 3 + c];
+      nn[c] += wt * tn[c];
   }
   if (!(sw > 0.0)) {
     /* Nearest non-empty texel around the sample point. */

@@ -53,7 +53,8 @@ typedef struct ub_runtime_memory {
   size_t geometry;  /* triangles, vertices, UVs, albedo, roles, lights; atlas normals and
                        coverage; GLG positions, tets, leak planes; LLG model meshes,
                        visibility, self terms */
-  size_t lightmap;  /* AHD texels, encode normals, texel SH (current state, or the file's) */
+  size_t lightmap;  /* AHD texels, texel SH (current state, or the file's), the encode
+                       normals of covered texels without a normal of their own */
   size_t glg;       /* raw current + windowed SH, the GLG's acceleration data */
   size_t llg;       /* LLG probe SH (current state) */
   size_t records;   /* element records: receiver indices + values */
