@@ -44,15 +44,14 @@
 
 #define GROUP_LIST 0x80000000u /* k_mode bit: receivers stored as a list, else as runs */
 
-/* A group: receivers sharing one combination of elements. Its data words, from data_off:
- *   runs: per run   [length, p_0 … p_{k-1}]  (length consecutive receivers)
- *   list: per receiver [p_0 … p_{k-1}]
- * p_m is the position of the (first) receiver in member m's record; the receiver index is
- * members[0]'s receivers[p_0]. Runs of consecutive receivers are consecutive in every
- * record too (records are sorted and unique), so one position per member per run is
- * enough. */
+/* A group: receivers sharing one combination of k elements (its members, ascending ids).
+ * Its receivers, from unit_off in b->units: as runs, per run [first receiver, length]; as
+ * a list, per receiver [receiver]. Its record values, from val_off in b->values, in the
+ * group's receiver order: per receiver the k members' rows (S values each) one after the
+ * other, so a group's values are one sequential stream and no record position is kept. */
 typedef struct blend_group {
-  uint64_t data_off;
+  uint64_t val_off;    /* in values */
+  uint64_t unit_off;   /* in units (words) */
   uint32_t member_off; /* first of k element ids in b->members, ascending */
   uint32_t receivers;
   uint32_t units;      /* runs or receivers */
@@ -69,10 +68,9 @@ struct ub_blend {
   uint32_t value_size, kernel;
   blend_decode_fn decode; /* half → float, NULL for float records */
   uint32_t touched, max_overlap, run_groups;
-  uint64_t runs, memberships, data_words;
+  uint64_t runs, memberships, unit_words;
   const float *base;     /* the caller's base, NULL with UB_BLEND_OWN_BASE */
   float *obase;          /* UB_BLEND_OWN_BASE: touched receivers' base rows, group order */
-  ub_blend_record *rec; /* copies of desc->elements */
   float *weight;        /* element_count × 3 */
   float *wexp;          /* element_count × wstride: weight[c] at every j ≡ c (mod 3) */
   uint8_t *nonzero;     /* weight != (0, 0, 0) */
@@ -81,7 +79,8 @@ struct ub_blend {
   uint32_t dirty_count;
   blend_group *groups;
   uint32_t *members;
-  uint32_t *data;
+  uint32_t *units;      /* groups' receivers (blend_group) */
+  void *values;         /* memberships × stride record values (desc storage), group order */
   uint32_t *elem_off; /* element_count + 1: groups of element e = elem_groups[off[e]…] */
   uint32_t *elem_groups;
   uint32_t *stamp; /* per group, the update epoch that collected it */
@@ -92,16 +91,14 @@ struct ub_blend {
   size_t dec_floats;
   /* Scratch for combinations above BLEND_SPECIALISED (max_overlap entries each). */
   uint32_t *scr_act;
-  const char **scr_src;
   const float **scr_rows;
   const float **scr_w;
   /* AVX + F16C path (chosen at create): weight patterns and member sources. */
   int avx;
   float *wpat;           /* element_count × 32 floats, 32-byte aligned: each element's
-                            weight repeated over 24 lanes (the RGB period of 8-lane
-                            vectors), kept by set_weight so a group only picks pointers */
+                            weight at every lane j as ω[j mod 3] (period 24 = 3 × 8 lanes,
+                            8 more for unaligned tails), kept by set_weight */
   const float **avx_w;   /* max(max_overlap, 1): the non-zero members' patterns */
-  const char **avx_src;  /* max(max_overlap, 1) */
   size_t engine_bytes, record_bytes;
 };
 
@@ -286,13 +283,13 @@ BLEND_INLINE const float *group_base(const ub_blend *b, const blend_group *g)
 }
 
 #if BLEND_F16C
-/* The AVX + F16C path. A run of n consecutive receivers is n·S consecutive floats in base
- * and out and n·S consecutive values in every member's record, and since S is a multiple
- * of 3 the weight of flat position j is ω[j mod 3]: so a run is blended as one flat array,
- * 24 floats (3 × 8 lanes, the period of the RGB pattern) at a time, with the halves
- * converted in registers (no decode scratch). Per element the operations are those of
- * blend_row_*: acc = base; acc = acc + ω·v per member in id order, products and sums
- * rounded separately (no FMA): the same bits as the SSE2 and scalar kernels. */
+/* The AVX + F16C path: one receiver at a time, its row in 8-lane vectors (12 = 8 + 4,
+ * 27 = 3 × 8 + a 4-lane vector overlapping the last one: the shared lanes get the same
+ * value twice), halves converted in registers. Since S is a multiple of 3, the weight of
+ * row position j is ω[j mod 3] = wp[j mod 24 …] (wp: the element's pattern, 32 lanes).
+ * Per value the operations are those of blend_row_*: acc = base; acc = acc + ω·v per
+ * member in id order, products and sums rounded separately (no FMA): the same bits as the
+ * SSE2 and scalar kernels. */
 #define BLEND_AVX __attribute__((target("avx,f16c")))
 #define BLEND_AVX_INLINE static inline __attribute__((always_inline, target("avx,f16c")))
 
@@ -310,64 +307,117 @@ BLEND_AVX_INLINE __m128 avx_load4(const char *src, size_t j, const int half)
   return _mm_loadu_ps((const float *)(const void *)src + j);
 }
 
-/* o[j] = bs[j] + Σ_m wp[m][j mod 24]·src_m[j], j < nf. */
-BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
-                               const char *const *src, const float *const *wp,
-                               const uint32_t k, const size_t nf, const int half)
+/* o = bs + Σ_a ω_a·row_a, row_a = v + act[a]·S values (the receiver's member rows). */
+BLEND_AVX_INLINE void avx_row(float *restrict o, const float *restrict bs, const char *v,
+                              const uint32_t *act, const float *const *wp, const uint32_t k,
+                              const uint32_t S, const int half)
 {
-  size_t j = 0;
-  for (; j + 24 <= nf; j += 24) {
-    __m256 a0 = _mm256_loadu_ps(bs + j), a1 = _mm256_loadu_ps(bs + j + 8),
-           a2 = _mm256_loadu_ps(bs + j + 16);
-    for (uint32_t m = 0; m < k; m++) {
-      const float *w = wp[m];
-      a0 = _mm256_add_ps(a0, _mm256_mul_ps(_mm256_load_ps(w), avx_load8(src[m], j, half)));
-      a1 = _mm256_add_ps(a1, _mm256_mul_ps(_mm256_load_ps(w + 8), avx_load8(src[m], j + 8, half)));
-      a2 = _mm256_add_ps(a2, _mm256_mul_ps(_mm256_load_ps(w + 16), avx_load8(src[m], j + 16, half)));
-    }
-    _mm256_storeu_ps(o + j, a0);
-    _mm256_storeu_ps(o + j + 8, a1);
-    _mm256_storeu_ps(o + j + 16, a2);
-  }
-  for (; j + 8 <= nf; j += 8) {
-    const size_t ph = j % 24;
+  const size_t vs = half ? 2 : 4;
+  uint32_t j = 0;
+  for (; j + 8 <= S; j += 8) {
     __m256 a = _mm256_loadu_ps(bs + j);
     for (uint32_t m = 0; m < k; m++)
-      a = _mm256_add_ps(a, _mm256_mul_ps(_mm256_loadu_ps(wp[m] + ph), avx_load8(src[m], j, half)));
+      a = _mm256_add_ps(a, _mm256_mul_ps(_mm256_loadu_ps(wp[m] + j % 24),
+                                         avx_load8(v + (size_t)act[m] * S * vs, j, half)));
     _mm256_storeu_ps(o + j, a);
   }
-  for (; j + 4 <= nf; j += 4) {
-    const size_t ph = j % 24;
+  if (j + 4 <= S) {
     __m128 a = _mm_loadu_ps(bs + j);
     for (uint32_t m = 0; m < k; m++)
-      a = _mm_add_ps(a, _mm_mul_ps(_mm_loadu_ps(wp[m] + ph), avx_load4(src[m], j, half)));
+      a = _mm_add_ps(a, _mm_mul_ps(_mm_loadu_ps(wp[m] + j % 24),
+                                   avx_load4(v + (size_t)act[m] * S * vs, j, half)));
     _mm_storeu_ps(o + j, a);
+    j += 4;
   }
-  for (; j < nf; j++) {
-    float acc = bs[j];
-    for (uint32_t m = 0; m < k; m++) {
-      float v = half ? ub_half_to_float(((const uint16_t *)(const void *)src[m])[j])
-                     : ((const float *)(const void *)src[m])[j];
-      float t = wp[m][j % 24] * v;
-      acc = acc + t;
+  if (j < S && S >= 4) { /* 1..3 left: one vector over the last 4 */
+    const uint32_t t = S - 4;
+    __m128 a = _mm_loadu_ps(bs + t);
+    for (uint32_t m = 0; m < k; m++)
+      a = _mm_add_ps(a, _mm_mul_ps(_mm_loadu_ps(wp[m] + t % 24),
+                                   avx_load4(v + (size_t)act[m] * S * vs, t, half)));
+    _mm_storeu_ps(o + t, a);
+  } else {
+    for (; j < S; j++) {
+      float acc = bs[j];
+      for (uint32_t m = 0; m < k; m++) {
+        const char *src = v + (size_t)act[m] * S * vs;
+        float x = half ? ub_half_to_float(((const uint16_t *)(const void *)src)[j])
+                       : ((const float *)(const void *)src)[j];
+        float t = wp[m][j % 24] * x;
+        acc = acc + t;
+      }
+      o[j] = acc;
     }
-    o[j] = acc;
   }
 }
 
-BLEND_AVX static void avx_flat_h(float *restrict o, const float *restrict bs,
-                                 const char *const *src, const float *const *wp, uint32_t k,
-                                 size_t nf)
+/* A group's receivers through avx_row; results handed to the callback a piece at a time
+ * (with the upper AVX state cleared first: the callback runs SSE code). */
+BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const uint32_t *act,
+                                const float *const *wp, const uint32_t k, const uint32_t S,
+                                const int half)
 {
-  avx_flat(o, bs, src, wp, k, nf, 1);
+  const ub_blend *b = c->b;
+  const uint32_t gk = g->k_mode & ~GROUP_LIST;
+  const int list = (g->k_mode & GROUP_LIST) != 0;
+  const size_t vs = half ? 2 : 4, rowb = (size_t)gk * S * vs;
+  const char *v = (const char *)b->values + g->val_off * vs;
+  const uint32_t *u = b->units + g->unit_off;
+  const float *gb = group_base(b, g);
+  float *out = c->out;
+  const uint32_t chunk = c->fn || !out ? BLEND_CHUNK : UINT32_MAX;
+  for (uint32_t un = 0; un < g->units; un++) {
+    const uint32_t r = u[0], len = list ? 1 : u[1];
+    u += list ? 1 : 2;
+    const float *bs = unit_base(b, &gb, r, len);
+    for (uint32_t i = 0; i < len;) {
+      const uint32_t n = len - i < chunk ? len - i : chunk;
+      float *o0 = out ? out + (size_t)(r + i) * S : c->scratch;
+      for (uint32_t q = 0; q < n; q++, v += rowb)
+        avx_row(o0 + (size_t)q * S, bs + (size_t)(i + q) * S, v, act, wp, k, S, half);
+      if (c->fn) {
+        _mm256_zeroupper();
+        c->fn(c->user, r + i, n, o0);
+      }
+      i += n;
+    }
+  }
+}
+
+BLEND_AVX static void avx_group_12h(const blend_call *c, const blend_group *g,
+                                    const uint32_t *act, const float *const *wp, uint32_t k)
+{
+  avx_group(c, g, act, wp, k, 12, 1);
   _mm256_zeroupper();
 }
-
-BLEND_AVX static void avx_flat_f(float *restrict o, const float *restrict bs,
-                                 const char *const *src, const float *const *wp, uint32_t k,
-                                 size_t nf)
+BLEND_AVX static void avx_group_27h(const blend_call *c, const blend_group *g,
+                                    const uint32_t *act, const float *const *wp, uint32_t k)
 {
-  avx_flat(o, bs, src, wp, k, nf, 0);
+  avx_group(c, g, act, wp, k, 27, 1);
+  _mm256_zeroupper();
+}
+BLEND_AVX static void avx_group_anyh(const blend_call *c, const blend_group *g,
+                                     const uint32_t *act, const float *const *wp, uint32_t k)
+{
+  avx_group(c, g, act, wp, k, c->b->stride, 1);
+  _mm256_zeroupper();
+}
+BLEND_AVX static void avx_group_12f(const blend_call *c, const blend_group *g,
+                                    const uint32_t *act, const float *const *wp, uint32_t k)
+{
+  avx_group(c, g, act, wp, k, 12, 0);
+  _mm256_zeroupper();
+}
+BLEND_AVX static void avx_group_27f(const blend_call *c, const blend_group *g,
+                                    const uint32_t *act, const float *const *wp, uint32_t k)
+{
+  avx_group(c, g, act, wp, k, 27, 0);
+  _mm256_zeroupper();
+}
+BLEND_AVX static void avx_group_anyf(const blend_call *c, const blend_group *g,
+                                     const uint32_t *act, const float *const *wp, uint32_t k)
+{
+  avx_group(c, g, act, wp, k, c->b->stride, 0);
   _mm256_zeroupper();
 }
 
@@ -375,132 +425,62 @@ static void group_blend_avx(const blend_call *c, const blend_group *g, const uin
                             uint32_t k)
 {
   const ub_blend *b = c->b;
-  const uint32_t S = b->stride, gk = g->k_mode & ~GROUP_LIST;
   const uint32_t *mem = b->members + g->member_off;
-  const uint32_t *d = b->data + g->data_off;
-  const uint32_t *idx0 = b->rec[mem[0]].receivers;
-  const size_t rstep = (size_t)S * b->value_size;
-  void (*flat)(float *restrict, const float *restrict, const char *const *,
-               const float *const *, uint32_t, size_t) =
-      b->value_size == 2 ? avx_flat_h : avx_flat_f;
-  const char **src = b->avx_src;
-  const float **wpat = b->avx_w;
+  const float **wp = b->avx_w;
   for (uint32_t m = 0; m < k; m++)
-    wpat[m] = b->wpat + 32 * (size_t)mem[act[m]];
-  float *out = c->out;
-  const float *gb = group_base(b, g);
-  if (g->k_mode & GROUP_LIST) {
-    for (uint32_t u = 0; u < g->units; u++, d += gk) {
-      uint32_t r = idx0[d[0]];
-      for (uint32_t m = 0; m < k; m++)
-        src[m] = (const char *)b->rec[mem[act[m]]].values + (size_t)d[act[m]] * rstep;
-      float *o = out ? out + (size_t)r * S : c->scratch;
-      flat(o, unit_base(b, &gb, r, 1), src, wpat, k, S);
-      if (c->fn)
-        c->fn(c->user, r, 1, o);
-    }
-    return;
-  }
-  /* With a callback, pieces of BLEND_CHUNK receivers, so it reads them from cache. */
-  const uint32_t chunk = c->fn ? BLEND_CHUNK : UINT32_MAX;
-  for (uint32_t u = 0; u < g->units; u++, d += 1 + gk) {
-    uint32_t len = d[0], r = idx0[d[1]];
-    const float *bs = unit_base(b, &gb, r, len);
-    for (uint32_t m = 0; m < k; m++)
-      src[m] = (const char *)b->rec[mem[act[m]]].values + (size_t)d[1 + act[m]] * rstep;
-    for (uint32_t i = 0; i < len;) {
-      uint32_t n = len - i < chunk ? len - i : chunk;
-      float *o = out ? out + (size_t)(r + i) * S : c->scratch;
-      flat(o, bs + (size_t)i * S, src, wpat, k, (size_t)n * S);
-      if (c->fn)
-        c->fn(c->user, r + i, n, o);
-      for (uint32_t m = 0; m < k; m++)
-        src[m] += (size_t)n * rstep;
-      i += n;
-    }
+    wp[m] = b->wpat + 32 * (size_t)mem[act[m]];
+  const int half = b->value_size == 2;
+  switch (b->kernel) {
+  case KERNEL_12: (half ? avx_group_12h : avx_group_12f)(c, g, act, wp, k); break;
+  case KERNEL_27: (half ? avx_group_27h : avx_group_27f)(c, g, act, wp, k); break;
+  default: (half ? avx_group_anyh : avx_group_anyf)(c, g, act, wp, k); break;
   }
 }
 #endif
 
 /* One group with k non-zero members act[0..k) (slots into the group's members). S and
- * (for k ≤ BLEND_SPECIALISED) k are compile-time constants at the fixed call sites. */
+ * (for k ≤ BLEND_SPECIALISED) k are compile-time constants at the fixed call sites. Half
+ * rows are decoded (exactly) into the decode scratch, one receiver at a time. */
 BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const uint32_t *act,
                              const uint32_t k, const uint32_t S, const int fixed)
 {
   const ub_blend *b = c->b;
-  const char *src_l[BLEND_SPECIALISED];
   const float *rows_l[BLEND_SPECIALISED], *w_l[BLEND_SPECIALISED];
-  const char **src = k <= BLEND_SPECIALISED ? src_l : b->scr_src;
   const float **rows = k <= BLEND_SPECIALISED ? rows_l : b->scr_rows;
   const float **w = k <= BLEND_SPECIALISED ? w_l : b->scr_w;
   const uint32_t gk = g->k_mode & ~GROUP_LIST;
+  const int list = (g->k_mode & GROUP_LIST) != 0;
   const uint32_t *mem = b->members + g->member_off;
-  const uint32_t *d = b->data + g->data_off;
-  const uint32_t *idx0 = b->rec[mem[0]].receivers;
-  const size_t rstep = (size_t)S * b->value_size; /* record row, bytes */
+  const size_t vs = b->value_size, rowb = (size_t)gk * S * vs;
+  const char *v = (const char *)b->values + g->val_off * vs;
+  const uint32_t *u = b->units + g->unit_off;
   const blend_decode_fn decode = b->decode;
   const float *gb = group_base(b, g);
   float *out = c->out;
-
-  /* Receivers per chunk: bounded by the decode scratch (half) and the streaming scratch. */
-  uint32_t chunk = out ? UINT32_MAX : BLEND_CHUNK;
-  if (decode) {
-    size_t fit = b->dec_floats / ((size_t)k * S);
-    chunk = fit < chunk ? (uint32_t)fit : chunk; /* ≥ 1: dec_floats ≥ max_overlap × S */
-  }
+  const uint32_t chunk = c->fn || !out ? BLEND_CHUNK : UINT32_MAX;
   for (uint32_t m = 0; m < k; m++)
     w[m] = b->wexp + (size_t)mem[act[m]] * b->wstride;
-
-  if (g->k_mode & GROUP_LIST) {
-    for (uint32_t u = 0; u < g->units; u++, d += gk) {
-      uint32_t r = idx0[d[0]];
-      for (uint32_t m = 0; m < k; m++) {
-        const char *row = (const char *)b->rec[mem[act[m]]].values + (size_t)d[act[m]] * rstep;
-        if (decode) {
-          decode((const uint16_t *)(const void *)row, b->dec + (size_t)m * S, S);
-          rows[m] = b->dec + (size_t)m * S;
-        } else {
-          rows[m] = (const float *)(const void *)row;
-        }
-      }
-      float *o = out ? out + (size_t)r * S : c->scratch;
-      const float *bs = unit_base(b, &gb, r, 1);
-      if (fixed)
-        blend_row_fixed(o, bs, rows, w, k, S);
-      else
-        blend_row_any(o, bs, rows, w, k, S);
-      if (c->fn)
-        c->fn(c->user, r, 1, o);
-    }
-    return;
-  }
-  for (uint32_t u = 0; u < g->units; u++, d += 1 + gk) {
-    uint32_t len = d[0], r = idx0[d[1]];
+  for (uint32_t un = 0; un < g->units; un++) {
+    const uint32_t r = u[0], len = list ? 1 : u[1];
+    u += list ? 1 : 2;
     const float *bs = unit_base(b, &gb, r, len);
-    for (uint32_t m = 0; m < k; m++)
-      src[m] = (const char *)b->rec[mem[act[m]]].values + (size_t)d[1 + act[m]] * rstep;
     for (uint32_t i = 0; i < len;) {
-      uint32_t n = len - i < chunk ? len - i : chunk;
-      for (uint32_t m = 0; m < k; m++) {
-        if (decode) {
-          float *dst = b->dec + (size_t)m * n * S;
-          decode((const uint16_t *)(const void *)src[m], dst, (size_t)n * S);
-          rows[m] = dst;
-        } else {
-          rows[m] = (const float *)(const void *)src[m];
+      const uint32_t n = len - i < chunk ? len - i : chunk;
+      float *o0 = out ? out + (size_t)(r + i) * S : c->scratch;
+      for (uint32_t q = 0; q < n; q++, v += rowb) {
+        for (uint32_t m = 0; m < k; m++) {
+          const char *row = v + (size_t)act[m] * S * vs;
+          if (decode) {
+            decode((const uint16_t *)(const void *)row, b->dec + (size_t)m * S, S);
+            rows[m] = b->dec + (size_t)m * S;
+          } else {
+            rows[m] = (const float *)(const void *)row;
+          }
         }
-        src[m] += (size_t)n * rstep;
-      }
-      float *o0 = out ? out + (size_t)(r + i) * S : c->scratch, *o = o0;
-      for (uint32_t q = 0; q < n; q++) {
         if (fixed)
-          blend_row_fixed(o, bs, rows, w, k, S);
+          blend_row_fixed(o0 + (size_t)q * S, bs + (size_t)(i + q) * S, rows, w, k, S);
         else
-          blend_row_any(o, bs, rows, w, k, S);
-        o += S;
-        bs += S;
-        for (uint32_t m = 0; m < k; m++)
-          rows[m] += S;
+          blend_row_any(o0 + (size_t)q * S, bs + (size_t)(i + q) * S, rows, w, k, S);
       }
       if (c->fn)
         c->fn(c->user, r + i, n, o0);
@@ -540,20 +520,18 @@ static void group_blend(const blend_call *c, const blend_group *g, const uint32_
 static void group_copy_base(const blend_call *c, const blend_group *g)
 {
   const ub_blend *b = c->b;
-  const uint32_t gk = g->k_mode & ~GROUP_LIST, S = b->stride;
-  const uint32_t *d = b->data + g->data_off;
-  const uint32_t *idx0 = b->rec[b->members[g->member_off]].receivers;
+  const uint32_t S = b->stride;
   const int list = (g->k_mode & GROUP_LIST) != 0;
+  const uint32_t *u = b->units + g->unit_off;
   const float *gb = group_base(b, g);
-  for (uint32_t u = 0; u < g->units; u++) {
-    uint32_t len = list ? 1 : d[0];
-    uint32_t r = idx0[list ? d[0] : d[1]];
+  for (uint32_t un = 0; un < g->units; un++) {
+    const uint32_t r = u[0], len = list ? 1 : u[1];
+    u += list ? 1 : 2;
     const float *bs = unit_base(b, &gb, r, len);
     if (c->out)
       memcpy(c->out + (size_t)r * S, bs, (size_t)len * S * sizeof(float));
     if (c->fn) /* streaming: the base rows are the result, no copy */
       c->fn(c->user, r, len, c->out ? c->out + (size_t)r * S : bs);
-    d += list ? gk : 1 + gk;
   }
 }
 
@@ -579,14 +557,14 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
     group_blend(c, g, act, k);
 
   uint64_t row = (uint64_t)b->stride * sizeof(float);
-  uint64_t words = (uint64_t)g->units * ((g->k_mode & GROUP_LIST) ? gk : gk + 1);
+  uint64_t words = (uint64_t)g->units * ((g->k_mode & GROUP_LIST) ? 1 : 2);
   st->groups++;
   st->groups_base += k == 0;
   st->receivers += g->receivers;
   st->bytes_written += c->out ? g->receivers * row : 0;
   st->bytes_read += g->receivers * row +
                     (uint64_t)k * g->receivers * b->stride * b->value_size +
-                    (words + g->units) * sizeof(uint32_t) + sizeof *g;
+                    words * sizeof(uint32_t) + sizeof *g;
 }
 
 /* Updates run with FTZ and DAZ off (restored after): the half decode is exact and the
@@ -701,7 +679,7 @@ ub_result ub_blend_set_weight(ub_blend *b, uint32_t element, const float rgb[3])
   for (uint32_t j = 0; j < b->wstride; j++)
     we[j] = w[j % 3];
   if (b->wpat)
-    for (int j = 0; j < 24; j++)
+    for (int j = 0; j < 32; j++)
       b->wpat[32 * (size_t)element + j] = w[j % 3];
   b->nonzero[element] = w[0] != 0.0f || w[1] != 0.0f || w[2] != 0.0f;
   if (!b->dirty[element]) {
@@ -748,7 +726,6 @@ void ub_blend_free(ub_blend *b)
 {
   if (!b)
     return;
-  free(b->rec);
   free(b->weight);
   free(b->wexp);
   free(b->nonzero);
@@ -757,7 +734,8 @@ void ub_blend_free(ub_blend *b)
   free(b->groups);
   free(b->obase);
   free(b->members);
-  free(b->data);
+  free(b->units);
+  free(b->values);
   free(b->elem_off);
   free(b->elem_groups);
   free(b->stamp);
@@ -766,9 +744,7 @@ void ub_blend_free(ub_blend *b)
   free(b->dec);
   free(b->scr_act);
   free(b->wpat);
-  free((void *)b->avx_src);
   free((void *)b->avx_w);
-  free((void *)b->scr_src);
   free((void *)b->scr_rows);
   free((void *)b->scr_w);
   free(b);
@@ -1023,49 +999,58 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
   if (!b->groups || !b->members)
     return UB_ERR_OUT_OF_MEMORY;
   memcpy(b->members, t->members, (size_t)nmem * sizeof(uint32_t));
-  uint64_t words = 0;
+  uint64_t words = 0, vals = 0;
   for (uint32_t g = 0; g < G; g++) {
     const uint32_t *rs = t->order + t->g_start[g];
     uint32_t n = t->g_n[g], k = t->g_k[g], runs = 1;
     for (uint32_t i = 1; i < n; i++)
       runs += rs[i] != rs[i - 1] + 1;
-    int list = (uint64_t)n * k < (uint64_t)runs * (k + 1);
+    int list = n < 2 * (uint64_t)runs; /* one word per receiver vs two per run */
     blend_group *bg = &b->groups[g];
-    bg->data_off = words;
+    bg->unit_off = words;
+    bg->val_off = vals;
     bg->member_off = t->g_moff[g];
     bg->receivers = n;
     bg->units = list ? n : runs;
     bg->k_mode = k | (list ? GROUP_LIST : 0);
     bg->base_row = 0;
-    words += list ? (uint64_t)n * k : (uint64_t)runs * (k + 1);
+    words += list ? (uint64_t)n : 2 * (uint64_t)runs;
+    vals += (uint64_t)n * k * b->stride;
     if (!list) {
       b->run_groups++;
       b->runs += runs;
     }
   }
-  b->data_words = words;
-  b->data = alloc_n(words, sizeof(uint32_t), acc);
-  if (!b->data)
+  assert(vals == M * b->stride);
+  b->unit_words = words;
+  b->units = alloc_n(words, sizeof(uint32_t), acc);
+  b->values = alloc_n(vals, b->value_size, NULL); /* counted as record_bytes */
+  if (!b->units || !b->values)
     return UB_ERR_OUT_OF_MEMORY;
+  const size_t rowb = (size_t)b->stride * b->value_size;
   for (uint32_t g = 0; g < G; g++) {
     const blend_group *bg = &b->groups[g];
     const uint32_t *rs = t->order + t->g_start[g];
     uint32_t n = bg->receivers, k = bg->k_mode & ~GROUP_LIST;
-    uint32_t *w = b->data + bg->data_off;
+    uint32_t *w = b->units + bg->unit_off;
+    char *v = (char *)b->values + bg->val_off * b->value_size;
     for (uint32_t i = 0; i < n;) {
       uint32_t len = 1;
       if (!(bg->k_mode & GROUP_LIST))
         while (i + len < n && rs[i + len] == rs[i] + len)
           len++;
+      *w++ = rs[i];
       if (!(bg->k_mode & GROUP_LIST))
         *w++ = len;
-      const uint32_t *pos = t->m_pos + t->off[rs[i]];
-      for (uint32_t m = 0; m < k; m++)
-        *w++ = pos[m];
       i += len;
     }
-    assert(w == b->data + bg->data_off + (bg->k_mode & GROUP_LIST ? (uint64_t)n * k
-                                                                   : (uint64_t)bg->units * (k + 1)));
+    /* Each receiver's member rows, in member order (= ascending element id, as m_elem). */
+    for (uint32_t i = 0; i < n; i++) {
+      const uint32_t *el = t->m_elem + t->off[rs[i]], *pos = t->m_pos + t->off[rs[i]];
+      for (uint32_t m = 0; m < k; m++, v += rowb)
+        memcpy(v, (const char *)d->elements[el[m]].values + (size_t)pos[m] * rowb, rowb);
+    }
+    assert(w == b->units + bg->unit_off + bg->units * ((bg->k_mode & GROUP_LIST) ? 1u : 2u));
   }
 
   /* 4b. UB_BLEND_OWN_BASE: the touched receivers' base rows, in group order. */
@@ -1117,19 +1102,17 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
   if (b->avx) {
     size_t na = maxk ? maxk : 1, ne = E ? E : 1;
     b->wpat = aligned_alloc(32, ne * 32 * sizeof(float));
-    b->avx_src = alloc_n(na, sizeof(char *), acc);
     b->avx_w = alloc_n(na, sizeof(float *), acc);
-    if (!b->wpat || !b->avx_src || !b->avx_w)
+    if (!b->wpat || !b->avx_w)
       return UB_ERR_OUT_OF_MEMORY;
     memset(b->wpat, 0, ne * 32 * sizeof(float)); /* every weight starts at 0 */
     *acc += ne * 32 * sizeof(float);
   }
 #endif
   b->scr_act = alloc_n(sk, sizeof(uint32_t), acc);
-  b->scr_src = alloc_n(sk, sizeof(char *), acc);
   b->scr_rows = alloc_n(sk, sizeof(float *), acc);
   b->scr_w = alloc_n(sk, sizeof(float *), acc);
-  if (!b->stamp || !b->work || !b->scratch || !b->scr_act || !b->scr_src || !b->scr_rows ||
+  if (!b->stamp || !b->work || !b->scratch || !b->scr_act || !b->scr_rows ||
       !b->scr_w)
     return UB_ERR_OUT_OF_MEMORY;
   return UB_OK;
@@ -1162,8 +1145,7 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
 #endif
   b->base = desc->base;
   b->memberships = memberships;
-  b->record_bytes = memberships * (sizeof(uint32_t) + (uint64_t)S * b->value_size);
-  b->rec = alloc_n(E, sizeof *b->rec, &b->engine_bytes);
+  b->record_bytes = memberships * (uint64_t)S * b->value_size;
   b->weight = calloc_n((size_t)E * 3, sizeof(float), &b->engine_bytes);
   /* 16-byte aligned weight rows (aligned_alloc wants a multiple of the alignment). */
   size_t wbytes = (size_t)E * b->wstride * sizeof(float);
@@ -1175,10 +1157,8 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
   b->nonzero = calloc_n(E, 1, &b->engine_bytes);
   b->dirty = calloc_n(E, 1, &b->engine_bytes);
   b->dirty_list = alloc_n(E, sizeof(uint32_t), &b->engine_bytes);
-  if (!b->rec || !b->weight || !b->wexp || !b->nonzero || !b->dirty || !b->dirty_list)
+  if (!b->weight || !b->wexp || !b->nonzero || !b->dirty || !b->dirty_list)
     goto oom;
-  if (E)
-    memcpy(b->rec, desc->elements, (size_t)E * sizeof *b->rec);
 
   build_tmp t;
   memset(&t, 0, sizeof t);

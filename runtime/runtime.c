@@ -494,6 +494,23 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
       bf->llgs[m].probe_sh = rt->llg_cur + rt->llg_first[m] * 27;
     }
   }
+  /* The blends keep their own copies of the records' values, in group order, and the
+   * receiver indices they need: the half pools and the records' index arrays go. */
+  free(rt->lm_half);
+  free(rt->glg_half);
+  free(rt->llg_half);
+  rt->lm_half = rt->glg_half = rt->llg_half = NULL;
+  for (uint32_t e = 0; e < n; e++) {
+    ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
+    free(rc->texel_index);
+    free(rc->probe_index);
+    free(rc->llg_probe_index);
+    rc->texel_index = NULL;
+    rc->probe_index = NULL;
+    rc->llg_probe_index = NULL;
+    rt->lm_rec[e].receivers = rt->glg_rec[e].receivers = rt->llg_rec[e].receivers = NULL;
+    rt->lm_rec[e].values = rt->glg_rec[e].values = rt->llg_rec[e].values = NULL;
+  }
   for (uint32_t e = 0; e < n && r == UB_OK; e++) {
     uint32_t kind = element_record(bf, e)->kind;
     float v = kind == UB_ELEMENT_DOOR ? 0.0f : 1.0f;
@@ -865,16 +882,26 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
     m.llg += (size_t)rt->llg_first[bf->llg_count] * 27 * F;
   if (rt->has_glg)
     m.glg = (size_t)bf->glg_probe_count * 27 * F * 2 + ub_glg_owned_bytes(&rt->glg); /* raw + windowed */
+  /* Records: the blends' copies of the values (half, group order; the receiver indices
+   * are in their tables); anything the bake file still holds (a failed setup). */
+  ub_blend *bl[3] = {rt->lm_blend, rt->glg_blend, rt->llg_blend};
+  for (int i = 0; i < 3; i++)
+    if (bl[i]) {
+      ub_blend_info in;
+      ub_blend_get_info(bl[i], &in);
+      m.records += in.record_bytes;
+      m.blend += in.engine_bytes;
+    }
   uint32_t n = bf->dls_count + bf->elem_count;
   for (uint32_t e = 0; e < n; e++) {
     const ub_bakefile_record *r = element_record(bf, e);
-    size_t h = r->texel_sh ? F : 2, g = r->probe_sh ? F : 2, l = r->llg_probe_sh ? F : 2;
-    m.records += (size_t)r->texel_count * (U + UB_SH1_FLOATS * h) +
-                 (size_t)r->probe_count * (U + 27 * g) + (size_t)r->llg_probe_count * (U + 27 * l);
+    m.records += (r->texel_index ? (size_t)r->texel_count * U : 0) +
+                 (r->texel_sh ? (size_t)r->texel_count * UB_SH1_FLOATS * F : 0) +
+                 (r->probe_index ? (size_t)r->probe_count * U : 0) +
+                 (r->probe_sh ? (size_t)r->probe_count * 27 * F : 0) +
+                 (r->llg_probe_index ? (size_t)r->llg_probe_count * U : 0) +
+                 (r->llg_probe_sh ? (size_t)r->llg_probe_count * 27 * F : 0);
   }
-  m.blend = (rt->lm_blend ? ub_blend_memory_bytes(rt->lm_blend) : 0) +
-            (rt->glg_blend ? ub_blend_memory_bytes(rt->glg_blend) : 0) +
-            (rt->llg_blend ? ub_blend_memory_bytes(rt->llg_blend) : 0);
   m.total = m.geometry + m.lightmap + m.glg + m.llg + m.records + m.blend;
   *out = m;
 }

@@ -42,7 +42,9 @@ void ub_runtime_free(ub_runtime *rt);
  * doors, objects), the run-time keeps one float copy of each representation's current
  * state and the records in half precision (as the file stores them), so this bake file
  * differs from one read with ub_bakefile_read(): every record's texel_sh, probe_sh and
- * llg_probe_sh are NULL (indices and counts are kept); atlases[a].sh are NULL (read the
+ * llg_probe_sh and its receiver indices (texel_index, probe_index, llg_probe_index) are
+ * NULL (the blends keep what they need; counts, names and kinds are kept; read the file
+ * with ub_bakefile_read() for the records themselves); atlases[a].sh are NULL (read the
  * lightmap through the queries); glg_sh and llgs[m].probe_sh hold the CURRENT raw state
  * (base + Σ weight·record, as ub_runtime_glg_probe_sh(rt, 0)), updated by
  * ub_runtime_update(). Without elements it is the file as read. */
@@ -57,7 +59,7 @@ typedef struct ub_runtime_memory {
                        normals of covered texels without a normal of their own */
   size_t glg;       /* raw current + windowed SH, the GLG's acceleration data */
   size_t llg;       /* LLG probe SH (current state) */
-  size_t records;   /* element records: receiver indices + values */
+  size_t records;   /* element records: their values (half), held by the blends */
   size_t blend;     /* the blend engines: tables, weights, touched receivers' base rows */
   size_t total;     /* the sum */
 } ub_runtime_memory;
