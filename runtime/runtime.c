@@ -31,8 +31,16 @@ struct ub_runtime {
    * own direction is used). */
   ub_rt_fallback *fallback; /* atlas_count */
   uint64_t *pixel_first; /* atlas_count + 1: first global pixel of each atlas */
+  /* Per-texel run-time arrays hold covered texels only (coverage != 0; ESTATE-like levels
+   * cover ~60% of their atlas pixels): a texel's slot is its rank among the covered
+   * pixels of its atlas (slot_of), global slots number atlas after atlas. */
+  uint64_t *slot_first;  /* atlas_count + 1: first global slot of each atlas */
+  uint64_t **cov_bits;   /* atlas_count arrays of ⌈pixels / 64⌉ words: coverage != 0 */
+  uint32_t **cov_rank;   /* atlas_count arrays: covered pixels before each 64-pixel word */
+  uint32_t *slot_pixel;  /* global slot → pixel within its atlas */
   /* Dynamic light sets (when the file has any): blended SH, re-encoded where touched. */
-  float *lm_base, *lm_cur; /* Σ pixels × 12; lm_cur in the file's I_z form (below) */
+  float *lm_base, *lm_cur; /* Σ slots × 12; lm_cur in the file's I_z form (below) */
+  uint32_t *lm_idx;        /* during setup: the texel records' receivers as global slots */
   /* Record values in half precision, as the file stores them (one pool per representation,
    * each record's values divided by the pool's power-of-two scale, which the weights given
    * to the blend are multiplied by: (w·s)·h and w·(s·h) round to the same float). Texel
@@ -57,12 +65,61 @@ struct ub_runtime {
   uint64_t *llg_first;     /* llg_count + 1 */
   ub_glg glg;            /* valid when has_glg */
   int has_glg;
-  ub_ahd **ahd;          /* atlas_count arrays of width × height; zero for empty texels */
+  ub_ahd **ahd;          /* atlas_count arrays, one per covered texel (slot) */
   uint32_t lit_count;    /* triangles with tri_atlas >= 0 */
   uint32_t *lit_tris;
 };
 
 static const float ub_rt_luma[3] = {0.2126f, 0.7152f, 0.0722f};
+
+/* Slot (within its atlas) of covered pixel i of atlas a. */
+static inline uint64_t slot_of(const ub_runtime *rt, uint32_t a, size_t i)
+{
+  uint64_t w = rt->cov_bits[a][i >> 6], below = w & ((UINT64_C(1) << (i & 63)) - 1);
+  return rt->cov_rank[a][i >> 6] + (uint64_t)__builtin_popcountll(below);
+}
+
+/* Builds the coverage bits, ranks and slot → pixel map; sets slot_first. */
+static ub_result build_slots(ub_runtime *rt)
+{
+  const ub_bakefile *bf = rt->bf;
+  uint32_t na = bf->atlas_count;
+  rt->slot_first = calloc((size_t)na + 1, sizeof *rt->slot_first);
+  rt->cov_bits = calloc(na ? na : 1, sizeof *rt->cov_bits);
+  rt->cov_rank = calloc(na ? na : 1, sizeof *rt->cov_rank);
+  if (!rt->slot_first || !rt->cov_bits || !rt->cov_rank)
+    return UB_ERR_OUT_OF_MEMORY;
+  for (uint32_t a = 0; a < na; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    size_t px = (size_t)at->width * at->height, words = (px + 63) / 64;
+    rt->cov_bits[a] = calloc(words ? words : 1, sizeof **rt->cov_bits);
+    rt->cov_rank[a] = malloc((words ? words : 1) * sizeof **rt->cov_rank);
+    if (!rt->cov_bits[a] || !rt->cov_rank[a])
+      return UB_ERR_OUT_OF_MEMORY;
+    uint64_t n = 0;
+    for (size_t w = 0; w < words; w++) {
+      rt->cov_rank[a][w] = (uint32_t)n;
+      for (size_t i = w * 64; i < px && i < w * 64 + 64; i++)
+        if (at->coverage[i] != 0) {
+          rt->cov_bits[a][w] |= UINT64_C(1) << (i & 63);
+          n++;
+        }
+    }
+    rt->slot_first[a + 1] = rt->slot_first[a] + n;
+  }
+  uint64_t slots = rt->slot_first[na];
+  rt->slot_pixel = malloc((size_t)(slots ? slots : 1) * sizeof *rt->slot_pixel);
+  if (!rt->slot_pixel)
+    return UB_ERR_OUT_OF_MEMORY;
+  for (uint32_t a = 0; a < na; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
+    for (size_t i = 0; i < (size_t)at->width * at->height; i++)
+      if (at->coverage[i] != 0)
+        *sp++ = (uint32_t)i;
+  }
+  return UB_OK;
+}
 
 static int normalise3(const float v[3], float out[3])
 {
@@ -174,29 +231,35 @@ static int encode_normal(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, 
   return 0;
 }
 
-/* Covered texel i's SH L1 from an array in the I_z form (packed) or plain, into out_sh, and
+/* Covered pixel i's SH L1 from its row (I_z form when packed, else plain) into out_sh, and
  * its encode normal into out_n (see encode_normal). */
-static void texel_sh_at(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, const float *sh,
+static void texel_sh_at(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, const float *row,
                         int packed, size_t i, float out_sh[UB_SH1_FLOATS], float out_n[3])
 {
-  memcpy(out_sh, &sh[i * UB_SH1_FLOATS], UB_SH1_FLOATS * sizeof(float));
+  memcpy(out_sh, row, UB_SH1_FLOATS * sizeof(float));
   if (encode_normal(at, fb, i, out_n) && packed)
     ub_texel_sh_unpack(out_sh, out_n);
 }
 
-/* AHD of pixels [first, first + count) of an atlas from the given SH (packed: I_z form). */
-static void encode_pixels(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, const float *sh,
-                          int packed, ub_ahd *ahd, size_t first, size_t count)
+/* The AHD of one covered pixel i from its SH row. */
+static void encode_texel(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, const float *row,
+                         int packed, size_t i, ub_ahd *out)
 {
-  for (size_t i = first; i < first + count; i++) {
-    if (at->coverage[i] == 0)
-      continue;
-    float v[UB_SH1_FLOATS], n[3];
-    texel_sh_at(at, fb, sh, packed, i, v, n);
-    if (n[0] == 0.0f && n[1] == 0.0f && n[2] == 0.0f)
-      sh_dominant_direction(v, n);
-    ub_ahd_encode(v, n, &ahd[i]);
-  }
+  float v[UB_SH1_FLOATS], n[3];
+  texel_sh_at(at, fb, row, packed, i, v, n);
+  if (n[0] == 0.0f && n[1] == 0.0f && n[2] == 0.0f)
+    sh_dominant_direction(v, n);
+  ub_ahd_encode(v, n, out);
+}
+
+/* AHD of atlas a's slots [first, first + count) from the current SH (lm_cur, I_z form). */
+static void encode_slots(const ub_runtime *rt, uint32_t a, uint64_t first, uint64_t count)
+{
+  const ub_bakefile_atlas *at = &rt->bf->atlases[a];
+  const uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
+  const float *cur = rt->lm_cur + rt->slot_first[a] * UB_SH1_FLOATS;
+  for (uint64_t s = first; s < first + count; s++)
+    encode_texel(at, &rt->fallback[a], cur + s * UB_SH1_FLOATS, 1, sp[s], &rt->ahd[a][s]);
 }
 
 void ub_runtime_free(ub_runtime *rt)
@@ -214,6 +277,17 @@ void ub_runtime_free(ub_runtime *rt)
     }
   free(rt->fallback);
   free(rt->pixel_first);
+  if (rt->cov_bits)
+    for (uint32_t a = 0; a < rt->bf->atlas_count; a++)
+      free(rt->cov_bits[a]);
+  if (rt->cov_rank)
+    for (uint32_t a = 0; a < rt->bf->atlas_count; a++)
+      free(rt->cov_rank[a]);
+  free(rt->cov_bits);
+  free(rt->cov_rank);
+  free(rt->slot_first);
+  free(rt->slot_pixel);
+  free(rt->lm_idx);
   ub_blend_free(rt->lm_blend);
   ub_blend_free(rt->glg_blend);
   ub_blend_free(rt->llg_blend);
@@ -310,10 +384,10 @@ static float half_pool_scale(double mx)
   return s;
 }
 
-/* Global pixel p's unit normal as the reader used it for the I_z form; 0 without one.
- * *inout_atlas: a cursor (receivers are sorted), start at 0. */
-static int pixel_unit_normal(const ub_runtime *rt, uint64_t p, uint32_t *inout_atlas,
-                             float out_n[3])
+/* Global pixel p: its atlas (*inout_atlas, a cursor: receivers are sorted, start at 0)
+ * and pixel within it (*out_local); 0 if p is past the atlases. */
+static int pixel_locate(const ub_runtime *rt, uint64_t p, uint32_t *inout_atlas,
+                        size_t *out_local)
 {
   const ub_bakefile *bf = rt->bf;
   uint32_t a = *inout_atlas;
@@ -322,21 +396,23 @@ static int pixel_unit_normal(const ub_runtime *rt, uint64_t p, uint32_t *inout_a
   *inout_atlas = a;
   if (a >= bf->atlas_count || p < rt->pixel_first[a] || p >= rt->pixel_first[a + 1])
     return 0;
-  return ub_texel_normal(&bf->atlases[a].normal[3 * (size_t)(p - rt->pixel_first[a])], out_n);
+  *out_local = (size_t)(p - rt->pixel_first[a]);
+  return 1;
 }
 
 /* One representation's records as half: every record's float values (texels: in the I_z
  * form) divided by a power-of-two scale into one pool; the float arrays are freed (set
  * NULL in the run-time's bake file). Values that came from the file's halves come back
  * bit for bit (a power-of-two scale is exact; the I_z re-pack of a texel is exact to
- * float rounding, far below half rounding). */
+ * float rounding, far below half rounding). Texel records: receivers become global slots
+ * (rt->lm_idx) and entries on uncovered pixels (never read) are dropped. */
 static ub_result records_to_half(ub_runtime *rt, int rep, ub_blend_record *recs,
                                  uint16_t **out_pool, float *out_scale)
 {
   ub_bakefile *bf = rt->bf;
   uint32_t n = rt->elem_total;
   uint32_t stride = rep == 0 ? UB_SH1_FLOATS : 27;
-  size_t total = 0;
+  size_t total = 0, entries = 0;
   double mx = 0.0;
   for (uint32_t e = 0; e < n; e++) {
     ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
@@ -345,26 +421,54 @@ static ub_result records_to_half(ub_runtime *rt, int rep, ub_blend_record *recs,
     uint32_t cursor = 0;
     for (uint32_t i = 0; i < count; i++) {
       float *row = v + (size_t)i * stride, un[3];
-      if (rep == 0 && pixel_unit_normal(rt, rc->texel_index[i], &cursor, un))
-        ub_texel_sh_pack(row, un); /* in place: the float array is dropped below */
+      size_t px = 0;
+      if (rep == 0) {
+        if (!pixel_locate(rt, rc->texel_index[i], &cursor, &px) ||
+            bf->atlases[cursor].coverage[px] == 0)
+          continue; /* dropped below */
+        if (ub_texel_normal(&bf->atlases[cursor].normal[3 * px], un))
+          ub_texel_sh_pack(row, un); /* in place: the float array is dropped below */
+      }
       for (uint32_t k = 0; k < stride; k++)
         mx = fmax(mx, fabs((double)row[k]));
+      entries++;
     }
     total += (size_t)count * stride;
   }
   float s = half_pool_scale(mx);
   uint16_t *pool = malloc((total ? total : 1) * sizeof *pool);
-  if (!pool)
+  if (rep == 0) {
+    free(rt->lm_idx);
+    rt->lm_idx = malloc((entries ? entries : 1) * sizeof *rt->lm_idx);
+  }
+  if (!pool || (rep == 0 && !rt->lm_idx)) {
+    free(pool);
     return UB_ERR_OUT_OF_MEMORY;
-  size_t at = 0;
+  }
+  size_t at = 0, ei = 0;
   for (uint32_t e = 0; e < n; e++) {
     ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
     uint32_t count = rep == 0 ? rc->texel_count : rep == 1 ? rc->probe_count : rc->llg_probe_count;
     float **v = rep == 0 ? &rc->texel_sh : rep == 1 ? &rc->probe_sh : &rc->llg_probe_sh;
-    for (size_t i = 0; i < (size_t)count * stride; i++)
-      pool[at + i] = ub_half_from_float((*v)[i] / s);
     recs[e].values = pool + at;
-    at += (size_t)count * stride;
+    if (rep == 0) {
+      recs[e].receivers = rt->lm_idx + ei;
+      recs[e].count = 0;
+    }
+    uint32_t cursor = 0;
+    for (uint32_t i = 0; i < count; i++) {
+      if (rep == 0) {
+        size_t px = 0;
+        if (!pixel_locate(rt, rc->texel_index[i], &cursor, &px) ||
+            bf->atlases[cursor].coverage[px] == 0)
+          continue;
+        rt->lm_idx[ei++] = (uint32_t)(rt->slot_first[cursor] + slot_of(rt, cursor, px));
+        recs[e].count++;
+      }
+      for (uint32_t k = 0; k < stride; k++)
+        pool[at + k] = ub_half_from_float((*v)[(size_t)i * stride + k] / s);
+      at += stride;
+    }
     free(*v);
     *v = NULL;
   }
@@ -384,8 +488,8 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   ub_bakefile *bf = rt->bf;
   uint32_t n = bf->dls_count + bf->elem_count;
   rt->elem_total = n;
-  uint64_t pixels = rt->pixel_first[bf->atlas_count];
-  rt->lm_base = malloc((size_t)(pixels ? pixels : 1) * UB_SH1_FLOATS * sizeof(float));
+  uint64_t slots = rt->slot_first[bf->atlas_count];
+  rt->lm_base = malloc((size_t)(slots ? slots : 1) * UB_SH1_FLOATS * sizeof(float));
   rt->lm_rec = calloc(n, sizeof *rt->lm_rec);
   rt->glg_rec = calloc(n, sizeof *rt->glg_rec);
   rt->llg_rec = calloc(n, sizeof *rt->llg_rec);
@@ -401,18 +505,19 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
    * texels are encoded): freeing them first keeps the peak at two copies. */
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     ub_bakefile_atlas *at = &bf->atlases[a];
-    size_t texels = (size_t)(rt->pixel_first[a + 1] - rt->pixel_first[a]);
-    float *dst = rt->lm_base + rt->pixel_first[a] * UB_SH1_FLOATS;
-    memcpy(dst, at->sh, texels * UB_SH1_FLOATS * sizeof(float));
-    for (size_t i = 0; i < texels; i++) {
-      float un[3];
-      if (ub_texel_normal(&at->normal[3 * i], un))
-        ub_texel_sh_pack(dst + i * UB_SH1_FLOATS, un);
+    uint64_t ns = rt->slot_first[a + 1] - rt->slot_first[a];
+    float *dst = rt->lm_base + rt->slot_first[a] * UB_SH1_FLOATS;
+    const uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
+    for (uint64_t k = 0; k < ns; k++) {
+      float un[3], *row = dst + k * UB_SH1_FLOATS;
+      memcpy(row, at->sh + (size_t)sp[k] * UB_SH1_FLOATS, UB_SH1_FLOATS * sizeof(float));
+      if (ub_texel_normal(&at->normal[3 * (size_t)sp[k]], un))
+        ub_texel_sh_pack(row, un);
     }
     free(at->sh);
     at->sh = NULL;
   }
-  rt->lm_cur = malloc((size_t)(pixels ? pixels : 1) * UB_SH1_FLOATS * sizeof(float));
+  rt->lm_cur = malloc((size_t)(slots ? slots : 1) * UB_SH1_FLOATS * sizeof(float));
   if (!rt->lm_cur) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return UB_ERR_OUT_OF_MEMORY;
@@ -420,8 +525,8 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   int any_llg = 0;
   for (uint32_t e = 0; e < n; e++) {
     const ub_bakefile_record *rc = element_record(bf, e);
-    rt->lm_rec[e].receivers = rc->texel_index;
-    rt->lm_rec[e].count = rc->texel_count;
+    rt->lm_rec[e].receivers = NULL; /* slots, set by records_to_half */
+    rt->lm_rec[e].count = 0;
     rt->glg_rec[e].receivers = rc->probe_index;
     rt->glg_rec[e].count = rc->probe_count;
     rt->llg_rec[e].receivers = rc->llg_probe_index;
@@ -440,7 +545,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   ub_blend_desc bd;
   memset(&bd, 0, sizeof bd);
   bd.name = "lightmap texels";
-  bd.receiver_count = (uint32_t)pixels;
+  bd.receiver_count = (uint32_t)slots;
   bd.stride = UB_SH1_FLOATS;
   bd.base = rt->lm_base;
   bd.storage = UB_BLEND_FLOAT16;
@@ -499,7 +604,9 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   free(rt->lm_half);
   free(rt->glg_half);
   free(rt->llg_half);
+  free(rt->lm_idx);
   rt->lm_half = rt->glg_half = rt->llg_half = NULL;
+  rt->lm_idx = NULL;
   for (uint32_t e = 0; e < n; e++) {
     ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
     free(rc->texel_index);
@@ -542,6 +649,8 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
   for (uint32_t a = 0; a < bf->atlas_count; a++)
     rt->pixel_first[a + 1] =
         rt->pixel_first[a] + (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
+  if (build_slots(rt) != UB_OK)
+    goto oom;
   if (bf->atlas_count) {
     rt->ahd = calloc(bf->atlas_count, sizeof *rt->ahd);
     rt->fallback = calloc(bf->atlas_count, sizeof *rt->fallback);
@@ -549,11 +658,14 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
       goto oom;
     for (uint32_t a = 0; a < bf->atlas_count; a++) {
       const ub_bakefile_atlas *at = &bf->atlases[a];
-      size_t texels = (size_t)at->width * at->height;
-      rt->ahd[a] = calloc(texels ? texels : 1, sizeof *rt->ahd[a]);
+      uint64_t ns = rt->slot_first[a + 1] - rt->slot_first[a];
+      const uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
+      rt->ahd[a] = calloc(ns ? ns : 1, sizeof *rt->ahd[a]);
       if (!rt->ahd[a] || encode_fallbacks(at, &rt->fallback[a]) != UB_OK)
         goto oom;
-      encode_pixels(at, &rt->fallback[a], at->sh, 0, rt->ahd[a], 0, texels);
+      for (uint64_t k = 0; k < ns; k++)
+        encode_texel(at, &rt->fallback[a], at->sh + (size_t)sp[k] * UB_SH1_FLOATS, 0, sp[k],
+                     &rt->ahd[a][k]);
     }
   }
   for (uint32_t t = 0; t < bf->triangle_count; t++)
@@ -732,6 +844,7 @@ float ub_runtime_dls_weight_from_lights(const float *strengths, uint32_t count)
 typedef struct touched_ctx {
   ub_runtime *rt;
   uint64_t texels;
+  uint32_t atlas; /* atlas of the last piece */
 } touched_ctx;
 
 /* Re-encodes to AHD the pixels the blend just wrote (they may span atlases). */
@@ -741,14 +854,18 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
   touched_ctx *tc = user;
   ub_runtime *rt = tc->rt;
   uint64_t lo = first, hi = (uint64_t)first + count;
-  for (uint32_t a = 0; a < rt->bf->atlas_count && lo < hi; a++) {
-    uint64_t a0 = rt->pixel_first[a], a1 = rt->pixel_first[a + 1];
-    if (hi <= a0 || lo >= a1)
+  uint32_t a = tc->atlas; /* pieces come in ascending order: resume at the last atlas */
+  if (a >= rt->bf->atlas_count || lo < rt->slot_first[a])
+    a = 0;
+  for (; a < rt->bf->atlas_count && lo < hi; a++) {
+    uint64_t a0 = rt->slot_first[a], a1 = rt->slot_first[a + 1];
+    if (lo >= a1)
       continue;
-    uint64_t s0 = lo > a0 ? lo : a0, s1 = hi < a1 ? hi : a1;
-    encode_pixels(&rt->bf->atlases[a], &rt->fallback[a], rt->lm_cur + a0 * UB_SH1_FLOATS, 1,
-                  rt->ahd[a], (size_t)(s0 - a0), (size_t)(s1 - s0));
-    tc->texels += s1 - s0;
+    uint64_t s1 = hi < a1 ? hi : a1;
+    encode_slots(rt, a, lo - a0, s1 - lo);
+    tc->texels += s1 - lo;
+    tc->atlas = a;
+    lo = s1;
   }
 }
 
@@ -777,7 +894,7 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
   memset(&st, 0, sizeof st);
   double t0 = out_stats ? rt_now() : 0.0, t1 = t0, t2 = t0;
   if (rt->lm_blend) {
-    touched_ctx tc = {rt, 0};
+    touched_ctx tc = {rt, 0, 0};
     ub_blend_stats bs;
     ub_blend_update(rt->lm_blend, lm_touched, &tc, rt->lm_cur, &bs);
     st.texels_written = bs.receivers;
@@ -866,11 +983,13 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
                (size_t)bf->glg_plane_count * 4 * F + (size_t)rt->lit_count * U;
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     size_t t = (size_t)bf->atlases[a].width * bf->atlases[a].height;
+    size_t ns = rt->slot_first ? (size_t)(rt->slot_first[a + 1] - rt->slot_first[a]) : 0;
     m.geometry += t * (3 * F + 1);
-    m.lightmap += t * sizeof(ub_ahd) + (bf->atlases[a].sh ? t * UB_SH1_FLOATS * F : 0) +
+    m.lightmap += ns * (sizeof(ub_ahd) + U) + (t + 63) / 64 * (8 + U) +
+                  (bf->atlases[a].sh ? t * UB_SH1_FLOATS * F : 0) +
                   (rt->fallback ? (size_t)rt->fallback[a].count * (U + 3 * F) : 0);
   }
-  m.lightmap += rt->lm_cur ? (size_t)rt->pixel_first[bf->atlas_count] * UB_SH1_FLOATS * F : 0;
+  m.lightmap += rt->lm_cur ? (size_t)rt->slot_first[bf->atlas_count] * UB_SH1_FLOATS * F : 0;
   for (uint32_t i = 0; i < bf->llg_count; i++) {
     const ub_bakefile_llg *g = &bf->llgs[i];
     size_t np = (size_t)g->dims[0] * g->dims[1] * g->dims[2];
@@ -920,7 +1039,7 @@ ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint
     out_rgb[0] = out_rgb[1] = out_rgb[2] = 0.0f;
     return UB_OK;
   }
-  ub_ahd_irradiance(&rt->ahd[atlas][i], nn, out_rgb);
+  ub_ahd_irradiance(&rt->ahd[atlas][slot_of(rt, atlas, i)], nn, out_rgb);
   return UB_OK;
 }
 
@@ -1059,8 +1178,7 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
   /* Bilinear over the texels' linear data (SH L1 of the current state and the encode
    * normals), then one AHD encode: filtering the AHD parameters themselves (non-linear)
    * is off by up to 40% along the normal between texels that are each exact. */
-  const float *shs = rt->lm_cur ? rt->lm_cur + rt->pixel_first[atlas] * UB_SH1_FLOATS : at->sh;
-  int packed = rt->lm_cur != NULL;
+  const float *cur = rt->lm_cur ? rt->lm_cur + rt->slot_first[atlas] * UB_SH1_FLOATS : NULL;
   double sw = 0, sh[UB_SH1_FLOATS] = {0}, nn[3] = {0, 0, 0};
   for (int k = 0; k < 4; k++) {
     int64_t x = x0 + (k & 1), y = y0 + (k >> 1);
@@ -1074,7 +1192,9 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
       continue;
     sw += wt;
     float ts[UB_SH1_FLOATS], tn[3];
-    texel_sh_at(at, &rt->fallback[atlas], shs, packed, i, ts, tn);
+    const float *row = cur ? cur + slot_of(rt, atlas, i) * UB_SH1_FLOATS
+                           : at->sh + i * UB_SH1_FLOATS;
+    texel_sh_at(at, &rt->fallback[atlas], row, cur != NULL, i, ts, tn);
     for (int c = 0; c < UB_SH1_FLOATS; c++)
       sh[c] += wt * ts[c];
     for (int c = 0; c < 3; c++)
@@ -1098,7 +1218,7 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
       }
     if (best == INFINITY)
       return 0;
-    *out = ahd[bi];
+    *out = ahd[slot_of(rt, atlas, bi)];
     return 1;
   }
   float fsh[UB_SH1_FLOATS], fn[3] = {(float)nn[0], (float)nn[1], (float)nn[2]}, un[3];
