@@ -427,12 +427,13 @@ int main(void)
          out_b / MB, touched_b / MB, rec_h / MB, eng_h / MB,
          (out_b + touched_b + rec_h + eng_h) / MB);
   /* What ub_runtime holds besides the blends (runtime/runtime.c, ub_runtime_memory_usage):
-   * per texel the AHD encoding (9 floats), the encode normal (3 floats), the file's normal
-   * (3 floats) and coverage byte; per GLG probe the windowed SH the queries read. */
-  double rt_texel = (double)rep_count[0] * (9 * 4 + 3 * 4 + 3 * 4 + 1);
+   * per texel the AHD encoding (9 floats), the file's normal (3 floats) and coverage byte
+   * (every texel here is covered: the run-time's per-texel arrays hold covered texels
+   * only); per GLG probe the windowed SH the queries read. */
+  double rt_texel = (double)rep_count[0] * (9 * 4 + 3 * 4 + 1);
   double rt_glg_win = 4.0 * rep_count[2] * rep_stride[2];
-  printf("    the run-time also holds, outside the blends: AHD texels + encode normals + stored "
-         "normals + coverage %.1f MB, windowed GLG SH %.1f MB: %.1f MB in all with the sets "
+  printf("    the run-time also holds, outside the blends: AHD texels + stored normals + "
+         "coverage %.1f MB, windowed GLG SH %.1f MB: %.1f MB in all with the sets "
          "(before geometry, tets and the GLG's acceleration data)\n", rt_texel / MB,
          rt_glg_win / MB, (out_b + touched_b + rec_h + eng_h + rt_texel + rt_glg_win) / MB);
   for (int ri = 0; ri < NREP; ri++)

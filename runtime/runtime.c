@@ -241,11 +241,16 @@ static void texel_sh_at(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, c
     ub_texel_sh_unpack(out_sh, out_n);
 }
 
-/* The AHD of one covered pixel i from its SH row. */
+/* The AHD of one covered pixel i from its SH row. A packed row of a texel with its own
+ * normal (the I_z form along that normal) is encoded as it is (ub_ahd_encode_iz). */
 static void encode_texel(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, const float *row,
                          int packed, size_t i, ub_ahd *out)
 {
   float v[UB_SH1_FLOATS], n[3];
+  if (packed && ub_texel_normal(&at->normal[i * 3], n)) {
+    ub_ahd_encode_iz(row, n, out);
+    return;
+  }
   texel_sh_at(at, fb, row, packed, i, v, n);
   if (n[0] == 0.0f && n[1] == 0.0f && n[2] == 0.0f)
     sh_dominant_direction(v, n);
