@@ -799,8 +799,10 @@ static ub_result validate(const ub_blend_desc *d, const ub_log *log, uint64_t *o
                   d->stride, UB_BLEND_MAX_STRIDE);
     return UB_ERR_INVALID_ARGUMENT;
   }
-  if (d->storage != UB_BLEND_FLOAT32 && d->storage != UB_BLEND_FLOAT16) {
-    ub_log_printf(log, UB_LOG_ERROR, "blend %s: unknown storage %d", nm, (int)d->storage);
+  if ((d->storage != UB_BLEND_FLOAT32 && d->storage != UB_BLEND_FLOAT16) ||
+      ((d->flags & UB_BLEND_STORE_HALF) && d->storage != UB_BLEND_FLOAT32)) {
+    ub_log_printf(log, UB_LOG_ERROR, "blend %s: unknown storage %d (UB_BLEND_STORE_HALF "
+                  "takes float records)", nm, (int)d->storage);
     return UB_ERR_INVALID_ARGUMENT;
   }
   if ((uint64_t)d->receiver_count * d->stride > SIZE_MAX / sizeof(float)) {
@@ -839,10 +841,12 @@ static ub_result validate(const ub_blend_desc *d, const ub_log *log, uint64_t *o
       }
     }
     size_t nv = (size_t)r->count * d->stride;
+    const int to_half = (d->flags & UB_BLEND_STORE_HALF) != 0;
     for (size_t i = 0; i < nv; i++) {
       int ok = d->storage == UB_BLEND_FLOAT16
                    ? ub_half_is_finite(((const uint16_t *)r->values)[i])
-                   : finite_f(((const float *)r->values)[i]);
+               : to_half ? ub_half_is_finite(ub_half_from_float(((const float *)r->values)[i]))
+                         : finite_f(((const float *)r->values)[i]);
       if (!ok) {
         ub_log_printf(log, UB_LOG_ERROR,
                       "blend %s: element %u: value %zu of receiver %u (position %zu) is not "
@@ -1028,6 +1032,9 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
   if (!b->units || !b->values)
     return UB_ERR_OUT_OF_MEMORY;
   const size_t rowb = (size_t)b->stride * b->value_size;
+  /* UB_BLEND_STORE_HALF: float records kept as half. */
+  const int to_half = d->storage == UB_BLEND_FLOAT32 && b->value_size == 2;
+  const size_t srcb = (size_t)b->stride * (to_half ? sizeof(float) : b->value_size);
   for (uint32_t g = 0; g < G; g++) {
     const blend_group *bg = &b->groups[g];
     const uint32_t *rs = t->order + t->g_start[g];
@@ -1047,8 +1054,17 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
     /* Each receiver's member rows, in member order (= ascending element id, as m_elem). */
     for (uint32_t i = 0; i < n; i++) {
       const uint32_t *el = t->m_elem + t->off[rs[i]], *pos = t->m_pos + t->off[rs[i]];
-      for (uint32_t m = 0; m < k; m++, v += rowb)
-        memcpy(v, (const char *)d->elements[el[m]].values + (size_t)pos[m] * rowb, rowb);
+      for (uint32_t m = 0; m < k; m++, v += rowb) {
+        const char *src = (const char *)d->elements[el[m]].values + (size_t)pos[m] * srcb;
+        if (to_half) {
+          const float *f = (const float *)(const void *)src;
+          uint16_t *h = (uint16_t *)(void *)v;
+          for (uint32_t j = 0; j < b->stride; j++)
+            h[j] = ub_half_from_float(f[j]);
+        } else {
+          memcpy(v, src, rowb);
+        }
+      }
     }
     assert(w == b->units + bg->unit_off + bg->units * ((bg->k_mode & GROUP_LIST) ? 1u : 2u));
   }
@@ -1137,7 +1153,7 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
   b->stride = S;
   b->wstride = (S + 3) & ~3u;
   b->element_count = E;
-  b->value_size = desc->storage == UB_BLEND_FLOAT16 ? 2 : 4;
+  b->value_size = desc->storage == UB_BLEND_FLOAT16 || (desc->flags & UB_BLEND_STORE_HALF) ? 2 : 4;
   b->kernel = S == 12 ? KERNEL_12 : S == 27 ? KERNEL_27 : KERNEL_ANY;
   b->decode = b->value_size == 2 ? pick_decoder((desc->flags & UB_BLEND_PORTABLE) != 0) : NULL;
 #if BLEND_F16C

@@ -78,6 +78,10 @@ extern "C" {
  * current share them. Memory: touched × stride × 4 bytes instead of receiver_count ×
  * stride × 4 (ESTATE-like: 36% of texels touched). Same results, bit for bit. */
 #define UB_BLEND_OWN_BASE 2u
+/* Float records (UB_BLEND_FLOAT32) kept by the engine as half (runtime/half.h, round to
+ * nearest even; values must be within the half range: scale them first): the engine then
+ * works as with half records, without the caller building a half copy first. */
+#define UB_BLEND_STORE_HALF 4u
 
 typedef enum ub_blend_storage {
   UB_BLEND_FLOAT32 = 0, /* record values are float */
@@ -98,7 +102,8 @@ typedef struct ub_blend_desc {
   ub_blend_storage storage;  /* of every record's values */
   uint32_t element_count;
   const ub_blend_record *elements; /* element_count records; element id = index */
-  uint32_t flags;            /* 0, or UB_BLEND_PORTABLE | UB_BLEND_OWN_BASE */
+  uint32_t flags;            /* 0, or UB_BLEND_PORTABLE | UB_BLEND_OWN_BASE |
+                                UB_BLEND_STORE_HALF */
 } ub_blend_desc;
 
 /* Counters of one update (all for that call only). */

@@ -41,13 +41,12 @@ struct ub_runtime {
   /* Dynamic light sets (when the file has any): blended SH, re-encoded where touched. */
   float *lm_base, *lm_cur; /* Σ slots × 12; lm_cur in the file's I_z form (below) */
   uint32_t *lm_idx;        /* during setup: the texel records' receivers as global slots */
-  /* Record values in half precision, as the file stores them (one pool per representation,
-   * each record's values divided by the pool's power-of-two scale, which the weights given
-   * to the blend are multiplied by: (w·s)·h and w·(s·h) round to the same float). Texel
+  /* Record values in half precision inside the blends, as the file stores them (per
+   * representation divided by a power-of-two scale, which the weights given to the blend
+   * are multiplied by: (w·s)·h and w·(s·h) round to the same float). Texel
    * values, base and lm_cur are in the I_z form of runtime/texel_sh.h (L00 replaced by the
    * irradiance along the texel's stored normal), where half rounding keeps I_z to half
    * precision even under grazing light; readers unpack a texel before use (texel_sh_at). */
-  uint16_t *lm_half, *glg_half, *llg_half;
   float lm_scale, glg_scale, llg_scale;
   float *glg_cur;          /* probes × 27: base + Σ sets (raw; NULL without sets) */
   float *glg_win;          /* probes × 27: windowed per probe, what the GLG reads. A convex
@@ -305,9 +304,6 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt->lm_base);
   free(rt->lm_cur);
   free(rt->glg_win);
-  free(rt->lm_half);
-  free(rt->glg_half);
-  free(rt->llg_half);
   free(rt->lit_tris);
   if (rt->has_glg)
     ub_glg_release(&rt->glg);
@@ -405,79 +401,66 @@ static int pixel_locate(const ub_runtime *rt, uint64_t p, uint32_t *inout_atlas,
   return 1;
 }
 
-/* One representation's records as half: every record's float values (texels: in the I_z
- * form) divided by a power-of-two scale into one pool; the float arrays are freed (set
- * NULL in the run-time's bake file). Values that came from the file's halves come back
- * bit for bit (a power-of-two scale is exact; the I_z re-pack of a texel is exact to
- * float rounding, far below half rounding). Texel records: receivers become global slots
- * (rt->lm_idx) and entries on uncovered pixels (never read) are dropped. */
-static ub_result records_to_half(ub_runtime *rt, int rep, ub_blend_record *recs,
-                                 uint16_t **out_pool, float *out_scale)
+/* One representation's records readied for its blend, in place in the bake file's float
+ * arrays: texel rows in the I_z form, every value divided by one power-of-two scale that
+ * brings the representation into the half range (the blend keeps them as half,
+ * UB_BLEND_STORE_HALF; the weights are multiplied by the scale: (w·s)·h and w·(s·h) round
+ * to the same float). Values that came from the file's halves come back bit for bit (a
+ * power-of-two scale is exact; the I_z re-pack of a texel is exact to float rounding, far
+ * below half rounding). Texel records: receivers become global slots (rt->lm_idx) and
+ * entries on uncovered pixels (never read) are dropped. */
+static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs, float *out_scale)
 {
   ub_bakefile *bf = rt->bf;
   uint32_t n = rt->elem_total;
   uint32_t stride = rep == 0 ? UB_SH1_FLOATS : 27;
-  size_t total = 0, entries = 0;
+  size_t entries = 0;
+  for (uint32_t e = 0; e < n; e++) {
+    const ub_bakefile_record *rc = element_record(bf, e);
+    entries += rep == 0 ? rc->texel_count : 0;
+  }
+  if (rep == 0) {
+    free(rt->lm_idx);
+    rt->lm_idx = malloc((entries ? entries : 1) * sizeof *rt->lm_idx);
+    if (!rt->lm_idx)
+      return UB_ERR_OUT_OF_MEMORY;
+  }
   double mx = 0.0;
+  size_t ei = 0;
   for (uint32_t e = 0; e < n; e++) {
     ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
     uint32_t count = rep == 0 ? rc->texel_count : rep == 1 ? rc->probe_count : rc->llg_probe_count;
     float *v = rep == 0 ? rc->texel_sh : rep == 1 ? rc->probe_sh : rc->llg_probe_sh;
-    uint32_t cursor = 0;
+    uint32_t cursor = 0, kept = 0;
+    if (rep == 0)
+      recs[e].receivers = rt->lm_idx + ei;
     for (uint32_t i = 0; i < count; i++) {
       float *row = v + (size_t)i * stride, un[3];
-      size_t px = 0;
-      if (rep == 0) {
-        if (!pixel_locate(rt, rc->texel_index[i], &cursor, &px) ||
-            bf->atlases[cursor].coverage[px] == 0)
-          continue; /* dropped below */
-        if (ub_texel_normal(&bf->atlases[cursor].normal[3 * px], un))
-          ub_texel_sh_pack(row, un); /* in place: the float array is dropped below */
-      }
-      for (uint32_t k = 0; k < stride; k++)
-        mx = fmax(mx, fabs((double)row[k]));
-      entries++;
-    }
-    total += (size_t)count * stride;
-  }
-  float s = half_pool_scale(mx);
-  uint16_t *pool = malloc((total ? total : 1) * sizeof *pool);
-  if (rep == 0) {
-    free(rt->lm_idx);
-    rt->lm_idx = malloc((entries ? entries : 1) * sizeof *rt->lm_idx);
-  }
-  if (!pool || (rep == 0 && !rt->lm_idx)) {
-    free(pool);
-    return UB_ERR_OUT_OF_MEMORY;
-  }
-  size_t at = 0, ei = 0;
-  for (uint32_t e = 0; e < n; e++) {
-    ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
-    uint32_t count = rep == 0 ? rc->texel_count : rep == 1 ? rc->probe_count : rc->llg_probe_count;
-    float **v = rep == 0 ? &rc->texel_sh : rep == 1 ? &rc->probe_sh : &rc->llg_probe_sh;
-    recs[e].values = pool + at;
-    if (rep == 0) {
-      recs[e].receivers = rt->lm_idx + ei;
-      recs[e].count = 0;
-    }
-    uint32_t cursor = 0;
-    for (uint32_t i = 0; i < count; i++) {
       if (rep == 0) {
         size_t px = 0;
         if (!pixel_locate(rt, rc->texel_index[i], &cursor, &px) ||
             bf->atlases[cursor].coverage[px] == 0)
-          continue;
+          continue; /* an uncovered pixel: never read */
         rt->lm_idx[ei++] = (uint32_t)(rt->slot_first[cursor] + slot_of(rt, cursor, px));
-        recs[e].count++;
+        if (ub_texel_normal(&bf->atlases[cursor].normal[3 * px], un))
+          ub_texel_sh_pack(row, un);
+        if (kept != i) /* compact in place */
+          memmove(v + (size_t)kept * stride, row, stride * sizeof(float));
+        row = v + (size_t)kept * stride;
       }
+      kept++;
       for (uint32_t k = 0; k < stride; k++)
-        pool[at + k] = ub_half_from_float((*v)[(size_t)i * stride + k] / s);
-      at += stride;
+        mx = fmax(mx, fabs((double)row[k]));
     }
-    free(*v);
-    *v = NULL;
+    recs[e].values = v;
+    recs[e].count = kept;
   }
-  *out_pool = pool;
+  float s = half_pool_scale(mx);
+  for (uint32_t e = 0; e < n && s != 1.0f; e++) {
+    float *v = (float *)(uintptr_t)recs[e].values;
+    for (size_t i = 0; i < (size_t)recs[e].count * stride; i++)
+      v[i] /= s;
+  }
   *out_scale = s;
   return UB_OK;
 }
@@ -530,7 +513,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   int any_llg = 0;
   for (uint32_t e = 0; e < n; e++) {
     const ub_bakefile_record *rc = element_record(bf, e);
-    rt->lm_rec[e].receivers = NULL; /* slots, set by records_to_half */
+    rt->lm_rec[e].receivers = NULL; /* slots, set by records_prepare */
     rt->lm_rec[e].count = 0;
     rt->glg_rec[e].receivers = rc->probe_index;
     rt->glg_rec[e].count = rc->probe_count;
@@ -538,11 +521,11 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     rt->llg_rec[e].count = rc->llg_probe_count;
     any_llg |= rc->llg_probe_count > 0;
   }
-  ub_result r = records_to_half(rt, 0, rt->lm_rec, &rt->lm_half, &rt->lm_scale);
+  ub_result r = records_prepare(rt, 0, rt->lm_rec, &rt->lm_scale);
   if (r == UB_OK)
-    r = records_to_half(rt, 1, rt->glg_rec, &rt->glg_half, &rt->glg_scale);
+    r = records_prepare(rt, 1, rt->glg_rec, &rt->glg_scale);
   if (r == UB_OK)
-    r = records_to_half(rt, 2, rt->llg_rec, &rt->llg_half, &rt->llg_scale);
+    r = records_prepare(rt, 2, rt->llg_rec, &rt->llg_scale);
   if (r != UB_OK) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return r;
@@ -553,10 +536,11 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   bd.receiver_count = (uint32_t)slots;
   bd.stride = UB_SH1_FLOATS;
   bd.base = rt->lm_base;
-  bd.storage = UB_BLEND_FLOAT16;
+  bd.storage = UB_BLEND_FLOAT32;
   bd.element_count = n;
   bd.elements = rt->lm_rec;
-  bd.flags = UB_BLEND_OWN_BASE; /* keeps only the touched receivers' base rows */
+  /* Keeps only the touched receivers' base rows, and the records as half. */
+  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_STORE_HALF;
   r = ub_blend_create(&bd, log, rt->lm_cur, &rt->lm_blend);
   if (r != UB_OK)
     return r;
@@ -604,16 +588,16 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
       bf->llgs[m].probe_sh = rt->llg_cur + rt->llg_first[m] * 27;
     }
   }
-  /* The blends keep their own copies of the records' values, in group order, and the
-   * receiver indices they need: the half pools and the records' index arrays go. */
-  free(rt->lm_half);
-  free(rt->glg_half);
-  free(rt->llg_half);
+  /* The blends keep their own half copies of the records' values, in group order, and
+   * the receiver indices they need: the records' float and index arrays go. */
   free(rt->lm_idx);
-  rt->lm_half = rt->glg_half = rt->llg_half = NULL;
   rt->lm_idx = NULL;
   for (uint32_t e = 0; e < n; e++) {
     ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
+    free(rc->texel_sh);
+    free(rc->probe_sh);
+    free(rc->llg_probe_sh);
+    rc->texel_sh = rc->probe_sh = rc->llg_probe_sh = NULL;
     free(rc->texel_index);
     free(rc->probe_index);
     free(rc->llg_probe_index);
