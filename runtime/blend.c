@@ -544,9 +544,10 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
   uint32_t act_l[BLEND_SPECIALISED];
   uint32_t *act = gk <= BLEND_SPECIALISED ? act_l : b->scr_act;
   uint32_t k = 0;
-  for (uint32_t m = 0; m < gk; m++)
-    if (b->nonzero[mem[m]])
-      act[k++] = m;
+  for (uint32_t m = 0; m < gk; m++) { /* branch-free: the pattern is data */
+    act[k] = m;
+    k += b->nonzero[mem[m]];
+  }
   if (k == 0)
     group_copy_base(c, g);
 #if BLEND_F16C

@@ -39,7 +39,16 @@ struct ub_runtime {
   uint32_t **cov_rank;   /* atlas_count arrays: covered pixels before each 64-pixel word */
   uint32_t *slot_pixel;  /* global slot → pixel within its atlas */
   /* Dynamic light sets (when the file has any): blended SH, re-encoded where touched. */
-  float *lm_base, *lm_cur; /* Σ slots × 12; lm_cur in the file's I_z form (below) */
+  /* The texels' SH in the file's I_z form (below): the texels some record touches hold
+   * their current state in float (lm_cur, blended at every update); the others never
+   * change and keep the file's halves (lm_static × lm_static_scale, a power of two). A
+   * slot's index in either array: tch_rank (bitmap ranks over the global slots). */
+  float *lm_base;          /* during setup: Σ slots × 12 */
+  float *lm_cur;           /* touched slots × 12 */
+  uint16_t *lm_static;     /* untouched slots × 12 */
+  float lm_static_scale;
+  uint64_t *tch_bits;      /* ⌈slots / 64⌉ words: the slot is touched */
+  uint32_t *tch_rank;      /* touched slots before each word */
   uint32_t *lm_idx;        /* during setup: the texel records' receivers as global slots */
   /* Record values in half precision inside the blends, as the file stores them (per
    * representation divided by a power-of-two scale, which the weights given to the blend
@@ -76,6 +85,17 @@ static inline uint64_t slot_of(const ub_runtime *rt, uint32_t a, size_t i)
 {
   uint64_t w = rt->cov_bits[a][i >> 6], below = w & ((UINT64_C(1) << (i & 63)) - 1);
   return rt->cov_rank[a][i >> 6] + (uint64_t)__builtin_popcountll(below);
+}
+
+/* Whether global slot s is touched by a record, and its index among the touched (or
+ * untouched) slots. */
+static inline int slot_touched(const ub_runtime *rt, uint64_t s, uint64_t *out_index)
+{
+  uint64_t w = rt->tch_bits[s >> 6], below = w & ((UINT64_C(1) << (s & 63)) - 1);
+  uint64_t t = rt->tch_rank[s >> 6] + (uint64_t)__builtin_popcountll(below);
+  int on = (int)((w >> (s & 63)) & 1u);
+  *out_index = on ? t : s - t;
+  return on;
 }
 
 /* Builds the coverage bits, ranks and slot → pixel map; sets slot_first. */
@@ -256,14 +276,14 @@ static void encode_texel(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, 
   ub_ahd_encode(v, n, out);
 }
 
-/* AHD of atlas a's slots [first, first + count) from the current SH (lm_cur, I_z form). */
-static void encode_slots(const ub_runtime *rt, uint32_t a, uint64_t first, uint64_t count)
+/* AHD of atlas a's slots [first, first + count) from their current SH rows (I_z form). */
+static void encode_slots(const ub_runtime *rt, uint32_t a, uint64_t first, uint64_t count,
+                         const float *rows)
 {
   const ub_bakefile_atlas *at = &rt->bf->atlases[a];
   const uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
-  const float *cur = rt->lm_cur + rt->slot_first[a] * UB_SH1_FLOATS;
-  for (uint64_t s = first; s < first + count; s++)
-    encode_texel(at, &rt->fallback[a], cur + s * UB_SH1_FLOATS, 1, sp[s], &rt->ahd[a][s]);
+  for (uint64_t s = first; s < first + count; s++, rows += UB_SH1_FLOATS)
+    encode_texel(at, &rt->fallback[a], rows, 1, sp[s], &rt->ahd[a][s]);
 }
 
 void ub_runtime_free(ub_runtime *rt)
@@ -303,6 +323,9 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt->llg_base);
   free(rt->lm_base);
   free(rt->lm_cur);
+  free(rt->lm_static);
+  free(rt->tch_bits);
+  free(rt->tch_rank);
   free(rt->glg_win);
   free(rt->lit_tris);
   if (rt->has_glg)
@@ -505,11 +528,6 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     free(at->sh);
     at->sh = NULL;
   }
-  rt->lm_cur = malloc((size_t)(slots ? slots : 1) * UB_SH1_FLOATS * sizeof(float));
-  if (!rt->lm_cur) {
-    ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
-    return UB_ERR_OUT_OF_MEMORY;
-  }
   int any_llg = 0;
   for (uint32_t e = 0; e < n; e++) {
     const ub_bakefile_record *rc = element_record(bf, e);
@@ -530,6 +548,49 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return r;
   }
+  /* Touched slots (in some texel record): their current state in float, starting at the
+   * base; the others in half. */
+  size_t words = (size_t)(slots + 63) / 64;
+  rt->tch_bits = calloc(words ? words : 1, sizeof *rt->tch_bits);
+  rt->tch_rank = malloc((words ? words : 1) * sizeof *rt->tch_rank);
+  if (!rt->tch_bits || !rt->tch_rank) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  for (uint32_t e = 0; e < n; e++)
+    for (uint32_t i = 0; i < rt->lm_rec[e].count; i++) {
+      uint32_t sl = rt->lm_rec[e].receivers[i];
+      rt->tch_bits[sl >> 6] |= UINT64_C(1) << (sl & 63);
+    }
+  uint64_t touched = 0;
+  for (size_t w = 0; w < words; w++) {
+    rt->tch_rank[w] = (uint32_t)touched;
+    touched += (uint64_t)__builtin_popcountll(rt->tch_bits[w]);
+  }
+  rt->lm_cur = malloc((size_t)(touched ? touched : 1) * UB_SH1_FLOATS * sizeof(float));
+  rt->lm_static = malloc((size_t)(slots - touched ? slots - touched : 1) * UB_SH1_FLOATS *
+                         sizeof(uint16_t));
+  if (!rt->lm_cur || !rt->lm_static) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  double smx = 0.0;
+  for (uint64_t sl = 0; sl < slots; sl++) {
+    uint64_t ix;
+    if (!slot_touched(rt, sl, &ix))
+      for (int k = 0; k < UB_SH1_FLOATS; k++)
+        smx = fmax(smx, fabs((double)rt->lm_base[sl * UB_SH1_FLOATS + k]));
+  }
+  rt->lm_static_scale = half_pool_scale(smx);
+  for (uint64_t sl = 0; sl < slots; sl++) {
+    uint64_t ix;
+    const float *row = rt->lm_base + sl * UB_SH1_FLOATS;
+    if (slot_touched(rt, sl, &ix))
+      memcpy(rt->lm_cur + ix * UB_SH1_FLOATS, row, UB_SH1_FLOATS * sizeof(float));
+    else
+      for (int k = 0; k < UB_SH1_FLOATS; k++)
+        rt->lm_static[ix * UB_SH1_FLOATS + k] = ub_half_from_float(row[k] / rt->lm_static_scale);
+  }
   ub_blend_desc bd;
   memset(&bd, 0, sizeof bd);
   bd.name = "lightmap texels";
@@ -541,7 +602,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   bd.elements = rt->lm_rec;
   /* Keeps only the touched receivers' base rows, and the records as half. */
   bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_STORE_HALF;
-  r = ub_blend_create(&bd, log, rt->lm_cur, &rt->lm_blend);
+  r = ub_blend_create(&bd, log, NULL, &rt->lm_blend); /* streamed into lm_cur */
   if (r != UB_OK)
     return r;
   free(rt->lm_base);
@@ -836,12 +897,19 @@ typedef struct touched_ctx {
   uint32_t atlas; /* atlas of the last piece */
 } touched_ctx;
 
-/* Re-encodes to AHD the pixels the blend just wrote (they may span atlases). */
+/* Stores the rows the blend just computed for slots [first, first + count) (all touched,
+ * so their lm_cur rows are consecutive) and re-encodes them to AHD (they may span
+ * atlases). */
 static void lm_touched(void *user, uint32_t first, uint32_t count, const float *rows)
 {
-  (void)rows; /* the same rows are in lm_cur: out_values is given to the blend */
   touched_ctx *tc = user;
   ub_runtime *rt = tc->rt;
+  uint64_t t0;
+  int on = slot_touched(rt, first, &t0);
+  assert(on);
+  (void)on;
+  float *cur = rt->lm_cur + t0 * UB_SH1_FLOATS;
+  memcpy(cur, rows, (size_t)count * UB_SH1_FLOATS * sizeof(float));
   uint64_t lo = first, hi = (uint64_t)first + count;
   uint32_t a = tc->atlas; /* pieces come in ascending order: resume at the last atlas */
   if (a >= rt->bf->atlas_count || lo < rt->slot_first[a])
@@ -851,7 +919,7 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
     if (lo >= a1)
       continue;
     uint64_t s1 = hi < a1 ? hi : a1;
-    encode_slots(rt, a, lo - a0, s1 - lo);
+    encode_slots(rt, a, lo - a0, s1 - lo, cur + (lo - first) * UB_SH1_FLOATS);
     tc->texels += s1 - lo;
     tc->atlas = a;
     lo = s1;
@@ -885,11 +953,11 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
   if (rt->lm_blend) {
     touched_ctx tc = {rt, 0, 0};
     ub_blend_stats bs;
-    ub_blend_update(rt->lm_blend, lm_touched, &tc, rt->lm_cur, &bs);
+    ub_blend_update(rt->lm_blend, lm_touched, &tc, NULL, &bs);
     st.texels_written = bs.receivers;
     st.texels_reencoded = tc.texels;
     st.bytes_read += bs.bytes_read;
-    st.bytes_written += bs.bytes_written;
+    st.bytes_written += bs.receivers * UB_SH1_FLOATS * sizeof(float); /* into lm_cur */
     st.groups += bs.groups;
   }
   if (out_stats)
@@ -978,7 +1046,12 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
                   (bf->atlases[a].sh ? t * UB_SH1_FLOATS * F : 0) +
                   (rt->fallback ? (size_t)rt->fallback[a].count * (U + 3 * F) : 0);
   }
-  m.lightmap += rt->lm_cur ? (size_t)rt->slot_first[bf->atlas_count] * UB_SH1_FLOATS * F : 0;
+  if (rt->lm_cur) {
+    size_t slots = (size_t)rt->slot_first[bf->atlas_count], words = (slots + 63) / 64, t = 0;
+    for (size_t w = 0; w < words; w++)
+      t += (size_t)__builtin_popcountll(rt->tch_bits[w]);
+    m.lightmap += t * UB_SH1_FLOATS * F + (slots - t) * UB_SH1_FLOATS * 2 + words * (8 + U);
+  }
   for (uint32_t i = 0; i < bf->llg_count; i++) {
     const ub_bakefile_llg *g = &bf->llgs[i];
     size_t np = (size_t)g->dims[0] * g->dims[1] * g->dims[2];
@@ -1167,7 +1240,7 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
   /* Bilinear over the texels' linear data (SH L1 of the current state and the encode
    * normals), then one AHD encode: filtering the AHD parameters themselves (non-linear)
    * is off by up to 40% along the normal between texels that are each exact. */
-  const float *cur = rt->lm_cur ? rt->lm_cur + rt->slot_first[atlas] * UB_SH1_FLOATS : NULL;
+  const int cur = rt->lm_cur != NULL;
   double sw = 0, sh[UB_SH1_FLOATS] = {0}, nn[3] = {0, 0, 0};
   for (int k = 0; k < 4; k++) {
     int64_t x = x0 + (k & 1), y = y0 + (k >> 1);
@@ -1181,9 +1254,19 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
       continue;
     sw += wt;
     float ts[UB_SH1_FLOATS], tn[3];
-    const float *row = cur ? cur + slot_of(rt, atlas, i) * UB_SH1_FLOATS
-                           : at->sh + i * UB_SH1_FLOATS;
-    texel_sh_at(at, &rt->fallback[atlas], row, cur != NULL, i, ts, tn);
+    float srow[UB_SH1_FLOATS];
+    const float *row = at->sh ? at->sh + i * UB_SH1_FLOATS : srow;
+    if (cur) {
+      uint64_t ix;
+      if (slot_touched(rt, rt->slot_first[atlas] + slot_of(rt, atlas, i), &ix)) {
+        row = rt->lm_cur + ix * UB_SH1_FLOATS;
+      } else {
+        for (int c = 0; c < UB_SH1_FLOATS; c++)
+          srow[c] = ub_half_to_float(rt->lm_static[ix * UB_SH1_FLOATS + c]) * rt->lm_static_scale;
+        row = srow;
+      }
+    }
+    texel_sh_at(at, &rt->fallback[atlas], row, cur, i, ts, tn);
     for (int c = 0; c < UB_SH1_FLOATS; c++)
       sh[c] += wt * ts[c];
     for (int c = 0; c < 3; c++)

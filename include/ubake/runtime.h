@@ -55,8 +55,9 @@ typedef struct ub_runtime_memory {
   size_t geometry;  /* triangles, vertices, UVs, albedo, roles, lights; atlas normals and
                        coverage; GLG positions, tets, leak planes; LLG model meshes,
                        visibility, self terms */
-  size_t lightmap;  /* AHD texels, texel SH (current state, or the file's), the encode
-                       normals of covered texels without a normal of their own */
+  size_t lightmap;  /* per covered texel: AHD, SH (float current state where a record
+                       touches it, else the file's halves; without elements the file's
+                       float SH); coverage/touched bitmaps; fallback encode normals */
   size_t glg;       /* raw current + windowed SH, the GLG's acceleration data */
   size_t llg;       /* LLG probe SH (current state) */
   size_t records;   /* element records: their values (half), held by the blends */
