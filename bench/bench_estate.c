@@ -365,10 +365,10 @@ int main(int argc, char **argv)
   double gbs = all_bytes / tall / 1e9, cgbs = 2.0 * (double)cn / tcpy / 1e9;
   printf("run-time: load %.2f s, resident +%.1f MB (base + %u sets' records %.1f MB on disk)\n", tl,
          (rss1 - rss0) / 1024.0, nd, rec_sum / 1048576.0);
+  /* Counted bytes: the RSS delta above also holds freed pages malloc keeps. */
+  ub_runtime_memory mu;
+  ub_runtime_memory_usage(rt, &mu);
   {
-    /* Counted bytes: the RSS delta above also holds freed pages malloc keeps. */
-    ub_runtime_memory mu;
-    ub_runtime_memory_usage(rt, &mu);
     const double M = 1048576.0;
     printf("  run-time memory (counted): %.1f MB = geometry %.1f + lightmap %.1f + GLG %.1f + "
            "LLG %.1f + records %.1f + blend engines %.1f\n", mu.total / M, mu.geometry / M,
@@ -438,6 +438,19 @@ int main(int argc, char **argv)
              "level); all sets changed ~%.1f ms at the measured GB/s; records %.0f MB\n",
              tall * 1e3 * rec_f / (rec_sum + 1e-30),
              rec_f / 1048576.0);
+      /* Run-time memory: each part of the counted memory scaled by what it grows with:
+       * geometry, lightmap and LLG by texels, the GLG by its probes, records and the
+       * blends' tables and touched base rows by record bytes. */
+      const double M = 1048576.0, kt = (double)fs.texels / (st.texels ? st.texels : 1);
+      const double kg = (double)fs.glg_probes / (st.glg_probes ? st.glg_probes : 1);
+      const double krec = rec_f / (rec_sum + 1e-30);
+      double g = mu.geometry * kt, l = mu.lightmap * kt, gl = mu.glg * kg, ll = mu.llg * kt;
+      double re = mu.records * krec, be = mu.blend * krec;
+      printf("  run-time memory modelled at full scale: %.0f MB = geometry %.0f + lightmap %.0f "
+             "+ GLG %.0f + LLG %.0f + records %.0f + blend engines %.0f (x%.1f texels, x%.1f GLG "
+             "probes, x%.1f records; target <= 77 MB, paper 77 MB)\n",
+             (g + l + gl + ll + re + be) / M, g / M, l / M, gl / M, ll / M, re / M, be / M, kt,
+             kg, krec);
     }
   }
   free(rb);
