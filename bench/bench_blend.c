@@ -400,7 +400,7 @@ int main(void)
 
   /* (d) memory. */
   double base_b = 0, rec_h = 0, rec_f = 0, eng_h = 0, eng_f = 0, out_b = 0, base_half = 0;
-  double touched_b = 0;
+  double touched_b = 0, rt_state = 0;
   for (int ri = 0; ri < NREP; ri++) {
     ub_blend_info ih, iff;
     ub_blend_get_info(reps[ri].bh, &ih);
@@ -408,6 +408,11 @@ int main(void)
     base_b += 4.0 * reps[ri].n * reps[ri].stride;
     base_half += 2.0 * reps[ri].n * reps[ri].stride;
     out_b += 4.0 * reps[ri].n * reps[ri].stride;
+    /* The run-time's lightmap state: float for the touched texels, the file's halves for
+     * the others (runtime.c lm_cur / lm_static); probes: float for all. */
+    rt_state += ri == 0 ? (4.0 * ih.touched_receivers + 2.0 * (reps[ri].n - ih.touched_receivers)) *
+                              reps[ri].stride
+                        : 4.0 * reps[ri].n * reps[ri].stride;
     touched_b += 4.0 * ih.touched_receivers * reps[ri].stride;
     rec_h += (double)ih.record_bytes;
     rec_f += (double)iff.record_bytes;
@@ -436,6 +441,10 @@ int main(void)
          "coverage %.1f MB, windowed GLG SH %.1f MB: %.1f MB in all with the sets "
          "(before geometry, tets and the GLG's acceleration data)\n", rt_texel / MB,
          rt_glg_win / MB, (out_b + touched_b + rec_h + eng_h + rt_texel + rt_glg_win) / MB);
+  printf("    as ub_runtime holds it (lightmap state float only where a set touches, the file's "
+         "halves elsewhere): current state %.1f MB instead of %.1f: %.1f MB in all\n",
+         rt_state / MB, out_b / MB,
+         (rt_state + touched_b + rec_h + eng_h + rt_texel + rt_glg_win) / MB);
   for (int ri = 0; ri < NREP; ri++)
     free_rep(&reps[ri]);
   printf("bench_blend: %.1f s\n", now_s() - t0);
