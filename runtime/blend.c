@@ -3,6 +3,7 @@
 #include "runtime/blend.h"
 
 #include <assert.h>
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -846,7 +847,8 @@ static ub_result validate(const ub_blend_desc *d, const ub_log *log, uint64_t *o
     for (size_t i = 0; i < nv; i++) {
       int ok = d->storage == UB_BLEND_FLOAT16
                    ? ub_half_is_finite(((const uint16_t *)r->values)[i])
-               : to_half ? ub_half_is_finite(ub_half_from_float(((const float *)r->values)[i]))
+               : to_half ? fabsf(((const float *)r->values)[i]) < 65520.0f /* rounds to
+                                                                                finite half */
                          : finite_f(((const float *)r->values)[i]);
       if (!ok) {
         ub_log_printf(log, UB_LOG_ERROR,
