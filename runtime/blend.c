@@ -47,9 +47,10 @@
 
 /* A group: receivers sharing one combination of k elements (its members, ascending ids).
  * Its receivers, from unit_off in b->units: as runs, per run [first receiver, length]; as
- * a list, per receiver [receiver]. Its record values, from val_off in b->values, in the
- * group's receiver order: per receiver the k members' rows (S values each) one after the
- * other, so a group's values are one sequential stream and no record position is kept. */
+ * a list, per receiver [receiver]. Its record values, from val_off in b->values: one
+ * block per member (ascending ids) holding that member's rows (S values each) for the
+ * group's receivers in order, so each member's values are one sequential stream (a run
+ * of consecutive receivers is one flat array) and no record position is kept. */
 typedef struct blend_group {
   uint64_t val_off;    /* in values */
   uint64_t unit_off;   /* in units (words) */
@@ -92,6 +93,7 @@ struct ub_blend {
   size_t dec_floats;
   /* Scratch for combinations above BLEND_SPECIALISED (max_overlap entries each). */
   uint32_t *scr_act;
+  const char **scr_src;
   const float **scr_rows;
   const float **scr_w;
   /* AVX + F16C path (chosen at create): weight patterns and member sources. */
@@ -100,6 +102,7 @@ struct ub_blend {
                             weight at every lane j as ω[j mod 3] (period 24 = 3 × 8 lanes,
                             8 more for unaligned tails), kept by set_weight */
   const float **avx_w;   /* max(max_overlap, 1): the non-zero members' patterns */
+  const char **avx_src;  /* max(max_overlap, 1): the non-zero members' values */
   size_t engine_bytes, record_bytes;
 };
 
@@ -308,133 +311,107 @@ BLEND_AVX_INLINE __m128 avx_load4(const char *src, size_t j, const int half)
   return _mm_loadu_ps((const float *)(const void *)src + j);
 }
 
-/* o = bs + Σ_a ω_a·row_a, row_a = v + act[a]·S values (the receiver's member rows). */
-BLEND_AVX_INLINE void avx_row(float *restrict o, const float *restrict bs, const char *v,
-                              const uint32_t *act, const float *const *wp, const uint32_t k,
-                              const uint32_t S, const int half)
+/* o[j] = bs[j] + Σ_m wp[m][j mod 24]·src_m[j], j < nf. */
+BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
+                               const char *const *src, const float *const *wp,
+                               const uint32_t k, const size_t nf, const int half)
 {
-  const size_t vs = half ? 2 : 4;
-  uint32_t j = 0;
-  for (; j + 8 <= S; j += 8) {
+  size_t j = 0;
+  for (; j + 24 <= nf; j += 24) {
+    __m256 a0 = _mm256_loadu_ps(bs + j), a1 = _mm256_loadu_ps(bs + j + 8),
+           a2 = _mm256_loadu_ps(bs + j + 16);
+    for (uint32_t m = 0; m < k; m++) {
+      const float *w = wp[m];
+      a0 = _mm256_add_ps(a0, _mm256_mul_ps(_mm256_load_ps(w), avx_load8(src[m], j, half)));
+      a1 = _mm256_add_ps(a1, _mm256_mul_ps(_mm256_load_ps(w + 8), avx_load8(src[m], j + 8, half)));
+      a2 = _mm256_add_ps(a2, _mm256_mul_ps(_mm256_load_ps(w + 16), avx_load8(src[m], j + 16, half)));
+    }
+    _mm256_storeu_ps(o + j, a0);
+    _mm256_storeu_ps(o + j + 8, a1);
+    _mm256_storeu_ps(o + j + 16, a2);
+  }
+  for (; j + 8 <= nf; j += 8) {
+    const size_t ph = j % 24;
     __m256 a = _mm256_loadu_ps(bs + j);
     for (uint32_t m = 0; m < k; m++)
-      a = _mm256_add_ps(a, _mm256_mul_ps(_mm256_loadu_ps(wp[m] + j % 24),
-                                         avx_load8(v + (size_t)act[m] * S * vs, j, half)));
+      a = _mm256_add_ps(a, _mm256_mul_ps(_mm256_loadu_ps(wp[m] + ph), avx_load8(src[m], j, half)));
     _mm256_storeu_ps(o + j, a);
   }
-  if (j + 4 <= S) {
+  for (; j + 4 <= nf; j += 4) {
+    const size_t ph = j % 24;
     __m128 a = _mm_loadu_ps(bs + j);
     for (uint32_t m = 0; m < k; m++)
-      a = _mm_add_ps(a, _mm_mul_ps(_mm_loadu_ps(wp[m] + j % 24),
-                                   avx_load4(v + (size_t)act[m] * S * vs, j, half)));
+      a = _mm_add_ps(a, _mm_mul_ps(_mm_loadu_ps(wp[m] + ph), avx_load4(src[m], j, half)));
     _mm_storeu_ps(o + j, a);
-    j += 4;
   }
-  if (j < S && S >= 4) { /* 1..3 left: one vector over the last 4 */
-    const uint32_t t = S - 4;
-    __m128 a = _mm_loadu_ps(bs + t);
-    for (uint32_t m = 0; m < k; m++)
-      a = _mm_add_ps(a, _mm_mul_ps(_mm_loadu_ps(wp[m] + t % 24),
-                                   avx_load4(v + (size_t)act[m] * S * vs, t, half)));
-    _mm_storeu_ps(o + t, a);
-  } else {
-    for (; j < S; j++) {
-      float acc = bs[j];
-      for (uint32_t m = 0; m < k; m++) {
-        const char *src = v + (size_t)act[m] * S * vs;
-        float x = half ? ub_half_to_float(((const uint16_t *)(const void *)src)[j])
-                       : ((const float *)(const void *)src)[j];
-        float t = wp[m][j % 24] * x;
-        acc = acc + t;
-      }
-      o[j] = acc;
+  for (; j < nf; j++) {
+    float acc = bs[j];
+    for (uint32_t m = 0; m < k; m++) {
+      float v = half ? ub_half_to_float(((const uint16_t *)(const void *)src[m])[j])
+                     : ((const float *)(const void *)src[m])[j];
+      float t = wp[m][j % 24] * v;
+      acc = acc + t;
     }
+    o[j] = acc;
   }
 }
 
-/* A group's receivers through avx_row; results handed to the callback a piece at a time
- * (with the upper AVX state cleared first: the callback runs SSE code). */
-BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const uint32_t *act,
-                                const float *const *wp, const uint32_t k, const uint32_t S,
-                                const int half)
+BLEND_AVX static void avx_flat_h(float *restrict o, const float *restrict bs,
+                                 const char *const *src, const float *const *wp, uint32_t k,
+                                 size_t nf)
 {
-  const ub_blend *b = c->b;
-  const uint32_t gk = g->k_mode & ~GROUP_LIST;
-  const int list = (g->k_mode & GROUP_LIST) != 0;
-  const size_t vs = half ? 2 : 4, rowb = (size_t)gk * S * vs;
-  const char *v = (const char *)b->values + g->val_off * vs;
-  const uint32_t *u = b->units + g->unit_off;
-  const float *gb = group_base(b, g);
-  float *out = c->out;
-  const uint32_t chunk = c->fn || !out ? BLEND_CHUNK : UINT32_MAX;
-  for (uint32_t un = 0; un < g->units; un++) {
-    const uint32_t r = u[0], len = list ? 1 : u[1];
-    u += list ? 1 : 2;
-    const float *bs = unit_base(b, &gb, r, len);
-    for (uint32_t i = 0; i < len;) {
-      const uint32_t n = len - i < chunk ? len - i : chunk;
-      float *o0 = out ? out + (size_t)(r + i) * S : c->scratch;
-      for (uint32_t q = 0; q < n; q++, v += rowb)
-        avx_row(o0 + (size_t)q * S, bs + (size_t)(i + q) * S, v, act, wp, k, S, half);
-      if (c->fn) {
-        _mm256_zeroupper();
-        c->fn(c->user, r + i, n, o0);
-      }
-      i += n;
-    }
-  }
-}
-
-BLEND_AVX static void avx_group_12h(const blend_call *c, const blend_group *g,
-                                    const uint32_t *act, const float *const *wp, uint32_t k)
-{
-  avx_group(c, g, act, wp, k, 12, 1);
-  _mm256_zeroupper();
-}
-BLEND_AVX static void avx_group_27h(const blend_call *c, const blend_group *g,
-                                    const uint32_t *act, const float *const *wp, uint32_t k)
-{
-  avx_group(c, g, act, wp, k, 27, 1);
-  _mm256_zeroupper();
-}
-BLEND_AVX static void avx_group_anyh(const blend_call *c, const blend_group *g,
-                                     const uint32_t *act, const float *const *wp, uint32_t k)
-{
-  avx_group(c, g, act, wp, k, c->b->stride, 1);
-  _mm256_zeroupper();
-}
-BLEND_AVX static void avx_group_12f(const blend_call *c, const blend_group *g,
-                                    const uint32_t *act, const float *const *wp, uint32_t k)
-{
-  avx_group(c, g, act, wp, k, 12, 0);
-  _mm256_zeroupper();
-}
-BLEND_AVX static void avx_group_27f(const blend_call *c, const blend_group *g,
-                                    const uint32_t *act, const float *const *wp, uint32_t k)
-{
-  avx_group(c, g, act, wp, k, 27, 0);
-  _mm256_zeroupper();
-}
-BLEND_AVX static void avx_group_anyf(const blend_call *c, const blend_group *g,
-                                     const uint32_t *act, const float *const *wp, uint32_t k)
-{
-  avx_group(c, g, act, wp, k, c->b->stride, 0);
+  avx_flat(o, bs, src, wp, k, nf, 1);
   _mm256_zeroupper();
 }
 
+BLEND_AVX static void avx_flat_f(float *restrict o, const float *restrict bs,
+                                 const char *const *src, const float *const *wp, uint32_t k,
+                                 size_t nf)
+{
+  avx_flat(o, bs, src, wp, k, nf, 0);
+  _mm256_zeroupper();
+}
+
+/* A group's units: member m's values for the unit's receivers are one stretch of its
+ * block (see blend_group), so a run is blended as flat arrays; the callback gets each
+ * piece right after it is computed. */
 static void group_blend_avx(const blend_call *c, const blend_group *g, const uint32_t *act,
                             uint32_t k)
 {
   const ub_blend *b = c->b;
+  const uint32_t S = b->stride;
+  const int list = (g->k_mode & GROUP_LIST) != 0;
   const uint32_t *mem = b->members + g->member_off;
+  const size_t vs = b->value_size, rowb = (size_t)S * vs, block = (size_t)g->receivers * rowb;
+  const char *vb = (const char *)b->values + g->val_off * vs;
+  const uint32_t *u = b->units + g->unit_off;
+  void (*flat)(float *restrict, const float *restrict, const char *const *,
+               const float *const *, uint32_t, size_t) = vs == 2 ? avx_flat_h : avx_flat_f;
+  const char **src = b->avx_src;
   const float **wp = b->avx_w;
   for (uint32_t m = 0; m < k; m++)
     wp[m] = b->wpat + 32 * (size_t)mem[act[m]];
-  const int half = b->value_size == 2;
-  switch (b->kernel) {
-  case KERNEL_12: (half ? avx_group_12h : avx_group_12f)(c, g, act, wp, k); break;
-  case KERNEL_27: (half ? avx_group_27h : avx_group_27f)(c, g, act, wp, k); break;
-  default: (half ? avx_group_anyh : avx_group_anyf)(c, g, act, wp, k); break;
+  float *out = c->out;
+  const float *gb = group_base(b, g);
+  const uint32_t chunk = c->fn || !out ? BLEND_CHUNK : UINT32_MAX;
+  size_t i0 = 0; /* receivers of the group before this unit */
+  for (uint32_t un = 0; un < g->units; un++) {
+    const uint32_t r = u[0], len = list ? 1 : u[1];
+    u += list ? 1 : 2;
+    const float *bs = unit_base(b, &gb, r, len);
+    for (uint32_t m = 0; m < k; m++)
+      src[m] = vb + act[m] * block + i0 * rowb;
+    for (uint32_t i = 0; i < len;) {
+      const uint32_t n = len - i < chunk ? len - i : chunk;
+      float *o = out ? out + (size_t)(r + i) * S : c->scratch;
+      flat(o, bs + (size_t)i * S, src, wp, k, (size_t)n * S);
+      if (c->fn)
+        c->fn(c->user, r + i, n, o);
+      for (uint32_t m = 0; m < k; m++)
+        src[m] += (size_t)n * rowb;
+      i += n;
+    }
+    i0 += len;
   }
 }
 #endif
@@ -446,47 +423,63 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
                              const uint32_t k, const uint32_t S, const int fixed)
 {
   const ub_blend *b = c->b;
+  const char *src_l[BLEND_SPECIALISED];
   const float *rows_l[BLEND_SPECIALISED], *w_l[BLEND_SPECIALISED];
+  const char **src = k <= BLEND_SPECIALISED ? src_l : b->scr_src;
   const float **rows = k <= BLEND_SPECIALISED ? rows_l : b->scr_rows;
   const float **w = k <= BLEND_SPECIALISED ? w_l : b->scr_w;
-  const uint32_t gk = g->k_mode & ~GROUP_LIST;
   const int list = (g->k_mode & GROUP_LIST) != 0;
   const uint32_t *mem = b->members + g->member_off;
-  const size_t vs = b->value_size, rowb = (size_t)gk * S * vs;
-  const char *v = (const char *)b->values + g->val_off * vs;
+  const size_t vs = b->value_size, rowb = (size_t)S * vs, block = (size_t)g->receivers * rowb;
+  const char *vb = (const char *)b->values + g->val_off * vs;
   const uint32_t *u = b->units + g->unit_off;
   const blend_decode_fn decode = b->decode;
   const float *gb = group_base(b, g);
   float *out = c->out;
-  const uint32_t chunk = c->fn || !out ? BLEND_CHUNK : UINT32_MAX;
+
+  /* Receivers per chunk: bounded by the decode scratch (half) and the streaming scratch. */
+  uint32_t chunk = out ? UINT32_MAX : BLEND_CHUNK;
+  if (decode) {
+    size_t fit = b->dec_floats / ((size_t)k * S);
+    chunk = fit < chunk ? (uint32_t)fit : chunk; /* ≥ 1: dec_floats ≥ max_overlap × S */
+  }
   for (uint32_t m = 0; m < k; m++)
     w[m] = b->wexp + (size_t)mem[act[m]] * b->wstride;
+  size_t i0 = 0;
   for (uint32_t un = 0; un < g->units; un++) {
     const uint32_t r = u[0], len = list ? 1 : u[1];
     u += list ? 1 : 2;
     const float *bs = unit_base(b, &gb, r, len);
+    for (uint32_t m = 0; m < k; m++)
+      src[m] = vb + act[m] * block + i0 * rowb;
     for (uint32_t i = 0; i < len;) {
-      const uint32_t n = len - i < chunk ? len - i : chunk;
-      float *o0 = out ? out + (size_t)(r + i) * S : c->scratch;
-      for (uint32_t q = 0; q < n; q++, v += rowb) {
-        for (uint32_t m = 0; m < k; m++) {
-          const char *row = v + (size_t)act[m] * S * vs;
-          if (decode) {
-            decode((const uint16_t *)(const void *)row, b->dec + (size_t)m * S, S);
-            rows[m] = b->dec + (size_t)m * S;
-          } else {
-            rows[m] = (const float *)(const void *)row;
-          }
+      uint32_t n = len - i < chunk ? len - i : chunk;
+      for (uint32_t m = 0; m < k; m++) {
+        if (decode) {
+          float *dst = b->dec + (size_t)m * n * S;
+          decode((const uint16_t *)(const void *)src[m], dst, (size_t)n * S);
+          rows[m] = dst;
+        } else {
+          rows[m] = (const float *)(const void *)src[m];
         }
+        src[m] += (size_t)n * rowb;
+      }
+      float *o0 = out ? out + (size_t)(r + i) * S : c->scratch, *o = o0;
+      for (uint32_t q = 0; q < n; q++) {
         if (fixed)
-          blend_row_fixed(o0 + (size_t)q * S, bs + (size_t)(i + q) * S, rows, w, k, S);
+          blend_row_fixed(o, bs, rows, w, k, S);
         else
-          blend_row_any(o0 + (size_t)q * S, bs + (size_t)(i + q) * S, rows, w, k, S);
+          blend_row_any(o, bs, rows, w, k, S);
+        o += S;
+        bs += S;
+        for (uint32_t m = 0; m < k; m++)
+          rows[m] += S;
       }
       if (c->fn)
         c->fn(c->user, r + i, n, o0);
       i += n;
     }
+    i0 += len;
   }
 }
 
@@ -747,6 +740,8 @@ void ub_blend_free(ub_blend *b)
   free(b->scr_act);
   free(b->wpat);
   free((void *)b->avx_w);
+  free((void *)b->avx_src);
+  free((void *)b->scr_src);
   free((void *)b->scr_rows);
   free((void *)b->scr_w);
   free(b);
@@ -1054,11 +1049,12 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
         *w++ = len;
       i += len;
     }
-    /* Each receiver's member rows, in member order (= ascending element id, as m_elem). */
-    for (uint32_t i = 0; i < n; i++) {
-      const uint32_t *el = t->m_elem + t->off[rs[i]], *pos = t->m_pos + t->off[rs[i]];
-      for (uint32_t m = 0; m < k; m++, v += rowb) {
-        const char *src = (const char *)d->elements[el[m]].values + (size_t)pos[m] * srcb;
+    /* Member m's rows for the group's receivers in order (members = ascending element
+     * ids, as m_elem lists them per receiver), one block per member. */
+    for (uint32_t m = 0; m < k; m++)
+      for (uint32_t i = 0; i < n; i++, v += rowb) {
+        const uint32_t el = t->m_elem[t->off[rs[i]] + m], pos = t->m_pos[t->off[rs[i]] + m];
+        const char *src = (const char *)d->elements[el].values + (size_t)pos * srcb;
         if (to_half) {
           const float *f = (const float *)(const void *)src;
           uint16_t *h = (uint16_t *)(void *)v;
@@ -1068,7 +1064,6 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
           memcpy(v, src, rowb);
         }
       }
-    }
     assert(w == b->units + bg->unit_off + bg->units * ((bg->k_mode & GROUP_LIST) ? 1u : 2u));
   }
 
@@ -1122,16 +1117,18 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
     size_t na = maxk ? maxk : 1, ne = E ? E : 1;
     b->wpat = aligned_alloc(32, ne * 32 * sizeof(float));
     b->avx_w = alloc_n(na, sizeof(float *), acc);
-    if (!b->wpat || !b->avx_w)
+    b->avx_src = alloc_n(na, sizeof(char *), acc);
+    if (!b->wpat || !b->avx_w || !b->avx_src)
       return UB_ERR_OUT_OF_MEMORY;
     memset(b->wpat, 0, ne * 32 * sizeof(float)); /* every weight starts at 0 */
     *acc += ne * 32 * sizeof(float);
   }
 #endif
   b->scr_act = alloc_n(sk, sizeof(uint32_t), acc);
+  b->scr_src = alloc_n(sk, sizeof(char *), acc);
   b->scr_rows = alloc_n(sk, sizeof(float *), acc);
   b->scr_w = alloc_n(sk, sizeof(float *), acc);
-  if (!b->stamp || !b->work || !b->scratch || !b->scr_act || !b->scr_rows ||
+  if (!b->stamp || !b->work || !b->scratch || !b->scr_act || !b->scr_src || !b->scr_rows ||
       !b->scr_w)
     return UB_ERR_OUT_OF_MEMORY;
   return UB_OK;

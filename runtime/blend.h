@@ -23,15 +23,15 @@
  * element gets its combination (sorted element ids); receivers with the same combination
  * form a group. A group stores its receivers either as runs of consecutive receivers
  * (first receiver + length) or, when runs are short, as a list (one index per receiver),
- * and the engine keeps its own copy of the record values in group order: per receiver
- * the rows of its members one after the other, so an update reads each group as one
- * sequential stream (records are scattered otherwise) and keeps no per-member record
+ * and the engine keeps its own copy of the record values in group order: per group and
+ * member, that member's rows for the group's receivers, so an update reads each member of
+ * a group as one sequential stream (records are scattered otherwise) and keeps no record
  * positions; the records themselves are not needed after create. Kernels are specialised
  * for the stride (12, 27, other) and 1..8 non-zero members; a generic kernel takes any
- * count. On a CPU with AVX and F16C (checked at create, unless UB_BLEND_PORTABLE) a
- * receiver's row is blended 8 lanes at a time converting half records in registers;
- * otherwise half rows are decoded exactly to float (SSE2 bit operations) into an L1
- * scratch, then blended in float.
+ * count. On a CPU with AVX and F16C (checked at create, unless UB_BLEND_PORTABLE) each
+ * run of consecutive receivers is blended as one flat array, 8 lanes at a time,
+ * converting half records in registers; otherwise half rows are decoded exactly to float
+ * (SSE2 bit operations) a chunk at a time into an L1 scratch, then blended in float.
  * Every path does the same float operations per value, so they give the same bits. A group
  * whose weights are all 0 copies base rows (the "light off" fast path). Elements with
  * weight 0 are skipped, so a receiver's value depends only on the current weights, never
