@@ -47,10 +47,11 @@
 
 /* A group: receivers sharing one combination of k elements (its members, ascending ids).
  * Its receivers, from unit_off in b->units: as runs, per run [first receiver, length]; as
- * a list, per receiver [receiver]. Its record values, from val_off in b->values: one
- * block per member (ascending ids) holding that member's rows (S values each) for the
- * group's receivers in order, so each member's values are one sequential stream (a run
- * of consecutive receivers is one flat array) and no record position is kept. */
+ * a list, per receiver [receiver]. Its record values, from val_off in b->values: for a
+ * run group one block per member (ascending ids) holding that member's rows (S values
+ * each) for the group's receivers in order (a run of consecutive receivers is then one
+ * flat array per member); for a list group per receiver its members' rows one after the
+ * other (one stream). No record position is kept. */
 typedef struct blend_group {
   uint64_t val_off;    /* in values */
   uint64_t unit_off;   /* in units (words) */
@@ -356,41 +357,21 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
   }
 }
 
-BLEND_AVX static void avx_flat_h(float *restrict o, const float *restrict bs,
-                                 const char *const *src, const float *const *wp, uint32_t k,
-                                 size_t nf)
-{
-  avx_flat(o, bs, src, wp, k, nf, 1);
-  _mm256_zeroupper();
-}
-
-BLEND_AVX static void avx_flat_f(float *restrict o, const float *restrict bs,
-                                 const char *const *src, const float *const *wp, uint32_t k,
-                                 size_t nf)
-{
-  avx_flat(o, bs, src, wp, k, nf, 0);
-  _mm256_zeroupper();
-}
-
 /* A group's units: member m's values for the unit's receivers are one stretch of its
  * block (see blend_group), so a run is blended as flat arrays; the callback gets each
- * piece right after it is computed. */
-static void group_blend_avx(const blend_call *c, const blend_group *g, const uint32_t *act,
-                            uint32_t k)
+ * piece right after it is computed (upper AVX state cleared first: it runs SSE code).
+ * The whole loop is AVX code, so a list group costs no call per receiver. */
+BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const uint32_t *act,
+                                const char **src, const float *const *wp, const uint32_t k,
+                                const int half)
 {
   const ub_blend *b = c->b;
   const uint32_t S = b->stride;
   const int list = (g->k_mode & GROUP_LIST) != 0;
-  const uint32_t *mem = b->members + g->member_off;
-  const size_t vs = b->value_size, rowb = (size_t)S * vs, block = (size_t)g->receivers * rowb;
+  const size_t vs = half ? 2 : 4, rowb = (size_t)S * vs, block = (size_t)g->receivers * rowb;
+  const size_t gk = g->k_mode & ~GROUP_LIST;
   const char *vb = (const char *)b->values + g->val_off * vs;
   const uint32_t *u = b->units + g->unit_off;
-  void (*flat)(float *restrict, const float *restrict, const char *const *,
-               const float *const *, uint32_t, size_t) = vs == 2 ? avx_flat_h : avx_flat_f;
-  const char **src = b->avx_src;
-  const float **wp = b->avx_w;
-  for (uint32_t m = 0; m < k; m++)
-    wp[m] = b->wpat + 32 * (size_t)mem[act[m]];
   float *out = c->out;
   const float *gb = group_base(b, g);
   const uint32_t chunk = c->fn || !out ? BLEND_CHUNK : UINT32_MAX;
@@ -400,19 +381,49 @@ static void group_blend_avx(const blend_call *c, const blend_group *g, const uin
     u += list ? 1 : 2;
     const float *bs = unit_base(b, &gb, r, len);
     for (uint32_t m = 0; m < k; m++)
-      src[m] = vb + act[m] * block + i0 * rowb;
+      src[m] = vb + (list ? (i0 * gk + act[m]) * rowb : act[m] * block + i0 * rowb);
     for (uint32_t i = 0; i < len;) {
       const uint32_t n = len - i < chunk ? len - i : chunk;
       float *o = out ? out + (size_t)(r + i) * S : c->scratch;
-      flat(o, bs + (size_t)i * S, src, wp, k, (size_t)n * S);
-      if (c->fn)
+      avx_flat(o, bs + (size_t)i * S, src, wp, k, (size_t)n * S, half);
+      if (c->fn) {
+        _mm256_zeroupper();
         c->fn(c->user, r + i, n, o);
+      }
       for (uint32_t m = 0; m < k; m++)
         src[m] += (size_t)n * rowb;
       i += n;
     }
     i0 += len;
   }
+}
+
+BLEND_AVX static void avx_group_h(const blend_call *c, const blend_group *g, const uint32_t *act,
+                                  const char **src, const float *const *wp, uint32_t k)
+{
+  avx_group(c, g, act, src, wp, k, 1);
+  _mm256_zeroupper();
+}
+
+BLEND_AVX static void avx_group_f(const blend_call *c, const blend_group *g, const uint32_t *act,
+                                  const char **src, const float *const *wp, uint32_t k)
+{
+  avx_group(c, g, act, src, wp, k, 0);
+  _mm256_zeroupper();
+}
+
+static void group_blend_avx(const blend_call *c, const blend_group *g, const uint32_t *act,
+                            uint32_t k)
+{
+  const ub_blend *b = c->b;
+  const uint32_t *mem = b->members + g->member_off;
+  const float **wp = b->avx_w;
+  for (uint32_t m = 0; m < k; m++)
+    wp[m] = b->wpat + 32 * (size_t)mem[act[m]];
+  if (b->value_size == 2)
+    avx_group_h(c, g, act, b->avx_src, wp, k);
+  else
+    avx_group_f(c, g, act, b->avx_src, wp, k);
 }
 #endif
 
@@ -431,6 +442,7 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
   const int list = (g->k_mode & GROUP_LIST) != 0;
   const uint32_t *mem = b->members + g->member_off;
   const size_t vs = b->value_size, rowb = (size_t)S * vs, block = (size_t)g->receivers * rowb;
+  const size_t gk = g->k_mode & ~GROUP_LIST;
   const char *vb = (const char *)b->values + g->val_off * vs;
   const uint32_t *u = b->units + g->unit_off;
   const blend_decode_fn decode = b->decode;
@@ -451,7 +463,7 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
     u += list ? 1 : 2;
     const float *bs = unit_base(b, &gb, r, len);
     for (uint32_t m = 0; m < k; m++)
-      src[m] = vb + act[m] * block + i0 * rowb;
+      src[m] = vb + (list ? (i0 * gk + act[m]) * rowb : act[m] * block + i0 * rowb);
     for (uint32_t i = 0; i < len;) {
       uint32_t n = len - i < chunk ? len - i : chunk;
       for (uint32_t m = 0; m < k; m++) {
@@ -1049,21 +1061,23 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
         *w++ = len;
       i += len;
     }
-    /* Member m's rows for the group's receivers in order (members = ascending element
-     * ids, as m_elem lists them per receiver), one block per member. */
-    for (uint32_t m = 0; m < k; m++)
-      for (uint32_t i = 0; i < n; i++, v += rowb) {
-        const uint32_t el = t->m_elem[t->off[rs[i]] + m], pos = t->m_pos[t->off[rs[i]] + m];
-        const char *src = (const char *)d->elements[el].values + (size_t)pos * srcb;
-        if (to_half) {
-          const float *f = (const float *)(const void *)src;
-          uint16_t *h = (uint16_t *)(void *)v;
-          for (uint32_t j = 0; j < b->stride; j++)
-            h[j] = ub_half_from_float(f[j]);
-        } else {
-          memcpy(v, src, rowb);
-        }
+    /* Runs: member m's rows for the group's receivers in order (members = ascending
+     * element ids, as m_elem lists them per receiver), one block per member. Lists: per
+     * receiver its members' rows. */
+    const int glist = (bg->k_mode & GROUP_LIST) != 0;
+    for (uint32_t q = 0; q < n * k; q++, v += rowb) {
+      const uint32_t m = glist ? q % k : q / n, i = glist ? q / k : q % n;
+      const uint32_t el = t->m_elem[t->off[rs[i]] + m], pos = t->m_pos[t->off[rs[i]] + m];
+      const char *src = (const char *)d->elements[el].values + (size_t)pos * srcb;
+      if (to_half) {
+        const float *f = (const float *)(const void *)src;
+        uint16_t *h = (uint16_t *)(void *)v;
+        for (uint32_t j = 0; j < b->stride; j++)
+          h[j] = ub_half_from_float(f[j]);
+      } else {
+        memcpy(v, src, rowb);
       }
+    }
     assert(w == b->units + bg->unit_off + bg->units * ((bg->k_mode & GROUP_LIST) ? 1u : 2u));
   }
 
