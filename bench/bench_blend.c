@@ -400,7 +400,7 @@ int main(void)
 
   /* (d) memory. */
   double base_b = 0, rec_h = 0, rec_f = 0, eng_h = 0, eng_f = 0, out_b = 0, base_half = 0;
-  double touched_b = 0;
+  double touched_b = 0, rt_state = 0;
   for (int ri = 0; ri < NREP; ri++) {
     ub_blend_info ih, iff;
     ub_blend_get_info(reps[ri].bh, &ih);
@@ -408,6 +408,11 @@ int main(void)
     base_b += 4.0 * reps[ri].n * reps[ri].stride;
     base_half += 2.0 * reps[ri].n * reps[ri].stride;
     out_b += 4.0 * reps[ri].n * reps[ri].stride;
+    /* The run-time's lightmap state: float for the touched texels, the file's halves for
+     * the others (runtime.c lm_cur / lm_static); probes: float for all. */
+    rt_state += ri == 0 ? (4.0 * ih.touched_receivers + 2.0 * (reps[ri].n - ih.touched_receivers)) *
+                              reps[ri].stride
+                        : 4.0 * reps[ri].n * reps[ri].stride;
     touched_b += 4.0 * ih.touched_receivers * reps[ri].stride;
     rec_h += (double)ih.record_bytes;
     rec_f += (double)iff.record_bytes;
@@ -427,14 +432,19 @@ int main(void)
          out_b / MB, touched_b / MB, rec_h / MB, eng_h / MB,
          (out_b + touched_b + rec_h + eng_h) / MB);
   /* What ub_runtime holds besides the blends (runtime/runtime.c, ub_runtime_memory_usage):
-   * per texel the AHD encoding (9 floats), the encode normal (3 floats), the file's normal
-   * (3 floats) and coverage byte; per GLG probe the windowed SH the queries read. */
-  double rt_texel = (double)rep_count[0] * (9 * 4 + 3 * 4 + 3 * 4 + 1);
+   * per texel the AHD encoding (9 floats), the file's normal (3 floats) and coverage byte
+   * (every texel here is covered: the run-time's per-texel arrays hold covered texels
+   * only); per GLG probe the windowed SH the queries read. */
+  double rt_texel = (double)rep_count[0] * (9 * 4 + 3 * 4 + 1);
   double rt_glg_win = 4.0 * rep_count[2] * rep_stride[2];
-  printf("    the run-time also holds, outside the blends: AHD texels + encode normals + stored "
-         "normals + coverage %.1f MB, windowed GLG SH %.1f MB: %.1f MB in all with the sets "
+  printf("    the run-time also holds, outside the blends: AHD texels + stored normals + "
+         "coverage %.1f MB, windowed GLG SH %.1f MB: %.1f MB in all with the sets "
          "(before geometry, tets and the GLG's acceleration data)\n", rt_texel / MB,
          rt_glg_win / MB, (out_b + touched_b + rec_h + eng_h + rt_texel + rt_glg_win) / MB);
+  printf("    as ub_runtime holds it (lightmap state float only where a set touches, the file's "
+         "halves elsewhere): current state %.1f MB instead of %.1f: %.1f MB in all\n",
+         rt_state / MB, out_b / MB,
+         (rt_state + touched_b + rec_h + eng_h + rt_texel + rt_glg_win) / MB);
   for (int ri = 0; ri < NREP; ri++)
     free_rep(&reps[ri]);
   printf("bench_blend: %.1f s\n", now_s() - t0);

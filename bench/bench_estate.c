@@ -3,8 +3,11 @@
  * its sets. Prints figures; asserts nothing.
  *
  *   bench_estate [--scale S] [--full] [--bounces N] [--texel-size M] [--no-extrapolate]
- *                [--param k=v ...]
+ *                [--param k=v ...] [--ubk FILE.ubk [--repeat N]]
  *
+ * --ubk FILE skips generating and baking and measures the run-time on a file already baked
+ * (e.g. estate_small, or a full ESTATE bake): records, memory, toggles, all-sets update;
+ * --repeat N repeats the toggle loop N times (for a profiler).
  * --scale S (default 0.05) shrinks rooms, room sets and props (the 16-set hall stays);
  * --full is --scale 1 (hours on 2 cores). The reduced level is baked with --bounces
  * (default 2) and --texel-size (default 0.2 m; 0: the level's 0.138 m) so that it ends in
@@ -104,7 +107,8 @@ int main(int argc, char **argv)
 {
   const char *build = getenv("UB_BUILD") ? getenv("UB_BUILD") : "build";
   double scale = 0.05, texel = 0.2;
-  int bounces = 2, extrapolate = 1, full = 0;
+  int bounces = 2, extrapolate = 1, full = 0, repeat = 1;
+  const char *ubk_in = NULL;
   char **params = malloc(sizeof(char *) * (size_t)(argc + 1));
   int nparams = 0;
   for (int i = 1; i < argc; i++) {
@@ -131,6 +135,11 @@ int main(int argc, char **argv)
       texel = atof(argv[++i]);
     } else if (!strcmp(argv[i], "--bounces") && i + 1 < argc) {
       bounces = atoi(argv[++i]);
+    } else if (!strcmp(argv[i], "--ubk") && i + 1 < argc) {
+      ubk_in = argv[++i];
+    } else if (!strcmp(argv[i], "--repeat") && i + 1 < argc) {
+      repeat = atoi(argv[++i]);
+      repeat = repeat < 1 ? 1 : repeat;
     } else if (!strcmp(argv[i], "--no-extrapolate")) {
       extrapolate = 0;
     } else if (!strcmp(argv[i], "--param") && i + 1 < argc) {
@@ -159,67 +168,78 @@ int main(int argc, char **argv)
   snprintf(name, sizeof name, "estate_s%g", scale);
   snprintf(level, sizeof level, "%s/%s.gltf", dir, name);
   snprintf(out, sizeof out, "%s/bake", dir);
-  printf("bench_estate: scale %g, %d threads, load average %.1f\n", scale, threads,
-         ub_bench_load_average());
   double t0 = ub_bench_now();
-  int sets = generate(build, dir, name, scale, params, nparams);
-  if (sets < 0) {
-    fprintf(stderr, "bench_estate: generating %s failed\n", level);
-    return 1;
-  }
-  printf("generate: %.2f s -> %s\n", ub_bench_now() - t0, level);
-
-  /* Ceiling on this level. */
-  double hit = 0, shadow = 0;
-  {
-    ub_scene *s = NULL;
-    ub_rt *rt = NULL;
-    if (ub_scene_load(level, NULL, &s) != UB_OK || ub_rt_create(s, NULL, NULL, &rt) != UB_OK) {
-      fprintf(stderr, "bench_estate: cannot load %s\n", level);
-      return 1;
-    }
-    ub_bench_ceiling(s, rt, &hit, &shadow);
-    printf("ceiling (random incoherent rays, %u triangles, %d threads): %.2f M closest-hit/s, "
-           "%.2f M shadow/s\n", s->triangle_count, threads, hit * 1e-6, shadow * 1e-6);
-    ub_rt_free(rt);
-    ub_scene_free(s);
-  }
-
-  /* Bake at draft. */
+  ub_bake_stats st;
+  memset(&st, 0, sizeof st);
   bake_log bl = {1, 0, 0, 0, 0};
-  ub_log log = {log_fn, &bl};
   ub_bake_options o;
   ub_bake_options_default(&o);
-  o.quality = UB_QUALITY_DRAFT;
-  o.bounces = bounces;
-  o.texel_size = (float)texel;
-  o.out_dir = out;
-  ub_bake_stats st;
-  printf("bake (draft, %s bounces, texel size %s):\n", bounces >= 0 ? "fixed" : "automatic",
-         texel > 0 ? "overridden" : "the level's");
-  if (ub_bake_level(level, &o, &log, &st) != UB_OK) {
-    fprintf(stderr, "bench_estate: bake of %s failed\n", level);
-    return 1;
-  }
-  double dls_s = stage_s(&st, "dls"), base_total = st.total_seconds - dls_s;
-  double ratio = ub_bench_ceiling_ratio((double)st.rays_gather, (double)st.rays_shadow,
-                                        st.gather_seconds, hit, shadow);
-  long long ubk = file_bytes(st.ubk_path);
-  printf("bake: %.1f s total; without the sets %.1f s, the %u sets' pass %.1f s (influence %.1f "
-         "s / %.0f M rays, full %.1f s / %.0f M rays): %.2fx the bake without sets (target <= "
-         "1.5x; paper 3.3x)\n",
-         st.total_seconds, base_total, st.dls_sets, dls_s, bl.inf_s, bl.inf_rays, bl.full_s,
-         bl.full_rays, st.total_seconds / (base_total + 1e-30));
-  printf("  base pass: %u texels, %u GLG probes, %u bounces, %.1f M gather + %.1f M shadow rays "
-         "in %.1f s = %.2f M rays/s, %.2f of the ceiling for that mix\n",
-         st.texels, st.glg_probes, st.bounces, st.rays_gather * 1e-6, st.rays_shadow * 1e-6,
-         st.gather_seconds, (st.rays_gather + st.rays_shadow) / (st.gather_seconds + 1e-30) * 1e-6,
-         ratio);
-  if (bl.inf_s > 0 && bl.full_s > 0)
-    printf("  sets' pass: influence %.2f M rays/s, full %.2f M rays/s (ceiling %.2f M closest-hit/s)\n",
-           bl.inf_rays / bl.inf_s, bl.full_rays / bl.full_s, hit * 1e-6);
-  printf("  peak RSS %.0f MB, %s: %.1f MB\n", st.peak_rss_kb / 1024.0, st.ubk_path, ubk / 1048576.0);
+  long long ubk = -1;
+  if (ubk_in) {
+    printf("bench_estate: run-time only on %s, load average %.1f\n", ubk_in,
+           ub_bench_load_average());
+    snprintf(st.ubk_path, sizeof st.ubk_path, "%s", ubk_in);
+    ubk = file_bytes(ubk_in);
+    extrapolate = 0;
+  } else {
+    printf("bench_estate: scale %g, %d threads, load average %.1f\n", scale, threads,
+           ub_bench_load_average());
+    int sets = generate(build, dir, name, scale, params, nparams);
+    if (sets < 0) {
+      fprintf(stderr, "bench_estate: generating %s failed\n", level);
+      return 1;
+    }
+    printf("generate: %.2f s -> %s\n", ub_bench_now() - t0, level);
 
+    /* Ceiling on this level. */
+    double hit = 0, shadow = 0;
+    {
+      ub_scene *s = NULL;
+      ub_rt *rt = NULL;
+      if (ub_scene_load(level, NULL, &s) != UB_OK || ub_rt_create(s, NULL, NULL, &rt) != UB_OK) {
+        fprintf(stderr, "bench_estate: cannot load %s\n", level);
+        return 1;
+      }
+      ub_bench_ceiling(s, rt, &hit, &shadow);
+      printf("ceiling (random incoherent rays, %u triangles, %d threads): %.2f M closest-hit/s, "
+             "%.2f M shadow/s\n", s->triangle_count, threads, hit * 1e-6, shadow * 1e-6);
+      ub_rt_free(rt);
+      ub_scene_free(s);
+    }
+
+    /* Bake at draft. */
+    ub_log log = {log_fn, &bl};
+    o.quality = UB_QUALITY_DRAFT;
+    o.bounces = bounces;
+    o.texel_size = (float)texel;
+    o.out_dir = out;
+    printf("bake (draft, %s bounces, texel size %s):\n", bounces >= 0 ? "fixed" : "automatic",
+           texel > 0 ? "overridden" : "the level's");
+    if (ub_bake_level(level, &o, &log, &st) != UB_OK) {
+      fprintf(stderr, "bench_estate: bake of %s failed\n", level);
+      return 1;
+    }
+    double dls_s = stage_s(&st, "dls"), base_total = st.total_seconds - dls_s;
+    double ratio = ub_bench_ceiling_ratio((double)st.rays_gather, (double)st.rays_shadow,
+                                          st.gather_seconds, hit, shadow);
+    ubk = file_bytes(st.ubk_path);
+    printf("bake: %.1f s total; without the sets %.1f s, the %u sets' pass %.1f s (influence %.1f "
+           "s / %.0f M rays, full %.1f s / %.0f M rays): %.2fx the bake without sets (target <= "
+           "1.5x; paper 3.3x)\n",
+           st.total_seconds, base_total, st.dls_sets, dls_s, bl.inf_s, bl.inf_rays, bl.full_s,
+           bl.full_rays, st.total_seconds / (base_total + 1e-30));
+    printf("  base pass: %u texels, %u GLG probes, %u bounces, %.1f M gather + %.1f M shadow rays "
+           "in %.1f s = %.2f M rays/s, %.2f of the ceiling for that mix\n",
+           st.texels, st.glg_probes, st.bounces, st.rays_gather * 1e-6, st.rays_shadow * 1e-6,
+           st.gather_seconds, (st.rays_gather + st.rays_shadow) / (st.gather_seconds + 1e-30) * 1e-6,
+           ratio);
+    if (bl.inf_s > 0 && bl.full_s > 0)
+      printf("  sets' pass: influence %.2f M rays/s, full %.2f M rays/s (ceiling %.2f M closest-hit/s)\n",
+             bl.inf_rays / bl.inf_s, bl.full_rays / bl.full_s, hit * 1e-6);
+    printf("  peak RSS %.0f MB, %s: %.1f MB\n", st.peak_rss_kb / 1024.0, st.ubk_path, ubk / 1048576.0);
+
+
+  }
   /* Records. */
   ub_bakefile *bf = NULL;
   if (ub_bakefile_read(st.ubk_path, NULL, &bf) != UB_OK) {
@@ -293,8 +313,9 @@ int main(int argc, char **argv)
   for (uint32_t i = 0; i < 2 * nd; i++)
     tog[i] = 1e30;
   ub_runtime_update_stats us;
-  double tog_bytes = 0.0;
-  for (int pass = 0; pass < PASSES; pass++)
+  double tog_bytes = 0.0, tog_texels = 0.0, tog_probes = 0.0, tog_llg = 0.0;
+  double tog_s[3] = {0, 0, 0}; /* lightmap, GLG, LLG seconds, summed over every toggle */
+  for (int pass = 0; pass < PASSES * repeat; pass++)
     for (uint32_t d = 0; d < nd; d++)
       for (int ph = 0; ph < 2; ph++) {
         ub_runtime_set_dls(rt, d, ph ? one : zero);
@@ -303,8 +324,15 @@ int main(int argc, char **argv)
         t = (ub_bench_now() - t) * 1e3;
         if (t < tog[2 * d + ph])
           tog[2 * d + ph] = t;
-        if (pass == 0)
+        tog_s[0] += us.seconds_lightmap;
+        tog_s[1] += us.seconds_glg;
+        tog_s[2] += us.seconds_llg;
+        if (pass == 0) {
           tog_bytes += (double)(us.bytes_read + us.bytes_written);
+          tog_texels += (double)us.texels_written;
+          tog_probes += (double)us.probes_written;
+          tog_llg += (double)us.llg_probes_written;
+        }
       }
   double tmed = ub_bench_percentile(tog, 2 * nd, 0.5), tp90 = ub_bench_percentile(tog, 2 * nd, 0.9),
          tmax = ub_bench_percentile(tog, 2 * nd, 1.0);
@@ -337,10 +365,10 @@ int main(int argc, char **argv)
   double gbs = all_bytes / tall / 1e9, cgbs = 2.0 * (double)cn / tcpy / 1e9;
   printf("run-time: load %.2f s, resident +%.1f MB (base + %u sets' records %.1f MB on disk)\n", tl,
          (rss1 - rss0) / 1024.0, nd, rec_sum / 1048576.0);
+  /* Counted bytes: the RSS delta above also holds freed pages malloc keeps. */
+  ub_runtime_memory mu;
+  ub_runtime_memory_usage(rt, &mu);
   {
-    /* Counted bytes: the RSS delta above also holds freed pages malloc keeps. */
-    ub_runtime_memory mu;
-    ub_runtime_memory_usage(rt, &mu);
     const double M = 1048576.0;
     printf("  run-time memory (counted): %.1f MB = geometry %.1f + lightmap %.1f + GLG %.1f + "
            "LLG %.1f + records %.1f + blend engines %.1f\n", mu.total / M, mu.geometry / M,
@@ -349,6 +377,17 @@ int main(int argc, char **argv)
   printf("  one set toggled (others on), best of %d: median %.3f ms, p90 %.3f ms, max %.3f ms; "
          "mean %.2f MB moved (target <= 0.1 ms)\n",
          PASSES, tmed, tp90, tmax, tog_bytes / (2.0 * nd) / 1e6);
+  printf("  per toggle (mean): %.0f texels re-blended and re-encoded, %.0f GLG probes re-blended "
+         "and re-windowed, %.0f LLG probes\n", tog_texels / (2.0 * nd), tog_probes / (2.0 * nd),
+         tog_llg / (2.0 * nd));
+  {
+    double sum = tog_s[0] + tog_s[1] + tog_s[2] + 1e-30;
+    printf("  toggle time by part (all toggles): lightmap blend + AHD %.0f%%, GLG blend + "
+           "windowing %.0f%%, LLG %.0f%%; mean %.3f / %.3f / %.3f ms\n", 100.0 * tog_s[0] / sum,
+           100.0 * tog_s[1] / sum, 100.0 * tog_s[2] / sum,
+           tog_s[0] * 1e3 / (2.0 * nd * PASSES * repeat), tog_s[1] * 1e3 / (2.0 * nd * PASSES * repeat),
+           tog_s[2] * 1e3 / (2.0 * nd * PASSES * repeat));
+  }
   printf("  all %u sets changed: %.2f ms, %.1f MB moved, %.2f GB/s; memcpy %.2f GB/s; ratio %.0f%% "
          "(target >= 50%%; paper 1.47 ms on a PS4 GPU)\n",
          nd, tall * 1e3, all_bytes / 1e6, gbs, cgbs, 100.0 * gbs / cgbs);
@@ -399,6 +438,19 @@ int main(int argc, char **argv)
              "level); all sets changed ~%.1f ms at the measured GB/s; records %.0f MB\n",
              tall * 1e3 * rec_f / (rec_sum + 1e-30),
              rec_f / 1048576.0);
+      /* Run-time memory: each part of the counted memory scaled by what it grows with:
+       * geometry, lightmap and LLG by texels, the GLG by its probes, records and the
+       * blends' tables and touched base rows by record bytes. */
+      const double M = 1048576.0, kt = (double)fs.texels / (st.texels ? st.texels : 1);
+      const double kg = (double)fs.glg_probes / (st.glg_probes ? st.glg_probes : 1);
+      const double krec = rec_f / (rec_sum + 1e-30);
+      double g = mu.geometry * kt, l = mu.lightmap * kt, gl = mu.glg * kg, ll = mu.llg * kt;
+      double re = mu.records * krec, be = mu.blend * krec;
+      printf("  run-time memory modelled at full scale: %.0f MB = geometry %.0f + lightmap %.0f "
+             "+ GLG %.0f + LLG %.0f + records %.0f + blend engines %.0f (x%.1f texels, x%.1f GLG "
+             "probes, x%.1f records; target <= 77 MB, paper 77 MB)\n",
+             (g + l + gl + ll + re + be) / M, g / M, l / M, gl / M, ll / M, re / M, be / M, kt,
+             kg, krec);
     }
   }
   free(rb);

@@ -4,7 +4,9 @@
  *  - storage: the .ubk vs the same file written without element records (paper Fig. 14);
  *  - run-time update: one object toggled, one set retinted, and every object and set
  *    changed at once, averaged over repetitions, one core.
- * Usage: bench_objects [LEVEL.gltf] [texel_size] (default build/levels/inn.gltf, 0.2). */
+ * Usage: bench_objects [LEVEL.gltf] [texel_size] (default build/levels/inn.gltf, 0.2);
+ *        bench_objects --ubk FILE.ubk [--repeat N]: the run-time part only, on a baked file
+ *        (N × the repetitions, for a profiler). */
 #include <omp.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -29,8 +31,14 @@ static long file_size(const char *p)
   return stat(p, &sb) == 0 ? (long)sb.st_size : -1;
 }
 
+static int runtime_part(const char *ubk, int reps);
+
 int main(int argc, char **argv)
 {
+  if (argc > 2 && !strcmp(argv[1], "--ubk")) {
+    int rep = argc > 4 && !strcmp(argv[3], "--repeat") ? atoi(argv[4]) : 1;
+    return runtime_part(argv[2], 50 * (rep > 0 ? rep : 1));
+  }
   const char *b = getenv("UB_BUILD");
   char level[1024], dir[1024], plain[1200];
   snprintf(level, sizeof level, "%s", argc > 1 ? argv[1] : "");
@@ -83,16 +91,21 @@ int main(int argc, char **argv)
          plain_b, plain_b > 0 ? (double)full_b / plain_b : 0.0);
   ub_bakefile_free(bf);
 
+  return runtime_part(st.ubk_path, 50);
+}
+
+static int runtime_part(const char *ubk, const int reps)
+{
+  double t0;
   omp_set_num_threads(1);
   ub_runtime *rt = NULL;
-  if (ub_runtime_load(st.ubk_path, NULL, &rt) != UB_OK)
+  if (ub_runtime_load(ubk, NULL, &rt) != UB_OK)
     return 1;
-  const int reps = 50;
   int32_t obj = -1;
   for (uint32_t e = 0; e < ub_runtime_element_count(rt); e++)
     if (ub_runtime_element_kind(rt, e) == UB_ELEMENT_OBJECT && obj < 0)
       obj = (int32_t)e;
-  double t0 = now_s();
+  t0 = now_s();
   for (int i = 0; i < reps; i++)
     ub_runtime_update(rt, NULL);
   double idle = (now_s() - t0) / reps;

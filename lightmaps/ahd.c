@@ -90,11 +90,34 @@ void ub_sh1_irradiance(const float sh[12], const float n[3], float out_rgb[3])
   }
 }
 
+/* The encoding from the L1 terms and the unit normal n; iz_in: the irradiance along n per
+ * channel when the caller has it (else a + b·n). */
+static void ahd_encode_terms(const float a[3], const float b[3][3], const float *iz_in,
+                             const float n[3], ub_ahd *out_ahd);
+
 void ub_ahd_encode(const float sh[12], const float normal[3], ub_ahd *out_ahd)
 {
   float a[3], b[3][3], n[3];
   sh1_irradiance_terms(sh, a, b);
   safe_unit(normal, n);
+  ahd_encode_terms(a, b, NULL, n, out_ahd);
+}
+
+void ub_ahd_encode_iz(const float sh_iz[12], const float unit_normal[3], ub_ahd *out_ahd)
+{
+  float a[3], b[3][3], iz[3];
+  sh1_irradiance_terms(sh_iz, a, b); /* a: scaled I_z, replaced below */
+  for (int c = 0; c < 3; c++) {
+    iz[c] = finite_or_zero(sh_iz[c]);
+    a[c] = iz[c] - (b[c][0] * unit_normal[0] + b[c][1] * unit_normal[1] +
+                    b[c][2] * unit_normal[2]);
+  }
+  ahd_encode_terms(a, b, iz, unit_normal, out_ahd);
+}
+
+static void ahd_encode_terms(const float a[3], const float b[3][3], const float *iz_in,
+                             const float n[3], ub_ahd *out_ahd)
+{
 
   /* Shared direction: luminance-weighted linear band. */
   float bl[3] = {0.0f, 0.0f, 0.0f};
@@ -124,7 +147,7 @@ void ub_ahd_encode(const float sh[12], const float normal[3], ub_ahd *out_ahd)
   }
 
   for (int c = 0; c < 3; c++) {
-    float iz = a[c] + b[c][0] * n[0] + b[c][1] * n[1] + b[c][2] * n[2];
+    float iz = iz_in ? iz_in[c] : a[c] + b[c][0] * n[0] + b[c][1] * n[1] + b[c][2] * n[2];
     if (!(iz > 0.0f))
       iz = 0.0f; /* the SH irradiance is clamped the same way */
     float ca, cd;

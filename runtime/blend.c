@@ -3,6 +3,7 @@
 #include "runtime/blend.h"
 
 #include <assert.h>
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -44,15 +45,16 @@
 
 #define GROUP_LIST 0x80000000u /* k_mode bit: receivers stored as a list, else as runs */
 
-/* A group: receivers sharing one combination of elements. Its data words, from data_off:
- *   runs: per run   [length, p_0 … p_{k-1}]  (length consecutive receivers)
- *   list: per receiver [p_0 … p_{k-1}]
- * p_m is the position of the (first) receiver in member m's record; the receiver index is
- * members[0]'s receivers[p_0]. Runs of consecutive receivers are consecutive in every
- * record too (records are sorted and unique), so one position per member per run is
- * enough. */
+/* A group: receivers sharing one combination of k elements (its members, ascending ids).
+ * Its receivers, from unit_off in b->units: as runs, per run [first receiver, length]; as
+ * a list, per receiver [receiver]. Its record values, from val_off in b->values: for a
+ * run group one block per member (ascending ids) holding that member's rows (S values
+ * each) for the group's receivers in order (a run of consecutive receivers is then one
+ * flat array per member); for a list group per receiver its members' rows one after the
+ * other (one stream). No record position is kept. */
 typedef struct blend_group {
-  uint64_t data_off;
+  uint64_t val_off;    /* in values */
+  uint64_t unit_off;   /* in units (words) */
   uint32_t member_off; /* first of k element ids in b->members, ascending */
   uint32_t receivers;
   uint32_t units;      /* runs or receivers */
@@ -69,10 +71,9 @@ struct ub_blend {
   uint32_t value_size, kernel;
   blend_decode_fn decode; /* half → float, NULL for float records */
   uint32_t touched, max_overlap, run_groups;
-  uint64_t runs, memberships, data_words;
+  uint64_t runs, memberships, unit_words;
   const float *base;     /* the caller's base, NULL with UB_BLEND_OWN_BASE */
   float *obase;          /* UB_BLEND_OWN_BASE: touched receivers' base rows, group order */
-  ub_blend_record *rec; /* copies of desc->elements */
   float *weight;        /* element_count × 3 */
   float *wexp;          /* element_count × wstride: weight[c] at every j ≡ c (mod 3) */
   uint8_t *nonzero;     /* weight != (0, 0, 0) */
@@ -81,7 +82,8 @@ struct ub_blend {
   uint32_t dirty_count;
   blend_group *groups;
   uint32_t *members;
-  uint32_t *data;
+  uint32_t *units;      /* groups' receivers (blend_group) */
+  void *values;         /* memberships × stride record values (desc storage), group order */
   uint32_t *elem_off; /* element_count + 1: groups of element e = elem_groups[off[e]…] */
   uint32_t *elem_groups;
   uint32_t *stamp; /* per group, the update epoch that collected it */
@@ -97,8 +99,11 @@ struct ub_blend {
   const float **scr_w;
   /* AVX + F16C path (chosen at create): weight patterns and member sources. */
   int avx;
-  float *wpat;           /* max(max_overlap, 1) × 32 floats, 32-byte aligned */
-  const char **avx_src;  /* max(max_overlap, 1) */
+  float *wpat;           /* element_count × 32 floats, 32-byte aligned: each element's
+                            weight at every lane j as ω[j mod 3] (period 24 = 3 × 8 lanes,
+                            8 more for unaligned tails), kept by set_weight */
+  const float **avx_w;   /* max(max_overlap, 1): the non-zero members' patterns */
+  const char **avx_src;  /* max(max_overlap, 1): the non-zero members' values */
   size_t engine_bytes, record_bytes;
 };
 
@@ -283,13 +288,13 @@ BLEND_INLINE const float *group_base(const ub_blend *b, const blend_group *g)
 }
 
 #if BLEND_F16C
-/* The AVX + F16C path. A run of n consecutive receivers is n·S consecutive floats in base
- * and out and n·S consecutive values in every member's record, and since S is a multiple
- * of 3 the weight of flat position j is ω[j mod 3]: so a run is blended as one flat array,
- * 24 floats (3 × 8 lanes, the period of the RGB pattern) at a time, with the halves
- * converted in registers (no decode scratch). Per element the operations are those of
- * blend_row_*: acc = base; acc = acc + ω·v per member in id order, products and sums
- * rounded separately (no FMA): the same bits as the SSE2 and scalar kernels. */
+/* The AVX + F16C path: one receiver at a time, its row in 8-lane vectors (12 = 8 + 4,
+ * 27 = 3 × 8 + a 4-lane vector overlapping the last one: the shared lanes get the same
+ * value twice), halves converted in registers. Since S is a multiple of 3, the weight of
+ * row position j is ω[j mod 3] = wp[j mod 24 …] (wp: the element's pattern, 32 lanes).
+ * Per value the operations are those of blend_row_*: acc = base; acc = acc + ω·v per
+ * member in id order, products and sums rounded separately (no FMA): the same bits as the
+ * SSE2 and scalar kernels. */
 #define BLEND_AVX __attribute__((target("avx,f16c")))
 #define BLEND_AVX_INLINE static inline __attribute__((always_inline, target("avx,f16c")))
 
@@ -307,20 +312,20 @@ BLEND_AVX_INLINE __m128 avx_load4(const char *src, size_t j, const int half)
   return _mm_loadu_ps((const float *)(const void *)src + j);
 }
 
-/* o[j] = bs[j] + Σ_m wp_m[j mod 24]·src_m[j], j < nf; wp_m = wpat + 32·m. */
+/* o[j] = bs[j] + Σ_m wp[m][j mod 24]·src_m[j], j < nf. */
 BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
-                               const char *const *src, const float *wpat, const uint32_t k,
-                               const size_t nf, const int half)
+                               const char *const *src, const float *const *wp,
+                               const uint32_t k, const size_t nf, const int half)
 {
   size_t j = 0;
   for (; j + 24 <= nf; j += 24) {
     __m256 a0 = _mm256_loadu_ps(bs + j), a1 = _mm256_loadu_ps(bs + j + 8),
            a2 = _mm256_loadu_ps(bs + j + 16);
     for (uint32_t m = 0; m < k; m++) {
-      const float *wp = wpat + 32 * (size_t)m;
-      a0 = _mm256_add_ps(a0, _mm256_mul_ps(_mm256_load_ps(wp), avx_load8(src[m], j, half)));
-      a1 = _mm256_add_ps(a1, _mm256_mul_ps(_mm256_load_ps(wp + 8), avx_load8(src[m], j + 8, half)));
-      a2 = _mm256_add_ps(a2, _mm256_mul_ps(_mm256_load_ps(wp + 16), avx_load8(src[m], j + 16, half)));
+      const float *w = wp[m];
+      a0 = _mm256_add_ps(a0, _mm256_mul_ps(_mm256_load_ps(w), avx_load8(src[m], j, half)));
+      a1 = _mm256_add_ps(a1, _mm256_mul_ps(_mm256_load_ps(w + 8), avx_load8(src[m], j + 8, half)));
+      a2 = _mm256_add_ps(a2, _mm256_mul_ps(_mm256_load_ps(w + 16), avx_load8(src[m], j + 16, half)));
     }
     _mm256_storeu_ps(o + j, a0);
     _mm256_storeu_ps(o + j + 8, a1);
@@ -330,16 +335,14 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
     const size_t ph = j % 24;
     __m256 a = _mm256_loadu_ps(bs + j);
     for (uint32_t m = 0; m < k; m++)
-      a = _mm256_add_ps(a, _mm256_mul_ps(_mm256_loadu_ps(wpat + 32 * (size_t)m + ph),
-                                         avx_load8(src[m], j, half)));
+      a = _mm256_add_ps(a, _mm256_mul_ps(_mm256_loadu_ps(wp[m] + ph), avx_load8(src[m], j, half)));
     _mm256_storeu_ps(o + j, a);
   }
   for (; j + 4 <= nf; j += 4) {
     const size_t ph = j % 24;
     __m128 a = _mm_loadu_ps(bs + j);
     for (uint32_t m = 0; m < k; m++)
-      a = _mm_add_ps(a, _mm_mul_ps(_mm_loadu_ps(wpat + 32 * (size_t)m + ph),
-                                   avx_load4(src[m], j, half)));
+      a = _mm_add_ps(a, _mm_mul_ps(_mm_loadu_ps(wp[m] + ph), avx_load4(src[m], j, half)));
     _mm_storeu_ps(o + j, a);
   }
   for (; j < nf; j++) {
@@ -347,26 +350,65 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
     for (uint32_t m = 0; m < k; m++) {
       float v = half ? ub_half_to_float(((const uint16_t *)(const void *)src[m])[j])
                      : ((const float *)(const void *)src[m])[j];
-      float t = wpat[32 * (size_t)m + j % 24] * v;
+      float t = wp[m][j % 24] * v;
       acc = acc + t;
     }
     o[j] = acc;
   }
 }
 
-BLEND_AVX static void avx_flat_h(float *restrict o, const float *restrict bs,
-                                 const char *const *src, const float *wpat, uint32_t k,
-                                 size_t nf)
+/* A group's units: member m's values for the unit's receivers are one stretch of its
+ * block (see blend_group), so a run is blended as flat arrays; the callback gets each
+ * piece right after it is computed (upper AVX state cleared first: it runs SSE code).
+ * The whole loop is AVX code, so a list group costs no call per receiver. */
+BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const uint32_t *act,
+                                const char **src, const float *const *wp, const uint32_t k,
+                                const int half)
 {
-  avx_flat(o, bs, src, wpat, k, nf, 1);
+  const ub_blend *b = c->b;
+  const uint32_t S = b->stride;
+  const int list = (g->k_mode & GROUP_LIST) != 0;
+  const size_t vs = half ? 2 : 4, rowb = (size_t)S * vs, block = (size_t)g->receivers * rowb;
+  const size_t gk = g->k_mode & ~GROUP_LIST;
+  const char *vb = (const char *)b->values + g->val_off * vs;
+  const uint32_t *u = b->units + g->unit_off;
+  float *out = c->out;
+  const float *gb = group_base(b, g);
+  const uint32_t chunk = c->fn || !out ? BLEND_CHUNK : UINT32_MAX;
+  size_t i0 = 0; /* receivers of the group before this unit */
+  for (uint32_t un = 0; un < g->units; un++) {
+    const uint32_t r = u[0], len = list ? 1 : u[1];
+    u += list ? 1 : 2;
+    const float *bs = unit_base(b, &gb, r, len);
+    for (uint32_t m = 0; m < k; m++)
+      src[m] = vb + (list ? (i0 * gk + act[m]) * rowb : act[m] * block + i0 * rowb);
+    for (uint32_t i = 0; i < len;) {
+      const uint32_t n = len - i < chunk ? len - i : chunk;
+      float *o = out ? out + (size_t)(r + i) * S : c->scratch;
+      avx_flat(o, bs + (size_t)i * S, src, wp, k, (size_t)n * S, half);
+      if (c->fn) {
+        _mm256_zeroupper();
+        c->fn(c->user, r + i, n, o);
+      }
+      for (uint32_t m = 0; m < k; m++)
+        src[m] += (size_t)n * rowb;
+      i += n;
+    }
+    i0 += len;
+  }
+}
+
+BLEND_AVX static void avx_group_h(const blend_call *c, const blend_group *g, const uint32_t *act,
+                                  const char **src, const float *const *wp, uint32_t k)
+{
+  avx_group(c, g, act, src, wp, k, 1);
   _mm256_zeroupper();
 }
 
-BLEND_AVX static void avx_flat_f(float *restrict o, const float *restrict bs,
-                                 const char *const *src, const float *wpat, uint32_t k,
-                                 size_t nf)
+BLEND_AVX static void avx_group_f(const blend_call *c, const blend_group *g, const uint32_t *act,
+                                  const char **src, const float *const *wp, uint32_t k)
 {
-  avx_flat(o, bs, src, wpat, k, nf, 0);
+  avx_group(c, g, act, src, wp, k, 0);
   _mm256_zeroupper();
 }
 
@@ -374,57 +416,20 @@ static void group_blend_avx(const blend_call *c, const blend_group *g, const uin
                             uint32_t k)
 {
   const ub_blend *b = c->b;
-  const uint32_t S = b->stride, gk = g->k_mode & ~GROUP_LIST;
   const uint32_t *mem = b->members + g->member_off;
-  const uint32_t *d = b->data + g->data_off;
-  const uint32_t *idx0 = b->rec[mem[0]].receivers;
-  const size_t rstep = (size_t)S * b->value_size;
-  void (*flat)(float *restrict, const float *restrict, const char *const *, const float *,
-               uint32_t, size_t) = b->value_size == 2 ? avx_flat_h : avx_flat_f;
-  const char **src = b->avx_src;
-  float *wpat = b->wpat;
-  for (uint32_t m = 0; m < k; m++) {
-    const float *wt = b->weight + 3 * (size_t)mem[act[m]];
-    for (int j = 0; j < 24; j++)
-      wpat[32 * (size_t)m + j] = wt[j % 3];
-  }
-  float *out = c->out;
-  const float *gb = group_base(b, g);
-  if (g->k_mode & GROUP_LIST) {
-    for (uint32_t u = 0; u < g->units; u++, d += gk) {
-      uint32_t r = idx0[d[0]];
-      for (uint32_t m = 0; m < k; m++)
-        src[m] = (const char *)b->rec[mem[act[m]]].values + (size_t)d[act[m]] * rstep;
-      float *o = out ? out + (size_t)r * S : c->scratch;
-      flat(o, unit_base(b, &gb, r, 1), src, wpat, k, S);
-      if (c->fn)
-        c->fn(c->user, r, 1, o);
-    }
-    return;
-  }
-  /* With a callback, pieces of BLEND_CHUNK receivers, so it reads them from cache. */
-  const uint32_t chunk = c->fn ? BLEND_CHUNK : UINT32_MAX;
-  for (uint32_t u = 0; u < g->units; u++, d += 1 + gk) {
-    uint32_t len = d[0], r = idx0[d[1]];
-    const float *bs = unit_base(b, &gb, r, len);
-    for (uint32_t m = 0; m < k; m++)
-      src[m] = (const char *)b->rec[mem[act[m]]].values + (size_t)d[1 + act[m]] * rstep;
-    for (uint32_t i = 0; i < len;) {
-      uint32_t n = len - i < chunk ? len - i : chunk;
-      float *o = out ? out + (size_t)(r + i) * S : c->scratch;
-      flat(o, bs + (size_t)i * S, src, wpat, k, (size_t)n * S);
-      if (c->fn)
-        c->fn(c->user, r + i, n, o);
-      for (uint32_t m = 0; m < k; m++)
-        src[m] += (size_t)n * rstep;
-      i += n;
-    }
-  }
+  const float **wp = b->avx_w;
+  for (uint32_t m = 0; m < k; m++)
+    wp[m] = b->wpat + 32 * (size_t)mem[act[m]];
+  if (b->value_size == 2)
+    avx_group_h(c, g, act, b->avx_src, wp, k);
+  else
+    avx_group_f(c, g, act, b->avx_src, wp, k);
 }
 #endif
 
 /* One group with k non-zero members act[0..k) (slots into the group's members). S and
- * (for k ≤ BLEND_SPECIALISED) k are compile-time constants at the fixed call sites. */
+ * (for k ≤ BLEND_SPECIALISED) k are compile-time constants at the fixed call sites. Half
+ * rows are decoded (exactly) into the decode scratch, one receiver at a time. */
 BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const uint32_t *act,
                              const uint32_t k, const uint32_t S, const int fixed)
 {
@@ -434,11 +439,12 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
   const char **src = k <= BLEND_SPECIALISED ? src_l : b->scr_src;
   const float **rows = k <= BLEND_SPECIALISED ? rows_l : b->scr_rows;
   const float **w = k <= BLEND_SPECIALISED ? w_l : b->scr_w;
-  const uint32_t gk = g->k_mode & ~GROUP_LIST;
+  const int list = (g->k_mode & GROUP_LIST) != 0;
   const uint32_t *mem = b->members + g->member_off;
-  const uint32_t *d = b->data + g->data_off;
-  const uint32_t *idx0 = b->rec[mem[0]].receivers;
-  const size_t rstep = (size_t)S * b->value_size; /* record row, bytes */
+  const size_t vs = b->value_size, rowb = (size_t)S * vs, block = (size_t)g->receivers * rowb;
+  const size_t gk = g->k_mode & ~GROUP_LIST;
+  const char *vb = (const char *)b->values + g->val_off * vs;
+  const uint32_t *u = b->units + g->unit_off;
   const blend_decode_fn decode = b->decode;
   const float *gb = group_base(b, g);
   float *out = c->out;
@@ -451,35 +457,13 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
   }
   for (uint32_t m = 0; m < k; m++)
     w[m] = b->wexp + (size_t)mem[act[m]] * b->wstride;
-
-  if (g->k_mode & GROUP_LIST) {
-    for (uint32_t u = 0; u < g->units; u++, d += gk) {
-      uint32_t r = idx0[d[0]];
-      for (uint32_t m = 0; m < k; m++) {
-        const char *row = (const char *)b->rec[mem[act[m]]].values + (size_t)d[act[m]] * rstep;
-        if (decode) {
-          decode((const uint16_t *)(const void *)row, b->dec + (size_t)m * S, S);
-          rows[m] = b->dec + (size_t)m * S;
-        } else {
-          rows[m] = (const float *)(const void *)row;
-        }
-      }
-      float *o = out ? out + (size_t)r * S : c->scratch;
-      const float *bs = unit_base(b, &gb, r, 1);
-      if (fixed)
-        blend_row_fixed(o, bs, rows, w, k, S);
-      else
-        blend_row_any(o, bs, rows, w, k, S);
-      if (c->fn)
-        c->fn(c->user, r, 1, o);
-    }
-    return;
-  }
-  for (uint32_t u = 0; u < g->units; u++, d += 1 + gk) {
-    uint32_t len = d[0], r = idx0[d[1]];
+  size_t i0 = 0;
+  for (uint32_t un = 0; un < g->units; un++) {
+    const uint32_t r = u[0], len = list ? 1 : u[1];
+    u += list ? 1 : 2;
     const float *bs = unit_base(b, &gb, r, len);
     for (uint32_t m = 0; m < k; m++)
-      src[m] = (const char *)b->rec[mem[act[m]]].values + (size_t)d[1 + act[m]] * rstep;
+      src[m] = vb + (list ? (i0 * gk + act[m]) * rowb : act[m] * block + i0 * rowb);
     for (uint32_t i = 0; i < len;) {
       uint32_t n = len - i < chunk ? len - i : chunk;
       for (uint32_t m = 0; m < k; m++) {
@@ -490,7 +474,7 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
         } else {
           rows[m] = (const float *)(const void *)src[m];
         }
-        src[m] += (size_t)n * rstep;
+        src[m] += (size_t)n * rowb;
       }
       float *o0 = out ? out + (size_t)(r + i) * S : c->scratch, *o = o0;
       for (uint32_t q = 0; q < n; q++) {
@@ -507,6 +491,7 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
         c->fn(c->user, r + i, n, o0);
       i += n;
     }
+    i0 += len;
   }
 }
 
@@ -541,20 +526,18 @@ static void group_blend(const blend_call *c, const blend_group *g, const uint32_
 static void group_copy_base(const blend_call *c, const blend_group *g)
 {
   const ub_blend *b = c->b;
-  const uint32_t gk = g->k_mode & ~GROUP_LIST, S = b->stride;
-  const uint32_t *d = b->data + g->data_off;
-  const uint32_t *idx0 = b->rec[b->members[g->member_off]].receivers;
+  const uint32_t S = b->stride;
   const int list = (g->k_mode & GROUP_LIST) != 0;
+  const uint32_t *u = b->units + g->unit_off;
   const float *gb = group_base(b, g);
-  for (uint32_t u = 0; u < g->units; u++) {
-    uint32_t len = list ? 1 : d[0];
-    uint32_t r = idx0[list ? d[0] : d[1]];
+  for (uint32_t un = 0; un < g->units; un++) {
+    const uint32_t r = u[0], len = list ? 1 : u[1];
+    u += list ? 1 : 2;
     const float *bs = unit_base(b, &gb, r, len);
     if (c->out)
       memcpy(c->out + (size_t)r * S, bs, (size_t)len * S * sizeof(float));
     if (c->fn) /* streaming: the base rows are the result, no copy */
       c->fn(c->user, r, len, c->out ? c->out + (size_t)r * S : bs);
-    d += list ? gk : 1 + gk;
   }
 }
 
@@ -567,9 +550,10 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
   uint32_t act_l[BLEND_SPECIALISED];
   uint32_t *act = gk <= BLEND_SPECIALISED ? act_l : b->scr_act;
   uint32_t k = 0;
-  for (uint32_t m = 0; m < gk; m++)
-    if (b->nonzero[mem[m]])
-      act[k++] = m;
+  for (uint32_t m = 0; m < gk; m++) { /* branch-free: the pattern is data */
+    act[k] = m;
+    k += b->nonzero[mem[m]];
+  }
   if (k == 0)
     group_copy_base(c, g);
 #if BLEND_F16C
@@ -580,14 +564,14 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
     group_blend(c, g, act, k);
 
   uint64_t row = (uint64_t)b->stride * sizeof(float);
-  uint64_t words = (uint64_t)g->units * ((g->k_mode & GROUP_LIST) ? gk : gk + 1);
+  uint64_t words = (uint64_t)g->units * ((g->k_mode & GROUP_LIST) ? 1 : 2);
   st->groups++;
   st->groups_base += k == 0;
   st->receivers += g->receivers;
   st->bytes_written += c->out ? g->receivers * row : 0;
   st->bytes_read += g->receivers * row +
                     (uint64_t)k * g->receivers * b->stride * b->value_size +
-                    (words + g->units) * sizeof(uint32_t) + sizeof *g;
+                    words * sizeof(uint32_t) + sizeof *g;
 }
 
 /* Updates run with FTZ and DAZ off (restored after): the half decode is exact and the
@@ -701,6 +685,9 @@ ub_result ub_blend_set_weight(ub_blend *b, uint32_t element, const float rgb[3])
   float *we = b->wexp + (size_t)element * b->wstride;
   for (uint32_t j = 0; j < b->wstride; j++)
     we[j] = w[j % 3];
+  if (b->wpat)
+    for (int j = 0; j < 32; j++)
+      b->wpat[32 * (size_t)element + j] = w[j % 3];
   b->nonzero[element] = w[0] != 0.0f || w[1] != 0.0f || w[2] != 0.0f;
   if (!b->dirty[element]) {
     b->dirty[element] = 1;
@@ -746,7 +733,6 @@ void ub_blend_free(ub_blend *b)
 {
   if (!b)
     return;
-  free(b->rec);
   free(b->weight);
   free(b->wexp);
   free(b->nonzero);
@@ -755,7 +741,8 @@ void ub_blend_free(ub_blend *b)
   free(b->groups);
   free(b->obase);
   free(b->members);
-  free(b->data);
+  free(b->units);
+  free(b->values);
   free(b->elem_off);
   free(b->elem_groups);
   free(b->stamp);
@@ -764,6 +751,7 @@ void ub_blend_free(ub_blend *b)
   free(b->dec);
   free(b->scr_act);
   free(b->wpat);
+  free((void *)b->avx_w);
   free((void *)b->avx_src);
   free((void *)b->scr_src);
   free((void *)b->scr_rows);
@@ -820,8 +808,10 @@ static ub_result validate(const ub_blend_desc *d, const ub_log *log, uint64_t *o
                   d->stride, UB_BLEND_MAX_STRIDE);
     return UB_ERR_INVALID_ARGUMENT;
   }
-  if (d->storage != UB_BLEND_FLOAT32 && d->storage != UB_BLEND_FLOAT16) {
-    ub_log_printf(log, UB_LOG_ERROR, "blend %s: unknown storage %d", nm, (int)d->storage);
+  if ((d->storage != UB_BLEND_FLOAT32 && d->storage != UB_BLEND_FLOAT16) ||
+      ((d->flags & UB_BLEND_STORE_HALF) && d->storage != UB_BLEND_FLOAT32)) {
+    ub_log_printf(log, UB_LOG_ERROR, "blend %s: unknown storage %d (UB_BLEND_STORE_HALF "
+                  "takes float records)", nm, (int)d->storage);
     return UB_ERR_INVALID_ARGUMENT;
   }
   if ((uint64_t)d->receiver_count * d->stride > SIZE_MAX / sizeof(float)) {
@@ -860,10 +850,13 @@ static ub_result validate(const ub_blend_desc *d, const ub_log *log, uint64_t *o
       }
     }
     size_t nv = (size_t)r->count * d->stride;
+    const int to_half = (d->flags & UB_BLEND_STORE_HALF) != 0;
     for (size_t i = 0; i < nv; i++) {
       int ok = d->storage == UB_BLEND_FLOAT16
                    ? ub_half_is_finite(((const uint16_t *)r->values)[i])
-                   : finite_f(((const float *)r->values)[i]);
+               : to_half ? fabsf(((const float *)r->values)[i]) < 65520.0f /* rounds to
+                                                                                finite half */
+                         : finite_f(((const float *)r->values)[i]);
       if (!ok) {
         ub_log_printf(log, UB_LOG_ERROR,
                       "blend %s: element %u: value %zu of receiver %u (position %zu) is not "
@@ -1020,49 +1013,72 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
   if (!b->groups || !b->members)
     return UB_ERR_OUT_OF_MEMORY;
   memcpy(b->members, t->members, (size_t)nmem * sizeof(uint32_t));
-  uint64_t words = 0;
+  uint64_t words = 0, vals = 0;
   for (uint32_t g = 0; g < G; g++) {
     const uint32_t *rs = t->order + t->g_start[g];
     uint32_t n = t->g_n[g], k = t->g_k[g], runs = 1;
     for (uint32_t i = 1; i < n; i++)
       runs += rs[i] != rs[i - 1] + 1;
-    int list = (uint64_t)n * k < (uint64_t)runs * (k + 1);
+    int list = n < 2 * (uint64_t)runs; /* one word per receiver vs two per run */
     blend_group *bg = &b->groups[g];
-    bg->data_off = words;
+    bg->unit_off = words;
+    bg->val_off = vals;
     bg->member_off = t->g_moff[g];
     bg->receivers = n;
     bg->units = list ? n : runs;
     bg->k_mode = k | (list ? GROUP_LIST : 0);
     bg->base_row = 0;
-    words += list ? (uint64_t)n * k : (uint64_t)runs * (k + 1);
+    words += list ? (uint64_t)n : 2 * (uint64_t)runs;
+    vals += (uint64_t)n * k * b->stride;
     if (!list) {
       b->run_groups++;
       b->runs += runs;
     }
   }
-  b->data_words = words;
-  b->data = alloc_n(words, sizeof(uint32_t), acc);
-  if (!b->data)
+  assert(vals == M * b->stride);
+  b->unit_words = words;
+  b->units = alloc_n(words, sizeof(uint32_t), acc);
+  b->values = alloc_n(vals, b->value_size, NULL); /* counted as record_bytes */
+  if (!b->units || !b->values)
     return UB_ERR_OUT_OF_MEMORY;
+  const size_t rowb = (size_t)b->stride * b->value_size;
+  /* UB_BLEND_STORE_HALF: float records kept as half. */
+  const int to_half = d->storage == UB_BLEND_FLOAT32 && b->value_size == 2;
+  const size_t srcb = (size_t)b->stride * (to_half ? sizeof(float) : b->value_size);
   for (uint32_t g = 0; g < G; g++) {
     const blend_group *bg = &b->groups[g];
     const uint32_t *rs = t->order + t->g_start[g];
     uint32_t n = bg->receivers, k = bg->k_mode & ~GROUP_LIST;
-    uint32_t *w = b->data + bg->data_off;
+    uint32_t *w = b->units + bg->unit_off;
+    char *v = (char *)b->values + bg->val_off * b->value_size;
     for (uint32_t i = 0; i < n;) {
       uint32_t len = 1;
       if (!(bg->k_mode & GROUP_LIST))
         while (i + len < n && rs[i + len] == rs[i] + len)
           len++;
+      *w++ = rs[i];
       if (!(bg->k_mode & GROUP_LIST))
         *w++ = len;
-      const uint32_t *pos = t->m_pos + t->off[rs[i]];
-      for (uint32_t m = 0; m < k; m++)
-        *w++ = pos[m];
       i += len;
     }
-    assert(w == b->data + bg->data_off + (bg->k_mode & GROUP_LIST ? (uint64_t)n * k
-                                                                   : (uint64_t)bg->units * (k + 1)));
+    /* Runs: member m's rows for the group's receivers in order (members = ascending
+     * element ids, as m_elem lists them per receiver), one block per member. Lists: per
+     * receiver its members' rows. */
+    const int glist = (bg->k_mode & GROUP_LIST) != 0;
+    for (uint32_t q = 0; q < n * k; q++, v += rowb) {
+      const uint32_t m = glist ? q % k : q / n, i = glist ? q / k : q % n;
+      const uint32_t el = t->m_elem[t->off[rs[i]] + m], pos = t->m_pos[t->off[rs[i]] + m];
+      const char *src = (const char *)d->elements[el].values + (size_t)pos * srcb;
+      if (to_half) {
+        const float *f = (const float *)(const void *)src;
+        uint16_t *h = (uint16_t *)(void *)v;
+        for (uint32_t j = 0; j < b->stride; j++)
+          h[j] = ub_half_from_float(f[j]);
+      } else {
+        memcpy(v, src, rowb);
+      }
+    }
+    assert(w == b->units + bg->unit_off + bg->units * ((bg->k_mode & GROUP_LIST) ? 1u : 2u));
   }
 
   /* 4b. UB_BLEND_OWN_BASE: the touched receivers' base rows, in group order. */
@@ -1112,12 +1128,14 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
   }
 #if BLEND_F16C
   if (b->avx) {
-    size_t na = maxk ? maxk : 1;
-    b->wpat = aligned_alloc(32, na * 32 * sizeof(float));
+    size_t na = maxk ? maxk : 1, ne = E ? E : 1;
+    b->wpat = aligned_alloc(32, ne * 32 * sizeof(float));
+    b->avx_w = alloc_n(na, sizeof(float *), acc);
     b->avx_src = alloc_n(na, sizeof(char *), acc);
-    if (!b->wpat || !b->avx_src)
+    if (!b->wpat || !b->avx_w || !b->avx_src)
       return UB_ERR_OUT_OF_MEMORY;
-    *acc += na * 32 * sizeof(float);
+    memset(b->wpat, 0, ne * 32 * sizeof(float)); /* every weight starts at 0 */
+    *acc += ne * 32 * sizeof(float);
   }
 #endif
   b->scr_act = alloc_n(sk, sizeof(uint32_t), acc);
@@ -1149,7 +1167,7 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
   b->stride = S;
   b->wstride = (S + 3) & ~3u;
   b->element_count = E;
-  b->value_size = desc->storage == UB_BLEND_FLOAT16 ? 2 : 4;
+  b->value_size = desc->storage == UB_BLEND_FLOAT16 || (desc->flags & UB_BLEND_STORE_HALF) ? 2 : 4;
   b->kernel = S == 12 ? KERNEL_12 : S == 27 ? KERNEL_27 : KERNEL_ANY;
   b->decode = b->value_size == 2 ? pick_decoder((desc->flags & UB_BLEND_PORTABLE) != 0) : NULL;
 #if BLEND_F16C
@@ -1157,8 +1175,7 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
 #endif
   b->base = desc->base;
   b->memberships = memberships;
-  b->record_bytes = memberships * (sizeof(uint32_t) + (uint64_t)S * b->value_size);
-  b->rec = alloc_n(E, sizeof *b->rec, &b->engine_bytes);
+  b->record_bytes = memberships * (uint64_t)S * b->value_size;
   b->weight = calloc_n((size_t)E * 3, sizeof(float), &b->engine_bytes);
   /* 16-byte aligned weight rows (aligned_alloc wants a multiple of the alignment). */
   size_t wbytes = (size_t)E * b->wstride * sizeof(float);
@@ -1170,10 +1187,8 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
   b->nonzero = calloc_n(E, 1, &b->engine_bytes);
   b->dirty = calloc_n(E, 1, &b->engine_bytes);
   b->dirty_list = alloc_n(E, sizeof(uint32_t), &b->engine_bytes);
-  if (!b->rec || !b->weight || !b->wexp || !b->nonzero || !b->dirty || !b->dirty_list)
+  if (!b->weight || !b->wexp || !b->nonzero || !b->dirty || !b->dirty_list)
     goto oom;
-  if (E)
-    memcpy(b->rec, desc->elements, (size_t)E * sizeof *b->rec);
 
   build_tmp t;
   memset(&t, 0, sizeof t);

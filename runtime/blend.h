@@ -22,14 +22,16 @@
  * Grouping (paper §3.3, second game): at create time, every receiver touched by ≥ 1
  * element gets its combination (sorted element ids); receivers with the same combination
  * form a group. A group stores its receivers either as runs of consecutive receivers
- * (one length + one record position per member per run) or, when runs are short, as a
- * list (one record position per member per receiver); the receiver index itself is read
- * from the first member's record. Kernels are specialised for the stride (12, 27, other)
- * and 1..8 non-zero members; a generic kernel takes any count. On a CPU with AVX and
- * F16C (checked at create, unless UB_BLEND_PORTABLE) one kernel blends each run of
- * consecutive receivers as a flat array, 8 lanes at a time, converting half records in
- * registers; otherwise half records are decoded exactly to float (SSE2 bit operations) a
- * chunk of consecutive receivers at a time into an L1 scratch, then blended in float.
+ * (first receiver + length) or, when runs are short, as a list (one index per receiver),
+ * and the engine keeps its own copy of the record values in group order: per group and
+ * member, that member's rows for the group's receivers, so an update reads each member of
+ * a group as one sequential stream (records are scattered otherwise) and keeps no record
+ * positions; the records themselves are not needed after create. Kernels are specialised
+ * for the stride (12, 27, other) and 1..8 non-zero members; a generic kernel takes any
+ * count. On a CPU with AVX and F16C (checked at create, unless UB_BLEND_PORTABLE) each
+ * run of consecutive receivers is blended as one flat array, 8 lanes at a time,
+ * converting half records in registers; otherwise half rows are decoded exactly to float
+ * (SSE2 bit operations) a chunk at a time into an L1 scratch, then blended in float.
  * Every path does the same float operations per value, so they give the same bits. A group
  * whose weights are all 0 copies base rows (the "light off" fast path). Elements with
  * weight 0 are skipped, so a receiver's value depends only on the current weights, never
@@ -40,9 +42,10 @@
  * Lifecycle: ub_blend_create() → { ub_blend_set_weight()…, ub_blend_update() }… →
  * ub_blend_free() (NULL-safe). On failure nothing is allocated, *out_blend and
  * out_values are left untouched.
- * Ownership: the engine BORROWS base (unless UB_BLEND_OWN_BASE) and every record's
- * receivers/values: they must stay valid and unchanged until ub_blend_free(). The desc
- * and its elements array are copied (pointers only) and may be freed after create. The out array is the caller's; pass
+ * Ownership: the engine BORROWS base (unless UB_BLEND_OWN_BASE): it must stay valid and
+ * unchanged until ub_blend_free(). The records (receivers, values), the desc and its
+ * elements array are read during ub_blend_create() only (the engine copies the values,
+ * Σ count × stride of them, = info.record_bytes) and may be freed after. The out array is the caller's; pass
  * the same array to every update (to fill a new one: copy base, then ub_blend_update_all),
  * or always NULL (streaming).
  * Floating point: updates run with FTZ/DAZ cleared (restored on return), so results do not
@@ -75,6 +78,10 @@ extern "C" {
  * current share them. Memory: touched × stride × 4 bytes instead of receiver_count ×
  * stride × 4 (ESTATE-like: 36% of texels touched). Same results, bit for bit. */
 #define UB_BLEND_OWN_BASE 2u
+/* Float records (UB_BLEND_FLOAT32) kept by the engine as half (runtime/half.h, round to
+ * nearest even; values must be within the half range: scale them first): the engine then
+ * works as with half records, without the caller building a half copy first. */
+#define UB_BLEND_STORE_HALF 4u
 
 typedef enum ub_blend_storage {
   UB_BLEND_FLOAT32 = 0, /* record values are float */
@@ -95,7 +102,8 @@ typedef struct ub_blend_desc {
   ub_blend_storage storage;  /* of every record's values */
   uint32_t element_count;
   const ub_blend_record *elements; /* element_count records; element id = index */
-  uint32_t flags;            /* 0, or UB_BLEND_PORTABLE | UB_BLEND_OWN_BASE */
+  uint32_t flags;            /* 0, or UB_BLEND_PORTABLE | UB_BLEND_OWN_BASE |
+                                UB_BLEND_STORE_HALF */
 } ub_blend_desc;
 
 /* Counters of one update (all for that call only). */
@@ -119,8 +127,9 @@ typedef struct ub_blend_info {
   uint32_t run_groups;        /* groups stored as runs (the rest as lists) */
   uint64_t runs;              /* runs over all run groups */
   uint64_t memberships;       /* Σ record counts */
-  size_t engine_bytes;        /* the engine's own allocations (tables, weights, scratch) */
-  size_t record_bytes;        /* the borrowed records: indices + values */
+  size_t engine_bytes;        /* the engine's tables, weights, scratch, own base rows */
+  size_t record_bytes;        /* the engine's copy of the record values (memberships ×
+                                 stride × 2 or 4 bytes), not in engine_bytes */
 } ub_blend_info;
 
 /* Reports the receivers an update just recomputed: [first, first + count), whose final
@@ -160,7 +169,7 @@ void ub_blend_update_all(ub_blend *b, ub_blend_touched_fn touched, void *user,
                          float *out_values, ub_blend_stats *out_stats);
 
 void ub_blend_get_info(const ub_blend *b, ub_blend_info *out_info);
-/* The engine's own bytes (= info.engine_bytes). */
+/* The engine's bytes besides the record values (= info.engine_bytes). */
 size_t ub_blend_memory_bytes(const ub_blend *b);
 
 #ifdef __cplusplus

@@ -6,6 +6,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "runtime/blend.h"
 #include "runtime/half.h"
@@ -15,22 +16,46 @@
 
 /* Texels searched around a query whose four bilinear neighbours are all empty. */
 #define UB_RT_EMPTY_SEARCH_RADIUS 4
-/* A stored normal shorter than this is treated as absent (padding, degenerate). */
-#define UB_RT_MIN_NORMAL_LENGTH 0.5f
+
+typedef struct ub_rt_fallback {
+  uint32_t count;
+  uint32_t *pixel; /* count, ascending */
+  float *normal;   /* count × 3, unit or zero */
+} ub_rt_fallback;
 
 struct ub_runtime {
   ub_bakefile *bf;
-  float **enc_normal;    /* atlas_count arrays of width × height × 3: AHD encode normals */
+  /* AHD encode normals: a covered texel's own stored normal (ub_texel_normal, made when
+   * needed), else the normal of the nearest texel that has one, kept here for those few
+   * texels only (per atlas, pixels ascending; a zero normal: none in the atlas, the SH's
+   * own direction is used). */
+  ub_rt_fallback *fallback; /* atlas_count */
   uint64_t *pixel_first; /* atlas_count + 1: first global pixel of each atlas */
+  /* Per-texel run-time arrays hold covered texels only (coverage != 0; ESTATE-like levels
+   * cover ~60% of their atlas pixels): a texel's slot is its rank among the covered
+   * pixels of its atlas (slot_of), global slots number atlas after atlas. */
+  uint64_t *slot_first;  /* atlas_count + 1: first global slot of each atlas */
+  uint64_t **cov_bits;   /* atlas_count arrays of ⌈pixels / 64⌉ words: coverage != 0 */
+  uint32_t **cov_rank;   /* atlas_count arrays: covered pixels before each 64-pixel word */
+  uint32_t *slot_pixel;  /* global slot → pixel within its atlas */
   /* Dynamic light sets (when the file has any): blended SH, re-encoded where touched. */
-  float *lm_base, *lm_cur; /* Σ pixels × 12; lm_cur in the file's I_z form (below) */
-  /* Record values in half precision, as the file stores them (one pool per representation,
-   * each record's values divided by the pool's power-of-two scale, which the weights given
-   * to the blend are multiplied by: (w·s)·h and w·(s·h) round to the same float). Texel
+  /* The texels' SH in the file's I_z form (below): the texels some record touches hold
+   * their current state in float (lm_cur, blended at every update); the others never
+   * change and keep the file's halves (lm_static × lm_static_scale, a power of two). A
+   * slot's index in either array: tch_rank (bitmap ranks over the global slots). */
+  float *lm_base;          /* during setup: Σ slots × 12 */
+  float *lm_cur;           /* touched slots × 12 */
+  uint16_t *lm_static;     /* untouched slots × 12 */
+  float lm_static_scale;
+  uint64_t *tch_bits;      /* ⌈slots / 64⌉ words: the slot is touched */
+  uint32_t *tch_rank;      /* touched slots before each word */
+  uint32_t *lm_idx;        /* during setup: the texel records' receivers as global slots */
+  /* Record values in half precision inside the blends, as the file stores them (per
+   * representation divided by a power-of-two scale, which the weights given to the blend
+   * are multiplied by: (w·s)·h and w·(s·h) round to the same float). Texel
    * values, base and lm_cur are in the I_z form of runtime/texel_sh.h (L00 replaced by the
    * irradiance along the texel's stored normal), where half rounding keeps I_z to half
    * precision even under grazing light; readers unpack a texel before use (texel_sh_at). */
-  uint16_t *lm_half, *glg_half, *llg_half;
   float lm_scale, glg_scale, llg_scale;
   float *glg_cur;          /* probes × 27: base + Σ sets (raw; NULL without sets) */
   float *glg_win;          /* probes × 27: windowed per probe, what the GLG reads. A convex
@@ -48,12 +73,72 @@ struct ub_runtime {
   uint64_t *llg_first;     /* llg_count + 1 */
   ub_glg glg;            /* valid when has_glg */
   int has_glg;
-  ub_ahd **ahd;          /* atlas_count arrays of width × height; zero for empty texels */
+  ub_ahd **ahd;          /* atlas_count arrays, one per covered texel (slot) */
   uint32_t lit_count;    /* triangles with tri_atlas >= 0 */
   uint32_t *lit_tris;
 };
 
 static const float ub_rt_luma[3] = {0.2126f, 0.7152f, 0.0722f};
+
+/* Slot (within its atlas) of covered pixel i of atlas a. */
+static inline uint64_t slot_of(const ub_runtime *rt, uint32_t a, size_t i)
+{
+  uint64_t w = rt->cov_bits[a][i >> 6], below = w & ((UINT64_C(1) << (i & 63)) - 1);
+  return rt->cov_rank[a][i >> 6] + (uint64_t)__builtin_popcountll(below);
+}
+
+/* Whether global slot s is touched by a record, and its index among the touched (or
+ * untouched) slots. */
+static inline int slot_touched(const ub_runtime *rt, uint64_t s, uint64_t *out_index)
+{
+  uint64_t w = rt->tch_bits[s >> 6], below = w & ((UINT64_C(1) << (s & 63)) - 1);
+  uint64_t t = rt->tch_rank[s >> 6] + (uint64_t)__builtin_popcountll(below);
+  int on = (int)((w >> (s & 63)) & 1u);
+  *out_index = on ? t : s - t;
+  return on;
+}
+
+/* Builds the coverage bits, ranks and slot → pixel map; sets slot_first. */
+static ub_result build_slots(ub_runtime *rt)
+{
+  const ub_bakefile *bf = rt->bf;
+  uint32_t na = bf->atlas_count;
+  rt->slot_first = calloc((size_t)na + 1, sizeof *rt->slot_first);
+  rt->cov_bits = calloc(na ? na : 1, sizeof *rt->cov_bits);
+  rt->cov_rank = calloc(na ? na : 1, sizeof *rt->cov_rank);
+  if (!rt->slot_first || !rt->cov_bits || !rt->cov_rank)
+    return UB_ERR_OUT_OF_MEMORY;
+  for (uint32_t a = 0; a < na; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    size_t px = (size_t)at->width * at->height, words = (px + 63) / 64;
+    rt->cov_bits[a] = calloc(words ? words : 1, sizeof **rt->cov_bits);
+    rt->cov_rank[a] = malloc((words ? words : 1) * sizeof **rt->cov_rank);
+    if (!rt->cov_bits[a] || !rt->cov_rank[a])
+      return UB_ERR_OUT_OF_MEMORY;
+    uint64_t n = 0;
+    for (size_t w = 0; w < words; w++) {
+      rt->cov_rank[a][w] = (uint32_t)n;
+      for (size_t i = w * 64; i < px && i < w * 64 + 64; i++)
+        if (at->coverage[i] != 0) {
+          rt->cov_bits[a][w] |= UINT64_C(1) << (i & 63);
+          n++;
+        }
+    }
+    rt->slot_first[a + 1] = rt->slot_first[a] + n;
+  }
+  uint64_t slots = rt->slot_first[na];
+  rt->slot_pixel = malloc((size_t)(slots ? slots : 1) * sizeof *rt->slot_pixel);
+  if (!rt->slot_pixel)
+    return UB_ERR_OUT_OF_MEMORY;
+  for (uint32_t a = 0; a < na; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
+    for (size_t i = 0; i < (size_t)at->width * at->height; i++)
+      if (at->coverage[i] != 0)
+        *sp++ = (uint32_t)i;
+  }
+  return UB_OK;
+}
 
 static int normalise3(const float v[3], float out[3])
 {
@@ -84,30 +169,34 @@ static void sh_dominant_direction(const float sh[UB_SH1_FLOATS], float out_n[3])
   }
 }
 
-/* Per-pixel encode normals of one atlas: a texel's stored normal, or for texels without a
- * usable one the normal of the nearest texel (8-connected multi-source BFS) that has one;
- * -1 in out_src where no texel of the atlas has a normal (the SH's own direction is used). */
-static ub_result encode_normals(const ub_bakefile_atlas *at, float **out_nrm)
+/* Encode normals of one atlas's covered texels without a usable normal of their own: the
+ * normal of the nearest texel (8-connected multi-source BFS) that has one; zero where no
+ * texel of the atlas has a normal (the SH's own direction is used). */
+static ub_result encode_fallbacks(const ub_bakefile_atlas *at, ub_rt_fallback *out)
 {
-  size_t texels = (size_t)at->width * at->height;
-  float *nrm = malloc(texels * 3 * sizeof *nrm);
-  float *res = calloc(texels * 3, sizeof *res);
+  size_t texels = (size_t)at->width * at->height, need = 0;
+  float un[3];
+  for (size_t i = 0; i < texels; i++)
+    need += at->coverage[i] != 0 && !ub_texel_normal(&at->normal[i * 3], un);
+  memset(out, 0, sizeof *out);
+  if (!need)
+    return UB_OK;
   int32_t *src = malloc(texels * sizeof *src);   /* texel whose normal is used, -1 none */
   uint32_t *queue = malloc(texels * sizeof *queue);
-  if (!nrm || !res || !src || !queue) {
-    free(nrm);
-    free(res);
+  out->pixel = malloc(need * sizeof *out->pixel);
+  out->normal = calloc(need * 3, sizeof *out->normal);
+  if (!src || !queue || !out->pixel || !out->normal) {
     free(src);
     free(queue);
+    free(out->pixel);
+    free(out->normal);
+    memset(out, 0, sizeof *out);
     return UB_ERR_OUT_OF_MEMORY;
   }
   size_t head = 0, tail = 0;
   for (size_t i = 0; i < texels; i++) {
-    const float *n = &at->normal[i * 3];
-    double l2 = (double)n[0] * n[0] + (double)n[1] * n[1] + (double)n[2] * n[2];
     src[i] = -1;
-    if (at->coverage[i] != 0 && l2 >= (double)UB_RT_MIN_NORMAL_LENGTH * UB_RT_MIN_NORMAL_LENGTH &&
-        normalise3(n, &nrm[i * 3])) {
+    if (at->coverage[i] != 0 && ub_texel_normal(&at->normal[i * 3], un)) {
       src[i] = (int32_t)i;
       queue[tail++] = (uint32_t)i;
     }
@@ -127,42 +216,74 @@ static ub_result encode_normals(const ub_bakefile_atlas *at, float **out_nrm)
         queue[tail++] = (uint32_t)j;
       }
   }
-  /* A zero vector marks "no normal anywhere": encode_pixels uses the SH's direction. */
   for (size_t i = 0; i < texels; i++)
-    if (src[i] >= 0)
-      memcpy(&res[i * 3], &nrm[(size_t)src[i] * 3], 3 * sizeof(float));
-  free(nrm);
+    if (at->coverage[i] != 0 && !ub_texel_normal(&at->normal[i * 3], un)) {
+      out->pixel[out->count] = (uint32_t)i;
+      if (src[i] >= 0)
+        ub_texel_normal(&at->normal[(size_t)src[i] * 3], &out->normal[out->count * 3]);
+      out->count++;
+    }
   free(src);
   free(queue);
-  *out_nrm = res;
   return UB_OK;
 }
 
-/* Texel i's SH L1 from an array in the I_z form (packed) or plain, into out. */
-static void texel_sh_at(const ub_bakefile_atlas *at, const float *sh, int packed, size_t i,
-                        float out[UB_SH1_FLOATS])
+/* The encode normal of covered texel i (unit, or zero: use the SH's direction); returns
+ * whether it is the texel's own normal (then the I_z form unpacks with it). */
+static int encode_normal(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, size_t i,
+                         float out_n[3])
 {
-  float un[3];
-  memcpy(out, &sh[i * UB_SH1_FLOATS], UB_SH1_FLOATS * sizeof(float));
-  if (packed && ub_texel_normal(&at->normal[i * 3], un))
-    ub_texel_sh_unpack(out, un);
+  if (ub_texel_normal(&at->normal[i * 3], out_n))
+    return 1;
+  size_t lo = 0, hi = fb->count;
+  while (lo < hi) {
+    size_t mid = (lo + hi) / 2;
+    if (fb->pixel[mid] < i)
+      lo = mid + 1;
+    else
+      hi = mid;
+  }
+  if (lo < fb->count && fb->pixel[lo] == i)
+    memcpy(out_n, &fb->normal[lo * 3], 3 * sizeof(float));
+  else
+    out_n[0] = out_n[1] = out_n[2] = 0.0f;
+  return 0;
 }
 
-/* AHD of pixels [first, first + count) of an atlas from the given SH (packed: I_z form). */
-static void encode_pixels(const ub_bakefile_atlas *at, const float *sh, int packed,
-                          const float *nrm, ub_ahd *ahd, size_t first, size_t count)
+/* Covered pixel i's SH L1 from its row (I_z form when packed, else plain) into out_sh, and
+ * its encode normal into out_n (see encode_normal). */
+static void texel_sh_at(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, const float *row,
+                        int packed, size_t i, float out_sh[UB_SH1_FLOATS], float out_n[3])
 {
-  for (size_t i = first; i < first + count; i++) {
-    if (at->coverage[i] == 0)
-      continue;
-    float v[UB_SH1_FLOATS];
-    texel_sh_at(at, sh, packed, i, v);
-    float n[3];
-    memcpy(n, &nrm[i * 3], sizeof n);
-    if (n[0] == 0.0f && n[1] == 0.0f && n[2] == 0.0f)
-      sh_dominant_direction(v, n);
-    ub_ahd_encode(v, n, &ahd[i]);
+  memcpy(out_sh, row, UB_SH1_FLOATS * sizeof(float));
+  if (encode_normal(at, fb, i, out_n) && packed)
+    ub_texel_sh_unpack(out_sh, out_n);
+}
+
+/* The AHD of one covered pixel i from its SH row. A packed row of a texel with its own
+ * normal (the I_z form along that normal) is encoded as it is (ub_ahd_encode_iz). */
+static void encode_texel(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, const float *row,
+                         int packed, size_t i, ub_ahd *out)
+{
+  float v[UB_SH1_FLOATS], n[3];
+  if (packed && ub_texel_normal(&at->normal[i * 3], n)) {
+    ub_ahd_encode_iz(row, n, out);
+    return;
   }
+  texel_sh_at(at, fb, row, packed, i, v, n);
+  if (n[0] == 0.0f && n[1] == 0.0f && n[2] == 0.0f)
+    sh_dominant_direction(v, n);
+  ub_ahd_encode(v, n, out);
+}
+
+/* AHD of atlas a's slots [first, first + count) from their current SH rows (I_z form). */
+static void encode_slots(const ub_runtime *rt, uint32_t a, uint64_t first, uint64_t count,
+                         const float *rows)
+{
+  const ub_bakefile_atlas *at = &rt->bf->atlases[a];
+  const uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
+  for (uint64_t s = first; s < first + count; s++, rows += UB_SH1_FLOATS)
+    encode_texel(at, &rt->fallback[a], rows, 1, sp[s], &rt->ahd[a][s]);
 }
 
 void ub_runtime_free(ub_runtime *rt)
@@ -173,11 +294,24 @@ void ub_runtime_free(ub_runtime *rt)
     for (uint32_t a = 0; a < rt->bf->atlas_count; a++)
       free(rt->ahd[a]);
   free(rt->ahd);
-  if (rt->enc_normal)
-    for (uint32_t a = 0; a < rt->bf->atlas_count; a++)
-      free(rt->enc_normal[a]);
-  free(rt->enc_normal);
+  if (rt->fallback)
+    for (uint32_t a = 0; a < rt->bf->atlas_count; a++) {
+      free(rt->fallback[a].pixel);
+      free(rt->fallback[a].normal);
+    }
+  free(rt->fallback);
   free(rt->pixel_first);
+  if (rt->cov_bits)
+    for (uint32_t a = 0; a < rt->bf->atlas_count; a++)
+      free(rt->cov_bits[a]);
+  if (rt->cov_rank)
+    for (uint32_t a = 0; a < rt->bf->atlas_count; a++)
+      free(rt->cov_rank[a]);
+  free(rt->cov_bits);
+  free(rt->cov_rank);
+  free(rt->slot_first);
+  free(rt->slot_pixel);
+  free(rt->lm_idx);
   ub_blend_free(rt->lm_blend);
   ub_blend_free(rt->glg_blend);
   ub_blend_free(rt->llg_blend);
@@ -189,10 +323,10 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt->llg_base);
   free(rt->lm_base);
   free(rt->lm_cur);
+  free(rt->lm_static);
+  free(rt->tch_bits);
+  free(rt->tch_rank);
   free(rt->glg_win);
-  free(rt->lm_half);
-  free(rt->glg_half);
-  free(rt->llg_half);
   free(rt->lit_tris);
   if (rt->has_glg)
     ub_glg_release(&rt->glg);
@@ -274,10 +408,10 @@ static float half_pool_scale(double mx)
   return s;
 }
 
-/* Global pixel p's unit normal as the reader used it for the I_z form; 0 without one.
- * *inout_atlas: a cursor (receivers are sorted), start at 0. */
-static int pixel_unit_normal(const ub_runtime *rt, uint64_t p, uint32_t *inout_atlas,
-                             float out_n[3])
+/* Global pixel p: its atlas (*inout_atlas, a cursor: receivers are sorted, start at 0)
+ * and pixel within it (*out_local); 0 if p is past the atlases. */
+static int pixel_locate(const ub_runtime *rt, uint64_t p, uint32_t *inout_atlas,
+                        size_t *out_local)
 {
   const ub_bakefile *bf = rt->bf;
   uint32_t a = *inout_atlas;
@@ -286,53 +420,70 @@ static int pixel_unit_normal(const ub_runtime *rt, uint64_t p, uint32_t *inout_a
   *inout_atlas = a;
   if (a >= bf->atlas_count || p < rt->pixel_first[a] || p >= rt->pixel_first[a + 1])
     return 0;
-  return ub_texel_normal(&bf->atlases[a].normal[3 * (size_t)(p - rt->pixel_first[a])], out_n);
+  *out_local = (size_t)(p - rt->pixel_first[a]);
+  return 1;
 }
 
-/* One representation's records as half: every record's float values (texels: in the I_z
- * form) divided by a power-of-two scale into one pool; the float arrays are freed (set
- * NULL in the run-time's bake file). Values that came from the file's halves come back
- * bit for bit (a power-of-two scale is exact; the I_z re-pack of a texel is exact to
- * float rounding, far below half rounding). */
-static ub_result records_to_half(ub_runtime *rt, int rep, ub_blend_record *recs,
-                                 uint16_t **out_pool, float *out_scale)
+/* One representation's records readied for its blend, in place in the bake file's float
+ * arrays: texel rows in the I_z form, every value divided by one power-of-two scale that
+ * brings the representation into the half range (the blend keeps them as half,
+ * UB_BLEND_STORE_HALF; the weights are multiplied by the scale: (w·s)·h and w·(s·h) round
+ * to the same float). Values that came from the file's halves come back bit for bit (a
+ * power-of-two scale is exact; the I_z re-pack of a texel is exact to float rounding, far
+ * below half rounding). Texel records: receivers become global slots (rt->lm_idx) and
+ * entries on uncovered pixels (never read) are dropped. */
+static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs, float *out_scale)
 {
   ub_bakefile *bf = rt->bf;
   uint32_t n = rt->elem_total;
   uint32_t stride = rep == 0 ? UB_SH1_FLOATS : 27;
-  size_t total = 0;
+  size_t entries = 0;
+  for (uint32_t e = 0; e < n; e++) {
+    const ub_bakefile_record *rc = element_record(bf, e);
+    entries += rep == 0 ? rc->texel_count : 0;
+  }
+  if (rep == 0) {
+    free(rt->lm_idx);
+    rt->lm_idx = malloc((entries ? entries : 1) * sizeof *rt->lm_idx);
+    if (!rt->lm_idx)
+      return UB_ERR_OUT_OF_MEMORY;
+  }
   double mx = 0.0;
+  size_t ei = 0;
   for (uint32_t e = 0; e < n; e++) {
     ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
     uint32_t count = rep == 0 ? rc->texel_count : rep == 1 ? rc->probe_count : rc->llg_probe_count;
     float *v = rep == 0 ? rc->texel_sh : rep == 1 ? rc->probe_sh : rc->llg_probe_sh;
-    uint32_t cursor = 0;
+    uint32_t cursor = 0, kept = 0;
+    if (rep == 0)
+      recs[e].receivers = rt->lm_idx + ei;
     for (uint32_t i = 0; i < count; i++) {
       float *row = v + (size_t)i * stride, un[3];
-      if (rep == 0 && pixel_unit_normal(rt, rc->texel_index[i], &cursor, un))
-        ub_texel_sh_pack(row, un); /* in place: the float array is dropped below */
+      if (rep == 0) {
+        size_t px = 0;
+        if (!pixel_locate(rt, rc->texel_index[i], &cursor, &px) ||
+            bf->atlases[cursor].coverage[px] == 0)
+          continue; /* an uncovered pixel: never read */
+        rt->lm_idx[ei++] = (uint32_t)(rt->slot_first[cursor] + slot_of(rt, cursor, px));
+        if (ub_texel_normal(&bf->atlases[cursor].normal[3 * px], un))
+          ub_texel_sh_pack(row, un);
+        if (kept != i) /* compact in place */
+          memmove(v + (size_t)kept * stride, row, stride * sizeof(float));
+        row = v + (size_t)kept * stride;
+      }
+      kept++;
       for (uint32_t k = 0; k < stride; k++)
         mx = fmax(mx, fabs((double)row[k]));
     }
-    total += (size_t)count * stride;
+    recs[e].values = v;
+    recs[e].count = kept;
   }
   float s = half_pool_scale(mx);
-  uint16_t *pool = malloc((total ? total : 1) * sizeof *pool);
-  if (!pool)
-    return UB_ERR_OUT_OF_MEMORY;
-  size_t at = 0;
-  for (uint32_t e = 0; e < n; e++) {
-    ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
-    uint32_t count = rep == 0 ? rc->texel_count : rep == 1 ? rc->probe_count : rc->llg_probe_count;
-    float **v = rep == 0 ? &rc->texel_sh : rep == 1 ? &rc->probe_sh : &rc->llg_probe_sh;
-    for (size_t i = 0; i < (size_t)count * stride; i++)
-      pool[at + i] = ub_half_from_float((*v)[i] / s);
-    recs[e].values = pool + at;
-    at += (size_t)count * stride;
-    free(*v);
-    *v = NULL;
+  for (uint32_t e = 0; e < n && s != 1.0f; e++) {
+    float *v = (float *)(uintptr_t)recs[e].values;
+    for (size_t i = 0; i < (size_t)recs[e].count * stride; i++)
+      v[i] /= s;
   }
-  *out_pool = pool;
   *out_scale = s;
   return UB_OK;
 }
@@ -348,8 +499,8 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   ub_bakefile *bf = rt->bf;
   uint32_t n = bf->dls_count + bf->elem_count;
   rt->elem_total = n;
-  uint64_t pixels = rt->pixel_first[bf->atlas_count];
-  rt->lm_base = malloc((size_t)(pixels ? pixels : 1) * UB_SH1_FLOATS * sizeof(float));
+  uint64_t slots = rt->slot_first[bf->atlas_count];
+  rt->lm_base = malloc((size_t)(slots ? slots : 1) * UB_SH1_FLOATS * sizeof(float));
   rt->lm_rec = calloc(n, sizeof *rt->lm_rec);
   rt->glg_rec = calloc(n, sizeof *rt->glg_rec);
   rt->llg_rec = calloc(n, sizeof *rt->llg_rec);
@@ -365,53 +516,93 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
    * texels are encoded): freeing them first keeps the peak at two copies. */
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     ub_bakefile_atlas *at = &bf->atlases[a];
-    size_t texels = (size_t)(rt->pixel_first[a + 1] - rt->pixel_first[a]);
-    float *dst = rt->lm_base + rt->pixel_first[a] * UB_SH1_FLOATS;
-    memcpy(dst, at->sh, texels * UB_SH1_FLOATS * sizeof(float));
-    for (size_t i = 0; i < texels; i++) {
-      float un[3];
-      if (ub_texel_normal(&at->normal[3 * i], un))
-        ub_texel_sh_pack(dst + i * UB_SH1_FLOATS, un);
+    uint64_t ns = rt->slot_first[a + 1] - rt->slot_first[a];
+    float *dst = rt->lm_base + rt->slot_first[a] * UB_SH1_FLOATS;
+    const uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
+    for (uint64_t k = 0; k < ns; k++) {
+      float un[3], *row = dst + k * UB_SH1_FLOATS;
+      memcpy(row, at->sh + (size_t)sp[k] * UB_SH1_FLOATS, UB_SH1_FLOATS * sizeof(float));
+      if (ub_texel_normal(&at->normal[3 * (size_t)sp[k]], un))
+        ub_texel_sh_pack(row, un);
     }
     free(at->sh);
     at->sh = NULL;
   }
-  rt->lm_cur = malloc((size_t)(pixels ? pixels : 1) * UB_SH1_FLOATS * sizeof(float));
-  if (!rt->lm_cur) {
-    ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
-    return UB_ERR_OUT_OF_MEMORY;
-  }
   int any_llg = 0;
   for (uint32_t e = 0; e < n; e++) {
     const ub_bakefile_record *rc = element_record(bf, e);
-    rt->lm_rec[e].receivers = rc->texel_index;
-    rt->lm_rec[e].count = rc->texel_count;
+    rt->lm_rec[e].receivers = NULL; /* slots, set by records_prepare */
+    rt->lm_rec[e].count = 0;
     rt->glg_rec[e].receivers = rc->probe_index;
     rt->glg_rec[e].count = rc->probe_count;
     rt->llg_rec[e].receivers = rc->llg_probe_index;
     rt->llg_rec[e].count = rc->llg_probe_count;
     any_llg |= rc->llg_probe_count > 0;
   }
-  ub_result r = records_to_half(rt, 0, rt->lm_rec, &rt->lm_half, &rt->lm_scale);
+  ub_result r = records_prepare(rt, 0, rt->lm_rec, &rt->lm_scale);
   if (r == UB_OK)
-    r = records_to_half(rt, 1, rt->glg_rec, &rt->glg_half, &rt->glg_scale);
+    r = records_prepare(rt, 1, rt->glg_rec, &rt->glg_scale);
   if (r == UB_OK)
-    r = records_to_half(rt, 2, rt->llg_rec, &rt->llg_half, &rt->llg_scale);
+    r = records_prepare(rt, 2, rt->llg_rec, &rt->llg_scale);
   if (r != UB_OK) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return r;
   }
+  /* Touched slots (in some texel record): their current state in float, starting at the
+   * base; the others in half. */
+  size_t words = (size_t)(slots + 63) / 64;
+  rt->tch_bits = calloc(words ? words : 1, sizeof *rt->tch_bits);
+  rt->tch_rank = malloc((words ? words : 1) * sizeof *rt->tch_rank);
+  if (!rt->tch_bits || !rt->tch_rank) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  for (uint32_t e = 0; e < n; e++)
+    for (uint32_t i = 0; i < rt->lm_rec[e].count; i++) {
+      uint32_t sl = rt->lm_rec[e].receivers[i];
+      rt->tch_bits[sl >> 6] |= UINT64_C(1) << (sl & 63);
+    }
+  uint64_t touched = 0;
+  for (size_t w = 0; w < words; w++) {
+    rt->tch_rank[w] = (uint32_t)touched;
+    touched += (uint64_t)__builtin_popcountll(rt->tch_bits[w]);
+  }
+  rt->lm_cur = malloc((size_t)(touched ? touched : 1) * UB_SH1_FLOATS * sizeof(float));
+  rt->lm_static = malloc((size_t)(slots - touched ? slots - touched : 1) * UB_SH1_FLOATS *
+                         sizeof(uint16_t));
+  if (!rt->lm_cur || !rt->lm_static) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  double smx = 0.0;
+  for (uint64_t sl = 0; sl < slots; sl++) {
+    uint64_t ix;
+    if (!slot_touched(rt, sl, &ix))
+      for (int k = 0; k < UB_SH1_FLOATS; k++)
+        smx = fmax(smx, fabs((double)rt->lm_base[sl * UB_SH1_FLOATS + k]));
+  }
+  rt->lm_static_scale = half_pool_scale(smx);
+  for (uint64_t sl = 0; sl < slots; sl++) {
+    uint64_t ix;
+    const float *row = rt->lm_base + sl * UB_SH1_FLOATS;
+    if (slot_touched(rt, sl, &ix))
+      memcpy(rt->lm_cur + ix * UB_SH1_FLOATS, row, UB_SH1_FLOATS * sizeof(float));
+    else
+      for (int k = 0; k < UB_SH1_FLOATS; k++)
+        rt->lm_static[ix * UB_SH1_FLOATS + k] = ub_half_from_float(row[k] / rt->lm_static_scale);
+  }
   ub_blend_desc bd;
   memset(&bd, 0, sizeof bd);
   bd.name = "lightmap texels";
-  bd.receiver_count = (uint32_t)pixels;
+  bd.receiver_count = (uint32_t)slots;
   bd.stride = UB_SH1_FLOATS;
   bd.base = rt->lm_base;
-  bd.storage = UB_BLEND_FLOAT16;
+  bd.storage = UB_BLEND_FLOAT32;
   bd.element_count = n;
   bd.elements = rt->lm_rec;
-  bd.flags = UB_BLEND_OWN_BASE; /* keeps only the touched receivers' base rows */
-  r = ub_blend_create(&bd, log, rt->lm_cur, &rt->lm_blend);
+  /* Keeps only the touched receivers' base rows, and the records as half. */
+  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_STORE_HALF;
+  r = ub_blend_create(&bd, log, NULL, &rt->lm_blend); /* streamed into lm_cur */
   if (r != UB_OK)
     return r;
   free(rt->lm_base);
@@ -458,6 +649,25 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
       bf->llgs[m].probe_sh = rt->llg_cur + rt->llg_first[m] * 27;
     }
   }
+  /* The blends keep their own half copies of the records' values, in group order, and
+   * the receiver indices they need: the records' float and index arrays go. */
+  free(rt->lm_idx);
+  rt->lm_idx = NULL;
+  for (uint32_t e = 0; e < n; e++) {
+    ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
+    free(rc->texel_sh);
+    free(rc->probe_sh);
+    free(rc->llg_probe_sh);
+    rc->texel_sh = rc->probe_sh = rc->llg_probe_sh = NULL;
+    free(rc->texel_index);
+    free(rc->probe_index);
+    free(rc->llg_probe_index);
+    rc->texel_index = NULL;
+    rc->probe_index = NULL;
+    rc->llg_probe_index = NULL;
+    rt->lm_rec[e].receivers = rt->glg_rec[e].receivers = rt->llg_rec[e].receivers = NULL;
+    rt->lm_rec[e].values = rt->glg_rec[e].values = rt->llg_rec[e].values = NULL;
+  }
   for (uint32_t e = 0; e < n && r == UB_OK; e++) {
     uint32_t kind = element_record(bf, e)->kind;
     float v = kind == UB_ELEMENT_DOOR ? 0.0f : 1.0f;
@@ -489,18 +699,23 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
   for (uint32_t a = 0; a < bf->atlas_count; a++)
     rt->pixel_first[a + 1] =
         rt->pixel_first[a] + (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
+  if (build_slots(rt) != UB_OK)
+    goto oom;
   if (bf->atlas_count) {
     rt->ahd = calloc(bf->atlas_count, sizeof *rt->ahd);
-    rt->enc_normal = calloc(bf->atlas_count, sizeof *rt->enc_normal);
-    if (!rt->ahd || !rt->enc_normal)
+    rt->fallback = calloc(bf->atlas_count, sizeof *rt->fallback);
+    if (!rt->ahd || !rt->fallback)
       goto oom;
     for (uint32_t a = 0; a < bf->atlas_count; a++) {
       const ub_bakefile_atlas *at = &bf->atlases[a];
-      size_t texels = (size_t)at->width * at->height;
-      rt->ahd[a] = calloc(texels ? texels : 1, sizeof *rt->ahd[a]);
-      if (!rt->ahd[a] || encode_normals(at, &rt->enc_normal[a]) != UB_OK)
+      uint64_t ns = rt->slot_first[a + 1] - rt->slot_first[a];
+      const uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
+      rt->ahd[a] = calloc(ns ? ns : 1, sizeof *rt->ahd[a]);
+      if (!rt->ahd[a] || encode_fallbacks(at, &rt->fallback[a]) != UB_OK)
         goto oom;
-      encode_pixels(at, at->sh, 0, rt->enc_normal[a], rt->ahd[a], 0, texels);
+      for (uint64_t k = 0; k < ns; k++)
+        encode_texel(at, &rt->fallback[a], at->sh + (size_t)sp[k] * UB_SH1_FLOATS, 0, sp[k],
+                     &rt->ahd[a][k]);
     }
   }
   for (uint32_t t = 0; t < bf->triangle_count; t++)
@@ -679,23 +894,35 @@ float ub_runtime_dls_weight_from_lights(const float *strengths, uint32_t count)
 typedef struct touched_ctx {
   ub_runtime *rt;
   uint64_t texels;
+  uint32_t atlas; /* atlas of the last piece */
 } touched_ctx;
 
-/* Re-encodes to AHD the pixels the blend just wrote (they may span atlases). */
+/* Stores the rows the blend just computed for slots [first, first + count) (all touched,
+ * so their lm_cur rows are consecutive) and re-encodes them to AHD (they may span
+ * atlases). */
 static void lm_touched(void *user, uint32_t first, uint32_t count, const float *rows)
 {
-  (void)rows; /* the same rows are in lm_cur: out_values is given to the blend */
   touched_ctx *tc = user;
   ub_runtime *rt = tc->rt;
+  uint64_t t0;
+  int on = slot_touched(rt, first, &t0);
+  assert(on);
+  (void)on;
+  float *cur = rt->lm_cur + t0 * UB_SH1_FLOATS;
+  memcpy(cur, rows, (size_t)count * UB_SH1_FLOATS * sizeof(float));
   uint64_t lo = first, hi = (uint64_t)first + count;
-  for (uint32_t a = 0; a < rt->bf->atlas_count && lo < hi; a++) {
-    uint64_t a0 = rt->pixel_first[a], a1 = rt->pixel_first[a + 1];
-    if (hi <= a0 || lo >= a1)
+  uint32_t a = tc->atlas; /* pieces come in ascending order: resume at the last atlas */
+  if (a >= rt->bf->atlas_count || lo < rt->slot_first[a])
+    a = 0;
+  for (; a < rt->bf->atlas_count && lo < hi; a++) {
+    uint64_t a0 = rt->slot_first[a], a1 = rt->slot_first[a + 1];
+    if (lo >= a1)
       continue;
-    uint64_t s0 = lo > a0 ? lo : a0, s1 = hi < a1 ? hi : a1;
-    encode_pixels(&rt->bf->atlases[a], rt->lm_cur + a0 * UB_SH1_FLOATS, 1, rt->enc_normal[a],
-                  rt->ahd[a], (size_t)(s0 - a0), (size_t)(s1 - s0));
-    tc->texels += s1 - s0;
+    uint64_t s1 = hi < a1 ? hi : a1;
+    encode_slots(rt, a, lo - a0, s1 - lo, cur + (lo - first) * UB_SH1_FLOATS);
+    tc->texels += s1 - lo;
+    tc->atlas = a;
+    lo = s1;
   }
 }
 
@@ -710,21 +937,31 @@ static void glg_touched(void *user, uint32_t first, uint32_t count, const float 
     ub_sh2_window(rt->glg_win + 27 * (size_t)q);
 }
 
+static double rt_now(void)
+{
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
 ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
 {
   assert(rt);
   ub_runtime_update_stats st;
   memset(&st, 0, sizeof st);
+  double t0 = out_stats ? rt_now() : 0.0, t1 = t0, t2 = t0;
   if (rt->lm_blend) {
-    touched_ctx tc = {rt, 0};
+    touched_ctx tc = {rt, 0, 0};
     ub_blend_stats bs;
-    ub_blend_update(rt->lm_blend, lm_touched, &tc, rt->lm_cur, &bs);
+    ub_blend_update(rt->lm_blend, lm_touched, &tc, NULL, &bs);
     st.texels_written = bs.receivers;
     st.texels_reencoded = tc.texels;
     st.bytes_read += bs.bytes_read;
-    st.bytes_written += bs.bytes_written;
+    st.bytes_written += bs.receivers * UB_SH1_FLOATS * sizeof(float); /* into lm_cur */
     st.groups += bs.groups;
   }
+  if (out_stats)
+    t1 = rt_now();
   if (rt->glg_blend) {
     ub_blend_stats bs;
     ub_blend_update(rt->glg_blend, glg_touched, rt, rt->glg_cur, &bs);
@@ -733,6 +970,8 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
     st.bytes_written += bs.bytes_written;
     st.groups += bs.groups;
   }
+  if (out_stats)
+    t2 = rt_now();
   if (rt->llg_blend) {
     ub_blend_stats bs;
     ub_blend_update(rt->llg_blend, NULL, NULL, rt->llg_cur, &bs); /* models read llg_cur */
@@ -741,8 +980,12 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
     st.bytes_written += bs.bytes_written;
     st.groups += bs.groups;
   }
-  if (out_stats)
+  if (out_stats) {
+    st.seconds_lightmap = t1 - t0;
+    st.seconds_glg = t2 - t1;
+    st.seconds_llg = rt_now() - t2;
     *out_stats = st;
+  }
   return UB_OK;
 }
 
@@ -797,10 +1040,18 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
                (size_t)bf->glg_plane_count * 4 * F + (size_t)rt->lit_count * U;
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     size_t t = (size_t)bf->atlases[a].width * bf->atlases[a].height;
+    size_t ns = rt->slot_first ? (size_t)(rt->slot_first[a + 1] - rt->slot_first[a]) : 0;
     m.geometry += t * (3 * F + 1);
-    m.lightmap += t * (sizeof(ub_ahd) + 3 * F) + (bf->atlases[a].sh ? t * UB_SH1_FLOATS * F : 0);
+    m.lightmap += ns * (sizeof(ub_ahd) + U) + (t + 63) / 64 * (8 + U) +
+                  (bf->atlases[a].sh ? t * UB_SH1_FLOATS * F : 0) +
+                  (rt->fallback ? (size_t)rt->fallback[a].count * (U + 3 * F) : 0);
   }
-  m.lightmap += rt->lm_cur ? (size_t)rt->pixel_first[bf->atlas_count] * UB_SH1_FLOATS * F : 0;
+  if (rt->lm_cur) {
+    size_t slots = (size_t)rt->slot_first[bf->atlas_count], words = (slots + 63) / 64, t = 0;
+    for (size_t w = 0; w < words; w++)
+      t += (size_t)__builtin_popcountll(rt->tch_bits[w]);
+    m.lightmap += t * UB_SH1_FLOATS * F + (slots - t) * UB_SH1_FLOATS * 2 + words * (8 + U);
+  }
   for (uint32_t i = 0; i < bf->llg_count; i++) {
     const ub_bakefile_llg *g = &bf->llgs[i];
     size_t np = (size_t)g->dims[0] * g->dims[1] * g->dims[2];
@@ -812,16 +1063,26 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
     m.llg += (size_t)rt->llg_first[bf->llg_count] * 27 * F;
   if (rt->has_glg)
     m.glg = (size_t)bf->glg_probe_count * 27 * F * 2 + ub_glg_owned_bytes(&rt->glg); /* raw + windowed */
+  /* Records: the blends' copies of the values (half, group order; the receiver indices
+   * are in their tables); anything the bake file still holds (a failed setup). */
+  ub_blend *bl[3] = {rt->lm_blend, rt->glg_blend, rt->llg_blend};
+  for (int i = 0; i < 3; i++)
+    if (bl[i]) {
+      ub_blend_info in;
+      ub_blend_get_info(bl[i], &in);
+      m.records += in.record_bytes;
+      m.blend += in.engine_bytes;
+    }
   uint32_t n = bf->dls_count + bf->elem_count;
   for (uint32_t e = 0; e < n; e++) {
     const ub_bakefile_record *r = element_record(bf, e);
-    size_t h = r->texel_sh ? F : 2, g = r->probe_sh ? F : 2, l = r->llg_probe_sh ? F : 2;
-    m.records += (size_t)r->texel_count * (U + UB_SH1_FLOATS * h) +
-                 (size_t)r->probe_count * (U + 27 * g) + (size_t)r->llg_probe_count * (U + 27 * l);
+    m.records += (r->texel_index ? (size_t)r->texel_count * U : 0) +
+                 (r->texel_sh ? (size_t)r->texel_count * UB_SH1_FLOATS * F : 0) +
+                 (r->probe_index ? (size_t)r->probe_count * U : 0) +
+                 (r->probe_sh ? (size_t)r->probe_count * 27 * F : 0) +
+                 (r->llg_probe_index ? (size_t)r->llg_probe_count * U : 0) +
+                 (r->llg_probe_sh ? (size_t)r->llg_probe_count * 27 * F : 0);
   }
-  m.blend = (rt->lm_blend ? ub_blend_memory_bytes(rt->lm_blend) : 0) +
-            (rt->glg_blend ? ub_blend_memory_bytes(rt->glg_blend) : 0) +
-            (rt->llg_blend ? ub_blend_memory_bytes(rt->llg_blend) : 0);
   m.total = m.geometry + m.lightmap + m.glg + m.llg + m.records + m.blend;
   *out = m;
 }
@@ -840,7 +1101,7 @@ ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint
     out_rgb[0] = out_rgb[1] = out_rgb[2] = 0.0f;
     return UB_OK;
   }
-  ub_ahd_irradiance(&rt->ahd[atlas][i], nn, out_rgb);
+  ub_ahd_irradiance(&rt->ahd[atlas][slot_of(rt, atlas, i)], nn, out_rgb);
   return UB_OK;
 }
 
@@ -979,9 +1240,7 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
   /* Bilinear over the texels' linear data (SH L1 of the current state and the encode
    * normals), then one AHD encode: filtering the AHD parameters themselves (non-linear)
    * is off by up to 40% along the normal between texels that are each exact. */
-  const float *shs = rt->lm_cur ? rt->lm_cur + rt->pixel_first[atlas] * UB_SH1_FLOATS : at->sh;
-  int packed = rt->lm_cur != NULL;
-  const float *nrms = rt->enc_normal[atlas];
+  const int cur = rt->lm_cur != NULL;
   double sw = 0, sh[UB_SH1_FLOATS] = {0}, nn[3] = {0, 0, 0};
   for (int k = 0; k < 4; k++) {
     int64_t x = x0 + (k & 1), y = y0 + (k >> 1);
@@ -994,12 +1253,24 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
     if (!(wt > 0.0))
       continue;
     sw += wt;
-    float ts[UB_SH1_FLOATS];
-    texel_sh_at(at, shs, packed, i, ts);
+    float ts[UB_SH1_FLOATS], tn[3];
+    float srow[UB_SH1_FLOATS];
+    const float *row = at->sh ? at->sh + i * UB_SH1_FLOATS : srow;
+    if (cur) {
+      uint64_t ix;
+      if (slot_touched(rt, rt->slot_first[atlas] + slot_of(rt, atlas, i), &ix)) {
+        row = rt->lm_cur + ix * UB_SH1_FLOATS;
+      } else {
+        for (int c = 0; c < UB_SH1_FLOATS; c++)
+          srow[c] = ub_half_to_float(rt->lm_static[ix * UB_SH1_FLOATS + c]) * rt->lm_static_scale;
+        row = srow;
+      }
+    }
+    texel_sh_at(at, &rt->fallback[atlas], row, cur, i, ts, tn);
     for (int c = 0; c < UB_SH1_FLOATS; c++)
       sh[c] += wt * ts[c];
     for (int c = 0; c < 3; c++)
-      nn[c] += wt * nrms[i * 3 + c];
+      nn[c] += wt * tn[c];
   }
   if (!(sw > 0.0)) {
     /* Nearest non-empty texel around the sample point. */
@@ -1019,7 +1290,7 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
       }
     if (best == INFINITY)
       return 0;
-    *out = ahd[bi];
+    *out = ahd[slot_of(rt, atlas, bi)];
     return 1;
   }
   float fsh[UB_SH1_FLOATS], fn[3] = {(float)nn[0], (float)nn[1], (float)nn[2]}, un[3];
@@ -1031,8 +1302,9 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
   return 1;
 }
 
-ub_result ub_runtime_query_lightmap(const ub_runtime *rt, const float p[3], const float n[3],
-                                    float out_rgb[3], float *out_distance)
+ub_result ub_runtime_query_lightmap_ex(const ub_runtime *rt, const float p[3],
+                                       const float n[3], float out_rgb[3],
+                                       ub_runtime_lightmap_hit *out_hit)
 {
   assert(rt && p && n && out_rgb);
   if (rt->lit_count == 0)
@@ -1041,12 +1313,16 @@ ub_result ub_runtime_query_lightmap(const ub_runtime *rt, const float p[3], cons
   if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2]) || !normalise3(n, nn))
     return UB_ERR_INVALID_ARGUMENT;
 
+  /* The closest lightmapped surface point among the triangles the current state shows
+   * (a hidden object's or door leaf's surface is not in the level now: its texels hold
+   * the lighting it had when shown); the closest hidden one is remembered for the hit. */
   const ub_bakefile *bf = rt->bf;
   double pd[3] = {p[0], p[1], p[2]};
-  double best_d2 = INFINITY, best_bary[3] = {1, 0, 0};
-  uint32_t best_tri = rt->lit_tris[0];
+  double best_d2 = INFINITY, best_bary[3] = {1, 0, 0}, hid_d2 = INFINITY;
+  uint32_t best_tri = UINT32_MAX, hid_tri = UINT32_MAX;
   for (uint32_t k = 0; k < rt->lit_count; k++) {
     uint32_t t = rt->lit_tris[k];
+    int shown = ub_runtime_triangle_shown(rt, t);
     double v[3][3];
     for (int j = 0; j < 3; j++) {
       const float *pos = &bf->positions[(size_t)bf->indices[(size_t)t * 3 + j] * 3];
@@ -1057,12 +1333,19 @@ ub_result ub_runtime_query_lightmap(const ub_runtime *rt, const float p[3], cons
     bary_point(v[0], v[1], v[2], bary, q);
     sub3d(pd, q, d);
     double d2 = dot3d(d, d);
-    if (d2 < best_d2) {
+    if (!shown) {
+      if (d2 < hid_d2) {
+        hid_d2 = d2;
+        hid_tri = t;
+      }
+    } else if (d2 < best_d2) {
       best_d2 = d2;
       best_tri = t;
       memcpy(best_bary, bary, sizeof bary);
     }
   }
+  if (best_tri == UINT32_MAX)
+    return UB_ERR_NOT_BAKED; /* every lightmapped triangle is hidden */
 
   const float *uv = &bf->tri_uv[(size_t)best_tri * 6];
   double u = best_bary[0] * uv[0] + best_bary[1] * uv[2] + best_bary[2] * uv[4];
@@ -1072,9 +1355,29 @@ ub_result ub_runtime_query_lightmap(const ub_runtime *rt, const float p[3], cons
     ub_ahd_irradiance(&ahd, nn, out_rgb);
   else
     out_rgb[0] = out_rgb[1] = out_rgb[2] = 0.0f;
-  if (out_distance)
-    *out_distance = (float)sqrt(best_d2);
+  if (out_hit) {
+    ub_runtime_lightmap_hit h;
+    h.triangle = best_tri;
+    h.distance = (float)sqrt(best_d2);
+    h.hidden_closer = hid_d2 < best_d2;
+    h.hidden_triangle = h.hidden_closer ? hid_tri : UINT32_MAX;
+    h.hidden_element = -1;
+    if (h.hidden_closer && bf->tri_role && bf->tri_role[hid_tri])
+      h.hidden_element = (int32_t)(bf->tri_role[hid_tri] & 0xFFFFFFu);
+    h.hidden_distance = h.hidden_closer ? (float)sqrt(hid_d2) : INFINITY;
+    *out_hit = h;
+  }
   return UB_OK;
+}
+
+ub_result ub_runtime_query_lightmap(const ub_runtime *rt, const float p[3], const float n[3],
+                                    float out_rgb[3], float *out_distance)
+{
+  ub_runtime_lightmap_hit h;
+  ub_result r = ub_runtime_query_lightmap_ex(rt, p, n, out_rgb, &h);
+  if (r == UB_OK && out_distance)
+    *out_distance = h.distance;
+  return r;
 }
 
 ub_result ub_runtime_lightmap_at(const ub_runtime *rt, uint32_t tri, float b1, float b2,
@@ -1084,7 +1387,7 @@ ub_result ub_runtime_lightmap_at(const ub_runtime *rt, uint32_t tri, float b1, f
   const ub_bakefile *bf = rt->bf;
   float nn[3];
   if (tri >= bf->triangle_count || bf->tri_atlas[tri] < 0 || !isfinite(b1) ||
-      !isfinite(b2) || !normalise3(n, nn))
+      !isfinite(b2) || !normalise3(n, nn) || !ub_runtime_triangle_shown(rt, tri))
     return UB_ERR_INVALID_ARGUMENT;
   const float *uv = &bf->tri_uv[(size_t)tri * 6];
   float b0 = 1.0f - b1 - b2;

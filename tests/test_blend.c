@@ -725,6 +725,62 @@ static void test_compact(void)
   rep_free(&p);
 }
 
+/* ---- UB_BLEND_STORE_HALF: float records kept as half = the caller's half records ---- */
+
+static void test_store_half(uint32_t S)
+{
+  const uint32_t R = 64;
+  float *base = calloc((size_t)R * S, sizeof(float));
+  float *vf = malloc(sizeof(float) * R * S);
+  uint16_t *vh = malloc(sizeof(uint16_t) * R * S);
+  uint32_t *idx = malloc(sizeof(uint32_t) * R);
+  for (uint32_t i = 0; i < R * S; i++) {
+    vf[i] = (float)(sin(0.37 * i) * 1000.0 + 1e-3 * i); /* not all exact halves */
+    vh[i] = ub_half_from_float(vf[i]);
+    base[i] = (float)(0.5 * cos(0.11 * i));
+  }
+  for (uint32_t r = 0; r < R; r++)
+    idx[r] = r;
+  ub_blend_record rf = {idx, vf, R}, rh = {idx, vh, R};
+  ub_blend_desc df = {"store half", R, S, base, UB_BLEND_FLOAT32, 1, &rf, UB_BLEND_STORE_HALF};
+  ub_blend_desc dh = {"half", R, S, base, UB_BLEND_FLOAT16, 1, &rh, 0};
+  float *of = malloc(sizeof(float) * R * S), *oh = malloc(sizeof(float) * R * S);
+  ub_blend *bf = NULL, *bh = NULL;
+  ASSERT_OK(ub_blend_create(&df, NULL, of, &bf));
+  ASSERT_OK(ub_blend_create(&dh, NULL, oh, &bh));
+  /* the records may go after create */
+  memset(vf, 0xff, sizeof(float) * R * S);
+  memset(vh, 0xff, sizeof(uint16_t) * R * S);
+  if (bf && bh) {
+    const float w[3] = {0.75f, -1.5f, 3.0f};
+    ASSERT_OK(ub_blend_set_weight(bf, 0, w));
+    ASSERT_OK(ub_blend_set_weight(bh, 0, w));
+    ub_blend_update(bf, NULL, NULL, of, NULL);
+    ub_blend_update(bh, NULL, NULL, oh, NULL);
+    ASSERT_TRUE(memcmp(of, oh, sizeof(float) * R * S) == 0);
+    ub_blend_info in;
+    ub_blend_get_info(bf, &in);
+    ASSERT_TRUE(in.record_bytes == (size_t)R * S * 2);
+  }
+  /* A float value beyond the half range is bad data with this flag. */
+  float big[48];
+  for (uint32_t i = 0; i < S; i++)
+    big[i] = i == 1 ? 1e6f : 1.0f;
+  ub_blend_record rb = {idx, big, 1};
+  ub_blend_desc db = {"store half, too big", R, S, base, UB_BLEND_FLOAT32, 1, &rb,
+                      UB_BLEND_STORE_HALF};
+  ub_blend *bb = NULL;
+  ASSERT_TRUE(ub_blend_create(&db, NULL, NULL, &bb) == UB_ERR_INVALID_DATA && bb == NULL);
+  ub_blend_free(bf);
+  ub_blend_free(bh);
+  free(base);
+  free(vf);
+  free(vh);
+  free(idx);
+  free(of);
+  free(oh);
+}
+
 int main(void)
 {
   const uint32_t strides[] = {12, 27, 9, 48};
@@ -734,6 +790,8 @@ int main(void)
   }
   test_half_exact(12);
   test_half_exact(27);
+  test_store_half(12);
+  test_store_half(27);
   test_validation();
   test_compact();
   scenario(100000, 12, 200, UB_BLEND_FLOAT16, 1000);

@@ -553,7 +553,8 @@ static const char *QUERY_HELP =
     "  --door NAME=T       opening fraction of a door, T in [0, 1] (default 0: closed; from\n"
     "                      a hinge angle a: T = 1 - cos a, 1 beyond 90 degrees)\n"
     "  --object NAME=V     on, off, or a visibility in [0, 1] to fade (default on)\n"
-    "  --source lightmap   the lightmap of the closest lightmapped surface point\n"
+    "  --source lightmap   the lightmap of the closest lightmapped surface point the state\n"
+    "                      shows (a note on stderr when a hidden one is closer)\n"
     "  --source glg        the global light grid (tetrahedral probes), as a dynamic object\n"
     "  --source llg        the local light grid of the LLG model whose box holds the point\n"
     "                      (closest box otherwise), with its self-visibility within 5 cm\n"
@@ -617,17 +618,30 @@ static int cmd_query(int argc, char **argv)
     ub_runtime_free(rt);
     return 1;
   }
-  float rgb[3], dist;
+  float rgb[3];
+  ub_runtime_lightmap_hit hit;
+  hit.hidden_closer = 0;
   /* auto: a point in space is answered by the GLG, as for a dynamic object. */
   if (!strcmp(source, "lightmap"))
-    r = ub_runtime_query_lightmap(rt, at, nrm, rgb, &dist);
+    r = ub_runtime_query_lightmap_ex(rt, at, nrm, rgb, &hit);
   else if (!strcmp(source, "llg"))
     r = ub_runtime_query_llg(rt, at, nrm, rgb);
   else
     r = ub_runtime_query_glg(rt, at, nrm, NULL, rgb);
+  if (r == UB_OK && hit.hidden_closer) {
+    /* The surface nearest the point is hidden in this state: say so, and which surface
+     * answered instead. */
+    const char *el = hit.hidden_element >= 0
+                         ? ub_runtime_element_name(rt, (uint32_t)hit.hidden_element) : NULL;
+    fprintf(stderr,
+            "ubake: note: not shown: the closest lightmapped surface (triangle %u of %s, "
+            "%.3g m away) is hidden in this state; answered from the closest shown surface, "
+            "%.3g m away\n",
+            hit.hidden_triangle, el ? el : "?", hit.hidden_distance, hit.distance);
+  }
   ub_runtime_free(rt);
   if (r == UB_ERR_NOT_BAKED) {
-    fprintf(stderr, "ubake: %s: no %s data baked in this file\n", path,
+    fprintf(stderr, "ubake: %s: no %s data baked in this file (or none shown in this state)\n", path,
             !strcmp(source, "lightmap") ? "lightmap" : !strcmp(source, "llg") ? "LLG" : "GLG");
     return 1;
   }

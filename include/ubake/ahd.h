@@ -24,6 +24,10 @@ typedef struct ub_ahd {
 /* sh: 4 × 3 floats, coefficient-major: sh[k*3 + c] for coefficient k, channel c.
  * Radiance SH, W/(m²·sr). normal: unit surface normal. */
 void ub_ahd_encode(const float sh[12], const float normal[3], ub_ahd *out_ahd);
+/* The same from SH whose DC slots sh_iz[0..2] hold I_z, the irradiance (W/m²) along
+ * unit_normal per channel, in place of L00 (the run-time's packed texel form): no
+ * unpacking, and I_z is kept as given. unit_normal must be unit length. */
+void ub_ahd_encode_iz(const float sh_iz[12], const float unit_normal[3], ub_ahd *out_ahd);
 /* Irradiance (W/m²) for any unit normal n'. */
 void ub_ahd_irradiance(const ub_ahd *ahd, const float n[3], float out_rgb[3]);
 /* Irradiance from the SH L1 directly (cosine convolution), W/m², never negative. */

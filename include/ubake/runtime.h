@@ -42,7 +42,9 @@ void ub_runtime_free(ub_runtime *rt);
  * doors, objects), the run-time keeps one float copy of each representation's current
  * state and the records in half precision (as the file stores them), so this bake file
  * differs from one read with ub_bakefile_read(): every record's texel_sh, probe_sh and
- * llg_probe_sh are NULL (indices and counts are kept); atlases[a].sh are NULL (read the
+ * llg_probe_sh and its receiver indices (texel_index, probe_index, llg_probe_index) are
+ * NULL (the blends keep what they need; counts, names and kinds are kept; read the file
+ * with ub_bakefile_read() for the records themselves); atlases[a].sh are NULL (read the
  * lightmap through the queries); glg_sh and llgs[m].probe_sh hold the CURRENT raw state
  * (base + Σ weight·record, as ub_runtime_glg_probe_sh(rt, 0)), updated by
  * ub_runtime_update(). Without elements it is the file as read. */
@@ -53,10 +55,12 @@ typedef struct ub_runtime_memory {
   size_t geometry;  /* triangles, vertices, UVs, albedo, roles, lights; atlas normals and
                        coverage; GLG positions, tets, leak planes; LLG model meshes,
                        visibility, self terms */
-  size_t lightmap;  /* AHD texels, encode normals, texel SH (current state, or the file's) */
+  size_t lightmap;  /* per covered texel: AHD, SH (float current state where a record
+                       touches it, else the file's halves; without elements the file's
+                       float SH); coverage/touched bitmaps; fallback encode normals */
   size_t glg;       /* raw current + windowed SH, the GLG's acceleration data */
   size_t llg;       /* LLG probe SH (current state) */
-  size_t records;   /* element records: receiver indices + values */
+  size_t records;   /* element records: their values (half), held by the blends */
   size_t blend;     /* the blend engines: tables, weights, touched receivers' base rows */
   size_t total;     /* the sum */
 } ub_runtime_memory;
@@ -64,11 +68,32 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out_memory
 
 /* Baked irradiance (W/m², linear RGB) at the lightmapped surface point closest to p
  * (world, metres), for the unit normal n (normalised here), from the bilinearly filtered
- * AHD lightmap. out_distance (may be NULL): metres from p to that surface point.
- * Returns UB_ERR_NOT_BAKED if the file has no lightmapped triangle (outputs untouched),
- * UB_ERR_INVALID_ARGUMENT for a non-finite p or a zero / non-finite n. */
+ * AHD lightmap. Only triangles the current state shows count (ub_runtime_triangle_shown):
+ * a hidden object's or door leaf's surface is not in the level, so a point on it is
+ * answered by the closest shown surface; ub_runtime_query_lightmap_ex() says when that
+ * happened. out_distance (may be NULL): metres from p to the surface point used.
+ * Returns UB_ERR_NOT_BAKED if the file has no lightmapped triangle or the state hides
+ * every one (outputs untouched), UB_ERR_INVALID_ARGUMENT for a non-finite p or a zero /
+ * non-finite n. */
 ub_result ub_runtime_query_lightmap(const ub_runtime *rt, const float p[3], const float n[3],
                                     float out_rgb[3], float *out_distance);
+
+/* Where a lightmap query was answered. hidden_closer is 1 when a lightmapped triangle the
+ * current state hides (e.g. the surface of an object switched off) is closer to p than
+ * the shown surface that answered: a query meant for that surface gets "not shown". */
+typedef struct ub_runtime_lightmap_hit {
+  uint32_t triangle;        /* the shown triangle that answered */
+  float distance;           /* metres from p to it */
+  int hidden_closer;        /* 1: a hidden lightmapped triangle is closer (below) */
+  uint32_t hidden_triangle; /* the closest hidden one, UINT32_MAX unless hidden_closer */
+  int32_t hidden_element;   /* its element (ub_runtime_element_name), -1 if none */
+  float hidden_distance;    /* metres from p to it; INFINITY unless hidden_closer */
+} ub_runtime_lightmap_hit;
+/* ub_runtime_query_lightmap() with the hit described (out_hit may be NULL; untouched on
+ * error). */
+ub_result ub_runtime_query_lightmap_ex(const ub_runtime *rt, const float p[3],
+                                       const float n[3], float out_rgb[3],
+                                       ub_runtime_lightmap_hit *out_hit);
 
 /* Irradiance (W/m²) decoded from the AHD of texel (x, y) of atlas `atlas` for unit normal
  * n (normalised here); 0 for an empty texel (coverage 0). UB_ERR_INVALID_ARGUMENT for an
@@ -156,6 +181,9 @@ typedef struct ub_runtime_update_stats {
   uint64_t llg_probes_written;
   uint64_t bytes_read, bytes_written;
   uint32_t groups;
+  /* Wall-clock seconds of the update's parts (monotonic clock; for benchmarks): lightmap
+   * blend + AHD re-encode, GLG blend + windowing, LLG blend. */
+  double seconds_lightmap, seconds_glg, seconds_llg;
 } ub_runtime_update_stats;
 ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats);
 
@@ -172,8 +200,9 @@ const struct ub_glg *ub_runtime_glg(const ub_runtime *rt);
  * here): the AHD lightmap filtered bilinearly at the interpolated lightmap UV, as
  * ub_runtime_query_lightmap() does, without searching for the closest point (for
  * renderers that already know the surface point). UB_ERR_INVALID_ARGUMENT for tri out of
- * range or not lightmapped (tri_atlas < 0), non-finite barycentrics or a zero /
- * non-finite n (outputs untouched). */
+ * range, not lightmapped (tri_atlas < 0) or hidden in the current state
+ * (ub_runtime_triangle_shown), non-finite barycentrics or a zero / non-finite n (outputs
+ * untouched). */
 ub_result ub_runtime_lightmap_at(const ub_runtime *rt, uint32_t tri, float b1, float b2,
                                  const float n[3], float out_rgb[3]);
 
