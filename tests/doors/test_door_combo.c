@@ -86,6 +86,26 @@ static int make(const char *name, const char *params, ub_quality quality, char *
   return ub_bake_level(out_level, &o, &g_log, st) == UB_OK;
 }
 
+/* Writes bf to path without element ci (the same bake, the combination record left out). */
+static void write_without(ub_bakefile *bf, int32_t ci, const char *path)
+{
+  ub_bakefile_record *keep = bf->elems;
+  uint32_t kc = bf->elem_count, m = 0;
+  ub_bakefile_record *el = malloc((kc ? kc : 1) * sizeof *el);
+  ASSERT_TRUE(el != NULL);
+  if (!el)
+    return;
+  for (uint32_t e = 0; e < kc; e++)
+    if ((int32_t)e != ci)
+      el[m++] = keep[e];
+  bf->elems = el;
+  bf->elem_count = m;
+  ASSERT_OK(ub_bakefile_write(bf, path, &g_log));
+  bf->elems = keep;
+  bf->elem_count = kc;
+  free(el);
+}
+
 /* Reference E (luminance) and its s.e. at p for the door open or not and lamp_b's weight. */
 static void reference(const ub_scene *s, int open, float set_w, const float p[3],
                       const float n[3], double *out_e, double *out_se)
@@ -255,19 +275,7 @@ static void test_combo_llg(void)
   }
   /* the same file without the combination: the door and the set summed */
   snprintf(path, sizeof path, "%s/door_combo_llg/naive.ubk", g_dir);
-  ub_bakefile_record *keep = bf->elems;
-  uint32_t kc = bf->elem_count;
-  ub_bakefile_record *el = malloc(kc * sizeof *el);
-  uint32_t m = 0;
-  for (uint32_t e = 0; el && e < kc; e++)
-    if ((int32_t)e != ci)
-      el[m++] = keep[e];
-  bf->elems = el;
-  bf->elem_count = m;
-  ASSERT_OK(ub_bakefile_write(bf, path, &g_log));
-  bf->elems = keep;
-  bf->elem_count = kc;
-  free(el);
+  write_without(bf, ci, path);
   ASSERT_OK(ub_runtime_load(st.ubk_path, &g_log, &run));
   ASSERT_OK(ub_runtime_load(path, &g_log, &naive));
   if (!run || !naive)
@@ -373,18 +381,7 @@ static void test_pair(void)
   printf("door x door record %s: %u pixels %u probes\n", bf->elems[ci].name,
          bf->elems[ci].texel_count, bf->elems[ci].probe_count);
   snprintf(path, sizeof path, "%s/naive.ubk", out);
-  ub_bakefile_record *keep = bf->elems;
-  uint32_t kc = bf->elem_count, m = 0;
-  ub_bakefile_record *el = malloc(kc * sizeof *el);
-  for (uint32_t e = 0; el && e < kc; e++)
-    if ((int32_t)e != ci)
-      el[m++] = keep[e];
-  bf->elems = el;
-  bf->elem_count = m;
-  ASSERT_OK(ub_bakefile_write(bf, path, &g_log));
-  bf->elems = keep;
-  bf->elem_count = kc;
-  free(el);
+  write_without(bf, ci, path);
   ASSERT_OK(ub_runtime_load(st.ubk_path, &g_log, &run));
   ASSERT_OK(ub_runtime_load(path, &g_log, &naive));
   if (!run || !naive)
