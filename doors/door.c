@@ -1037,6 +1037,25 @@ static uint32_t common_count(const uint32_t *a, uint32_t na, const uint32_t *b, 
   return n;
 }
 
+/* A combination's outcome: baked or skipped (empty correction), why, counted and logged. */
+static void combo_note(ub_plan_combo *pc, ub_door_stats *st, const ub_log *log,
+                       const char *door_name, int empty, uint32_t ct, uint32_t cp, uint32_t cl,
+                       const ub_bakefile_record *rec)
+{
+  pc->baked = !empty;
+  snprintf(pc->why, sizeof pc->why, "%s: tagged, influence regions overlap in %u texel "
+           "pixels, %u probes, %u LLG probes%s", empty ? "skipped" : "baked", ct, cp, cl,
+           empty ? ", but the correction is empty" : "");
+  if (empty)
+    st->combos_skipped++;
+  else
+    st->combos_baked++;
+  ub_log_printf(log, UB_LOG_INFO, "  combination %s x %s: %s (record %u pixels, %u "
+                "probes, %u LLG probes)", door_name, pc->name, pc->why,
+                empty ? 0 : rec->texel_count, empty ? 0 : rec->probe_count,
+                empty ? 0 : rec->llg_probe_count);
+}
+
 /* Door × door (a = pc->door, b = pc->other): C = L(both) − L(a) − L(b) + L(none) =
  * S_a|b open − S_a. Door a's pass runs twice with the same random numbers as its own
  * record (correlated, so the difference is low-noise): in the state "b open" (b's closed
@@ -1138,20 +1157,8 @@ static ub_result door_pair(const ub_door_desc *dd, ub_plan_combo *pc, const ub_l
     free(rec.texel_index), free(rec.texel_sh), free(rec.probe_index), free(rec.probe_sh);
     free(rec.llg_probe_index), free(rec.llg_probe_sh);
   }
-  if (r == UB_OK) {
-    pc->baked = !empty;
-    snprintf(pc->why, sizeof pc->why, "%s: tagged, influence regions overlap in %u texel "
-             "pixels, %u probes, %u LLG probes%s", empty ? "skipped" : "baked", ct, cp, cl,
-             empty ? ", but the correction is empty" : "");
-    if (empty)
-      st->combos_skipped++;
-    else
-      st->combos_baked++;
-    ub_log_printf(log, UB_LOG_INFO, "  combination %s x %s: %s (record %u pixels, %u "
-                  "probes, %u LLG probes)", s->door_names[a], pc->name, pc->why,
-                  empty ? 0 : rec.texel_count, empty ? 0 : rec.probe_count,
-                  empty ? 0 : rec.llg_probe_count);
-  }
+  if (r == UB_OK)
+    combo_note(pc, st, log, s->door_names[a], empty, ct, cp, cl, &rec);
   for (uint32_t k = 0; k < lm->atlas_count; k++) {
     if (img_b)
       free(img_b[k]);
@@ -1248,17 +1255,7 @@ ub_result ub_door_combine(const ub_door_desc *dd, ub_plan *plan,
       if (r != UB_OK)
         break;
     }
-    pc->baked = !empty;
-    snprintf(pc->why, sizeof pc->why, "%s: tagged, influence regions overlap in %u texel "
-             "pixels, %u probes, %u LLG probes%s", empty ? "skipped" : "baked", ct, cp, cl,
-             empty ? ", but the correction is empty" : "");
-    if (empty)
-      io_stats->combos_skipped++;
-    else
-      io_stats->combos_baked++;
-    ub_log_printf(log, UB_LOG_INFO, "  combination %s x %s: %s (record %u pixels, %u "
-                  "probes, %u LLG probes)", dn, pc->name, pc->why, rec.texel_count,
-                  rec.probe_count, rec.llg_probe_count);
+    combo_note(pc, io_stats, log, dn, empty, ct, cp, cl, &rec);
   }
   work_free(&w, lm);
   free(iz);
