@@ -546,27 +546,43 @@ static int sw_read_ref_cache(sweep *s, const char *path)
   return i;
 }
 
+/* Files the sweep rewrites are written to PATH.tmp and renamed into place, so a killed run
+ * never leaves half a file: sw_tmp_open opens PATH.tmp (its name into tmp), sw_tmp_commit
+ * closes and renames it. Both print the error and return NULL / 0 on failure. */
+static FILE *sw_tmp_open(const char *path, char *tmp, size_t tmp_cap)
+{
+  snprintf(tmp, tmp_cap, "%s.tmp", path);
+  FILE *f = fopen(tmp, "w");
+  if (!f)
+    fprintf(stderr, "ubake: %s: cannot write: %s\n", tmp, strerror(errno));
+  return f;
+}
+
+static int sw_tmp_commit(FILE *f, const char *tmp, const char *path)
+{
+  if (fclose(f) != 0 || rename(tmp, path) != 0) {
+    fprintf(stderr, "ubake: %s: cannot write: %s\n", path, strerror(errno));
+    return 0;
+  }
+  return 1;
+}
+
 /* Reference at every point, once: reuses DIR/reference_points.csv where it matches and
  * appends each new point as soon as it is traced (a killed run resumes where it was). */
 static int sw_references(sweep *s)
 {
   char path[1280], tmp[1300];
   snprintf(path, sizeof path, "%s/reference_points.csv", s->out_dir);
-  snprintf(tmp, sizeof tmp, "%s.tmp", path);
   int cached = sw_read_ref_cache(s, path);
   /* Rewrite the file with the matching prefix only, then append. */
-  FILE *f = fopen(tmp, "w");
-  if (!f) {
-    fprintf(stderr, "ubake: %s: cannot write: %s\n", tmp, strerror(errno));
+  FILE *f = sw_tmp_open(path, tmp, sizeof tmp);
+  if (!f)
     return 0;
-  }
   fputs(REF_HEADER, f);
   for (int i = 0; i < cached; i++)
     sw_write_ref_row(f, &s->pts[i], s->ref_spp);
-  if (fclose(f) != 0 || rename(tmp, path) != 0) {
-    fprintf(stderr, "ubake: %s: cannot write: %s\n", path, strerror(errno));
+  if (!sw_tmp_commit(f, tmp, path))
     return 0;
-  }
   printf("sweep: reference at %d points (%d lightmap, %d GLG), %u spp: %d cached in %s\n",
          s->npts, s->nlm, s->nglg, s->ref_spp, cached, path);
   fflush(stdout);
@@ -831,12 +847,9 @@ static int sw_write_csv(const sweep *s)
 {
   char path[1280], tmp[1300];
   snprintf(path, sizeof path, "%s/sweep.csv", s->out_dir);
-  snprintf(tmp, sizeof tmp, "%s.tmp", path);
-  FILE *f = fopen(tmp, "w");
-  if (!f) {
-    fprintf(stderr, "ubake: %s: cannot write: %s\n", tmp, strerror(errno));
+  FILE *f = sw_tmp_open(path, tmp, sizeof tmp);
+  if (!f)
     return 0;
-  }
   fputs(CSV_HEADER, f);
   for (int i = 0; i < s->nrungs; i++) {
     const sweep_rung *r = &s->rungs[i];
@@ -855,10 +868,8 @@ static int sw_write_csv(const sweep *s)
     sw_csv_num(f, s->ref_noise);
     fputc('\n', f);
   }
-  if (fclose(f) != 0 || rename(tmp, path) != 0) {
-    fprintf(stderr, "ubake: %s: cannot write: %s\n", path, strerror(errno));
+  if (!sw_tmp_commit(f, tmp, path))
     return 0;
-  }
   return 1;
 }
 
@@ -890,12 +901,9 @@ static int sw_write_presets_md(const sweep *s, double load_now)
     return 1;
   char path[1280], tmp[1300];
   snprintf(path, sizeof path, "%s/presets.md", s->out_dir);
-  snprintf(tmp, sizeof tmp, "%s.tmp", path);
-  FILE *f = fopen(tmp, "w");
-  if (!f) {
-    fprintf(stderr, "ubake: %s: cannot write: %s\n", tmp, strerror(errno));
+  FILE *f = sw_tmp_open(path, tmp, sizeof tmp);
+  if (!f)
     return 0;
-  }
   fputs(PRESETS_MD_HEADER, f);
   for (int i = 0; i < s->nrungs; i++) {
     const sweep_rung *r = &s->rungs[i];
@@ -926,10 +934,8 @@ static int sw_write_presets_md(const sweep *s, double load_now)
   for (int i = 0; i < s->argc; i++)
     fprintf(f, " %s", s->argv[i]);
   fputs("`\n", f);
-  if (fclose(f) != 0 || rename(tmp, path) != 0) {
-    fprintf(stderr, "ubake: %s: cannot write: %s\n", path, strerror(errno));
+  if (!sw_tmp_commit(f, tmp, path))
     return 0;
-  }
   return 1;
 }
 
