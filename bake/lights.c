@@ -151,16 +151,8 @@ void ub_emitters_sample(const ub_emitters *em, const ub_scene *scene, float u0, 
                         float u2, float out_p[3], float out_n[3], float out_le[3],
                         float *out_pdf_area)
 {
-  /* Binary search the CDF. */
   assert(em->count > 0);
-  uint32_t lo = 0, hi = em->count - 1;
-  while (lo < hi) {
-    uint32_t mid = (lo + hi) / 2;
-    if (em->cdf[mid] > u0)
-      hi = mid;
-    else
-      lo = mid + 1;
-  }
+  uint32_t lo = ub_cdf_pick(em->cdf, em->count, u0);
   float prev = lo ? em->cdf[lo - 1] : 0.0f;
   float p_tri = em->cdf[lo] - prev;
   uint32_t t = em->tri[lo];

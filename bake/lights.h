@@ -43,6 +43,20 @@ void ub_emitters_sample(const ub_emitters *em, const ub_scene *scene, float u0, 
 uint32_t ub_hash4(uint32_t a, uint32_t b, uint32_t c, uint32_t d);
 /* Uniform float in [0, 1) from a hash. */
 static inline float ub_u01(uint32_t h) { return (float)(h >> 8) * (1.0f / 16777216.0f); }
+/* The entry u falls into of a cumulative table (n > 0 entries, non-decreasing, last 1):
+ * the first i with cdf[i] > u (n − 1 when none). */
+static inline uint32_t ub_cdf_pick(const float *cdf, uint32_t n, float u)
+{
+  uint32_t lo = 0, hi = n - 1;
+  while (lo < hi) {
+    uint32_t mid = lo + (hi - lo) / 2;
+    if (cdf[mid] > u)
+      hi = mid;
+    else
+      lo = mid + 1;
+  }
+  return lo;
+}
 
 /* Sampling helpers. */
 void ub_sample_cosine(const float n[3], float u1, float u2, float out_dir[3]);

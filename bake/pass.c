@@ -20,13 +20,22 @@
 /* Auto-stop: at most this share of the lit texels may still gain more than stop_fraction
  * of their own light in a bounce. */
 #define UB_STOP_TEXEL_SHARE 0.01
-/* Texel lights are used for a bounce when its brightest texel carries this many times the
- * mean texel power. */
+/* Texel lights are used for a block of receivers when the brightest texel it can see
+ * carries this many times the mean power of the texels it can see. */
 #define UB_TL_PEAK 30.0
+/* Texel-light clusters: cells on the level's longest axis (× 6 normal directions). */
+#define UB_TL_CELLS 16
 #define UB_LLG_ID_BASE 0x60000000u
 
 static const double UB_Y0 = 0.282094792;
 static const double UB_Y1 = 0.488602512;
+
+typedef struct tl_cluster {
+  float lo[3], hi[3];   /* box of its texels (centres ± 1.5 texel sizes) */
+  float nlo[3], nhi[3]; /* bounds of its texels' normal components */
+  double power, peak;   /* this bounce: sum and maximum of its texels' power (W) */
+  uint32_t n;           /* texels */
+} tl_cluster;
 
 /* One kind of receiver, seen uniformly by the direct and gather kernels. */
 typedef struct recv_set {
@@ -66,10 +75,22 @@ typedef struct pass_ctx {
    * proportion to their power and combined with the gather rays by the balance heuristic,
    * so a small bright spot (a sun patch, the ceiling above a lamp) is found by every
    * receiver instead of by a few gather rays (fireflies). */
+  /* A texel is picked in two steps: a cluster (texels of one coarse cell whose normals
+   * share a dominant axis) by a per-block table — its power over its distance to the
+   * block, zero when it faces away from every point of the block (the sunlit roof above a
+   * room) — then a texel of it in proportion to power. */
   float *tl_rad;              /* texel × 3: outgoing radiance albedo/π·E of the previous bounce */
-  float *tl_cdf;              /* texel: cumulative power, last = 1 */
   float *tl_area;             /* texel: world area (m²) */
-  int tl_on;
+  float *tl_pc;               /* texel: probability of the texel within its cluster */
+  uint32_t *tl_of;            /* texel → cluster, UINT32_MAX: none (no area) */
+  uint32_t *tl_start;         /* cluster → first entry of tl_list; tl_K + 1 entries */
+  uint32_t *tl_list;          /* texels ordered by cluster */
+  float *tl_ccdf;             /* tl_list order: cumulative power within the cluster, last 1 */
+  struct tl_cluster *tl_cl;   /* tl_K clusters */
+  uint32_t tl_K;
+  int tl_on;                  /* some texel has power this bounce */
+  int tl_full;                /* the tables hold all of bounce 0 (NEE on): a gather hit read
+                                 as a texel light takes no separate punctual NEE */
   uint32_t tl_samples;        /* per receiver per bounce */
   int nee;                    /* bounce 1 takes punctual light at its hits by next-event
                                  estimation instead of reading the bounce-0 lightmap */
@@ -595,12 +616,36 @@ static float *nee_block(pass_ctx *c, const ub_rt *rt, const ub_ray *rays, const 
   return nee;
 }
 
-/* Bounces ≥ 1: samples toward the previous bounce's texels as area lights (see tl_*). */
-static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr)
+/* Receivers share a texel-light table by the dominant axis of their normal (6 groups) or
+ * have none (probes, group 6). */
+#define UB_TL_GROUPS 7
+static inline int tl_group(const float *nrm)
+{
+  if (!nrm)
+    return 6;
+  int ax = fabsf(nrm[0]) >= fabsf(nrm[1]) ? (fabsf(nrm[0]) >= fabsf(nrm[2]) ? 0 : 2)
+                                          : (fabsf(nrm[1]) >= fabsf(nrm[2]) ? 1 : 2);
+  return 2 * ax + (nrm[ax] < 0.0f);
+}
+
+/* max of n·d over n in [nlo, nhi] and d in [dl, dh], per axis (interval bound) */
+static inline double dot_bound(const float nlo[3], const float nhi[3], const double dl[3],
+                               const double dh[3])
+{
+  double m = 0.0;
+  for (int j = 0; j < 3; j++)
+    m += fmax(fmax(nlo[j] * dl[j], nlo[j] * dh[j]), fmax(nhi[j] * dl[j], nhi[j] * dh[j]));
+  return m;
+}
+
+/* Bounces ≥ 1: samples toward the previous bounce's texels as area lights (see tl_*);
+ * tl: the block's cluster tables per receiver group (tl_block_table), NULL where off. */
+static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr,
+                              const float *const *tl)
 {
   const ub_pass_desc *d = c->d;
   const ub_lightmap *lm = c->lm;
-  uint32_t M = c->tl_samples, N = rs->rays, T = lm->texel_count;
+  uint32_t M = c->tl_samples, N = rs->rays, K = c->tl_K;
   size_t cap = (size_t)M * nr;
   ub_ray *rays;
   shadow_rec *rec;
@@ -611,28 +656,26 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
+    const float *cdf = tl[tl_group(nrm)];
     int first = 1;
-    for (uint32_t k = 0; k < M; k++) {
+    for (uint32_t k = 0; cdf && k < M; k++) {
       uint32_t h = ub_hash4(c->seed, d->pass_id * 0x10000u + 0x1000u + c->bounce,
                             rs->id_base + r, k);
-      float u0 = ub_u01(h);
-      uint32_t lo = 0, hi = T - 1;
-      while (lo < hi) {
-        uint32_t mid = (lo + hi) / 2;
-        if (c->tl_cdf[mid] > u0)
-          hi = mid;
-        else
-          lo = mid + 1;
-      }
-      uint32_t t = lo;
-      float q[3];
-      if (!(c->tl_area[t] > 0.0f) ||
-          !ub_lightmap_texel_point(c->s, c->lm, t, ub_u01(ub_hash4(h, 1, 0, 0)),
-                                   ub_u01(ub_hash4(h, 2, 0, 0)), q))
+      uint32_t cl = ub_cdf_pick(cdf, K, ub_u01(h));
+      uint32_t b0 = c->tl_start[cl], b1 = c->tl_start[cl + 1];
+      if (b1 <= b0)
         continue;
+      uint32_t t = c->tl_list[b0 + ub_cdf_pick(c->tl_ccdf + b0, b1 - b0,
+                                               ub_u01(ub_hash4(h, 3, 0, 0)))];
+      if (!(c->tl_area[t] > 0.0f))
+        continue;
+      /* One of the texel's sample points (already off the surface): the points its value
+       * was gathered at, on its chart's open side. A random point of the texel's square
+       * could lie past a wall standing on it (a sunlit floor texel under a closed door
+       * leaf would light the dark room behind it). */
       const float *tn = lm->texel_normal + 3 * (size_t)t;
-      float qo[3];
-      ub_rt_offset_point(d->rt, q, tn, qo);
+      const float *qo = lm->sample_pos +
+                        ((size_t)t * UB_TEXEL_SAMPLES + ub_hash4(h, 1, 0, 0) % UB_TEXEL_SAMPLES) * 3;
       const float *p = rs->samples + ((size_t)r * rs->spr + k % rs->spr) * 3;
       float w[3] = {qo[0] - p[0], qo[1] - p[1], qo[2] - p[2]};
       float d2 = dot3(w, w);
@@ -644,7 +687,7 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
       float cs = nrm ? dot3(nrm, w) : 1.0f, ce = -dot3(tn, w);
       if (cs <= 1e-4f || ce <= 0.0f)
         continue;
-      double p_t = c->tl_cdf[t] - (t ? c->tl_cdf[t - 1] : 0.0f);
+      double p_t = (double)(cdf[cl] - (cl ? cdf[cl - 1] : 0.0f)) * c->tl_pc[t];
       double pdf_sa = p_t / c->tl_area[t] * d2 / ce;
       double denom = M * pdf_sa + N * gather_pdf(nrm, w);
       shadow_rec *sr = &rec[n];
@@ -674,6 +717,101 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
   shadow_flush(c, rs, r0, rays, rec, occ, n);
 }
 
+static int cmp_u64(const void *a, const void *b)
+{
+  uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;
+  return (x > y) - (x < y);
+}
+
+/* The texel-light clusters (geometry only, once per pass). 0 when out of memory. */
+static int texel_clusters_build(pass_ctx *c)
+{
+  const ub_lightmap *lm = c->lm;
+  uint32_t T = lm->texel_count;
+  float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  for (uint32_t t = 0; t < T; t++)
+    for (int j = 0; j < 3; j++) {
+      lo[j] = fminf(lo[j], lm->texel_pos[3 * (size_t)t + j]);
+      hi[j] = fmaxf(hi[j], lm->texel_pos[3 * (size_t)t + j]);
+    }
+  float ext = fmaxf(hi[0] - lo[0], fmaxf(hi[1] - lo[1], hi[2] - lo[2]));
+  float cell = ext > 0.0f ? ext / UB_TL_CELLS : 1.0f;
+  uint64_t *key = malloc(((size_t)T + 1) * sizeof *key);
+  c->tl_of = malloc(((size_t)T + 1) * sizeof *c->tl_of);
+  c->tl_list = malloc(((size_t)T + 1) * sizeof *c->tl_list);
+  c->tl_ccdf = malloc(((size_t)T + 1) * sizeof *c->tl_ccdf);
+  c->tl_pc = malloc(((size_t)T + 1) * sizeof *c->tl_pc);
+  if (!key || !c->tl_of || !c->tl_list || !c->tl_ccdf || !c->tl_pc) {
+    free(key);
+    return 0;
+  }
+  /* key: cell (x, y, z) and normal direction in the high bits, the texel in the low 32 */
+  size_t m = 0;
+  for (uint32_t t = 0; t < T; t++) {
+    c->tl_of[t] = UINT32_MAX;
+    if (!(c->tl_area[t] > 0.0f))
+      continue;
+    const float *p = lm->texel_pos + 3 * (size_t)t, *nn = lm->texel_normal + 3 * (size_t)t;
+    uint64_t k = 0;
+    for (int j = 0; j < 3; j++) {
+      int64_t ci = (int64_t)((p[j] - lo[j]) / cell);
+      ci = ci < 0 ? 0 : (ci >= UB_TL_CELLS ? UB_TL_CELLS - 1 : ci);
+      k = k * UB_TL_CELLS + (uint64_t)ci;
+    }
+    int ax = fabsf(nn[0]) >= fabsf(nn[1]) ? (fabsf(nn[0]) >= fabsf(nn[2]) ? 0 : 2)
+                                          : (fabsf(nn[1]) >= fabsf(nn[2]) ? 1 : 2);
+    k = k * 6 + (uint64_t)(2 * ax + (nn[ax] < 0.0f));
+    key[m++] = k << 32 | t;
+  }
+  qsort(key, m, sizeof *key, cmp_u64);
+  uint32_t K = 0;
+  for (size_t i = 0; i < m; i++)
+    K += i == 0 || key[i] >> 32 != key[i - 1] >> 32;
+  c->tl_start = malloc(((size_t)K + 1) * sizeof *c->tl_start);
+  c->tl_cl = calloc((size_t)K + 1, sizeof *c->tl_cl);
+  if (!c->tl_start || !c->tl_cl) {
+    free(key);
+    return 0;
+  }
+  uint32_t k = UINT32_MAX;
+  for (size_t i = 0; i < m; i++) {
+    uint32_t t = (uint32_t)key[i];
+    if (i == 0 || key[i] >> 32 != key[i - 1] >> 32) {
+      tl_cluster *cl = &c->tl_cl[++k];
+      c->tl_start[k] = (uint32_t)i;
+      for (int j = 0; j < 3; j++) {
+        cl->lo[j] = cl->nlo[j] = INFINITY;
+        cl->hi[j] = cl->nhi[j] = -INFINITY;
+      }
+    }
+    tl_cluster *cl = &c->tl_cl[k];
+    c->tl_list[i] = t;
+    c->tl_of[t] = k;
+    cl->n++;
+    /* the texel's square in its plane (a texel size, with a margin), cut to its
+     * triangle's box. The boxes only steer sampling: a texel left out of a block's table
+     * is still found by the gather rays, at full weight (its pdf there is 0). */
+    float r = 0.75f * sqrtf(c->tl_area[t]);
+    const ub_scene *s = c->s;
+    const float *v0 = s->positions + 3 * (size_t)s->indices[3 * (size_t)lm->texel_tri[t]];
+    const float *v1 = s->positions + 3 * (size_t)s->indices[3 * (size_t)lm->texel_tri[t] + 1];
+    const float *v2 = s->positions + 3 * (size_t)s->indices[3 * (size_t)lm->texel_tri[t] + 2];
+    for (int j = 0; j < 3; j++) {
+      float pj = lm->texel_pos[3 * (size_t)t + j], nj = lm->texel_normal[3 * (size_t)t + j];
+      float rj = r * sqrtf(fmaxf(0.0f, 1.0f - nj * nj)) + 1e-4f * r;
+      float tlo = fminf(v0[j], fminf(v1[j], v2[j])), thi = fmaxf(v0[j], fmaxf(v1[j], v2[j]));
+      cl->lo[j] = fminf(cl->lo[j], fmaxf(pj - rj, tlo));
+      cl->hi[j] = fmaxf(cl->hi[j], fminf(pj + rj, thi));
+      cl->nlo[j] = fminf(cl->nlo[j], nj);
+      cl->nhi[j] = fmaxf(cl->nhi[j], nj);
+    }
+  }
+  c->tl_start[K] = (uint32_t)m;
+  c->tl_K = K;
+  free(key);
+  return 1;
+}
+
 /* Builds the texel-light tables from the irradiance the next bounce reads. */
 static void texel_lights_build(pass_ctx *c, const double *e_prev)
 {
@@ -681,32 +819,105 @@ static void texel_lights_build(pass_ctx *c, const double *e_prev)
   const ub_scene *s = c->s;
   uint32_t T = lm->texel_count;
   c->tl_on = 0;
-  if (!c->tl_rad || !c->tl_samples || T == 0)
+  if (!c->tl_rad || !c->tl_samples || !c->tl_K)
     return;
-  double sum = 0.0, peak = 0.0;
   for (uint32_t t = 0; t < T; t++) {
     const float *alb = s->materials[s->tri_material[lm->texel_tri[t]]].albedo;
     for (int ch = 0; ch < 3; ch++)
       c->tl_rad[3 * (size_t)t + ch] = (float)(alb[ch] * M_1_PI * e_prev[3 * (size_t)t + ch]);
-    const float *L = c->tl_rad + 3 * (size_t)t;
-    double pw = (0.2126 * L[0] + 0.7152 * L[1] + 0.0722 * L[2]) * c->tl_area[t];
-    pw = pw > 0.0 && isfinite(pw) ? pw : 0.0;
-    peak = pw > peak ? pw : peak;
-    sum += pw;
-    c->tl_cdf[t] = (float)sum;
   }
-  /* Only where power is concentrated (a texel with > UB_TL_PEAK× the mean): in an evenly
-   * lit level the gather rays alone do better, texel lights would only add shadow rays. */
-  if (!(sum > 0.0) || peak < UB_TL_PEAK * sum / T)
-    return;
-  for (uint32_t t = 0; t < T; t++)
-    c->tl_cdf[t] = (float)(c->tl_cdf[t] / sum);
-  c->tl_cdf[T - 1] = 1.0f;
-  c->tl_on = 1;
+  for (uint32_t k = 0; k < c->tl_K; k++) {
+    tl_cluster *cl = &c->tl_cl[k];
+    double sum = 0.0, peak = 0.0;
+    for (uint32_t i = c->tl_start[k]; i < c->tl_start[k + 1]; i++) {
+      uint32_t t = c->tl_list[i];
+      const float *L = c->tl_rad + 3 * (size_t)t;
+      double pw = (0.2126 * L[0] + 0.7152 * L[1] + 0.0722 * L[2]) * c->tl_area[t];
+      pw = pw > 0.0 && isfinite(pw) ? pw : 0.0;
+      peak = pw > peak ? pw : peak;
+      sum += pw;
+      c->tl_ccdf[i] = (float)sum;
+      c->tl_pc[t] = (float)pw;
+    }
+    for (uint32_t i = c->tl_start[k]; sum > 0.0 && i < c->tl_start[k + 1]; i++) {
+      c->tl_ccdf[i] = (float)(c->tl_ccdf[i] / sum);
+      c->tl_pc[c->tl_list[i]] = (float)(c->tl_pc[c->tl_list[i]] / sum);
+    }
+    if (sum > 0.0)
+      c->tl_ccdf[c->tl_start[k + 1] - 1] = 1.0f;
+    cl->power = sum;
+    cl->peak = peak;
+    c->tl_on |= sum > 0.0;
+  }
+}
+
+/* The cluster table (cdf, tl_K entries) for the receivers of group g in a block: 1 when
+ * texel lights are worth their shadow rays there — the brightest texel they can see carries
+ * UB_TL_PEAK× the mean power of the texels they can see (in an evenly lit room the gather
+ * rays alone do better). A cluster is seen unless every texel of it faces away from every
+ * point of the receivers' box, or lies behind every receiver (bounds over the boxes and
+ * the normal components); its weight is its power over its squared distance. */
+static int tl_block_table(const pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr,
+                          int g, float *cdf)
+{
+  float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  float nlo[3] = {INFINITY, INFINITY, INFINITY}, nhi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  uint32_t m = 0;
+  for (uint32_t i = 0; i < nr; i++) {
+    uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
+    const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
+    if (tl_group(nrm) != g)
+      continue;
+    m++;
+    for (int j = 0; nrm && j < 3; j++) {
+      nlo[j] = fminf(nlo[j], nrm[j]);
+      nhi[j] = fmaxf(nhi[j], nrm[j]);
+    }
+    for (uint32_t k = 0; k < rs->spr; k++)
+      for (int j = 0; j < 3; j++) {
+        float v = rs->samples[((size_t)r * rs->spr + k) * 3 + j];
+        lo[j] = fminf(lo[j], v);
+        hi[j] = fmaxf(hi[j], v);
+      }
+  }
+  if (!m)
+    return 0;
+  double sum = 0.0, seen_power = 0.0, seen_n = 0.0, peak = 0.0;
+  for (uint32_t k = 0; k < c->tl_K; k++) {
+    const tl_cluster *cl = &c->tl_cl[k];
+    double w = 0.0;
+    if (cl->power > 0.0) {
+      double dl[3], dh[3], d2 = 0.0, h2 = 0.0; /* d = p − q: receiver minus cluster */
+      for (int j = 0; j < 3; j++) {
+        dl[j] = (double)lo[j] - cl->hi[j];
+        dh[j] = (double)hi[j] - cl->lo[j];
+        double gap = dl[j] > 0.0 ? dl[j] : (dh[j] < 0.0 ? -dh[j] : 0.0);
+        d2 += gap * gap;
+        h2 += 0.25 * ((double)cl->hi[j] - cl->lo[j]) * ((double)cl->hi[j] - cl->lo[j]);
+      }
+      double ml[3] = {-dh[0], -dh[1], -dh[2]}, mh[3] = {-dl[0], -dl[1], -dl[2]};
+      if (dot_bound(cl->nlo, cl->nhi, dl, dh) > 0.0 &&
+          (g == 6 || dot_bound(nlo, nhi, ml, mh) > 0.0)) {
+        w = cl->power / (d2 + h2);
+        seen_power += cl->power;
+        seen_n += cl->n;
+        peak = cl->peak > peak ? cl->peak : peak;
+      }
+    }
+    sum += w;
+    cdf[k] = (float)sum;
+  }
+  if (!(sum > 0.0) || !isfinite(sum) || peak < UB_TL_PEAK * seen_power / seen_n)
+    return 0;
+  for (uint32_t k = 0; k < c->tl_K; k++)
+    cdf[k] = (float)(cdf[k] / sum);
+  cdf[c->tl_K - 1] = 1.0f;
+  return 1;
 }
 
 /* Gather rays: bounce 0 sees the sky and emitters (MIS), bounce k reads bounce k-1. */
-static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr)
+static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr,
+                         const float *const *tl)
 {
   const ub_pass_desc *d = c->d;
   const ub_scene *s = c->s;
@@ -808,6 +1019,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
       if (cs <= 1e-4f)
         continue;
       double wt = 1.0 / (N * pdf); /* plain estimator: L·f/(N·pdf) */
+      int tl_read = 0;             /* L is a texel light's radiance (tl_rad) */
       if (h->tri == UB_RT_MISS) {
         misses++;
         if (c->bounce == 0 && d->sky) {
@@ -860,7 +1072,8 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
             float b0 = 1.0f - h->u - h->v;
             float u = b0 * uv[0] + h->u * uv[2] + h->v * uv[4];
             float v = b0 * uv[1] + h->u * uv[3] + h->v * uv[5];
-            if (c->tl_on) {
+            const float *tl_cdf = tl ? tl[tl_group(nrm)] : NULL;
+            if (tl_cdf) {
               /* The texel under the hit, as the texel-light strategy sees it. */
               const ub_atlas *at = &lm->atlases[a];
               int64_t tx = (int64_t)(u * (float)at->width), ty = (int64_t)(v * (float)at->height);
@@ -870,11 +1083,15 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
               float gl = sqrtf(dot3(h->ng, h->ng));
               float ce = gl > 0.0f ? -dot3(h->ng, ray->dir) / gl : 0.0f;
               if (t >= 0 && ce > 0.0f && c->tl_area[t] > 0.0f) {
-                double p_t = c->tl_cdf[t] - (t ? c->tl_cdf[t - 1] : 0.0f);
+                uint32_t k = c->tl_of[t];
+                double p_t = k == UINT32_MAX ? 0.0
+                                             : (double)(tl_cdf[k] - (k ? tl_cdf[k - 1] : 0.0f)) *
+                                                   c->tl_pc[t];
                 double pdf_sa = p_t / c->tl_area[t] * h->t * h->t / ce;
                 wt = 1.0 / (c->tl_samples * pdf_sa + N * pdf);
                 memcpy(L, c->tl_rad + 3 * (size_t)t, sizeof L);
                 tl_hit = 1;
+                tl_read = 1;
               }
             }
             if (!tl_hit)
@@ -903,8 +1120,9 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
             }
           }
         }
-        if (nee) {
-          /* Punctual light at the hit: its own estimator, weight 1/(N·pdf). */
+        if (nee && !(tl_read && c->tl_full)) {
+          /* Punctual light at the hit: its own estimator, weight 1/(N·pdf) (none when the
+           * texel light read holds it already). */
           double wn = 1.0 / (N * pdf) / wt;
           for (int ch = 0; ch < 3; ch++)
             L[ch] += (float)(nee[3 * ((size_t)i * N + j) + ch] * wn);
@@ -1035,10 +1253,23 @@ static void run_blocks(pass_ctx *c, int direct, int gather, const char *stage, d
     uint32_t nr = rs->active - r0 < per_set[s] ? rs->active - r0 : per_set[s];
     if (direct)
       direct_block(c, rs, r0, nr);
+    /* this block's texel-light tables per receiver group, NULL where they are off */
+    const float *tl[UB_TL_GROUPS] = {NULL};
+    float *tl_buf = NULL;
+    int tl_any = 0;
+    if (gather && c->bounce >= 1 && c->tl_on && rs->samples) {
+      tl_buf = malloc((size_t)UB_TL_GROUPS * c->tl_K * sizeof *tl_buf);
+      for (int g = 0; tl_buf && g < UB_TL_GROUPS; g++)
+        if (tl_block_table(c, rs, r0, nr, g, tl_buf + (size_t)g * c->tl_K)) {
+          tl[g] = tl_buf + (size_t)g * c->tl_K;
+          tl_any = 1;
+        }
+    }
     if (gather)
-      gather_block(c, rs, r0, nr);
-    if (gather && c->bounce >= 1 && c->tl_on && rs->samples)
-      texel_light_block(c, rs, r0, nr);
+      gather_block(c, rs, r0, nr, tl);
+    if (tl_any)
+      texel_light_block(c, rs, r0, nr, tl);
+    free(tl_buf);
     uint32_t done = atomic_fetch_add(&c->blocks_done, 1) + 1;
     if (omp_get_thread_num() == 0) {
       double f = (double)done / nblocks;
@@ -1371,13 +1602,15 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   /* Texel lights: an eighth of the gather rays (at least 4) toward bright texels. */
   c.tl_samples = N / 8 < 4 ? 4 : N / 8;
   c.tl_rad = malloc(((size_t)T * 3 + 1) * sizeof(float));
-  c.tl_cdf = malloc(((size_t)T + 1) * sizeof(float));
   c.tl_area = malloc(((size_t)T + 1) * sizeof(float));
-  if (c.tl_area)
+  int tl_ok = c.tl_area != NULL;
+  if (c.tl_area) {
     for (uint32_t t = 0; t < T; t++) {
       float w = texel_world_size(&c, t);
       c.tl_area[t] = w * w;
     }
+    tl_ok = texel_clusters_build(&c);
+  }
   for (uint32_t l = 0; l < s->light_count; l++)
     c.nee |= d->light_enabled[l] != 0;
   pr->count = P;
@@ -1432,7 +1665,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   c.img = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *c.img);
   c.emitter_of = malloc((size_t)(s->triangle_count ? s->triangle_count : 1) * sizeof(int32_t));
   int oom = !sh_total || !iz_total || !tx->acc_sh || !tx->acc_iz || !tx->acc_src ||
-            !c.tl_rad || !c.tl_cdf || !c.tl_area ||
+            !c.tl_rad || !tl_ok ||
             !tx->acc_src_np || !c.img ||
             !c.emitter_of || !pr->acc_sh || !probe_total || !out->texel_direct ||
             !out->texel_indirect || (d->keep_bounce_iz && !out->texel_bounce_iz) ||
@@ -1489,7 +1722,11 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     out->probe_direct[q] = (float)(M_PI * UB_Y0 * lum3d(pr->acc_sh + 27 * (size_t)q));
   /* With next-event estimation, bounce 1 reads only the non-punctual part of bounce 0. */
   build_images(&c, c.nee ? tx->acc_src_np : tx->acc_src);
-  texel_lights_build(&c, c.nee ? tx->acc_src_np : tx->acc_src);
+  /* Texel lights carry all of bounce 0, punctual light included: a small sunlit patch is
+   * the brightest source of bounce 1 and only they find it; a gather hit read as a texel
+   * light then takes no NEE of its own (tl_full), so nothing is counted twice. */
+  texel_lights_build(&c, tx->acc_src);
+  c.tl_full = c.nee;
   /* LLG probes likewise: bounce 1 reads their non-punctual bounce 0 when NEE is on. */
   for (uint32_t q = 0; q < LP; q++)
     out->llg_direct[q] = (float)(M_PI * UB_Y0 * lum3d(lg->acc_sh + 27 * (size_t)q));
@@ -1599,6 +1836,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     }
     build_images(&c, tx->acc_iz);
     texel_lights_build(&c, tx->acc_iz);
+    c.tl_full = 0;
     relative_variance(&c, tx->acc_iz, rel2);
     for (size_t i = 0; i < (size_t)LP * 27; i++)
       c.llg_prev[i] = (float)lg->acc_sh[i];
@@ -1701,8 +1939,13 @@ done:
   free(tx->acc_src);
   free(tx->acc_src_np);
   free(c.tl_rad);
-  free(c.tl_cdf);
   free(c.tl_area);
+  free(c.tl_pc);
+  free(c.tl_of);
+  free(c.tl_start);
+  free(c.tl_list);
+  free(c.tl_ccdf);
+  free(c.tl_cl);
   free(pr->acc_sh);
   free(probe_total);
   free(lg->acc_sh);

@@ -52,14 +52,7 @@ static inline void ub_bench_random_ray(const ub_scene *s, const ub_rt *rt, const
 {
   uint32_t h = ub_hash4(99, i, 0, 0);
   float u0 = ub_u01(h);
-  uint32_t lo = 0, hi = s->triangle_count - 1;
-  while (lo < hi) {
-    uint32_t mid = (lo + hi) / 2;
-    if (cdf[mid] > u0)
-      hi = mid;
-    else
-      lo = mid + 1;
-  }
+  uint32_t lo = ub_cdf_pick(cdf, s->triangle_count, u0);
   const float *a = s->positions + 3 * s->indices[3 * lo];
   const float *b = s->positions + 3 * s->indices[3 * lo + 1];
   const float *c = s->positions + 3 * s->indices[3 * lo + 2];

@@ -814,6 +814,27 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
         }
       }
       ub_rt_intersect(rt, rays, m * 4, hits);
+      /* A back face met at the segment's start (t within a few eps) is a face the segment
+       * leaves: P lies on its plane (a floor texel centred on the foot of a wall) and the
+       * sample is on its open side. Pulled back before that hit, the sample went to the
+       * far side, inside the wall, where its gather rays met only back faces (the floor
+       * edge texels of sunpatch at half their irradiance). Those segments are traced
+       * again from past the start; a front face met there is still an obstacle. */
+      uint32_t nre = 0;
+      for (uint32_t q = 0; q < m * 4; q++) {
+        const ub_hit *h = &hits[q];
+        float e = 4.0f * ub_rt_epsilon(rt, rays[q].org);
+        if (h->tri != UB_RT_MISS && h->t < rays[q].tfar && h->t <= e &&
+            f3_dot(h->ng, rays[q].dir) > 0.0f && e < rays[q].tfar) {
+          nb_rays[nre] = rays[q];
+          nb_rays[nre].tnear = e;
+          nb_of[nre++] = q;
+        }
+      }
+      if (nre) /* nb_rays holds UB_LM_FIX_CANDS ≥ 4 rays per texel */
+        ub_rt_intersect(rt, nb_rays, nre, nb_hits);
+      for (uint32_t q = 0; q < nre; q++)
+        hits[nb_of[q]] = nb_hits[q];
       for (uint32_t i = 0; i < m; i++) {
         uint32_t ti = t0 + i;
         const float *n = lm->texel_normal + 3 * (size_t)ti;

@@ -1,7 +1,10 @@
 /* `ubake sweep` on a small level (cornell, quick ladder, few points, low reference spp):
  * the CSV has its header, seconds never decrease along the gather-rays ladder, and the
  * error decreases within noise along it (last rung < first, no rung above 1.5× its
- * predecessor + 2%), at the reference points and against the converged bake.
+ * predecessor + 2%), at the lightmap reference points and against the converged bake. The
+ * all-points error (half of them GLG points, whose ~80% error on cornell is the probe
+ * spacing's, the same at every rung) only has to end below the first rung plus the
+ * reference's own noise (the CSV's ref_noise_points, ~3% at 4096 spp).
  * The sweep's output stays in UB_BUILD/test_out/sweep/ for inspection. */
 #include <stdio.h>
 #include <stdlib.h>
@@ -15,6 +18,7 @@
 typedef struct row {
   char setting[32], value[32];
   double seconds, core_seconds, rays, rmse_pts, max_pts, p95_pts, rmse_texels, rmse_lm;
+  double ref_noise;
 } row;
 
 /* Splits one CSV line in place; empty fields give NAN. */
@@ -46,12 +50,13 @@ static int parse_row(char *line, row *out)
   out->p95_pts = v[7];
   out->rmse_texels = v[8];
   out->rmse_lm = v[11];
+  out->ref_noise = v[13];
   return 1;
 }
 
-/* Error along a ladder: the last rung below the first, no rung above 1.5× + 0.02 of the
- * one before. */
-static void check_decreasing(const char *what, const double *e, int n)
+/* Error along a ladder: the last rung below the first (+ tol), no rung above 1.5× + 0.02
+ * of the one before. */
+static void check_decreasing(const char *what, const double *e, int n, double tol)
 {
   for (int i = 0; i < n; i++)
     ASSERT_TRUE(isfinite(e[i]) && e[i] >= 0.0);
@@ -60,9 +65,10 @@ static void check_decreasing(const char *what, const double *e, int n)
       fprintf(stderr, "%s: rung %d error %.4f > 1.5 x %.4f + 0.02\n", what, i, e[i], e[i - 1]);
     ASSERT_TRUE(e[i] <= 1.5 * e[i - 1] + 0.02);
   }
-  if (n >= 2 && !(e[n - 1] < e[0]))
-    fprintf(stderr, "%s: last rung error %.4f not below the first %.4f\n", what, e[n - 1], e[0]);
-  ASSERT_TRUE(n >= 2 && e[n - 1] < e[0]);
+  if (n >= 2 && !(e[n - 1] < e[0] + tol))
+    fprintf(stderr, "%s: last rung error %.4f not below the first %.4f + %.4f\n", what,
+            e[n - 1], e[0], tol);
+  ASSERT_TRUE(n >= 2 && e[n - 1] < e[0] + tol);
 }
 
 int main(void)
@@ -145,9 +151,11 @@ int main(void)
     ASSERT_TRUE(secs[i] >= 0.9 * secs[i - 1]);
     ASSERT_TRUE(rays[i] > rays[i - 1]);
   }
-  check_decreasing("points", pts, ng);
-  check_decreasing("lightmap points", lm, ng);
-  check_decreasing("texels", tex, ng);
+  double noise = rows[0].ref_noise;
+  ASSERT_TRUE(isfinite(noise) && noise > 0.0 && noise < 0.1);
+  check_decreasing("points", pts, ng, noise);
+  check_decreasing("lightmap points", lm, ng, 0.0);
+  check_decreasing("texels", tex, ng, 0.0);
 
   /* presets.md: the table header, one row per preset rung with the CSV's figures (wall
    * seconds and texel error as printed), then the line saying how they were measured. */

@@ -9,9 +9,10 @@
  * neighbouring 0.2 m texels there), and the corner's mean is within 25% of the reference
  * path tracer's (bake/reference.h) at 4 points of it. Also asserted: all finite, ≥ 0.
  *
- * KNOWN FAILURE (bake/pass.c, tests/hard/README.md): bounce 1 finds the bright patch only
- * by cosine gather rays; a wall texel in the corner sees it in ~4e-4 sr, so with 256 rays
- * ~2% of texels catch one hit (≈200 W/m², 50-600× their neighbours) and the rest miss it. */
+ * Was the known failure of bugs 5 and 9 (tests/hard/README.md): bounce 1 found the bright
+ * patch only by cosine gather rays (a corner wall texel sees it in ~4e-4 sr: with 256 rays
+ * ~2% of texels caught one hit, 50-600× their neighbours), and floor texels centred on a
+ * wall's foot kept half their sample points inside the wall. */
 #include "bake/reference.h"
 #include "bake/lights.h"
 #include "bake/rt.h"
