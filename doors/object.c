@@ -1035,13 +1035,25 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
       uint8_t *mb = ub_geom_mask(s, &gs);
       shown[a] = 0;
       uint8_t *mab = ub_geom_mask(s, &gs);
-      ub_rt *rt_b = NULL, *rt_ab = NULL;
+      ub_rt *rt_b = NULL, *rt_ab = NULL, *rt_b_env = NULL, *rt_ab_env = NULL;
       if (!mb || !mab)
         r = UB_ERR_OUT_OF_MEMORY;
       if (r == UB_OK)
         r = ub_rt_create(s, mb, log, &rt_b);
       if (r == UB_OK)
         r = ub_rt_create(s, mab, log, &rt_ab);
+      /* a's LLG probes (a has them when it is not itself an LLG model): the same two
+       * geometries without the LLG models, as for a's own record */
+      if (r == UB_OK && od[a].j.nkl) {
+        for (uint32_t n = 0; n < s->node_count; n++)
+          if (base->llg->node_model[n] >= 0) {
+            memset(mb + s->nodes[n].first_triangle, 0, s->nodes[n].triangle_count);
+            memset(mab + s->nodes[n].first_triangle, 0, s->nodes[n].triangle_count);
+          }
+        r = ub_rt_create(s, mb, log, &rt_b_env);
+        if (r == UB_OK)
+          r = ub_rt_create(s, mab, log, &rt_ab_env);
+      }
       free(mb);
       free(mab);
       for (size_t i = 0; i < (size_t)T * 3; i++)
@@ -1068,6 +1080,12 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
         jb.kp = od[a].j.kp;
         jb.nkt = od[a].j.nkt;
         jb.nkp = od[a].j.nkp;
+        if (rt_b_env && rt_ab_env) {
+          jb.rt_s_env = rt_b_env;
+          jb.rt_h_env = rt_ab_env;
+          jb.kl = od[a].j.kl;
+          jb.nkl = od[a].j.nkl;
+        }
         r = job_run(&jb);
         out_stats->rays += atomic_load(&jb.rays);
       }
@@ -1078,6 +1096,8 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
           jb.t_iz[i] = od[a].j.t_iz[i] - jb.t_iz[i];
         for (size_t i = 0; i < (size_t)jb.nkp * 27; i++)
           jb.p_sh[i] = od[a].j.p_sh[i] - jb.p_sh[i];
+        for (size_t i = 0; i < (size_t)jb.nkl * 27; i++)
+          jb.l_sh[i] = od[a].j.l_sh[i] - jb.l_sh[i];
         ub_bakefile_record rec;
         memset(&rec, 0, sizeof rec);
         snprintf(rec.name, sizeof rec.name, "%.30s*%.30s", s->object_names[a], s->object_names[b]);
@@ -1085,28 +1105,32 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
         rec.parent[0] = (int32_t)s->dls_count + od[a].elem;
         rec.parent[1] = (int32_t)s->dls_count + od[b].elem;
         uint32_t nkt = 0, nkp = 0;
-        r = make_record(&jb, jb.t_sh, jb.t_iz, jb.p_sh, base_res->iz, base_res->probe_sh, NULL,
-                        UB_OBJ_KEEP_COMBO, &rec, &nkt, &nkp);
+        r = make_record(&jb, jb.t_sh, jb.t_iz, jb.p_sh, base_res->iz, base_res->probe_sh,
+                        base_res->llg_sh, UB_OBJ_KEEP_COMBO, &rec, &nkt, &nkp);
         if (r == UB_OK)
           r = ub_records_append(io_elems, io_count, &rec, 1);
         if (r == UB_OK) {
           out_stats->pairs++;
           ub_log_printf(log, UB_LOG_INFO,
                         "  pair %s × %s: %u texels (%.1f%% of the region) in both shadows: correction "
-                        "over %u texels %u probes (record %u pixels)",
+                        "over %u texels %u probes %u of %u LLG probes (record %u pixels)",
                         s->object_names[a], s->object_names[b], both, 100.0 * share, nkt,
-                        nkp, rec.texel_count);
+                        nkp, rec.llg_probe_count, jb.nkl, rec.texel_count);
         } else {
           free(rec.texel_index);
           free(rec.texel_sh);
           free(rec.probe_index);
           free(rec.probe_sh);
+          free(rec.llg_probe_index);
+          free(rec.llg_probe_sh);
         }
         job_free(&jb);
       }
       field_free(&ls_b);
       ub_rt_free(rt_b);
       ub_rt_free(rt_ab);
+      ub_rt_free(rt_b_env);
+      ub_rt_free(rt_ab_env);
     }
   /* 3. set × object: S_set(shown) − S_set(hidden) where the set casts into the region */
   uint8_t *set_lights = calloc(s->light_count + 1, 1);
@@ -1138,6 +1162,24 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
     for (uint32_t i = 0; i < sr->probe_count; i++)
       memcpy(set_probe + 27 * (size_t)sr->probe_index[i], sr->probe_sh + 27 * (size_t)i,
              27 * sizeof(float));
+    /* LLG probes likewise: base + the set's LLG part, what the combination's threshold is
+     * relative to */
+    const ub_llg_set *llg = base->llg && base->llg->probe_count ? base->llg : NULL;
+    float *set_llg = NULL;
+    if (llg && base_res->llg_sh) {
+      size_t nl27 = (size_t)llg->probe_count * 27;
+      set_llg = malloc(nl27 * sizeof(float) + 1);
+      if (!set_llg) {
+        free(set_probe);
+        field_free(&ls_set);
+        r = UB_ERR_OUT_OF_MEMORY;
+        break;
+      }
+      memcpy(set_llg, base_res->llg_sh, nl27 * sizeof(float));
+      for (uint32_t i = 0; i < sr->llg_probe_count; i++)
+        for (int k = 0; k < 27; k++)
+          set_llg[27 * (size_t)sr->llg_probe_index[i] + k] += sr->llg_probe_sh[27 * (size_t)i + k];
+    }
     /* what a viewer sees there: base + the set (the combination's threshold is relative
      * to it, not to the set alone: 0.1% of a dim set is invisible) */
     for (size_t i = 0; i < (size_t)T * 3; i++)
@@ -1152,8 +1194,12 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
                0x1000u + 64u * ds + o);
       js.ref_sh = scratch_sh;
       js.ref_iz = scratch;
-      uint32_t *kt = NULL, *kp = NULL;
-      r = region(&js, &kt, &kp, NULL);
+      if (od[o].rt_h_env && set_llg) {
+        js.rt_s_env = llg->rt_env;
+        js.rt_h_env = od[o].rt_h_env;
+      }
+      uint32_t *kt = NULL, *kp = NULL, *kl = NULL;
+      r = region(&js, &kt, &kp, &kl);
       /* only receivers the set lights: its record covers them (or its lights cast
          through the box onto them) */
       double set_sum = 0.0;
@@ -1175,9 +1221,9 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
           rec.parent[0] = (int32_t)ds;
           rec.parent[1] = (int32_t)s->dls_count + od[o].elem;
           uint32_t nkt = 0, nkp = 0;
-          r = make_record(&js, js.t_sh, js.t_iz, js.p_sh, scratch2, set_probe, NULL, UB_OBJ_KEEP_COMBO,
-                          &rec, &nkt, &nkp);
-          int empty = r == UB_OK && nkt == 0 && nkp == 0;
+          r = make_record(&js, js.t_sh, js.t_iz, js.p_sh, scratch2, set_probe, set_llg,
+                          UB_OBJ_KEEP_COMBO, &rec, &nkt, &nkp);
+          int empty = r == UB_OK && nkt == 0 && nkp == 0 && rec.llg_probe_count == 0;
           if (r == UB_OK && !empty)
             r = ub_records_append(io_elems, io_count, &rec, 1);
           if (empty) {
@@ -1185,19 +1231,24 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
             free(rec.texel_sh);
             free(rec.probe_index);
             free(rec.probe_sh);
+            free(rec.llg_probe_index);
+            free(rec.llg_probe_sh);
             ub_log_printf(log, UB_LOG_INFO, "  set × object %s: nowhere > %.0f%% of the lighting: none",
                           rec.name, 100 * UB_OBJ_KEEP_COMBO);
           } else if (r == UB_OK) {
             out_stats->set_objects++;
             ub_log_printf(log, UB_LOG_INFO,
                           "  set × object %s: changes %.1f%% of the set's light in the region: "
-                          "%u texels %u probes (record %u pixels)",
-                          rec.name, 100.0 * dsum / set_sum, nkt, nkp, rec.texel_count);
+                          "%u texels %u probes %u of %u LLG probes (record %u pixels)",
+                          rec.name, 100.0 * dsum / set_sum, nkt, nkp, rec.llg_probe_count,
+                          js.nkl, rec.texel_count);
           } else {
             free(rec.texel_index);
             free(rec.texel_sh);
             free(rec.probe_index);
             free(rec.probe_sh);
+            free(rec.llg_probe_index);
+            free(rec.llg_probe_sh);
           }
         } else {
           ub_log_printf(log, UB_LOG_INFO, "  set × object %s*%s: changes nothing: none",
@@ -1207,8 +1258,10 @@ ub_result ub_object_bake(const ub_pass_desc *base, const ub_plan *plan,
       job_free(&js);
       free(kt);
       free(kp);
+      free(kl);
     }
     free(set_probe);
+    free(set_llg);
     field_free(&ls_set);
   }
   free(set_lights);
