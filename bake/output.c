@@ -277,8 +277,9 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
     fprintf(f, "%s{\"width\": %u, \"height\": %u, \"texels\": %u, \"generated\": %s}",
             a ? ", " : "", lm->atlases[a].width, lm->atlases[a].height,
             lm->atlases[a].texel_count, lm->atlases[a].generated ? "true" : "false");
-  fprintf(f, "], \"texels\": %u, \"backface_fixes\": %u, \"overlap_texels\": %u},\n",
-          lm->texel_count, lm->backface_fixes, lm->overlap_texels);
+  fprintf(f, "], \"texels\": %u, \"backface_fixes\": %u, \"overlap_texels\": %u, "
+          "\"separated_texel_pairs\": %u},\n",
+          lm->texel_count, lm->backface_fixes, lm->overlap_texels, lm->separated_links);
   fprintf(f, "  \"glg\": {\"probes\": %u, \"tets\": %u, \"leak_plane_tets\": %u, \"spacing\": %.4g},\n",
           st->glg_probes, st->glg_tets, st->glg_leak_tets, scene->glg_spacing);
   fprintf(f, "  \"llg\": {\"models\": %u, \"probes\": %u, \"invalid_probes\": %u, "
@@ -372,6 +373,15 @@ static ub_result encode_atlas(const ub_lightmap *lm, const ub_pass_result *base,
   }
   out->width = at->width;
   out->height = at->height;
+  if (at->link) {
+    out->link = malloc(npx + 1);
+    if (!out->link) {
+      free(img);
+      free(cov);
+      return UB_ERR_OUT_OF_MEMORY;
+    }
+    memcpy(out->link, at->link, npx);
+  }
   for (uint32_t i = 0; i < at->texel_count; i++) {
     uint32_t t = at->first_texel + i;
     size_t px = (size_t)lm->texel_xy[2 * t + 1] * at->width + lm->texel_xy[2 * t];
@@ -704,6 +714,7 @@ done:
       free(bf.atlases[a].sh);
       free(bf.atlases[a].normal);
       free(bf.atlases[a].coverage);
+      free(bf.atlases[a].link);
     }
   free(bf.atlases);
   free(bf.tri_albedo);

@@ -14,6 +14,7 @@
  *   5. back-face fix with short rays (see fix_samples()), then normal offsets.
  */
 #include "lightmaps/lm_internal.h"
+#include "runtime/texel_links.h"
 
 #include <float.h>
 #include <math.h>
@@ -868,6 +869,91 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
   return oom ? UINT64_MAX : fixes;
 }
 
+/* Texel links (runtime/texel_links.h): for every covered texel and its covered +x / +y
+ * neighbour in the atlas, a segment between the two texels' mean sample points, each
+ * lifted off its surface by 5% of their distance: blocked (a wall or a closed door leaf
+ * standing on the surface between them) sets the texel's UB_LINK_X / UB_LINK_Y bit.
+ * Returns the number of separated pairs, UINT64_MAX when out of memory. */
+static uint64_t texel_links(const ub_rt *rt, ub_lightmap *lm)
+{
+  uint64_t separated = 0;
+  int oom = 0;
+  for (uint32_t a = 0; a < lm->atlas_count; a++) {
+    ub_atlas *at = &lm->atlases[a];
+    at->link = calloc((size_t)at->width * at->height + 1, 1);
+    if (!at->link)
+      return UINT64_MAX;
+  }
+  uint32_t nchunks = (lm->texel_count + UB_LM_FIX_CHUNK - 1) / UB_LM_FIX_CHUNK;
+#pragma omp parallel reduction(+ : separated)
+  {
+    ub_ray *rays = malloc((size_t)UB_LM_FIX_CHUNK * 2 * sizeof *rays);
+    ub_hit *hits = malloc((size_t)UB_LM_FIX_CHUNK * 2 * sizeof *hits);
+    uint32_t *of = malloc((size_t)UB_LM_FIX_CHUNK * 2 * sizeof *of);
+    if (!rays || !hits || !of) {
+#pragma omp atomic write
+      oom = 1;
+    }
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t chunk = 0; chunk < (int64_t)nchunks; chunk++) {
+      int stop;
+#pragma omp atomic read
+      stop = oom;
+      if (stop)
+        continue;
+      uint32_t t0 = (uint32_t)chunk * UB_LM_FIX_CHUNK;
+      uint32_t t1 = t0 + UB_LM_FIX_CHUNK < lm->texel_count ? t0 + UB_LM_FIX_CHUNK : lm->texel_count;
+      uint32_t n = 0;
+      for (uint32_t t = t0; t < t1; t++) {
+        const ub_atlas *at = &lm->atlases[lm->texel_atlas[t]];
+        uint32_t x = lm->texel_xy[2 * (size_t)t], y = lm->texel_xy[2 * (size_t)t + 1];
+        for (int d = 0; d < 2; d++) {
+          uint32_t xx = x + (d == 0), yy = y + (d == 1);
+          if (xx >= at->width || yy >= at->height)
+            continue;
+          int32_t u = at->texel_of[(size_t)yy * at->width + xx];
+          if (u < 0)
+            continue;
+          float pa[3] = {0, 0, 0}, pb[3] = {0, 0, 0};
+          for (int j = 0; j < UB_TEXEL_SAMPLES; j++)
+            for (int k = 0; k < 3; k++) {
+              pa[k] += lm->sample_pos[((size_t)t * UB_TEXEL_SAMPLES + j) * 3 + k] / UB_TEXEL_SAMPLES;
+              pb[k] += lm->sample_pos[((size_t)u * UB_TEXEL_SAMPLES + j) * 3 + k] / UB_TEXEL_SAMPLES;
+            }
+          float dd[3] = {pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]};
+          float lift = 0.05f * sqrtf(f3_dot(dd, dd));
+          const float *na = lm->texel_normal + 3 * (size_t)t, *nb = lm->texel_normal + 3 * (size_t)u;
+          for (int k = 0; k < 3; k++) {
+            pa[k] += na[k] * lift;
+            pb[k] += nb[k] * lift;
+            dd[k] = pb[k] - pa[k];
+          }
+          float dir[3], len = unit3f(dd, dir);
+          if (len == 0.0f)
+            continue;
+          ray_setup(&rays[n], pa, dir, len);
+          of[n++] = (t - t0) * 2 + (uint32_t)d;
+        }
+      }
+      if (n)
+        ub_rt_intersect(rt, rays, n, hits);
+      for (uint32_t i = 0; i < n; i++) {
+        if (hits[i].tri == UB_RT_MISS || !(hits[i].t < rays[i].tfar))
+          continue;
+        uint32_t t = t0 + of[i] / 2;
+        ub_atlas *at = &lm->atlases[lm->texel_atlas[t]];
+        size_t px = (size_t)lm->texel_xy[2 * (size_t)t + 1] * at->width + lm->texel_xy[2 * (size_t)t];
+        at->link[px] |= (of[i] & 1) ? UB_LINK_Y : UB_LINK_X; /* one texel: one chunk */
+        separated++;
+      }
+    }
+    free(rays);
+    free(hits);
+    free(of);
+  }
+  return oom ? UINT64_MAX : separated;
+}
+
 /* ---------------------------------------------------------------------------------- */
 
 void ub_lightmap_free(ub_lightmap *lm)
@@ -875,8 +961,10 @@ void ub_lightmap_free(ub_lightmap *lm)
   if (!lm)
     return;
   if (lm->atlases)
-    for (uint32_t a = 0; a < lm->atlas_count; a++)
+    for (uint32_t a = 0; a < lm->atlas_count; a++) {
       free(lm->atlases[a].texel_of);
+      free(lm->atlases[a].link);
+    }
   free(lm->atlases);
   free(lm->tri_atlas);
   free(lm->tri_uv);
@@ -1219,6 +1307,12 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
       goto fail;
     }
     lm->backface_fixes = (uint32_t)(fixes > UINT32_MAX ? UINT32_MAX : fixes);
+    uint64_t sep = texel_links(rt, lm);
+    if (sep == UINT64_MAX) {
+      res = UB_ERR_OUT_OF_MEMORY;
+      goto fail;
+    }
+    lm->separated_links = (uint32_t)(sep > UINT32_MAX ? UINT32_MAX : sep);
   } else {
     /* No ray tracer: offset only, with the scene-scaled epsilon ub_rt would use. */
 #pragma omp parallel for schedule(static)
@@ -1246,10 +1340,10 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
                               lm->atlases[a].generated ? "g" : "a");
     ub_log_printf(log, UB_LOG_INFO,
                   "lightmap: %u atlases [%s], %u texels, %u authored + %u generated "
-                  "triangles in %u charts, %u backface fixes, %u overlap texels "
-                  "(charts %.3f s, raster %.3f s, fix %.3f s)",
+                  "triangles in %u charts, %u backface fixes, %u overlap texels, %u texel "
+                  "pairs separated by geometry (charts %.3f s, raster %.3f s, fix %.3f s)",
                   lm->atlas_count, sizes, lm->texel_count, n_auth, n_gen, g.chart_count,
-                  lm->backface_fixes, lm->overlap_texels, t_charts - t_start,
+                  lm->backface_fixes, lm->overlap_texels, lm->separated_links, t_charts - t_start,
                   t_raster - t_charts, t_end - t_raster);
   }
 

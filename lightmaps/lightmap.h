@@ -25,6 +25,9 @@ typedef struct ub_atlas {
   uint32_t first_texel;     /* texels of this atlas are [first_texel, first_texel+texel_count) */
   uint32_t texel_count;
   int32_t *texel_of;        /* width × height: index of the covered texel there, -1 = empty */
+  uint8_t *link;            /* width × height, or NULL: UB_LINK_X / UB_LINK_Y set where the
+                               texel is separated from its +x / +y neighbour by geometry
+                               (runtime/texel_links.h) */
 } ub_atlas;
 
 typedef struct ub_lightmap {
@@ -45,6 +48,7 @@ typedef struct ub_lightmap {
                                already off back faces; unused slots repeat earlier ones */
   uint32_t backface_fixes;  /* sample points moved off a back face */
   uint32_t overlap_texels;  /* texels claimed by triangles of different planes (warned) */
+  uint32_t separated_links; /* neighbour pairs separated by geometry (atlas link bits set) */
 
   /* Added by the lightmaps module: generated charts (for tests and debug views). */
   uint32_t chart_count;

@@ -4,6 +4,7 @@
 #include <string.h>
 
 #include "lightmaps/lightmap.h"
+#include "runtime/texel_links.h"
 
 void ub_lightmap_image_sample(const ub_lightmap *lm, const float *img, uint32_t atlas, float u,
                               float v, float out[3])
@@ -14,8 +15,12 @@ void ub_lightmap_image_sample(const ub_lightmap *lm, const float *img, uint32_t 
   float tx = x - fx, ty = y - fy;
   int x0 = (int)fx, y0 = (int)fy;
   double sum[3] = {0, 0, 0}, wsum = 0.0;
+  /* not across a wall standing between texels (runtime/texel_links.h) */
+  unsigned keep = ub_texel_links_keep(a->link, a->width, a->height, x0, y0, tx, ty);
   for (int j = 0; j < 2; j++)
     for (int i = 0; i < 2; i++) {
+      if (!(keep & (1u << (i + 2 * j))))
+        continue;
       int xi = x0 + i, yj = y0 + j;
       xi = xi < 0 ? 0 : (xi >= (int)a->width ? (int)a->width - 1 : xi);
       yj = yj < 0 ? 0 : (yj >= (int)a->height ? (int)a->height - 1 : yj);

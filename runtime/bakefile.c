@@ -21,6 +21,7 @@
 
 #include "runtime/crc32.h"
 #include "runtime/half.h"
+#include "runtime/texel_links.h"
 #include "runtime/texel_sh.h"
 
 #define UB_UBK_HEADER_SIZE 16u
@@ -44,9 +45,10 @@ static const uint8_t ub_ubk_magic[4] = {'U', 'B', 'K', 0};
 /* META, GEOM, ATLS are mandatory; GLGP (global light grid) and DLSR (dynamic light set
  * records) are optional: a reader without them still has the base lighting. */
 enum { UB_SEC_META = 0, UB_SEC_GEOM, UB_SEC_ATLS, UB_SEC_MANDATORY, UB_SEC_GLGP = UB_SEC_MANDATORY,
-       UB_SEC_DLSR, UB_SEC_LITE, UB_SEC_LLGM, UB_SEC_ELEM, UB_SEC_TRIR, UB_SEC_KNOWN };
+       UB_SEC_DLSR, UB_SEC_LITE, UB_SEC_LLGM, UB_SEC_ELEM, UB_SEC_TRIR, UB_SEC_TXLK,
+       UB_SEC_KNOWN };
 static const char ub_sec_tags[UB_SEC_KNOWN][5] = {"META", "GEOM", "ATLS", "GLGP", "DLSR", "LITE",
-                                                  "LLGM", "ELEM", "TRIR"};
+                                                  "LLGM", "ELEM", "TRIR", "TXLK"};
 #define UB_LLGM_MODEL_HEADER 144 /* name[64], centre, axes, half, dims, V, T */
 #define UB_LLGM_MODEL_HEADER_SHARED 184 /* + shared-from, rotation[9] (flags bit 0) */
 #define UB_LLGM_FLAG_SHARED 1u
@@ -460,6 +462,12 @@ static ub_result validate(const ub_bakefile *bf, const char *name, const ub_log 
       if (at->coverage[i] > 2) {
         ubk_error(log, name, "section ATLS", "atlas %u: texel (%zu, %zu): coverage %u not in "
                   "{0, 1, 2}", a, i % at->width, i / at->width, at->coverage[i]);
+        return UB_ERR_INVALID_DATA;
+      }
+    for (size_t i = 0; at->link && i < texels; i++)
+      if (at->link[i] > (UB_LINK_X | UB_LINK_Y)) {
+        ubk_error(log, name, "section TXLK", "atlas %u: texel (%zu, %zu): link %u not in [0, 3]",
+                  a, i % at->width, i / at->width, at->link[i]);
         return UB_ERR_INVALID_DATA;
       }
     if (!all_finite(at->sh, texels * UB_SH1_FLOATS, &bad)) {
@@ -943,6 +951,11 @@ ub_result ub_bakefile_write_ex(const ub_bakefile *bf, const char *path, const ub
     order[sections++] = UB_SEC_ELEM;
   if (bf->tri_role)
     order[sections++] = UB_SEC_TRIR;
+  int links = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++)
+    links |= bf->atlases[a].link != NULL;
+  if (links)
+    order[sections++] = UB_SEC_TXLK;
   size_t head_size = UB_UBK_HEADER_SIZE + (size_t)sections * UB_UBK_ENTRY_SIZE;
   wr_bytes(w, head, head_size, 0);
 
@@ -989,6 +1002,24 @@ ub_result ub_bakefile_write_ex(const ub_bakefile *bf, const char *path, const ub
     wr_zeros(w, (size_t)(align8(4u * (uint64_t)bf->triangle_count) -
                          4u * (uint64_t)bf->triangle_count), 1);
     wr_end(w, &sec[UB_SEC_TRIR]);
+  }
+  if (links) {
+    /* atlas count, reserved, then each atlas's W×H link bytes (0 where it has none) */
+    wr_begin(w, &sec[UB_SEC_TXLK], ub_sec_tags[UB_SEC_TXLK], 0);
+    wr_u32(w, bf->atlas_count);
+    wr_u32(w, 0);
+    uint64_t total = 0;
+    for (uint32_t a = 0; a < bf->atlas_count; a++) {
+      const ub_bakefile_atlas *at = &bf->atlases[a];
+      size_t npx = (size_t)at->width * at->height;
+      if (at->link)
+        wr_bytes(w, at->link, npx, 1);
+      else
+        wr_zeros(w, npx, 1);
+      total += npx;
+    }
+    wr_zeros(w, (size_t)(align8(total) - total), 1);
+    wr_end(w, &sec[UB_SEC_TXLK]);
   }
   wr_flush(w);
 
@@ -1511,6 +1542,42 @@ static ub_result parse_trir(const ubk_reader *rd, const uint8_t *p, uint64_t siz
   return UB_OK;
 }
 
+static ub_result parse_txlk(const ubk_reader *rd, const uint8_t *p, uint64_t size,
+                            ub_bakefile *bf)
+{
+  static const char *where = "section TXLK";
+  ubk_cursor c = {p, (size_t)size};
+  uint32_t n, reserved;
+  uint64_t total = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++)
+    total += (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
+  if (!cur_u32(&c, &n) || !cur_u32(&c, &reserved) || n != bf->atlas_count ||
+      8u + align8(total) != size) {
+    ubk_error(rd->log, rd->name, where, "size %llu does not match the %u atlases",
+              (unsigned long long)size, bf->atlas_count);
+    return UB_ERR_INVALID_DATA;
+  }
+  const uint8_t *q = p + 8;
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    ub_bakefile_atlas *at = &bf->atlases[a];
+    size_t npx = (size_t)at->width * at->height;
+    for (size_t i = 0; i < npx; i++)
+      if (q[i] > (UB_LINK_X | UB_LINK_Y)) {
+        ubk_error(rd->log, rd->name, where, "atlas %u: texel (%zu, %zu): link %u not in [0, 3]",
+                  a, i % at->width, i / at->width, q[i]);
+        return UB_ERR_INVALID_DATA;
+      }
+    at->link = malloc(npx + 1);
+    if (!at->link) {
+      ubk_error(rd->log, rd->name, where, "out of memory");
+      return UB_ERR_OUT_OF_MEMORY;
+    }
+    memcpy(at->link, q, npx);
+    q += npx;
+  }
+  return UB_OK;
+}
+
 static ub_result parse_llgm(const ubk_reader *rd, const uint8_t *p, uint64_t size,
                             ub_bakefile *bf)
 {
@@ -1772,6 +1839,8 @@ ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *nam
     r = parse_llgm(&rd, known[UB_SEC_LLGM], known_size[UB_SEC_LLGM], bf);
   if (r == UB_OK && known[UB_SEC_TRIR])
     r = parse_trir(&rd, known[UB_SEC_TRIR], known_size[UB_SEC_TRIR], bf);
+  if (r == UB_OK && known[UB_SEC_TXLK])
+    r = parse_txlk(&rd, known[UB_SEC_TXLK], known_size[UB_SEC_TXLK], bf);
   if (r == UB_OK)
     r = validate(bf, rd.name, log);
   if (r != UB_OK) {
@@ -1842,6 +1911,7 @@ void ub_bakefile_free(ub_bakefile *bf)
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     free(bf->atlases[a].sh);
     free(bf->atlases[a].coverage);
+    free(bf->atlases[a].link);
     free(bf->atlases[a].normal);
   }
   free(bf->atlases);

@@ -10,6 +10,7 @@
 
 #include "runtime/blend.h"
 #include "runtime/half.h"
+#include "runtime/texel_links.h"
 #include "runtime/texel_sh.h"
 #include "ubake/ahd.h"
 #include "ubake/sh.h"
@@ -1223,7 +1224,8 @@ static void closest_on_triangle(const double p[3], const double a[3], const doub
 /* Bilinear AHD lookup.                                                                */
 
 /* The AHD at lightmap uv: bilinear over the covered texels' SH and normals, encoded once.
- * Empty texels are left out and the weights renormalised; with all four empty, the
+ * Empty texels and texels separated from the nearest one by geometry (the .ubk's texel
+ * links) are left out and the weights renormalised; with all four empty, the
  * nearest non-empty texel within UB_RT_EMPTY_SEARCH_RADIUS is used. */
 static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub_ahd *out)
 {
@@ -1242,7 +1244,11 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
    * is off by up to 40% along the normal between texels that are each exact. */
   const int cur = rt->lm_cur != NULL;
   double sw = 0, sh[UB_SH1_FLOATS] = {0}, nn[3] = {0, 0, 0};
+  /* not across a wall or closed door standing between texels (runtime/texel_links.h) */
+  unsigned keep = ub_texel_links_keep(at->link, w, h, x0, y0, tx, ty);
   for (int k = 0; k < 4; k++) {
+    if (!(keep & (1u << k)))
+      continue;
     int64_t x = x0 + (k & 1), y = y0 + (k >> 1);
     x = x < 0 ? 0 : x >= w ? w - 1 : x;
     y = y < 0 ? 0 : y >= h ? h - 1 : y;

@@ -13,6 +13,7 @@
 
 #include "runtime/crc32.h"
 #include "runtime/half.h"
+#include "runtime/texel_links.h"
 #include "runtime/texel_sh.h"
 #include "test_util.h"
 #include "ubake/ahd.h"
@@ -378,6 +379,10 @@ static void compare(const ub_bakefile *a, const ub_bakefile *b)
     ASSERT_TRUE(x->width == y->width && x->height == y->height);
     size_t n = (size_t)x->width * x->height;
     ASSERT_TRUE(memcmp(x->coverage, y->coverage, n) == 0);
+    int link_diff = 0; /* no links = all zero (no separation) */
+    for (size_t t = 0; t < n; t++)
+      link_diff += (x->link ? x->link[t] : 0) != (y->link ? y->link[t] : 0);
+    ASSERT_TRUE(link_diff == 0);
     int bad = 0;
     /* SH storage (runtime/texel_sh.h): the linear band is stored as is (half precision);
      * where the texel has a normal, the DC term is carried by the irradiance along the
@@ -433,6 +438,48 @@ static int expect_reject(const uint8_t *data, size_t size)
   if (r == UB_OK)
     ub_bakefile_free(bf);
   return ok;
+}
+
+/* Texel links (section TXLK, runtime/texel_links.h): a round trip keeps them, a file
+ * without them reads back without them, the writer refuses a byte above 3, and the keep
+ * rule blends across open links only. */
+static void test_texel_links(void)
+{
+  ub_bakefile *bf = make_sample();
+  char p1[512];
+  path_in_tmp(p1, sizeof p1, "links.ubk");
+  capture cap = {{0}, 0};
+  ub_log log = {capture_fn, &cap};
+  ub_bakefile_atlas *at = &bf->atlases[0];
+  size_t n = (size_t)at->width * at->height;
+  at->link = malloc(n);
+  for (size_t i = 0; at->link && i < n; i++)
+    at->link[i] = (uint8_t)(i % 4);
+  ASSERT_OK(ub_bakefile_write(bf, p1, &log));
+  ub_bakefile *rd = NULL;
+  ASSERT_OK(ub_bakefile_read(p1, &log, &rd));
+  if (rd) {
+    compare(bf, rd);
+    for (uint32_t a = 1; a < rd->atlas_count; a++) /* written as zeros: no separation */
+      for (size_t i = 0; rd->atlases[a].link &&
+                         i < (size_t)rd->atlases[a].width * rd->atlases[a].height; i++)
+        ASSERT_TRUE(rd->atlases[a].link[i] == 0);
+  }
+  ub_bakefile_free(rd);
+  at->link[n / 2] = 4;
+  ASSERT_TRUE(ub_bakefile_write(bf, p1, &log) == UB_ERR_INVALID_DATA);
+  ASSERT_TRUE(cap.errors == 1 && strstr(cap.last, "section TXLK") != NULL);
+  ub_bakefile_free(bf);
+
+  /* 3 × 2 atlas; texel (0,0) separated from (1,0); (1,0) from (1,1) */
+  const uint8_t link[6] = {UB_LINK_X, UB_LINK_Y, 0, 0, 0, 0};
+  ASSERT_TRUE(ub_texel_links_keep(NULL, 3, 2, 0, 0, 0.3f, 0.3f) == 15u);
+  ASSERT_TRUE(ub_texel_links_keep(link, 3, 2, 0, 0, 0.3f, 0.3f) == (1u | 4u | 8u)); /* (0,0) via (0,1),(1,1) */
+  ASSERT_TRUE(ub_texel_links_keep(link, 3, 2, 0, 0, 0.7f, 0.3f) == 2u); /* (1,0): both cut */
+  ASSERT_TRUE(ub_texel_links_keep(link, 3, 2, 1, 0, 0.3f, 0.7f) == 15u); /* block at x 1..2 */
+  const uint8_t wall[6] = {UB_LINK_X, 0, 0, UB_LINK_X, 0, 0}; /* a wall between x 0 and 1 */
+  ASSERT_TRUE(ub_texel_links_keep(wall, 3, 2, 0, 0, 0.2f, 0.9f) == 5u);
+  ASSERT_TRUE(ub_texel_links_keep(wall, 3, 2, 0, 0, 0.8f, 0.1f) == 10u);
 }
 
 static void test_roundtrip_and_corruption(void)
@@ -1056,6 +1103,7 @@ int main(void)
   }
   test_crc_and_half();
   test_roundtrip_and_corruption();
+  test_texel_links();
   test_hostile();
   test_writer_errors();
   test_runtime();

@@ -35,6 +35,10 @@ typedef struct ub_bakefile_atlas {
   uint8_t *coverage;
   /* width × height × 3: unit surface normal per covered texel (0 elsewhere). */
   float *normal;
+  /* Section TXLK (NULL = none): width × height link bytes, UB_LINK_X / UB_LINK_Y
+   * (runtime/texel_links.h) set where the texel and its +x / +y neighbour are separated by
+   * geometry; lightmap lookups do not blend across them. */
+  uint8_t *link;
 } ub_bakefile_atlas;
 
 /* A dynamic element's sparse, linear record (section DLSR): what it adds to the base when
