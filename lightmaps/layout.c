@@ -605,6 +605,20 @@ static int outside_candidates(const ub_lightmap *lm, const lm_rtri *rtri, const 
   return cnt;
 }
 
+/* Work item `chunk` of the back-face fix and the texel links: texels [*t0, *t1) of
+ * count. 0 when a thread ran out of memory (the rest of the items are skipped). */
+static int fix_chunk(int *oom, int64_t chunk, uint32_t count, uint32_t *t0, uint32_t *t1)
+{
+  int stop;
+#pragma omp atomic read
+  stop = *oom;
+  if (stop)
+    return 0;
+  *t0 = (uint32_t)chunk * UB_LM_FIX_CHUNK;
+  *t1 = *t0 + UB_LM_FIX_CHUNK < count ? *t0 + UB_LM_FIX_CHUNK : count;
+  return 1;
+}
+
 static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
 {
   ub_lightmap *lm = o->lm;
@@ -635,13 +649,9 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
     }
 #pragma omp for schedule(dynamic, 1)
     for (int64_t chunk = 0; chunk < (int64_t)nchunks; chunk++) {
-      int stop;
-#pragma omp atomic read
-      stop = oom;
-      if (stop)
+      uint32_t t0, t1;
+      if (!fix_chunk(&oom, chunk, lm->texel_count, &t0, &t1))
         continue;
-      uint32_t t0 = (uint32_t)chunk * UB_LM_FIX_CHUNK;
-      uint32_t t1 = t0 + UB_LM_FIX_CHUNK < lm->texel_count ? t0 + UB_LM_FIX_CHUNK : lm->texel_count;
       uint32_t m = t1 - t0;
       for (uint32_t i = 0; i < m; i++) {
         uint32_t ti = t0 + i;
@@ -734,13 +744,9 @@ static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
     }
 #pragma omp for schedule(dynamic, 1)
     for (int64_t chunk = 0; chunk < (int64_t)nchunks; chunk++) {
-      int stop;
-#pragma omp atomic read
-      stop = oom;
-      if (stop)
+      uint32_t t0, t1;
+      if (!fix_chunk(&oom, chunk, lm->texel_count, &t0, &t1))
         continue;
-      uint32_t t0 = (uint32_t)chunk * UB_LM_FIX_CHUNK;
-      uint32_t t1 = t0 + UB_LM_FIX_CHUNK < lm->texel_count ? t0 + UB_LM_FIX_CHUNK : lm->texel_count;
       uint32_t m = t1 - t0;
       /* (a) rays from the candidates' centres to P. Those that meet a FRONT face before
        * P come from the chart's open side. If one of them meets the nearest back face's
@@ -896,13 +902,9 @@ static uint64_t texel_links(const ub_rt *rt, ub_lightmap *lm)
     }
 #pragma omp for schedule(dynamic, 1)
     for (int64_t chunk = 0; chunk < (int64_t)nchunks; chunk++) {
-      int stop;
-#pragma omp atomic read
-      stop = oom;
-      if (stop)
+      uint32_t t0, t1;
+      if (!fix_chunk(&oom, chunk, lm->texel_count, &t0, &t1))
         continue;
-      uint32_t t0 = (uint32_t)chunk * UB_LM_FIX_CHUNK;
-      uint32_t t1 = t0 + UB_LM_FIX_CHUNK < lm->texel_count ? t0 + UB_LM_FIX_CHUNK : lm->texel_count;
       uint32_t n = 0;
       for (uint32_t t = t0; t < t1; t++) {
         const ub_atlas *at = &lm->atlases[lm->texel_atlas[t]];

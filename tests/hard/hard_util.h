@@ -108,6 +108,46 @@ static inline ub_runtime *hard_bake(const char *gltf, const ub_bake_options *o, 
   return rt;
 }
 
+/* The reference path tracer (bake/reference.h) on a level: its scene, geometry and
+ * emitters, opened once per case. The including case includes bake/reference.h,
+ * bake/lights.h and bake/rt.h. */
+#ifdef UBAKE_BAKE_REFERENCE_H
+typedef struct hard_ref {
+  ub_scene *scene;
+  ub_rt *rt;
+  ub_emitters *em;
+} hard_ref;
+
+static inline int hard_ref_open(const char *gltf, hard_ref *r)
+{
+  memset(r, 0, sizeof *r);
+  return ub_scene_load(gltf, NULL, &r->scene) == UB_OK &&
+         ub_rt_create(r->scene, NULL, NULL, &r->rt) == UB_OK &&
+         ub_emitters_build(r->scene, &r->em) == UB_OK;
+}
+
+static inline void hard_ref_close(hard_ref *r)
+{
+  ub_emitters_free(r->em);
+  ub_rt_free(r->rt);
+  ub_scene_free(r->scene);
+  memset(r, 0, sizeof *r);
+}
+
+/* Irradiance at p with normal n, spp paths, seed: ref and its standard error se (RGB). */
+static inline int hard_ref_irradiance(const hard_ref *r, const float p[3], const float n[3],
+                                      uint32_t spp, uint32_t seed, float ref[3], float se[3])
+{
+  ub_reference_params rp;
+  ub_reference_params_init(&rp);
+  memcpy(rp.position, p, sizeof rp.position);
+  memcpy(rp.normal, n, sizeof rp.normal);
+  rp.spp = spp;
+  rp.seed = seed;
+  return ub_reference_irradiance(r->scene, r->rt, r->em, &rp, ref, se, NULL) == UB_OK;
+}
+#endif
+
 /* Non-finite floats anywhere in a loaded bake file. */
 static inline uint64_t hard_nonfinite(const ub_bakefile *bf)
 {

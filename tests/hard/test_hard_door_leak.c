@@ -61,22 +61,12 @@ int main(void)
       worst = fmax(worst, e / out);
     }
   printf("sunroom: 15 floor points 1-15 cm inside the closed leaf: worst %.3e of outside\n", worst);
-  ub_scene *scene = NULL;
-  ub_rt *trace = NULL;
-  ub_emitters *em = NULL;
-  ASSERT_OK(ub_scene_load(gltf, NULL, &scene));
-  ASSERT_OK(ub_rt_create(scene, NULL, NULL, &trace));
-  ASSERT_OK(ub_emitters_build(scene, &em));
+  hard_ref hr;
+  ASSERT_TRUE(hard_ref_open(gltf, &hr));
   const float zo[3] = {2.56f, 2.65f, 2.8f};
-  for (int k = 0; scene && trace && em && k < 3; k++) {
-    ub_reference_params rp;
-    ub_reference_params_init(&rp);
+  for (int k = 0; hr.em && k < 3; k++) {
     float p[3] = {0.0f, 0.01f, zo[k]}, n[3] = {0, 1, 0}, ref[3], se[3];
-    memcpy(rp.position, p, sizeof p);
-    memcpy(rp.normal, n, sizeof n);
-    rp.spp = 4096;
-    rp.seed = 51 + k;
-    ASSERT_OK(ub_reference_irradiance(scene, trace, em, &rp, ref, se, NULL));
+    ASSERT_TRUE(hard_ref_irradiance(&hr, p, n, 4096, 51 + (uint32_t)k, ref, se));
     double e = query(rt, 0.0f, 0.0f, zo[k]);
     printf("sunroom: ground outside the leaf (0, 0, %.2f): bake %.4g, reference %.4g +- %.2g "
            "(%+.1f%%)%s\n", zo[k], e, ref[1], se[1], 100.0 * (e - ref[1]) / ref[1],
@@ -84,9 +74,7 @@ int main(void)
     if (k > 0)
       ASSERT_TRUE(e > 0.9 * ref[1] - 3.0 * se[1]);
   }
-  ub_emitters_free(em);
-  ub_rt_free(trace);
-  ub_scene_free(scene);
+  hard_ref_close(&hr);
   ub_runtime_free(rt);
 
   /* 2. door_rooms: the shared wall and closed leaf centred on x = 0, 5 cm thick */

@@ -73,26 +73,16 @@ int main(void)
   double mean = n ? sum / n : 0.0;
 
   /* reference: the corner's irradiance at 4 points (floor, two walls, ceiling) */
-  ub_scene *scene = NULL;
-  ub_rt *trace = NULL;
-  ub_emitters *em = NULL;
-  ASSERT_OK(ub_scene_load(gltf, NULL, &scene));
-  ASSERT_OK(ub_rt_create(scene, NULL, NULL, &trace));
-  ASSERT_OK(ub_emitters_build(scene, &em));
+  hard_ref hr;
+  ASSERT_TRUE(hard_ref_open(gltf, &hr));
   struct { float p[3], n[3]; } pts[4] = {{{-1.5f, 0.0f, -1.5f}, {0, 1, 0}},
                                          {{-2.0f, 1.5f, -1.4f}, {1, 0, 0}},
                                          {{-1.4f, 1.5f, -2.0f}, {0, 0, 1}},
                                          {{-1.5f, 3.0f, -1.5f}, {0, -1, 0}}};
   double ref_sum = 0.0, bake_sum = 0.0;
   for (int i = 0; i < 4; i++) {
-    ub_reference_params rp;
-    ub_reference_params_init(&rp);
-    memcpy(rp.position, pts[i].p, sizeof rp.position);
-    memcpy(rp.normal, pts[i].n, sizeof rp.normal);
-    rp.spp = 65536;
-    rp.seed = 77 + i;
     float ref[3], se[3], q[3], d;
-    ASSERT_OK(ub_reference_irradiance(scene, trace, em, &rp, ref, se, NULL));
+    ASSERT_TRUE(hard_ref_irradiance(&hr, pts[i].p, pts[i].n, 65536, 77 + (uint32_t)i, ref, se));
     ASSERT_OK(ub_runtime_query_lightmap(rt, pts[i].p, pts[i].n, q, &d));
     printf("  corner point (%.1f %.1f %.1f): bake %.4g, reference %.4g ± %.2g\n", pts[i].p[0],
            pts[i].p[1], pts[i].p[2], q[1], ref[1], se[1]);
@@ -108,9 +98,7 @@ int main(void)
   ASSERT_TRUE(nonfinite == 0 && negative == 0);
   ASSERT_TRUE(ff == 0);
   ASSERT_NEAR(bake_sum, ref_sum, 0.0, 0.25);
-  ub_emitters_free(em);
-  ub_rt_free(trace);
-  ub_scene_free(scene);
+  hard_ref_close(&hr);
   ub_runtime_free(rt);
   TEST_MAIN_END();
 }

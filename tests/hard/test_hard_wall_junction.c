@@ -85,22 +85,12 @@ int main(void)
   ASSERT_TRUE(fails == 0);
 
   /* reference at one floor point 2 cm from each inner wall, and the open side */
-  ub_scene *scene = NULL;
-  ub_rt *trace = NULL;
-  ub_emitters *em = NULL;
-  ASSERT_OK(ub_scene_load(gltf, NULL, &scene));
-  ASSERT_OK(ub_rt_create(scene, NULL, NULL, &trace));
-  ASSERT_OK(ub_emitters_build(scene, &em));
+  hard_ref hr;
+  ASSERT_TRUE(hard_ref_open(gltf, &hr));
   for (int k = 0; k < 4; k++) {
     const pt *q = &pts[k * 30 + 2 * (1 * 3 + 1)]; /* along -1.4, 2 cm, floor */
-    ub_reference_params rp;
-    ub_reference_params_init(&rp);
-    memcpy(rp.position, q->p, sizeof rp.position);
-    memcpy(rp.normal, q->n, sizeof rp.normal);
-    rp.spp = 2048;
-    rp.seed = 11 + k;
     float ref[3], se[3], e[3];
-    ASSERT_OK(ub_reference_irradiance(scene, trace, em, &rp, ref, se, NULL));
+    ASSERT_TRUE(hard_ref_irradiance(&hr, q->p, q->n, 2048, 11 + (uint32_t)k, ref, se));
     ASSERT_OK(ub_runtime_query_lightmap(rt, q->p, q->n, e, &dd));
     printf("  %s wall, floor 2 cm off (%.2f %.2f %.2f): bake %.4g, reference %.4g +- %.2g\n",
            wname[k], q->p[0], q->p[1], q->p[2], e[1], ref[1], se[1]);
@@ -113,22 +103,14 @@ int main(void)
                 {{o2 + 0.05f, 0.0f, 1.0f}, {0, 1, 0}, "east +5 cm"},
                 {{o2 + 0.10f, 0.0f, 1.0f}, {0, 1, 0}, "east +10 cm"}};
   for (int i = 0; i < 4; i++) {
-    ub_reference_params rp;
-    ub_reference_params_init(&rp);
-    memcpy(rp.position, open[i].p, sizeof rp.position);
-    memcpy(rp.normal, open[i].n, sizeof rp.normal);
-    rp.spp = 4096;
-    rp.seed = 31 + i;
     float ref[3], se[3], e[3];
-    ASSERT_OK(ub_reference_irradiance(scene, trace, em, &rp, ref, se, NULL));
+    ASSERT_TRUE(hard_ref_irradiance(&hr, open[i].p, open[i].n, 4096, 31 + (uint32_t)i, ref, se));
     ASSERT_OK(ub_runtime_query_lightmap(rt, open[i].p, open[i].n, e, &dd));
     printf("  open ground %s: bake %.4g, reference %.4g +- %.2g (%+.1f%%)\n", open[i].what, e[1],
            ref[1], se[1], 100.0 * (e[1] - ref[1]) / ref[1]);
     ASSERT_TRUE(e[1] > 0.9f * ref[1] - 3.0f * se[1]);
   }
-  ub_emitters_free(em);
-  ub_rt_free(trace);
-  ub_scene_free(scene);
+  hard_ref_close(&hr);
   ub_runtime_free(rt);
   TEST_MAIN_END();
 }
