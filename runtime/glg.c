@@ -137,6 +137,11 @@ static int tet_bary_double(const ub_glg *g, uint32_t t, const float p[3], double
 /* Clamp to [0, 1] and renormalise; a zero sum gives the centroid. */
 static inline void bary_finish(float l[4])
 {
+  /* Inside (every λ in [0, 1]): already a partition of unity to rounding (λ0 = 1 − Σ), so
+   * no clamp and no division on the hot path of a moving object's queries. */
+  if (l[0] >= 0.0f && l[1] >= 0.0f && l[2] >= 0.0f && l[3] >= 0.0f && l[0] <= 1.0f &&
+      l[1] <= 1.0f && l[2] <= 1.0f && l[3] <= 1.0f)
+    return;
   float s = 0.0f;
   for (int i = 0; i < 4; i++) {
     float x = l[i];
@@ -701,22 +706,25 @@ static inline void leak_weights(const ub_glg *g, uint32_t t, const float p[3], f
   uint32_t pl = g->leak_plane_of ? g->leak_plane_of[t] : UB_GLG_NO_LEAK_PLANE;
   if (!g->corner_visible && pl == UB_GLG_NO_LEAK_PLANE)
     return;
+  unsigned drop = 0; /* bit i: corner i does not contribute */
+  if (pl != UB_GLG_NO_LEAK_PLANE && isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2])) {
+    const float *n = g->leak_planes + 4 * (size_t)pl;
+    float sp = n[0] * p[0] + n[1] * p[1] + n[2] * p[2] + n[3];
+    drop = (g->leak_drop[t] >> (sp >= 0.0f ? 0 : 4)) & 15u;
+  }
+  if (!drop && !g->corner_visible) /* nothing dropped: λ is already a partition of unity */
+    return;
   float vw[4] = {w[0], w[1], w[2], w[3]}, s = 0.0f;
-  if (g->corner_visible) {
+  if (g->corner_visible) { /* visibility weights 0..255 */
     const uint8_t *vis = g->corner_visible + 4 * (size_t)t;
     for (int i = 0; i < 4; i++)
       vw[i] *= (float)vis[i];
   }
-  if (pl != UB_GLG_NO_LEAK_PLANE && isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2])) {
-    const float *n = g->leak_planes + 4 * (size_t)pl;
-    float sp = n[0] * p[0] + n[1] * p[1] + n[2] * p[2] + n[3];
-    unsigned drop = g->leak_drop[t] >> (sp >= 0.0f ? 0 : 4);
-    for (int i = 0; i < 4; i++)
-      if (drop >> i & 1u)
-        vw[i] = 0.0f;
-  }
-  for (int i = 0; i < 4; i++)
+  for (int i = 0; i < 4; i++) {
+    if (drop >> i & 1u)
+      vw[i] = 0.0f;
     s += vw[i];
+  }
   if (s > 0.0f) {
     float inv = 1.0f / s;
     for (int i = 0; i < 4; i++)
@@ -830,8 +838,9 @@ static inline void interp4(const ub_glg *g, const uint32_t v[4], const float w[4
   interp4_sse(s0, s1, s2, s3, w, out);
 }
 
-/* Irradiance from interpolated SH (windowed here unless the probes were). */
-static void shade(const ub_glg *g, float sh[27], const float n[3], float out_rgb[3])
+/* Irradiance from interpolated SH (windowed here unless the probes were). sh holds 28
+ * floats (the 28th is read by the last 4-lane load and ignored). */
+static void shade(const ub_glg *g, float sh[28], const float n[3], float out_rgb[3])
 {
   if (!g->sh_windowed)
     ub_sh2_window(sh);
@@ -841,7 +850,8 @@ static void shade(const ub_glg *g, float sh[27], const float n[3], float out_rgb
       out_rgb[c] = fmaxf(0.0f, UB_SH_A0 * 0.282094792f * sh[c]);
     return;
   }
-  float inv = 1.0f / sqrtf(l2);
+  /* A unit normal (to 1e-6, below float's own normalisation error) is used as it is. */
+  float inv = l2 > 0.999999f && l2 < 1.000001f ? 1.0f : 1.0f / sqrtf(l2);
   float x = n[0] * inv, y = n[1] * inv, z = n[2] * inv;
   /* ub_sh2_irradiance inline: the band factor times the basis, then 9 × RGB products. */
   const float c[9] = {UB_SH_A0 * 0.282094791773878f,
@@ -853,12 +863,28 @@ static void shade(const ub_glg *g, float sh[27], const float n[3], float out_rgb
                       UB_SH_A2 * 0.315391565252520f * (3.0f * z * z - 1.0f),
                       UB_SH_A2 * 1.092548430592079f * x * z,
                       UB_SH_A2 * 0.546274215296040f * (x * x - y * y)};
+#if defined(__SSE2__)
+  /* RGB of coefficient k in lanes 0..2 of one load at 3k; three independent sums. */
+  __m128 a0 = _mm_mul_ps(_mm_set1_ps(c[0]), _mm_loadu_ps(sh));
+  __m128 a1 = _mm_mul_ps(_mm_set1_ps(c[1]), _mm_loadu_ps(sh + 3));
+  __m128 a2 = _mm_mul_ps(_mm_set1_ps(c[2]), _mm_loadu_ps(sh + 6));
+  a0 = _mm_add_ps(a0, _mm_mul_ps(_mm_set1_ps(c[3]), _mm_loadu_ps(sh + 9)));
+  a1 = _mm_add_ps(a1, _mm_mul_ps(_mm_set1_ps(c[4]), _mm_loadu_ps(sh + 12)));
+  a2 = _mm_add_ps(a2, _mm_mul_ps(_mm_set1_ps(c[5]), _mm_loadu_ps(sh + 15)));
+  a0 = _mm_add_ps(a0, _mm_mul_ps(_mm_set1_ps(c[6]), _mm_loadu_ps(sh + 18)));
+  a1 = _mm_add_ps(a1, _mm_mul_ps(_mm_set1_ps(c[7]), _mm_loadu_ps(sh + 21)));
+  a2 = _mm_add_ps(a2, _mm_mul_ps(_mm_set1_ps(c[8]), _mm_loadu_ps(sh + 24)));
+  float e[4];
+  _mm_storeu_ps(e, _mm_add_ps(_mm_add_ps(a0, a1), a2));
+  float e0 = e[0], e1 = e[1], e2 = e[2];
+#else
   float e0 = 0.0f, e1 = 0.0f, e2 = 0.0f;
   for (int k = 0; k < 9; k++) {
     e0 += c[k] * sh[3 * k];
     e1 += c[k] * sh[3 * k + 1];
     e2 += c[k] * sh[3 * k + 2];
   }
+#endif
   out_rgb[0] = e0 > 0.0f ? e0 : 0.0f;
   out_rgb[1] = e1 > 0.0f ? e1 : 0.0f;
   out_rgb[2] = e2 > 0.0f ? e2 : 0.0f;
@@ -888,7 +914,8 @@ void ub_glg_sample(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
 void ub_glg_query(const ub_glg *g, const float p[3], const float n[3],
                   uint32_t *inout_tet_cache, float out_rgb[3])
 {
-  float sh[27];
+  float sh[28];
+  sh[27] = 0.0f;
   ub_glg_sample(g, p, inout_tet_cache, sh);
   shade(g, sh, n, out_rgb);
 }
@@ -1005,7 +1032,8 @@ void ub_glg_query_batch(const ub_glg *g, uint32_t count, const float *points,
     /* 3: weights, interpolation, irradiance */
     for (uint32_t i = 0; i < nb; i++) {
       const float *p = points + 3 * (size_t)(b0 + i);
-      float sh[27];
+      float sh[28];
+      sh[27] = 0.0f;
       leak_weights(g, tet[i], p, bary[i]);
       interp4(g, g->tets + 4 * (size_t)tet[i], bary[i], sh);
       shade(g, sh, normals + 3 * (size_t)(b0 + i), out_rgb + 3 * (size_t)(b0 + i));
