@@ -130,9 +130,10 @@ static void ahd_encode_terms(const float a[3], const float b[3][3], const float 
   float blen = sqrtf(bl[0] * bl[0] + bl[1] * bl[1] + bl[2] * bl[2]);
   float d[3];
   if (blen > UB_AHD_DIR_REL_EPS * al && blen > 1e-30f) {
-    d[0] = bl[0] / blen;
-    d[1] = bl[1] / blen;
-    d[2] = bl[2] / blen;
+    float inv_blen = 1.0f / blen;
+    d[0] = bl[0] * inv_blen;
+    d[1] = bl[1] * inv_blen;
+    d[2] = bl[2] * inv_blen;
   } else {
     d[0] = n[0];
     d[1] = n[1];
@@ -146,6 +147,10 @@ static void ahd_encode_terms(const float a[3], const float b[3][3], const float 
     d[2] = n[2];
   }
 
+  /* one division each for the three channels (the run-time re-encodes every touched
+   * texel on an update) */
+  float inv_den = ambient_only ? 0.0f : 1.0f / (1.0f / 6.0f - 0.5f * dz + dz * dz);
+  float inv_dz = ambient_only ? 0.0f : 1.0f / dz;
   for (int c = 0; c < 3; c++) {
     float iz = iz_in ? iz_in[c] : a[c] + b[c][0] * n[0] + b[c][1] * n[1] + b[c][2] * n[2];
     if (!(iz > 0.0f))
@@ -158,14 +163,13 @@ static void ahd_encode_terms(const float a[3], const float b[3][3], const float 
       float beta = b[c][0] * d[0] + b[c][1] * d[1] + b[c][2] * d[2];
       float bn = b[c][0] * n[0] + b[c][1] * n[1] + b[c][2] * n[2];
       /* least squares over the sphere with I_z held exact (see the top comment) */
-      float cd0 = (beta * (1.0f / 6.0f) - bn * (0.25f - dz)) /
-                  (1.0f / 6.0f - 0.5f * dz + dz * dz);
+      float cd0 = (beta * (1.0f / 6.0f) - bn * (0.25f - dz)) * inv_den;
       if (!(cd0 > 0.0f))
         cd0 = 0.0f;
       ca = iz - cd0 * dz;
       if (ca < 0.0f)
         ca = 0.0f;
-      cd = (iz - ca) / dz; /* dz > guard: finite; 0 ≤ cd ≤ cd0 */
+      cd = (iz - ca) * inv_dz; /* dz > guard: finite; 0 ≤ cd ≤ cd0 (to rounding) */
       if (!(cd > 0.0f))
         cd = 0.0f;
     }

@@ -26,8 +26,9 @@ static inline int ub_texel_normal(const float n[3], float out[3])
   double l = sqrt((double)n[0] * n[0] + (double)n[1] * n[1] + (double)n[2] * n[2]);
   if (!(l >= UB_TEXEL_MIN_NORMAL_LENGTH))
     return 0;
+  double inv = 1.0 / l; /* one division (a run-time update calls this per touched texel) */
   for (int i = 0; i < 3; i++)
-    out[i] = (float)(n[i] / l);
+    out[i] = (float)(n[i] * inv);
   return 1;
 }
 
