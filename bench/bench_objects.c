@@ -4,7 +4,8 @@
  *  - storage: the .ubk vs the same file written without element records (paper Fig. 14);
  *  - run-time update: one object toggled, one set retinted, and every object and set
  *    changed at once, averaged over repetitions, one core.
- * Usage: bench_objects [LEVEL.gltf] [texel_size] (default build/levels/inn.gltf, 0.2);
+ * Usage: bench_objects [LEVEL.gltf] [texel_size] (default: build/levels/inn.gltf at 0.2 and
+ *        the 8 x 8 inn, generated with extra_barrels=4 sconces=6, at 0.25);
  *        bench_objects --ubk FILE.ubk [--repeat N]: the run-time part only, on a baked file
  *        (N × the repetitions, for a profiler). */
 #include <omp.h>
@@ -32,6 +33,7 @@ static long file_size(const char *p)
 }
 
 static int runtime_part(const char *ubk, int reps);
+static int bench_level(const char *level, float texel_size, const char *b);
 
 int main(int argc, char **argv)
 {
@@ -39,17 +41,38 @@ int main(int argc, char **argv)
     int rep = argc > 4 && !strcmp(argv[3], "--repeat") ? atoi(argv[4]) : 1;
     return runtime_part(argv[2], 50 * (rep > 0 ? rep : 1));
   }
-  const char *b = getenv("UB_BUILD");
-  char level[1024], dir[1024], plain[1200];
-  snprintf(level, sizeof level, "%s", argc > 1 ? argv[1] : "");
-  if (!level[0])
-    snprintf(level, sizeof level, "%s/levels/inn.gltf", b ? b : "build");
-  snprintf(dir, sizeof dir, "%s/bench_out/objects", b ? b : "build");
+  const char *b = getenv("UB_BUILD") ? getenv("UB_BUILD") : "build";
+  if (argc > 1)
+    return bench_level(argv[1], argc > 2 ? (float)atof(argv[2]) : 0.2f, b);
+  /* Default: inn (4 objects, 2 sets) and its 8 x 8 variant (issue 6's 8 lights x 8
+   * objects: 4 extra barrels, 6 sconces, each its own set), generated here. */
+  char level[1024], cmd[3000];
+  snprintf(level, sizeof level, "%s/levels/inn.gltf", b);
+  printf("== inn, 0.2 m texels\n");
+  if (bench_level(level, 0.2f, b))
+    return 1;
+  snprintf(cmd, sizeof cmd,
+           "'%s/ubake-genlevel' inn -o '%s/bench_out' --name inn8x8 --param extra_barrels=4 "
+           "--param sconces=6 > /dev/null", b, b);
+  if (system(cmd) != 0) {
+    fprintf(stderr, "bench_objects: could not generate the 8 x 8 inn (%s)\n", cmd);
+    return 1;
+  }
+  snprintf(level, sizeof level, "%s/bench_out/inn8x8.gltf", b);
+  printf("== inn 8 x 8 (8 objects, 8 sets), 0.25 m texels\n");
+  return bench_level(level, 0.25f, b);
+}
+
+/* Bakes one level at draft and prints bake time vs plain, storage and update times. */
+static int bench_level(const char *level, float texel_size, const char *b)
+{
+  char dir[1024], plain[1200];
+  snprintf(dir, sizeof dir, "%s/bench_out/objects", b);
   ub_bake_options o;
   ub_bake_options_default(&o);
   o.quality = UB_QUALITY_DRAFT;
   o.out_dir = dir;
-  o.texel_size = argc > 2 ? (float)atof(argv[2]) : 0.2f;
+  o.texel_size = texel_size;
   ub_bake_stats st;
   if (ub_bake_level(level, &o, NULL, &st) != UB_OK) {
     fprintf(stderr, "bench_objects: bake of %s failed\n", level);
