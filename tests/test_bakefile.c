@@ -1044,6 +1044,15 @@ static void write_corpus(const char *dir)
   snprintf(p, sizeof p, "%s/quad.ubk", dir);
   ASSERT_OK(ub_bakefile_write(bf, p, NULL));
   ub_bakefile_free(bf);
+  bf = make_sample(); /* with texel links (section TXLK) */
+  ub_bakefile_atlas *at = &bf->atlases[0];
+  size_t n = (size_t)at->width * at->height;
+  at->link = malloc(n);
+  for (size_t i = 0; at->link && i < n; i++)
+    at->link[i] = (uint8_t)(i % 4);
+  snprintf(p, sizeof p, "%s/links.ubk", dir);
+  ASSERT_OK(ub_bakefile_write(bf, p, NULL));
+  ub_bakefile_free(bf);
 }
 
 static void remove_tree(const char *dir)
