@@ -24,6 +24,11 @@
 #include <math.h>
 #include <stddef.h>
 
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <immintrin.h>
+#define AHD_HAVE_AVX 1
+#endif
+
 #define UB_SH_Y0 0.282094791773878f /* 1/(2√π) */
 #define UB_SH_Y1 0.488602511902920f /* √3/(2√π) */
 #define UB_PI 3.14159265358979f
@@ -179,6 +184,111 @@ static void ahd_encode_terms(const float a[3], const float b[3][3], const float 
   out_ahd->direction[0] = d[0];
   out_ahd->direction[1] = d[1];
   out_ahd->direction[2] = d[2];
+}
+
+#if defined(AHD_HAVE_AVX)
+/* ub_ahd_encode_iz on 8 texels in the lanes of AVX registers: every operation, its
+ * operands and their order as in the scalar code (IEEE single, no FMA), branches as
+ * blends, so each lane gives the scalar bits. */
+__attribute__((target("avx"))) static void encode_iz8_avx(const float *sh_iz,
+                                                          const float *nrm, ub_ahd *out)
+{
+  float t[15][8] __attribute__((aligned(32)));
+  for (int j = 0; j < 8; j++) {
+    for (int k = 0; k < 12; k++)
+      t[k][j] = sh_iz[12 * j + k];
+    for (int k = 0; k < 3; k++)
+      t[12 + k][j] = nrm[3 * j + k];
+  }
+  const __m256 zero = _mm256_setzero_ps(), inf = _mm256_set1_ps(INFINITY);
+  const __m256 absm = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
+#define AHD_ABS(x) _mm256_and_ps((x), absm)
+#define AHD_FIN(x) _mm256_and_ps((x), _mm256_cmp_ps(AHD_ABS(x), inf, _CMP_LT_OQ))
+#define AHD_DOT(a0, a1, a2, b0, b1, b2)                                                  \
+  _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(a0, b0), _mm256_mul_ps(a1, b1)),            \
+                _mm256_mul_ps(a2, b2))
+  const __m256 kb = _mm256_set1_ps((2.0f * UB_PI / 3.0f) * UB_SH_Y1);
+  __m256 n0 = _mm256_load_ps(t[12]), n1 = _mm256_load_ps(t[13]), n2 = _mm256_load_ps(t[14]);
+  __m256 a[3], b[3][3], iz[3];
+  for (int c = 0; c < 3; c++) {
+    b[c][0] = _mm256_mul_ps(kb, AHD_FIN(_mm256_load_ps(t[9 + c])));
+    b[c][1] = _mm256_mul_ps(kb, AHD_FIN(_mm256_load_ps(t[3 + c])));
+    b[c][2] = _mm256_mul_ps(kb, AHD_FIN(_mm256_load_ps(t[6 + c])));
+    iz[c] = AHD_FIN(_mm256_load_ps(t[c]));
+    a[c] = _mm256_sub_ps(iz[c], AHD_DOT(b[c][0], b[c][1], b[c][2], n0, n1, n2));
+  }
+  __m256 al = zero, bl[3] = {zero, zero, zero};
+  for (int c = 0; c < 3; c++) {
+    __m256 k = _mm256_set1_ps(k_lum[c]);
+    al = _mm256_add_ps(al, _mm256_mul_ps(k, AHD_ABS(a[c])));
+    for (int i = 0; i < 3; i++)
+      bl[i] = _mm256_add_ps(bl[i], _mm256_mul_ps(k, b[c][i]));
+  }
+  __m256 blen = _mm256_sqrt_ps(AHD_DOT(bl[0], bl[1], bl[2], bl[0], bl[1], bl[2]));
+  __m256 use_b = _mm256_and_ps(
+      _mm256_cmp_ps(blen, _mm256_mul_ps(_mm256_set1_ps(UB_AHD_DIR_REL_EPS), al), _CMP_GT_OQ),
+      _mm256_cmp_ps(blen, _mm256_set1_ps(1e-30f), _CMP_GT_OQ));
+  __m256 inv_blen = _mm256_div_ps(_mm256_set1_ps(1.0f), blen);
+  __m256 d0 = _mm256_blendv_ps(n0, _mm256_mul_ps(bl[0], inv_blen), use_b);
+  __m256 d1 = _mm256_blendv_ps(n1, _mm256_mul_ps(bl[1], inv_blen), use_b);
+  __m256 d2 = _mm256_blendv_ps(n2, _mm256_mul_ps(bl[2], inv_blen), use_b);
+  __m256 dz = AHD_DOT(d0, d1, d2, n0, n1, n2);
+  __m256 dir = _mm256_cmp_ps(dz, _mm256_set1_ps(UB_AHD_DZ_GUARD), _CMP_GT_OQ);
+  d0 = _mm256_blendv_ps(n0, d0, dir);
+  d1 = _mm256_blendv_ps(n1, d1, dir);
+  d2 = _mm256_blendv_ps(n2, d2, dir);
+  const __m256 one = _mm256_set1_ps(1.0f), sixth = _mm256_set1_ps(1.0f / 6.0f);
+  __m256 den = _mm256_add_ps(_mm256_sub_ps(sixth, _mm256_mul_ps(_mm256_set1_ps(0.5f), dz)),
+                             _mm256_mul_ps(dz, dz));
+  __m256 inv_den = _mm256_and_ps(_mm256_div_ps(one, den), dir);
+  __m256 inv_dz = _mm256_and_ps(_mm256_div_ps(one, dz), dir);
+  __m256 q = _mm256_sub_ps(_mm256_set1_ps(0.25f), dz);
+  float ca_o[3][8] __attribute__((aligned(32))), cd_o[3][8] __attribute__((aligned(32)));
+  float d_o[3][8] __attribute__((aligned(32)));
+  for (int c = 0; c < 3; c++) {
+    __m256 z = _mm256_and_ps(iz[c], _mm256_cmp_ps(iz[c], zero, _CMP_GT_OQ));
+    __m256 beta = AHD_DOT(b[c][0], b[c][1], b[c][2], d0, d1, d2);
+    __m256 bn = AHD_DOT(b[c][0], b[c][1], b[c][2], n0, n1, n2);
+    __m256 cd0 = _mm256_mul_ps(_mm256_sub_ps(_mm256_mul_ps(beta, sixth), _mm256_mul_ps(bn, q)),
+                               inv_den);
+    cd0 = _mm256_and_ps(cd0, _mm256_cmp_ps(cd0, zero, _CMP_GT_OQ));
+    __m256 ca = _mm256_sub_ps(z, _mm256_mul_ps(cd0, dz));
+    ca = _mm256_blendv_ps(ca, zero, _mm256_cmp_ps(ca, zero, _CMP_LT_OQ));
+    __m256 cd = _mm256_mul_ps(_mm256_sub_ps(z, ca), inv_dz);
+    cd = _mm256_and_ps(cd, _mm256_cmp_ps(cd, zero, _CMP_GT_OQ));
+    _mm256_store_ps(ca_o[c], _mm256_blendv_ps(z, ca, dir));
+    _mm256_store_ps(cd_o[c], _mm256_and_ps(cd, dir));
+  }
+  _mm256_store_ps(d_o[0], d0);
+  _mm256_store_ps(d_o[1], d1);
+  _mm256_store_ps(d_o[2], d2);
+#undef AHD_ABS
+#undef AHD_FIN
+#undef AHD_DOT
+  for (int j = 0; j < 8; j++)
+    for (int c = 0; c < 3; c++) {
+      out[j].ambient[c] = ca_o[c][j];
+      out[j].directional[c] = cd_o[c][j];
+      out[j].direction[c] = d_o[c][j];
+    }
+}
+#endif
+
+void ub_ahd_encode_iz8(const float *sh_iz, const float *unit_normals, ub_ahd *out_ahd)
+{
+#if defined(AHD_HAVE_AVX)
+  static int avx = -1; /* benign race: every thread computes the same value */
+  if (avx < 0) {
+    __builtin_cpu_init();
+    avx = __builtin_cpu_supports("avx") ? 1 : 0;
+  }
+  if (avx) {
+    encode_iz8_avx(sh_iz, unit_normals, out_ahd);
+    return;
+  }
+#endif
+  for (int j = 0; j < 8; j++)
+    ub_ahd_encode_iz(sh_iz + 12 * j, unit_normals + 3 * j, out_ahd + j);
 }
 
 void ub_ahd_irradiance(const ub_ahd *ahd, const float n[3], float out_rgb[3])

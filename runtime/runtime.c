@@ -277,16 +277,6 @@ static void encode_texel(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, 
   ub_ahd_encode(v, n, out);
 }
 
-/* AHD of atlas a's slots [first, first + count) from their current SH rows (I_z form). */
-static void encode_slots(const ub_runtime *rt, uint32_t a, uint64_t first, uint64_t count,
-                         const float *rows)
-{
-  const ub_bakefile_atlas *at = &rt->bf->atlases[a];
-  const uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
-  for (uint64_t s = first; s < first + count; s++, rows += UB_SH1_FLOATS)
-    encode_texel(at, &rt->fallback[a], rows, 1, sp[s], &rt->ahd[a][s]);
-}
-
 void ub_runtime_free(ub_runtime *rt)
 {
   if (!rt)
@@ -896,7 +886,52 @@ typedef struct touched_ctx {
   ub_runtime *rt;
   uint64_t texels;
   uint32_t atlas; /* atlas of the last piece */
+  /* texels with their own normal waiting to be encoded eight at a time (the blend hands
+   * over short pieces: runs of one group's slots) */
+  uint32_t np;
+  const float *prow[8]; /* their rows in lm_cur */
+  ub_ahd *pout[8];
+  float pn[24];
 } touched_ctx;
+
+/* Encodes the waiting texels (padded to eight lanes with copies of the first). */
+static void touched_flush(touched_ctx *tc)
+{
+  if (!tc->np)
+    return;
+  float rows8[8 * UB_SH1_FLOATS];
+  ub_ahd out8[8];
+  for (uint32_t j = 0; j < 8; j++) {
+    uint32_t k = j < tc->np ? j : 0;
+    memcpy(rows8 + j * UB_SH1_FLOATS, tc->prow[k], UB_SH1_FLOATS * sizeof(float));
+    if (k != j)
+      memcpy(tc->pn + 3 * j, tc->pn, 3 * sizeof(float));
+  }
+  ub_ahd_encode_iz8(rows8, tc->pn, out8);
+  for (uint32_t j = 0; j < tc->np; j++)
+    *tc->pout[j] = out8[j];
+  tc->np = 0;
+}
+
+/* AHD of atlas a's slots [first, first + count) from their current SH rows (I_z form, in
+ * lm_cur: they stay put until the flush). */
+static void encode_touched(touched_ctx *tc, uint32_t a, uint64_t first, uint64_t count,
+                           const float *rows)
+{
+  const ub_runtime *rt = tc->rt;
+  const ub_bakefile_atlas *at = &rt->bf->atlases[a];
+  const uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
+  for (uint64_t s = first; s < first + count; s++, rows += UB_SH1_FLOATS) {
+    if (!ub_texel_normal(&at->normal[(size_t)sp[s] * 3], tc->pn + 3 * tc->np)) {
+      encode_texel(at, &rt->fallback[a], rows, 1, sp[s], &rt->ahd[a][s]);
+      continue;
+    }
+    tc->prow[tc->np] = rows;
+    tc->pout[tc->np] = &rt->ahd[a][s];
+    if (++tc->np == 8)
+      touched_flush(tc);
+  }
+}
 
 /* Stores the rows the blend just computed for slots [first, first + count) (all touched,
  * so their lm_cur rows are consecutive) and re-encodes them to AHD (they may span
@@ -920,7 +955,7 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
     if (lo >= a1)
       continue;
     uint64_t s1 = hi < a1 ? hi : a1;
-    encode_slots(rt, a, lo - a0, s1 - lo, cur + (lo - first) * UB_SH1_FLOATS);
+    encode_touched(tc, a, lo - a0, s1 - lo, cur + (lo - first) * UB_SH1_FLOATS);
     tc->texels += s1 - lo;
     tc->atlas = a;
     lo = s1;
@@ -952,9 +987,12 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
   memset(&st, 0, sizeof st);
   double t0 = out_stats ? rt_now() : 0.0, t1 = t0, t2 = t0;
   if (rt->lm_blend) {
-    touched_ctx tc = {rt, 0, 0};
+    touched_ctx tc;
+    memset(&tc, 0, sizeof tc);
+    tc.rt = rt;
     ub_blend_stats bs;
     ub_blend_update(rt->lm_blend, lm_touched, &tc, NULL, &bs);
+    touched_flush(&tc);
     st.texels_written = bs.receivers;
     st.texels_reencoded = tc.texels;
     st.bytes_read += bs.bytes_read;

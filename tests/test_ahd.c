@@ -313,8 +313,61 @@ static void test_irradiance_quadrature(void)
   }
 }
 
+/* ub_ahd_encode_iz8 (AVX lanes) gives the bits of eight ub_ahd_encode_iz calls, on random
+ * texels and on the edge cases: negative and zero I_z, light from behind or grazing the
+ * surface (d·n at and around the guard), no linear band, NaN, ±Inf, −0, denormals. */
+static void test_encode_iz8_bits(void)
+{
+  static const float special[] = {0.0f, -0.0f, 1e-40f, -1e-40f, 1e-30f, 1e30f, -1.0f,
+                                  INFINITY, -INFINITY, NAN};
+  const int ns = (int)(sizeof special / sizeof special[0]);
+  int mismatches = 0, total = 0;
+  for (int round = 0; round < 4000; round++) {
+    float sh[96], n[24];
+    ub_ahd got[8], want[8];
+    for (int j = 0; j < 8; j++) {
+      rnd_dir(n + 3 * j);
+      double m;
+      random_sh(sh + 12 * j, &m);
+      int kind = (int)(rnd() * 6);
+      if (kind == 1) /* one coefficient replaced by a special value */
+        sh[12 * j + (int)(rnd() * 12)] = special[(int)(rnd() * ns)];
+      else if (kind == 2) /* light exactly along a direction at the guard from n */
+        for (int c = 0; c < 3; c++) {
+          float t[3], bb[3];
+          frame(n + 3 * j, t, bb);
+          float g = (float)(1e-2 * (0.5 + rnd())), h = sqrtf(1.0f - g * g);
+          sh[12 * j + 3 + c] = h * t[1] + g * n[3 * j + 1];
+          sh[12 * j + 6 + c] = h * t[2] + g * n[3 * j + 2];
+          sh[12 * j + 9 + c] = h * t[0] + g * n[3 * j + 0];
+        }
+      else if (kind == 3) /* no linear band */
+        for (int k = 3; k < 12; k++)
+          sh[12 * j + k] = 0.0f;
+      else if (kind == 4) /* a negative (delta) texel */
+        for (int k = 0; k < 12; k++)
+          sh[12 * j + k] = -sh[12 * j + k];
+    }
+    ub_ahd_encode_iz8(sh, n, got);
+    for (int j = 0; j < 8; j++) {
+      ub_ahd_encode_iz(sh + 12 * j, n + 3 * j, &want[j]);
+      total++;
+      if (memcmp(&got[j], &want[j], sizeof want[j]) != 0) {
+        if (mismatches++ < 3)
+          printf("encode_iz8 lane %d differs: ambient %.9g/%.9g dir %.9g/%.9g\n", j,
+                 got[j].ambient[0], want[j].ambient[0], got[j].direction[0],
+                 want[j].direction[0]);
+      }
+    }
+  }
+  printf("ub_ahd_encode_iz8: %d of %d texels differ from ub_ahd_encode_iz in any bit\n",
+         mismatches, total);
+  ASSERT_TRUE(mismatches == 0);
+}
+
 int main(void)
 {
+  test_encode_iz8_bits();
   test_irradiance_quadrature();
   test_edge_cases();
   test_encode_exact_and_bounded();

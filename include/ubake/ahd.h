@@ -28,6 +28,9 @@ void ub_ahd_encode(const float sh[12], const float normal[3], ub_ahd *out_ahd);
  * unit_normal per channel, in place of L00 (the run-time's packed texel form): no
  * unpacking, and I_z is kept as given. unit_normal must be unit length. */
 void ub_ahd_encode_iz(const float sh_iz[12], const float unit_normal[3], ub_ahd *out_ahd);
+/* Eight texels at once: sh_iz 8 × 12 floats, unit_normals 8 × 3, out 8 AHD; the same bits
+ * as eight ub_ahd_encode_iz calls (AVX when the CPU has it, else those calls). */
+void ub_ahd_encode_iz8(const float *sh_iz, const float *unit_normals, ub_ahd *out_ahd);
 /* Irradiance (W/m²) for any unit normal n'. */
 void ub_ahd_irradiance(const ub_ahd *ahd, const float n[3], float out_rgb[3]);
 /* Irradiance from the SH L1 directly (cosine convolution), W/m², never negative. */
