@@ -78,9 +78,15 @@ ub_result ub_glg_leak_build(const ub_rt *rt, uint32_t point_count, const float *
       memmove(plane_tmp + 4 * (size_t)np, plane_tmp + 4 * (size_t)t, 4 * sizeof(float));
       out->plane_of[t] = np++;
     }
-  out->planes = realloc(plane_tmp, ((size_t)np + 1) * 4 * sizeof(float));
-  if (!out->planes)
+  /* a fresh right-sized copy (not realloc: GCC's -Wuse-after-free flags the fallback to
+   * plane_tmp when a shrinking realloc fails) */
+  out->planes = malloc(((size_t)np + 1) * 4 * sizeof(float));
+  if (out->planes) {
+    memcpy(out->planes, plane_tmp, (size_t)np * 4 * sizeof(float));
+    free(plane_tmp);
+  } else {
     out->planes = plane_tmp;
+  }
   out->plane_count = np;
   out->rays = (uint64_t)tet_count * 12;
   return UB_OK;
