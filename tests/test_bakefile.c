@@ -443,18 +443,27 @@ static int expect_reject(const uint8_t *data, size_t size)
 /* Texel links (section TXLK, runtime/texel_links.h): a round trip keeps them, a file
  * without them reads back without them, the writer refuses a byte above 3, and the keep
  * rule blends across open links only. */
-static void test_texel_links(void)
+/* make_sample with texel links (section TXLK) in its first atlas: every link value 0..3. */
+static ub_bakefile *make_sample_links(void)
 {
   ub_bakefile *bf = make_sample();
+  ub_bakefile_atlas *at = &bf->atlases[0];
+  size_t n = (size_t)at->width * at->height;
+  at->link = malloc(n);
+  for (size_t i = 0; at->link && i < n; i++)
+    at->link[i] = (uint8_t)(i % 4);
+  return bf;
+}
+
+static void test_texel_links(void)
+{
+  ub_bakefile *bf = make_sample_links();
   char p1[512];
   path_in_tmp(p1, sizeof p1, "links.ubk");
   capture cap = {{0}, 0};
   ub_log log = {capture_fn, &cap};
   ub_bakefile_atlas *at = &bf->atlases[0];
   size_t n = (size_t)at->width * at->height;
-  at->link = malloc(n);
-  for (size_t i = 0; at->link && i < n; i++)
-    at->link[i] = (uint8_t)(i % 4);
   ASSERT_OK(ub_bakefile_write(bf, p1, &log));
   ub_bakefile *rd = NULL;
   ASSERT_OK(ub_bakefile_read(p1, &log, &rd));
@@ -1044,12 +1053,7 @@ static void write_corpus(const char *dir)
   snprintf(p, sizeof p, "%s/quad.ubk", dir);
   ASSERT_OK(ub_bakefile_write(bf, p, NULL));
   ub_bakefile_free(bf);
-  bf = make_sample(); /* with texel links (section TXLK) */
-  ub_bakefile_atlas *at = &bf->atlases[0];
-  size_t n = (size_t)at->width * at->height;
-  at->link = malloc(n);
-  for (size_t i = 0; at->link && i < n; i++)
-    at->link[i] = (uint8_t)(i % 4);
+  bf = make_sample_links();
   snprintf(p, sizeof p, "%s/links.ubk", dir);
   ASSERT_OK(ub_bakefile_write(bf, p, NULL));
   ub_bakefile_free(bf);

@@ -127,9 +127,7 @@ int main(int argc, char **argv)
   size_t T3 = (size_t)lm->texel_count * 3;
   float *iz_g = calloc(T3, sizeof(float)), *iz_c = calloc(T3, sizeof(float));
   float *iz_h = calloc(T3, sizeof(float)), *iz_1 = calloc(T3, sizeof(float));
-  ub_pass_desc pd_door = pd;
-  if (eb_)
-    pd_door.bounces = (int)max_b;
+  ub_pass_desc pd_door = pd; /* its bounces are set per variant below */
   ub_door_desc dd;
   memset(&dd, 0, sizeof dd);
   dd.base = &pd_door;
