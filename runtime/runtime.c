@@ -46,6 +46,10 @@ struct ub_runtime {
    * slot's index in either array: tch_rank (bitmap ranks over the global slots). */
   float *lm_base;          /* during setup: Σ slots × 12 */
   float *lm_cur;           /* touched slots × 12 */
+  float *lm_un;            /* touched slots × 3: the unit normal the AHD re-encode uses
+                              (ub_texel_normal of the stored one, made once at load: it
+                              was an eighth of a toggle), NaN first when the texel has
+                              none (the fallback's) */
   uint16_t *lm_static;     /* untouched slots × 12 */
   float lm_static_scale;
   uint64_t *tch_bits;      /* ⌈slots / 64⌉ words: the slot is touched */
@@ -314,6 +318,7 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt->llg_base);
   free(rt->lm_base);
   free(rt->lm_cur);
+  free(rt->lm_un);
   free(rt->lm_static);
   free(rt->tch_bits);
   free(rt->tch_rank);
@@ -559,11 +564,23 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     touched += (uint64_t)__builtin_popcountll(rt->tch_bits[w]);
   }
   rt->lm_cur = malloc((size_t)(touched ? touched : 1) * UB_SH1_FLOATS * sizeof(float));
+  rt->lm_un = malloc((size_t)(touched ? touched : 1) * 3 * sizeof(float));
   rt->lm_static = malloc((size_t)(slots - touched ? slots - touched : 1) * UB_SH1_FLOATS *
                          sizeof(uint16_t));
-  if (!rt->lm_cur || !rt->lm_static) {
+  if (!rt->lm_cur || !rt->lm_un || !rt->lm_static) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return UB_ERR_OUT_OF_MEMORY;
+  }
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    for (uint64_t sl = rt->slot_first[a]; sl < rt->slot_first[a + 1]; sl++) {
+      uint64_t ix;
+      if (!slot_touched(rt, sl, &ix))
+        continue;
+      float *un = rt->lm_un + 3 * ix;
+      if (!ub_texel_normal(&at->normal[(size_t)rt->slot_pixel[sl] * 3], un))
+        un[0] = un[1] = un[2] = NAN;
+    }
   }
   double smx = 0.0;
   for (uint64_t sl = 0; sl < slots; sl++) {
@@ -916,16 +933,17 @@ static void touched_flush(touched_ctx *tc)
 /* AHD of atlas a's slots [first, first + count) from their current SH rows (I_z form, in
  * lm_cur: they stay put until the flush). */
 static void encode_touched(touched_ctx *tc, uint32_t a, uint64_t first, uint64_t count,
-                           const float *rows)
+                           const float *rows, const float *un)
 {
   const ub_runtime *rt = tc->rt;
   const ub_bakefile_atlas *at = &rt->bf->atlases[a];
   const uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
-  for (uint64_t s = first; s < first + count; s++, rows += UB_SH1_FLOATS) {
-    if (!ub_texel_normal(&at->normal[(size_t)sp[s] * 3], tc->pn + 3 * tc->np)) {
+  for (uint64_t s = first; s < first + count; s++, rows += UB_SH1_FLOATS, un += 3) {
+    if (isnan(un[0])) {
       encode_texel(at, &rt->fallback[a], rows, 1, sp[s], &rt->ahd[a][s]);
       continue;
     }
+    memcpy(tc->pn + 3 * tc->np, un, 3 * sizeof(float));
     tc->prow[tc->np] = rows;
     tc->pout[tc->np] = &rt->ahd[a][s];
     if (++tc->np == 8)
@@ -955,7 +973,8 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
     if (lo >= a1)
       continue;
     uint64_t s1 = hi < a1 ? hi : a1;
-    encode_touched(tc, a, lo - a0, s1 - lo, cur + (lo - first) * UB_SH1_FLOATS);
+    encode_touched(tc, a, lo - a0, s1 - lo, cur + (lo - first) * UB_SH1_FLOATS,
+                   rt->lm_un + (t0 + (lo - first)) * 3);
     tc->texels += s1 - lo;
     tc->atlas = a;
     lo = s1;
@@ -1089,7 +1108,7 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
     size_t slots = (size_t)rt->slot_first[bf->atlas_count], words = (slots + 63) / 64, t = 0;
     for (size_t w = 0; w < words; w++)
       t += (size_t)__builtin_popcountll(rt->tch_bits[w]);
-    m.lightmap += t * UB_SH1_FLOATS * F + (slots - t) * UB_SH1_FLOATS * 2 + words * (8 + U);
+    m.lightmap += t * (UB_SH1_FLOATS + 3) * F + (slots - t) * UB_SH1_FLOATS * 2 + words * (8 + U);
   }
   for (uint32_t i = 0; i < bf->llg_count; i++) {
     const ub_bakefile_llg *g = &bf->llgs[i];
