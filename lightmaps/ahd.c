@@ -24,6 +24,8 @@
 #include <math.h>
 #include <stddef.h>
 
+#include "runtime/cpu.h"
+
 #if defined(__x86_64__) && defined(__GNUC__)
 #include <immintrin.h>
 #define AHD_HAVE_AVX 1
@@ -279,8 +281,7 @@ void ub_ahd_encode_iz8(const float *sh_iz, const float *unit_normals, ub_ahd *ou
 #if defined(AHD_HAVE_AVX)
   static int avx = -1; /* benign race: every thread computes the same value */
   if (avx < 0) {
-    __builtin_cpu_init();
-    avx = __builtin_cpu_supports("avx") ? 1 : 0;
+    avx = (ub_cpu_features() & UB_CPU_AVX) ? 1 : 0;
   }
   if (avx) {
     encode_iz8_avx(sh_iz, unit_normals, out_ahd);

@@ -7,6 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "runtime/cpu.h"
 #include "runtime/half.h"
 
 #if defined(__SSE2__)
@@ -17,7 +18,6 @@
 #endif
 /* Hardware half conversion (F16C), chosen at run time: GCC/clang on x86. */
 #if BLEND_SSE2 && defined(__GNUC__) && (defined(__x86_64__) || defined(__i386__))
-#include <cpuid.h>
 #include <immintrin.h>
 #define BLEND_F16C 1
 #else
@@ -155,19 +155,9 @@ __attribute__((target("avx,f16c"))) static void decode_f16c(const uint16_t *src,
 #endif
 
 #if BLEND_F16C
-/* CPUID: F16C and AVX, and the OS saves the AVX registers (OSXSAVE, XCR0 bits 1–2). */
 static int cpu_has_f16c(void)
 {
-  unsigned a, b, c, d;
-  if (!__get_cpuid(1, &a, &b, &c, &d))
-    return 0;
-  const unsigned need = (1u << 27) | (1u << 28) | (1u << 29); /* OSXSAVE, AVX, F16C */
-  if ((c & need) != need)
-    return 0;
-  unsigned lo, hi;
-  __asm__ volatile("xgetbv" : "=a"(lo), "=d"(hi) : "c"(0));
-  (void)hi;
-  return (lo & 6u) == 6u;
+  return (ub_cpu_features() & UB_CPU_F16C) != 0;
 }
 #endif
 

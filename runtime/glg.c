@@ -7,6 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "runtime/cpu.h"
 #include "runtime/half.h"
 #include "ubake/sh.h"
 
@@ -14,15 +15,8 @@
 #include <emmintrin.h>
 #endif
 #if defined(__x86_64__) && defined(__GNUC__)
-#include <cpuid.h>
 #include <immintrin.h>
 #define GLG_HAVE_AVX_PATH 1
-/* F16C from CPUID leaf 1 (ECX bit 29): clang's __builtin_cpu_supports has no "f16c". */
-static int cpu_has_f16c(void)
-{
-  unsigned a, b, c, d;
-  return __get_cpuid(1, &a, &b, &c, &d) && (c >> 29 & 1u);
-}
 #endif
 
 /* One cache line per walk step: λ1..3 = m·(p − o), λ0 = 1 − Σ; nb[i] ≥ 0 is the tet
@@ -1255,8 +1249,8 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
         return UB_ERR_INVALID_DATA;
       }
 #if defined(GLG_HAVE_AVX_PATH)
-  __builtin_cpu_init();
-  g->simd = __builtin_cpu_supports("avx") && (!d->sh_half || cpu_has_f16c());
+  unsigned cpu = ub_cpu_features();
+  g->simd = (cpu & UB_CPU_AVX) && (!d->sh_half || (cpu & UB_CPU_F16C));
 #endif
   g->tet_count = d->tet_count;
   g->tets = d->tets;

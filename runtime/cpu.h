@@ -1,0 +1,38 @@
+/* runtime/cpu.h — which SIMD paths this CPU and OS allow, from CPUID: AVX (with the OS
+ * saving the ymm registers: OSXSAVE and XCR0 bits 1–2) and F16C. One test for every
+ * run-time kernel that picks a path at run time (blend.c's half decode, glg.c's queries,
+ * lightmaps/ahd.c's 8-lane encoder); clang's __builtin_cpu_supports knows no "f16c".
+ * Cheap but not free (CPUID traps in some VMs): callers cache the answer.
+ */
+#ifndef UBAKE_RUNTIME_CPU_H
+#define UBAKE_RUNTIME_CPU_H
+
+#define UB_CPU_AVX 1u
+#define UB_CPU_F16C 2u /* only with UB_CPU_AVX (the conversions use ymm registers) */
+
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <cpuid.h>
+
+static inline unsigned ub_cpu_features(void)
+{
+  unsigned a, b, c, d;
+  if (!__get_cpuid(1, &a, &b, &c, &d))
+    return 0;
+  const unsigned need = (1u << 27) | (1u << 28); /* OSXSAVE, AVX */
+  if ((c & need) != need)
+    return 0;
+  unsigned lo, hi;
+  __asm__ volatile("xgetbv" : "=a"(lo), "=d"(hi) : "c"(0));
+  (void)hi;
+  if ((lo & 6u) != 6u)
+    return 0; /* the OS does not save xmm and ymm */
+  return UB_CPU_AVX | ((c >> 29 & 1u) ? UB_CPU_F16C : 0u);
+}
+#else
+static inline unsigned ub_cpu_features(void)
+{
+  return 0;
+}
+#endif
+
+#endif
