@@ -25,6 +25,7 @@
 
 #include "runtime/blend.h"
 #include "runtime/half.h"
+#include "bench/bench_util.h"
 
 #define NSETS 132
 #define MAX_OVERLAP 16
@@ -33,13 +34,6 @@
 static const char *rep_name[NREP] = {"lightmap texels", "LLG probes", "GLG probes"};
 static const uint32_t rep_count[NREP] = {2637824u, 50805u, 229725u};
 static const uint32_t rep_stride[NREP] = {12, 27, 27};
-
-static double now_s(void)
-{
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 static uint64_t rng_state = 0x9E3779B97F4A7C15ull;
 static double rnd(void)
@@ -227,14 +221,14 @@ static void bench_toggle(rep *reps, const dls *s, int others_on, double *out_med
         int on = others_on ? phase == 1 : phase == 0;
         float w[3] = {on ? s[e].tint[0] : 0.0f, on ? s[e].tint[1] : 0.0f,
                       on ? s[e].tint[2] : 0.0f};
-        double t0 = now_s(), bytes = 0.0;
+        double t0 = ub_bench_now(), bytes = 0.0;
         for (int ri = 0; ri < NREP; ri++) {
           ub_blend_stats st;
           ub_blend_set_weight(reps[ri].bh, (uint32_t)e, w);
           ub_blend_update(reps[ri].bh, NULL, NULL, reps[ri].out, &st);
           bytes += (double)(st.bytes_read + st.bytes_written);
         }
-        t[2 * e + phase][pass] = (now_s() - t0) * 1e3;
+        t[2 * e + phase][pass] = (ub_bench_now() - t0) * 1e3;
         by[2 * e + phase] = bytes;
       }
   for (int i = 0; i < NSETS * 2; i++) {
@@ -265,16 +259,16 @@ static void bench_all(rep *reps, int use_half, int runs, double *out_ms, double 
   memset(a, 1, n);
   memset(b, 2, n);
   for (int i = 0; i < runs; i++) {
-    double t0 = now_s();
+    double t0 = ub_bench_now();
     for (int ri = 0; ri < NREP; ri++) {
-      double t1 = now_s();
+      double t1 = ub_bench_now();
       ub_blend_update_all(use_half ? reps[ri].bh : reps[ri].bf, NULL, NULL, reps[ri].out, &st);
-      tr[ri][i] = (now_s() - t1) * 1e3;
+      tr[ri][i] = (ub_bench_now() - t1) * 1e3;
     }
-    t[i] = (now_s() - t0) * 1e3;
-    t0 = now_s();
+    t[i] = (ub_bench_now() - t0) * 1e3;
+    t0 = ub_bench_now();
     memcpy(i & 1 ? a : b, i & 1 ? b : a, n);
-    tm[i] = now_s() - t0;
+    tm[i] = ub_bench_now() - t0;
   }
   free(a);
   free(b);
@@ -301,9 +295,9 @@ static double bench_stream(rep *p, int runs, double *out_bytes)
   float sink = 0.0f;
   ub_blend_stats st;
   for (int i = 0; i < runs; i++) {
-    double t0 = now_s();
+    double t0 = ub_bench_now();
     ub_blend_update_all(p->bh, consume, &sink, NULL, &st);
-    t[i] = (now_s() - t0) * 1e3;
+    t[i] = (ub_bench_now() - t0) * 1e3;
   }
   *out_bytes = (double)(st.bytes_read + st.bytes_written);
   return minv(t, runs) + 0.0 * sink;
@@ -323,7 +317,7 @@ static double load_average(void)
 
 int main(void)
 {
-  double t0 = now_s();
+  double t0 = ub_bench_now();
   dls sets[NSETS];
   make_sets(sets);
   rep reps[NREP];
@@ -334,10 +328,10 @@ int main(void)
      * configuration); float records borrow the caller's base. */
     ub_blend_desc d = {rep_name[ri], reps[ri].n, reps[ri].stride, reps[ri].base,
                        UB_BLEND_FLOAT16, NSETS, reps[ri].rh, UB_BLEND_OWN_BASE};
-    double tc = now_s();
+    double tc = ub_bench_now();
     if (ub_blend_create(&d, &log, reps[ri].out, &reps[ri].bh) != UB_OK)
       return 1;
-    tc = now_s() - tc;
+    tc = ub_bench_now() - tc;
     d.storage = UB_BLEND_FLOAT32;
     d.elements = reps[ri].rf;
     d.flags = 0;
@@ -447,6 +441,6 @@ int main(void)
          (rt_state + touched_b + rec_h + eng_h + rt_texel + rt_glg_win) / MB);
   for (int ri = 0; ri < NREP; ri++)
     free_rep(&reps[ri]);
-  printf("bench_blend: %.1f s\n", now_s() - t0);
+  printf("bench_blend: %.1f s\n", ub_bench_now() - t0);
   return 0;
 }

@@ -20,13 +20,7 @@
 #include "doors/door.h"
 #include "lightmaps/lightmap.h"
 #include "ubake/scene.h"
-
-static double now_s(void)
-{
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
+#include "bench/bench_util.h"
 
 static double lum3(const float *v) { return 0.2126 * v[0] + 0.7152 * v[1] + 0.0722 * v[2]; }
 
@@ -84,10 +78,10 @@ int main(int argc, char **argv)
   pd.gather_rays = 64, pd.emissive_samples = 4, pd.shadow_samples = 1;
   pd.bounces = -1, pd.stop_fraction = 0.005, pd.seed = 1;
   ub_pass_result base;
-  double t0 = now_s();
+  double t0 = ub_bench_now();
   if (ub_pass_run(&pd, NULL, &base) != UB_OK)
     return 1;
-  double t_base = now_s() - t0;
+  double t_base = ub_bench_now() - t0;
   size_t T3 = (size_t)lm->texel_count * 3;
   float *conv = calloc(T3, sizeof(float)), *iz = calloc(T3, sizeof(float));
   ub_door_desc dd;

@@ -58,29 +58,6 @@ static void log_fn(void *user, ub_log_level level, const char *msg)
     printf("  %s\n", msg);
 }
 
-/* Runs ubake-genlevel estate; returns the number of sets it reports (-1 on failure). */
-static int generate(const char *build, const char *dir, const char *name, double scale,
-                    char **params, int nparams)
-{
-  char cmd[8192];
-  int n = snprintf(cmd, sizeof cmd, "'%s/ubake-genlevel' estate -o '%s' --name %s --param scale=%.17g",
-                   build, dir, name, scale);
-  for (int i = 0; i < nparams && n < (int)sizeof cmd - 512; i++)
-    n += snprintf(cmd + n, sizeof cmd - (size_t)n, " --param '%s'", params[i]);
-  FILE *p = popen(cmd, "r");
-  if (!p)
-    return -1;
-  char line[1024];
-  int sets = -1;
-  while (fgets(line, sizeof line, p)) {
-    printf("  %s", line);
-    const char *q = strstr(line, "doorways), ");
-    if (q)
-      sscanf(q, "doorways), %d sets", &sets);
-  }
-  return pclose(p) == 0 ? sets : -1;
-}
-
 static double stage_s(const ub_bake_stats *st, const char *name)
 {
   double s = 0.0;
@@ -184,7 +161,7 @@ int main(int argc, char **argv)
   } else {
     printf("bench_estate: scale %g, %d threads, load average %.1f\n", scale, threads,
            ub_bench_load_average());
-    int sets = generate(build, dir, name, scale, params, nparams);
+    int sets = ub_bench_genlevel(build, "estate", dir, name, scale, (const char *const *)params, nparams, 1);
     if (sets < 0) {
       fprintf(stderr, "bench_estate: generating %s failed\n", level);
       return 1;
@@ -402,7 +379,7 @@ int main(int argc, char **argv)
     snprintf(fname, sizeof fname, "estate_full");
     snprintf(flevel, sizeof flevel, "%s/%s.gltf", dir, fname);
     printf("full level (for the extrapolation):\n");
-    int fsets = generate(build, dir, fname, 1.0, params, nparams);
+    int fsets = ub_bench_genlevel(build, "estate", dir, fname, 1.0, (const char *const *)params, nparams, 1);
     ub_bake_options fo = o;
     fo.plan_only = 1;
     fo.texel_size = 0.0f; /* the full level at its own texel size */

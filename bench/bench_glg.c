@@ -24,6 +24,7 @@
 #include "ubake/glg.h"
 #include "ubake/runtime.h"
 #include "ubake/sh.h"
+#include "bench/bench_util.h"
 
 static int cmp_double(const void *a, const void *b)
 {
@@ -34,13 +35,6 @@ static double median(double *v, int n)
 {
   qsort(v, (size_t)n, sizeof *v, cmp_double);
   return v[n / 2];
-}
-
-static double now_s(void)
-{
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
 int main(int argc, char **argv)
@@ -158,7 +152,7 @@ int main(int argc, char **argv)
     float p[3] = {0.5f * (lo[0] + hi[0]), 0.5f * (lo[1] + hi[1]), 0.5f * (lo[2] + hi[2])};
     float v[3] = {0.0062f, 0.0041f, 0.0066f}; /* |v| ≈ 1 cm */
     cache = UB_GLG_NO_CACHE;
-    double t0 = now_s();
+    double t0 = ub_bench_now();
     for (uint32_t i = 0; i < N; i++) {
       for (int a = 0; a < 3; a++) {
         p[a] += v[a];
@@ -169,7 +163,7 @@ int main(int argc, char **argv)
       ub_glg_query(g, p, n, &cache, e);
       sink += e[1];
     }
-    coh_r[round] = N / (now_s() - t0);
+    coh_r[round] = N / (ub_bench_now() - t0);
     if (getenv("UB_BENCH_COHERENT_ONLY")) { /* for profiling the coherent path */
       rnd_r[round] = base_r[round] = bat_r[round] = half_r[round] = halfb_r[round] = 0.0;
       lat_r[round] = mc_r[round] = 0.0;
@@ -177,54 +171,54 @@ int main(int argc, char **argv)
     }
     /* Random points in the level's bounds, one cache. */
     cache = UB_GLG_NO_CACHE;
-    t0 = now_s();
+    t0 = ub_bench_now();
     for (uint32_t i = 0; i < M; i++) {
       float n[3] = {0, 1, 0}, e[3];
       ub_glg_query(g, pts + 3 * i, n, &cache, e);
       sink += e[1];
     }
-    rnd_r[round] = M / (now_s() - t0);
+    rnd_r[round] = M / (ub_bench_now() - t0);
     /* The same random points as one batch (no caches). */
-    t0 = now_s();
+    t0 = ub_bench_now();
     ub_glg_query_batch(g, M, pts, nrm, NULL, rgb);
-    bat_r[round] = M / (now_s() - t0);
+    bat_r[round] = M / (ub_bench_now() - t0);
     sink += rgb[1];
     /* Half SH: one by one (one cache) and batched. */
     cache = UB_GLG_NO_CACHE;
-    t0 = now_s();
+    t0 = ub_bench_now();
     for (uint32_t i = 0; i < M; i++) {
       float n[3] = {0, 1, 0}, e[3];
       ub_glg_query(&gh, pts + 3 * i, n, &cache, e);
       sink += e[1];
     }
-    half_r[round] = M / (now_s() - t0);
-    t0 = now_s();
+    half_r[round] = M / (ub_bench_now() - t0);
+    t0 = ub_bench_now();
     ub_glg_query_batch(&gh, M, pts, nrm, NULL, rgb);
-    halfb_r[round] = M / (now_s() - t0);
+    halfb_r[round] = M / (ub_bench_now() - t0);
     sink += rgb[1];
     /* Miss latency: 2M dependent reads. */
     {
       uint32_t at = 0;
       const uint32_t steps = 2000000;
-      t0 = now_s();
+      t0 = ub_bench_now();
       for (uint32_t i = 0; i < steps; i++)
         at = chase[16 * (size_t)at];
-      lat_r[round] = (now_s() - t0) / steps;
+      lat_r[round] = (ub_bench_now() - t0) / steps;
       sink += at;
     }
-    t0 = now_s();
+    t0 = ub_bench_now();
     memcpy(mc_b, mc_a, mc_bytes);
-    mc_r[round] = mc_bytes / (now_s() - t0);
+    mc_r[round] = mc_bytes / (ub_bench_now() - t0);
     sink += mc_b[round];
     /* Baseline: SH irradiance alone over probe SH (no location, no interpolation). */
-    t0 = now_s();
+    t0 = ub_bench_now();
     for (uint32_t i = 0, q = 0; i < N; i++) {
       float e[3], n[3] = {0, 1, 0};
       ub_sh2_irradiance(bf->glg_sh + 27 * (size_t)q, n, e);
       q = q + 1 == bf->glg_probe_count ? 0 : q + 1;
       sink += e[1];
     }
-    base_r[round] = N / (now_s() - t0);
+    base_r[round] = N / (ub_bench_now() - t0);
   }
   double coherent = median(coh_r, ROUNDS), random = median(rnd_r, ROUNDS),
          baseline = median(base_r, ROUNDS), batch = median(bat_r, ROUNDS),
@@ -253,20 +247,20 @@ int main(int argc, char **argv)
     const float *raw = ub_runtime_glg_probe_sh(rt, 0);
     float sh[27];
     uint32_t np = bf->glg_probe_count;
-    double t0 = now_s();
+    double t0 = ub_bench_now();
     for (uint32_t q = 0; q < np; q++) {
       memcpy(sh, raw + 27 * (size_t)q, sizeof sh);
       win_count += ub_sh2_window(sh) != 0;
       sink += sh[3];
     }
-    win_fast = (now_s() - t0) / np;
-    t0 = now_s();
+    win_fast = (ub_bench_now() - t0) / np;
+    t0 = ub_bench_now();
     for (uint32_t q = 0; q < np; q++) {
       memcpy(sh, raw + 27 * (size_t)q, sizeof sh);
       ub_sh2_window_reference(sh);
       sink += sh[3];
     }
-    win_ref = (now_s() - t0) / np;
+    win_ref = (ub_bench_now() - t0) / np;
   }
   /* The coherent walk's locate statistics (one pass of the same path). */
   double csteps = 0.0, cgrid = 0.0, cnew = 0.0;
@@ -395,9 +389,9 @@ int main(int argc, char **argv)
             memcpy(before, ub_runtime_glg_probe_sh(rs, 0), (size_t)np * 27 * sizeof *before);
             ub_runtime_set_dls(rs, e, w);
             ub_runtime_update_stats us;
-            double t0 = now_s();
+            double t0 = ub_bench_now();
             ub_runtime_update(rs, &us);
-            t_upd += now_s() - t0;
+            t_upd += ub_bench_now() - t0;
             /* the touched probes are those whose raw SH changed */
             const float *cur = ub_runtime_glg_probe_sh(rs, 0);
             for (uint32_t q = 0; q < np; q++) {
@@ -405,13 +399,13 @@ int main(int argc, char **argv)
                 continue;
               probes++;
               memcpy(sh, cur + 27 * (size_t)q, sizeof sh);
-              t0 = now_s();
+              t0 = ub_bench_now();
               ub_sh2_window(sh);
-              t_fast += now_s() - t0;
+              t_fast += ub_bench_now() - t0;
               memcpy(sh, cur + 27 * (size_t)q, sizeof sh);
-              t0 = now_s();
+              t0 = ub_bench_now();
               ub_sh2_window_reference(sh);
-              t_ref += now_s() - t0;
+              t_ref += ub_bench_now() - t0;
               sink += sh[3];
             }
           }

@@ -15,16 +15,10 @@
 #include <sys/stat.h>
 #include <time.h>
 
+#include "bench/bench_util.h"
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
 #include "ubake/runtime.h"
-
-static double now_s(void)
-{
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 static long file_size(const char *p)
 {
@@ -46,16 +40,16 @@ int main(int argc, char **argv)
     return bench_level(argv[1], argc > 2 ? (float)atof(argv[2]) : 0.2f, b);
   /* Default: inn (4 objects, 2 sets) and its 8 x 8 variant (issue 6's 8 lights x 8
    * objects: 4 extra barrels, 6 sconces, each its own set), generated here. */
-  char level[1024], cmd[3000];
+  char level[1024];
   snprintf(level, sizeof level, "%s/levels/inn.gltf", b);
   printf("== inn, 0.2 m texels\n");
   if (bench_level(level, 0.2f, b))
     return 1;
-  snprintf(cmd, sizeof cmd,
-           "'%s/ubake-genlevel' inn -o '%s/bench_out' --name inn8x8 --param extra_barrels=4 "
-           "--param sconces=6 > /dev/null", b, b);
-  if (system(cmd) != 0) {
-    fprintf(stderr, "bench_objects: could not generate the 8 x 8 inn (%s)\n", cmd);
+  char out[1100];
+  snprintf(out, sizeof out, "%s/bench_out", b);
+  const char *inn8[] = {"extra_barrels=4", "sconces=6"};
+  if (ub_bench_genlevel(b, "inn", out, "inn8x8", 0.0, inn8, 2, 0) < 0) {
+    fprintf(stderr, "bench_objects: could not generate the 8 x 8 inn\n");
     return 1;
   }
   snprintf(level, sizeof level, "%s/bench_out/inn8x8.gltf", b);
@@ -128,34 +122,34 @@ static int runtime_part(const char *ubk, const int reps)
   for (uint32_t e = 0; e < ub_runtime_element_count(rt); e++)
     if (ub_runtime_element_kind(rt, e) == UB_ELEMENT_OBJECT && obj < 0)
       obj = (int32_t)e;
-  t0 = now_s();
+  t0 = ub_bench_now();
   for (int i = 0; i < reps; i++)
     ub_runtime_update(rt, NULL);
-  double idle = (now_s() - t0) / reps;
+  double idle = (ub_bench_now() - t0) / reps;
   uint64_t written = 0;
-  t0 = now_s();
+  t0 = ub_bench_now();
   for (int i = 0; i < reps; i++) {
     ub_runtime_update_stats us;
     ub_runtime_set_element(rt, (uint32_t)obj, (float)(i & 1 ? 1.0 : 0.0));
     ub_runtime_update(rt, &us);
     written += us.texels_written;
   }
-  double one_obj = (now_s() - t0) / reps;
-  t0 = now_s();
+  double one_obj = (ub_bench_now() - t0) / reps;
+  t0 = ub_bench_now();
   for (int i = 0; i < reps; i++) {
     ub_runtime_set_element(rt, (uint32_t)obj, (float)(i & 1 ? 1.0 : 0.0));
     ub_runtime_update(rt, NULL);
   }
-  double one = (now_s() - t0) / reps;
-  t0 = now_s();
+  double one = (ub_bench_now() - t0) / reps;
+  t0 = ub_bench_now();
   for (int i = 0; i < reps; i++) {
     float tint[3] = {0.2f + 0.01f * (i & 7), 0.4f, 1.0f};
     ub_runtime_set_dls(rt, 0, tint);
     ub_runtime_update(rt, NULL);
   }
-  double set = (now_s() - t0) / reps;
+  double set = (ub_bench_now() - t0) / reps;
   uint32_t nel = ub_runtime_element_count(rt), nd = ub_runtime_dls_count(rt), nobjs = 0;
-  t0 = now_s();
+  t0 = ub_bench_now();
   for (int i = 0; i < reps; i++) {
     for (uint32_t e = 0; e < nel; e++)
       if (ub_runtime_element_kind(rt, e) == UB_ELEMENT_OBJECT) {
@@ -168,7 +162,7 @@ static int runtime_part(const char *ubk, const int reps)
     }
     ub_runtime_update(rt, NULL);
   }
-  double all = (now_s() - t0) / reps;
+  double all = (ub_bench_now() - t0) / reps;
   printf("update (1 core): nothing changed %.3f ms; one object %.3f ms (%.0f texels written)\n",
          idle * 1e3, one_obj * 1e3, (double)written / reps);
   printf("update (1 core): one object %.3f ms, one set %.3f ms, all %u objects + %u sets at once "

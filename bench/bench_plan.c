@@ -11,6 +11,7 @@
 #include <string.h>
 #include <dirent.h>
 
+#include "bench/bench_util.h"
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
 #include "ubake/runtime.h"
@@ -90,12 +91,9 @@ int main(int argc, char **argv)
       }
     }
     if (estate_scale > 0) {
-      char cmd[4096];
-      snprintf(cmd, sizeof cmd,
-               "'%s/ubake-genlevel' estate -o '%s/bench_out' --name estate_plan "
-               "--param scale=%.17g > /dev/null",
-               build, build, estate_scale);
-      if (system(cmd) == 0)
+      char out[4096];
+      snprintf(out, sizeof out, "%s/bench_out", build);
+      if (ub_bench_genlevel(build, "estate", out, "estate_plan", estate_scale, NULL, 0, 0) >= 0)
         snprintf(def[nd++], sizeof def[0], "%s/bench_out/estate_plan.gltf", build);
       else
         fprintf(stderr, "bench_plan: could not generate the ESTATE-scale level\n");

@@ -7,7 +7,8 @@
  *   through the same Embree wrapper the baker uses, on all OpenMP threads — so a bake's
  *   rays/s can be compared with what the machine does on that scene in the same run;
  * - ub_bench_rss_kb(): current resident set size (VmRSS), for memory deltas;
- * - ub_bench_load_average(): 1-minute load average (the machine is shared).
+ * - ub_bench_load_average(): 1-minute load average (the machine is shared);
+ * - ub_bench_genlevel(): runs ubake-genlevel for a generated benchmark level.
  * Benchmarks print figures and assert nothing. */
 #ifndef UBAKE_BENCH_UTIL_H
 #define UBAKE_BENCH_UTIL_H
@@ -158,6 +159,39 @@ static inline double ub_bench_load_average(void)
     fclose(f);
   }
   return l;
+}
+
+/* Runs `BUILD/ubake-genlevel KIND -o DIR --name NAME --param scale=S (when S > 0)
+ * --param P...`; echo: its output indented on stdout (else dropped). Returns the number of
+ * dynamic light sets it reports ("…, N sets"; 0 when it names none), −1 when it fails. */
+static inline int ub_bench_genlevel(const char *build, const char *kind, const char *dir,
+                                    const char *name, double scale, const char *const *params,
+                                    int nparams, int echo)
+{
+  char cmd[8192];
+  int n = snprintf(cmd, sizeof cmd, "'%s/ubake-genlevel' %s -o '%s' --name %s", build, kind,
+                   dir, name);
+  if (scale > 0.0)
+    n += snprintf(cmd + n, sizeof cmd - (size_t)n, " --param scale=%.17g", scale);
+  for (int i = 0; i < nparams && n < (int)sizeof cmd - 512; i++)
+    n += snprintf(cmd + n, sizeof cmd - (size_t)n, " --param '%s'", params[i]);
+  FILE *p = popen(cmd, "r");
+  if (!p)
+    return -1;
+  char line[1024];
+  int sets = 0;
+  while (fgets(line, sizeof line, p)) {
+    if (echo)
+      printf("  %s", line);
+    const char *q = strstr(line, "doorways), ");
+    if (q)
+      sscanf(q, "doorways), %d sets", &sets);
+  }
+  if (pclose(p) != 0) {
+    fprintf(stderr, "bench: %s failed\n", cmd);
+    return -1;
+  }
+  return sets;
 }
 
 #endif
