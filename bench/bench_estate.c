@@ -37,10 +37,13 @@
 #include "ubake/scene.h"
 
 /* Log sink: stage lines ("[name] ...") go to stdout; the influence/full split of the DLS
- * stage is kept for the extrapolation. */
+ * stage and the plan's reach bound per set (the share of the texels a set's influence
+ * pass may visit), summed over the sets, are kept for the extrapolation. */
 typedef struct bake_log {
   int echo;
   double inf_rays, inf_s, full_rays, full_s;
+  double reach_sum; /* Σ over sets of the reach bound's share of the texels (0..1) */
+  int reach_sets;
 } bake_log;
 
 static void log_fn(void *user, ub_log_level level, const char *msg)
@@ -54,6 +57,13 @@ static void log_fn(void *user, ub_log_level level, const char *msg)
   if (!strncmp(msg, "[dls", 4) && p)
     sscanf(p, "influence %lf M rays %lf s, full %lf M rays %lf s", &bl->inf_rays, &bl->inf_s,
            &bl->full_rays, &bl->full_s);
+  const char *rb = strstr(msg, "(influence-culled; reach bound ");
+  double pct;
+  if (!strncmp(msg, "  pass dls ", 11) && rb &&
+      sscanf(rb, "(influence-culled; reach bound %lf%%", &pct) == 1) {
+    bl->reach_sum += pct / 100.0;
+    bl->reach_sets++;
+  }
   if (bl->echo && msg[0] == '[')
     printf("  %s\n", msg);
 }
@@ -148,7 +158,7 @@ int main(int argc, char **argv)
   double t0 = ub_bench_now();
   ub_bake_stats st;
   memset(&st, 0, sizeof st);
-  bake_log bl = {1, 0, 0, 0, 0};
+  bake_log bl = {1, 0, 0, 0, 0, 0, 0};
   ub_bake_options o;
   ub_bake_options_default(&o);
   long long ubk = -1;
@@ -384,7 +394,7 @@ int main(int argc, char **argv)
     fo.plan_only = 1;
     fo.texel_size = 0.0f; /* the full level at its own texel size */
     ub_bake_stats fs;
-    bake_log fbl = {0, 0, 0, 0, 0};
+    bake_log fbl = {0, 0, 0, 0, 0, 0, 0};
     ub_log flog = {log_fn, &fbl};
     if (fsets < 0 || ub_bake_level(flevel, &fo, &flog, &fs) != UB_OK) {
       fprintf(stderr, "bench_estate: plan of the full level failed; no extrapolation\n");
@@ -392,8 +402,7 @@ int main(int argc, char **argv)
       double R = (double)st.texels + st.glg_probes, Rf = (double)fs.texels + fs.glg_probes;
       double kr = Rf / R;
       /* Stages up to the plan: measured on the full level. Base pass, LLG self term, leak
-       * and write: proportional to receivers. Influence: every set over every receiver.
-       * Full set passes: proportional to what the sets keep (records): the hall's sets
+       * and write: proportional to receivers. Influence: below. Full set passes: proportional to what the sets keep (records): the hall's sets
        * as measured, the room sets at their mean record times the full count. */
       double pre = stage_s(&fs, "load") + stage_s(&fs, "rays") + stage_s(&fs, "receivers") +
                    stage_s(&fs, "probes") + stage_s(&fs, "llg") + stage_s(&fs, "plan");
@@ -401,15 +410,28 @@ int main(int argc, char **argv)
                      stage_s(&st, "write")) * kr;
       uint32_t nroom = bf->dls_count - nhall, nroom_f = (uint32_t)(fsets - (int)nhall);
       double rec_f = hall_sum + (nroom ? room_sum / nroom : 0.0) * nroom_f;
-      double inf_f = bl.inf_s * ((double)fsets * Rf) / ((double)bf->dls_count * R);
+      /* Influence passes visit the receivers inside each set's reach bound (dls.c), which
+       * the plan traces and prints for both levels (the full level's plan ran above):
+       * scaled by Σ_sets reach share × receivers. Upper bound: every set over every
+       * receiver (what it would cost without the reach bound). */
+      double inf_all = bl.inf_s * ((double)fsets * Rf) / ((double)bf->dls_count * R);
+      int have_reach = bl.reach_sets > 0 && fbl.reach_sets > 0 && bl.reach_sum > 0.0;
+      double inf_f = have_reach ? bl.inf_s * (fbl.reach_sum * Rf) / (bl.reach_sum * R) : inf_all;
       double full_f = bl.full_s * rec_f / (rec_sum + 1e-30);
       double base_f = pre + post;
       printf("extrapolated to full scale (%u texels + %u GLG probes = %.1fx, %d sets, records "
              "%.0f MB):\n", fs.texels, fs.glg_probes, kr, fsets, rec_f / 1048576.0);
+      if (have_reach)
+        printf("  reach bounds (the plans'): mean %.1f%% of the texels per set here, %.1f%% at "
+               "full scale; sets x receivers inside them x%.1f\n",
+               100.0 * bl.reach_sum / bl.reach_sets, 100.0 * fbl.reach_sum / fbl.reach_sets,
+               (fbl.reach_sum * Rf) / (bl.reach_sum * R));
       printf("  bake without sets %.0f s (stages to the plan %.0f s measured; passes x%.1f), "
-             "sets' influence %.0f s (x sets x receivers), sets' full passes %.0f s (x record "
-             "bytes): with sets %.0f s = %.1fx (paper: 10 -> 33 min fast on 18 cores)\n",
-             base_f, pre, kr, inf_f, full_f, base_f + inf_f + full_f,
+             "sets' influence %.0f s (x sets x receivers %s; %.0f s if every set saw every "
+             "receiver), sets' full passes %.0f s (x record bytes): with sets %.0f s = %.1fx "
+             "(paper: 10 -> 33 min fast on 18 cores)\n",
+             base_f, pre, kr, inf_f, have_reach ? "inside the reach bounds" : "(no reach bounds "
+             "in the plans)", inf_all, full_f, base_f + inf_f + full_f,
              (base_f + inf_f + full_f) / (base_f + 1e-30));
       printf("  run-time: one set toggled ~ as measured (a set's record does not grow with the "
              "level); all sets changed ~%.1f ms at the measured GB/s; records %.0f MB\n",
