@@ -2,6 +2,7 @@
 #include "bake/dls.h"
 
 #include "probes/llg.h"
+#include "runtime/texel_links.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -405,6 +406,109 @@ int ub_dls_reach_point(const ub_dls_reach *r, const float p[3])
   return r->unbounded || reach_near(r, p) != 0;
 }
 
+/* World size of texel t (its larger footprint edge), 0 when unknown. */
+static float texel_size_world(const ub_scene *s, const ub_lightmap *lm, uint32_t t)
+{
+  float o[3], a[3], b[3];
+  if (!ub_lightmap_texel_point(s, lm, t, 0.0f, 0.0f, o) ||
+      !ub_lightmap_texel_point(s, lm, t, 1.0f, 0.0f, a) ||
+      !ub_lightmap_texel_point(s, lm, t, 0.0f, 1.0f, b))
+    return 0.0f;
+  float da = 0.0f, db = 0.0f;
+  for (int k = 0; k < 3; k++) {
+    da += (a[k] - o[k]) * (a[k] - o[k]);
+    db += (b[k] - o[k]) * (b[k] - o[k]);
+  }
+  return sqrtf(fmaxf(da, db));
+}
+
+/* Whether texel u may take texel g's bounce light in a sparse influence pass: atlas
+ * neighbours (dx, dy ∈ {0, 1}, edge-adjacent) not separated by geometry (link bits), on
+ * the same surface (normals within ~18°, centres within 2 texels). */
+static int donor_ok(const ub_scene *s, const ub_lightmap *lm, uint32_t u, uint32_t g)
+{
+  const float *nu = lm->texel_normal + 3 * (size_t)u, *ng = lm->texel_normal + 3 * (size_t)g;
+  if (nu[0] * ng[0] + nu[1] * ng[1] + nu[2] * ng[2] < 0.95f)
+    return 0;
+  const float *pu = lm->texel_pos + 3 * (size_t)u, *pg = lm->texel_pos + 3 * (size_t)g;
+  float d2 = 0.0f;
+  for (int k = 0; k < 3; k++)
+    d2 += (pu[k] - pg[k]) * (pu[k] - pg[k]);
+  float w = texel_size_world(s, lm, g);
+  if (!(w > 0.0f) || !(d2 <= 4.0f * w * w))
+    return 0;
+  const ub_atlas *at = &lm->atlases[lm->texel_atlas[u]];
+  if (!at->link)
+    return 1;
+  uint32_t xu = lm->texel_xy[2 * u], yu = lm->texel_xy[2 * u + 1];
+  uint32_t xg = lm->texel_xy[2 * g], yg = lm->texel_xy[2 * g + 1];
+  uint32_t x0 = xu < xg ? xu : xg, y0 = yu < yg ? yu : yg;
+  if (yu == yg) /* along x: the link of the left one */
+    return !(at->link[(size_t)y0 * at->width + x0] & UB_LINK_X);
+  return !(at->link[(size_t)y0 * at->width + x0] & UB_LINK_Y); /* along y (xu == xg) */
+}
+
+/* Candidate texel at atlas pixel (x, y), or -1. */
+static int32_t cand_at(const ub_atlas *at, const uint8_t *is_cand, uint32_t x, uint32_t y)
+{
+  if (x >= at->width || y >= at->height)
+    return -1;
+  int32_t g = at->texel_of[(size_t)y * at->width + x];
+  return g >= 0 && is_cand[g] ? g : -1;
+}
+
+/* Whether candidate g at pixel (x, y) of its 2×2 block (scan order (0,0) (1,0) (0,1)) gathers
+ * itself: (0,0) always; (1,0) and (0,1) unless the (0,0) candidate can give it its light. */
+static int gathers_edge(const ub_scene *s, const ub_lightmap *lm, const ub_atlas *at,
+                        const uint8_t *is_cand, uint32_t g, uint32_t x, uint32_t y)
+{
+  uint32_t bx = x & ~1u, by = y & ~1u;
+  if (x == bx && y == by)
+    return 1;
+  int32_t o = cand_at(at, is_cand, bx, by);
+  return !(o >= 0 && donor_ok(s, lm, g, (uint32_t)o));
+}
+
+/* Sparse gathers for an influence pass over the candidates ct[0..n) (ascending): in each
+ * 2×2 block of atlas pixels the (0,0) candidate gathers; (1,0) and (0,1) take its bounce
+ * light when they are on its surface (donor_ok), else gather; (1,1) takes that of a
+ * gathering (1,0) or (0,1) neighbour likewise. Decided per texel from its block alone (no
+ * order dependence). donor: texel_count entries (candidates written); the gathering
+ * texels (ascending) into gat; returns their count. is_cand: texel_count zero bytes
+ * (left zero). Indirect light varies little over a texel: the keep rule reads it from up
+ * to 4× fewer gathers; direct light is still computed at every candidate. */
+static uint32_t influence_donors(const ub_scene *s, const ub_lightmap *lm, const uint32_t *ct,
+                                 uint32_t n, uint8_t *is_cand, uint32_t *donor, uint32_t *gat)
+{
+  for (uint32_t i = 0; i < n; i++)
+    is_cand[ct[i]] = 1;
+  uint32_t ng = 0;
+  for (uint32_t i = 0; i < n; i++) {
+    uint32_t t = ct[i];
+    const ub_atlas *at = &lm->atlases[lm->texel_atlas[t]];
+    uint32_t x = lm->texel_xy[2 * t], y = lm->texel_xy[2 * t + 1];
+    uint32_t bx = x & ~1u, by = y & ~1u;
+    uint32_t d = t;
+    if (x != bx && y != by) { /* (1,1): a gathering edge neighbour */
+      uint32_t nx[2] = {x, bx}, ny[2] = {by, y};
+      for (int k = 0; k < 2 && d == t; k++) {
+        int32_t g = cand_at(at, is_cand, nx[k], ny[k]);
+        if (g >= 0 && gathers_edge(s, lm, at, is_cand, (uint32_t)g, nx[k], ny[k]) &&
+            donor_ok(s, lm, t, (uint32_t)g))
+          d = (uint32_t)g;
+      }
+    } else if (!gathers_edge(s, lm, at, is_cand, t, x, y)) {
+      d = (uint32_t)cand_at(at, is_cand, bx, by);
+    }
+    donor[t] = d;
+    if (d == t)
+      gat[ng++] = t;
+  }
+  for (uint32_t i = 0; i < n; i++)
+    is_cand[ct[i]] = 0;
+  return ng;
+}
+
 ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_log *log,
                       ub_bakefile_record **out_records, ub_dls_stats *out_stats)
 {
@@ -424,11 +528,20 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
   }
   uint32_t nlp = base->llg ? base->llg->probe_count : 0; /* LLG probes */
   uint32_t *kl = malloc(((size_t)nlp + 1) * sizeof *kl);
-  /* candidates of the reach bound */
+  /* candidates of the reach bound; sparse influence gathers (influence_donors) */
   uint32_t *ct = malloc(((size_t)lm->texel_count + 1) * sizeof *ct);
+  uint32_t *donor = plan->influence_sparse ? malloc(((size_t)lm->texel_count + 1) * sizeof *donor)
+                                           : NULL;
+  uint32_t *gat = plan->influence_sparse ? malloc(((size_t)lm->texel_count + 1) * sizeof *gat)
+                                         : NULL;
+  uint8_t *is_cand = plan->influence_sparse ? calloc((size_t)lm->texel_count + 1, 1) : NULL;
   uint32_t *cp = malloc(((size_t)base->probe_count + 1) * sizeof *cp);
   uint32_t *cl = malloc(((size_t)nlp + 1) * sizeof *cl);
-  if (!recs || !enabled || !kt || !kp || !kl || !ct || !cp || !cl) {
+  if (!recs || !enabled || !kt || !kp || !kl || !ct || !cp || !cl ||
+      (plan->influence_sparse && (!donor || !gat || !is_cand))) {
+    free(donor);
+    free(gat);
+    free(is_cand);
     free(recs);
     free(enabled);
     free(kt);
@@ -530,6 +643,16 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     pd.llg_subset = sub ? cl : NULL;
     pd.llg_subset_count = ncl;
     pd.keep_bounce_iz = UB_DLS_INFLUENCE_BOUNCES;
+    if (plan->influence_sparse) {
+      if (!sub) /* no reach bound: every texel is a candidate */
+        for (uint32_t t = 0; t < lm->texel_count; t++)
+          ct[t] = t;
+      uint32_t n = sub ? nct : lm->texel_count;
+      pd.gather_donor = donor;
+      pd.gather_subset = gat;
+      pd.gather_subset_count = influence_donors(s, lm, ct, n, is_cand, donor, gat);
+      out_stats->texels_gathering += pd.gather_subset_count;
+    }
     pd.progress = NULL;
     double t0 = now_s();
     ub_pass_result inf;
@@ -670,14 +793,20 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
   if (r == UB_OK && plan->influence_culling && out_stats->sets_baked + out_stats->sets_empty)
     ub_log_printf(log, UB_LOG_INFO,
                   "  dls reach bound: %.1f M photon rays, %.2f s; influence passes over %llu "
-                  "texels, %llu probes, %llu LLG probes (%.2f%%, %.2f%%, %.2f%% of sets x level)",
+                  "texels (%llu gathering), %llu probes, %llu LLG probes (%.2f%%, %.2f%%, "
+                  "%.2f%% of sets x level)",
                   out_stats->rays_reach * 1e-6, out_stats->seconds_reach,
                   (unsigned long long)out_stats->texels_candidate,
+                  (unsigned long long)(plan->influence_sparse ? out_stats->texels_gathering
+                                                              : out_stats->texels_candidate),
                   (unsigned long long)out_stats->probes_candidate,
                   (unsigned long long)out_stats->llg_probes_candidate,
                   100.0 * out_stats->texels_candidate / ((double)s->dls_count * (lm->texel_count + 1)),
                   100.0 * out_stats->probes_candidate / ((double)s->dls_count * (base->probe_count + 1)),
                   100.0 * out_stats->llg_probes_candidate / ((double)s->dls_count * (nlp + 1)));
+  free(donor);
+  free(gat);
+  free(is_cand);
   free(enabled);
   free(kt);
   free(kp);

@@ -1766,6 +1766,10 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   tx->acc_src = NULL;
   tx->acc_src_np = NULL;
 
+  if (d->gather_donor && d->gather_subset) {
+    tx->index = d->gather_subset; /* bounces ≥ 1 gather here; the others copy (below) */
+    tx->active = d->gather_subset_count;
+  }
   int max_b = d->bounces < 0 ? UB_BAKE_MAX_BOUNCES : d->bounces;
   if (max_b > UB_BAKE_MAX_BOUNCES)
     max_b = UB_BAKE_MAX_BOUNCES;
@@ -1795,6 +1799,18 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     if (atomic_load(&c.cancelled)) {
       res = atomic_load(&c.cancelled) == 2 ? UB_ERR_OUT_OF_MEMORY : UB_ERR_CANCELLED;
       goto done;
+    }
+    if (d->gather_donor && d->gather_subset) {
+      uint32_t na = d->texel_subset ? d->texel_subset_count : T;
+      for (uint32_t i = 0; i < na; i++) {
+        uint32_t t = d->texel_subset ? d->texel_subset[i] : i, g = d->gather_donor[t];
+        if (g == t || g >= T)
+          continue;
+        memcpy(tx->acc_iz + 3 * (size_t)t, tx->acc_iz + 3 * (size_t)g, 3 * sizeof(double));
+        memcpy(tx->acc_sh + 12 * (size_t)t, tx->acc_sh + 12 * (size_t)g, 12 * sizeof(double));
+        tx->acc_var[t] = tx->acc_var[g];
+        tx->acc_pvar[t] = tx->acc_pvar[g];
+      }
     }
     double e = energy_of(tx->acc_iz, T);
     out->bounce_energy[b] = e;

@@ -55,6 +55,14 @@ typedef struct ub_pass_desc {
   uint32_t probe_subset_count;
   const uint32_t *llg_subset;    /* LLG probes (indices into llg->probe_pos), same rule */
   uint32_t llg_subset_count;
+  /* Sparse gathers (a DLS influence pass): gather_donor (texel_count entries, or NULL)
+   * maps each texel of texel_subset to the texel whose bounce light it takes at bounces
+   * ≥ 1: itself (it gathers) or a gathering neighbour on the same surface. Direct light
+   * (bounce 0) is computed at every texel of texel_subset; the gathers of bounces ≥ 1 run
+   * only at gather_subset (the texels that are their own donor, ascending). */
+  const uint32_t *gather_donor;
+  const uint32_t *gather_subset;
+  uint32_t gather_subset_count;
   /* Bounce light of the texels outside texel_subset (a cheaper pass's estimate, e.g. the
    * influence pass's keep_bounce_iz): they are not simulated, but their light still
    * bounces: bounce k's image (what bounce k+1 gathers) holds outside_bounce_iz's bounce k

@@ -343,6 +343,7 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
     out->emissive_samples = 0;
   out->stop_fraction = all ? 0.0005 : 0.005;
   out->influence_culling = !all;
+  out->influence_sparse = out->influence_culling && !opt->influence_dense;
   out->doors = scene->door_count;
   for (uint32_t d = 0; d < scene->door_count; d++)
     out->door_passes += ub_geom_door_triangles(scene, d, 0) > 0;

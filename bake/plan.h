@@ -46,6 +46,7 @@ typedef struct ub_plan {
   uint32_t static_lights, primary_lights, dls_lights;
   int sky, emissive;
   int influence_culling;       /* DLS full passes only over their influence region */
+  int influence_sparse;        /* influence passes gather at one texel per 2×2 of a surface */
   double stop_fraction;        /* a pass stops when a bounce adds less than this share */
   uint32_t gather_rays, emissive_samples, shadow_samples;
   uint32_t probe_rays;         /* full-sphere gather rays per GLG probe per bounce */

@@ -245,6 +245,8 @@ static const char *BAKE_HELP =
     "                          standard error is above E (e.g. 0.02), up to 16x the rays\n"
     "  --door-rays N           override guided gather rays per texel of a door pass\n"
     "  --door-no-guiding       door passes gather with cosine rays only (comparison)\n"
+    "  --influence-dense       DLS influence passes gather at every candidate texel\n"
+    "                          (default: one per 2x2 texels of a surface; comparison)\n"
     "  --texel-size M          override metres per lightmap texel\n"
     "  --glg-spacing M         override metres between coarse GLG probes\n"
     "  --json FILE             write the report here instead of DIR/NAME.report.json\n"
@@ -335,6 +337,8 @@ static int cmd_bake(int argc, char **argv)
       progress = 0;
     } else if (!strcmp(a, "--plan-only")) {
       opt.plan_only = 1;
+    } else if (!strcmp(a, "--influence-dense")) {
+      opt.influence_dense = 1;
     } else if (!strcmp(a, "--plan") && v) {
       if (!strcmp(v, "all"))
         opt.plan_all = 1;

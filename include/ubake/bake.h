@@ -46,6 +46,9 @@ typedef struct ub_bake_options {
                              texel / GLG probe (e.g. 0.02), at most 16× the rays per bounce;
                              0 = off (the base pass only) */
   int door_no_guiding;    /* 1: door passes gather with cosine rays only (for comparison) */
+  int influence_dense;    /* 1: DLS influence passes gather at every candidate texel
+                             (default 0: one gather per 2×2 texels of a surface; for
+                             comparison) */
   uint32_t door_rays;     /* 0 = from quality: guided gather rays per texel of a door pass */
   ub_progress_fn progress;
   void *progress_user;
