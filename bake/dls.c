@@ -509,6 +509,141 @@ static uint32_t influence_donors(const ub_scene *s, const ub_lightmap *lm, const
   return ng;
 }
 
+/* Sparse probe gathers for an influence pass: a hash grid of cell r over the candidate
+ * probes cp[0..n) (ascending). In index order a probe gathers unless a gathering probe
+ * within r is visible from it (one ray); every other probe then reads the largest
+ * indirect light of the gathering probes within r it sees (probe_indirect filled in by
+ * probe_fill_sparse), so the keep rule errs towards keeping. Direct light is computed at
+ * every candidate. */
+typedef struct probe_grid {
+  float r, inv;
+  float lo[3];
+  uint32_t dim[3];
+  uint32_t *head; /* cells: first gathering probe, UINT32_MAX = none */
+  uint32_t *next; /* probe_count: next gathering probe in its cell */
+} probe_grid;
+
+static int probe_grid_cell(const probe_grid *g, const float p[3], int32_t c[3])
+{
+  for (int a = 0; a < 3; a++) {
+    float f = (p[a] - g->lo[a]) * g->inv;
+    if (!(f >= 0.0f) || f >= (float)g->dim[a])
+      return 0;
+    c[a] = (int32_t)f;
+  }
+  return 1;
+}
+
+static int probes_see(const ub_rt *rt, const float *a, const float *b)
+{
+  ub_ray ray;
+  memcpy(ray.org, a, sizeof ray.org);
+  for (int k = 0; k < 3; k++)
+    ray.dir[k] = b[k] - a[k];
+  ray.tnear = 0.0f;
+  ray.tfar = 1.0f;
+  uint8_t occ = 1;
+  ub_rt_occluded(rt, &ray, 1, &occ);
+  return !occ;
+}
+
+/* Visits the gathering probes within r of p that p sees; fn returns 1 to stop. */
+static void probe_grid_visit(const probe_grid *g, const ub_rt *rt, const float *pos,
+                             uint32_t q, int (*fn)(void *, uint32_t), void *user)
+{
+  const float *p = pos + 3 * (size_t)q;
+  int32_t c[3];
+  if (!probe_grid_cell(g, p, c))
+    return;
+  for (int32_t dz = -1; dz <= 1; dz++)
+    for (int32_t dy = -1; dy <= 1; dy++)
+      for (int32_t dx = -1; dx <= 1; dx++) {
+        int32_t k[3] = {c[0] + dx, c[1] + dy, c[2] + dz};
+        if (k[0] < 0 || k[1] < 0 || k[2] < 0 || k[0] >= (int32_t)g->dim[0] ||
+            k[1] >= (int32_t)g->dim[1] || k[2] >= (int32_t)g->dim[2])
+          continue;
+        size_t cell = ((size_t)k[2] * g->dim[1] + (size_t)k[1]) * g->dim[0] + (size_t)k[0];
+        for (uint32_t o = g->head[cell]; o != UINT32_MAX; o = g->next[o]) {
+          const float *po = pos + 3 * (size_t)o;
+          float d2 = 0.0f;
+          for (int a = 0; a < 3; a++)
+            d2 += (po[a] - p[a]) * (po[a] - p[a]);
+          if (d2 <= g->r * g->r && probes_see(rt, p, po) && fn(user, o))
+            return;
+        }
+      }
+}
+
+static int visit_any(void *user, uint32_t o)
+{
+  (void)o;
+  *(int *)user = 1;
+  return 1;
+}
+
+typedef struct max_ctx {
+  const float *ind;
+  float m;
+} max_ctx;
+
+static int visit_max(void *user, uint32_t o)
+{
+  max_ctx *m = user;
+  m->m = fmaxf(m->m, m->ind[o]);
+  return 0;
+}
+
+/* Chooses the gathering probes (into gat, ascending; returns their count); the grid is
+ * kept for probe_fill_sparse. NULL grid memory: every candidate gathers. */
+static uint32_t probe_sparse_pick(probe_grid *g, const ub_rt *rt, const float *pos,
+                                  const uint32_t *cp, uint32_t n, uint32_t *gat)
+{
+  uint32_t ng = 0;
+  for (uint32_t i = 0; i < n; i++) {
+    uint32_t q = cp[i];
+    int seen = 0;
+    if (g->head)
+      probe_grid_visit(g, rt, pos, q, visit_any, &seen);
+    if (seen)
+      continue;
+    gat[ng++] = q;
+    int32_t c[3];
+    if (g->head && probe_grid_cell(g, pos + 3 * (size_t)q, c)) {
+      size_t cell = ((size_t)c[2] * g->dim[1] + (size_t)c[1]) * g->dim[0] + (size_t)c[0];
+      g->next[q] = g->head[cell];
+      g->head[cell] = q;
+    }
+  }
+  return ng;
+}
+
+/* The non-gathering candidates' indirect: the largest of the gathering probes they see
+ * within r. Then empties the grid. */
+static void probe_fill_sparse(probe_grid *g, const ub_rt *rt, const float *pos,
+                              const uint32_t *cp, uint32_t n, const uint32_t *gat, uint32_t ng,
+                              float *indirect)
+{
+  if (!g->head)
+    return;
+  uint32_t j = 0;
+  for (uint32_t i = 0; i < n; i++) {
+    uint32_t q = cp[i];
+    while (j < ng && gat[j] < q)
+      j++;
+    if (j < ng && gat[j] == q)
+      continue;
+    max_ctx m = {indirect, 0.0f};
+    probe_grid_visit(g, rt, pos, q, visit_max, &m);
+    indirect[q] = m.m;
+  }
+  for (uint32_t k = 0; k < ng; k++) {
+    int32_t c[3];
+    if (probe_grid_cell(g, pos + 3 * (size_t)gat[k], c))
+      g->head[((size_t)c[2] * g->dim[1] + (size_t)c[1]) * g->dim[0] + (size_t)c[0]] =
+          UINT32_MAX;
+  }
+}
+
 ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_log *log,
                       ub_bakefile_record **out_records, ub_dls_stats *out_stats)
 {
@@ -563,6 +698,39 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
   for (uint32_t l = 0; l < s->light_count; l++)
     if (s->lights[l].dls >= 0 && s->lights[l].type != UB_LIGHT_DIRECTIONAL)
       ub_dls_bounds_add(s->lights[l].position, lo, hi);
+  /* Sparse probe gathers: a grid of cells r = 1.8 × the probes' mean spacing (the cube
+   * root of the receivers' box volume per probe), at most 1/16 of the longest side. */
+  probe_grid pg;
+  memset(&pg, 0, sizeof pg);
+  uint32_t *pgat = NULL;
+  if (plan->influence_sparse && base->probe_count) {
+    float ext = 0.0f;
+    for (int a = 0; a < 3; a++)
+      ext = fmaxf(ext, hi[a] - lo[a]);
+    double vol = 1.0;
+    for (int a = 0; a < 3; a++)
+      vol *= fmax(hi[a] - lo[a], 1e-3 * ext);
+    pg.r = (float)fmin(1.8 * cbrt(vol / base->probe_count), ext / 16.0);
+    if (ext > 0.0f && isfinite(ext) && pg.r > 0.0f && isfinite(pg.r)) {
+      pg.inv = 1.0f / pg.r;
+      size_t nc = 1;
+      for (int a = 0; a < 3; a++) {
+        pg.lo[a] = lo[a] - pg.r;
+        pg.dim[a] = (uint32_t)ceilf((hi[a] - lo[a]) * pg.inv) + 2;
+        nc *= pg.dim[a];
+      }
+      pg.head = malloc(nc * sizeof *pg.head);
+      pg.next = malloc(((size_t)base->probe_count + 1) * sizeof *pg.next);
+      pgat = malloc(((size_t)base->probe_count + 1) * sizeof *pgat);
+      if (pg.head)
+        memset(pg.head, 0xff, nc * sizeof *pg.head);
+      if (!pg.head || !pg.next || !pgat) { /* every probe gathers */
+        free(pg.head);
+        free(pg.next);
+        pg.head = pg.next = NULL;
+      }
+    }
+  }
   ub_result r = UB_OK;
   for (uint32_t d = 0; d < s->dls_count && r == UB_OK; d++) {
     ub_bakefile_record *rec = &recs[d];
@@ -653,12 +821,26 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
       pd.gather_subset_count = influence_donors(s, lm, ct, n, is_cand, donor, gat);
       out_stats->texels_gathering += pd.gather_subset_count;
     }
+    uint32_t npg = 0;
+    if (pg.head && pgat) {
+      if (!sub)
+        for (uint32_t q = 0; q < base->probe_count; q++)
+          cp[q] = q;
+      uint32_t n = sub ? ncp : base->probe_count;
+      npg = probe_sparse_pick(&pg, base->rt, base->probe_pos, cp, n, pgat);
+      pd.probe_gather_subset = pgat;
+      pd.probe_gather_subset_count = npg;
+      out_stats->probes_gathering += npg;
+    }
     pd.progress = NULL;
     double t0 = now_s();
     ub_pass_result inf;
     r = ub_pass_run(&pd, NULL, &inf);
     if (r != UB_OK)
       break;
+    if (pd.probe_gather_subset)
+      probe_fill_sparse(&pg, base->rt, base->probe_pos, cp, sub ? ncp : base->probe_count, pgat,
+                        npg, inf.probe_indirect);
     out_stats->rays_influence += inf.rays_gather + inf.rays_shadow;
     out_stats->seconds_influence += now_s() - t0;
     /* The rule sees direct + NB bounces; the full pass runs until converged, and a texel
@@ -793,13 +975,15 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
   if (r == UB_OK && plan->influence_culling && out_stats->sets_baked + out_stats->sets_empty)
     ub_log_printf(log, UB_LOG_INFO,
                   "  dls reach bound: %.1f M photon rays, %.2f s; influence passes over %llu "
-                  "texels (%llu gathering), %llu probes, %llu LLG probes (%.2f%%, %.2f%%, "
-                  "%.2f%% of sets x level)",
+                  "texels (%llu gathering), %llu probes (%llu gathering), %llu LLG probes "
+                  "(%.2f%%, %.2f%%, %.2f%% of sets x level)",
                   out_stats->rays_reach * 1e-6, out_stats->seconds_reach,
                   (unsigned long long)out_stats->texels_candidate,
                   (unsigned long long)(plan->influence_sparse ? out_stats->texels_gathering
                                                               : out_stats->texels_candidate),
                   (unsigned long long)out_stats->probes_candidate,
+                  (unsigned long long)(pg.head ? out_stats->probes_gathering
+                                               : out_stats->probes_candidate),
                   (unsigned long long)out_stats->llg_probes_candidate,
                   100.0 * out_stats->texels_candidate / ((double)s->dls_count * (lm->texel_count + 1)),
                   100.0 * out_stats->probes_candidate / ((double)s->dls_count * (base->probe_count + 1)),
@@ -807,6 +991,9 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
   free(donor);
   free(gat);
   free(is_cand);
+  free(pg.head);
+  free(pg.next);
+  free(pgat);
   free(enabled);
   free(kt);
   free(kp);

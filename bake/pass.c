@@ -1770,6 +1770,10 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     tx->index = d->gather_subset; /* bounces ≥ 1 gather here; the others copy (below) */
     tx->active = d->gather_subset_count;
   }
+  if (d->probe_gather_subset) {
+    pr->index = d->probe_gather_subset;
+    pr->active = d->probe_gather_subset_count;
+  }
   int max_b = d->bounces < 0 ? UB_BAKE_MAX_BOUNCES : d->bounces;
   if (max_b > UB_BAKE_MAX_BOUNCES)
     max_b = UB_BAKE_MAX_BOUNCES;

@@ -63,6 +63,11 @@ typedef struct ub_pass_desc {
   const uint32_t *gather_donor;
   const uint32_t *gather_subset;
   uint32_t gather_subset_count;
+  /* Likewise for GLG probes (NULL: every probe of probe_subset gathers): bounces ≥ 1 run
+   * only at these (a subset of probe_subset, ascending); the others get bounce 0 alone and
+   * zero indirect (nothing reads probes back: the caller estimates theirs). */
+  const uint32_t *probe_gather_subset;
+  uint32_t probe_gather_subset_count;
   /* Bounce light of the texels outside texel_subset (a cheaper pass's estimate, e.g. the
    * influence pass's keep_bounce_iz): they are not simulated, but their light still
    * bounces: bounce k's image (what bounce k+1 gathers) holds outside_bounce_iz's bounce k

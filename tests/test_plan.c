@@ -17,6 +17,8 @@
 
 static char g_build[512];
 
+static int g_bounces = -1; /* bake(): indirect bounces (-1: automatic) */
+
 static int bake(const char *level_path, const char *tag, ub_quality q, int all,
                 ub_bake_stats *st)
 {
@@ -27,6 +29,7 @@ static int bake(const char *level_path, const char *tag, ub_quality q, int all,
   o.quality = q;
   o.out_dir = dir;
   o.plan_all = all;
+  o.bounces = g_bounces;
   ub_result r = ub_bake_level(level_path, &o, NULL, st);
   if (r != UB_OK)
     fprintf(stderr, "bake %s failed: %s\n", level_path, ub_result_string(r));
@@ -164,20 +167,27 @@ static void test_plan_vs_all(const char *level_path, const char *tag, ub_quality
 
 /* Influence culling of dynamic light sets: what the culled bake leaves out of a set's
  * record, measured against a dense bake of the same set (--plan all keeps every
- * receiver), contributes < 1% of the set's light (paper §3.2's 1% threshold). */
-static void test_dls_culling(void)
+ * receiver), contributes < 1% of the set's light (paper §3.2's 1% threshold), texels and
+ * GLG probes each. hallway (automatic bounces), and estate_small at 2 bounces (its
+ * probes' indirect comes from the sparse influence gathers: leaving the non-gathering
+ * probes' estimate at zero dropped 100% of its sets' probe light). */
+static void dls_culling(const char *level, const char *tag, int bounces, uint32_t sets)
 {
-  char path[1024];
-  snprintf(path, sizeof path, "%s/levels/hallway.gltf", g_build);
+  char path[1024], ta[64], tb[64];
+  snprintf(path, sizeof path, "%s/levels/%s.gltf", g_build, level);
+  snprintf(ta, sizeof ta, "dls_auto_%s", tag);
+  snprintf(tb, sizeof tb, "dls_all_%s", tag);
   ub_bake_stats sa, sb;
-  ASSERT_TRUE(bake(path, "dls_auto", UB_QUALITY_DRAFT, 0, &sa));
-  ASSERT_TRUE(bake(path, "dls_all", UB_QUALITY_DRAFT, 1, &sb));
+  g_bounces = bounces;
+  ASSERT_TRUE(bake(path, ta, UB_QUALITY_DRAFT, 0, &sa));
+  ASSERT_TRUE(bake(path, tb, UB_QUALITY_DRAFT, 1, &sb));
+  g_bounces = -1;
   ub_bakefile *fa = NULL, *fb = NULL;
   ASSERT_OK(ub_bakefile_read(sa.ubk_path, NULL, &fa));
   ASSERT_OK(ub_bakefile_read(sb.ubk_path, NULL, &fb));
   if (!fa || !fb)
     return;
-  ASSERT_TRUE(fa->dls_count == 2 && fb->dls_count == 2);
+  ASSERT_TRUE(fa->dls_count == sets && fb->dls_count == sets);
   for (uint32_t d = 0; d < fa->dls_count && d < fb->dls_count; d++) {
     const ub_bakefile_record *ra = &fa->dls[d], *rb = &fb->dls[d];
     /* Light of a pixel: its DC coefficient (mean radiance), luminance-free (green). */
@@ -192,18 +202,39 @@ static void test_dls_culling(void)
         dropped += v;
     }
     double share = total > 0 ? dropped / total : 0.0;
+    /* GLG probes likewise (DC, green): the influence pass gathers at a sparse subset of
+     * them and reads the others' indirect from visible neighbours (bake/dls.c). */
+    double ptotal = 0.0, pdropped = 0.0;
+    j = 0;
+    for (uint32_t i = 0; i < rb->probe_count; i++) {
+      double v = fabs(rb->probe_sh[27 * (size_t)i + 1]);
+      ptotal += v;
+      while (j < ra->probe_count && ra->probe_index[j] < rb->probe_index[i])
+        j++;
+      if (j >= ra->probe_count || ra->probe_index[j] != rb->probe_index[i])
+        pdropped += v;
+    }
+    double pshare = ptotal > 0 ? pdropped / ptotal : 0.0;
     printf("dls %s: culled record %u pixels vs dense %u; culling drops %.3f%% of the set's "
-           "light; probes %u vs %u\n",
+           "light; probes %u vs %u, dropping %.3f%% of their light\n",
            ra->name, ra->texel_count, rb->texel_count, 100 * share, ra->probe_count,
-           rb->probe_count);
+           rb->probe_count, 100 * pshare);
+    ASSERT_TRUE(pshare < 0.01);
     /* culling culls: fewer probes simulated (texel records hold only non-zero pixels, so
      * their counts compare noise, not culling) */
     ASSERT_TRUE(ra->probe_count < rb->probe_count);
     ASSERT_TRUE(share < 0.01);
   }
-  printf("hallway: DLS bake %.2f s culled vs %.2f s dense\n", sa.total_seconds, sb.total_seconds);
+  printf("%s: DLS bake %.2f s culled vs %.2f s dense\n", level, sa.total_seconds,
+         sb.total_seconds);
   ub_bakefile_free(fa);
   ub_bakefile_free(fb);
+}
+
+static void test_dls_culling(void)
+{
+  dls_culling("hallway", "hallway", -1, 2);
+  dls_culling("estate_small", "estate_small", 2, 14);
 }
 
 /* A number after "key": in a report.json (NaN when absent). */
