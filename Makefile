@@ -85,8 +85,8 @@ sweep: build
 
 # README "The presets, measured": the three presets only (`--ladder presets`), each level with
 # the options below (cornell, sunroom and oa_dm4 took ~70 min at load average 6-22 on the
-# shared 2-core machine, most of it oa_dm4's converged bake; q3dm6ish takes ~40 min and kaos
-# ~80 min on a quiet machine (its converged bake ~52 min);
+# shared 2-core machine, most of it oa_dm4's converged bake; q3dm6ish takes ~20 min and kaos
+# ~75 min on a quiet machine (its converged bake ~52 min);
 # SWEEP_PRESET_ARGS_<level> overrides one level, SWEEP_ARGS adds to all), then the
 # levels' DIR/presets.md joined into out/sweep/presets.md (one table, the commit on top):
 # paste that into README. Run it under nice on a shared machine: nice -n 10 make sweep-presets
