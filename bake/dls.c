@@ -534,6 +534,11 @@ static int probe_grid_cell(const probe_grid *g, const float p[3], int32_t c[3])
   return 1;
 }
 
+static size_t probe_grid_index(const probe_grid *g, const int32_t c[3])
+{
+  return ((size_t)c[2] * g->dim[1] + (size_t)c[1]) * g->dim[0] + (size_t)c[0];
+}
+
 static int probes_see(const ub_rt *rt, const float *a, const float *b)
 {
   ub_ray ray;
@@ -562,8 +567,7 @@ static void probe_grid_visit(const probe_grid *g, const ub_rt *rt, const float *
         if (k[0] < 0 || k[1] < 0 || k[2] < 0 || k[0] >= (int32_t)g->dim[0] ||
             k[1] >= (int32_t)g->dim[1] || k[2] >= (int32_t)g->dim[2])
           continue;
-        size_t cell = ((size_t)k[2] * g->dim[1] + (size_t)k[1]) * g->dim[0] + (size_t)k[0];
-        for (uint32_t o = g->head[cell]; o != UINT32_MAX; o = g->next[o]) {
+        for (uint32_t o = g->head[probe_grid_index(g, k)]; o != UINT32_MAX; o = g->next[o]) {
           const float *po = pos + 3 * (size_t)o;
           float d2 = 0.0f;
           for (int a = 0; a < 3; a++)
@@ -609,9 +613,8 @@ static uint32_t probe_sparse_pick(probe_grid *g, const ub_rt *rt, const float *p
     gat[ng++] = q;
     int32_t c[3];
     if (g->head && probe_grid_cell(g, pos + 3 * (size_t)q, c)) {
-      size_t cell = ((size_t)c[2] * g->dim[1] + (size_t)c[1]) * g->dim[0] + (size_t)c[0];
-      g->next[q] = g->head[cell];
-      g->head[cell] = q;
+      g->next[q] = g->head[probe_grid_index(g, c)];
+      g->head[probe_grid_index(g, c)] = q;
     }
   }
   return ng;
@@ -639,8 +642,7 @@ static void probe_fill_sparse(probe_grid *g, const ub_rt *rt, const float *pos,
   for (uint32_t k = 0; k < ng; k++) {
     int32_t c[3];
     if (probe_grid_cell(g, pos + 3 * (size_t)gat[k], c))
-      g->head[((size_t)c[2] * g->dim[1] + (size_t)c[1]) * g->dim[0] + (size_t)c[0]] =
-          UINT32_MAX;
+      g->head[probe_grid_index(g, c)] = UINT32_MAX;
   }
 }
 

@@ -173,6 +173,25 @@ static void test_plan_vs_all(const char *level_path, const char *tag, ub_quality
  * GLG probes each. hallway (automatic bounces), and estate_small at 2 bounces and 0.4 m
  * texels (its probes' indirect comes from the sparse influence gathers: leaving the
  * non-gathering probes' estimate at zero dropped 100% of its sets' probe light). */
+/* Share of a dense record's light (sorted receivers ib, values vb of stride floats, the
+ * light of one: its DC coefficient, green) on receivers the culled record (sorted ia)
+ * does not hold. */
+static double dropped_share(const uint32_t *ia, uint32_t na, const uint32_t *ib,
+                            const float *vb, uint32_t nb, uint32_t stride)
+{
+  double total = 0.0, dropped = 0.0;
+  uint32_t j = 0;
+  for (uint32_t i = 0; i < nb; i++) {
+    double v = fabs(vb[stride * (size_t)i + 1]);
+    total += v;
+    while (j < na && ia[j] < ib[i])
+      j++;
+    if (j >= na || ia[j] != ib[i])
+      dropped += v;
+  }
+  return total > 0 ? dropped / total : 0.0;
+}
+
 static void dls_culling(const char *level, const char *tag, int bounces, float texel_size,
                         uint32_t sets)
 {
@@ -195,31 +214,12 @@ static void dls_culling(const char *level, const char *tag, int bounces, float t
   ASSERT_TRUE(fa->dls_count == sets && fb->dls_count == sets);
   for (uint32_t d = 0; d < fa->dls_count && d < fb->dls_count; d++) {
     const ub_bakefile_record *ra = &fa->dls[d], *rb = &fb->dls[d];
-    /* Light of a pixel: its DC coefficient (mean radiance), luminance-free (green). */
-    double total = 0.0, dropped = 0.0;
-    uint32_t j = 0;
-    for (uint32_t i = 0; i < rb->texel_count; i++) {
-      double v = fabs(rb->texel_sh[12 * (size_t)i + 1]);
-      total += v;
-      while (j < ra->texel_count && ra->texel_index[j] < rb->texel_index[i])
-        j++;
-      if (j >= ra->texel_count || ra->texel_index[j] != rb->texel_index[i])
-        dropped += v;
-    }
-    double share = total > 0 ? dropped / total : 0.0;
-    /* GLG probes likewise (DC, green): the influence pass gathers at a sparse subset of
-     * them and reads the others' indirect from visible neighbours (bake/dls.c). */
-    double ptotal = 0.0, pdropped = 0.0;
-    j = 0;
-    for (uint32_t i = 0; i < rb->probe_count; i++) {
-      double v = fabs(rb->probe_sh[27 * (size_t)i + 1]);
-      ptotal += v;
-      while (j < ra->probe_count && ra->probe_index[j] < rb->probe_index[i])
-        j++;
-      if (j >= ra->probe_count || ra->probe_index[j] != rb->probe_index[i])
-        pdropped += v;
-    }
-    double pshare = ptotal > 0 ? pdropped / ptotal : 0.0;
+    double share = dropped_share(ra->texel_index, ra->texel_count, rb->texel_index,
+                                 rb->texel_sh, rb->texel_count, 12);
+    /* GLG probes likewise: the influence pass gathers at a sparse subset of them and
+     * reads the others' indirect from visible neighbours (bake/dls.c). */
+    double pshare = dropped_share(ra->probe_index, ra->probe_count, rb->probe_index,
+                                  rb->probe_sh, rb->probe_count, 27);
     printf("dls %s: culled record %u pixels vs dense %u; culling drops %.3f%% of the set's "
            "light; probes %u vs %u, dropping %.3f%% of their light\n",
            ra->name, ra->texel_count, rb->texel_count, 100 * share, ra->probe_count,
