@@ -14,6 +14,8 @@
  */
 #include "bake/reference.h"
 
+#include "ubake/sh.h"
+
 #include <assert.h>
 #include <math.h>
 #include <omp.h>
@@ -39,8 +41,13 @@ enum {
   DIM_EMITTER_U2,
   DIM_BOUNCE_U1,
   DIM_BOUNCE_U2,
-  DIM_ROULETTE
+  DIM_ROULETTE,
+  DIM_SPHERE_ROTATE /* sphere mode: the random offset of the normals' lattice */
 };
+
+/* Sphere mode (ub_reference_radiance_sh): per path 27 SH coefficients + the L2
+ * irradiance at the caller's normal. */
+#define UB_REF_SH_DIMS 30
 
 /* Read-only state shared by all threads. */
 typedef struct ref_ctx {
@@ -49,6 +56,8 @@ typedef struct ref_ctx {
   const ub_emitters *em;      /* NULL or count 0: no emissive NEE */
   uint32_t spp, seed, max_bounces;
   int unlimited;
+  int sphere;                 /* 1: a normal per path over the sphere, SH projection */
+  float sh_dir[9];            /* sphere mode: Y_lm(caller's normal) */
   const float *light_weight;  /* light_count × 3: DLS weight per light */
   const uint8_t *light_on;    /* light_count: non-zero weight and intensity */
   float p0[3], n0[3], org0[3];
@@ -58,8 +67,8 @@ typedef struct ref_ctx {
  * across blocks with Chan's formula in block order. */
 typedef struct ref_stats {
   double n;
-  double mean[3];
-  double m2[3];
+  double mean[UB_REF_SH_DIMS];
+  double m2[UB_REF_SH_DIMS];
 } ref_stats;
 
 /* Per-thread scratch, reused across the blocks a thread runs. */
@@ -69,6 +78,7 @@ typedef struct ref_scratch {
   float org[UB_REF_BLOCK][3];   /* offset ray origin */
   float beta[UB_REF_BLOCK][3];  /* throughput */
   float rho_max[UB_REF_BLOCK];  /* max albedo of the current vertex (roulette) */
+  float n0[UB_REF_BLOCK][3];    /* sphere mode: the path's receiver normal */
   double value[UB_REF_BLOCK][3];
   uint8_t bad[UB_REF_BLOCK];    /* a non-finite quantity appeared on this path */
   uint32_t live[UB_REF_BLOCK];
@@ -222,10 +232,25 @@ static void run_block(const ref_ctx *c, ref_scratch *s, uint32_t first, uint32_t
   const ub_scene *sc = c->scene;
   const float pi = (float)M_PI;
   uint32_t n_live = count;
+  /* Sphere mode: path k's receiver normal is point k of a spherical Fibonacci lattice
+   * of spp points (rotated by the seed), so the normals are stratified over the sphere
+   * and depend only on the path index. */
+  float rot = c->sphere ? ub_u01(ub_hash4(c->seed, 0, 0, DIM_SPHERE_ROTATE)) : 0.0f;
   for (uint32_t i = 0; i < count; i++) {
     memcpy(s->p[i], c->p0, sizeof s->p[i]);
-    memcpy(s->n[i], c->n0, sizeof s->n[i]);
-    memcpy(s->org[i], c->org0, sizeof s->org[i]);
+    if (c->sphere) {
+      double k = (double)(first + i), z = 1.0 - (2.0 * k + 1.0) / (double)c->spp;
+      double r = sqrt(fmax(0.0, 1.0 - z * z)), f = k * 0.6180339887498949 + rot;
+      double phi = 2.0 * M_PI * (f - floor(f));
+      s->n[i][0] = (float)(r * cos(phi));
+      s->n[i][1] = (float)(r * sin(phi));
+      s->n[i][2] = (float)z;
+      memcpy(s->n0[i], s->n[i], sizeof s->n0[i]);
+      ub_rt_offset_point(c->rt, c->p0, s->n[i], s->org[i]);
+    } else {
+      memcpy(s->n[i], c->n0, sizeof s->n[i]);
+      memcpy(s->org[i], c->org0, sizeof s->org[i]);
+    }
     s->beta[i][0] = s->beta[i][1] = s->beta[i][2] = 1.0f;
     s->rho_max[i] = 1.0f;
     s->value[i][0] = s->value[i][1] = s->value[i][2] = 0.0;
@@ -325,14 +350,32 @@ static void run_block(const ref_ctx *c, ref_scratch *s, uint32_t first, uint32_t
 
   /* Per-path estimates → block statistics (Welford, in path order). */
   ref_stats st = {0};
+  int dims = c->sphere ? UB_REF_SH_DIMS : 3;
   for (uint32_t i = 0; i < count; i++) {
-    double x[3] = {s->value[i][0], s->value[i][1], s->value[i][2]};
+    double x[UB_REF_SH_DIMS] = {s->value[i][0], s->value[i][1], s->value[i][2]};
     if (s->bad[i] || !isfinite(x[0]) || !isfinite(x[1]) || !isfinite(x[2])) {
       s->nonfinite++;
       x[0] = x[1] = x[2] = 0.0;
     }
+    if (c->sphere) {
+      /* ∫E(n)·Y_lm(n) dn = A_l·L_lm: L_lm ≈ 4π·E(n_k)·Y_lm(n_k)/A_l; and the L2
+       * irradiance at the caller's normal, Σ A_l·L_lm·Y_lm(n), for its standard error. */
+      static const double inv_a[9] = {1.0 / UB_SH_A0, 1.0 / UB_SH_A1, 1.0 / UB_SH_A1,
+                                      1.0 / UB_SH_A1, 1.0 / UB_SH_A2, 1.0 / UB_SH_A2,
+                                      1.0 / UB_SH_A2, 1.0 / UB_SH_A2, 1.0 / UB_SH_A2};
+      float y[9];
+      ub_sh2_eval_basis(s->n0[i], y);
+      double e[3] = {x[0], x[1], x[2]}, dir = 0.0;
+      for (int m = 0; m < 9; m++) {
+        dir += (double)c->sh_dir[m] * y[m];
+        for (int ch = 0; ch < 3; ch++)
+          x[3 * m + ch] = 4.0 * M_PI * e[ch] * y[m] * inv_a[m];
+      }
+      for (int ch = 0; ch < 3; ch++)
+        x[27 + ch] = 4.0 * M_PI * e[ch] * dir;
+    }
     st.n += 1.0;
-    for (int k = 0; k < 3; k++) {
+    for (int k = 0; k < dims; k++) {
       double d = x[k] - st.mean[k];
       st.mean[k] += d / st.n;
       st.m2[k] += d * (x[k] - st.mean[k]);
@@ -341,12 +384,12 @@ static void run_block(const ref_ctx *c, ref_scratch *s, uint32_t first, uint32_t
   *out = st;
 }
 
-static void stats_merge(ref_stats *acc, const ref_stats *b)
+static void stats_merge(ref_stats *acc, const ref_stats *b, int dims)
 {
   if (b->n == 0.0)
     return;
   double n = acc->n + b->n;
-  for (int k = 0; k < 3; k++) {
+  for (int k = 0; k < dims; k++) {
     double d = b->mean[k] - acc->mean[k];
     acc->mean[k] += d * (b->n / n);
     acc->m2[k] += b->m2[k] + d * d * (acc->n * b->n / n);
@@ -354,11 +397,14 @@ static void stats_merge(ref_stats *acc, const ref_stats *b)
   acc->n = n;
 }
 
-ub_result ub_reference_irradiance(const ub_scene *scene, const ub_rt *rt,
-                                  const ub_emitters *em, const ub_reference_params *params,
-                                  float out_rgb[3], float out_stderr[3], const ub_log *log)
+/* Both estimators: irradiance at params->normal (sphere 0: out_mean/out_se 3 values) or
+ * sphere mode (out_mean 27 SH coefficients + 3 = the L2 irradiance at the normal,
+ * out_se the same 30). */
+static ub_result reference_run(const ub_scene *scene, const ub_rt *rt, const ub_emitters *em,
+                               const ub_reference_params *params, int sphere,
+                               float *out_mean, float *out_se, const ub_log *log)
 {
-  assert(scene && rt && params && out_rgb && out_stderr);
+  assert(scene && rt && params && out_mean && out_se);
   assert(ub_rt_scene(rt) == scene);
 
   if (!finite3(params->position)) {
@@ -384,6 +430,10 @@ ub_result ub_reference_irradiance(const ub_scene *scene, const ub_rt *rt,
   for (int i = 0; i < 3; i++)
     c.n0[i] = params->normal[i] / nlen;
   ub_rt_offset_point(rt, c.p0, c.n0, c.org0);
+  c.sphere = sphere;
+  if (sphere)
+    ub_sh2_eval_basis(c.n0, c.sh_dir);
+  int dims = sphere ? UB_REF_SH_DIMS : 3;
 
   /* Per-light weights (DLS) and a skip flag for lights that contribute nothing. */
   uint32_t nl = scene->light_count;
@@ -481,15 +531,15 @@ ub_result ub_reference_irradiance(const ub_scene *scene, const ub_rt *rt,
   } else {
     ref_stats total = {0};
     for (uint32_t b = 0; b < n_blocks; b++)
-      stats_merge(&total, block_stats + b);
+      stats_merge(&total, block_stats + b, dims);
     int overflow = 0;
-    for (int k = 0; k < 3; k++) {
+    for (int k = 0; k < dims; k++) {
       double var = total.n > 1.0 ? total.m2[k] / (total.n - 1.0) : 0.0;
       double se = sqrt(var > 0.0 ? var : 0.0) / sqrt(total.n);
       float mean = (float)total.mean[k], fse = (float)se;
       overflow |= !isfinite(mean) || !isfinite(fse);
-      out_rgb[k] = isfinite(mean) ? mean : 0.0f;
-      out_stderr[k] = isfinite(fse) ? fse : 0.0f;
+      out_mean[k] = isfinite(mean) ? mean : 0.0f;
+      out_se[k] = isfinite(fse) ? fse : 0.0f;
     }
     if (overflow)
       ub_log_printf(log, UB_LOG_WARNING,
@@ -508,4 +558,28 @@ ub_result ub_reference_irradiance(const ub_scene *scene, const ub_rt *rt,
   free(light_weight);
   free(light_on);
   return result;
+}
+
+ub_result ub_reference_irradiance(const ub_scene *scene, const ub_rt *rt,
+                                  const ub_emitters *em, const ub_reference_params *params,
+                                  float out_rgb[3], float out_stderr[3], const ub_log *log)
+{
+  assert(out_rgb && out_stderr);
+  return reference_run(scene, rt, em, params, 0, out_rgb, out_stderr, log);
+}
+
+ub_result ub_reference_radiance_sh(const ub_scene *scene, const ub_rt *rt,
+                                   const ub_emitters *em, const ub_reference_params *params,
+                                   float out_sh[27], float out_l2_rgb[3],
+                                   float out_l2_stderr[3], const ub_log *log)
+{
+  assert(out_sh && out_l2_rgb && out_l2_stderr);
+  float mean[UB_REF_SH_DIMS], se[UB_REF_SH_DIMS];
+  ub_result r = reference_run(scene, rt, em, params, 1, mean, se, log);
+  if (r != UB_OK)
+    return r;
+  memcpy(out_sh, mean, 27 * sizeof(float));
+  memcpy(out_l2_rgb, mean + 27, 3 * sizeof(float));
+  memcpy(out_l2_stderr, se + 27, 3 * sizeof(float));
+  return UB_OK;
 }

@@ -64,4 +64,20 @@ ub_result ub_reference_irradiance(const ub_scene *scene, const ub_rt *rt,
                                   const ub_emitters *em, const ub_reference_params *params,
                                   float out_rgb[3], float out_stderr[3], const ub_log *log);
 
+/* Incident radiance at params->position as SH L2 (27 floats, coefficient-major RGB,
+ * W/(m²·sr), the GLG's convention, ubake/sh.h), for the same path classes as
+ * ub_reference_irradiance: what a noise-free probe at that point would hold, so that
+ * ub_sh2_irradiance of it is the best any L2 probe can answer there (the GLG's
+ * representation floor). The receiver normal varies per path over a spherical Fibonacci
+ * lattice (rotated by the seed) and each path's irradiance estimate E_k is projected:
+ * L_lm ≈ 4π·E_k·Y_lm(n_k)/A_l, unbiased because ∫E(n)·Y_lm(n) dn = A_l·L_lm. Not
+ * windowed (ub_sh2_window it as the GLG does). params->normal only picks where the
+ * un-windowed L2 irradiance out_l2_rgb = Σ A_l·L_lm·Y_lm(normal) and its standard error
+ * out_l2_stderr are evaluated. Same cost per path as ub_reference_irradiance; errors as
+ * there. */
+ub_result ub_reference_radiance_sh(const ub_scene *scene, const ub_rt *rt,
+                                   const ub_emitters *em, const ub_reference_params *params,
+                                   float out_sh[27], float out_l2_rgb[3],
+                                   float out_l2_stderr[3], const ub_log *log);
+
 #endif

@@ -25,6 +25,7 @@
 #include "ubake/bakefile.h"
 #include "ubake/glg.h"
 #include "ubake/runtime.h"
+#include "ubake/sh.h"
 #include "ubake/scene.h"
 
 /* Rays of the inside / hidden-surface test for ground-truth points (as GLG placement). */
@@ -54,6 +55,8 @@ typedef struct sweep_pt {
   int kind;
   float p[3], n[3];   /* world metres; unit normal */
   float ref[3], se[3]; /* reference irradiance W/m² and its standard error */
+  float floor[3], floor_se[3]; /* GLG points: an exact SH L2 probe's irradiance here
+                                  (windowed, as the GLG) and its s.e.; NAN elsewhere */
   int have_ref;
 } sweep_pt;
 
@@ -73,6 +76,7 @@ typedef struct sweep_result {
   uint64_t rays;
   uint32_t texels, bounces;
   double rmse_pts, max_pts, p95_pts, rmse_lm, rmse_glg, rmse_texels; /* NAN: n/a */
+  double glg_vs_floor; /* GLG points: sqrt(Σ (bake − L2 floor)² / Σ ref²) */
 } sweep_result;
 
 typedef struct sweep_rung {
@@ -101,6 +105,8 @@ typedef struct sweep {
   sweep_pt *pts;
   int npts, nlm, nglg;
   double ref_noise;        /* sqrt(Σ se² / Σ ref²) over the points (luminance) */
+  double glg_floor, glg_floor_noise; /* GLG points: exact L2 probes vs the reference,
+                              sqrt(Σ (floor − ref)² / Σ ref²), and the floor's noise */
   ub_runtime *conv;        /* converged bake, NULL if skipped */
   uint32_t conv_texels;
   sweep_rung rungs[SWEEP_MAX_RUNGS];
@@ -498,14 +504,18 @@ static int sw_same_point(const sweep_pt *a, int kind, const float p[3], const fl
 }
 
 static const char *REF_HEADER =
-    "kind,x,y,z,nx,ny,nz,spp,ref_r,ref_g,ref_b,se_r,se_g,se_b\n";
+    "kind,x,y,z,nx,ny,nz,spp,ref_r,ref_g,ref_b,se_r,se_g,se_b,l2_r,l2_g,l2_b,l2_se_r,"
+    "l2_se_g,l2_se_b\n";
 
 static void sw_write_ref_row(FILE *f, const sweep_pt *pt, uint32_t spp)
 {
-  fprintf(f, "%s,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%u,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g\n",
+  fprintf(f, "%s,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%u,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g",
           pt->kind == PT_GLG ? "glg" : "lightmap", pt->p[0], pt->p[1], pt->p[2], pt->n[0],
           pt->n[1], pt->n[2], spp, pt->ref[0], pt->ref[1], pt->ref[2], pt->se[0], pt->se[1],
           pt->se[2]);
+  for (int c = 0; c < 6; c++)
+    fprintf(f, ",%.9g", c < 3 ? pt->floor[c] : pt->floor_se[c - 3]);
+  fputc('\n', f);
 }
 
 /* Reads the cache: the rows that match our points, in order, with the same spp. Returns
@@ -523,11 +533,12 @@ static int sw_read_ref_cache(sweep *s, const char *path)
   }
   while (i < s->npts && fgets(line, sizeof line, f)) {
     char kind[16];
-    float p[3], n[3], ref[3], se[3];
+    float p[3], n[3], ref[3], se[3], fl[3], fse[3];
     unsigned spp;
-    if (sscanf(line, "%15[a-z],%f,%f,%f,%f,%f,%f,%u,%f,%f,%f,%f,%f,%f", kind, &p[0], &p[1],
-               &p[2], &n[0], &n[1], &n[2], &spp, &ref[0], &ref[1], &ref[2], &se[0], &se[1],
-               &se[2]) != 14)
+    if (sscanf(line, "%15[a-z],%f,%f,%f,%f,%f,%f,%u,%f,%f,%f,%f,%f,%f,%f,%f,%f,%f,%f,%f", kind,
+               &p[0], &p[1], &p[2], &n[0], &n[1], &n[2], &spp, &ref[0], &ref[1], &ref[2],
+               &se[0], &se[1], &se[2], &fl[0], &fl[1], &fl[2], &fse[0], &fse[1],
+               &fse[2]) != 20)
       break;
     int k = !strcmp(kind, "glg") ? PT_GLG : !strcmp(kind, "lightmap") ? PT_LIGHTMAP : -1;
     if (spp != s->ref_spp || !sw_same_point(&s->pts[i], k, p, n))
@@ -537,8 +548,14 @@ static int sw_read_ref_cache(sweep *s, const char *path)
       finite &= isfinite(ref[c]) && isfinite(se[c]) && ref[c] >= 0.0f && se[c] >= 0.0f;
     if (!finite)
       break;
+    for (int c = 0; c < 3 && k == PT_GLG; c++)
+      finite &= isfinite(fl[c]) && isfinite(fse[c]) && fl[c] >= 0.0f && fse[c] >= 0.0f;
+    if (!finite)
+      break;
     memcpy(s->pts[i].ref, ref, sizeof ref);
     memcpy(s->pts[i].se, se, sizeof se);
+    memcpy(s->pts[i].floor, fl, sizeof fl);
+    memcpy(s->pts[i].floor_se, fse, sizeof fse);
     s->pts[i].have_ref = 1;
     i++;
   }
@@ -603,6 +620,20 @@ static int sw_references(sweep *s)
     rp.threads = s->threads;
     ub_result r = ub_reference_irradiance(s->scene, s->rt, s->em, &rp, s->pts[i].ref,
                                           s->pts[i].se, &log);
+    sweep_pt *pt = &s->pts[i];
+    for (int c = 0; c < 3; c++)
+      pt->floor[c] = pt->floor_se[c] = NAN;
+    if (r == UB_OK && pt->kind == PT_GLG) {
+      /* The representation floor: what an exact SH L2 probe at this point answers
+       * (windowed as the GLG's probes), from its own paths. */
+      float sh[27], raw[3];
+      rp.seed = SWEEP_REF_SEED + 0x10000u + (uint32_t)i;
+      r = ub_reference_radiance_sh(s->scene, s->rt, s->em, &rp, sh, raw, pt->floor_se, &log);
+      if (r == UB_OK) {
+        ub_sh2_window(sh);
+        ub_sh2_irradiance(sh, pt->n, pt->floor);
+      }
+    }
     if (r != UB_OK) {
       fclose(f);
       fprintf(stderr, "ubake: %s: reference at point %d failed: %s\n", s->level, i,
@@ -633,6 +664,20 @@ static int sw_references(sweep *s)
   s->ref_noise = r2 > 0.0 ? sqrt(se2 / r2) : NAN;
   printf("sweep: reference noise floor (relative RMS standard error) %.2f%%\n",
          100 * s->ref_noise);
+  double fd2 = 0.0, fse2 = 0.0, fr2 = 0.0;
+  for (int i = 0; i < s->npts; i++)
+    if (s->pts[i].kind == PT_GLG) {
+      double d = sw_lum(s->pts[i].floor) - sw_lum(s->pts[i].ref), rl = sw_lum(s->pts[i].ref);
+      double se = sw_lum(s->pts[i].floor_se);
+      fd2 += d * d;
+      fse2 += se * se;
+      fr2 += rl * rl;
+    }
+  s->glg_floor = fr2 > 0.0 ? sqrt(fd2 / fr2) : NAN;
+  s->glg_floor_noise = fr2 > 0.0 ? sqrt(fse2 / fr2) : NAN;
+  if (s->nglg)
+    printf("sweep: GLG points' SH L2 floor (exact L2 probes at the points vs the reference) "
+           "%.2f%% (its noise %.2f%%)\n", 100 * s->glg_floor, 100 * s->glg_floor_noise);
   return 1;
 }
 
@@ -649,7 +694,7 @@ static int cmp_double(const void *a, const void *b)
 static void sw_measure(sweep *s, const ub_runtime *rt, sweep_result *res)
 {
   double *rel = malloc((size_t)(s->npts ? s->npts : 1) * sizeof *rel);
-  double d2[2] = {0, 0}, r2[2] = {0, 0}, mean_ref = 0.0;
+  double d2[2] = {0, 0}, r2[2] = {0, 0}, mean_ref = 0.0, fd2 = 0.0;
   int nmean = 0;
   for (int i = 0; i < s->npts; i++)
     if (s->pts[i].have_ref) {
@@ -671,6 +716,8 @@ static void sw_measure(sweep *s, const ub_runtime *rt, sweep_result *res)
       continue;
     double b = sw_lum(rgb), ref = sw_lum(pt->ref), d = b - ref;
     d2[pt->kind] += d * d;
+    if (pt->kind == PT_GLG)
+      fd2 += (b - sw_lum(pt->floor)) * (b - sw_lum(pt->floor));
     r2[pt->kind] += ref * ref;
     double den = ref > floor_ref ? ref : floor_ref;
     if (rel && den > 0.0)
@@ -678,6 +725,7 @@ static void sw_measure(sweep *s, const ub_runtime *rt, sweep_result *res)
   }
   res->rmse_lm = r2[0] > 0.0 ? sqrt(d2[0] / r2[0]) : NAN;
   res->rmse_glg = r2[1] > 0.0 ? sqrt(d2[1] / r2[1]) : NAN;
+  res->glg_vs_floor = r2[1] > 0.0 ? sqrt(fd2 / r2[1]) : NAN;
   res->rmse_pts = r2[0] + r2[1] > 0.0 ? sqrt((d2[0] + d2[1]) / (r2[0] + r2[1])) : NAN;
   res->max_pts = res->p95_pts = NAN;
   if (nrel > 0) {
@@ -840,7 +888,7 @@ static void sw_csv_num(FILE *f, double v)
 static const char *CSV_HEADER =
     "setting,value,seconds,core_seconds,rays,rel_rmse_points,max_err_points,p95_err_points,"
     "rel_rmse_texels,texels,bounces,rel_rmse_lightmap_points,rel_rmse_glg_points,"
-    "ref_noise_points\n";
+    "ref_noise_points,glg_l2_floor,rel_rmse_glg_vs_l2_floor\n";
 
 /* DIR/sweep.csv with every rung measured so far (temporary file renamed into place). */
 static int sw_write_csv(const sweep *s)
@@ -866,6 +914,8 @@ static int sw_write_csv(const sweep *s)
     sw_csv_num(f, m->rmse_lm);
     sw_csv_num(f, m->rmse_glg);
     sw_csv_num(f, s->ref_noise);
+    sw_csv_num(f, s->glg_floor);
+    sw_csv_num(f, m->glg_vs_floor);
     fputc('\n', f);
   }
   if (!sw_tmp_commit(f, tmp, path))
@@ -924,6 +974,9 @@ static int sw_write_presets_md(const sweep *s, double load_now)
              "relative RMS s.e.), ",
           s->name, s->npts, s->nlm, s->nglg, s->ref_spp,
           isfinite(s->ref_noise) ? 100 * s->ref_noise : 0.0);
+  if (s->nglg && isfinite(s->glg_floor))
+    fprintf(f, "exact SH L2 probes at the GLG points err %.1f%% (the GLG's representation "
+               "floor; its noise %.1f%%), ", 100 * s->glg_floor, 100 * s->glg_floor_noise);
   if (s->conv)
     fprintf(f, "converged bake %u gather rays (%u texels), ", s->converged_rays,
             s->conv_texels);
@@ -1020,11 +1073,14 @@ static int sw_plot(const sweep *s, double load_end)
 static void sw_print_result(const sweep_rung *r, const sweep_result *m)
 {
   printf("  %-12s %-6s %-5s %8.2f s %8.2f core-s %9.2f M rays  points %6.2f%% (p95 %6.2f%%, "
-         "max %6.2f%%)  texels %s%.2f%%%s\n",
+         "max %6.2f%%)  texels %s%.2f%%%s",
          r->setting, r->value, r->note, m->seconds, m->core_seconds, m->rays * 1e-6,
          100 * m->rmse_pts, 100 * m->p95_pts, 100 * m->max_pts,
          isfinite(m->rmse_texels) ? "" : "(n/a ", isfinite(m->rmse_texels) ? 100 * m->rmse_texels : 0.0,
          isfinite(m->rmse_texels) ? "" : ")");
+  if (isfinite(m->rmse_glg))
+    printf("  GLG %.2f%% (vs exact L2 probes %.2f%%)", 100 * m->rmse_glg, 100 * m->glg_vs_floor);
+  printf("\n");
   fflush(stdout);
 }
 
@@ -1219,7 +1275,11 @@ static const char *SWEEP_HELP =
     "  --no-plot            write the CSV and sweep.gp only\n"
     "  --verbose            show the bakes' stage lines and warnings\n"
     "Errors: relative RMSE = sqrt(sum (bake - ref)^2 / sum ref^2) of luminance; per-point\n"
-    "error = |bake - ref| / max(ref, 0.1 x mean ref) (max and 95th percentile).\n";
+    "error = |bake - ref| / max(ref, 0.1 x mean ref) (max and 95th percentile).\n"
+    "GLG points also get the representation floor: the reference's incident radiance at the\n"
+    "point projected to SH L2 and windowed as the GLG (what an exact probe there answers);\n"
+    "glg_l2_floor is its error vs the reference, rel_rmse_glg_vs_l2_floor the bake's GLG vs\n"
+    "it (interpolation between probes + bake noise), both relative to the reference.\n";
 
 int ub_cli_sweep(int argc, char **argv)
 {

@@ -17,6 +17,7 @@
 #include "ubake/bakefile.h"
 #include "ubake/runtime.h"
 #include "ubake/scene.h"
+#include "ubake/sh.h"
 #include "tools/regress.h"
 #include "tools/sweep.h"
 
@@ -660,9 +661,15 @@ static int cmd_query(int argc, char **argv)
 static const char *REFERENCE_HELP =
     "usage: ubake reference LEVEL.gltf --at X,Y,Z --normal X,Y,Z [--spp N] [--seed N]\n"
     "          [--bounces N] [--threads N] [--dls NAME=W|R,G,B ...] [--door NAME=0|1 ...]\n"
-    "          [--object NAME=on|off ...]\n"
+    "          [--object NAME=on|off ...] [--sh]\n"
     "Brute-force path-traced irradiance (W/m², linear RGB) for the same path classes as the\n"
     "bake. Prints \"R G B\" on the first line and \"se R G B\" (standard error) on the second.\n"
+    "  --sh                the best an exact SH L2 probe at the point can answer (the GLG's\n"
+    "                      representation floor): traces the incident radiance over the\n"
+    "                      whole sphere, projects it to SH L2 and windows it as the GLG\n"
+    "                      does; prints that irradiance for --normal, \"se\" (of the\n"
+    "                      un-windowed L2 irradiance), then \"raw R G B\" (un-windowed) and\n"
+    "                      \"sh\" with the 27 coefficients (W/(m²·sr), coefficient-major)\n"
     "  --door NAME=0       the closed leaf, with its own albedo (default)\n"
     "  --door NAME=1       the leaf removed, or in its open pose (ubake_door_open) if any\n"
     "  --object NAME=off   the show/hide object removed (default: on, as designed)\n";
@@ -674,7 +681,7 @@ static int cmd_reference(int argc, char **argv)
   state.count = 0;
   ub_reference_params rp;
   ub_reference_params_init(&rp);
-  int have_at = 0, have_n = 0;
+  int have_at = 0, have_n = 0, want_sh = 0;
   int k;
   for (int i = 0; i < argc; i++) {
     const char *a = argv[i];
@@ -683,6 +690,8 @@ static int cmd_reference(int argc, char **argv)
     if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
       fputs(REFERENCE_HELP, stdout);
       return 0;
+    } else if (!strcmp(a, "--sh")) {
+      want_sh = 1;
     } else if (!strcmp(a, "--at") && v) {
       if (!parse_vec3(v, rp.position))
         return usage_error("reference", "--at takes X,Y,Z");
@@ -731,7 +740,7 @@ static int cmd_reference(int argc, char **argv)
   ub_rt *rt = NULL;
   ub_emitters *em = NULL;
   ub_result r = ub_scene_load(level, &log, &scene);
-  float rgb[3], se[3];
+  float rgb[3], se[3], sh[27], raw[3];
   float *weights = NULL;
   uint8_t *door_open = NULL, *shown = NULL, *mask = NULL;
   if (r == UB_OK) {
@@ -785,8 +794,17 @@ static int cmd_reference(int argc, char **argv)
   }
   if (r == UB_OK)
     r = ub_emitters_build(scene, &em);
-  if (r == UB_OK)
+  if (r == UB_OK && !want_sh)
     r = ub_reference_irradiance(scene, rt, em, &rp, rgb, se, &log);
+  if (r == UB_OK && want_sh) {
+    r = ub_reference_radiance_sh(scene, rt, em, &rp, sh, raw, se, &log);
+    if (r == UB_OK) {
+      float win[27];
+      memcpy(win, sh, sizeof win);
+      ub_sh2_window(win);
+      ub_sh2_irradiance(win, rp.normal, rgb);
+    }
+  }
   free(weights);
   free(door_open);
   free(shown);
@@ -797,6 +815,12 @@ static int cmd_reference(int argc, char **argv)
   if (r != UB_OK)
     return fail(&ls, r, level);
   printf("%.6g %.6g %.6g\nse %.6g %.6g %.6g\n", rgb[0], rgb[1], rgb[2], se[0], se[1], se[2]);
+  if (want_sh) {
+    printf("raw %.6g %.6g %.6g\nsh", raw[0], raw[1], raw[2]);
+    for (int c = 0; c < 27; c++)
+      printf(" %.6g", sh[c]);
+    printf("\n");
+  }
   return 0;
 }
 
