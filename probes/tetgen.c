@@ -687,6 +687,119 @@ void ub_tetmesh_free(ub_tetmesh *m)
 
 /* ---- build -------------------------------------------------------------------------- */
 
+/* ---- spatial order ------------------------------------------------------------------ */
+
+/* 21-bit Morton code of p in the box lo + [0, 1]/inv. */
+static uint64_t morton_spread(uint32_t x)
+{
+  uint64_t v = x & 0x1fffffu;
+  v = (v | v << 32) & 0x1f00000000ffffull;
+  v = (v | v << 16) & 0x1f0000ff0000ffull;
+  v = (v | v << 8) & 0x100f00f00f00f00full;
+  v = (v | v << 4) & 0x10c30c30c30c30c3ull;
+  v = (v | v << 2) & 0x1249249249249249ull;
+  return v;
+}
+static uint64_t morton_key(const double p[3], const double lo[3], const double inv[3])
+{
+  uint64_t k = 0;
+  for (int a = 0; a < 3; a++) {
+    double t = (p[a] - lo[a]) * inv[a] * 2097151.0;
+    uint32_t q = t > 0.0 ? (t < 2097151.0 ? (uint32_t)t : 2097151u) : 0u;
+    k |= morton_spread(q) << a;
+  }
+  return k;
+}
+
+typedef struct morton_item {
+  uint64_t key;
+  uint32_t index;
+} morton_item;
+
+static int morton_cmp(const void *a, const void *b)
+{
+  const morton_item *x = a, *y = b;
+  if (x->key != y->key)
+    return x->key < y->key ? -1 : 1;
+  return (x->index > y->index) - (x->index < y->index);
+}
+
+/* Puts the kept points [0, added_first) and the tets in Morton order (of positions, of
+ * centroids; ties by the old index, so deterministic): neighbouring tets and a tet's
+ * corners then sit near each other in memory, which is what a random GLG query's chain
+ * of cache misses needs (kaos: ~15% more random queries/s at run time). Added hull points
+ * stay at the end. Connectivity, orientation and positions are unchanged; input_to_point
+ * and the neighbours are remapped. Returns 0 when out of memory (the mesh is unchanged). */
+static int spatial_order(ub_tetmesh *m)
+{
+  uint32_t np = m->point_count, nt = m->tet_count, nk = m->added_first;
+  double lo[3] = {HUGE_VAL, HUGE_VAL, HUGE_VAL}, hi[3] = {-HUGE_VAL, -HUGE_VAL, -HUGE_VAL};
+  for (uint32_t i = 0; i < np; i++)
+    for (int a = 0; a < 3; a++) {
+      lo[a] = fmin(lo[a], m->points[3 * (size_t)i + a]);
+      hi[a] = fmax(hi[a], m->points[3 * (size_t)i + a]);
+    }
+  double inv[3];
+  for (int a = 0; a < 3; a++)
+    inv[a] = hi[a] > lo[a] ? 1.0 / (hi[a] - lo[a]) : 0.0;
+  size_t nmax = np > nt ? np : nt;
+  morton_item *it = malloc((nmax ? nmax : 1) * sizeof *it);
+  uint32_t *pnew = malloc(((size_t)np + 1) * sizeof *pnew);
+  uint32_t *tnew = malloc(((size_t)nt + 1) * sizeof *tnew);
+  float *pts = malloc(((size_t)np + 1) * 3 * sizeof *pts);
+  uint32_t *tets = malloc(((size_t)nt + 1) * 4 * sizeof *tets);
+  int32_t *neigh = malloc(((size_t)nt + 1) * 4 * sizeof *neigh);
+  if (!it || !pnew || !tnew || !pts || !tets || !neigh) {
+    free(it), free(pnew), free(tnew), free(pts), free(tets), free(neigh);
+    return 0;
+  }
+  for (uint32_t i = 0; i < nk; i++) {
+    double p[3];
+    v3load(m->points + 3 * (size_t)i, p);
+    it[i].key = morton_key(p, lo, inv);
+    it[i].index = i;
+  }
+  qsort(it, nk, sizeof *it, morton_cmp);
+  for (uint32_t i = 0; i < nk; i++)
+    pnew[it[i].index] = i;
+  for (uint32_t i = nk; i < np; i++)
+    pnew[i] = i;
+  for (uint32_t t = 0; t < nt; t++) {
+    double c[3] = {0, 0, 0};
+    for (int j = 0; j < 4; j++)
+      for (int a = 0; a < 3; a++)
+        c[a] += 0.25 * m->points[3 * (size_t)m->tets[4 * (size_t)t + j] + a];
+    it[t].key = morton_key(c, lo, inv);
+    it[t].index = t;
+  }
+  qsort(it, nt, sizeof *it, morton_cmp);
+  for (uint32_t t = 0; t < nt; t++)
+    tnew[it[t].index] = t;
+  for (uint32_t i = 0; i < np; i++)
+    memcpy(pts + 3 * (size_t)pnew[i], m->points + 3 * (size_t)i, 3 * sizeof *pts);
+  for (uint32_t t = 0; t < nt; t++) {
+    size_t u = tnew[t];
+    for (int j = 0; j < 4; j++) {
+      tets[4 * u + j] = pnew[m->tets[4 * (size_t)t + j]];
+      int32_t nb = m->neigh[4 * (size_t)t + j];
+      neigh[4 * u + j] = nb < 0 ? nb : (int32_t)tnew[nb];
+    }
+  }
+  for (uint32_t i = 0; i < m->input_count; i++)
+    if (m->input_to_point[i] >= 0)
+      m->input_to_point[i] = (int32_t)pnew[m->input_to_point[i]];
+  free(m->points);
+  free(m->tets);
+  free(m->neigh);
+  m->points = pts;
+  m->tets = tets;
+  m->neigh = neigh;
+  free(it);
+  free(pnew);
+  free(tnew);
+  return 1;
+}
+
 static const char *degeneracy_name(ub_tetgen_degeneracy d)
 {
   switch (d) {
@@ -944,6 +1057,10 @@ ub_result ub_tetgen_build_ex(const float *points, uint32_t n, const ub_tetgen_op
       nb[0] = nb[1];
       nb[1] = tn;
     }
+  }
+  if (!spatial_order(m)) {
+    res = UB_ERR_OUT_OF_MEMORY;
+    goto fail;
   }
   res = validate_mesh(m, log, &m->unused_count, &m->flat_tet_count);
   if (res != UB_OK) {
