@@ -324,6 +324,13 @@ ub_result ub_dls_reach_build(const ub_scene *scene, const ub_rt *rt, const uint8
           }
           reach_mark(out, q, facing_bits(ng));
           uint32_t h = ub_hash4(seed ^ 0xd15ea5e5u, set, l * per + c * chunk + i, seg + 1);
+          /* Russian roulette on the surface's largest albedo channel: every photon then
+           * carries the same share of the set's power, so the (1-p)^N bound holds for
+           * the power that really arrives, not for albedo-1 light. */
+          const float *rho = scene->materials[scene->tri_material[hit[i].tri]].albedo;
+          float keep = fmaxf(rho[0], fmaxf(rho[1], rho[2]));
+          if (!(ub_u01(ub_hash4(h, 3, 0, 0)) < keep))
+            continue;
           ub_rt_offset_point(rt, p, ng, R->org);
           ub_sample_cosine(ng, ub_u01(ub_hash4(h, 1, 0, 0)), ub_u01(ub_hash4(h, 2, 0, 0)),
                            R->dir);

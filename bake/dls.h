@@ -27,15 +27,17 @@
 /* Reach bound (before the influence pass): a set's light can only arrive where its
  * photons can go. From each light of the set, UB_DLS_REACH_PHOTONS photons (point: the
  * sphere, spot: its outer cone, the first segment clipped at the glTF range) are traced
- * for UB_DLS_REACH_SEGMENTS segments (direct, then cosine bounces with albedo taken as 1,
- * so that no path is cut short: as many segments as the influence pass has light
- * transport steps: direct + UB_DLS_INFLUENCE_BOUNCES bounces), marking the coarse voxels their segments cross
+ * for up to UB_DLS_REACH_SEGMENTS segments (direct, then cosine bounces, each surviving with
+ * the probability of the surface's largest albedo channel, so every photon carries the same
+ * share of the set's power; as many segments as the influence pass has light transport
+ * steps: direct + UB_DLS_INFLUENCE_BOUNCES bounces), marking the coarse voxels their segments cross
  * and, per voxel, the facing of the surfaces they hit. A texel (looked up a quarter cell
  * out along its normal) or a probe is a candidate when a voxel within one cell of it was
  * crossed or hit (so light may leak past walls thinner than a cell: conservative). Everything else is left out of the influence
  * pass. Occlusion comes for free (photons stop at walls); what it can miss is a region
  * so dim that none of the N photons reaches it: a region receiving the share p of the
- * set's power is missed with probability (1-p)^N, so a miss costs in expectation at most
+ * set's power (over every bounce, each photon path an equal share) is missed with
+ * probability (1-p)^N, so a miss costs in expectation at most
  * max_p p·e^(−Np) = 1/(e·N) of the set's power per region (tests/test_plan.c measures the
  * bound against --plan all). A set with a directional light has no bound. */
 #define UB_DLS_REACH_PHOTONS 16384u /* per light */
