@@ -429,9 +429,22 @@ static float texel_size_world(const ub_scene *s, const ub_lightmap *lm, uint32_t
   return sqrtf(fmaxf(da, db));
 }
 
+/* Whether the atlas step between edge-adjacent pixels (xa, ya) and (xb, yb) crosses no
+ * geometry (no link bit between them; an atlas without link data has none). */
+static int step_free(const ub_atlas *at, uint32_t xa, uint32_t ya, uint32_t xb, uint32_t yb)
+{
+  if (!at->link)
+    return 1;
+  uint32_t x0 = xa < xb ? xa : xb, y0 = ya < yb ? ya : yb;
+  uint8_t bit = ya == yb ? UB_LINK_X : UB_LINK_Y;
+  return !(at->link[(size_t)y0 * at->width + x0] & bit);
+}
+
 /* Whether texel u may take texel g's bounce light in a sparse influence pass: atlas
- * neighbours (dx, dy ∈ {0, 1}, edge-adjacent) not separated by geometry (link bits), on
- * the same surface (normals within ~18°, centres within 2 texels). */
+ * neighbours (one of the 8 around it) on the same surface: normals within ~18°, centres
+ * within 2 texels, and no geometry between them in the atlas (edge neighbours: no link
+ * bit; diagonal ones: a covered pixel at one of the two corners between them reached
+ * through no link bit both ways). */
 static int donor_ok(const ub_scene *s, const ub_lightmap *lm, uint32_t u, uint32_t g)
 {
   const float *nu = lm->texel_normal + 3 * (size_t)u, *ng = lm->texel_normal + 3 * (size_t)g;
@@ -445,67 +458,54 @@ static int donor_ok(const ub_scene *s, const ub_lightmap *lm, uint32_t u, uint32
   if (!(w > 0.0f) || !(d2 <= 4.0f * w * w))
     return 0;
   const ub_atlas *at = &lm->atlases[lm->texel_atlas[u]];
-  if (!at->link)
-    return 1;
   uint32_t xu = lm->texel_xy[2 * u], yu = lm->texel_xy[2 * u + 1];
   uint32_t xg = lm->texel_xy[2 * g], yg = lm->texel_xy[2 * g + 1];
-  uint32_t x0 = xu < xg ? xu : xg, y0 = yu < yg ? yu : yg;
-  if (yu == yg) /* along x: the link of the left one */
-    return !(at->link[(size_t)y0 * at->width + x0] & UB_LINK_X);
-  return !(at->link[(size_t)y0 * at->width + x0] & UB_LINK_Y); /* along y (xu == xg) */
+  if (xu == xg || yu == yg)
+    return step_free(at, xu, yu, xg, yg);
+  /* diagonal: through (xg, yu) or (xu, yg) */
+  uint32_t cx[2] = {xg, xu}, cy[2] = {yu, yg};
+  for (int k = 0; k < 2; k++)
+    if (at->texel_of[(size_t)cy[k] * at->width + cx[k]] >= 0 &&
+        step_free(at, xu, yu, cx[k], cy[k]) && step_free(at, cx[k], cy[k], xg, yg))
+      return 1;
+  return 0;
 }
 
 /* Candidate texel at atlas pixel (x, y), or -1. */
-static int32_t cand_at(const ub_atlas *at, const uint8_t *is_cand, uint32_t x, uint32_t y)
+static int32_t cand_at(const ub_atlas *at, const uint8_t *is_cand, int64_t x, int64_t y)
 {
-  if (x >= at->width || y >= at->height)
+  if (x < 0 || y < 0 || x >= (int64_t)at->width || y >= (int64_t)at->height)
     return -1;
-  int32_t g = at->texel_of[(size_t)y * at->width + x];
+  int32_t g = at->texel_of[(size_t)y * at->width + (size_t)x];
   return g >= 0 && is_cand[g] ? g : -1;
 }
 
-/* Whether candidate g at pixel (x, y) of its 2×2 block (scan order (0,0) (1,0) (0,1)) gathers
- * itself: (0,0) always; (1,0) and (0,1) unless the (0,0) candidate can give it its light. */
-static int gathers_edge(const ub_scene *s, const ub_lightmap *lm, const ub_atlas *at,
-                        const uint8_t *is_cand, uint32_t g, uint32_t x, uint32_t y)
-{
-  uint32_t bx = x & ~1u, by = y & ~1u;
-  if (x == bx && y == by)
-    return 1;
-  int32_t o = cand_at(at, is_cand, bx, by);
-  return !(o >= 0 && donor_ok(s, lm, g, (uint32_t)o));
-}
-
-/* Sparse gathers for an influence pass over the candidates ct[0..n) (ascending): in each
- * 2×2 block of atlas pixels the (0,0) candidate gathers; (1,0) and (0,1) take its bounce
- * light when they are on its surface (donor_ok), else gather; (1,1) takes that of a
- * gathering (1,0) or (0,1) neighbour likewise. Decided per texel from its block alone (no
- * order dependence). donor: texel_count entries (candidates written); the gathering
- * texels (ascending) into gat; returns their count. is_cand: texel_count zero bytes
- * (left zero). Indirect light varies little over a texel: the keep rule reads it from up
- * to 4× fewer gathers; direct light is still computed at every candidate. */
+/* Sparse gathers for an influence pass over the candidates ct[0..n) (ascending, so row
+ * by row within an atlas): a candidate takes the bounce light of a gathering candidate
+ * already decided next to it (left, up, up-left, up-right, in that order) when donor_ok;
+ * otherwise it gathers itself. On a plain surface that is one gather per 2×2 pixels, as
+ * a block pattern would give, but it follows chart borders instead of cutting blocks at
+ * them. Deterministic (one pass in index order). donor: texel_count entries (candidates
+ * written); the gathering texels (ascending) into gat; returns their count. is_cand:
+ * texel_count zero bytes (left zero). Indirect light varies little over a texel: the
+ * keep rule reads it from up to 4× fewer gathers; direct light is still computed at
+ * every candidate. */
 static uint32_t influence_donors(const ub_scene *s, const ub_lightmap *lm, const uint32_t *ct,
                                  uint32_t n, uint8_t *is_cand, uint32_t *donor, uint32_t *gat)
 {
+  static const int off[4][2] = {{-1, 0}, {0, -1}, {-1, -1}, {1, -1}};
   for (uint32_t i = 0; i < n; i++)
     is_cand[ct[i]] = 1;
   uint32_t ng = 0;
   for (uint32_t i = 0; i < n; i++) {
     uint32_t t = ct[i];
     const ub_atlas *at = &lm->atlases[lm->texel_atlas[t]];
-    uint32_t x = lm->texel_xy[2 * t], y = lm->texel_xy[2 * t + 1];
-    uint32_t bx = x & ~1u, by = y & ~1u;
+    int64_t x = lm->texel_xy[2 * t], y = lm->texel_xy[2 * t + 1];
     uint32_t d = t;
-    if (x != bx && y != by) { /* (1,1): a gathering edge neighbour */
-      uint32_t nx[2] = {x, bx}, ny[2] = {by, y};
-      for (int k = 0; k < 2 && d == t; k++) {
-        int32_t g = cand_at(at, is_cand, nx[k], ny[k]);
-        if (g >= 0 && gathers_edge(s, lm, at, is_cand, (uint32_t)g, nx[k], ny[k]) &&
-            donor_ok(s, lm, t, (uint32_t)g))
-          d = (uint32_t)g;
-      }
-    } else if (!gathers_edge(s, lm, at, is_cand, t, x, y)) {
-      d = (uint32_t)cand_at(at, is_cand, bx, by);
+    for (int k = 0; k < 4 && d == t; k++) {
+      int32_t g = cand_at(at, is_cand, x + off[k][0], y + off[k][1]);
+      if (g >= 0 && (uint32_t)g < t && donor[g] == (uint32_t)g && donor_ok(s, lm, t, (uint32_t)g))
+        d = (uint32_t)g;
     }
     donor[t] = d;
     if (d == t)
