@@ -78,6 +78,7 @@ typedef struct ub_dls_stats {
   uint64_t texels_candidate, probes_candidate, llg_probes_candidate;
   uint64_t texels_gathering; /* candidates that gathered in the influence passes (sparse) */
   uint64_t probes_gathering; /* GLG probes likewise */
+  uint64_t llg_probes_gathering; /* LLG probes likewise */
   uint64_t rays_reach;
   double seconds_reach;
 } ub_dls_stats;

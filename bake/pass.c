@@ -1774,6 +1774,10 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     pr->index = d->probe_gather_subset;
     pr->active = d->probe_gather_subset_count;
   }
+  if (d->llg_gather_donor && d->llg_gather_subset) {
+    lg->index = d->llg_gather_subset;
+    lg->active = d->llg_gather_subset_count;
+  }
   int max_b = d->bounces < 0 ? UB_BAKE_MAX_BOUNCES : d->bounces;
   if (max_b > UB_BAKE_MAX_BOUNCES)
     max_b = UB_BAKE_MAX_BOUNCES;
@@ -1814,6 +1818,14 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
         memcpy(tx->acc_sh + 12 * (size_t)t, tx->acc_sh + 12 * (size_t)g, 12 * sizeof(double));
         tx->acc_var[t] = tx->acc_var[g];
         tx->acc_pvar[t] = tx->acc_pvar[g];
+      }
+    }
+    if (d->llg_gather_donor && d->llg_gather_subset) {
+      uint32_t na = d->llg_subset ? d->llg_subset_count : LP;
+      for (uint32_t i = 0; i < na; i++) {
+        uint32_t q = d->llg_subset ? d->llg_subset[i] : i, g = d->llg_gather_donor[q];
+        if (g != q && g < LP)
+          memcpy(lg->acc_sh + 27 * (size_t)q, lg->acc_sh + 27 * (size_t)g, 27 * sizeof(double));
       }
     }
     double e = energy_of(tx->acc_iz, T);

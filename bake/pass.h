@@ -68,6 +68,13 @@ typedef struct ub_pass_desc {
    * zero indirect (nothing reads probes back: the caller estimates theirs). */
   const uint32_t *probe_gather_subset;
   uint32_t probe_gather_subset_count;
+  /* Likewise for LLG probes (NULL: every probe of llg_subset gathers): llg_gather_donor
+   * (llg->probe_count entries) maps each probe of llg_subset to the probe whose bounce light
+   * it takes at bounces >= 1 (itself when it gathers; copied after each bounce, before hits
+   * read the LLGs again); the gathers run only at llg_gather_subset (ascending). */
+  const uint32_t *llg_gather_donor;
+  const uint32_t *llg_gather_subset;
+  uint32_t llg_gather_subset_count;
   /* Bounce light of the texels outside texel_subset (a cheaper pass's estimate, e.g. the
    * influence pass's keep_bounce_iz): they are not simulated, but their light still
    * bounces: bounce k's image (what bounce k+1 gathers) holds outside_bounce_iz's bounce k

@@ -220,11 +220,18 @@ static void dls_culling(const char *level, const char *tag, int bounces, float t
      * reads the others' indirect from visible neighbours (bake/dls.c). */
     double pshare = dropped_share(ra->probe_index, ra->probe_count, rb->probe_index,
                                   rb->probe_sh, rb->probe_count, 27);
+    /* LLG probes too: the influence pass gathers at about one in 8 of a prop's grid and
+     * copies that light to the others (bake/dls.c, llg_donors). */
+    double lshare = dropped_share(ra->llg_probe_index, ra->llg_probe_count, rb->llg_probe_index,
+                                  rb->llg_probe_sh, rb->llg_probe_count, 27);
     printf("dls %s: culled record %u pixels vs dense %u; culling drops %.3f%% of the set's "
-           "light; probes %u vs %u, dropping %.3f%% of their light\n",
+           "light; probes %u vs %u, dropping %.3f%% of their light; LLG probes %u vs %u, "
+           "%.3f%%\n",
            ra->name, ra->texel_count, rb->texel_count, 100 * share, ra->probe_count,
-           rb->probe_count, 100 * pshare);
+           rb->probe_count, 100 * pshare, ra->llg_probe_count, rb->llg_probe_count,
+           100 * lshare);
     ASSERT_TRUE(pshare < 0.01);
+    ASSERT_TRUE(lshare < 0.01);
     /* culling culls: fewer probes simulated (texel records hold only non-zero pixels, so
      * their counts compare noise, not culling) */
     ASSERT_TRUE(ra->probe_count < rb->probe_count);
