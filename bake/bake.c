@@ -271,6 +271,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   pd.gather_rays = plan.gather_rays;
   pd.emissive_samples = plan.emissive_samples;
   pd.shadow_samples = plan.shadow_samples;
+  pd.near_samples = plan.near_samples;
   pd.probe_count = tm->point_count;
   pd.probe_pos = tm->points;
   pd.probe_rays = plan.probe_rays;

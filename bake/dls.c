@@ -876,6 +876,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     pd.gather_rays = plan->influence_rays;
     pd.probe_rays = 2 * plan->influence_rays;
     pd.shadow_samples = 1;
+    pd.near_samples = UB_NEAR_SAMPLES_DEFAULT;
     pd.bounces = UB_DLS_INFLUENCE_BOUNCES;
     pd.pass_id = 2 + 2 * d;
     int sub = plan->influence_culling && !reach.unbounded;

@@ -164,11 +164,20 @@ static inline double gather_pdf(const float *nrm, const float w[3])
 }
 
 /* Point lights closer than this many texel widths get their irradiance averaged over the
- * texel's footprint with UB_NEAR_SAMPLES points instead of the 4 fixed sample points: a
- * 1/d² peak under a lamp is badly point-sampled (a lamp 10 cm under a ceiling with 25 cm
- * texels loses ~30% of the power the ceiling receives, and with it the indirect light). */
+ * texel's footprint with desc.near_samples jittered points (k × k strata) instead of the 4
+ * fixed sample points: a 1/d² peak under a lamp is badly point-sampled (a lamp 10 cm under
+ * a ceiling with 25 cm texels loses ~30% of the power the ceiling receives, and with it
+ * the indirect light). */
 #define UB_NEAR_TEXELS 6.0f
-#define UB_NEAR_SAMPLES 16
+
+/* desc.near_samples as k × k strata (0 = UB_NEAR_SAMPLES_DEFAULT; at least 1). */
+static uint32_t near_side(const ub_pass_desc *d)
+{
+  uint32_t n = d->near_samples ? d->near_samples : UB_NEAR_SAMPLES_DEFAULT, k = 1;
+  while ((k + 1) * (k + 1) <= n && k < 64)
+    k++;
+  return k;
+}
 
 /* World width of a texel (metres) from its owning triangle's world/UV area ratio. */
 static float texel_world_size(const pass_ctx *c, uint32_t t)
@@ -417,7 +426,8 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   if (ns > rs->spr)
     ns = rs->spr;
   uint32_t ne = (d->emissive && d->emitters && d->emitters->count) ? d->emissive_samples : 0;
-  size_t per = (size_t)nlights * (rs->texels && ns < UB_NEAR_SAMPLES ? UB_NEAR_SAMPLES : ns) + ne;
+  uint32_t nside = near_side(d), nnear = nside * nside;
+  size_t per = (size_t)nlights * (rs->texels && ns < nnear ? nnear : ns) + ne;
   if (per == 0)
     return;
   size_t cap = per * nr;
@@ -449,7 +459,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
           tw = texel_world_size(c, r);
         if (tw > 0.0f && dl < UB_NEAR_TEXELS * tw) {
           near = 1;
-          nk = UB_NEAR_SAMPLES;
+          nk = nnear;
         }
       }
       int first = 1; /* the next record starts this light's variance group */
@@ -457,10 +467,12 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
         const float *p = rs->samples + ((size_t)r * rs->spr + k % rs->spr) * 3;
         float pn[3];
         if (near) {
-          /* Stratified 4×4 jittered positions over the whole texel, on its plane. */
+          /* Stratified nside × nside jittered positions over the whole texel, on its
+           * plane. */
           uint32_t h = ub_hash4(c->seed, d->pass_id * 0x10000u + 0x4000u + l, r, k);
-          float fx = ((float)(k % 4) + ub_u01(h)) * 0.25f;
-          float fy = ((float)(k / 4) + ub_u01(ub_hash4(h, 3, 0, 0))) * 0.25f;
+          float inv = 1.0f / (float)nside;
+          float fx = ((float)(k % nside) + ub_u01(h)) * inv;
+          float fy = ((float)(k / nside) + ub_u01(ub_hash4(h, 3, 0, 0))) * inv;
           float q[3];
           if (ub_lightmap_texel_point(c->s, c->lm, r, fx, fy, q)) {
             ub_rt_offset_point(d->rt, q, nrm, pn);
@@ -485,7 +497,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
          * texel's fixed sample points: a quadrature, the same for every seed. */
         sr->grp_n = near && !sr->primary ? nk : 0;
         sr->grp_k = k;
-        sr->grp_kx = 4;
+        sr->grp_kx = (uint8_t)nside;
         sr->grp_first = (uint8_t)first;
         sr->src_texel = -1;
         first = 0;

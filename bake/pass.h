@@ -83,6 +83,10 @@ typedef struct ub_pass_desc {
    * energies (e_k / e_last). NULL: outside texels are dark. */
   const float *outside_bounce_iz;
   uint32_t outside_bounces;
+  /* Footprint samples of a point or spot light near a texel (within 6 texel widths; k × k
+   * jittered strata, rounded down to a square): 0 = UB_NEAR_SAMPLES_DEFAULT. The plan
+   * sets 16 / 64 / 256 for draft / fast / high. */
+  uint32_t near_samples;
   /* Keep each texel's I_z of bounces 1..keep_bounce_iz in the result (texel_bounce_iz). */
   uint32_t keep_bounce_iz;
   int bounces;                   /* -1 = until a bounce adds < stop_fraction of the total */
@@ -99,6 +103,8 @@ typedef struct ub_pass_desc {
   void *progress_user;
   double progress_base, progress_span; /* this pass's share of the whole bake */
 } ub_pass_desc;
+
+#define UB_NEAR_SAMPLES_DEFAULT 16u
 
 typedef struct ub_pass_result {
   float *sh;                     /* texel_count × 12: radiance SH L1 (W/(m²·sr)), I_z-exact */

@@ -49,6 +49,7 @@ typedef struct ub_plan {
   int influence_sparse;        /* influence passes gather at one texel per 2×2 of a surface */
   double stop_fraction;        /* a pass stops when a bounce adds less than this share */
   uint32_t gather_rays, emissive_samples, shadow_samples;
+  uint32_t near_samples; /* footprint samples of a lamp near a texel (ub_pass_desc) */
   uint32_t probe_rays;         /* full-sphere gather rays per GLG probe per bounce */
   uint32_t influence_rays;     /* gather rays per texel of a DLS influence pass */
   uint32_t dls_passes;         /* sets with at least one light that reaches a receiver */
