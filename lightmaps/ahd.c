@@ -189,19 +189,58 @@ static void ahd_encode_terms(const float a[3], const float b[3][3], const float 
 }
 
 #if defined(AHD_HAVE_AVX)
+/* In-register 8 × 8 transpose: r[j] holds 8 floats of row j; afterwards r[k] holds element
+ * k of every row (its own inverse). */
+__attribute__((target("avx"))) static inline void transpose8_avx(__m256 r[8])
+{
+  __m256 t[8], u[8];
+  for (int i = 0; i < 8; i += 2) {
+    t[i] = _mm256_unpacklo_ps(r[i], r[i + 1]);
+    t[i + 1] = _mm256_unpackhi_ps(r[i], r[i + 1]);
+  }
+  for (int i = 0; i < 8; i += 4) {
+    u[i] = _mm256_shuffle_ps(t[i], t[i + 2], 0x44);
+    u[i + 1] = _mm256_shuffle_ps(t[i], t[i + 2], 0xEE);
+    u[i + 2] = _mm256_shuffle_ps(t[i + 1], t[i + 3], 0x44);
+    u[i + 3] = _mm256_shuffle_ps(t[i + 1], t[i + 3], 0xEE);
+  }
+  for (int i = 0; i < 4; i++) {
+    r[i] = _mm256_permute2f128_ps(u[i], u[i + 4], 0x20);
+    r[i + 4] = _mm256_permute2f128_ps(u[i], u[i + 4], 0x31);
+  }
+}
+
 /* ub_ahd_encode_iz on 8 texels in the lanes of AVX registers: every operation, its
  * operands and their order as in the scalar code (IEEE single, no FMA), branches as
- * blends, so each lane gives the scalar bits. */
-__attribute__((target("avx"))) static void encode_iz8_avx(const float *sh_iz,
-                                                          const float *nrm, ub_ahd *out)
+ * blends, so each lane gives the scalar bits. rows[j]: texel j's 12 floats; nrm: 8 × 3
+ * unit normals; out[j]: where texel j's AHD goes. Texels move into and out of the lanes
+ * by register transposes (8 × 8 and 8 × 4), not through memory element by element. */
+__attribute__((target("avx"))) static void encode_iz8_avx(const float *const rows[8],
+                                                          const float *nrm, ub_ahd *const out[8])
 {
-  float t[15][8] __attribute__((aligned(32)));
-  for (int j = 0; j < 8; j++) {
-    for (int k = 0; k < 12; k++)
-      t[k][j] = sh_iz[12 * j + k];
-    for (int k = 0; k < 3; k++)
-      t[12 + k][j] = nrm[3 * j + k];
+  __m256 t[12];
+  {
+    __m256 hi[4];
+    for (int j = 0; j < 8; j++)
+      t[j] = _mm256_loadu_ps(rows[j]);
+    transpose8_avx(t);
+    for (int j = 0; j < 4; j++)
+      hi[j] = _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(rows[j] + 8)),
+                                   _mm_loadu_ps(rows[j + 4] + 8), 1);
+    __m256 a0 = _mm256_unpacklo_ps(hi[0], hi[1]), a1 = _mm256_unpackhi_ps(hi[0], hi[1]);
+    __m256 a2 = _mm256_unpacklo_ps(hi[2], hi[3]), a3 = _mm256_unpackhi_ps(hi[2], hi[3]);
+    __m256 x8 = _mm256_shuffle_ps(a0, a2, 0x44), x9 = _mm256_shuffle_ps(a0, a2, 0xEE);
+    __m256 x10 = _mm256_shuffle_ps(a1, a3, 0x44), x11 = _mm256_shuffle_ps(a1, a3, 0xEE);
+    /* lanes 0-3 hold texels 0-3 and lanes 4-7 texels 4-7 in that order already */
+    t[8] = x8;
+    t[9] = x9;
+    t[10] = x10;
+    t[11] = x11;
   }
+  float nt[3][8] __attribute__((aligned(32)));
+  for (int j = 0; j < 8; j++)
+    for (int k = 0; k < 3; k++)
+      nt[k][j] = nrm[3 * j + k];
   const __m256 zero = _mm256_setzero_ps(), inf = _mm256_set1_ps(INFINITY);
   const __m256 absm = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
 #define AHD_ABS(x) _mm256_and_ps((x), absm)
@@ -210,13 +249,13 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *sh_iz,
   _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(a0, b0), _mm256_mul_ps(a1, b1)),            \
                 _mm256_mul_ps(a2, b2))
   const __m256 kb = _mm256_set1_ps((2.0f * UB_PI / 3.0f) * UB_SH_Y1);
-  __m256 n0 = _mm256_load_ps(t[12]), n1 = _mm256_load_ps(t[13]), n2 = _mm256_load_ps(t[14]);
+  __m256 n0 = _mm256_load_ps(nt[0]), n1 = _mm256_load_ps(nt[1]), n2 = _mm256_load_ps(nt[2]);
   __m256 a[3], b[3][3], iz[3];
   for (int c = 0; c < 3; c++) {
-    b[c][0] = _mm256_mul_ps(kb, AHD_FIN(_mm256_load_ps(t[9 + c])));
-    b[c][1] = _mm256_mul_ps(kb, AHD_FIN(_mm256_load_ps(t[3 + c])));
-    b[c][2] = _mm256_mul_ps(kb, AHD_FIN(_mm256_load_ps(t[6 + c])));
-    iz[c] = AHD_FIN(_mm256_load_ps(t[c]));
+    b[c][0] = _mm256_mul_ps(kb, AHD_FIN(t[9 + c]));
+    b[c][1] = _mm256_mul_ps(kb, AHD_FIN(t[3 + c]));
+    b[c][2] = _mm256_mul_ps(kb, AHD_FIN(t[6 + c]));
+    iz[c] = AHD_FIN(t[c]);
     a[c] = _mm256_sub_ps(iz[c], AHD_DOT(b[c][0], b[c][1], b[c][2], n0, n1, n2));
   }
   __m256 al = zero, bl[3] = {zero, zero, zero};
@@ -245,8 +284,11 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *sh_iz,
   __m256 inv_den = _mm256_and_ps(_mm256_div_ps(one, den), dir);
   __m256 inv_dz = _mm256_and_ps(_mm256_div_ps(one, dz), dir);
   __m256 q = _mm256_sub_ps(_mm256_set1_ps(0.25f), dz);
-  float ca_o[3][8] __attribute__((aligned(32))), cd_o[3][8] __attribute__((aligned(32)));
-  float d_o[3][8] __attribute__((aligned(32)));
+  /* o: the struct's 9 floats per texel in lanes (ambient, direction, directional) */
+  __m256 o[9];
+  o[3] = d0;
+  o[4] = d1;
+  o[5] = d2;
   for (int c = 0; c < 3; c++) {
     __m256 z = _mm256_and_ps(iz[c], _mm256_cmp_ps(iz[c], zero, _CMP_GT_OQ));
     __m256 beta = AHD_DOT(b[c][0], b[c][1], b[c][2], d0, d1, d2);
@@ -258,25 +300,26 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *sh_iz,
     ca = _mm256_blendv_ps(ca, zero, _mm256_cmp_ps(ca, zero, _CMP_LT_OQ));
     __m256 cd = _mm256_mul_ps(_mm256_sub_ps(z, ca), inv_dz);
     cd = _mm256_and_ps(cd, _mm256_cmp_ps(cd, zero, _CMP_GT_OQ));
-    _mm256_store_ps(ca_o[c], _mm256_blendv_ps(z, ca, dir));
-    _mm256_store_ps(cd_o[c], _mm256_and_ps(cd, dir));
+    o[c] = _mm256_blendv_ps(z, ca, dir);
+    o[6 + c] = _mm256_and_ps(cd, dir);
   }
-  _mm256_store_ps(d_o[0], d0);
-  _mm256_store_ps(d_o[1], d1);
-  _mm256_store_ps(d_o[2], d2);
 #undef AHD_ABS
 #undef AHD_FIN
 #undef AHD_DOT
-  for (int j = 0; j < 8; j++)
-    for (int c = 0; c < 3; c++) {
-      out[j].ambient[c] = ca_o[c][j];
-      out[j].directional[c] = cd_o[c][j];
-      out[j].direction[c] = d_o[c][j];
-    }
+  _Static_assert(sizeof(ub_ahd) == 9 * sizeof(float), "ub_ahd is 9 floats");
+  float last[8] __attribute__((aligned(32)));
+  _mm256_store_ps(last, o[8]);
+  transpose8_avx(o);
+  for (int j = 0; j < 8; j++) {
+    float *dst = (float *)out[j]; /* ambient, direction, directional: 9 floats */
+    _mm256_storeu_ps(dst, o[j]);
+    dst[8] = last[j];
+  }
 }
 #endif
 
-void ub_ahd_encode_iz8(const float *sh_iz, const float *unit_normals, ub_ahd *out_ahd)
+void ub_ahd_encode_iz8_rows(const float *const rows[8], const float *unit_normals,
+                            ub_ahd *const out[8])
 {
 #if defined(AHD_HAVE_AVX)
   static int avx = -1; /* benign race: every thread computes the same value */
@@ -284,12 +327,23 @@ void ub_ahd_encode_iz8(const float *sh_iz, const float *unit_normals, ub_ahd *ou
     avx = (ub_cpu_features() & UB_CPU_AVX) ? 1 : 0;
   }
   if (avx) {
-    encode_iz8_avx(sh_iz, unit_normals, out_ahd);
+    encode_iz8_avx(rows, unit_normals, out);
     return;
   }
 #endif
   for (int j = 0; j < 8; j++)
-    ub_ahd_encode_iz(sh_iz + 12 * j, unit_normals + 3 * j, out_ahd + j);
+    ub_ahd_encode_iz(rows[j], unit_normals + 3 * j, out[j]);
+}
+
+void ub_ahd_encode_iz8(const float *sh_iz, const float *unit_normals, ub_ahd *out_ahd)
+{
+  const float *rows[8];
+  ub_ahd *out[8];
+  for (int j = 0; j < 8; j++) {
+    rows[j] = sh_iz + 12 * j;
+    out[j] = out_ahd + j;
+  }
+  ub_ahd_encode_iz8_rows(rows, unit_normals, out);
 }
 
 void ub_ahd_irradiance(const ub_ahd *ahd, const float n[3], float out_rgb[3])

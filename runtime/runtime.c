@@ -916,17 +916,13 @@ static void touched_flush(touched_ctx *tc)
 {
   if (!tc->np)
     return;
-  float rows8[8 * UB_SH1_FLOATS];
-  ub_ahd out8[8];
-  for (uint32_t j = 0; j < 8; j++) {
-    uint32_t k = j < tc->np ? j : 0;
-    memcpy(rows8 + j * UB_SH1_FLOATS, tc->prow[k], UB_SH1_FLOATS * sizeof(float));
-    if (k != j)
-      memcpy(tc->pn + 3 * j, tc->pn, 3 * sizeof(float));
+  ub_ahd pad[8];
+  for (uint32_t j = tc->np; j < 8; j++) {
+    tc->prow[j] = tc->prow[0];
+    tc->pout[j] = &pad[j];
+    memcpy(tc->pn + 3 * j, tc->pn, 3 * sizeof(float));
   }
-  ub_ahd_encode_iz8(rows8, tc->pn, out8);
-  for (uint32_t j = 0; j < tc->np; j++)
-    *tc->pout[j] = out8[j];
+  ub_ahd_encode_iz8_rows(tc->prow, tc->pn, tc->pout);
   tc->np = 0;
 }
 

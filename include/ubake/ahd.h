@@ -31,6 +31,10 @@ void ub_ahd_encode_iz(const float sh_iz[12], const float unit_normal[3], ub_ahd 
 /* Eight texels at once: sh_iz 8 × 12 floats, unit_normals 8 × 3, out 8 AHD; the same bits
  * as eight ub_ahd_encode_iz calls (AVX when the CPU has it, else those calls). */
 void ub_ahd_encode_iz8(const float *sh_iz, const float *unit_normals, ub_ahd *out_ahd);
+/* The same on texels where they are: rows[j] texel j's 12 floats, out[j] its AHD (any
+ * addresses; an out must not overlap a row). */
+void ub_ahd_encode_iz8_rows(const float *const rows[8], const float *unit_normals,
+                            ub_ahd *const out[8]);
 /* Irradiance (W/m²) for any unit normal n'. */
 void ub_ahd_irradiance(const ub_ahd *ahd, const float n[3], float out_rgb[3]);
 /* Irradiance from the SH L1 directly (cosine convolution), W/m², never negative. */
