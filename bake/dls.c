@@ -136,22 +136,48 @@ ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint3
   return UB_OK;
 }
 
-/* ---- Reach bound (see dls.h) ---- */
+/* ---- Uniform voxel grids: the reach bound's and the sparse probe grid's ---- */
 
-static int reach_cell(const ub_dls_reach *r, const float p[3], int32_t out_c[3])
+/* Cell of p in the grid of cubes of side `cell` from org, dim cells per axis; 0 outside. */
+static int grid_cell(const float org[3], float cell, const uint32_t dim[3], const float p[3],
+                     int32_t out_c[3])
 {
   for (int a = 0; a < 3; a++) {
-    float f = (p[a] - r->org[a]) / r->cell;
-    if (!(f >= 0.0f) || f >= (float)r->dim[a])
+    float f = (p[a] - org[a]) / cell;
+    if (!(f >= 0.0f) || f >= (float)dim[a])
       return 0;
     out_c[a] = (int32_t)f;
   }
   return 1;
 }
 
-static size_t reach_index(const ub_dls_reach *r, const int32_t c[3])
+static size_t grid_index(const uint32_t dim[3], const int32_t c[3])
 {
-  return ((size_t)c[2] * r->dim[1] + (size_t)c[1]) * r->dim[0] + (size_t)c[0];
+  return ((size_t)c[2] * dim[1] + (size_t)c[1]) * dim[0] + (size_t)c[0];
+}
+
+/* The cells of the 3×3×3 block around cell c that lie in the grid (z, then y, then x
+ * ascending) into out; returns their count. */
+static int grid_block(const uint32_t dim[3], const int32_t c[3], size_t out[27])
+{
+  int n = 0;
+  for (int32_t dz = -1; dz <= 1; dz++)
+    for (int32_t dy = -1; dy <= 1; dy++)
+      for (int32_t dx = -1; dx <= 1; dx++) {
+        int32_t k[3] = {c[0] + dx, c[1] + dy, c[2] + dz};
+        if (k[0] < 0 || k[1] < 0 || k[2] < 0 || k[0] >= (int32_t)dim[0] ||
+            k[1] >= (int32_t)dim[1] || k[2] >= (int32_t)dim[2])
+          continue;
+        out[n++] = grid_index(dim, k);
+      }
+  return n;
+}
+
+/* ---- Reach bound (see dls.h) ---- */
+
+static int reach_cell(const ub_dls_reach *r, const float p[3], int32_t out_c[3])
+{
+  return grid_cell(r->org, r->cell, r->dim, p, out_c);
 }
 
 /* Facing bits of a unit normal: every axis with |n_a| > 0.3 (so that a slanted surface
@@ -173,7 +199,7 @@ static void reach_mark(ub_dls_reach *r, const float p[3], uint8_t bits)
   int32_t c[3];
   if (!reach_cell(r, p, c))
     return;
-  uint8_t *m = &r->mask[reach_index(r, c)];
+  uint8_t *m = &r->mask[grid_index(r->dim, c)];
   if ((*m & bits) != bits)
     __atomic_fetch_or(m, bits, __ATOMIC_RELAXED);
 }
@@ -193,7 +219,7 @@ static void reach_mark_segment(ub_dls_reach *r, const float o[3], const float d[
         break; /* left the grid: receivers lie inside it */
       continue;
     }
-    uint8_t *m = &r->mask[reach_index(r, c)];
+    uint8_t *m = &r->mask[grid_index(r->dim, c)];
     if (!(*m & 0x40))
       __atomic_fetch_or(m, (uint8_t)0x40, __ATOMIC_RELAXED);
   }
@@ -368,16 +394,11 @@ static uint8_t reach_near(const ub_dls_reach *r, const float p[3])
   int32_t c[3];
   if (r->unbounded || !reach_cell(r, p, c))
     return 0xff;
+  size_t cells[27];
+  int n = grid_block(r->dim, c, cells);
   uint8_t m = 0;
-  for (int32_t dz = -1; dz <= 1; dz++)
-    for (int32_t dy = -1; dy <= 1; dy++)
-      for (int32_t dx = -1; dx <= 1; dx++) {
-        int32_t k[3] = {c[0] + dx, c[1] + dy, c[2] + dz};
-        if (k[0] < 0 || k[1] < 0 || k[2] < 0 || k[0] >= (int32_t)r->dim[0] ||
-            k[1] >= (int32_t)r->dim[1] || k[2] >= (int32_t)r->dim[2])
-          continue;
-        m |= r->mask[reach_index(r, k)];
-      }
+  for (int i = 0; i < n; i++)
+    m |= r->mask[cells[i]];
   return m;
 }
 
@@ -568,7 +589,7 @@ static uint32_t llg_donors(const ub_llg_set *set, const uint32_t *cl, uint32_t n
  * probe_fill_sparse), so the keep rule errs towards keeping. Direct light is computed at
  * every candidate. */
 typedef struct probe_grid {
-  float r, inv;
+  float r;      /* the radius, and the cells' side */
   float lo[3];
   uint32_t dim[3];
   uint32_t *head; /* cells: first gathering probe, UINT32_MAX = none */
@@ -577,18 +598,7 @@ typedef struct probe_grid {
 
 static int probe_grid_cell(const probe_grid *g, const float p[3], int32_t c[3])
 {
-  for (int a = 0; a < 3; a++) {
-    float f = (p[a] - g->lo[a]) * g->inv;
-    if (!(f >= 0.0f) || f >= (float)g->dim[a])
-      return 0;
-    c[a] = (int32_t)f;
-  }
-  return 1;
-}
-
-static size_t probe_grid_index(const probe_grid *g, const int32_t c[3])
-{
-  return ((size_t)c[2] * g->dim[1] + (size_t)c[1]) * g->dim[0] + (size_t)c[0];
+  return grid_cell(g->lo, g->r, g->dim, p, c);
 }
 
 static int probes_see(const ub_rt *rt, const float *a, const float *b)
@@ -612,22 +622,17 @@ static void probe_grid_visit(const probe_grid *g, const ub_rt *rt, const float *
   int32_t c[3];
   if (!probe_grid_cell(g, p, c))
     return;
-  for (int32_t dz = -1; dz <= 1; dz++)
-    for (int32_t dy = -1; dy <= 1; dy++)
-      for (int32_t dx = -1; dx <= 1; dx++) {
-        int32_t k[3] = {c[0] + dx, c[1] + dy, c[2] + dz};
-        if (k[0] < 0 || k[1] < 0 || k[2] < 0 || k[0] >= (int32_t)g->dim[0] ||
-            k[1] >= (int32_t)g->dim[1] || k[2] >= (int32_t)g->dim[2])
-          continue;
-        for (uint32_t o = g->head[probe_grid_index(g, k)]; o != UINT32_MAX; o = g->next[o]) {
-          const float *po = pos + 3 * (size_t)o;
-          float d2 = 0.0f;
-          for (int a = 0; a < 3; a++)
-            d2 += (po[a] - p[a]) * (po[a] - p[a]);
-          if (d2 <= g->r * g->r && probes_see(rt, p, po) && fn(user, o))
-            return;
-        }
-      }
+  size_t cells[27];
+  int n = grid_block(g->dim, c, cells);
+  for (int i = 0; i < n; i++)
+    for (uint32_t o = g->head[cells[i]]; o != UINT32_MAX; o = g->next[o]) {
+      const float *po = pos + 3 * (size_t)o;
+      float d2 = 0.0f;
+      for (int a = 0; a < 3; a++)
+        d2 += (po[a] - p[a]) * (po[a] - p[a]);
+      if (d2 <= g->r * g->r && probes_see(rt, p, po) && fn(user, o))
+        return;
+    }
 }
 
 static int visit_any(void *user, uint32_t o)
@@ -665,8 +670,9 @@ static uint32_t probe_sparse_pick(probe_grid *g, const ub_rt *rt, const float *p
     gat[ng++] = q;
     int32_t c[3];
     if (g->head && probe_grid_cell(g, pos + 3 * (size_t)q, c)) {
-      g->next[q] = g->head[probe_grid_index(g, c)];
-      g->head[probe_grid_index(g, c)] = q;
+      size_t ci = grid_index(g->dim, c);
+      g->next[q] = g->head[ci];
+      g->head[ci] = q;
     }
   }
   return ng;
@@ -694,7 +700,7 @@ static void probe_fill_sparse(probe_grid *g, const ub_rt *rt, const float *pos,
   for (uint32_t k = 0; k < ng; k++) {
     int32_t c[3];
     if (probe_grid_cell(g, pos + 3 * (size_t)gat[k], c))
-      g->head[probe_grid_index(g, c)] = UINT32_MAX;
+      g->head[grid_index(g->dim, c)] = UINT32_MAX;
   }
 }
 
@@ -774,11 +780,10 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
       vol *= fmax(hi[a] - lo[a], 1e-3 * ext);
     pg.r = (float)fmin(1.8 * cbrt(vol / base->probe_count), ext / 16.0);
     if (ext > 0.0f && isfinite(ext) && pg.r > 0.0f && isfinite(pg.r)) {
-      pg.inv = 1.0f / pg.r;
       size_t nc = 1;
       for (int a = 0; a < 3; a++) {
         pg.lo[a] = lo[a] - pg.r;
-        pg.dim[a] = (uint32_t)ceilf((hi[a] - lo[a]) * pg.inv) + 2;
+        pg.dim[a] = (uint32_t)ceilf((hi[a] - lo[a]) / pg.r) + 2;
         nc *= pg.dim[a];
       }
       pg.head = malloc(nc * sizeof *pg.head);
