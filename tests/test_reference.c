@@ -226,9 +226,9 @@ typedef struct est {
   float e[3], se[3];
 } est;
 
-static est run_full(const fixture *f, float px, float py, float pz, float nx, float ny,
-                    float nz, uint32_t spp, uint32_t seed, uint32_t bounces,
-                    const float *dls_weight, int threads)
+/* Defaults (ub_reference_params_init) with this receiver, path count and seed. */
+static ub_reference_params ref_params(float px, float py, float pz, float nx, float ny,
+                                      float nz, uint32_t spp, uint32_t seed)
 {
   ub_reference_params p;
   ub_reference_params_init(&p);
@@ -240,6 +240,14 @@ static est run_full(const fixture *f, float px, float py, float pz, float nx, fl
   p.normal[2] = nz;
   p.spp = spp;
   p.seed = seed;
+  return p;
+}
+
+static est run_full(const fixture *f, float px, float py, float pz, float nx, float ny,
+                    float nz, uint32_t spp, uint32_t seed, uint32_t bounces,
+                    const float *dls_weight, int threads)
+{
+  ub_reference_params p = ref_params(px, py, pz, nx, ny, nz, spp, seed);
   p.max_bounces = bounces;
   p.dls_weight = dls_weight;
   p.threads = threads;
@@ -434,12 +442,7 @@ static void test_radiance_sh(void)
       want[c] = M_PI * L[c] * (1.0 + n[1]) / 2.0 + I[c] / d2 * kern;
       big = fmax(big, M_PI * L[c] + I[c] / d2 * 1.0625);
     }
-    ub_reference_params rp;
-    ub_reference_params_init(&rp);
-    memcpy(rp.position, p, sizeof rp.position);
-    memcpy(rp.normal, n, sizeof rp.normal);
-    rp.spp = 65536;
-    rp.seed = 7;
+    ub_reference_params rp = ref_params(p[0], p[1], p[2], n[0], n[1], n[2], 65536, 7);
     float sh[27], l2[3], se[3], from_sh[3];
     ASSERT_OK(ub_reference_radiance_sh(f.s, f.rt, f.em, &rp, sh, l2, se, &test_log));
     ub_sh2_irradiance(sh, n, from_sh);
