@@ -122,7 +122,7 @@ int main(void)
   }
   fclose(f);
 
-  double secs[MAX_ROWS], pts[MAX_ROWS], lm[MAX_ROWS], tex[MAX_ROWS], rays[MAX_ROWS];
+  double pts[MAX_ROWS], lm[MAX_ROWS], tex[MAX_ROWS], rays[MAX_ROWS];
   int ng = 0, npreset = 0;
   const row *preset_rows[MAX_ROWS];
   for (int i = 0; i < nrows; i++) {
@@ -139,7 +139,6 @@ int main(void)
     ASSERT_TRUE(isfinite(r->glg_floor) && r->glg_floor > 0.0 && isfinite(r->glg_vs_floor));
     ASSERT_TRUE(r->glg_floor < r->rmse_glg);
     if (!strcmp(r->setting, "gather_rays")) {
-      secs[ng] = r->core_seconds; /* CPU seconds: wall seconds move with other jobs */
       pts[ng] = r->rmse_pts;
       lm[ng] = r->rmse_lm;
       tex[ng] = r->rmse_texels;
@@ -151,16 +150,11 @@ int main(void)
   }
   ASSERT_TRUE(ng == 3);
   ASSERT_TRUE(npreset == 2);
-  /* Seconds never fall along the ladder, within noise: on cornell the fixed costs (load,
-   * BVH, receivers) dominate the quick ladder's low rungs, and another job's burst moved
-   * core-seconds by ~1% between rungs 0 and 1 (0.507 vs 0.509 s) in a loaded full run. */
-  for (int i = 1; i < ng; i++) {
-    if (!(secs[i] >= secs[i - 1]))
-      fprintf(stderr, "gather_rays rung %d: %.3f core-s < %.3f core-s of the rung before\n", i,
-              secs[i], secs[i - 1]);
-    ASSERT_TRUE(secs[i] >= 0.9 * secs[i - 1]);
+  /* Work grows along the ladder: rays, counted by the baker. Seconds are printed above and
+   * not asserted: core-seconds on 2 cores moved by 4x between rungs when another test
+   * shared them (0.56 vs 0.33 core-s in a clean-clone run); time belongs to bench/. */
+  for (int i = 1; i < ng; i++)
     ASSERT_TRUE(rays[i] > rays[i - 1]);
-  }
   double noise = rows[0].ref_noise;
   ASSERT_TRUE(isfinite(noise) && noise > 0.0 && noise < 0.1);
   check_decreasing("points", pts, ng, noise);
