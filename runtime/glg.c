@@ -4,6 +4,7 @@
 
 #include <assert.h>
 #include <math.h>
+#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -806,6 +807,81 @@ static void interp4_half_scalar(const uint16_t *s0, const uint16_t *s1, const ui
              w[2] * ub_half_to_float(s2[k]) + w[3] * ub_half_to_float(s3[k]);
 }
 
+/* ---- lazy windowing -------------------------------------------------------------- */
+
+enum { GLG_WINDOWED = 0, GLG_STALE = 1, GLG_WRITING = 2 };
+
+static inline _Atomic unsigned char *stale_of(const ub_glg *g)
+{
+  return (_Atomic unsigned char *)g->stale;
+}
+
+/* Probe v's windowed row, windowing it first when stale: into tmp (28 floats); the thread
+ * that moves the state from stale to writing also writes it back and publishes it
+ * (release), so a reader that sees "windowed" (acquire) reads a complete row. Others
+ * use their own copy: the same bits (ub_sh2_window is a pure function). */
+static const float *glg_row_slow(const ub_glg *g, uint32_t v, float *tmp)
+{
+  _Atomic unsigned char *st = stale_of(g) + v;
+  memcpy(tmp, g->sh_raw + 27 * (size_t)v, 27 * sizeof(float));
+  tmp[27] = 0.0f;
+  ub_sh2_window(tmp);
+  unsigned char expect = GLG_STALE;
+  if (atomic_compare_exchange_strong_explicit(st, &expect, GLG_WRITING, memory_order_acquire,
+                                              memory_order_acquire)) {
+    memcpy(g->sh_win + 27 * (size_t)v, tmp, 27 * sizeof(float));
+    atomic_store_explicit(st, GLG_WINDOWED, memory_order_release);
+  }
+  return tmp;
+}
+
+static inline const float *glg_row(const ub_glg *g, uint32_t v, float *tmp)
+{
+  if (g->stale &&
+      atomic_load_explicit(stale_of(g) + v, memory_order_acquire) != GLG_WINDOWED)
+    return glg_row_slow(g, v, tmp);
+  return g->sh + 27 * (size_t)v;
+}
+
+ub_result ub_glg_enable_lazy(ub_glg *g, float *win, const float *raw)
+{
+  if (!g || !win || !raw || !g->tet_data || g->sh_half || !g->sh_windowed || win != g->sh)
+    return UB_ERR_INVALID_ARGUMENT;
+  if (g->stale)
+    return UB_OK;
+  _Atomic unsigned char *st = malloc((size_t)g->probe_count + 1);
+  if (!st)
+    return UB_ERR_OUT_OF_MEMORY;
+  for (uint32_t q = 0; q < g->probe_count; q++)
+    atomic_init(st + q, GLG_WINDOWED);
+  g->sh_win = win;
+  g->sh_raw = raw;
+  g->stale = (void *)st;
+  return UB_OK;
+}
+
+void ub_glg_mark_stale(ub_glg *g, uint32_t first, uint32_t count)
+{
+  assert(g && g->stale && first <= g->probe_count && count <= g->probe_count - first);
+  _Atomic unsigned char *st = stale_of(g);
+  for (uint32_t q = first; q < first + count; q++)
+    atomic_store_explicit(st + q, GLG_STALE, memory_order_relaxed);
+}
+
+uint32_t ub_glg_refresh(const ub_glg *g)
+{
+  if (!g || !g->stale)
+    return 0;
+  uint32_t n = 0;
+  float tmp[28];
+  for (uint32_t q = 0; q < g->probe_count; q++)
+    if (atomic_load_explicit(stale_of(g) + q, memory_order_acquire) != GLG_WINDOWED) {
+      glg_row_slow(g, q, tmp);
+      n++;
+    }
+  return n;
+}
+
 static inline void interp4(const ub_glg *g, const uint32_t v[4], const float w[4],
                            float out[27])
 {
@@ -828,8 +904,9 @@ static inline void interp4(const ub_glg *g, const uint32_t v[4], const float w[4
     interp4_half_scalar(h0, h1, h2, h3, w, out);
     return;
   }
-  const float *s0 = g->sh + 27 * (size_t)v[0], *s1 = g->sh + 27 * (size_t)v[1],
-              *s2 = g->sh + 27 * (size_t)v[2], *s3 = g->sh + 27 * (size_t)v[3];
+  float tmp[4][28];
+  const float *s0 = glg_row(g, v[0], tmp[0]), *s1 = glg_row(g, v[1], tmp[1]),
+              *s2 = glg_row(g, v[2], tmp[2]), *s3 = glg_row(g, v[3], tmp[3]);
 #if defined(GLG_HAVE_AVX_PATH)
   if (g->simd) {
     interp4_avx(s0, s1, s2, s3, w, out);
@@ -1454,6 +1531,7 @@ void ub_glg_release(ub_glg *g)
   free(g->leak_drop);
   free(g->hull);
   free(g->start_grid);
+  free(g->stale);
   memset(g, 0, sizeof *g);
 }
 
@@ -1463,7 +1541,8 @@ size_t ub_glg_owned_bytes(const ub_glg *g)
     return 0;
   size_t cells = (size_t)g->grid_dim[0] * g->grid_dim[1] * g->grid_dim[2];
   return (size_t)g->tet_count * (sizeof(struct ub_glg_tet) + 1 + (g->leak_drop ? 1 : 0)) +
-         (size_t)g->hull_count * sizeof(struct ub_glg_hull) + cells * sizeof(uint32_t);
+         (size_t)g->hull_count * sizeof(struct ub_glg_hull) + cells * sizeof(uint32_t) +
+         (g->stale ? (size_t)g->probe_count : 0);
 }
 
 void ub_glg_memory_usage(const ub_glg *g, ub_glg_memory *out)

@@ -766,11 +766,13 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
     gd.sh = rt->glg_win;
     gd.sh_windowed = 1;
     r = ub_glg_init(&rt->glg, &gd, log);
+    rt->has_glg = r == UB_OK;
+    if (r == UB_OK && rt->glg_cur)
+      r = ub_glg_enable_lazy(&rt->glg, rt->glg_win, rt->glg_cur);
     if (r != UB_OK) {
       ub_runtime_free(rt);
       return r;
     }
-    rt->has_glg = 1;
   }
   if (bf->dls_count || bf->elem_count) {
     r = setup_elements(rt, path, log);
@@ -977,15 +979,14 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
   }
 }
 
-/* Re-windows the probes the blend just wrote. */
+/* The probes the blend just wrote: stale, windowed by the first query that reads them
+ * (ub_glg_enable_lazy). Windowing at update time was three quarters of a room set's
+ * toggle on the ESTATE-scale level (1.96 -> 0.51 ms without it). */
 static void glg_touched(void *user, uint32_t first, uint32_t count, const float *rows)
 {
   (void)rows;
   ub_runtime *rt = user;
-  memcpy(rt->glg_win + 27 * (size_t)first, rt->glg_cur + 27 * (size_t)first,
-         (size_t)count * 27 * sizeof(float));
-  for (uint32_t q = first; q < first + count; q++)
-    ub_sh2_window(rt->glg_win + 27 * (size_t)q);
+  ub_glg_mark_stale(&rt->glg, first, count);
 }
 
 static double rt_now(void)
@@ -1061,8 +1062,10 @@ const float *ub_runtime_glg_probe_sh(const ub_runtime *rt, int windowed)
   assert(rt);
   if (!rt->has_glg)
     return NULL;
-  if (windowed)
+  if (windowed) {
+    ub_glg_refresh(&rt->glg); /* the stale probes (thread safe against queries) */
     return rt->glg_win;
+  }
   return rt->glg_cur ? rt->glg_cur : rt->bf->glg_sh;
 }
 

@@ -7,6 +7,9 @@
 #include "test_util.h"
 
 #include <dirent.h>
+#if defined(_OPENMP)
+#include <omp.h>
+#endif
 #include <stdint.h>
 #include <string.h>
 #include <sys/stat.h>
@@ -1158,6 +1161,112 @@ static void test_fast_vs_reference(void)
   free(sh), free(sh_half), free(sh_exp), free(plane_of), free(planes);
 }
 
+
+/* ---- lazy windowing ---------------------------------------------------------------------- */
+
+/* Probe SH whose bands 1-2 are as strong as its DC: its irradiance goes negative for
+ * some normals (windowing has work to do) for most draws. */
+static void lobe_sh(float out[27])
+{
+  for (int c = 0; c < 3; c++)
+    for (int k = 0; k < 9; k++)
+      out[3 * k + c] = (float)(k == 0 ? 0.5 + rnd() : 2.0 * rnd() - 1.0);
+}
+
+/* Probes change, are marked stale and are windowed by whichever query reads them first,
+ * from 4 threads at once: every answer bit-identical to a GLG whose probes were all
+ * windowed at once, and after ub_glg_refresh the written-back rows equal ub_sh2_window of
+ * the raw rows. Three rounds of changes. */
+static void test_lazy_window(void)
+{
+  enum { N = 400, Q = 4000 };
+  float *pts = malloc(3 * N * sizeof *pts);
+  for (int i = 0; i < 3 * N; i++)
+    pts[i] = (float)(4.0 * rnd());
+  ub_tetmesh *m = build_checked("lazy", pts, N);
+  if (!m) {
+    free(pts);
+    return;
+  }
+  uint32_t np = m->point_count;
+  float *raw = malloc((size_t)np * 27 * sizeof *raw), *win = malloc((size_t)np * 27 * sizeof *win),
+        *eager = malloc((size_t)np * 27 * sizeof *eager);
+  for (uint32_t q = 0; q < np; q++)
+    lobe_sh(raw + 27 * (size_t)q);
+  for (size_t i = 0; i < 27 * (size_t)np; i++)
+    win[i] = eager[i] = raw[i];
+  uint32_t rings = 0;
+  for (uint32_t q = 0; q < np; q++) {
+    ub_sh2_window(win + 27 * (size_t)q);
+    ub_sh2_window(eager + 27 * (size_t)q);
+    rings += memcmp(win + 27 * (size_t)q, raw + 27 * (size_t)q, 27 * sizeof(float)) != 0;
+  }
+  ASSERT_TRUE(rings > np / 2); /* the test means something: most probes are windowed */
+  ub_glg lazy, ref;
+  ASSERT_OK(make_glg(m, win, NULL, &lazy));
+  ASSERT_OK(make_glg(m, eager, NULL, &ref));
+  ASSERT_TRUE(ub_glg_enable_lazy(&lazy, eager, raw) == UB_ERR_INVALID_ARGUMENT); /* not its rows */
+  ASSERT_OK(ub_glg_enable_lazy(&lazy, win, raw));
+  float *qp = malloc(3 * Q * sizeof *qp), *qn = malloc(3 * Q * sizeof *qn);
+  float *got = malloc(3 * Q * sizeof *got), *want = malloc(3 * Q * sizeof *want);
+  int mismatch = 0, stale_total = 0;
+  for (int round = 0; round < 3; round++) {
+    /* a run of probes changes (as a blend hands them over), the eager copy re-windowed */
+    uint32_t first = rndu(np / 2), count = np / 3;
+    for (uint32_t q = first; q < first + count; q++) {
+      lobe_sh(raw + 27 * (size_t)q);
+      memcpy(eager + 27 * (size_t)q, raw + 27 * (size_t)q, 27 * sizeof(float));
+      ub_sh2_window(eager + 27 * (size_t)q);
+    }
+    ub_glg_mark_stale(&lazy, first, count);
+    for (int i = 0; i < Q; i++) {
+      for (int a = 0; a < 3; a++)
+        qp[3 * i + a] = (float)(-0.5 + 5.0 * rnd());
+      rnd_dir(qn + 3 * i);
+    }
+    /* each thread queries every point, in its own order: concurrent first reads */
+#pragma omp parallel num_threads(4)
+    {
+#if defined(_OPENMP)
+      int th = omp_get_thread_num();
+#else
+      int th = 0;
+#endif
+      uint32_t cache = UB_GLG_NO_CACHE;
+      for (int j = 0; j < Q; j++) {
+        int i = (j * (2 * th + 1) + 97 * th) % Q;
+        float rgb[3];
+        ub_glg_query(&lazy, qp + 3 * i, qn + 3 * i, &cache, rgb);
+        if (th == 0)
+          memcpy(got + 3 * i, rgb, sizeof rgb);
+      }
+    }
+    for (int i = 0; i < Q; i++) {
+      uint32_t cache = UB_GLG_NO_CACHE;
+      ub_glg_query(&ref, qp + 3 * i, qn + 3 * i, &cache, want + 3 * i);
+    }
+    mismatch += memcmp(got, want, 3 * Q * sizeof(float)) != 0;
+    stale_total += (int)ub_glg_refresh(&lazy);
+    ASSERT_TRUE(ub_glg_refresh(&lazy) == 0);
+    ASSERT_TRUE(memcmp(win, eager, (size_t)np * 27 * sizeof(float)) == 0);
+  }
+  ASSERT_TRUE(mismatch == 0);
+  printf("lazy windowing: %u probes (%u ring), 3 rounds of %u changed, 4 threads x %d queries: "
+         "identical to eager windowing; %d probes left stale for ub_glg_refresh\n",
+         np, rings, np / 3, Q, stale_total);
+  ub_glg_release(&lazy);
+  ub_glg_release(&ref);
+  ub_tetmesh_free(m);
+  free(pts);
+  free(raw);
+  free(win);
+  free(eager);
+  free(qp);
+  free(qn);
+  free(got);
+  free(want);
+}
+
 int main(void)
 {
   snprintf(tmpdir, sizeof tmpdir, "/tmp/ubake-test-glg-XXXXXX");
@@ -1171,6 +1280,7 @@ int main(void)
   test_hooks();
   test_continuity();
   test_fast_vs_reference();
+  test_lazy_window();
   test_scale();
   rmdir(tmpdir);
   TEST_MAIN_END();

@@ -33,6 +33,11 @@
  *     itself (sh_windowed = 1) the query skips it: a convex combination of windowed probes
  *     is already non-negative for every normal. ub_glg_sample returns the raw
  *     interpolation (radiance, as the LLG resample needs it).
+ *   - Lazy windowing (ub_glg_enable_lazy): when probes change at run time (dynamic light
+ *     sets), the updater only marks them stale (ub_glg_mark_stale); the first query that
+ *     reads a stale probe windows its raw SH (ub_sh2_window, up to a few µs when it rings)
+ *     and writes it back, so an update costs no windowing and only probes something
+ *     looks at are ever windowed. The same bits as windowing every probe at once.
  *
  *   - Speed: one query = the cached-tet test (or a walk), leak weights, a 4 × 27
  *     interpolation (AVX when the CPU has it, else SSE2; the same bits) and the cosine
@@ -44,8 +49,11 @@
  * (NULL-safe, idempotent). Borrowed arrays (positions, sh, tets, leak data) must
  * outlive the ub_glg and keep their values (sh may be updated in place by the run-time,
  * with finite, windowed values); neigh is only read during init.
- * Thread safety: after init every query is read-only on the ub_glg; each thread passes its
- * own cache. Pure C11, part of the run-time library.
+ * Thread safety: after init every query is read-only on the ub_glg (except that, with
+ * lazy windowing, it may window a stale probe: a per-probe atomic state lets one thread
+ * write it back while the others use their own copy); each thread passes its own cache.
+ * ub_glg_mark_stale must not run concurrently with queries. Pure C11, part of the
+ * run-time library.
  */
 #ifndef UBAKE_GLG_H
 #define UBAKE_GLG_H
@@ -113,6 +121,12 @@ typedef struct ub_glg {
   uint32_t ill_tet_count; /* tets evaluated in double / singular */
   uint32_t singular_tet_count;
   int simd;               /* 1: AVX (+F16C for sh_half) interpolation, checked at init */
+  /* lazy windowing (ub_glg_enable_lazy): windowed rows written back (== sh), raw rows
+   * windowed from, per-probe state (private: atomic, 0 windowed, 1 stale, 2 being
+   * written back) */
+  float *sh_win;
+  const float *sh_raw;
+  void *stale;
 } ub_glg;
 
 /* Optional diagnostics of one locate. */
@@ -166,6 +180,19 @@ void ub_glg_query_batch(const ub_glg *g, uint32_t count, const float *points,
 ub_result ub_glg_resample_llg(const ub_glg *g, const float center[3], const float axes[9],
                               const float half_extents[3], uint32_t nx, uint32_t ny,
                               uint32_t nz, uint32_t *inout_tet_cache, float *out_sh);
+
+/* Lazy windowing for a GLG initialised with float sh and sh_windowed = 1: win is the
+ * writable array desc.sh pointed to (every probe windowed now), raw the probes' raw SH
+ * (probe_count × 27, finite), both borrowed and kept. Afterwards the caller changes raw
+ * rows and calls ub_glg_mark_stale for them (not concurrently with queries); queries window
+ * stale probes as they read them. Errors: UB_ERR_INVALID_ARGUMENT (half SH, not windowed,
+ * NULLs), UB_ERR_OUT_OF_MEMORY (g unchanged). */
+ub_result ub_glg_enable_lazy(ub_glg *g, float *win, const float *raw);
+/* Probes [first, first + count) have new raw SH. */
+void ub_glg_mark_stale(ub_glg *g, uint32_t first, uint32_t count);
+/* Windows every stale probe now (e.g. before handing the whole windowed array out); safe
+ * with concurrent queries. Returns how many it windowed. */
+uint32_t ub_glg_refresh(const ub_glg *g);
 
 /* Bytes owned by g (per-tet records, flags, hull, start grid). */
 size_t ub_glg_owned_bytes(const ub_glg *g);

@@ -182,14 +182,16 @@ typedef struct ub_runtime_update_stats {
   uint64_t bytes_read, bytes_written;
   uint32_t groups;
   /* Wall-clock seconds of the update's parts (monotonic clock; for benchmarks): lightmap
-   * blend + AHD re-encode, GLG blend + windowing, LLG blend. */
+   * blend + AHD re-encode, GLG blend (the changed probes are windowed by the first query
+   * that reads them, see ubake/glg.h "Lazy windowing"), LLG blend. */
   double seconds_lightmap, seconds_glg, seconds_llg;
 } ub_runtime_update_stats;
 ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats);
 
 struct ub_glg;
 /* Every GLG probe's current radiance SH L2 (probe × 27): base + Σ weight·set, raw (linear
- * in the weights) or windowed (what queries interpolate). NULL without a GLG. */
+ * in the weights) or windowed (what queries interpolate; probes an update changed and no
+ * query has read yet are windowed by this call). NULL without a GLG. */
 const float *ub_runtime_glg_probe_sh(const ub_runtime *rt, int windowed);
 
 /* The run-time GLG (for resampling into LLG boxes, see ubake/glg.h), or NULL. */
