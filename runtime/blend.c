@@ -302,6 +302,10 @@ BLEND_AVX_INLINE __m128 avx_load4(const char *src, size_t j, const int half)
   return _mm_loadu_ps((const float *)(const void *)src + j);
 }
 
+/* Values ahead of the current ones each member's stream asks for (software prefetch: up
+ * to 16 streams at once, more than the hardware prefetchers follow well). */
+#define BLEND_PF_VALUES 384
+
 /* o[j] = bs[j] + Σ_m wp[m][j mod 24]·src_m[j], j < nf. */
 BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
                                const char *const *src, const float *const *wp,
@@ -313,6 +317,7 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
            a2 = _mm256_loadu_ps(bs + j + 16);
     for (uint32_t m = 0; m < k; m++) {
       const float *w = wp[m];
+      _mm_prefetch(src[m] + (j + BLEND_PF_VALUES) * (half ? 2 : 4), _MM_HINT_T0);
       a0 = _mm256_add_ps(a0, _mm256_mul_ps(_mm256_load_ps(w), avx_load8(src[m], j, half)));
       a1 = _mm256_add_ps(a1, _mm256_mul_ps(_mm256_load_ps(w + 8), avx_load8(src[m], j + 8, half)));
       a2 = _mm256_add_ps(a2, _mm256_mul_ps(_mm256_load_ps(w + 16), avx_load8(src[m], j + 16, half)));
