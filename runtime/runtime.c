@@ -54,6 +54,8 @@ struct ub_runtime {
   float lm_static_scale;
   uint64_t *tch_bits;      /* ⌈slots / 64⌉ words: the slot is touched */
   uint32_t *tch_rank;      /* touched slots before each word */
+  uint32_t *tch_slot;      /* touched slots × 1: the global slot of each (the lightmap blend
+                              works in touched ranks and writes lm_cur rows in place) */
   uint32_t *lm_idx;        /* during setup: the texel records' receivers as global slots */
   /* Record values in half precision inside the blends, as the file stores them (per
    * representation divided by a power-of-two scale, which the weights given to the blend
@@ -322,6 +324,7 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt->lm_static);
   free(rt->tch_bits);
   free(rt->tch_rank);
+  free(rt->tch_slot);
   free(rt->glg_win);
   free(rt->lit_tris);
   if (rt->has_glg)
@@ -563,11 +566,17 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     rt->tch_rank[w] = (uint32_t)touched;
     touched += (uint64_t)__builtin_popcountll(rt->tch_bits[w]);
   }
+  if (touched > UINT32_MAX) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: %llu touched texels is too many", path,
+                  (unsigned long long)touched);
+    return UB_ERR_INVALID_DATA;
+  }
+  rt->tch_slot = malloc((size_t)(touched ? touched : 1) * sizeof *rt->tch_slot);
   rt->lm_cur = malloc((size_t)(touched ? touched : 1) * UB_SH1_FLOATS * sizeof(float));
   rt->lm_un = malloc((size_t)(touched ? touched : 1) * 3 * sizeof(float));
   rt->lm_static = malloc((size_t)(slots - touched ? slots - touched : 1) * UB_SH1_FLOATS *
                          sizeof(uint16_t));
-  if (!rt->lm_cur || !rt->lm_un || !rt->lm_static) {
+  if (!rt->tch_slot || !rt->lm_cur || !rt->lm_un || !rt->lm_static) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return UB_ERR_OUT_OF_MEMORY;
   }
@@ -593,24 +602,33 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   for (uint64_t sl = 0; sl < slots; sl++) {
     uint64_t ix;
     const float *row = rt->lm_base + sl * UB_SH1_FLOATS;
-    if (slot_touched(rt, sl, &ix))
+    if (slot_touched(rt, sl, &ix)) {
       memcpy(rt->lm_cur + ix * UB_SH1_FLOATS, row, UB_SH1_FLOATS * sizeof(float));
-    else
+      rt->tch_slot[ix] = (uint32_t)sl;
+    } else
       for (int k = 0; k < UB_SH1_FLOATS; k++)
         rt->lm_static[ix * UB_SH1_FLOATS + k] = ub_half_from_float(row[k] / rt->lm_static_scale);
   }
+  /* The blend's receivers are the touched ranks (monotonic in the slots, so the records
+   * stay sorted): it writes lm_cur in place, pieces hand over no copy. */
+  for (uint32_t e = 0; e < n; e++)
+    for (uint32_t i = 0; i < rt->lm_rec[e].count; i++) {
+      uint64_t ix;
+      slot_touched(rt, rt->lm_rec[e].receivers[i], &ix);
+      rt->lm_idx[rt->lm_rec[e].receivers - rt->lm_idx + i] = (uint32_t)ix;
+    }
   ub_blend_desc bd;
   memset(&bd, 0, sizeof bd);
   bd.name = "lightmap texels";
-  bd.receiver_count = (uint32_t)slots;
+  bd.receiver_count = (uint32_t)touched;
   bd.stride = UB_SH1_FLOATS;
-  bd.base = rt->lm_base;
+  bd.base = rt->lm_cur;
   bd.storage = UB_BLEND_FLOAT32;
   bd.element_count = n;
   bd.elements = rt->lm_rec;
   /* Keeps only the touched receivers' base rows, and the records as half. */
   bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_STORE_HALF;
-  r = ub_blend_create(&bd, log, NULL, &rt->lm_blend); /* streamed into lm_cur */
+  r = ub_blend_create(&bd, log, NULL, &rt->lm_blend); /* writes lm_cur */
   if (r != UB_OK)
     return r;
   free(rt->lm_base);
@@ -928,55 +946,37 @@ static void touched_flush(touched_ctx *tc)
   tc->np = 0;
 }
 
-/* AHD of atlas a's slots [first, first + count) from their current SH rows (I_z form, in
- * lm_cur: they stay put until the flush). */
-static void encode_touched(touched_ctx *tc, uint32_t a, uint64_t first, uint64_t count,
-                           const float *rows, const float *un)
+/* Re-encodes to AHD the touched texels of ranks [first, first + count), whose current SH
+ * rows the blend just wrote in place (lm_cur, I_z form; they stay put until the flush).
+ * Ranks map to global slots by tch_slot, slots to atlases by slot_first (pieces of one
+ * group come in ascending order: the atlas search resumes at the last one). */
+static void lm_touched(void *user, uint32_t first, uint32_t count, const float *rows)
 {
+  touched_ctx *tc = user;
   const ub_runtime *rt = tc->rt;
-  const ub_bakefile_atlas *at = &rt->bf->atlases[a];
-  const uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
-  for (uint64_t s = first; s < first + count; s++, rows += UB_SH1_FLOATS, un += 3) {
+  const uint32_t *ts = rt->tch_slot + first;
+  const float *un = rt->lm_un + (size_t)first * 3;
+  uint32_t a = tc->atlas;
+  if (a >= rt->bf->atlas_count || (count && ts[0] < rt->slot_first[a]))
+    a = 0;
+  for (uint32_t i = 0; i < count; i++, rows += UB_SH1_FLOATS, un += 3) {
+    uint64_t s = ts[i];
+    while (s >= rt->slot_first[a + 1])
+      a++;
+    uint64_t sa = s - rt->slot_first[a];
     if (isnan(un[0])) {
-      encode_texel(at, &rt->fallback[a], rows, 1, sp[s], &rt->ahd[a][s]);
+      const ub_bakefile_atlas *at = &rt->bf->atlases[a];
+      encode_texel(at, &rt->fallback[a], rows, 1, rt->slot_pixel[s], &rt->ahd[a][sa]);
       continue;
     }
     memcpy(tc->pn + 3 * tc->np, un, 3 * sizeof(float));
     tc->prow[tc->np] = rows;
-    tc->pout[tc->np] = &rt->ahd[a][s];
+    tc->pout[tc->np] = &rt->ahd[a][sa];
     if (++tc->np == 8)
       touched_flush(tc);
   }
-}
-
-/* Stores the rows the blend just computed for slots [first, first + count) (all touched,
- * so their lm_cur rows are consecutive) and re-encodes them to AHD (they may span
- * atlases). */
-static void lm_touched(void *user, uint32_t first, uint32_t count, const float *rows)
-{
-  touched_ctx *tc = user;
-  ub_runtime *rt = tc->rt;
-  uint64_t t0;
-  int on = slot_touched(rt, first, &t0);
-  assert(on);
-  (void)on;
-  float *cur = rt->lm_cur + t0 * UB_SH1_FLOATS;
-  memcpy(cur, rows, (size_t)count * UB_SH1_FLOATS * sizeof(float));
-  uint64_t lo = first, hi = (uint64_t)first + count;
-  uint32_t a = tc->atlas; /* pieces come in ascending order: resume at the last atlas */
-  if (a >= rt->bf->atlas_count || lo < rt->slot_first[a])
-    a = 0;
-  for (; a < rt->bf->atlas_count && lo < hi; a++) {
-    uint64_t a0 = rt->slot_first[a], a1 = rt->slot_first[a + 1];
-    if (lo >= a1)
-      continue;
-    uint64_t s1 = hi < a1 ? hi : a1;
-    encode_touched(tc, a, lo - a0, s1 - lo, cur + (lo - first) * UB_SH1_FLOATS,
-                   rt->lm_un + (t0 + (lo - first)) * 3);
-    tc->texels += s1 - lo;
-    tc->atlas = a;
-    lo = s1;
-  }
+  tc->atlas = a;
+  tc->texels += count;
 }
 
 /* The probes the blend just wrote: stale, windowed by the first query that reads them
@@ -1007,7 +1007,7 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
     memset(&tc, 0, sizeof tc);
     tc.rt = rt;
     ub_blend_stats bs;
-    ub_blend_update(rt->lm_blend, lm_touched, &tc, NULL, &bs);
+    ub_blend_update(rt->lm_blend, lm_touched, &tc, rt->lm_cur, &bs);
     touched_flush(&tc);
     st.texels_written = bs.receivers;
     st.texels_reencoded = tc.texels;
