@@ -1107,7 +1107,8 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
     size_t slots = (size_t)rt->slot_first[bf->atlas_count], words = (slots + 63) / 64, t = 0;
     for (size_t w = 0; w < words; w++)
       t += (size_t)__builtin_popcountll(rt->tch_bits[w]);
-    m.lightmap += t * (UB_SH1_FLOATS + 3) * F + (slots - t) * UB_SH1_FLOATS * 2 + words * (8 + U);
+    m.lightmap += t * ((UB_SH1_FLOATS + 3) * F + U) + (slots - t) * UB_SH1_FLOATS * 2 +
+                  words * (8 + U);
   }
   for (uint32_t i = 0; i < bf->llg_count; i++) {
     const ub_bakefile_llg *g = &bf->llgs[i];

@@ -57,8 +57,10 @@ typedef struct ub_runtime_memory {
                        visibility, self terms */
   size_t lightmap;  /* per covered texel: AHD, SH (float current state where a record
                        touches it, else the file's halves; without elements the file's
-                       float SH); coverage/touched bitmaps; fallback encode normals */
-  size_t glg;       /* raw current + windowed SH, the GLG's acceleration data */
+                       float SH; touched: encode normal and slot); coverage/touched
+                       bitmaps; fallback encode normals */
+  size_t glg;       /* raw current + windowed SH, the GLG's acceleration data and lazy
+                       windowing state */
   size_t llg;       /* LLG probe SH (current state) */
   size_t records;   /* element records: their values (half), held by the blends */
   size_t blend;     /* the blend engines: tables, weights, touched receivers' base rows */
