@@ -340,7 +340,22 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
       a = _mm_add_ps(a, _mm_mul_ps(_mm_loadu_ps(wp[m] + ph), avx_load4(src[m], j, half)));
     _mm_storeu_ps(o + j, a);
   }
-  for (; j < nf; j++) {
+  if (j < nf && nf >= 4) {
+    /* The last 1-3 values (a 27-float row alone: a list group's receiver): the 4 values
+     * ending at nf, inputs only (in bounds), stored through a mask to the ones not yet
+     * written (so o may even alias bs). The weight of position x is wp[m][x mod 24]: the
+     * pattern has 32 lanes and period 3, so lanes ph..ph+3 (ph <= 23) are right. The same
+     * operations per value as above: the same bits as the scalar kernel. */
+    const size_t j0 = nf - 4, ph = j0 % 24;
+    __m128 a = _mm_loadu_ps(bs + j0);
+    for (uint32_t m = 0; m < k; m++)
+      a = _mm_add_ps(a, _mm_mul_ps(_mm_loadu_ps(wp[m] + ph), avx_load4(src[m], j0, half)));
+    const int skip = (int)(j - j0); /* 1..3 lanes already written */
+    const __m128i mask = _mm_set_epi32(-1, skip < 3 ? -1 : 0, skip < 2 ? -1 : 0, 0);
+    _mm_maskstore_ps(o + j0, mask, a);
+    j = nf;
+  }
+  for (; j < nf; j++) { /* a row of 3 alone */
     float acc = bs[j];
     for (uint32_t m = 0; m < k; m++) {
       float v = half ? ub_half_to_float(((const uint16_t *)(const void *)src[m])[j])
