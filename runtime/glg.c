@@ -878,6 +878,9 @@ uint32_t ub_glg_refresh(const ub_glg *g)
     if (atomic_load_explicit(stale_of(g) + q, memory_order_acquire) != GLG_WINDOWED) {
       glg_row_slow(g, q, tmp);
       n++;
+      /* another query may be writing this row back: the caller is about to read it */
+      while (atomic_load_explicit(stale_of(g) + q, memory_order_acquire) != GLG_WINDOWED)
+        ;
     }
   return n;
 }

@@ -182,7 +182,8 @@ ub_result ub_glg_resample_llg(const ub_glg *g, const float center[3], const floa
                               uint32_t nz, uint32_t *inout_tet_cache, float *out_sh);
 
 /* Lazy windowing for a GLG initialised with float sh and sh_windowed = 1: win is the
- * writable array desc.sh pointed to (every probe windowed now), raw the probes' raw SH
+ * writable array desc.sh pointed to (every probe windowed now, or marked stale before the
+ * first query), raw the probes' raw SH
  * (probe_count × 27, finite), both borrowed and kept. Afterwards the caller changes raw
  * rows and calls ub_glg_mark_stale for them (not concurrently with queries); queries window
  * stale probes as they read them. Errors: UB_ERR_INVALID_ARGUMENT (half SH, not windowed,
@@ -191,7 +192,8 @@ ub_result ub_glg_enable_lazy(ub_glg *g, float *win, const float *raw);
 /* Probes [first, first + count) have new raw SH. */
 void ub_glg_mark_stale(ub_glg *g, uint32_t first, uint32_t count);
 /* Windows every stale probe now (e.g. before handing the whole windowed array out); safe
- * with concurrent queries. Returns how many it windowed. */
+ * with concurrent queries (it waits for a row another query is writing back). Returns how
+ * many it found stale. */
 uint32_t ub_glg_refresh(const ub_glg *g);
 
 /* Bytes owned by g (per-tet records, flags, hull, start grid). */
