@@ -68,6 +68,7 @@ typedef struct pass_ctx {
   const ub_lightmap *lm;
   int32_t *emitter_of;        /* triangle → emitter index, -1 (bounce 0 MIS) */
   float **img;                /* per atlas: w×h×4 (irradiance rgb, filled) of bounce k-1 */
+  ub_lightmap_sparse *sparse; /* per atlas, a subset pass's sparse refills (or NULL) */
   recv_set sets[3];           /* 0: texels, 1: GLG probes, 2: LLG probes */
   const ub_llg_set *llg;      /* LLG models, or NULL */
   float *llg_prev;            /* LLG probes' SH of bounce k-1 (what LLG-lit hits read) */
@@ -1209,9 +1210,13 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
 /* Builds the per-atlas image of the irradiance a later bounce reads, dilated. */
 static void build_images(pass_ctx *c, const double *iz)
 {
-  /* Without memory for the dilation scratch the image is used undilated. */
+  /* Without memory for the dilation scratch the image is used undilated. A subset pass
+   * refills only around its texels (the same images). */
   for (uint32_t a = 0; a < c->lm->atlas_count; a++)
-    ub_lightmap_image_fill(c->lm, a, NULL, iz, c->img[a]);
+    if (c->sparse)
+      ub_lightmap_sparse_fill(c->lm, &c->sparse[a], iz, c->img[a]);
+    else
+      ub_lightmap_image_fill(c->lm, a, NULL, iz, c->img[a]);
 }
 
 /* Radiosity the next bounce could read: Σ albedo·E over texels (luminance). Zero means
@@ -1762,6 +1767,20 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     c.img[a] = malloc((size_t)lm->atlases[a].width * lm->atlases[a].height * 4 * sizeof(float));
     oom = !c.img[a];
   }
+  if (!oom && act && lm->atlas_count) {
+    /* A subset pass: the zero-light image once, then refills around act only (out of
+     * memory: whole refills, as a full pass) */
+    c.sparse = calloc(lm->atlas_count, sizeof *c.sparse);
+    int ok = c.sparse != NULL;
+    for (uint32_t a = 0; ok && a < lm->atlas_count; a++)
+      ok = ub_lightmap_sparse_init(lm, a, act, nact, c.img[a], &c.sparse[a]);
+    if (!ok && c.sparse) {
+      for (uint32_t a = 0; a < lm->atlas_count; a++)
+        ub_lightmap_sparse_free(&c.sparse[a]);
+      free(c.sparse);
+      c.sparse = NULL;
+    }
+  }
   ub_result res = UB_OK;
   if (oom) {
     res = UB_ERR_OUT_OF_MEMORY;
@@ -2101,6 +2120,10 @@ done:
   free(rel2);
   free(var_tx);
   free(var_pr);
+  if (c.sparse)
+    for (uint32_t a = 0; a < lm->atlas_count; a++)
+      ub_lightmap_sparse_free(&c.sparse[a]);
+  free(c.sparse);
   if (c.img)
     for (uint32_t a = 0; a < lm->atlas_count; a++)
       free(c.img[a]);

@@ -74,11 +74,33 @@ void ub_lightmap_image_sample(const ub_lightmap *lm, const float *img, uint32_t 
 
 /* Fills atlas `atlas`'s image (width × height × 4: rgb, coverage 1 on covered texels)
  * from per-texel irradiance (texel_count × 3: izf floats, or izd doubles when izf is
- * NULL), zero elsewhere, then dilates it 2 rings so bilinear lookups see no dark seams.
+ * NULL; both NULL: zero light), zero elsewhere, then dilates it 2 rings so bilinear lookups see no dark seams.
  * Returns 0 when the dilation's scratch could not be allocated (image filled, not
  * dilated). */
 int ub_lightmap_image_fill(const ub_lightmap *lm, uint32_t atlas, const float *izf,
                            const double *izd, float *img);
+
+/* A sparse refill of an atlas image for a pass whose light lives at a few texels (a
+ * set's subset pass): built once for the texels act[0..n) (ascending, any atlases; the
+ * others are taken as 0), it makes the image ub_lightmap_image_fill would make from those
+ * texels' values, bit for bit, by writing the full fill of zero light once
+ * (ub_lightmap_sparse_init: coverage and the dilated rings) and then, per refill, only
+ * the act texels' pixels and the dilated pixels next to them (1 ring) and next to those
+ * (2nd ring), each summed over its neighbours in the dilation's order. */
+typedef struct ub_lightmap_sparse {
+  uint32_t atlas;
+  uint32_t n0, n1, n2;  /* act texels in this atlas, ring-1 and ring-2 pixels to recompute */
+  uint32_t *t0;         /* n0 texels */
+  uint32_t *px;         /* n0 + n1 + n2 pixels: the texels', ring 1's, ring 2's */
+  uint8_t *level;       /* per pixel: 0 covered, 1 / 2 dilated in that ring, 3 neither */
+} ub_lightmap_sparse;
+/* Returns 0 when out of memory (sp zeroed; use ub_lightmap_image_fill). img: the atlas's
+ * image, written with the zero-light fill. */
+int ub_lightmap_sparse_init(const ub_lightmap *lm, uint32_t atlas, const uint32_t *act,
+                            uint32_t n, float *img, ub_lightmap_sparse *sp);
+void ub_lightmap_sparse_fill(const ub_lightmap *lm, const ub_lightmap_sparse *sp,
+                             const double *izd, float *img);
+void ub_lightmap_sparse_free(ub_lightmap_sparse *sp);
 
 /* World point of texel t at (fx, fy) ∈ [0,1]² of its footprint, on its owning triangle's
  * plane (affine UV → world map; points past the triangle's edges stay in its plane).

@@ -69,7 +69,8 @@ int ub_lightmap_image_fill(const ub_lightmap *lm, uint32_t atlas, const float *i
     uint32_t t = at->first_texel + i;
     size_t px = (size_t)lm->texel_xy[2 * t + 1] * at->width + lm->texel_xy[2 * t];
     for (int ch = 0; ch < 3; ch++)
-      img[4 * px + ch] = izf ? izf[3 * (size_t)t + ch] : (float)izd[3 * (size_t)t + ch];
+      img[4 * px + ch] = izf ? izf[3 * (size_t)t + ch]
+                             : izd ? (float)izd[3 * (size_t)t + ch] : 0.0f;
     img[4 * px + 3] = 1.0f;
     if (cov)
       cov[px] = 1;
@@ -79,4 +80,149 @@ int ub_lightmap_image_fill(const ub_lightmap *lm, uint32_t atlas, const float *i
     ub_lightmap_dilate(img, cov, at->width, at->height, 4, 2);
   free(cov);
   return ok;
+}
+
+/* Sparse refills (lightmap.h). The dilation (dilate.c, 2 passes): an uncovered pixel
+ * takes the mean of its filled 8-neighbours (covered, or filled by the pass before),
+ * summed in (dy, dx) order, times 1/count. Texels outside act are 0, so a pixel of ring
+ * 1 with no act texel around, or of ring 2 with no recomputed ring-1 pixel around, is
+ * 0 as in the zero-light fill; the others are recomputed with every neighbour (zeros
+ * included) in the same order: the same float operations. */
+static void sparse_ring(const ub_atlas *at, const uint8_t *level, uint8_t ring,
+                        const uint32_t *px, uint32_t n, float *img)
+{
+  for (uint32_t k = 0; k < n; k++) {
+    uint32_t i = px[k], x = i % at->width, y = i / at->width;
+    float sum[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+    uint32_t cnt = 0;
+    for (int dy = -1; dy <= 1; dy++) {
+      int64_t yy = (int64_t)y + dy;
+      if (yy < 0 || yy >= (int64_t)at->height)
+        continue;
+      for (int dx = -1; dx <= 1; dx++) {
+        int64_t xx = (int64_t)x + dx;
+        if ((dx == 0 && dy == 0) || xx < 0 || xx >= (int64_t)at->width)
+          continue;
+        size_t j = (size_t)yy * at->width + (size_t)xx;
+        if (level[j] >= ring)
+          continue;
+        cnt++;
+        for (int c = 0; c < 4; c++)
+          sum[c] += img[4 * j + c];
+      }
+    }
+    if (cnt == 0)
+      continue;
+    float inv = 1.0f / (float)cnt;
+    for (int c = 0; c < 3; c++) /* the coverage channel is the zero-light fill's */
+      img[4 * (size_t)i + c] = sum[c] * inv;
+  }
+}
+
+int ub_lightmap_sparse_init(const ub_lightmap *lm, uint32_t atlas, const uint32_t *act,
+                            uint32_t n, float *img, ub_lightmap_sparse *sp)
+{
+  memset(sp, 0, sizeof *sp);
+  const ub_atlas *at = &lm->atlases[atlas];
+  size_t npx = (size_t)at->width * at->height;
+  sp->atlas = atlas;
+  sp->level = malloc(npx ? npx : 1);
+  uint8_t *mark = calloc(npx ? npx : 1, 1);
+  uint32_t lo = at->first_texel, hi = at->first_texel + at->texel_count;
+  for (uint32_t i = 0; i < n; i++)
+    sp->n0 += act[i] >= lo && act[i] < hi;
+  sp->t0 = malloc(((size_t)sp->n0 + 1) * sizeof *sp->t0);
+  /* the zero-light fill: coverage and the dilated rings */
+  int ok = sp->level && mark && sp->t0 &&
+           ub_lightmap_image_fill(lm, atlas, NULL, NULL, img);
+  if (!ok) {
+    free(mark);
+    ub_lightmap_sparse_free(sp);
+    return 0;
+  }
+  memset(sp->level, 3, npx);
+  for (uint32_t i = 0; i < at->texel_count; i++) {
+    uint32_t t = at->first_texel + i;
+    sp->level[(size_t)lm->texel_xy[2 * t + 1] * at->width + lm->texel_xy[2 * t]] = 0;
+  }
+  for (uint8_t ring = 1; ring <= 2; ring++) {
+    for (size_t i = 0; i < npx; i++) {
+      if (sp->level[i] != 3)
+        continue;
+      uint32_t x = (uint32_t)(i % at->width), y = (uint32_t)(i / at->width);
+      int near = 0;
+      for (int dy = -1; dy <= 1 && !near; dy++)
+        for (int dx = -1; dx <= 1 && !near; dx++) {
+          int64_t xx = (int64_t)x + dx, yy = (int64_t)y + dy;
+          if ((dx || dy) && xx >= 0 && yy >= 0 && xx < at->width && yy < at->height)
+            near = sp->level[(size_t)yy * at->width + (size_t)xx] < ring;
+        }
+      if (near)
+        mark[i] = 1; /* set after the sweep: a ring grows from the ones before only */
+    }
+    for (size_t i = 0; i < npx; i++)
+      if (mark[i]) {
+        sp->level[i] = ring;
+        mark[i] = 0;
+      }
+  }
+  /* ring-1 pixels next to an act texel, ring-2 pixels next to those */
+  size_t cap = 1 + (size_t)sp->n0 * 9, cap2 = cap * 9;
+  sp->px = malloc((sp->n0 + cap + cap2) * sizeof *sp->px);
+  if (!sp->px) {
+    free(mark);
+    ub_lightmap_sparse_free(sp);
+    return 0;
+  }
+  uint32_t k = 0;
+  for (uint32_t i = 0; i < n; i++)
+    if (act[i] >= lo && act[i] < hi) {
+      uint32_t t = act[i];
+      sp->t0[k] = t;
+      sp->px[k++] = lm->texel_xy[2 * t + 1] * at->width + lm->texel_xy[2 * t];
+    }
+  for (uint8_t ring = 1; ring <= 2; ring++) {
+    uint32_t from = ring == 1 ? 0 : sp->n0, to = ring == 1 ? sp->n0 : sp->n0 + sp->n1, m = 0;
+    for (uint32_t q = from; q < to; q++) {
+      uint32_t x = sp->px[q] % at->width, y = sp->px[q] / at->width;
+      for (int dy = -1; dy <= 1; dy++)
+        for (int dx = -1; dx <= 1; dx++) {
+          int64_t xx = (int64_t)x + dx, yy = (int64_t)y + dy;
+          if (!(dx || dy) || xx < 0 || yy < 0 || xx >= at->width || yy >= at->height)
+            continue;
+          size_t j = (size_t)yy * at->width + (size_t)xx;
+          if (sp->level[j] == ring && !mark[j]) {
+            mark[j] = 1;
+            sp->px[to + m++] = (uint32_t)j;
+          }
+        }
+    }
+    if (ring == 1)
+      sp->n1 = m;
+    else
+      sp->n2 = m;
+  }
+  free(mark);
+  return 1;
+}
+
+void ub_lightmap_sparse_fill(const ub_lightmap *lm, const ub_lightmap_sparse *sp,
+                             const double *izd, float *img)
+{
+  const ub_atlas *at = &lm->atlases[sp->atlas];
+  for (uint32_t k = 0; k < sp->n0; k++)
+    for (int c = 0; c < 3; c++)
+      img[4 * (size_t)sp->px[k] + c] = (float)izd[3 * (size_t)sp->t0[k] + c];
+  sparse_ring(at, sp->level, 1, sp->px + sp->n0, sp->n1, img);
+  sparse_ring(at, sp->level, 2, sp->px + sp->n0 + sp->n1, sp->n2, img);
+}
+
+void ub_lightmap_sparse_free(ub_lightmap_sparse *sp)
+{
+  if (!sp)
+    return;
+  free(sp->t0);
+  free(sp->px);
+  free(sp->level);
+  memset(sp, 0, sizeof *sp);
 }

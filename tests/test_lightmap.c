@@ -742,6 +742,57 @@ static void test_degenerate_inputs(void)
   ub_scene_free(s);
 }
 
+
+/* Sparse refills (a subset pass's images) equal the full fill bit for bit: three subsets
+ * (a run of texels, a scattered 5%, every texel), each refilled twice with new values
+ * (the second refill must overwrite the first everywhere it wrote). */
+static void check_sparse_images(const ub_lightmap *lm)
+{
+  uint32_t T = lm->texel_count;
+  double *iz = calloc((size_t)T * 3 + 1, sizeof *iz);
+  uint32_t *act = malloc(((size_t)T + 1) * sizeof *act);
+  uint64_t rng = 12345;
+  int mismatch = 0, compared = 0;
+  uint64_t rings = 0;
+  for (int kind = 0; kind < 3 && iz && act; kind++) {
+    uint32_t n = 0;
+    for (uint32_t t = 0; t < T; t++) {
+      rng = rng * 6364136223846793005ull + 1442695040888963407ull;
+      int in = kind == 0 ? (t >= T / 3 && t < T / 3 + T / 10)
+                         : kind == 1 ? ((rng >> 33) % 20 == 0) : 1;
+      if (in)
+        act[n++] = t;
+    }
+    for (uint32_t a = 0; a < lm->atlas_count; a++) {
+      size_t npx = (size_t)lm->atlases[a].width * lm->atlases[a].height;
+      float *full = malloc(npx * 4 * sizeof *full), *sp_img = malloc(npx * 4 * sizeof *sp_img);
+      ub_lightmap_sparse sp;
+      ASSERT_TRUE(full && sp_img && ub_lightmap_sparse_init(lm, a, act, n, sp_img, &sp));
+      for (int round = 0; round < 2 && full && sp_img; round++) {
+        memset(iz, 0, (size_t)T * 3 * sizeof *iz);
+        for (uint32_t i = 0; i < n; i++)
+          for (int c = 0; c < 3; c++) {
+            rng = rng * 6364136223846793005ull + 1442695040888963407ull;
+            iz[3 * (size_t)act[i] + c] = (rng >> 40) % 7 == 0 ? 0.0 : (double)(rng >> 11) * 0x1p-53 * 10.0;
+          }
+        ub_lightmap_image_fill(lm, a, NULL, iz, full);
+        ub_lightmap_sparse_fill(lm, &sp, iz, sp_img);
+        mismatch += memcmp(full, sp_img, npx * 4 * sizeof *full) != 0;
+        compared++;
+      }
+      rings += sp.n1 + sp.n2;
+      ub_lightmap_sparse_free(&sp);
+      free(full);
+      free(sp_img);
+    }
+  }
+  ASSERT_TRUE(compared > 0 && mismatch == 0);
+  printf("  sparse image refills: %d images identical to the full fill (%d differ); %llu ring "
+         "pixels recomputed\n", compared - mismatch, mismatch, (unsigned long long)rings);
+  free(iz);
+  free(act);
+}
+
 static void test_real_level(const char *path)
 {
   struct stat st;
@@ -774,6 +825,7 @@ static void test_real_level(const char *path)
            lm->texel_count, lm->chart_count, lm->backface_fixes, lm->overlap_texels, t1 - t0,
            t2 - t1, t3 - t2);
     check_invariants(s, lm, 0);
+    check_sparse_images(lm);
     ub_lightmap_free(lm);
   }
   ub_rt_free(rt);
