@@ -69,6 +69,9 @@ typedef struct pass_ctx {
   int32_t *emitter_of;        /* triangle → emitter index, -1 (bounce 0 MIS) */
   float **img;                /* per atlas: w×h×4 (irradiance rgb, filled) of bounce k-1 */
   ub_lightmap_sparse *sparse; /* per atlas, a subset pass's sparse refills (or NULL) */
+  const uint32_t *act;        /* a subset pass's texels that can hold light (or NULL: all) */
+  uint32_t nact;
+  uint8_t *tl_hot;            /* per cluster: holds an act texel (subset passes) */
   recv_set sets[3];           /* 0: texels, 1: GLG probes, 2: LLG probes */
   const ub_llg_set *llg;      /* LLG models, or NULL */
   float *llg_prev;            /* LLG probes' SH of bounce k-1 (what LLG-lit hits read) */
@@ -776,8 +779,8 @@ static int texel_clusters_build(pass_ctx *c)
   uint64_t *key = malloc(((size_t)T + 1) * sizeof *key);
   c->tl_of = malloc(((size_t)T + 1) * sizeof *c->tl_of);
   c->tl_list = malloc(((size_t)T + 1) * sizeof *c->tl_list);
-  c->tl_ccdf = malloc(((size_t)T + 1) * sizeof *c->tl_ccdf);
-  c->tl_pc = malloc(((size_t)T + 1) * sizeof *c->tl_pc);
+  c->tl_ccdf = calloc((size_t)T + 1, sizeof *c->tl_ccdf); /* 0: clusters never lit */
+  c->tl_pc = calloc((size_t)T + 1, sizeof *c->tl_pc);
   if (!key || !c->tl_of || !c->tl_list || !c->tl_ccdf || !c->tl_pc) {
     free(key);
     return 0;
@@ -846,6 +849,14 @@ static int texel_clusters_build(pass_ctx *c)
   c->tl_start[K] = (uint32_t)m;
   c->tl_K = K;
   free(key);
+  if (c->act) {
+    c->tl_hot = calloc((size_t)K + 1, 1);
+    if (!c->tl_hot)
+      return 0;
+    for (uint32_t i = 0; i < c->nact; i++)
+      if (c->tl_of[c->act[i]] != UINT32_MAX)
+        c->tl_hot[c->tl_of[c->act[i]]] = 1;
+  }
   return 1;
 }
 
@@ -858,13 +869,21 @@ static void texel_lights_build(pass_ctx *c, const double *e_prev)
   c->tl_on = 0;
   if (!c->tl_rad || !c->tl_samples || !c->tl_K)
     return;
-  for (uint32_t t = 0; t < T; t++) {
+  /* A subset pass: only its act texels hold light (tl_rad is 0 elsewhere from the start),
+   * and a cluster without one has no power: its cdf and texel shares stay 0. */
+  uint32_t n = c->act ? c->nact : T;
+  for (uint32_t i = 0; i < n; i++) {
+    uint32_t t = c->act ? c->act[i] : i;
     const float *alb = s->materials[s->tri_material[lm->texel_tri[t]]].albedo;
     for (int ch = 0; ch < 3; ch++)
       c->tl_rad[3 * (size_t)t + ch] = (float)(alb[ch] * M_1_PI * e_prev[3 * (size_t)t + ch]);
   }
   for (uint32_t k = 0; k < c->tl_K; k++) {
     tl_cluster *cl = &c->tl_cl[k];
+    if (c->tl_hot && !c->tl_hot[k]) {
+      cl->power = cl->peak = 0.0;
+      continue;
+    }
     double sum = 0.0, peak = 0.0;
     for (uint32_t i = c->tl_start[k]; i < c->tl_start[k + 1]; i++) {
       uint32_t t = c->tl_list[i];
@@ -1690,7 +1709,9 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   tx->acc_src_np = calloc((size_t)T * 3 + 1, sizeof(double));
   /* Texel lights: an eighth of the gather rays (at least 4) toward bright texels. */
   c.tl_samples = N / 8 < 4 ? 4 : N / 8;
-  c.tl_rad = malloc(((size_t)T * 3 + 1) * sizeof(float));
+  c.tl_rad = calloc((size_t)T * 3 + 1, sizeof(float));
+  c.act = act;
+  c.nact = nact;
   c.tl_area = malloc(((size_t)T + 1) * sizeof(float));
   int tl_ok = c.tl_area != NULL;
   if (c.tl_area) {
@@ -2107,6 +2128,7 @@ done:
   free(c.tl_list);
   free(c.tl_ccdf);
   free(c.tl_cl);
+  free(c.tl_hot);
   free(pr->acc_sh);
   free(probe_total);
   free(lg->acc_sh);
