@@ -133,6 +133,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   memset(&llg, 0, sizeof llg);
   ub_pass_result base;
   memset(&base, 0, sizeof base);
+  ub_pass_cache *pass_cache = NULL;
   ub_bakefile_record *dls = NULL;
   ub_dls_stats dstats;
   memset(&dstats, 0, sizeof dstats);
@@ -286,6 +287,8 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   pd.progress_user = opt->progress_user;
   pd.progress_base = 0.0;
   pd.progress_span = 1.0;
+  pass_cache = ub_pass_cache_create(); /* shared by the base pass and every element's */
+  pd.cache = pass_cache;
   double tg = now_seconds();
   r = ub_pass_run(&pd, log, &base);
   stats.gather_seconds = now_seconds() - tg;
@@ -411,6 +414,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
 
 fail:
   ub_pass_result_free(&base);
+  ub_pass_cache_free(pass_cache);
   ub_dls_records_free(elems, elem_count);
   free(base_mask);
   free(orig_material);

@@ -102,7 +102,15 @@ typedef struct ub_pass_desc {
   ub_progress_fn progress;
   void *progress_user;
   double progress_base, progress_span; /* this pass's share of the whole bake */
+  /* Optional: what passes over the same scene and lightmap share (the texel-light
+   * clusters' geometry), built by the first pass that has it, freed by the caller
+   * (ub_pass_cache_free). NULL: every pass builds its own. */
+  struct ub_pass_cache *cache;
 } ub_pass_desc;
+
+typedef struct ub_pass_cache ub_pass_cache;
+ub_pass_cache *ub_pass_cache_create(void); /* NULL when out of memory (passes then build) */
+void ub_pass_cache_free(ub_pass_cache *cache); /* NULL-safe */
 
 #define UB_NEAR_SAMPLES_DEFAULT 16u
 
