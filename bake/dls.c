@@ -377,6 +377,21 @@ ub_result ub_dls_reach_build(const ub_scene *scene, const ub_rt *rt, const uint8
     }
   }
   out->rays = rays;
+  /* near: the mask OR-ed over each voxel's 3×3×3 block, so a lookup is one voxel (every
+   * texel of the level is tested per set: 27 reads each were ~3% of an ESTATE bake) */
+  out->near = malloc(nc);
+  if (out->near)
+    for (int32_t z = 0; z < (int32_t)out->dim[2]; z++)
+      for (int32_t y = 0; y < (int32_t)out->dim[1]; y++)
+        for (int32_t x = 0; x < (int32_t)out->dim[0]; x++) {
+          int32_t c[3] = {x, y, z};
+          size_t cells[27];
+          int n = grid_block(out->dim, c, cells);
+          uint8_t m = 0;
+          for (int i = 0; i < n; i++)
+            m |= out->mask[cells[i]];
+          out->near[grid_index(out->dim, c)] = m;
+        }
   return UB_OK;
 }
 
@@ -385,7 +400,9 @@ void ub_dls_reach_free(ub_dls_reach *r)
   if (!r)
     return;
   free(r->mask);
+  free(r->near);
   r->mask = NULL;
+  r->near = NULL;
 }
 
 /* OR of the mask over the 27 voxels around p; 0xff when p is outside the grid. */
@@ -394,6 +411,8 @@ static uint8_t reach_near(const ub_dls_reach *r, const float p[3])
   int32_t c[3];
   if (r->unbounded || !reach_cell(r, p, c))
     return 0xff;
+  if (r->near)
+    return r->near[grid_index(r->dim, c)];
   size_t cells[27];
   int n = grid_block(r->dim, c, cells);
   uint8_t m = 0;

@@ -49,6 +49,8 @@ typedef struct ub_dls_reach {
   float org[3], cell;         /* grid origin (world) and voxel side (m) */
   uint32_t dim[3];
   uint8_t *mask;              /* dim[0]·dim[1]·dim[2]: bits 0-5 hit facing ±x,±y,±z; 6 crossed */
+  uint8_t *near;              /* the same grid: mask OR-ed over each voxel's 3×3×3 block (or
+                                 NULL when out of memory: looked up voxel by voxel) */
   uint64_t rays;              /* photon rays traced */
 } ub_dls_reach;
 
