@@ -873,6 +873,12 @@ struct ub_pass_cache {
   float *tl_area;
   uint32_t *tl_of, *tl_list, *tl_start;
   tl_cluster *cl; /* bounds and counts; power and peak 0 */
+  /* per atlas: the zero-light image and pixel levels subset passes start from
+   * (ub_lightmap_sparse_base), built by the first subset pass; zbuilt: 1 ok, -1 failed */
+  int zbuilt;
+  uint32_t zatlases;
+  float **zimg;
+  uint8_t **zlevel;
 };
 
 ub_pass_cache *ub_pass_cache_create(void)
@@ -889,7 +895,38 @@ void ub_pass_cache_free(ub_pass_cache *cache)
   free(cache->tl_list);
   free(cache->tl_start);
   free(cache->cl);
+  for (uint32_t a = 0; a < cache->zatlases; a++) {
+    free(cache->zimg ? cache->zimg[a] : NULL);
+    free(cache->zlevel ? cache->zlevel[a] : NULL);
+  }
+  free(cache->zimg);
+  free(cache->zlevel);
   free(cache);
+}
+
+/* The cache's zero-light images for lm (built on first use); 0 when unavailable. */
+static int sparse_base_ready(ub_pass_cache *cache, const ub_lightmap *lm)
+{
+  if (!cache || (cache->zbuilt && cache->zatlases != lm->atlas_count))
+    return 0;
+  if (!cache->zbuilt) {
+    cache->zbuilt = -1;
+    cache->zatlases = lm->atlas_count;
+    cache->zimg = calloc(lm->atlas_count + 1, sizeof *cache->zimg);
+    cache->zlevel = calloc(lm->atlas_count + 1, sizeof *cache->zlevel);
+    if (!cache->zimg || !cache->zlevel)
+      return 0;
+    for (uint32_t a = 0; a < lm->atlas_count; a++) {
+      size_t npx = (size_t)lm->atlases[a].width * lm->atlases[a].height;
+      cache->zimg[a] = malloc((npx + 1) * 4 * sizeof(float));
+      cache->zlevel[a] = malloc(npx + 1);
+      if (!cache->zimg[a] || !cache->zlevel[a] ||
+          !ub_lightmap_sparse_base(lm, a, cache->zimg[a], cache->zlevel[a]))
+        return 0;
+    }
+    cache->zbuilt = 1;
+  }
+  return cache->zbuilt == 1;
 }
 
 static void texel_clusters_to_cache(const pass_ctx *c, const ub_lightmap *lm,
@@ -1890,8 +1927,11 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
      * memory: whole refills, as a full pass) */
     c.sparse = calloc(lm->atlas_count, sizeof *c.sparse);
     int ok = c.sparse != NULL;
+    int shared = d->cache && d->cache->ok && d->cache->lm == lm && sparse_base_ready(d->cache, lm);
     for (uint32_t a = 0; ok && a < lm->atlas_count; a++)
-      ok = ub_lightmap_sparse_init(lm, a, act, nact, c.img[a], &c.sparse[a]);
+      ok = ub_lightmap_sparse_init(lm, a, act, nact, shared ? d->cache->zimg[a] : NULL,
+                                   shared ? d->cache->zlevel[a] : NULL, c.img[a],
+                                   &c.sparse[a]);
     if (!ok && c.sparse) {
       for (uint32_t a = 0; a < lm->atlas_count; a++)
         ub_lightmap_sparse_free(&c.sparse[a]);

@@ -93,11 +93,18 @@ typedef struct ub_lightmap_sparse {
   uint32_t *t0;         /* n0 texels */
   uint32_t *px;         /* n0 + n1 + n2 pixels: the texels', ring 1's, ring 2's */
   uint8_t *level;       /* per pixel: 0 covered, 1 / 2 dilated in that ring, 3 neither */
+  int own_level;        /* level is this struct's (else the caller's base_level) */
 } ub_lightmap_sparse;
+/* The zero-light fill of an atlas (img: width × height × 4) and its pixels' levels (as
+ * ub_lightmap_sparse.level); what every sparse init starts from, so passes may share it.
+ * Returns 0 when out of memory. */
+int ub_lightmap_sparse_base(const ub_lightmap *lm, uint32_t atlas, float *img, uint8_t *level);
 /* Returns 0 when out of memory (sp zeroed; use ub_lightmap_image_fill). img: the atlas's
- * image, written with the zero-light fill. */
+ * image, written with the zero-light fill (copied from base_img with base_level, both
+ * from ub_lightmap_sparse_base and kept while sp lives, or computed when they are NULL). */
 int ub_lightmap_sparse_init(const ub_lightmap *lm, uint32_t atlas, const uint32_t *act,
-                            uint32_t n, float *img, ub_lightmap_sparse *sp);
+                            uint32_t n, const float *base_img, const uint8_t *base_level,
+                            float *img, ub_lightmap_sparse *sp);
 void ub_lightmap_sparse_fill(const ub_lightmap *lm, const ub_lightmap_sparse *sp,
                              const double *izd, float *img);
 void ub_lightmap_sparse_free(ub_lightmap_sparse *sp);

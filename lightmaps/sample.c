@@ -119,35 +119,24 @@ static void sparse_ring(const ub_atlas *at, const uint8_t *level, uint8_t ring,
   }
 }
 
-int ub_lightmap_sparse_init(const ub_lightmap *lm, uint32_t atlas, const uint32_t *act,
-                            uint32_t n, float *img, ub_lightmap_sparse *sp)
+int ub_lightmap_sparse_base(const ub_lightmap *lm, uint32_t atlas, float *img, uint8_t *level)
 {
-  memset(sp, 0, sizeof *sp);
   const ub_atlas *at = &lm->atlases[atlas];
   size_t npx = (size_t)at->width * at->height;
-  sp->atlas = atlas;
-  sp->level = malloc(npx ? npx : 1);
   uint8_t *mark = calloc(npx ? npx : 1, 1);
-  uint32_t lo = at->first_texel, hi = at->first_texel + at->texel_count;
-  for (uint32_t i = 0; i < n; i++)
-    sp->n0 += act[i] >= lo && act[i] < hi;
-  sp->t0 = malloc(((size_t)sp->n0 + 1) * sizeof *sp->t0);
   /* the zero-light fill: coverage and the dilated rings */
-  int ok = sp->level && mark && sp->t0 &&
-           ub_lightmap_image_fill(lm, atlas, NULL, NULL, img);
-  if (!ok) {
+  if (!mark || !ub_lightmap_image_fill(lm, atlas, NULL, NULL, img)) {
     free(mark);
-    ub_lightmap_sparse_free(sp);
     return 0;
   }
-  memset(sp->level, 3, npx);
+  memset(level, 3, npx);
   for (uint32_t i = 0; i < at->texel_count; i++) {
     uint32_t t = at->first_texel + i;
-    sp->level[(size_t)lm->texel_xy[2 * t + 1] * at->width + lm->texel_xy[2 * t]] = 0;
+    level[(size_t)lm->texel_xy[2 * t + 1] * at->width + lm->texel_xy[2 * t]] = 0;
   }
   for (uint8_t ring = 1; ring <= 2; ring++) {
     for (size_t i = 0; i < npx; i++) {
-      if (sp->level[i] != 3)
+      if (level[i] != 3)
         continue;
       uint32_t x = (uint32_t)(i % at->width), y = (uint32_t)(i / at->width);
       int near = 0;
@@ -155,16 +144,47 @@ int ub_lightmap_sparse_init(const ub_lightmap *lm, uint32_t atlas, const uint32_
         for (int dx = -1; dx <= 1 && !near; dx++) {
           int64_t xx = (int64_t)x + dx, yy = (int64_t)y + dy;
           if ((dx || dy) && xx >= 0 && yy >= 0 && xx < at->width && yy < at->height)
-            near = sp->level[(size_t)yy * at->width + (size_t)xx] < ring;
+            near = level[(size_t)yy * at->width + (size_t)xx] < ring;
         }
       if (near)
         mark[i] = 1; /* set after the sweep: a ring grows from the ones before only */
     }
     for (size_t i = 0; i < npx; i++)
       if (mark[i]) {
-        sp->level[i] = ring;
+        level[i] = ring;
         mark[i] = 0;
       }
+  }
+  free(mark);
+  return 1;
+}
+
+int ub_lightmap_sparse_init(const ub_lightmap *lm, uint32_t atlas, const uint32_t *act,
+                            uint32_t n, const float *base_img, const uint8_t *base_level,
+                            float *img, ub_lightmap_sparse *sp)
+{
+  memset(sp, 0, sizeof *sp);
+  const ub_atlas *at = &lm->atlases[atlas];
+  size_t npx = (size_t)at->width * at->height;
+  sp->atlas = atlas;
+  uint32_t lo = at->first_texel, hi = at->first_texel + at->texel_count;
+  for (uint32_t i = 0; i < n; i++)
+    sp->n0 += act[i] >= lo && act[i] < hi;
+  sp->t0 = malloc(((size_t)sp->n0 + 1) * sizeof *sp->t0);
+  uint8_t *mark = calloc(npx ? npx : 1, 1);
+  int ok = sp->t0 && mark;
+  if (ok && base_img && base_level) {
+    memcpy(img, base_img, npx * 4 * sizeof *img);
+    sp->level = (uint8_t *)base_level;
+  } else if (ok) {
+    sp->level = malloc(npx ? npx : 1);
+    sp->own_level = 1;
+    ok = sp->level && ub_lightmap_sparse_base(lm, atlas, img, sp->level);
+  }
+  if (!ok) {
+    free(mark);
+    ub_lightmap_sparse_free(sp);
+    return 0;
   }
   /* ring-1 pixels next to an act texel, ring-2 pixels next to those */
   size_t cap = 1 + (size_t)sp->n0 * 9, cap2 = cap * 9;
@@ -223,6 +243,7 @@ void ub_lightmap_sparse_free(ub_lightmap_sparse *sp)
     return;
   free(sp->t0);
   free(sp->px);
-  free(sp->level);
+  if (sp->own_level)
+    free(sp->level);
   memset(sp, 0, sizeof *sp);
 }

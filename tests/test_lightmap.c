@@ -767,7 +767,12 @@ static void check_sparse_images(const ub_lightmap *lm)
       size_t npx = (size_t)lm->atlases[a].width * lm->atlases[a].height;
       float *full = malloc(npx * 4 * sizeof *full), *sp_img = malloc(npx * 4 * sizeof *sp_img);
       ub_lightmap_sparse sp;
-      ASSERT_TRUE(full && sp_img && ub_lightmap_sparse_init(lm, a, act, n, sp_img, &sp));
+      /* kind 1 from a shared base (as passes of one bake), the others computing it */
+      float *bimg = kind == 1 ? malloc(npx * 4 * sizeof *bimg) : NULL;
+      uint8_t *blev = kind == 1 ? malloc(npx) : NULL;
+      if (kind == 1)
+        ASSERT_TRUE(bimg && blev && ub_lightmap_sparse_base(lm, a, bimg, blev));
+      ASSERT_TRUE(full && sp_img && ub_lightmap_sparse_init(lm, a, act, n, bimg, blev, sp_img, &sp));
       for (int round = 0; round < 2 && full && sp_img; round++) {
         memset(iz, 0, (size_t)T * 3 * sizeof *iz);
         for (uint32_t i = 0; i < n; i++)
@@ -782,6 +787,8 @@ static void check_sparse_images(const ub_lightmap *lm)
       }
       rings += sp.n1 + sp.n2;
       ub_lightmap_sparse_free(&sp);
+      free(bimg);
+      free(blev);
       free(full);
       free(sp_img);
     }
