@@ -445,7 +445,8 @@ int main(int argc, char **argv)
       printf("  bake without sets %.0f s (stages to the plan %.0f s measured; passes x%.1f), "
              "sets' influence %.0f s (x sets x receivers %s; %.0f s if every set saw every "
              "receiver), sets' full passes %.0f s (x record bytes): with sets %.0f s = %.1fx "
-             "(paper: 10 -> 33 min fast on 18 cores)\n",
+             "(paper: 10 -> 33 min fast on 18 cores; a model from this level: --full measures, and "
+             "the full level baked at its own texel size has ~2.6x these records)\n",
              base_f, pre, kr, inf_f, have_reach ? "inside the reach bounds" : "(no reach bounds "
              "in the plans)", inf_all, full_f, base_f + inf_f + full_f,
              (base_f + inf_f + full_f) / (base_f + 1e-30));
