@@ -446,7 +446,7 @@ int main(int argc, char **argv)
              "sets' influence %.0f s (x sets x receivers %s; %.0f s if every set saw every "
              "receiver), sets' full passes %.0f s (x record bytes): with sets %.0f s = %.1fx "
              "(paper: 10 -> 33 min fast on 18 cores; a model from this level: --full measures, and "
-             "the full level baked at its own texel size has ~2.6x these records)\n",
+             "the full level at its own, finer texel size keeps more texels per set than scaled here)\n",
              base_f, pre, kr, inf_f, have_reach ? "inside the reach bounds" : "(no reach bounds "
              "in the plans)", inf_all, full_f, base_f + inf_f + full_f,
              (base_f + inf_f + full_f) / (base_f + 1e-30));
