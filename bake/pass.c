@@ -765,6 +765,21 @@ static int cmp_u64(const void *a, const void *b)
 }
 
 /* The texel-light clusters (geometry only, once per pass). 0 when out of memory. */
+/* A subset pass: which clusters hold one of its act texels (the others never light).
+ * Returns 0 when out of memory. */
+static int tl_hot_build(pass_ctx *c)
+{
+  if (!c->act)
+    return 1;
+  c->tl_hot = calloc((size_t)c->tl_K + 1, 1);
+  if (!c->tl_hot)
+    return 0;
+  for (uint32_t i = 0; i < c->nact; i++)
+    if (c->tl_of[c->act[i]] != UINT32_MAX)
+      c->tl_hot[c->tl_of[c->act[i]]] = 1;
+  return 1;
+}
+
 static int texel_clusters_build(pass_ctx *c)
 {
   const ub_lightmap *lm = c->lm;
@@ -850,15 +865,7 @@ static int texel_clusters_build(pass_ctx *c)
   c->tl_start[K] = (uint32_t)m;
   c->tl_K = K;
   free(key);
-  if (c->act) {
-    c->tl_hot = calloc((size_t)K + 1, 1);
-    if (!c->tl_hot)
-      return 0;
-    for (uint32_t i = 0; i < c->nact; i++)
-      if (c->tl_of[c->act[i]] != UINT32_MAX)
-        c->tl_hot[c->tl_of[c->act[i]]] = 1;
-  }
-  return 1;
+  return tl_hot_build(c);
 }
 
 /* Builds the texel-light tables from the irradiance the next bounce reads. */
@@ -946,7 +953,7 @@ static void texel_clusters_to_cache(const pass_ctx *c, const ub_lightmap *lm,
   }
   memcpy(cache->tl_area, c->tl_area, T * sizeof(float));
   memcpy(cache->tl_of, c->tl_of, T * sizeof(uint32_t));
-  memcpy(cache->tl_list, c->tl_list, T * sizeof(uint32_t)); /* entries past m unused */
+  memcpy(cache->tl_list, c->tl_list, (size_t)c->tl_start[K] * sizeof(uint32_t)); /* the rest unused */
   memcpy(cache->tl_start, c->tl_start, (K + 1) * sizeof(uint32_t));
   for (size_t k = 0; k < K; k++) {
     cache->cl[k] = c->tl_cl[k];
@@ -976,15 +983,7 @@ static int texel_clusters_from_cache(pass_ctx *c, const ub_pass_cache *cache)
   if (!c->tl_cl || !c->tl_ccdf || !c->tl_pc)
     return 0;
   memcpy(c->tl_cl, cache->cl, K * sizeof *c->tl_cl);
-  if (c->act) {
-    c->tl_hot = calloc(K + 1, 1);
-    if (!c->tl_hot)
-      return 0;
-    for (uint32_t i = 0; i < c->nact; i++)
-      if (c->tl_of[c->act[i]] != UINT32_MAX)
-        c->tl_hot[c->tl_of[c->act[i]]] = 1;
-  }
-  return 1;
+  return tl_hot_build(c);
 }
 
 static void texel_lights_build(pass_ctx *c, const double *e_prev)
