@@ -77,31 +77,129 @@ ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint3
     x1 = x1 + UB_DILATE_RINGS < at->width ? x1 + UB_DILATE_RINGS : at->width - 1;
     y1 = y1 + UB_DILATE_RINGS < at->height ? y1 + UB_DILATE_RINGS : at->height - 1;
     uint32_t w = x1 - x0 + 1, h = y1 - y0 + 1;
-    float *img = calloc((size_t)w * h * 12, sizeof(float));
-    uint8_t *cov = calloc((size_t)w * h, 1);
-    if (!img || !cov) {
-      free(img);
-      free(cov);
+    size_t wh = (size_t)w * h;
+    /* The dilation of the window (kept texels' SH, every other covered texel 0, rings
+     * grown inside the window only) without a 12-channel image of it: the window is most
+     * of the atlas when a set's charts are spread (ESTATE full scale: 128 MB and two
+     * copies of it per set). A byte map of each pixel's ring (0 covered, k = filled by
+     * dilation pass k, UB_DILATE_RINGS + 1 never), then only the pixels next to kept
+     * texels ring by ring, each the mean of its filled neighbours in the window in the
+     * dilation's (dy, dx) order: the same float operations as ub_lightmap_dilate. */
+    enum { NR = UB_DILATE_RINGS, FAR = UB_DILATE_RINGS + 1 };
+    uint8_t *lev = malloc(wh ? wh : 1);
+    int32_t *slot = malloc((wh ? wh : 1) * sizeof *slot); /* pixel -> row in vals, or -1 */
+    size_t vcap = (size_t)m * 9 + 16, nv = 0;
+    uint32_t *vpx = malloc(vcap * sizeof *vpx);
+    float *vals = malloc(vcap * 12 * sizeof *vals);
+    if (!lev || !slot || !vpx || !vals) {
+      free(lev), free(slot), free(vpx), free(vals);
       free(idx);
       free(val);
       return UB_ERR_OUT_OF_MEMORY;
     }
-    /* Covered texels of the window (kept or not: an unkept covered texel holds 0). */
     for (uint32_t y = y0; y <= y1; y++)
       for (uint32_t x = x0; x <= x1; x++)
-        cov[(size_t)(y - y0) * w + (x - x0)] = at->texel_of[(size_t)y * at->width + x] >= 0;
+        lev[(size_t)(y - y0) * w + (x - x0)] = at->texel_of[(size_t)y * at->width + x] >= 0 ? 0 : FAR;
+    for (uint8_t ring = 1; ring <= NR; ring++) { /* grow: ring k from rings < k */
+      for (size_t i = 0; i < wh; i++) {
+        if (lev[i] != FAR)
+          continue;
+        uint32_t x = (uint32_t)(i % w), y = (uint32_t)(i / w);
+        int near = 0;
+        for (int dy = -1; dy <= 1 && !near; dy++)
+          for (int dx = -1; dx <= 1 && !near; dx++) {
+            int64_t xx = (int64_t)x + dx, yy = (int64_t)y + dy;
+            if ((dx || dy) && xx >= 0 && yy >= 0 && xx < w && yy < h)
+              near = lev[(size_t)yy * w + (size_t)xx] < ring;
+          }
+        if (near)
+          lev[i] = FAR + 1; /* marked: becomes ring after the sweep */
+      }
+      for (size_t i = 0; i < wh; i++)
+        if (lev[i] == FAR + 1)
+          lev[i] = ring;
+    }
+    for (size_t i = 0; i < wh; i++)
+      slot[i] = -1;
     for (uint32_t i = 0; i < nkept; i++) {
       uint32_t t = kept[i];
       if (lm->texel_atlas[t] != a)
         continue;
-      uint32_t x = lm->texel_xy[2 * t], y = lm->texel_xy[2 * t + 1];
-      memcpy(img + 12 * ((size_t)(y - y0) * w + (x - x0)), sh + 12 * (size_t)t,
-             12 * sizeof(float));
+      size_t q = (size_t)(lm->texel_xy[2 * t + 1] - y0) * w + (lm->texel_xy[2 * t] - x0);
+      slot[q] = (int32_t)nv;
+      vpx[nv] = (uint32_t)q;
+      memcpy(vals + 12 * nv++, sh + 12 * (size_t)t, 12 * sizeof(float));
     }
-    ub_lightmap_dilate(img, cov, w, h, 12, UB_DILATE_RINGS);
+    size_t from = 0;
+    for (uint8_t ring = 1; ring <= NR; ring++) {
+      size_t to = nv;
+      for (size_t k = from; k < to; k++) {
+        uint32_t x = vpx[k] % w, y = vpx[k] / w;
+        for (int dy = -1; dy <= 1; dy++)
+          for (int dx = -1; dx <= 1; dx++) {
+            int64_t xx = (int64_t)x + dx, yy = (int64_t)y + dy;
+            if (!(dx || dy) || xx < 0 || yy < 0 || xx >= w || yy >= h)
+              continue;
+            size_t j = (size_t)yy * w + (size_t)xx;
+            if (lev[j] != ring || slot[j] >= 0)
+              continue;
+            if (nv == vcap) {
+              vcap *= 2;
+              uint32_t *np = realloc(vpx, vcap * sizeof *vpx);
+              float *nw = np ? realloc(vals, vcap * 12 * sizeof *vals) : NULL;
+              if (np)
+                vpx = np;
+              if (!np || !nw) {
+                free(lev), free(slot), free(vpx), free(vals);
+                free(idx);
+                free(val);
+                return UB_ERR_OUT_OF_MEMORY;
+              }
+              vals = nw;
+            }
+            slot[j] = (int32_t)nv;
+            vpx[nv++] = (uint32_t)j;
+          }
+      }
+      /* this ring's new pixels: the mean of their filled neighbours (rings < ring; those
+       * not in vals hold 0) */
+      for (size_t k = to; k < nv; k++) {
+        uint32_t x = vpx[k] % w, y = vpx[k] / w;
+        float sum[12] = {0};
+        uint32_t cnt = 0;
+        for (int dy = -1; dy <= 1; dy++) {
+          int64_t yy = (int64_t)y + dy;
+          if (yy < 0 || yy >= h)
+            continue;
+          for (int dx = -1; dx <= 1; dx++) {
+            int64_t xx = (int64_t)x + dx;
+            if ((dx == 0 && dy == 0) || xx < 0 || xx >= w)
+              continue;
+            size_t j = (size_t)yy * w + (size_t)xx;
+            if (lev[j] >= ring)
+              continue;
+            cnt++;
+            if (slot[j] >= 0)
+              for (int c = 0; c < 12; c++)
+                sum[c] += vals[12 * (size_t)slot[j] + c];
+            else
+              for (int c = 0; c < 12; c++)
+                sum[c] += 0.0f;
+          }
+        }
+        float inv = 1.0f / (float)cnt; /* cnt >= 1: a ring pixel has a filled neighbour */
+        for (int c = 0; c < 12; c++)
+          vals[12 * k + c] = sum[c] * inv;
+      }
+      from = to;
+    }
+    /* out in pixel order, the pixels with some non-zero value (as the full window did) */
     for (uint32_t y = 0; y < h; y++)
       for (uint32_t x = 0; x < w; x++) {
-        const float *v = img + 12 * ((size_t)y * w + x);
+        int32_t sl = slot[(size_t)y * w + x];
+        if (sl < 0)
+          continue;
+        const float *v = vals + 12 * (size_t)sl;
         int nz = 0;
         for (int k = 0; k < 12; k++)
           nz |= v[k] != 0.0f;
@@ -110,24 +208,25 @@ ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint3
         if (n == cap) {
           cap = cap ? 2 * cap : 1024;
           uint32_t *ni = realloc(idx, cap * sizeof *idx);
-          float *nv = ni ? realloc(val, cap * 12 * sizeof *val) : NULL;
+          float *nw = ni ? realloc(val, cap * 12 * sizeof *val) : NULL;
           if (ni)
             idx = ni;
-          if (!ni || !nv) {
-            free(img);
-            free(cov);
+          if (!ni || !nw) {
+            free(lev), free(slot), free(vpx), free(vals);
             free(idx);
             free(val);
             return UB_ERR_OUT_OF_MEMORY;
           }
-          val = nv;
+          val = nw;
         }
         idx[n] = (uint32_t)(pixel_base + (uint64_t)(y + y0) * at->width + (x + x0));
         memcpy(val + 12 * n, v, 12 * sizeof(float));
         n++;
       }
-    free(img);
-    free(cov);
+    free(lev);
+    free(slot);
+    free(vpx);
+    free(vals);
     pixel_base += (uint64_t)at->width * at->height;
   }
   rec->texel_count = (uint32_t)n;
