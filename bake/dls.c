@@ -44,6 +44,23 @@ void ub_dls_records_free(ub_bakefile_record *records, uint32_t count)
   free(records);
 }
 
+/* Doubles (from 1024) the capacity of a pixel list and its 12-float rows; 0 when out of
+ * memory (both arrays still valid, to be freed by the caller). */
+static int grow_rows(uint32_t **px, float **rows, size_t *cap)
+{
+  size_t nc = *cap ? 2 * *cap : 1024;
+  uint32_t *np = realloc(*px, nc * sizeof *np);
+  if (!np)
+    return 0;
+  *px = np;
+  float *nr = realloc(*rows, nc * 12 * sizeof *nr);
+  if (!nr)
+    return 0;
+  *rows = nr;
+  *cap = nc;
+  return 1;
+}
+
 /* The set's texel SH into sparse atlas pixels, with the same dilation as the base so
  * padding texels follow when the set is toggled (no seams under bilinear filtering).
  * Works per atlas on the bounding rectangle of the kept texels plus the dilation rings. */
@@ -85,7 +102,7 @@ ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint3
      * dilation pass k, UB_DILATE_RINGS + 1 never), then only the pixels next to kept
      * texels ring by ring, each the mean of its filled neighbours in the window in the
      * dilation's (dy, dx) order: the same float operations as ub_lightmap_dilate. */
-    enum { NR = UB_DILATE_RINGS, FAR = UB_DILATE_RINGS + 1 };
+    enum { NR = UB_DILATE_RINGS };
     uint8_t *lev = malloc(wh ? wh : 1);
     int32_t *slot = malloc((wh ? wh : 1) * sizeof *slot); /* pixel -> row in vals, or -1 */
     size_t vcap = (size_t)m * 9 + 16, nv = 0;
@@ -99,26 +116,8 @@ ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint3
     }
     for (uint32_t y = y0; y <= y1; y++)
       for (uint32_t x = x0; x <= x1; x++)
-        lev[(size_t)(y - y0) * w + (x - x0)] = at->texel_of[(size_t)y * at->width + x] >= 0 ? 0 : FAR;
-    for (uint8_t ring = 1; ring <= NR; ring++) { /* grow: ring k from rings < k */
-      for (size_t i = 0; i < wh; i++) {
-        if (lev[i] != FAR)
-          continue;
-        uint32_t x = (uint32_t)(i % w), y = (uint32_t)(i / w);
-        int near = 0;
-        for (int dy = -1; dy <= 1 && !near; dy++)
-          for (int dx = -1; dx <= 1 && !near; dx++) {
-            int64_t xx = (int64_t)x + dx, yy = (int64_t)y + dy;
-            if ((dx || dy) && xx >= 0 && yy >= 0 && xx < w && yy < h)
-              near = lev[(size_t)yy * w + (size_t)xx] < ring;
-          }
-        if (near)
-          lev[i] = FAR + 1; /* marked: becomes ring after the sweep */
-      }
-      for (size_t i = 0; i < wh; i++)
-        if (lev[i] == FAR + 1)
-          lev[i] = ring;
-    }
+        lev[(size_t)(y - y0) * w + (x - x0)] = at->texel_of[(size_t)y * at->width + x] >= 0 ? 0 : 1;
+    ub_lightmap_dilate_levels(lev, w, h, NR);
     for (size_t i = 0; i < wh; i++)
       slot[i] = -1;
     for (uint32_t i = 0; i < nkept; i++) {
@@ -143,19 +142,11 @@ ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint3
             size_t j = (size_t)yy * w + (size_t)xx;
             if (lev[j] != ring || slot[j] >= 0)
               continue;
-            if (nv == vcap) {
-              vcap *= 2;
-              uint32_t *np = realloc(vpx, vcap * sizeof *vpx);
-              float *nw = np ? realloc(vals, vcap * 12 * sizeof *vals) : NULL;
-              if (np)
-                vpx = np;
-              if (!np || !nw) {
-                free(lev), free(slot), free(vpx), free(vals);
-                free(idx);
-                free(val);
-                return UB_ERR_OUT_OF_MEMORY;
-              }
-              vals = nw;
+            if (nv == vcap && !grow_rows(&vpx, &vals, &vcap)) {
+              free(lev), free(slot), free(vpx), free(vals);
+              free(idx);
+              free(val);
+              return UB_ERR_OUT_OF_MEMORY;
             }
             slot[j] = (int32_t)nv;
             vpx[nv++] = (uint32_t)j;
@@ -205,19 +196,11 @@ ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint3
           nz |= v[k] != 0.0f;
         if (!nz)
           continue;
-        if (n == cap) {
-          cap = cap ? 2 * cap : 1024;
-          uint32_t *ni = realloc(idx, cap * sizeof *idx);
-          float *nw = ni ? realloc(val, cap * 12 * sizeof *val) : NULL;
-          if (ni)
-            idx = ni;
-          if (!ni || !nw) {
-            free(lev), free(slot), free(vpx), free(vals);
-            free(idx);
-            free(val);
-            return UB_ERR_OUT_OF_MEMORY;
-          }
-          val = nw;
+        if (n == cap && !grow_rows(&idx, &val, &cap)) {
+          free(lev), free(slot), free(vpx), free(vals);
+          free(idx);
+          free(val);
+          return UB_ERR_OUT_OF_MEMORY;
         }
         idx[n] = (uint32_t)(pixel_base + (uint64_t)(y + y0) * at->width + (x + x0));
         memcpy(val + 12 * n, v, 12 * sizeof(float));

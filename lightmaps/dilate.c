@@ -93,3 +93,30 @@ void ub_lightmap_dilate(float *image, const uint8_t *covered, uint32_t width, ui
   free(filled);
   free(filled_next);
 }
+
+void ub_lightmap_dilate_levels(uint8_t *level, uint32_t width, uint32_t height, uint8_t rings)
+{
+  const uint8_t far = (uint8_t)(rings + 1), marked = (uint8_t)(rings + 2);
+  size_t npx = (size_t)width * height;
+  for (size_t i = 0; i < npx; i++)
+    level[i] = level[i] ? far : 0;
+  for (uint8_t ring = 1; ring <= rings; ring++) {
+    for (size_t i = 0; i < npx; i++) {
+      if (level[i] != far)
+        continue;
+      uint32_t x = (uint32_t)(i % width), y = (uint32_t)(i / width);
+      int near = 0;
+      for (int dy = -1; dy <= 1 && !near; dy++)
+        for (int dx = -1; dx <= 1 && !near; dx++) {
+          int64_t xx = (int64_t)x + dx, yy = (int64_t)y + dy;
+          if ((dx || dy) && xx >= 0 && yy >= 0 && xx < width && yy < height)
+            near = level[(size_t)yy * width + (size_t)xx] < ring;
+        }
+      if (near)
+        level[i] = marked; /* a ring grows from the rings before it only */
+    }
+    for (size_t i = 0; i < npx; i++)
+      if (level[i] == marked)
+        level[i] = ring;
+  }
+}

@@ -65,6 +65,10 @@ void ub_lightmap_free(ub_lightmap *lm);
  * image: width × height × channels floats; covered: width × height (non-zero = covered). */
 void ub_lightmap_dilate(float *image, const uint8_t *covered, uint32_t width, uint32_t height,
                         uint32_t channels, uint32_t passes);
+/* Which dilation pass fills each pixel: level (width × height) holds 0 for covered pixels
+ * and anything else for the rest on entry; on return 0 covered, k for the pixels that pass
+ * k of ub_lightmap_dilate(…, rings) fills (1 ≤ k ≤ rings), rings + 1 for the others. */
+void ub_lightmap_dilate_levels(uint8_t *level, uint32_t width, uint32_t height, uint8_t rings);
 
 /* Bilinear lookup at lightmap UV (u, v) of atlas `atlas` in a per-atlas image of
  * width × height × 4 floats (rgb + a coverage weight): only covered texels count, weighted

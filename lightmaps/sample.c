@@ -123,39 +123,15 @@ int ub_lightmap_sparse_base(const ub_lightmap *lm, uint32_t atlas, float *img, u
 {
   const ub_atlas *at = &lm->atlases[atlas];
   size_t npx = (size_t)at->width * at->height;
-  uint8_t *mark = calloc(npx ? npx : 1, 1);
   /* the zero-light fill: coverage and the dilated rings */
-  if (!mark || !ub_lightmap_image_fill(lm, atlas, NULL, NULL, img)) {
-    free(mark);
+  if (!ub_lightmap_image_fill(lm, atlas, NULL, NULL, img))
     return 0;
-  }
-  memset(level, 3, npx);
+  memset(level, 1, npx);
   for (uint32_t i = 0; i < at->texel_count; i++) {
     uint32_t t = at->first_texel + i;
     level[(size_t)lm->texel_xy[2 * t + 1] * at->width + lm->texel_xy[2 * t]] = 0;
   }
-  for (uint8_t ring = 1; ring <= 2; ring++) {
-    for (size_t i = 0; i < npx; i++) {
-      if (level[i] != 3)
-        continue;
-      uint32_t x = (uint32_t)(i % at->width), y = (uint32_t)(i / at->width);
-      int near = 0;
-      for (int dy = -1; dy <= 1 && !near; dy++)
-        for (int dx = -1; dx <= 1 && !near; dx++) {
-          int64_t xx = (int64_t)x + dx, yy = (int64_t)y + dy;
-          if ((dx || dy) && xx >= 0 && yy >= 0 && xx < at->width && yy < at->height)
-            near = level[(size_t)yy * at->width + (size_t)xx] < ring;
-        }
-      if (near)
-        mark[i] = 1; /* set after the sweep: a ring grows from the ones before only */
-    }
-    for (size_t i = 0; i < npx; i++)
-      if (mark[i]) {
-        level[i] = ring;
-        mark[i] = 0;
-      }
-  }
-  free(mark);
+  ub_lightmap_dilate_levels(level, at->width, at->height, 2);
   return 1;
 }
 
