@@ -1378,18 +1378,26 @@ static double outgoing_energy(const pass_ctx *c, const double *iz, const uint32_
 }
 
 /* New float array of n sums (at least one element), non-finite values → 0 and counted. */
-static float *finite_floats(const double *v, size_t n, uint64_t *clamped)
+/* Rows of `width` doubles as floats, non-finite values 0 (counted in clamped): the rows
+ * listed in idx (n of them), the others 0; idx NULL: rows 0..n-1. A subset pass converts
+ * only its own receivers' rows (the rest of v is zero). */
+static float *finite_rows(const double *v, size_t rows, size_t width, const uint32_t *idx,
+                          size_t n, uint64_t *clamped)
 {
-  float *out = malloc((n + 1) * sizeof(float));
+  float *out = idx ? calloc(rows * width + 1, sizeof(float))
+                   : malloc((rows * width + 1) * sizeof(float));
   if (!out)
     return NULL;
-  for (size_t i = 0; i < n; i++) {
-    float f = (float)v[i];
-    if (!isfinite(f)) {
-      f = 0.0f;
-      (*clamped)++;
+  for (size_t k = 0; k < n; k++) {
+    size_t o = (idx ? idx[k] : k) * width;
+    for (size_t i = o; i < o + width; i++) {
+      float f = (float)v[i];
+      if (!isfinite(f)) {
+        f = 0.0f;
+        (*clamped)++;
+      }
+      out[i] = f;
     }
-    out[i] = f;
   }
   return out;
 }
@@ -2210,15 +2218,15 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       out->sh[12 * (size_t)t + i] = v;
     }
   }
-  out->probe_sh = finite_floats(probe_total, (size_t)P * 27, &clamped);
-  out->llg_sh = finite_floats(llg_total, (size_t)LP * 27, &clamped);
+  out->probe_sh = finite_rows(probe_total, P, 27, pact, npact, &clamped);
+  out->llg_sh = finite_rows(llg_total, LP, 27, lact, nlact, &clamped);
   if (!out->probe_sh || !out->llg_sh) {
     res = UB_ERR_OUT_OF_MEMORY;
     goto done;
   }
   ub_llg_fill_invalid(llg, out->llg_sh);
   out->texel_se = calloc((size_t)T + 1, sizeof(float));
-  out->probe_se = malloc(((size_t)P + 1) * sizeof(float));
+  out->probe_se = calloc((size_t)P + 1, sizeof(float));
   if (!out->texel_se || !out->probe_se) {
     res = UB_ERR_OUT_OF_MEMORY;
     goto done;
@@ -2228,7 +2236,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     float v = (float)sqrt(var_tx[t]);
     out->texel_se[t] = isfinite(v) ? v : 0.0f;
   }
-  for (uint32_t q = 0; q < P; q++) {
+  for (uint32_t i = 0; i < npact; i++) {
+    uint32_t q = PACT(i);
     float v = (float)sqrt(var_pr[q]);
     out->probe_se[q] = isfinite(v) ? v : 0.0f;
   }
