@@ -99,6 +99,9 @@ typedef struct pass_ctx {
   uint32_t tl_samples;        /* per receiver per bounce */
   int nee;                    /* bounce 1 takes punctual light at its hits by next-event
                                  estimation instead of reading the bounce-0 lightmap */
+  uint32_t *light_on;         /* the enabled punctual lights, ascending (a set's pass has
+                                 2 of ESTATE's 265: per gather hit, only those are looked at) */
+  uint32_t light_on_count;
   uint32_t bounce;
   float *prev_rel2;           /* texel: relative variance (var/E²) of what this bounce reads
                                  from the lightmap (the previous bounce), or NULL */
@@ -424,9 +427,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
 {
   const ub_pass_desc *d = c->d;
   const ub_scene *s = c->s;
-  uint32_t nlights = 0;
-  for (uint32_t l = 0; l < s->light_count; l++)
-    nlights += d->light_enabled[l] != 0;
+  uint32_t nlights = c->light_on_count;
   uint32_t ns = d->shadow_samples ? d->shadow_samples : 1;
   if (ns > rs->spr)
     ns = rs->spr;
@@ -448,9 +449,8 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
     float tw = -1.0f; /* texel width, computed on first need */
-    for (uint32_t l = 0; l < s->light_count; l++) {
-      if (!d->light_enabled[l])
-        continue;
+    for (uint32_t li = 0; li < nlights; li++) {
+      uint32_t l = c->light_on[li];
       const ub_light *L = &s->lights[l];
       /* Near a point or spot light: average over the texel's footprint. */
       uint32_t nk = ns;
@@ -580,7 +580,8 @@ static float *nee_block(pass_ctx *c, const ub_rt *rt, const ub_ray *rays, const 
   uint32_t *sj = malloc(n * sizeof *sj);
   float *se = malloc(n * 3 * sizeof *se);
   uint8_t *occ = malloc(n);
-  float *w = malloc((s->light_count + 1) * sizeof *w);
+  const uint32_t *on = c->light_on, non = c->light_on_count;
+  float *w = malloc((non + 1) * sizeof *w);
   if (!nee || !sr || !sj || !se || !occ || !w) {
     free(nee);
     free(sr);
@@ -605,34 +606,32 @@ static float *nee_block(pass_ctx *c, const ub_rt *rt, const ub_ray *rays, const 
     float po[3];
     ub_rt_offset_point(rt, hp, hn, po);
     double total = 0.0;
-    for (uint32_t l = 0; l < s->light_count; l++) {
-      w[l] = 0.0f;
-      if (!d->light_enabled[l])
-        continue;
+    for (uint32_t k = 0; k < non; k++) {
+      w[k] = 0.0f;
       float dir[3], dist, e[3];
-      if (!ub_light_incident(&s->lights[l], po, dir, &dist, e))
+      if (!ub_light_incident(&s->lights[on[k]], po, dir, &dist, e))
         continue;
       float cs = dot3(hn, dir);
       if (cs <= 0.0f)
         continue;
-      w[l] = (0.2126f * e[0] + 0.7152f * e[1] + 0.0722f * e[2]) * cs;
-      total += w[l];
+      w[k] = (0.2126f * e[0] + 0.7152f * e[1] + 0.0722f * e[2]) * cs;
+      total += w[k];
     }
     if (!(total > 0.0))
       continue;
     double u = ub_u01(ub_hash4(c->seed, d->pass_id * 0x10000u + 0x2000u, id, (uint32_t)j)) * total;
     uint32_t pick = 0;
     double acc = 0.0;
-    for (uint32_t l = 0; l < s->light_count; l++) {
-      if (w[l] <= 0.0f)
+    for (uint32_t k = 0; k < non; k++) {
+      if (w[k] <= 0.0f)
         continue;
-      pick = l;
-      acc += w[l];
+      pick = k;
+      acc += w[k];
       if (u < acc)
         break;
     }
     float dir[3], dist, e[3];
-    ub_light_incident(&s->lights[pick], po, dir, &dist, e);
+    ub_light_incident(&s->lights[on[pick]], po, dir, &dist, e);
     double scale = dot3(hn, dir) * total / w[pick];
     const float *alb = s->materials[s->tri_material[h->tri]].albedo;
     for (int ch = 0; ch < 3; ch++)
@@ -1862,8 +1861,11 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     if (tl_ok && cache && !cache->ok)
       texel_clusters_to_cache(&c, lm, s, cache); /* best effort: without it, built again */
   }
-  for (uint32_t l = 0; l < s->light_count; l++)
-    c.nee |= d->light_enabled[l] != 0;
+  c.light_on = malloc(((size_t)s->light_count + 1) * sizeof *c.light_on);
+  for (uint32_t l = 0; c.light_on && l < s->light_count; l++)
+    if (d->light_enabled[l])
+      c.light_on[c.light_on_count++] = l;
+  c.nee = c.light_on_count > 0;
   pr->count = P;
   pr->index = d->probe_subset;
   pr->active = d->probe_subset ? d->probe_subset_count : P;
@@ -1916,7 +1918,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   c.img = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *c.img);
   c.emitter_of = malloc((size_t)(s->triangle_count ? s->triangle_count : 1) * sizeof(int32_t));
   int oom = !sh_total || !iz_total || !tx->acc_sh || !tx->acc_iz || !tx->acc_src ||
-            !c.tl_rad || !tl_ok ||
+            !c.tl_rad || !tl_ok || !c.light_on ||
             !tx->acc_src_np || !c.img ||
             !c.emitter_of || !pr->acc_sh || !probe_total || !out->texel_direct ||
             !out->texel_indirect || (d->keep_bounce_iz && !out->texel_bounce_iz) ||
@@ -2298,6 +2300,7 @@ done:
       free(c.img[a]);
   free(c.img);
   free(c.emitter_of);
+  free(c.light_on);
   return res;
 }
 
