@@ -867,7 +867,13 @@ static int texel_clusters_build(pass_ctx *c)
   return tl_hot_build(c);
 }
 
-/* Builds the texel-light tables from the irradiance the next bounce reads. */
+/* Level-sized scratch arrays a subset pass borrows from the cache (scr_take / scr_give). */
+enum {
+  SCR_SH_TOTAL, SCR_IZ_TOTAL, SCR_PROBE_TOTAL, SCR_ACC_SH, SCR_ACC_IZ, SCR_ACC_SRC,
+  SCR_ACC_SRC_NP, SCR_TL_RAD, SCR_ACC_VAR, SCR_ACC_PVAR, SCR_REL2, SCR_VAR_TX, SCR_PR_ACC_SH,
+  SCR_PR_ACC_VAR, SCR_PR_ACC_PVAR, SCR_VAR_PR, UB_SCR_SLOTS
+};
+
 /* The clusters' geometry (texel areas, membership, bounds) depends on the scene and the
  * lightmap only: passes sharing a desc.cache build it once (a qsort of every texel per
  * pass was ~0.2 s at ESTATE full scale, × 264 subset passes). */
@@ -885,7 +891,40 @@ struct ub_pass_cache {
   uint32_t zatlases;
   float **zimg;
   uint8_t **zlevel;
+  /* Scratch of subset passes (scr_take / scr_give): arrays all zero, and per atlas an
+   * image holding zimg's fill, that the next subset pass takes instead of allocating
+   * (and page-faulting in) level-sized arrays again; NULL while a pass holds one. */
+  void *scr[UB_SCR_SLOTS];
+  size_t scr_bytes[UB_SCR_SLOTS];
+  float **simg; /* zatlases */
 };
+
+static void *scr_take(ub_pass_cache *cache, int slot, size_t bytes)
+{
+  if (cache && cache->scr[slot] && cache->scr_bytes[slot] == bytes) {
+    void *p = cache->scr[slot];
+    cache->scr[slot] = NULL;
+    return p;
+  }
+  return calloc(bytes, 1);
+}
+
+/* p back to the cache (or freed, without one or when the slot is taken), zeroed first at
+ * the rows idx[0..n) of row_bytes each: the only rows the pass wrote. */
+static void scr_give(ub_pass_cache *cache, int slot, void *p, size_t bytes, const uint32_t *idx,
+                     uint32_t n, size_t row_bytes)
+{
+  if (!p)
+    return;
+  if (!cache || cache->scr[slot]) {
+    free(p);
+    return;
+  }
+  for (uint32_t i = 0; i < n; i++)
+    memset((char *)p + (size_t)idx[i] * row_bytes, 0, row_bytes);
+  cache->scr[slot] = p;
+  cache->scr_bytes[slot] = bytes;
+}
 
 ub_pass_cache *ub_pass_cache_create(void)
 {
@@ -905,6 +944,11 @@ void ub_pass_cache_free(ub_pass_cache *cache)
     free(cache->zimg ? cache->zimg[a] : NULL);
     free(cache->zlevel ? cache->zlevel[a] : NULL);
   }
+  for (int i = 0; i < UB_SCR_SLOTS; i++)
+    free(cache->scr[i]);
+  for (uint32_t a = 0; cache->simg && a < cache->zatlases; a++)
+    free(cache->simg[a]);
+  free(cache->simg);
   free(cache->zimg);
   free(cache->zlevel);
   free(cache);
@@ -985,6 +1029,7 @@ static int texel_clusters_from_cache(pass_ctx *c, const ub_pass_cache *cache)
   return tl_hot_build(c);
 }
 
+/* Builds the texel-light tables from the irradiance the next bounce reads. */
 static void texel_lights_build(pass_ctx *c, const double *e_prev)
 {
   const ub_lightmap *lm = c->lm;
@@ -1760,11 +1805,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   c.seed = d->seed;
   atomic_init(&c.cancelled, 0);
 
-  double *sh_total = calloc((size_t)T * 12, sizeof(double));
-  double *iz_total = calloc((size_t)T * 3, sizeof(double));
   uint32_t P = d->probe_count;
   uint32_t N = d->gather_rays ? d->gather_rays : 1;
-  double *probe_total = calloc((size_t)P * 27 + 1, sizeof(double));
   out->texel_direct = calloc((size_t)T + 1, sizeof(float));
   out->texel_indirect = calloc((size_t)T + 1, sizeof(float));
   if (d->keep_bounce_iz)
@@ -1813,6 +1855,16 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   }
   const uint32_t *pact = d->probe_subset;
   const uint32_t npact = pact ? d->probe_subset_count : P;
+  /* A subset pass writes its level-sized arrays only at act texels / pact probes: it
+   * borrows them from the bake's cache and gives them back zeroed there (not with
+   * adaptive rounds, whose fresh arrays are swapped in and out). */
+  ub_pass_cache *scache = d->cache && act && pact && !(d->target_error > 0.0) ? d->cache : NULL;
+  const size_t B_SH = ((size_t)T * 12 + 1) * sizeof(double), B_IZ = ((size_t)T * 3 + 1) * sizeof(double),
+               B_T = ((size_t)T + 1) * sizeof(double), B_PSH = ((size_t)P * 27 + 1) * sizeof(double),
+               B_P = ((size_t)P + 1) * sizeof(double);
+  double *sh_total = scr_take(scache, SCR_SH_TOTAL, B_SH);
+  double *iz_total = scr_take(scache, SCR_IZ_TOTAL, B_IZ);
+  double *probe_total = scr_take(scache, SCR_PROBE_TOTAL, B_PSH);
 #define ACT(i) (act ? act[i] : (i))
 #define PACT(i) (pact ? pact[i] : (i))
 #define LACT(i) (lact ? lact[i] : (i))
@@ -1835,13 +1887,13 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   tx->rays = N;
   tx->id_base = 0;
   tx->rt = d->rt;
-  tx->acc_sh = calloc((size_t)T * 12 + 1, sizeof(double));
-  tx->acc_iz = calloc((size_t)T * 3 + 1, sizeof(double));
-  tx->acc_src = calloc((size_t)T * 3 + 1, sizeof(double));
-  tx->acc_src_np = calloc((size_t)T * 3 + 1, sizeof(double));
+  tx->acc_sh = scr_take(scache, SCR_ACC_SH, B_SH);
+  tx->acc_iz = scr_take(scache, SCR_ACC_IZ, B_IZ);
+  tx->acc_src = scr_take(scache, SCR_ACC_SRC, B_IZ);
+  tx->acc_src_np = scr_take(scache, SCR_ACC_SRC_NP, B_IZ);
   /* Texel lights: an eighth of the gather rays (at least 4) toward bright texels. */
   c.tl_samples = N / 8 < 4 ? 4 : N / 8;
-  c.tl_rad = calloc((size_t)T * 3 + 1, sizeof(float));
+  c.tl_rad = scr_take(scache, SCR_TL_RAD, ((size_t)T * 3 + 1) * sizeof(float));
   c.act = act;
   c.nact = nact;
   int tl_ok;
@@ -1905,16 +1957,16 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
    * included at all: the fixed per-texel sample points of far punctual lights (a
    * quadrature, the same for every seed) and the bounces the auto-stop leaves out (a
    * bias, not noise). */
-  tx->acc_var = calloc((size_t)T + 1, sizeof(double));
-  pr->acc_var = calloc((size_t)P + 1, sizeof(double));
-  tx->acc_pvar = calloc((size_t)T + 1, sizeof(double));
-  pr->acc_pvar = calloc((size_t)P + 1, sizeof(double));
-  float *rel2 = calloc((size_t)T + 1, sizeof(float));
-  double *var_tx = calloc((size_t)T + 1, sizeof(double));
-  double *var_pr = calloc((size_t)P + 1, sizeof(double));
+  tx->acc_var = scr_take(scache, SCR_ACC_VAR, B_T);
+  pr->acc_var = scr_take(scache, SCR_PR_ACC_VAR, B_P);
+  tx->acc_pvar = scr_take(scache, SCR_ACC_PVAR, B_T);
+  pr->acc_pvar = scr_take(scache, SCR_PR_ACC_PVAR, B_P);
+  float *rel2 = scr_take(scache, SCR_REL2, ((size_t)T + 1) * sizeof(float));
+  double *var_tx = scr_take(scache, SCR_VAR_TX, B_T);
+  double *var_pr = scr_take(scache, SCR_VAR_PR, B_P);
   if (LP)
     c.llg_prev = calloc((size_t)LP * 27, sizeof(float));
-  pr->acc_sh = calloc((size_t)P * 27 + 1, sizeof(double));
+  pr->acc_sh = scr_take(scache, SCR_PR_ACC_SH, B_PSH);
   c.img = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *c.img);
   c.emitter_of = malloc((size_t)(s->triangle_count ? s->triangle_count : 1) * sizeof(int32_t));
   int oom = !sh_total || !iz_total || !tx->acc_sh || !tx->acc_iz || !tx->acc_src ||
@@ -1927,7 +1979,19 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
             !lg->acc_sh_np || !llg_total || (LP && !c.llg_prev) || !out->llg_direct ||
             !out->llg_indirect || !tx->acc_var || !pr->acc_var || !var_tx || !var_pr ||
             !tx->acc_pvar || !pr->acc_pvar || !rel2;
+  int shared = 0;
+  if (!oom && act && lm->atlas_count)
+    shared = d->cache && d->cache->ok && d->cache->lm == lm && sparse_base_ready(d->cache, lm);
+  /* per atlas: 1 when c.img[a] is the cache's image holding the zero-light fill */
+  uint8_t *img_ready = calloc(lm->atlas_count + 1, 1);
+  oom |= !img_ready;
   for (uint32_t a = 0; !oom && a < lm->atlas_count; a++) {
+    if (shared && scache && scache->simg && scache->simg[a]) {
+      c.img[a] = scache->simg[a];
+      scache->simg[a] = NULL;
+      img_ready[a] = 1;
+      continue;
+    }
     c.img[a] = malloc((size_t)lm->atlases[a].width * lm->atlases[a].height * 4 * sizeof(float));
     oom = !c.img[a];
   }
@@ -1936,9 +2000,9 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
      * memory: whole refills, as a full pass) */
     c.sparse = calloc(lm->atlas_count, sizeof *c.sparse);
     int ok = c.sparse != NULL;
-    int shared = d->cache && d->cache->ok && d->cache->lm == lm && sparse_base_ready(d->cache, lm);
     for (uint32_t a = 0; ok && a < lm->atlas_count; a++)
-      ok = ub_lightmap_sparse_init(lm, a, act, nact, shared ? d->cache->zimg[a] : NULL,
+      ok = ub_lightmap_sparse_init(lm, a, act, nact,
+                                   shared && !img_ready[a] ? d->cache->zimg[a] : NULL,
                                    shared ? d->cache->zlevel[a] : NULL, c.img[a],
                                    &c.sparse[a]);
     if (!ok && c.sparse) {
@@ -2014,8 +2078,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   ub_llg_fill_invalid(llg, c.llg_prev);
   free(lg->acc_sh_np);
   lg->acc_sh_np = NULL;
-  free(tx->acc_src);
-  free(tx->acc_src_np);
+  scr_give(scache, SCR_ACC_SRC, tx->acc_src, B_IZ, act, nact, 3 * sizeof(double));
+  scr_give(scache, SCR_ACC_SRC_NP, tx->acc_src_np, B_IZ, act, nact, 3 * sizeof(double));
   tx->acc_src = NULL;
   tx->acc_src_np = NULL;
 
@@ -2259,15 +2323,40 @@ done:
 #undef ACT
 #undef PACT
 #undef LACT
+  /* Scratch back to the cache, zeroed at act / pact (freed after a failure: what was
+   * written is not known). */
+  ub_pass_cache *give = res == UB_OK ? scache : NULL;
+  scr_give(give, SCR_SH_TOTAL, sh_total, B_SH, act, nact, 12 * sizeof(double));
+  scr_give(give, SCR_IZ_TOTAL, iz_total, B_IZ, act, nact, 3 * sizeof(double));
+  scr_give(give, SCR_ACC_SH, tx->acc_sh, B_SH, act, nact, 12 * sizeof(double));
+  scr_give(give, SCR_ACC_IZ, tx->acc_iz, B_IZ, act, nact, 3 * sizeof(double));
+  scr_give(give, SCR_ACC_SRC, tx->acc_src, B_IZ, act, nact, 3 * sizeof(double));
+  scr_give(give, SCR_ACC_SRC_NP, tx->acc_src_np, B_IZ, act, nact, 3 * sizeof(double));
+  scr_give(give, SCR_TL_RAD, c.tl_rad, ((size_t)T * 3 + 1) * sizeof(float), act, nact,
+           3 * sizeof(float));
+  scr_give(give, SCR_ACC_VAR, tx->acc_var, B_T, act, nact, sizeof(double));
+  scr_give(give, SCR_ACC_PVAR, tx->acc_pvar, B_T, act, nact, sizeof(double));
+  scr_give(give, SCR_REL2, rel2, ((size_t)T + 1) * sizeof(float), act, nact, sizeof(float));
+  scr_give(give, SCR_VAR_TX, var_tx, B_T, act, nact, sizeof(double));
+  scr_give(give, SCR_PROBE_TOTAL, probe_total, B_PSH, pact, npact, 27 * sizeof(double));
+  scr_give(give, SCR_PR_ACC_SH, pr->acc_sh, B_PSH, pact, npact, 27 * sizeof(double));
+  scr_give(give, SCR_PR_ACC_VAR, pr->acc_var, B_P, pact, npact, sizeof(double));
+  scr_give(give, SCR_PR_ACC_PVAR, pr->acc_pvar, B_P, pact, npact, sizeof(double));
+  scr_give(give, SCR_VAR_PR, var_pr, B_P, pact, npact, sizeof(double));
+  if (give && shared && c.sparse && c.img && d->cache->zimg &&
+      d->cache->zatlases == lm->atlas_count) {
+    if (!give->simg)
+      give->simg = calloc(lm->atlas_count + 1, sizeof *give->simg);
+    for (uint32_t a = 0; give->simg && a < lm->atlas_count; a++)
+      if (c.img[a] && !give->simg[a] && d->cache->zimg[a]) {
+        ub_lightmap_sparse_restore(&c.sparse[a], d->cache->zimg[a], c.img[a]);
+        give->simg[a] = c.img[a];
+        c.img[a] = NULL;
+      }
+  }
+  free(img_ready);
   free(act);
   free(outside);
-  free(sh_total);
-  free(iz_total);
-  free(tx->acc_sh);
-  free(tx->acc_iz);
-  free(tx->acc_src);
-  free(tx->acc_src_np);
-  free(c.tl_rad);
   if (!c.tl_borrowed) {
     free(c.tl_area);
     free(c.tl_of);
@@ -2278,19 +2367,10 @@ done:
   free(c.tl_ccdf);
   free(c.tl_cl);
   free(c.tl_hot);
-  free(pr->acc_sh);
-  free(probe_total);
   free(lg->acc_sh);
   free(lg->acc_sh_np);
   free(llg_total);
   free(c.llg_prev);
-  free(tx->acc_var);
-  free(pr->acc_var);
-  free(tx->acc_pvar);
-  free(pr->acc_pvar);
-  free(rel2);
-  free(var_tx);
-  free(var_pr);
   if (c.sparse)
     for (uint32_t a = 0; a < lm->atlas_count; a++)
       ub_lightmap_sparse_free(&c.sparse[a]);

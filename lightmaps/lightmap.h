@@ -105,12 +105,17 @@ typedef struct ub_lightmap_sparse {
 int ub_lightmap_sparse_base(const ub_lightmap *lm, uint32_t atlas, float *img, uint8_t *level);
 /* Returns 0 when out of memory (sp zeroed; use ub_lightmap_image_fill). img: the atlas's
  * image, written with the zero-light fill (copied from base_img with base_level, both
- * from ub_lightmap_sparse_base and kept while sp lives, or computed when they are NULL). */
+ * from ub_lightmap_sparse_base and kept while sp lives, or computed when they are NULL;
+ * base_img NULL with base_level: img holds that fill already, as a pass's image does
+ * after restoring the pixels it refilled, ub_lightmap_sparse_restore). */
 int ub_lightmap_sparse_init(const ub_lightmap *lm, uint32_t atlas, const uint32_t *act,
                             uint32_t n, const float *base_img, const uint8_t *base_level,
                             float *img, ub_lightmap_sparse *sp);
 void ub_lightmap_sparse_fill(const ub_lightmap *lm, const ub_lightmap_sparse *sp,
                              const double *izd, float *img);
+/* Puts back base_img's values at the pixels sp's refills write: img is then the
+ * zero-light fill again, ready for another sparse init. */
+void ub_lightmap_sparse_restore(const ub_lightmap_sparse *sp, const float *base_img, float *img);
 void ub_lightmap_sparse_free(ub_lightmap_sparse *sp);
 
 /* World point of texel t at (fx, fy) ∈ [0,1]² of its footprint, on its owning triangle's

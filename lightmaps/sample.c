@@ -149,8 +149,9 @@ int ub_lightmap_sparse_init(const ub_lightmap *lm, uint32_t atlas, const uint32_
   sp->t0 = malloc(((size_t)sp->n0 + 1) * sizeof *sp->t0);
   uint8_t *mark = calloc(npx ? npx : 1, 1);
   int ok = sp->t0 && mark;
-  if (ok && base_img && base_level) {
-    memcpy(img, base_img, npx * 4 * sizeof *img);
+  if (ok && base_level) {
+    if (base_img) /* else img holds the zero-light fill already */
+      memcpy(img, base_img, npx * 4 * sizeof *img);
     sp->level = (uint8_t *)base_level;
   } else if (ok) {
     sp->level = malloc(npx ? npx : 1);
@@ -211,6 +212,13 @@ void ub_lightmap_sparse_fill(const ub_lightmap *lm, const ub_lightmap_sparse *sp
       img[4 * (size_t)sp->px[k] + c] = (float)izd[3 * (size_t)sp->t0[k] + c];
   sparse_ring(at, sp->level, 1, sp->px + sp->n0, sp->n1, img);
   sparse_ring(at, sp->level, 2, sp->px + sp->n0 + sp->n1, sp->n2, img);
+}
+
+void ub_lightmap_sparse_restore(const ub_lightmap_sparse *sp, const float *base_img, float *img)
+{
+  size_t n = (size_t)sp->n0 + sp->n1 + sp->n2;
+  for (size_t k = 0; k < n; k++)
+    memcpy(img + 4 * (size_t)sp->px[k], base_img + 4 * (size_t)sp->px[k], 4 * sizeof *img);
 }
 
 void ub_lightmap_sparse_free(ub_lightmap_sparse *sp)
