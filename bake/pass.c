@@ -1141,6 +1141,23 @@ static int tl_block_table(const pass_ctx *c, const recv_set *rs, uint32_t r0, ui
 }
 
 /* Gather rays: bounce 0 sees the sky and emitters (MIS), bounce k reads bounce k-1. */
+/* A hit's lightmap UV (out_uv) and the atlas pixel under it (the bilinear lookup's
+ * nearest), on a lightmapped triangle. */
+static inline size_t hit_pixel(const ub_lightmap *lm, const ub_atlas *at, const ub_hit *h,
+                               float out_uv[2])
+{
+  const float *uv = lm->tri_uv + 6 * (size_t)h->tri;
+  float b0 = 1.0f - h->u - h->v;
+  float u = b0 * uv[0] + h->u * uv[2] + h->v * uv[4];
+  float v = b0 * uv[1] + h->u * uv[3] + h->v * uv[5];
+  int64_t tx = (int64_t)(u * (float)at->width), ty = (int64_t)(v * (float)at->height);
+  tx = tx < 0 ? 0 : (tx >= at->width ? at->width - 1 : tx);
+  ty = ty < 0 ? 0 : (ty >= at->height ? at->height - 1 : ty);
+  out_uv[0] = u;
+  out_uv[1] = v;
+  return (size_t)ty * at->width + (size_t)tx;
+}
+
 /* What the shading of a block's gather hits will read at random in level-sized arrays
  * (the lightmap image around the hit; with texel lights, the texel under it and its
  * tables), asked of the memory system for all hits first: the loop below then finds them
@@ -1162,14 +1179,8 @@ static void prefetch_hits(const pass_ctx *c, const ub_hit *hits, const uint32_t 
     if (a < 0)
       continue;
     const ub_atlas *at = &lm->atlases[a];
-    const float *uv = lm->tri_uv + 6 * (size_t)h->tri;
-    float b0 = 1.0f - h->u - h->v;
-    float u = b0 * uv[0] + h->u * uv[2] + h->v * uv[4];
-    float v = b0 * uv[1] + h->u * uv[3] + h->v * uv[5];
-    int64_t tx = (int64_t)(u * (float)at->width), ty = (int64_t)(v * (float)at->height);
-    tx = tx < 0 ? 0 : (tx >= at->width ? at->width - 1 : tx);
-    ty = ty < 0 ? 0 : (ty >= at->height ? at->height - 1 : ty);
-    size_t px = (size_t)ty * at->width + (size_t)tx;
+    float uv[2];
+    size_t px = hit_pixel(lm, at, h, uv);
     __builtin_prefetch(c->img[a] + 4 * px);
     if (!tl_any)
       continue;
@@ -1336,20 +1347,18 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
             unlit++;
             continue;
           }
-          const float *uv = a >= 0 ? lm->tri_uv + 6 * (size_t)h->tri : NULL;
           int tl_hit = 0;
-          if (uv) {
-            float b0 = 1.0f - h->u - h->v;
-            float u = b0 * uv[0] + h->u * uv[2] + h->v * uv[4];
-            float v = b0 * uv[1] + h->u * uv[3] + h->v * uv[5];
+          /* the texel under the hit: what the texel-light strategy and the propagated
+           * variance see */
+          int32_t t_hit = -1;
+          if (a >= 0) {
+            const ub_atlas *at = &lm->atlases[a];
+            float uv[2];
+            t_hit = at->texel_of[hit_pixel(lm, at, h, uv)];
+            float u = uv[0], v = uv[1];
             const float *tl_cdf = tl ? tl[tl_group(nrm)] : NULL;
             if (tl_cdf) {
-              /* The texel under the hit, as the texel-light strategy sees it. */
-              const ub_atlas *at = &lm->atlases[a];
-              int64_t tx = (int64_t)(u * (float)at->width), ty = (int64_t)(v * (float)at->height);
-              tx = tx < 0 ? 0 : (tx >= at->width ? at->width - 1 : tx);
-              ty = ty < 0 ? 0 : (ty >= at->height ? at->height - 1 : ty);
-              int32_t t = at->texel_of[(size_t)ty * at->width + (size_t)tx];
+              int32_t t = t_hit;
               float gl = sqrtf(dot3(h->ng, h->ng));
               float ce = gl > 0.0f ? -dot3(h->ng, ray->dir) / gl : 0.0f;
               if (t >= 0 && ce > 0.0f && c->tl_area[t] > 0.0f) {
@@ -1372,20 +1381,12 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
             for (int ch = 0; ch < 3; ch++)
               L[ch] = alb[ch] * (float)M_1_PI * e[ch];
           }
-          if (prop && uv && finite3(L)) {
+          if (prop && a >= 0 && finite3(L)) {
             /* The lightmap-read part of this sample and the texel under the hit (the
              * bilinear lookup's nearest texel), for the propagated variance. */
-            const ub_atlas *at = &lm->atlases[a];
-            float b0 = 1.0f - h->u - h->v;
-            float u = b0 * uv[0] + h->u * uv[2] + h->v * uv[4];
-            float v = b0 * uv[1] + h->u * uv[3] + h->v * uv[5];
-            int64_t px = (int64_t)(u * (float)at->width), py = (int64_t)(v * (float)at->height);
-            px = px < 0 ? 0 : (px >= at->width ? at->width - 1 : px);
-            py = py < 0 ? 0 : (py >= at->height ? at->height - 1 : py);
-            int32_t t = at->texel_of[(size_t)py * at->width + (size_t)px];
             double l = 0.2126 * L[0] + 0.7152 * L[1] + 0.0722 * L[2];
-            if (t >= 0) {
-              prop[np].t = (uint32_t)t;
+            if (t_hit >= 0) {
+              prop[np].t = (uint32_t)t_hit;
               prop[np++].c = nrm ? l * cs * wt : 0.25 * l * wt;
             }
           }
