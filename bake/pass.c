@@ -909,17 +909,18 @@ static void *scr_take(ub_pass_cache *cache, int slot, size_t bytes)
   return calloc(bytes, 1);
 }
 
-/* p back to the cache (or freed, without one or when the slot is taken), zeroed first at
- * the rows idx[0..n) of row_bytes each: the only rows the pass wrote. */
+/* p back to the cache (or freed, without one or when the slot holds one of its size),
+ * zeroed first at the rows idx[0..n) of row_bytes each: the only rows the pass wrote. */
 static void scr_give(ub_pass_cache *cache, int slot, void *p, size_t bytes, const uint32_t *idx,
                      uint32_t n, size_t row_bytes)
 {
   if (!p)
     return;
-  if (!cache || cache->scr[slot]) {
+  if (!cache || (cache->scr[slot] && cache->scr_bytes[slot] == bytes)) {
     free(p);
     return;
   }
+  free(cache->scr[slot]); /* another size (another level's pass): the newer one stays */
   for (uint32_t i = 0; i < n; i++)
     memset((char *)p + (size_t)idx[i] * row_bytes, 0, row_bytes);
   cache->scr[slot] = p;
@@ -991,7 +992,10 @@ static void texel_clusters_to_cache(const pass_ctx *c, const ub_lightmap *lm,
   if (!cache->tl_area || !cache->tl_of || !cache->tl_list || !cache->tl_start || !cache->cl) {
     free(cache->tl_area), free(cache->tl_of), free(cache->tl_list), free(cache->tl_start);
     free(cache->cl);
-    memset(cache, 0, sizeof *cache);
+    cache->tl_area = NULL; /* the clusters only: the images and scratch stay */
+    cache->tl_of = cache->tl_list = cache->tl_start = NULL;
+    cache->cl = NULL;
+    cache->ok = 0;
     return;
   }
   memcpy(cache->tl_area, c->tl_area, T * sizeof(float));
@@ -1140,7 +1144,6 @@ static int tl_block_table(const pass_ctx *c, const recv_set *rs, uint32_t r0, ui
   return 1;
 }
 
-/* Gather rays: bounce 0 sees the sky and emitters (MIS), bounce k reads bounce k-1. */
 /* A hit's lightmap UV (out_uv) and the atlas pixel under it (the bilinear lookup's
  * nearest), on a lightmapped triangle. */
 static inline size_t hit_pixel(const ub_lightmap *lm, const ub_atlas *at, const ub_hit *h,
@@ -1195,6 +1198,7 @@ static void prefetch_hits(const pass_ctx *c, const ub_hit *hits, const uint32_t 
   }
 }
 
+/* Gather rays: bounce 0 sees the sky and emitters (MIS), bounce k reads bounce k-1. */
 static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr,
                          const float *const *tl)
 {
@@ -1467,7 +1471,6 @@ static double outgoing_energy(const pass_ctx *c, const double *iz, const uint32_
   return e;
 }
 
-/* New float array of n sums (at least one element), non-finite values → 0 and counted. */
 /* Rows of `width` doubles as floats, non-finite values 0 (counted in clamped): the rows
  * listed in idx (n of them), the others 0; idx NULL: rows 0..n-1. A subset pass converts
  * only its own receivers' rows (the rest of v is zero). */
@@ -1903,7 +1906,10 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   const uint32_t npact = pact ? d->probe_subset_count : P;
   /* A subset pass writes its level-sized arrays only at act texels / pact probes: it
    * borrows them from the bake's cache and gives them back zeroed there (not with
-   * adaptive rounds, whose fresh arrays are swapped in and out). */
+   * adaptive rounds, whose fresh arrays are swapped in and out). This relies on the
+   * desc's rules: gather_subset within texel_subset, every gather_donor[t] of the subset
+   * in it, probe_gather_subset within probe_subset (a row written outside would stay in
+   * the cache for every later pass). */
   ub_pass_cache *scache = d->cache && act && pact && !(d->target_error > 0.0) ? d->cache : NULL;
   const size_t B_SH = ((size_t)T * 12 + 1) * sizeof(double), B_IZ = ((size_t)T * 3 + 1) * sizeof(double),
                B_T = ((size_t)T + 1) * sizeof(double), B_PSH = ((size_t)P * 27 + 1) * sizeof(double),
