@@ -71,6 +71,11 @@ ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint3
   uint32_t *idx = NULL;
   float *val = NULL;
   uint64_t pixel_base = 0;
+  /* per atlas: pixel ring levels, pixel -> row in vals (or -1), the rows' pixels and values */
+  uint8_t *lev = NULL;
+  int32_t *slot = NULL;
+  uint32_t *vpx = NULL;
+  float *vals = NULL;
   for (uint32_t a = 0; a < lm->atlas_count; a++) {
     const ub_atlas *at = &lm->atlases[a];
     uint32_t x0 = UINT32_MAX, y0 = UINT32_MAX, x1 = 0, y1 = 0, m = 0;
@@ -103,17 +108,13 @@ ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint3
      * texels ring by ring, each the mean of its filled neighbours in the window in the
      * dilation's (dy, dx) order: the same float operations as ub_lightmap_dilate. */
     enum { NR = UB_DILATE_RINGS };
-    uint8_t *lev = malloc(wh ? wh : 1);
-    int32_t *slot = malloc((wh ? wh : 1) * sizeof *slot); /* pixel -> row in vals, or -1 */
+    lev = malloc(wh ? wh : 1);
+    slot = malloc((wh ? wh : 1) * sizeof *slot);
     size_t vcap = (size_t)m * 9 + 16, nv = 0;
-    uint32_t *vpx = malloc(vcap * sizeof *vpx);
-    float *vals = malloc(vcap * 12 * sizeof *vals);
-    if (!lev || !slot || !vpx || !vals) {
-      free(lev), free(slot), free(vpx), free(vals);
-      free(idx);
-      free(val);
-      return UB_ERR_OUT_OF_MEMORY;
-    }
+    vpx = malloc(vcap * sizeof *vpx);
+    vals = malloc(vcap * 12 * sizeof *vals);
+    if (!lev || !slot || !vpx || !vals)
+      goto oom;
     for (uint32_t y = y0; y <= y1; y++)
       for (uint32_t x = x0; x <= x1; x++)
         lev[(size_t)(y - y0) * w + (x - x0)] = at->texel_of[(size_t)y * at->width + x] >= 0 ? 0 : 1;
@@ -142,12 +143,8 @@ ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint3
             size_t j = (size_t)yy * w + (size_t)xx;
             if (lev[j] != ring || slot[j] >= 0)
               continue;
-            if (nv == vcap && !grow_rows(&vpx, &vals, &vcap)) {
-              free(lev), free(slot), free(vpx), free(vals);
-              free(idx);
-              free(val);
-              return UB_ERR_OUT_OF_MEMORY;
-            }
+            if (nv == vcap && !grow_rows(&vpx, &vals, &vcap))
+              goto oom;
             slot[j] = (int32_t)nv;
             vpx[nv++] = (uint32_t)j;
           }
@@ -196,26 +193,25 @@ ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint3
           nz |= v[k] != 0.0f;
         if (!nz)
           continue;
-        if (n == cap && !grow_rows(&idx, &val, &cap)) {
-          free(lev), free(slot), free(vpx), free(vals);
-          free(idx);
-          free(val);
-          return UB_ERR_OUT_OF_MEMORY;
-        }
+        if (n == cap && !grow_rows(&idx, &val, &cap))
+          goto oom;
         idx[n] = (uint32_t)(pixel_base + (uint64_t)(y + y0) * at->width + (x + x0));
         memcpy(val + 12 * n, v, 12 * sizeof(float));
         n++;
       }
-    free(lev);
-    free(slot);
-    free(vpx);
-    free(vals);
+    free(lev), free(slot), free(vpx), free(vals);
+    lev = NULL, slot = NULL, vpx = NULL, vals = NULL;
     pixel_base += (uint64_t)at->width * at->height;
   }
   rec->texel_count = (uint32_t)n;
   rec->texel_index = idx;
   rec->texel_sh = val;
   return UB_OK;
+oom:
+  free(lev), free(slot), free(vpx), free(vals);
+  free(idx);
+  free(val);
+  return UB_ERR_OUT_OF_MEMORY;
 }
 
 /* ---- Uniform voxel grids: the reach bound's and the sparse probe grid's ---- */

@@ -100,7 +100,7 @@ typedef struct pass_ctx {
   int nee;                    /* bounce 1 takes punctual light at its hits by next-event
                                  estimation instead of reading the bounce-0 lightmap */
   uint32_t *light_on;         /* the enabled punctual lights, ascending (a set's pass has
-                                 2 of ESTATE's 265: per gather hit, only those are looked at) */
+                                 2 of ESTATE's 297: per gather hit, only those are looked at) */
   uint32_t light_on_count;
   uint32_t bounce;
   float *prev_rel2;           /* texel: relative variance (var/E²) of what this bounce reads

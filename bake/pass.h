@@ -103,7 +103,9 @@ typedef struct ub_pass_desc {
   void *progress_user;
   double progress_base, progress_span; /* this pass's share of the whole bake */
   /* Optional: what passes over the same scene and lightmap share (the texel-light
-   * clusters' geometry), built by the first pass that has it, freed by the caller
+   * clusters' geometry, the zero-light images of subset passes, and their level-sized
+   * scratch arrays, lent to one pass at a time: passes sharing a cache run one after
+   * another), built by the first pass that has it, freed by the caller
    * (ub_pass_cache_free). NULL: every pass builds its own. */
   struct ub_pass_cache *cache;
 } ub_pass_desc;
