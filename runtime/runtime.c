@@ -54,6 +54,14 @@ struct ub_runtime {
   float lm_static_scale;
   uint64_t *tch_bits;      /* ⌈slots / 64⌉ words: the slot is touched */
   uint32_t *tch_rank;      /* touched slots before each word */
+  /* A touched slot's index (its "rank": in lm_cur, lm_un, tch_slot, the lightmap blend's
+   * receivers and, once ahd_ranked, the AHD array) is not its bitmap rank but its place
+   * in group-major order: texels with the same combination of records are consecutive
+   * (in slot order within it), so each blend group is one run and an update streams
+   * through every per-texel array instead of hopping between a list group's texels
+   * (those random reads were a third of an all-sets update at ESTATE full scale). */
+  uint32_t *tch_grp;       /* touched slots in bitmap-rank order → their rank */
+  uint64_t touched;        /* touched slots */
   uint32_t *tch_slot;      /* touched slots × 1: the global slot of each (the lightmap blend
                               works in touched ranks and writes lm_cur rows in place) */
   uint32_t *lm_idx;        /* during setup: the texel records' receivers as global slots */
@@ -80,7 +88,11 @@ struct ub_runtime {
   uint64_t *llg_first;     /* llg_count + 1 */
   ub_glg glg;            /* valid when has_glg */
   int has_glg;
-  ub_ahd **ahd;          /* atlas_count arrays, one per covered texel (slot) */
+  /* The AHD of every covered texel (slots entries): in global slot order until the
+   * records are set up, then (ahd_ranked) the touched texels first by rank, so an update
+   * writes it sequentially, then the untouched ones in slot order (ahd_index). */
+  ub_ahd *ahd;
+  int ahd_ranked;
   uint32_t lit_count;    /* triangles with tri_atlas >= 0 */
   uint32_t *lit_tris;
 };
@@ -101,8 +113,17 @@ static inline int slot_touched(const ub_runtime *rt, uint64_t s, uint64_t *out_i
   uint64_t w = rt->tch_bits[s >> 6], below = w & ((UINT64_C(1) << (s & 63)) - 1);
   uint64_t t = rt->tch_rank[s >> 6] + (uint64_t)__builtin_popcountll(below);
   int on = (int)((w >> (s & 63)) & 1u);
-  *out_index = on ? t : s - t;
+  *out_index = on ? rt->tch_grp[t] : s - t;
   return on;
+}
+
+/* Where the AHD of slot sa of atlas a is in rt->ahd. */
+static inline uint64_t ahd_index(const ub_runtime *rt, uint32_t a, uint64_t sa)
+{
+  uint64_t s = rt->slot_first[a] + sa, ix;
+  if (!rt->ahd_ranked)
+    return s;
+  return slot_touched(rt, s, &ix) ? ix : rt->touched + ix;
 }
 
 /* Builds the coverage bits, ranks and slot → pixel map; sets slot_first. */
@@ -287,9 +308,6 @@ void ub_runtime_free(ub_runtime *rt)
 {
   if (!rt)
     return;
-  if (rt->ahd)
-    for (uint32_t a = 0; a < rt->bf->atlas_count; a++)
-      free(rt->ahd[a]);
   free(rt->ahd);
   if (rt->fallback)
     for (uint32_t a = 0; a < rt->bf->atlas_count; a++) {
@@ -325,6 +343,7 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt->tch_bits);
   free(rt->tch_rank);
   free(rt->tch_slot);
+  free(rt->tch_grp);
   free(rt->glg_win);
   free(rt->lit_tris);
   if (rt->has_glg)
@@ -487,6 +506,108 @@ static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs,
   return UB_OK;
 }
 
+typedef struct rank_key {
+  uint64_t key; /* hash of the texel's combination of records */
+  uint32_t bit; /* bitmap rank */
+} rank_key;
+
+static int rank_key_cmp(const void *pa, const void *pb)
+{
+  const rank_key *a = pa, *b = pb;
+  if (a->key != b->key)
+    return a->key < b->key ? -1 : 1;
+  return a->bit < b->bit ? -1 : a->bit > b->bit;
+}
+
+/* tch_grp: the touched slots ordered by the combination of texel records holding them
+ * (a 64-bit hash of the record ids, in id order: a collision only interleaves two
+ * groups, the blend still finds each), in slot order within a combination. Needs
+ * tch_bits, tch_rank, touched and the records' receivers as global slots. */
+static ub_result rank_touched(ub_runtime *rt)
+{
+  uint64_t touched = rt->touched;
+  rank_key *k = malloc((size_t)(touched ? touched : 1) * sizeof *k);
+  rt->tch_grp = malloc((size_t)(touched ? touched : 1) * sizeof *rt->tch_grp);
+  if (!k || !rt->tch_grp) {
+    free(k);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  for (uint64_t t = 0; t < touched; t++) {
+    k[t].key = UINT64_C(0x243f6a8885a308d3);
+    k[t].bit = (uint32_t)t;
+  }
+  for (uint32_t e = 0; e < rt->elem_total; e++)
+    for (uint32_t i = 0; i < rt->lm_rec[e].count; i++) {
+      uint64_t sl = rt->lm_rec[e].receivers[i], w = rt->tch_bits[sl >> 6];
+      uint64_t t = rt->tch_rank[sl >> 6] +
+                   (uint64_t)__builtin_popcountll(w & ((UINT64_C(1) << (sl & 63)) - 1));
+      uint64_t h = (k[t].key ^ (e + UINT64_C(0x9e3779b97f4a7c15))) * UINT64_C(0xff51afd7ed558ccd);
+      k[t].key = h ^ (h >> 32);
+    }
+  qsort(k, (size_t)touched, sizeof *k, rank_key_cmp);
+  for (uint64_t r = 0; r < touched; r++)
+    rt->tch_grp[k[r].bit] = (uint32_t)r;
+  free(k);
+  return UB_OK;
+}
+
+typedef struct recv_at {
+  uint32_t recv, at;
+} recv_at;
+
+static int recv_at_cmp(const void *pa, const void *pb)
+{
+  const recv_at *a = pa, *b = pb;
+  return a->recv < b->recv ? -1 : a->recv > b->recv;
+}
+
+/* Sorts a record's receivers ascending, its rows (stride floats each) along. */
+static ub_result sort_record(uint32_t *recv, float *rows, uint32_t count, uint32_t stride)
+{
+  uint32_t i = 1;
+  while (i < count && recv[i - 1] < recv[i])
+    i++;
+  if (i >= count)
+    return UB_OK;
+  recv_at *o = malloc((size_t)count * sizeof *o);
+  float *tmp = malloc((size_t)count * stride * sizeof *tmp);
+  if (!o || !tmp) {
+    free(o);
+    free(tmp);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  for (i = 0; i < count; i++) {
+    o[i].recv = recv[i];
+    o[i].at = i;
+  }
+  qsort(o, count, sizeof *o, recv_at_cmp);
+  for (i = 0; i < count; i++) {
+    recv[i] = o[i].recv;
+    memcpy(tmp + (size_t)i * stride, rows + (size_t)o[i].at * stride, stride * sizeof *tmp);
+  }
+  memcpy(rows, tmp, (size_t)count * stride * sizeof *tmp);
+  free(o);
+  free(tmp);
+  return UB_OK;
+}
+
+/* Moves the AHD array from slot order to ahd_index order (touched texels by rank first). */
+static ub_result rank_ahd(ub_runtime *rt)
+{
+  const ub_bakefile *bf = rt->bf;
+  uint64_t slots = rt->slot_first[bf->atlas_count];
+  ub_ahd *o = malloc((size_t)(slots ? slots : 1) * sizeof *o);
+  if (!o)
+    return UB_ERR_OUT_OF_MEMORY;
+  rt->ahd_ranked = 1;
+  for (uint32_t a = 0; a < bf->atlas_count; a++)
+    for (uint64_t sa = 0; sa < rt->slot_first[a + 1] - rt->slot_first[a]; sa++)
+      o[ahd_index(rt, a, sa)] = rt->ahd[rt->slot_first[a] + sa];
+  free(rt->ahd);
+  rt->ahd = o;
+  return UB_OK;
+}
+
 /* Blend engines for the elements' lightmap, GLG and LLG records; sets start at weight 1,
  * doors closed, objects shown. Afterwards the run-time keeps one float copy of each
  * representation's current state (lm_cur, glg_cur + the windowed glg_win, llg_cur), the
@@ -571,6 +692,12 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
                   (unsigned long long)touched);
     return UB_ERR_INVALID_DATA;
   }
+  rt->touched = touched;
+  r = rank_touched(rt);
+  if (r != UB_OK) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
+    return r;
+  }
   rt->tch_slot = malloc((size_t)(touched ? touched : 1) * sizeof *rt->tch_slot);
   rt->lm_cur = malloc((size_t)(touched ? touched : 1) * UB_SH1_FLOATS * sizeof(float));
   rt->lm_un = malloc((size_t)(touched ? touched : 1) * 3 * sizeof(float));
@@ -609,14 +736,23 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
       for (int k = 0; k < UB_SH1_FLOATS; k++)
         rt->lm_static[ix * UB_SH1_FLOATS + k] = ub_half_from_float(row[k] / rt->lm_static_scale);
   }
-  /* The blend's receivers are the touched ranks (monotonic in the slots, so the records
-   * stay sorted): it writes lm_cur in place, pieces hand over no copy. */
-  for (uint32_t e = 0; e < n; e++)
+  /* The blend's receivers are the touched ranks: it writes lm_cur in place, pieces hand
+   * over no copy. Ranks are group-major, not monotonic in the slots: each record is
+   * sorted again, its rows with it. */
+  for (uint32_t e = 0; e < n; e++) {
+    uint32_t *rv = rt->lm_idx + (rt->lm_rec[e].receivers - rt->lm_idx);
     for (uint32_t i = 0; i < rt->lm_rec[e].count; i++) {
       uint64_t ix;
-      slot_touched(rt, rt->lm_rec[e].receivers[i], &ix);
-      rt->lm_idx[rt->lm_rec[e].receivers - rt->lm_idx + i] = (uint32_t)ix;
+      slot_touched(rt, rv[i], &ix);
+      rv[i] = (uint32_t)ix;
     }
+    r = sort_record(rv, (float *)(uintptr_t)rt->lm_rec[e].values, rt->lm_rec[e].count,
+                    UB_SH1_FLOATS);
+    if (r != UB_OK) {
+      ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
+      return r;
+    }
+  }
   ub_blend_desc bd;
   memset(&bd, 0, sizeof bd);
   bd.name = "lightmap texels";
@@ -702,7 +838,13 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   }
   for (uint32_t e = 0; e < n && r == UB_OK; e++)
     r = push_applied(rt, e);
-  return r == UB_OK ? ub_runtime_update(rt, NULL) : r;
+  if (r == UB_OK)
+    r = rank_ahd(rt);
+  if (r != UB_OK) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
+    return r;
+  }
+  return ub_runtime_update(rt, NULL);
 }
 
 ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
@@ -728,7 +870,8 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
   if (build_slots(rt) != UB_OK)
     goto oom;
   if (bf->atlas_count) {
-    rt->ahd = calloc(bf->atlas_count, sizeof *rt->ahd);
+    uint64_t slots = rt->slot_first[bf->atlas_count];
+    rt->ahd = malloc((size_t)(slots ? slots : 1) * sizeof *rt->ahd);
     rt->fallback = calloc(bf->atlas_count, sizeof *rt->fallback);
     if (!rt->ahd || !rt->fallback)
       goto oom;
@@ -736,12 +879,11 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
       const ub_bakefile_atlas *at = &bf->atlases[a];
       uint64_t ns = rt->slot_first[a + 1] - rt->slot_first[a];
       const uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
-      rt->ahd[a] = calloc(ns ? ns : 1, sizeof *rt->ahd[a]);
-      if (!rt->ahd[a] || encode_fallbacks(at, &rt->fallback[a]) != UB_OK)
+      if (encode_fallbacks(at, &rt->fallback[a]) != UB_OK)
         goto oom;
       for (uint64_t k = 0; k < ns; k++)
         encode_texel(at, &rt->fallback[a], at->sh + (size_t)sp[k] * UB_SH1_FLOATS, 0, sp[k],
-                     &rt->ahd[a][k]);
+                     &rt->ahd[rt->slot_first[a] + k]);
     }
   }
   for (uint32_t t = 0; t < bf->triangle_count; t++)
@@ -924,7 +1066,6 @@ float ub_runtime_dls_weight_from_lights(const float *strengths, uint32_t count)
 typedef struct touched_ctx {
   ub_runtime *rt;
   uint64_t texels;
-  uint32_t atlas; /* atlas of the last piece */
   /* texels with their own normal waiting to be encoded eight at a time (the blend hands
    * over short pieces: runs of one group's slots) */
   uint32_t np;
@@ -950,34 +1091,29 @@ static void touched_flush(touched_ctx *tc)
 
 /* Re-encodes to AHD the touched texels of ranks [first, first + count), whose current SH
  * rows the blend just wrote in place (lm_cur, I_z form; they stay put until the flush).
- * Ranks map to global slots by tch_slot, slots to atlases by slot_first (pieces of one
- * group come in ascending order: the atlas search resumes at the last one). */
+ * Their normals (lm_un) and AHD (rt->ahd, ahd_ranked) are at the same ranks: three
+ * sequential streams. Only a texel without a normal of its own needs its slot. */
 static void lm_touched(void *user, uint32_t first, uint32_t count, const float *rows)
 {
   touched_ctx *tc = user;
   const ub_runtime *rt = tc->rt;
-  const uint32_t *ts = rt->tch_slot + first;
   const float *un = rt->lm_un + (size_t)first * 3;
-  uint32_t a = tc->atlas;
-  if (a >= rt->bf->atlas_count || (count && ts[0] < rt->slot_first[a]))
-    a = 0;
-  for (uint32_t i = 0; i < count; i++, rows += UB_SH1_FLOATS, un += 3) {
-    uint64_t s = ts[i];
-    while (s >= rt->slot_first[a + 1])
-      a++;
-    uint64_t sa = s - rt->slot_first[a];
+  ub_ahd *out = rt->ahd + first;
+  for (uint32_t i = 0; i < count; i++, rows += UB_SH1_FLOATS, un += 3, out++) {
     if (isnan(un[0])) {
-      const ub_bakefile_atlas *at = &rt->bf->atlases[a];
-      encode_texel(at, &rt->fallback[a], rows, 1, rt->slot_pixel[s], &rt->ahd[a][sa]);
+      uint64_t s = rt->tch_slot[first + i];
+      uint32_t a = 0;
+      while (s >= rt->slot_first[a + 1])
+        a++;
+      encode_texel(&rt->bf->atlases[a], &rt->fallback[a], rows, 1, rt->slot_pixel[s], out);
       continue;
     }
     memcpy(tc->pn + 3 * tc->np, un, 3 * sizeof(float));
     tc->prow[tc->np] = rows;
-    tc->pout[tc->np] = &rt->ahd[a][sa];
+    tc->pout[tc->np] = out;
     if (++tc->np == 8)
       touched_flush(tc);
   }
-  tc->atlas = a;
   tc->texels += count;
 }
 
@@ -1013,8 +1149,9 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
     touched_flush(&tc);
     st.texels_written = bs.receivers;
     st.texels_reencoded = tc.texels;
-    st.bytes_read += bs.bytes_read;
-    st.bytes_written += bs.receivers * UB_SH1_FLOATS * sizeof(float); /* into lm_cur */
+    /* the blend's rows into lm_cur; the re-encode reads the normals, writes the AHD */
+    st.bytes_read += bs.bytes_read + tc.texels * 3 * sizeof(float);
+    st.bytes_written += bs.receivers * UB_SH1_FLOATS * sizeof(float) + tc.texels * sizeof(ub_ahd);
     st.groups += bs.groups;
   }
   if (out_stats)
@@ -1109,7 +1246,7 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
     size_t slots = (size_t)rt->slot_first[bf->atlas_count], words = (slots + 63) / 64, t = 0;
     for (size_t w = 0; w < words; w++)
       t += (size_t)__builtin_popcountll(rt->tch_bits[w]);
-    m.lightmap += t * ((UB_SH1_FLOATS + 3) * F + U) + (slots - t) * UB_SH1_FLOATS * 2 +
+    m.lightmap += t * ((UB_SH1_FLOATS + 3) * F + 2 * U) + (slots - t) * UB_SH1_FLOATS * 2 +
                   words * (8 + U);
   }
   for (uint32_t i = 0; i < bf->llg_count; i++) {
@@ -1161,7 +1298,7 @@ ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint
     out_rgb[0] = out_rgb[1] = out_rgb[2] = 0.0f;
     return UB_OK;
   }
-  ub_ahd_irradiance(&rt->ahd[atlas][slot_of(rt, atlas, i)], nn, out_rgb);
+  ub_ahd_irradiance(&rt->ahd[ahd_index(rt, atlas, slot_of(rt, atlas, i))], nn, out_rgb);
   return UB_OK;
 }
 
@@ -1289,7 +1426,6 @@ static void closest_on_triangle(const double p[3], const double a[3], const doub
 static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub_ahd *out)
 {
   const ub_bakefile_atlas *at = &rt->bf->atlases[atlas];
-  const ub_ahd *ahd = rt->ahd[atlas];
   u = u > 0.0f ? (u < 1.0f ? u : 1.0f) : 0.0f; /* NaN → 0 */
   v = v > 0.0f ? (v < 1.0f ? v : 1.0f) : 0.0f;
   float fx = u * (float)at->width - 0.5f, fy = v * (float)at->height - 0.5f;
@@ -1355,7 +1491,7 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
       }
     if (best == INFINITY)
       return 0;
-    *out = ahd[slot_of(rt, atlas, bi)];
+    *out = rt->ahd[ahd_index(rt, atlas, slot_of(rt, atlas, bi))];
     return 1;
   }
   float fsh[UB_SH1_FLOATS], fn[3] = {(float)nn[0], (float)nn[1], (float)nn[2]}, un[3];

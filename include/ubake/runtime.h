@@ -181,6 +181,8 @@ float ub_runtime_door_fraction(float hinge_angle_radians);
 typedef struct ub_runtime_update_stats {
   uint64_t texels_written, texels_reencoded, probes_written; /* probes: GLG */
   uint64_t llg_probes_written;
+  /* What the blends read (base and record rows, group tables) and write (current rows),
+   * plus the AHD re-encode's normals read and AHD texels written. */
   uint64_t bytes_read, bytes_written;
   uint32_t groups;
   /* Wall-clock seconds of the update's parts (monotonic clock; for benchmarks): lightmap
