@@ -194,16 +194,19 @@ static void ahd_encode_terms(const float a[3], const float b[3][3], const float 
 __attribute__((target("avx"))) static inline void transpose8_avx(__m256 r[8])
 {
   __m256 t[8], u[8];
+  #pragma GCC unroll 8
   for (int i = 0; i < 8; i += 2) {
     t[i] = _mm256_unpacklo_ps(r[i], r[i + 1]);
     t[i + 1] = _mm256_unpackhi_ps(r[i], r[i + 1]);
   }
+  #pragma GCC unroll 8
   for (int i = 0; i < 8; i += 4) {
     u[i] = _mm256_shuffle_ps(t[i], t[i + 2], 0x44);
     u[i + 1] = _mm256_shuffle_ps(t[i], t[i + 2], 0xEE);
     u[i + 2] = _mm256_shuffle_ps(t[i + 1], t[i + 3], 0x44);
     u[i + 3] = _mm256_shuffle_ps(t[i + 1], t[i + 3], 0xEE);
   }
+  #pragma GCC unroll 8
   for (int i = 0; i < 4; i++) {
     r[i] = _mm256_permute2f128_ps(u[i], u[i + 4], 0x20);
     r[i + 4] = _mm256_permute2f128_ps(u[i], u[i + 4], 0x31);
@@ -221,9 +224,11 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *const row
   __m256 t[12];
   {
     __m256 hi[4];
+    #pragma GCC unroll 8
     for (int j = 0; j < 8; j++)
       t[j] = _mm256_loadu_ps(rows[j]);
     transpose8_avx(t);
+    #pragma GCC unroll 8
     for (int j = 0; j < 4; j++)
       hi[j] = _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(rows[j] + 8)),
                                    _mm_loadu_ps(rows[j + 4] + 8), 1);
@@ -238,7 +243,9 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *const row
     t[11] = x11;
   }
   float nt[3][8] __attribute__((aligned(32)));
+  #pragma GCC unroll 8
   for (int j = 0; j < 8; j++)
+    #pragma GCC unroll 8
     for (int k = 0; k < 3; k++)
       nt[k][j] = nrm[3 * j + k];
   const __m256 zero = _mm256_setzero_ps(), inf = _mm256_set1_ps(INFINITY);
@@ -255,6 +262,7 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *const row
   const __m256 kb = _mm256_set1_ps((2.0f * UB_PI / 3.0f) * UB_SH_Y1);
   __m256 n0 = _mm256_load_ps(nt[0]), n1 = _mm256_load_ps(nt[1]), n2 = _mm256_load_ps(nt[2]);
   __m256 a[3], b[3][3], iz[3];
+  #pragma GCC unroll 8
   for (int c = 0; c < 3; c++) {
     b[c][0] = _mm256_mul_ps(kb, AHD_FIN(t[9 + c]));
     b[c][1] = _mm256_mul_ps(kb, AHD_FIN(t[3 + c]));
@@ -263,9 +271,11 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *const row
     a[c] = _mm256_sub_ps(iz[c], AHD_DOT(b[c][0], b[c][1], b[c][2], n0, n1, n2));
   }
   __m256 al = zero, bl[3] = {zero, zero, zero};
+  #pragma GCC unroll 8
   for (int c = 0; c < 3; c++) {
     __m256 k = _mm256_set1_ps(k_lum[c]);
     al = _mm256_add_ps(al, _mm256_mul_ps(k, AHD_ABS(a[c])));
+    #pragma GCC unroll 8
     for (int i = 0; i < 3; i++)
       bl[i] = _mm256_add_ps(bl[i], _mm256_mul_ps(k, b[c][i]));
   }
@@ -293,6 +303,7 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *const row
   o[3] = d0;
   o[4] = d1;
   o[5] = d2;
+  #pragma GCC unroll 8
   for (int c = 0; c < 3; c++) {
     __m256 z = _mm256_and_ps(iz[c], _mm256_cmp_ps(iz[c], zero, _CMP_GT_OQ));
     __m256 beta = AHD_DOT(b[c][0], b[c][1], b[c][2], d0, d1, d2);
@@ -317,6 +328,7 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *const row
                     _mm_shuffle_ps(lo8, lo8, 3), hi8, _mm_shuffle_ps(hi8, hi8, 1),
                     _mm_shuffle_ps(hi8, hi8, 2), _mm_shuffle_ps(hi8, hi8, 3)};
   transpose8_avx(o);
+  #pragma GCC unroll 8
   for (int j = 0; j < 8; j++) {
     float *dst = (float *)out[j]; /* ambient, direction, directional: 9 floats */
     _mm256_storeu_ps(dst, o[j]);
