@@ -1100,6 +1100,17 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
   const float *un = rt->lm_un + (size_t)first * 3;
   ub_ahd *out = rt->ahd + first;
   for (uint32_t i = 0; i < count; i++, rows += UB_SH1_FLOATS, un += 3, out++) {
+    /* eight texels in a row with their own normals: encoded where they are */
+    if (!tc->np && count - i >= 8 && !isnan(un[0]) && !isnan(un[3]) && !isnan(un[6]) &&
+        !isnan(un[9]) && !isnan(un[12]) && !isnan(un[15]) && !isnan(un[18]) &&
+        !isnan(un[21])) {
+      ub_ahd_encode_iz8(rows, un, out);
+      i += 7;
+      rows += 7 * UB_SH1_FLOATS;
+      un += 7 * 3;
+      out += 7;
+      continue;
+    }
     if (isnan(un[0])) {
       uint64_t s = rt->tch_slot[first + i];
       uint32_t a = 0;
