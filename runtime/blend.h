@@ -39,6 +39,9 @@
  * Numerics: each term is rounded once (product) and summed once in float, so
  * |out − exact| ≤ γ_{k+1}·(|base| + Σ|ω_i·S_i|) per value, γ_n = n·2^-24/(1 − n·2^-24).
  *
+ * Row queries (UB_BLEND_ROW_QUERY): a receiver's current row computed on demand from the
+ * base and record rows (ub_blend_row), so a streaming caller keeps no blended array.
+ *
  * Lifecycle: ub_blend_create() → { ub_blend_set_weight()…, ub_blend_update() }… →
  * ub_blend_free() (NULL-safe). On failure nothing is allocated, *out_blend and
  * out_values are left untouched.
@@ -82,6 +85,9 @@ extern "C" {
  * nearest even; values must be within the half range: scale them first): the engine then
  * works as with half records, without the caller building a half copy first. */
 #define UB_BLEND_STORE_HALF 4u
+/* ub_blend_row() is available: the engine keeps a map from receivers to their groups'
+ * units (one entry per run, one per list receiver) and the weights of the last update. */
+#define UB_BLEND_ROW_QUERY 8u
 
 typedef enum ub_blend_storage {
   UB_BLEND_FLOAT32 = 0, /* record values are float */
@@ -167,6 +173,15 @@ void ub_blend_update(ub_blend *b, ub_blend_touched_fn touched, void *user,
 /* The same for every group (every touched receiver), dirty or not. */
 void ub_blend_update_all(ub_blend *b, ub_blend_touched_fn touched, void *user,
                          float *out_values, ub_blend_stats *out_stats);
+
+/* Receiver r's row as the last update (or create) left it: base + Σ ω_i·S_i under the
+ * weights of that update, with the update's operations in its order (the same bits as
+ * the row it wrote or streamed), into out_row (stride floats). Needs UB_BLEND_ROW_QUERY
+ * at create. Returns 1, or 0 (out_row untouched) for a receiver no element touches when
+ * the engine owns its base rows (UB_BLEND_OWN_BASE: it keeps none for those), r out of
+ * range or no UB_BLEND_ROW_QUERY. Cost: a binary search over the units and one row per
+ * non-zero member. Reads only: safe to call between updates from several threads. */
+int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row);
 
 void ub_blend_get_info(const ub_blend *b, ub_blend_info *out_info);
 /* The engine's bytes besides the record values (= info.engine_bytes). */

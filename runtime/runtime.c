@@ -40,12 +40,13 @@ struct ub_runtime {
   uint32_t **cov_rank;   /* atlas_count arrays: covered pixels before each 64-pixel word */
   uint32_t *slot_pixel;  /* global slot → pixel within its atlas */
   /* Dynamic light sets (when the file has any): blended SH, re-encoded where touched. */
-  /* The texels' SH in the file's I_z form (below): the texels some record touches hold
-   * their current state in float (lm_cur, blended at every update); the others never
+  /* The texels' SH in the file's I_z form (below): the texels some record touches have
+   * their current state computed by the lightmap blend (streamed into the AHD re-encode
+   * at an update, ub_blend_row for a query: no blended array is kept); the others never
    * change and keep the file's halves (lm_static × lm_static_scale, a power of two). A
-   * slot's index in either array: tch_rank (bitmap ranks over the global slots). */
+   * slot's index in either: slot_touched (a rank, or its rank among the untouched). */
   float *lm_base;          /* during setup: Σ slots × 12 */
-  float *lm_cur;           /* touched slots × 12 */
+  float *lm_tbase;         /* during setup: touched slots × 12, the blend's base rows */
   float *lm_un;            /* touched slots × 3: the unit normal the AHD re-encode uses
                               (ub_texel_normal of the stored one, made once at load: it
                               was an eighth of a toggle), NaN first when the texel has
@@ -54,7 +55,7 @@ struct ub_runtime {
   float lm_static_scale;
   uint64_t *tch_bits;      /* ⌈slots / 64⌉ words: the slot is touched */
   uint32_t *tch_rank;      /* touched slots before each word */
-  /* A touched slot's index (its "rank": in lm_cur, lm_un, tch_slot, the lightmap blend's
+  /* A touched slot's index (its "rank": in lm_un, tch_slot, the lightmap blend's
    * receivers and, once ahd_ranked, the AHD array) is not its bitmap rank but its place
    * in group-major order: texels with the same combination of records are consecutive
    * (in slot order within it), so each blend group is one run and an update streams
@@ -63,12 +64,12 @@ struct ub_runtime {
   uint32_t *tch_grp;       /* touched slots in bitmap-rank order → their rank */
   uint64_t touched;        /* touched slots */
   uint32_t *tch_slot;      /* touched slots × 1: the global slot of each (the lightmap blend
-                              works in touched ranks and writes lm_cur rows in place) */
+                              works in touched ranks) */
   uint32_t *lm_idx;        /* during setup: the texel records' receivers as global slots */
   /* Record values in half precision inside the blends, as the file stores them (per
    * representation divided by a power-of-two scale, which the weights given to the blend
    * are multiplied by: (w·s)·h and w·(s·h) round to the same float). Texel
-   * values, base and lm_cur are in the I_z form of runtime/texel_sh.h (L00 replaced by the
+   * values and base rows are in the I_z form of runtime/texel_sh.h (L00 replaced by the
    * irradiance along the texel's stored normal), where half rounding keeps I_z to half
    * precision even under grazing light; readers unpack a texel before use (texel_sh_at). */
   float lm_scale, glg_scale, llg_scale;
@@ -337,7 +338,7 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt->applied);
   free(rt->llg_base);
   free(rt->lm_base);
-  free(rt->lm_cur);
+  free(rt->lm_tbase);
   free(rt->lm_un);
   free(rt->lm_static);
   free(rt->tch_bits);
@@ -609,8 +610,9 @@ static ub_result rank_ahd(ub_runtime *rt)
 }
 
 /* Blend engines for the elements' lightmap, GLG and LLG records; sets start at weight 1,
- * doors closed, objects shown. Afterwards the run-time keeps one float copy of each
- * representation's current state (lm_cur, glg_cur + the windowed glg_win, llg_cur), the
+ * doors closed, objects shown. Afterwards the run-time keeps a float copy of the probes'
+ * current state (glg_cur + the windowed glg_win, llg_cur; the texels' is computed on
+ * demand by the lightmap blend, whose rows the AHD re-encode streams), the
  * base rows of the touched receivers inside the blends (UB_BLEND_OWN_BASE) and the
  * records in half; the bake file's float copies are freed or point into the current state
  * (runtime.h, ub_runtime_bakefile). */
@@ -699,11 +701,11 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     return r;
   }
   rt->tch_slot = malloc((size_t)(touched ? touched : 1) * sizeof *rt->tch_slot);
-  rt->lm_cur = malloc((size_t)(touched ? touched : 1) * UB_SH1_FLOATS * sizeof(float));
+  rt->lm_tbase = malloc((size_t)(touched ? touched : 1) * UB_SH1_FLOATS * sizeof(float));
   rt->lm_un = malloc((size_t)(touched ? touched : 1) * 3 * sizeof(float));
   rt->lm_static = malloc((size_t)(slots - touched ? slots - touched : 1) * UB_SH1_FLOATS *
                          sizeof(uint16_t));
-  if (!rt->tch_slot || !rt->lm_cur || !rt->lm_un || !rt->lm_static) {
+  if (!rt->tch_slot || !rt->lm_tbase || !rt->lm_un || !rt->lm_static) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return UB_ERR_OUT_OF_MEMORY;
   }
@@ -730,14 +732,13 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     uint64_t ix;
     const float *row = rt->lm_base + sl * UB_SH1_FLOATS;
     if (slot_touched(rt, sl, &ix)) {
-      memcpy(rt->lm_cur + ix * UB_SH1_FLOATS, row, UB_SH1_FLOATS * sizeof(float));
+      memcpy(rt->lm_tbase + ix * UB_SH1_FLOATS, row, UB_SH1_FLOATS * sizeof(float));
       rt->tch_slot[ix] = (uint32_t)sl;
     } else
       for (int k = 0; k < UB_SH1_FLOATS; k++)
         rt->lm_static[ix * UB_SH1_FLOATS + k] = ub_half_from_float(row[k] / rt->lm_static_scale);
   }
-  /* The blend's receivers are the touched ranks: it writes lm_cur in place, pieces hand
-   * over no copy. Ranks are group-major, not monotonic in the slots: each record is
+  /* The blend's receivers are the touched ranks. Ranks are group-major, not monotonic in the slots: each record is
    * sorted again, its rows with it. */
   for (uint32_t e = 0; e < n; e++) {
     uint32_t *rv = rt->lm_idx + (rt->lm_rec[e].receivers - rt->lm_idx);
@@ -758,17 +759,21 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   bd.name = "lightmap texels";
   bd.receiver_count = (uint32_t)touched;
   bd.stride = UB_SH1_FLOATS;
-  bd.base = rt->lm_cur;
+  bd.base = rt->lm_tbase;
   bd.storage = UB_BLEND_FLOAT32;
   bd.element_count = n;
   bd.elements = rt->lm_rec;
-  /* Keeps only the touched receivers' base rows, and the records as half. */
-  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_STORE_HALF;
-  r = ub_blend_create(&bd, log, NULL, &rt->lm_blend); /* writes lm_cur */
+  /* Keeps only the touched receivers' base rows, and the records as half; streams its
+   * rows to the re-encode, queries ask it for a texel's row (ub_blend_row). */
+  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_STORE_HALF | UB_BLEND_ROW_QUERY;
+  r = ub_blend_create(&bd, log, NULL, &rt->lm_blend);
   if (r != UB_OK)
     return r;
+  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_STORE_HALF;
   free(rt->lm_base);
   rt->lm_base = NULL;
+  free(rt->lm_tbase);
+  rt->lm_tbase = NULL;
   if (rt->has_glg) {
     bd.name = "GLG probes";
     bd.receiver_count = bf->glg_probe_count;
@@ -1067,11 +1072,12 @@ typedef struct touched_ctx {
   ub_runtime *rt;
   uint64_t texels;
   /* texels with their own normal waiting to be encoded eight at a time (the blend hands
-   * over short pieces: runs of one group's slots) */
+   * over pieces of one group's run; their rows live only during the call: copied) */
   uint32_t np;
-  const float *prow[8]; /* their rows in lm_cur */
+  const float *prow[8]; /* into qrow */
   ub_ahd *pout[8];
   float pn[24];
+  float qrow[8][UB_SH1_FLOATS];
 } touched_ctx;
 
 /* Encodes the waiting texels (padded to eight lanes with copies of the first). */
@@ -1090,7 +1096,7 @@ static void touched_flush(touched_ctx *tc)
 }
 
 /* Re-encodes to AHD the touched texels of ranks [first, first + count), whose current SH
- * rows the blend just wrote in place (lm_cur, I_z form; they stay put until the flush).
+ * rows (I_z form) the blend streams (valid during the call only).
  * Their normals (lm_un) and AHD (rt->ahd, ahd_ranked) are at the same ranks: three
  * sequential streams. Only a texel without a normal of its own needs its slot. */
 static void lm_touched(void *user, uint32_t first, uint32_t count, const float *rows)
@@ -1120,7 +1126,8 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
       continue;
     }
     memcpy(tc->pn + 3 * tc->np, un, 3 * sizeof(float));
-    tc->prow[tc->np] = rows;
+    memcpy(tc->qrow[tc->np], rows, UB_SH1_FLOATS * sizeof(float));
+    tc->prow[tc->np] = tc->qrow[tc->np];
     tc->pout[tc->np] = out;
     if (++tc->np == 8)
       touched_flush(tc);
@@ -1156,13 +1163,13 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
     memset(&tc, 0, sizeof tc);
     tc.rt = rt;
     ub_blend_stats bs;
-    ub_blend_update(rt->lm_blend, lm_touched, &tc, rt->lm_cur, &bs);
+    ub_blend_update(rt->lm_blend, lm_touched, &tc, NULL, &bs);
     touched_flush(&tc);
     st.texels_written = bs.receivers;
     st.texels_reencoded = tc.texels;
-    /* the blend's rows into lm_cur; the re-encode reads the normals, writes the AHD */
+    /* the blend streams its rows; the re-encode reads the normals, writes the AHD */
     st.bytes_read += bs.bytes_read + tc.texels * 3 * sizeof(float);
-    st.bytes_written += bs.receivers * UB_SH1_FLOATS * sizeof(float) + tc.texels * sizeof(ub_ahd);
+    st.bytes_written += tc.texels * sizeof(ub_ahd);
     st.groups += bs.groups;
   }
   if (out_stats)
@@ -1253,11 +1260,11 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
                   (bf->atlases[a].sh ? t * UB_SH1_FLOATS * F : 0) +
                   (rt->fallback ? (size_t)rt->fallback[a].count * (U + 3 * F) : 0);
   }
-  if (rt->lm_cur) {
+  if (rt->tch_bits) {
     size_t slots = (size_t)rt->slot_first[bf->atlas_count], words = (slots + 63) / 64, t = 0;
     for (size_t w = 0; w < words; w++)
       t += (size_t)__builtin_popcountll(rt->tch_bits[w]);
-    m.lightmap += t * ((UB_SH1_FLOATS + 3) * F + 2 * U) + (slots - t) * UB_SH1_FLOATS * 2 +
+    m.lightmap += t * (3 * F + 2 * U) + (slots - t) * UB_SH1_FLOATS * 2 +
                   words * (8 + U);
   }
   for (uint32_t i = 0; i < bf->llg_count; i++) {
@@ -1448,7 +1455,7 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
   /* Bilinear over the texels' linear data (SH L1 of the current state and the encode
    * normals), then one AHD encode: filtering the AHD parameters themselves (non-linear)
    * is off by up to 40% along the normal between texels that are each exact. */
-  const int cur = rt->lm_cur != NULL;
+  const int cur = rt->tch_bits != NULL; /* records: rows in I_z form, blend or halves */
   double sw = 0, sh[UB_SH1_FLOATS] = {0}, nn[3] = {0, 0, 0};
   /* not across a wall or closed door standing between texels (runtime/texel_links.h) */
   unsigned keep = ub_texel_links_keep(at->link, w, h, x0, y0, tx, ty);
@@ -1471,7 +1478,8 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
     if (cur) {
       uint64_t ix;
       if (slot_touched(rt, rt->slot_first[atlas] + slot_of(rt, atlas, i), &ix)) {
-        row = rt->lm_cur + ix * UB_SH1_FLOATS;
+        ub_blend_row(rt->lm_blend, (uint32_t)ix, srow); /* touched: in a group, always 1 */
+        row = srow;
       } else {
         for (int c = 0; c < UB_SH1_FLOATS; c++)
           srow[c] = ub_half_to_float(rt->lm_static[ix * UB_SH1_FLOATS + c]) * rt->lm_static_scale;

@@ -55,10 +55,10 @@ typedef struct ub_runtime_memory {
   size_t geometry;  /* triangles, vertices, UVs, albedo, roles, lights; atlas normals and
                        coverage; GLG positions, tets, leak planes; LLG model meshes,
                        visibility, self terms */
-  size_t lightmap;  /* per covered texel: AHD, SH (float current state where a record
-                       touches it, else the file's halves; without elements the file's
-                       float SH; touched: encode normal and slot); coverage/touched
-                       bitmaps; fallback encode normals */
+  size_t lightmap;  /* per covered texel: AHD, SH (where a record touches it none: the
+                       lightmap blend computes it; else the file's halves; without
+                       elements the file's float SH; touched: encode normal, slot and
+                       rank); coverage/touched bitmaps; fallback encode normals */
   size_t glg;       /* raw current + windowed SH, the GLG's acceleration data and lazy
                        windowing state */
   size_t llg;       /* LLG probe SH (current state) */
