@@ -47,7 +47,11 @@ _Static_assert(sizeof(struct ub_glg_tet) == 64, "walk record is one cache line")
 #define GLG_SINGULAR_Q 1e-13    /* below this: singular, use the closest face */
 #define GLG_BRUTE_ACCEPT -1e-3  /* brute force: accept the best tet above this */
 #define GLG_RING_CAP 256        /* faces around one hull vertex */
-#define GLG_NEAR_BARY -0.25f    /* cached tet still "near" p: min barycentric above this */
+#define GLG_NEAR_BARY -0.05f    /* cached tet still "near" p: min barycentric above this
+                                   (inside the tet grown 20% about its centroid). At
+                                   −0.25 (×2) 1.8% of random queries on kaos walked from
+                                   a far, huge tet, 14 steps each (+0.2 per query); a
+                                   moving object leaves a tet by far less */
 #define GLG_FLAG_ILL 1
 #define GLG_FLAG_SINGULAR 2
 #define GLG_NONE 0xFFFFFFFFu
@@ -499,6 +503,12 @@ static uint32_t walk(const ub_glg *g, const float p[3], uint32_t t, float bary[4
       __builtin_prefetch(g->leak_plane_of + t);
       __builtin_prefetch(g->leak_drop + t);
     }
+    /* If p is not in t, the next step is one of t's neighbours: request their records as
+     * soon as t's arrives rather than after the barycentric test has picked one (~6%
+     * more random queries per second on kaos, 2.5 steps per query). */
+    for (int i = 0; i < 4; i++)
+      if (r->nb[i] >= 0 && (uint32_t)r->nb[i] != prev)
+        __builtin_prefetch(&g->tet_data[r->nb[i]]);
 #endif
     float l[4];
     rec_bary(r, p, l);
@@ -615,6 +625,39 @@ static int hull_outside(const ub_glg *g, const float p[3], uint32_t h)
   return d3dot(n, d) > 0.0;
 }
 
+/* ub_glg_locate_ex once the cache (start: a tet or GLG_NONE) is known not to hold the
+ * finite p; start_min is p's min barycentric in start when start is well shaped. */
+static uint32_t locate_walk(const ub_glg *g, const float p[3], uint32_t start, float start_min,
+                            float out_bary[4], ub_glg_locate_info *info,
+                            uint32_t *inout_tet_cache)
+{
+  if (g->start_grid) {
+    int far = 1;
+    if (start != GLG_NONE) {
+      /* Near the cached tet, in its own units (barycentrics: a big tet in open space
+       * stays near for a long way) or within two grid cells: walk from it. */
+      const float *o = g->tet_data[start].o;
+      float dx = p[0] - o[0], dy = p[1] - o[1], dz = p[2] - o[2];
+      far = dx * dx + dy * dy + dz * dz > g->grid_far2;
+      uint8_t fl = g->tet_flags[start];
+      if (far && fl != GLG_FLAG_SINGULAR)
+        far = !((fl ? tet_min_bary(g, start, p) : start_min) >= GLG_NEAR_BARY);
+    }
+    if (far) {
+      start = grid_start(g, p);
+      if (info)
+        info->from_grid = 1;
+    }
+  }
+  if (start == GLG_NONE)
+    start = 0;
+  uint32_t out_cache;
+  uint32_t t = walk(g, p, start, out_bary, info, &out_cache);
+  if (inout_tet_cache)
+    *inout_tet_cache = out_cache;
+  return t;
+}
+
 uint32_t ub_glg_locate_ex(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
                           float out_bary[4], ub_glg_locate_info *info)
 {
@@ -649,12 +692,14 @@ uint32_t ub_glg_locate_ex(const ub_glg *g, const float p[3], uint32_t *inout_tet
     return cache == GLG_NONE ? 0 : cache;
   }
   uint32_t start = cache;
+  float start_min = 0.0f; /* min barycentric of p in a well-shaped cached tet */
   if (start != GLG_NONE && !g->tet_flags[start]) {
     /* Still inside the cached tet (the common case for a moving object): done. Tets can
      * be much larger than a start-grid cell, so this comes before the distance test. */
     float l[4];
     rec_bary(&g->tet_data[start], p, l);
-    if (min4f(l) >= -GLG_EPS) {
+    start_min = min4f(l);
+    if (start_min >= -GLG_EPS) {
       if (info)
         info->steps = 1;
       memcpy(out_bary, l, sizeof l);
@@ -664,30 +709,7 @@ uint32_t ub_glg_locate_ex(const ub_glg *g, const float p[3], uint32_t *inout_tet
       return start;
     }
   }
-  if (g->start_grid) {
-    int far = 1;
-    if (start != GLG_NONE) {
-      /* Near the cached tet, in its own units (barycentrics: a big tet in open space
-       * stays near for a long way) or within two grid cells: walk from it. */
-      const float *o = g->tet_data[start].o;
-      float dx = p[0] - o[0], dy = p[1] - o[1], dz = p[2] - o[2];
-      far = dx * dx + dy * dy + dz * dz > g->grid_far2;
-      if (far && g->tet_flags[start] != GLG_FLAG_SINGULAR)
-        far = !(tet_min_bary(g, start, p) >= GLG_NEAR_BARY);
-    }
-    if (far) {
-      start = grid_start(g, p);
-      if (info)
-        info->from_grid = 1;
-    }
-  }
-  if (start == GLG_NONE)
-    start = 0;
-  uint32_t out_cache;
-  uint32_t t = walk(g, p, start, out_bary, info, &out_cache);
-  if (inout_tet_cache)
-    *inout_tet_cache = out_cache;
-  return t;
+  return locate_walk(g, p, start, start_min, out_bary, info, inout_tet_cache);
 }
 
 uint32_t ub_glg_locate(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
@@ -978,16 +1000,16 @@ void ub_glg_sample(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
   uint32_t t = inout_tet_cache ? *inout_tet_cache : GLG_NONE;
   /* Fast path, the same answer as ub_glg_locate's first test: p (finite) still inside
    * the cached, well-shaped tet. */
-  int hit = 0;
   if (t < g->tet_count && !g->tet_flags[t] && isfinite(p[0] + p[1] + p[2])) {
     rec_bary(&g->tet_data[t], p, w);
-    if (min4f(w) >= -GLG_EPS) {
+    float mn = min4f(w);
+    if (mn >= -GLG_EPS)
       bary_finish(w);
-      hit = 1;
-    }
-  }
-  if (!hit)
+    else /* ub_glg_locate_ex from its cache test on */
+      t = locate_walk(g, p, t, mn, w, NULL, inout_tet_cache);
+  } else {
     t = ub_glg_locate_ex(g, p, inout_tet_cache, w, NULL);
+  }
   leak_weights(g, t, p, w);
   interp4(g, g->tets + 4 * (size_t)t, w, out_sh);
 }

@@ -8,11 +8,12 @@
  *
  *   - Point location: walk from *inout_tet_cache across the face with the most negative
  *     barycentric (never straight back); each tet's barycentric matrix and origin are
- *     precomputed in a 64-byte record with its neighbours, so one step is one cache line.
+ *     precomputed in a 64-byte record with its neighbours, so one step is one cache line
+ *     (the neighbours' records are requested as soon as it arrives).
  *     If the cache is invalid (UB_GLG_NO_CACHE) or far from p (beyond two grid cells and
- *     beyond 2 tet sizes), the walk starts from a start grid built at init (2 cells per
- *     probe, each holding the tet at its centre). After walk_cap steps (4·cbrt(tets) +
- *     64) it falls back to a brute-force scan.
+ *     outside the cached tet grown by 20% about its centroid), the walk starts from a
+ *     start grid built at init (2 cells per probe, each holding the tet at its centre).
+ *     After walk_cap steps (4·cbrt(tets) + 64) it falls back to a brute-force scan.
  *   - Outside the probes' convex hull: p is projected onto the hull (closest point on the
  *     closest hull face, found by a local search over hull faces with a brute-force
  *     fallback) and interpolated there. Projection onto a convex set is continuous, so
