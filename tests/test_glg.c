@@ -914,11 +914,12 @@ static void test_scale(void)
          "  LLG resample 8x8x8, moving box: %.0f boxes/s (%.2f M probes/s)\n",
          N / t_coh * 1e-6, NR / t_rnd * 1e-6, NR / t_rnd0 * 1e-6, NW / t_raw * 1e-6, boxes / t_llg,
          boxes * 512 / t_llg * 1e-6);
+  ub_glg_memory gm;
+  ub_glg_memory_usage(&g, &gm);
   printf("run-time bytes per probe (SH excluded, 108 B/probe): owned %.1f (per tet: 64 B walk "
          "record + 1 B flag; hull %zu B, start grid %zu B) + borrowed %.1f (positions 12 + "
          "tets 16 B/tet) = %.1f B/probe\n",
-         per_probe_owned, (size_t)g.hull_count * 32,
-         (size_t)g.grid_dim[0] * g.grid_dim[1] * g.grid_dim[2] * 4, per_probe_borrowed,
+         per_probe_owned, (size_t)g.hull_count * 32, gm.start_grid, per_probe_borrowed,
          per_probe_owned + per_probe_borrowed);
   free(llg);
   free(path);

@@ -8,11 +8,13 @@
  *
  *   - Point location: walk from *inout_tet_cache across the face with the most negative
  *     barycentric (never straight back); each tet's barycentric matrix and origin are
- *     precomputed in a 64-byte record with its neighbours, so one step is one cache line.
+ *     precomputed in a 64-byte record with its neighbours, so one step is one cache line
+ *     (the neighbours' records are requested as soon as it arrives).
  *     If the cache is invalid (UB_GLG_NO_CACHE) or far from p (beyond two grid cells and
- *     beyond 2 tet sizes), the walk starts from a start grid built at init (2 cells per
- *     probe, each holding the tet at its centre). After walk_cap steps (4·cbrt(tets) +
- *     64) it falls back to a brute-force scan.
+ *     outside the cached tet grown by 20% about its centroid), the walk starts from a
+ *     start grid built at init (4 cells per probe, each holding the tet at its centre
+ *     as a 16-bit offset from a base tet per 4 × 4 × 4 cells: ~8 B per probe).
+ *     After walk_cap steps (4·cbrt(tets) + 64) it falls back to a brute-force scan.
  *   - Outside the probes' convex hull: p is projected onto the hull (closest point on the
  *     closest hull face, found by a local search over hull faces with a brute-force
  *     fallback) and interpolated there. Projection onto a convex set is continuous, so
@@ -114,7 +116,9 @@ typedef struct ub_glg {
   uint8_t *leak_drop;    /* per tet with a leak plane: corners dropped on each side */
   uint32_t hull_count;
   ub_glg_hull *hull;     /* hull faces with hull-surface adjacency */
-  uint32_t *start_grid;  /* a tet near the centre of each start-grid cell */
+  uint32_t *start_grid;  /* start grid: a base tet per 4 × 4 × 4 cells, then ... */
+  int16_t *start_delta;  /* ... per cell, the tet at its centre − its block's base (in the
+                            same allocation as start_grid) */
   uint32_t grid_dim[3];
   float grid_lo[3], grid_inv_cell[3], grid_far2; /* far2: squared "far from cache" radius */
   uint32_t walk_cap;      /* steps before the brute-force fallback */
@@ -209,7 +213,7 @@ typedef struct ub_glg_memory {
   size_t tet_flags;    /* tets × 1 */
   size_t leak;         /* tets × (4 plane index + 1 sides) + planes × 16 (+ tets × 4 vis) */
   size_t hull;         /* hull faces × 32 */
-  size_t start_grid;   /* cells × 4 */
+  size_t start_grid;   /* cells × 2 + blocks of 4 × 4 × 4 cells × 4 */
   size_t total;
 } ub_glg_memory;
 void ub_glg_memory_usage(const ub_glg *g, ub_glg_memory *out);
