@@ -933,6 +933,10 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
     gd.sh_windowed = 1;
     r = ub_glg_init(&rt->glg, &gd, log);
     rt->has_glg = r == UB_OK;
+    if (r == UB_OK) { /* the walk records hold the neighbours: 16 B per tet less */
+      free(bf->glg_neigh);
+      bf->glg_neigh = NULL;
+    }
     if (r == UB_OK)
       r = ub_glg_enable_lazy(&rt->glg, rt->glg_win, rt->glg_cur ? rt->glg_cur : bf->glg_sh);
     if (r != UB_OK) {
@@ -1250,7 +1254,7 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
                (bf->tri_role ? (size_t)bf->triangle_count * U : 0) +
                (size_t)bf->light_count * sizeof(ub_bakefile_light) +
                (size_t)bf->glg_probe_count * 3 * F +
-               (size_t)bf->glg_tet_count * (4 * U + 4 * sizeof(int32_t) + U) +
+               (size_t)bf->glg_tet_count * (4 * U + (bf->glg_neigh ? 4 * sizeof(int32_t) : 0) + U) +
                (size_t)bf->glg_plane_count * 4 * F + (size_t)rt->lit_count * U;
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     size_t t = (size_t)bf->atlases[a].width * bf->atlases[a].height;

@@ -38,16 +38,17 @@ typedef struct ub_runtime ub_runtime;
 ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out);
 void ub_runtime_free(ub_runtime *rt);
 
-/* The loaded bake file, read-only, owned by rt. When the file has dynamic elements (sets,
- * doors, objects), the run-time keeps one float copy of each representation's current
- * state and the records in half precision (as the file stores them), so this bake file
- * differs from one read with ub_bakefile_read(): every record's texel_sh, probe_sh and
- * llg_probe_sh and its receiver indices (texel_index, probe_index, llg_probe_index) are
- * NULL (the blends keep what they need; counts, names and kinds are kept; read the file
- * with ub_bakefile_read() for the records themselves); atlases[a].sh are NULL (read the
- * lightmap through the queries); glg_sh and llgs[m].probe_sh hold the CURRENT raw state
- * (base + Σ weight·record, as ub_runtime_glg_probe_sh(rt, 0)), updated by
- * ub_runtime_update(). Without elements it is the file as read. */
+/* The loaded bake file, read-only, owned by rt. It differs from one read with
+ * ub_bakefile_read(): glg_neigh is NULL (the GLG's walk records hold the neighbours;
+ * glg_tets, glg_positions and the leak planes stay). When the file has dynamic elements
+ * (sets, doors, objects), the run-time keeps one float copy of each probe
+ * representation's current state and the records in half precision (as the file stores
+ * them), so also: every record's texel_sh, probe_sh and llg_probe_sh and its receiver
+ * indices (texel_index, probe_index, llg_probe_index) are NULL (the blends keep what they
+ * need; counts, names and kinds are kept; read the file with ub_bakefile_read() for the
+ * records themselves); atlases[a].sh are NULL (read the lightmap through the queries);
+ * glg_sh and llgs[m].probe_sh hold the CURRENT raw state (base + Σ weight·record, as
+ * ub_runtime_glg_probe_sh(rt, 0)), updated by ub_runtime_update(). */
 const ub_bakefile *ub_runtime_bakefile(const ub_runtime *rt);
 
 /* Bytes the run-time holds (its own arrays and its bake file's), by what they serve. */
