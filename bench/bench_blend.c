@@ -402,10 +402,10 @@ int main(void)
     base_b += 4.0 * reps[ri].n * reps[ri].stride;
     base_half += 2.0 * reps[ri].n * reps[ri].stride;
     out_b += 4.0 * reps[ri].n * reps[ri].stride;
-    /* The run-time's lightmap state: float for the touched texels, the file's halves for
-     * the others (runtime.c lm_cur / lm_static); probes: float for all. */
-    rt_state += ri == 0 ? (4.0 * ih.touched_receivers + 2.0 * (reps[ri].n - ih.touched_receivers)) *
-                              reps[ri].stride
+    /* The run-time's lightmap state: none for the touched texels (the blend computes it:
+     * ub_blend_row), the file's halves for the others (runtime.c lm_static); probes:
+     * float for all. */
+    rt_state += ri == 0 ? 2.0 * (reps[ri].n - ih.touched_receivers) * reps[ri].stride
                         : 4.0 * reps[ri].n * reps[ri].stride;
     touched_b += 4.0 * ih.touched_receivers * reps[ri].stride;
     rec_h += (double)ih.record_bytes;

@@ -101,6 +101,9 @@ int main(int argc, char **argv)
       sh_half[27 * (size_t)q + k] = ub_half_from_float(ldexpf(win[27 * (size_t)q + k], -e));
   }
   ub_glg gh;
+  ub_bakefile *nbf = NULL;
+  if (ub_bakefile_read(ubk, NULL, &nbf) != UB_OK)
+    nbf = NULL;
   {
     ub_glg_desc d;
     memset(&d, 0, sizeof d);
@@ -110,7 +113,7 @@ int main(int argc, char **argv)
     d.sh_half_exp = sh_exp;
     d.tet_count = bf->glg_tet_count;
     d.tets = bf->glg_tets;
-    d.neigh = bf->glg_neigh;
+    d.neigh = nbf ? nbf->glg_neigh : NULL; /* the run-time's bake file has none */
     d.leak_plane_count = bf->glg_plane_count;
     d.leak_planes = bf->glg_planes;
     d.leak_plane_of = bf->glg_plane_of;
@@ -423,6 +426,7 @@ int main(int argc, char **argv)
   }
   printf("  (checksum %.3g)\n", sink);
   ub_glg_release(&gh);
+  ub_bakefile_free(nbf);
   free(sh_half);
   free(sh_exp);
   free(nrm);

@@ -151,7 +151,11 @@ static ub_result validate_glg(const ub_bakefile *bf, const char *name, const ub_
   size_t bad;
   uint32_t p = bf->glg_probe_count, t = bf->glg_tet_count, k = bf->glg_plane_count;
   assert(p == 0 || (bf->glg_positions && bf->glg_sh));
-  assert(t == 0 || (bf->glg_tets && bf->glg_neigh)); /* glg_plane_of may be NULL: no planes */
+  assert(t == 0 || bf->glg_tets); /* glg_plane_of may be NULL: no planes */
+  if (t && !bf->glg_neigh) { /* a run-time's bake file (ub_runtime_bakefile) */
+    ubk_error(log, name, where, "%u tetrahedra without their neighbours", t);
+    return UB_ERR_INVALID_ARGUMENT;
+  }
   assert(k == 0 || bf->glg_planes);
   if (p == 0 && (t || k)) {
     ubk_error(log, name, where, "%u tetrahedra and %u planes but no probes", t, k);

@@ -1247,7 +1247,9 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
     out_row[j] = bs[j];
   /* As the kernels: the members in id order, those with a non-zero weight only, each
    * term ω[j mod 3]·v rounded to float, then added (C11 evaluates float in float here:
-   * FLT_EVAL_METHOD 0 on x86-64, and the build does not contract to FMA). */
+   * FLT_EVAL_METHOD 0 on x86-64, and the build does not contract to FMA), with FTZ/DAZ
+   * off as during an update (the caller's mode is restored). */
+  unsigned csr = fp_mode_enter();
   for (uint32_t m = 0; m < gk; m++) {
     const float *w = b->wlast + (size_t)mem[m] * 3;
     if (w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f)
@@ -1260,6 +1262,7 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
       out_row[j] = out_row[j] + t;
     }
   }
+  fp_mode_leave(csr);
   return 1;
 }
 

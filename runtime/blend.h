@@ -109,7 +109,7 @@ typedef struct ub_blend_desc {
   uint32_t element_count;
   const ub_blend_record *elements; /* element_count records; element id = index */
   uint32_t flags;            /* 0, or UB_BLEND_PORTABLE | UB_BLEND_OWN_BASE |
-                                UB_BLEND_STORE_HALF */
+                                UB_BLEND_STORE_HALF | UB_BLEND_ROW_QUERY */
 } ub_blend_desc;
 
 /* Counters of one update (all for that call only). */

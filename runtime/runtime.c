@@ -107,13 +107,19 @@ static inline uint64_t slot_of(const ub_runtime *rt, uint32_t a, size_t i)
   return rt->cov_rank[a][i >> 6] + (uint64_t)__builtin_popcountll(below);
 }
 
-/* Whether global slot s is touched by a record, and its index among the touched (or
- * untouched) slots. */
+/* Touched slots before global slot s (s's bitmap rank when it is touched). */
+static inline uint64_t touched_before(const ub_runtime *rt, uint64_t s)
+{
+  uint64_t below = rt->tch_bits[s >> 6] & ((UINT64_C(1) << (s & 63)) - 1);
+  return rt->tch_rank[s >> 6] + (uint64_t)__builtin_popcountll(below);
+}
+
+/* Whether global slot s is touched by a record, and its index among the touched (its
+ * rank) or untouched slots. */
 static inline int slot_touched(const ub_runtime *rt, uint64_t s, uint64_t *out_index)
 {
-  uint64_t w = rt->tch_bits[s >> 6], below = w & ((UINT64_C(1) << (s & 63)) - 1);
-  uint64_t t = rt->tch_rank[s >> 6] + (uint64_t)__builtin_popcountll(below);
-  int on = (int)((w >> (s & 63)) & 1u);
+  uint64_t t = touched_before(rt, s);
+  int on = (int)((rt->tch_bits[s >> 6] >> (s & 63)) & 1u);
   *out_index = on ? rt->tch_grp[t] : s - t;
   return on;
 }
@@ -539,9 +545,7 @@ static ub_result rank_touched(ub_runtime *rt)
   }
   for (uint32_t e = 0; e < rt->elem_total; e++)
     for (uint32_t i = 0; i < rt->lm_rec[e].count; i++) {
-      uint64_t sl = rt->lm_rec[e].receivers[i], w = rt->tch_bits[sl >> 6];
-      uint64_t t = rt->tch_rank[sl >> 6] +
-                   (uint64_t)__builtin_popcountll(w & ((UINT64_C(1) << (sl & 63)) - 1));
+      uint64_t t = touched_before(rt, rt->lm_rec[e].receivers[i]);
       uint64_t h = (k[t].key ^ (e + UINT64_C(0x9e3779b97f4a7c15))) * UINT64_C(0xff51afd7ed558ccd);
       k[t].key = h ^ (h >> 32);
     }
@@ -670,8 +674,8 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return r;
   }
-  /* Touched slots (in some texel record): their current state in float, starting at the
-   * base; the others in half. */
+  /* Touched slots (in some texel record): their base rows go to the lightmap blend, which
+   * computes their current state; the others stay in half (lm_static). */
   size_t words = (size_t)(slots + 63) / 64;
   rt->tch_bits = calloc(words ? words : 1, sizeof *rt->tch_bits);
   rt->tch_rank = malloc((words ? words : 1) * sizeof *rt->tch_rank);
@@ -738,8 +742,8 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
       for (int k = 0; k < UB_SH1_FLOATS; k++)
         rt->lm_static[ix * UB_SH1_FLOATS + k] = ub_half_from_float(row[k] / rt->lm_static_scale);
   }
-  /* The blend's receivers are the touched ranks. Ranks are group-major, not monotonic in the slots: each record is
-   * sorted again, its rows with it. */
+  /* The blend's receivers are the touched ranks. Ranks are group-major, not monotonic
+   * in the slots: each record is sorted again, its rows with it. */
   for (uint32_t e = 0; e < n; e++) {
     uint32_t *rv = rt->lm_idx + (rt->lm_rec[e].receivers - rt->lm_idx);
     for (uint32_t i = 0; i < rt->lm_rec[e].count; i++) {
@@ -843,8 +847,11 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   }
   for (uint32_t e = 0; e < n && r == UB_OK; e++)
     r = push_applied(rt, e);
-  if (r == UB_OK)
-    r = rank_ahd(rt);
+  if (r != UB_OK) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: cannot apply the elements' default values", path);
+    return r;
+  }
+  r = rank_ahd(rt);
   if (r != UB_OK) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return r;
@@ -1482,7 +1489,9 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
     if (cur) {
       uint64_t ix;
       if (slot_touched(rt, rt->slot_first[atlas] + slot_of(rt, atlas, i), &ix)) {
-        ub_blend_row(rt->lm_blend, (uint32_t)ix, srow); /* touched: in a group, always 1 */
+        int got = ub_blend_row(rt->lm_blend, (uint32_t)ix, srow);
+        assert(got); /* a touched texel is in a group */
+        (void)got;
         row = srow;
       } else {
         for (int c = 0; c < UB_SH1_FLOATS; c++)

@@ -351,6 +351,26 @@ static void test_half_exact(uint32_t S)
 
 /* ---- 3. random scenario ---------------------------------------------------------------- */
 
+/* ub_blend_row against rows (the engine's last update), for n random receivers (all when
+ * n >= R): the number that differ in any bit. tmask: receivers some element touches; an
+ * engine owning its base (own) must answer 0 for the others, else the base row. */
+static int row_mismatches(const ub_blend *b, const float *rows, const float *base,
+                          const uint8_t *tmask, uint32_t R, uint32_t S, uint32_t n, int own)
+{
+  int bad = 0;
+  float got[UB_BLEND_MAX_STRIDE];
+  for (uint32_t i = 0; i < n && i < R; i++) {
+    uint32_t r = n >= R ? i : rnd_below(R);
+    int ok = ub_blend_row(b, r, got);
+    const float *want = tmask[r] ? rows + (size_t)r * S : base + (size_t)r * S;
+    if (own && !tmask[r])
+      bad += ok != 0;
+    else
+      bad += ok != 1 || memcmp(got, want, S * sizeof(float)) != 0;
+  }
+  return bad;
+}
+
 static void scenario(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, int changes)
 {
   /* Records: contiguous-ish blobs with holes, or scattered picks; sizes log-uniform; at
@@ -414,7 +434,7 @@ static void scenario(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, in
   float *streamed = malloc(sizeof(float) * nf);
   ub_blend *bs = NULL;
   ub_blend_desc dp = d;
-  dp.flags = UB_BLEND_PORTABLE;
+  dp.flags = UB_BLEND_PORTABLE | UB_BLEND_ROW_QUERY;
   ASSERT_OK(ub_blend_create(&dp, NULL, streamed, &bs));
   /* A third engine with UB_BLEND_OWN_BASE, created from a copy of base that is poisoned
    * (NaN) right after create: it must never read it again and give out's bits. */
@@ -423,11 +443,18 @@ static void scenario(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, in
   ub_blend *bo = NULL;
   ub_blend_desc dow = d;
   dow.base = base_copy;
-  dow.flags = UB_BLEND_OWN_BASE;
+  dow.flags = UB_BLEND_OWN_BASE | UB_BLEND_ROW_QUERY;
   ASSERT_OK(ub_blend_create(&dow, NULL, own_out, &bo));
   for (size_t i = 0; i < nf; i++)
     base_copy[i] = NAN;
-  int bad_own = 0;
+  int bad_own = 0, bad_rows = 0;
+  /* Row queries (UB_BLEND_ROW_QUERY): the receivers some element touches. */
+  uint8_t *tmask = calloc(R, 1);
+  for (uint32_t e = 0; e < E; e++)
+    for (uint32_t i = 0; i < p.cnt[e]; i++)
+      tmask[p.idx[e][i]] = 1;
+  if (bo) /* at create: every weight 0, the base rows */
+    bad_rows += row_mismatches(bo, p.base, p.base, tmask, R, S, R, 1);
   uint8_t *changed = calloc(E, 1), *expect = calloc(R, 1);
   touch_log tl = {calloc(R, 1), 0, S, out, NULL, 0};
   touch_log ts = {calloc(R, 1), 0, S, NULL, streamed, 0};
@@ -474,7 +501,10 @@ static void scenario(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, in
       ub_blend_stats ss;
       memset(ts.count, 0, R);
       ts.total = 0;
+      /* weights set, not yet updated: the rows are still the last update's */
+      bad_rows += row_mismatches(bs, streamed, p.base, tmask, R, S, 200, 0);
       ub_blend_update(bs, on_touched, &ts, NULL, &ss);
+      bad_rows += row_mismatches(bs, streamed, p.base, tmask, R, S, 200, 0);
       bad |= ss.receivers != nexp || ts.total != nexp || ss.bytes_written != 0 ||
              memcmp(streamed, out, sizeof(float) * nf) != 0 || memcmp(ts.count, tl.count, R);
     }
@@ -486,8 +516,10 @@ static void scenario(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, in
     }
     bad_updates += bad;
     if (bo) {
+      bad_rows += row_mismatches(bo, own_out, p.base, tmask, R, S, 200, 1);
       ub_blend_update(bo, NULL, NULL, own_out, NULL);
       bad_own += memcmp(own_out, out, sizeof(float) * nf) != 0;
+      bad_rows += row_mismatches(bo, own_out, p.base, tmask, R, S, 200, 1);
     }
     for (int i = 0; i < 300; i++)
       bad_values += !check_receiver(&p, out, rnd_below(R));
@@ -495,13 +527,24 @@ static void scenario(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, in
   ASSERT_TRUE(bad_updates == 0);
   ASSERT_TRUE(bad_values == 0);
   ASSERT_TRUE(bo != NULL && bad_own == 0);
+  if (bo) { /* every receiver's row query after the last update */
+    bad_rows += row_mismatches(bo, own_out, p.base, tmask, R, S, R, 1);
+    ub_blend_update_all(bo, NULL, NULL, own_out, NULL);
+    bad_rows += row_mismatches(bo, own_out, p.base, tmask, R, S, R, 1);
+  }
+  printf("scenario R=%u S=%u: ub_blend_row differs from the update's rows at %d queries\n", R,
+         S, bad_rows);
+  ASSERT_TRUE(bad_rows == 0);
   if (bo) { /* all off: the touched rows come back from the engine's copy, bit for bit */
     float z[3] = {0, 0, 0};
     for (uint32_t e = 0; e < E; e++)
       ASSERT_OK(ub_blend_set_weight(bo, e, z));
     ub_blend_update(bo, NULL, NULL, own_out, NULL);
     ASSERT_TRUE(memcmp(own_out, p.base, sizeof(float) * nf) == 0);
+    int bad_off = row_mismatches(bo, p.base, p.base, tmask, R, S, R, 1);
+    ASSERT_TRUE(bad_off == 0);
   }
+  free(tmask);
   ub_blend_free(bo);
   free(own_out);
   free(base_copy);
