@@ -571,7 +571,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
  * spots next to lamps into fireflies (a gather ray rarely hits them, and then very hard).
  * Returns per-ray outgoing radiance albedo/π·E (n × 3), or NULL (no light, no memory). */
 static float *nee_block(pass_ctx *c, const ub_rt *rt, const ub_ray *rays, const ub_hit *hits,
-                        const uint32_t *sorted_of, size_t n, uint32_t id)
+                        const uint32_t *sorted_of, const uint8_t *skip, size_t n, uint32_t id)
 {
   const ub_pass_desc *d = c->d;
   const ub_scene *s = c->s;
@@ -595,7 +595,7 @@ static float *nee_block(pass_ctx *c, const ub_rt *rt, const ub_ray *rays, const 
   for (size_t j = 0; j < n; j++) {
     const ub_hit *h = &hits[sorted_of[j]];
     const ub_ray *ray = &rays[j];
-    if (h->tri == UB_RT_MISS || dot3(h->ng, ray->dir) >= 0.0f)
+    if ((skip && skip[j]) || h->tri == UB_RT_MISS || dot3(h->ng, ray->dir) >= 0.0f)
       continue;
     float len = sqrtf(dot3(h->ng, h->ng));
     if (!(len > 0.0f))
@@ -1199,6 +1199,51 @@ static void prefetch_hits(const pass_ctx *c, const ub_hit *hits, const uint32_t 
 }
 
 /* Gather rays: bounce 0 sees the sky and emitters (MIS), bounce k reads bounce k-1. */
+/* The gather rays whose bounce-1 NEE the shading would drop (gather_block: a ray at
+ * cs <= 1e-4, or a front hit on a lightmapped texel read as a texel light while the
+ * tables hold all of bounce 0, tl_full): nee_block traces no shadow ray for them. The same
+ * tests on the same values as the shading, so the output does not change. NULL: none (or
+ * no memory: every ray gets its NEE, as before). */
+static uint8_t *nee_skip_mask(const pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr,
+                              const ub_ray *rays, const ub_hit *hits, const uint32_t *sorted_of,
+                              const float *const *tl)
+{
+  const ub_lightmap *lm = c->lm;
+  uint32_t N = rs->rays;
+  if (!c->tl_full || !tl)
+    return NULL;
+  uint8_t *skip = calloc((size_t)nr * N, 1);
+  if (!skip)
+    return NULL;
+  for (uint32_t i = 0; i < nr; i++) {
+    uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
+    const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
+    const float *tl_cdf = tl[tl_group(nrm)];
+    for (uint32_t j = 0; j < N; j++) {
+      size_t q = (size_t)i * N + j;
+      const ub_ray *ray = &rays[q];
+      const ub_hit *h = &hits[sorted_of[q]];
+      float cs = nrm ? dot3(nrm, ray->dir) : 1.0f;
+      if (cs <= 1e-4f) {
+        skip[q] = 1;
+        continue;
+      }
+      if (!tl_cdf || h->tri == UB_RT_MISS || dot3(h->ng, ray->dir) >= 0.0f)
+        continue;
+      int32_t a = lm->tri_atlas[h->tri];
+      if (a < 0)
+        continue;
+      const ub_atlas *at = &lm->atlases[a];
+      float uv[2];
+      int32_t t = at->texel_of[hit_pixel(lm, at, h, uv)];
+      float gl = sqrtf(dot3(h->ng, h->ng));
+      float ce = gl > 0.0f ? -dot3(h->ng, ray->dir) / gl : 0.0f;
+      skip[q] = t >= 0 && ce > 0.0f && c->tl_area[t] > 0.0f;
+    }
+  }
+  return skip;
+}
+
 static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr,
                          const float *const *tl)
 {
@@ -1272,9 +1317,12 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   /* Scatter hits back to ray order (bucket reused as the inverse permutation). */
   for (size_t j = 0; j < n; j++)
     bucket[order[j]] = (uint32_t)j;
-  float *nee = c->bounce == 1 && c->nee
-                   ? nee_block(c, d->rt, rays, hits, bucket, n, rs->id_base + r0)
-                   : NULL;
+  float *nee = NULL;
+  if (c->bounce == 1 && c->nee) {
+    uint8_t *skip = nee_skip_mask(c, rs, r0, nr, rays, hits, bucket, tl);
+    nee = nee_block(c, d->rt, rays, hits, bucket, skip, n, rs->id_base + r0);
+    free(skip);
+  }
   if (c->bounce >= 1)
     prefetch_hits(c, hits, bucket, n, tl);
 
