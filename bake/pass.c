@@ -1198,7 +1198,17 @@ static void prefetch_hits(const pass_ctx *c, const ub_hit *hits, const uint32_t 
   }
 }
 
-/* Gather rays: bounce 0 sees the sky and emitters (MIS), bounce k reads bounce k-1. */
+/* Whether a gather hit on texel t (-1: none) is read as a texel light: it faces the ray
+ * (ce, the cosine at the hit, out) and the texel holds light this bounce. The shading and
+ * nee_skip_mask ask the same question with the same arithmetic. */
+static inline int tl_readable(const pass_ctx *c, const ub_hit *h, const float dir[3], int32_t t,
+                              float *ce)
+{
+  float gl = sqrtf(dot3(h->ng, h->ng));
+  *ce = gl > 0.0f ? -dot3(h->ng, dir) / gl : 0.0f;
+  return t >= 0 && *ce > 0.0f && c->tl_area[t] > 0.0f;
+}
+
 /* The gather rays whose bounce-1 NEE the shading would drop (gather_block: a ray at
  * cs <= 1e-4, or a front hit on a lightmapped texel read as a texel light while the
  * tables hold all of bounce 0, tl_full): nee_block traces no shadow ray for them. The same
@@ -1235,15 +1245,14 @@ static uint8_t *nee_skip_mask(const pass_ctx *c, const recv_set *rs, uint32_t r0
         continue;
       const ub_atlas *at = &lm->atlases[a];
       float uv[2];
-      int32_t t = at->texel_of[hit_pixel(lm, at, h, uv)];
-      float gl = sqrtf(dot3(h->ng, h->ng));
-      float ce = gl > 0.0f ? -dot3(h->ng, ray->dir) / gl : 0.0f;
-      skip[q] = t >= 0 && ce > 0.0f && c->tl_area[t] > 0.0f;
+      float ce;
+      skip[q] = (uint8_t)tl_readable(c, h, ray->dir, at->texel_of[hit_pixel(lm, at, h, uv)], &ce);
     }
   }
   return skip;
 }
 
+/* Gather rays: bounce 0 sees the sky and emitters (MIS), bounce k reads bounce k-1. */
 static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr,
                          const float *const *tl)
 {
@@ -1411,9 +1420,8 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
             const float *tl_cdf = tl ? tl[tl_group(nrm)] : NULL;
             if (tl_cdf) {
               int32_t t = t_hit;
-              float gl = sqrtf(dot3(h->ng, h->ng));
-              float ce = gl > 0.0f ? -dot3(h->ng, ray->dir) / gl : 0.0f;
-              if (t >= 0 && ce > 0.0f && c->tl_area[t] > 0.0f) {
+              float ce;
+              if (tl_readable(c, h, ray->dir, t, &ce)) {
                 uint32_t k = c->tl_of[t];
                 double p_t = k == UINT32_MAX ? 0.0
                                              : (double)(tl_cdf[k] - (k ? tl_cdf[k - 1] : 0.0f)) *

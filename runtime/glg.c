@@ -421,23 +421,30 @@ static void singular_weights(const ub_glg *g, uint32_t t, const float p[3], floa
 
 /* ---- the walk ----------------------------------------------------------------------- */
 
-/* min barycentric of p in tet t (singular tets score −1e30 so they rank last). */
-static float tet_min_bary(const ub_glg *g, uint32_t t, const float p[3])
+/* Barycentrics of p in tet t into l: from the walk record, or in double for an
+ * ill-shaped tet. 0 for a singular tet (or a failed double solve), l untouched. */
+static inline int tet_bary(const ub_glg *g, uint32_t t, const float p[3], float l[4])
 {
-  float l[4];
   uint8_t fl = g->tet_flags[t];
   if (fl == GLG_FLAG_SINGULAR)
-    return -1e30f;
+    return 0;
   if (fl == GLG_FLAG_ILL) {
     double ld[4];
     if (!tet_bary_double(g, t, p, ld))
-      return -1e30f;
+      return 0;
     for (int i = 0; i < 4; i++)
       l[i] = (float)ld[i];
   } else {
     rec_bary(&g->tet_data[t], p, l);
   }
-  return min4f(l);
+  return 1;
+}
+
+/* min barycentric of p in tet t (singular tets score −1e30 so they rank last). */
+static float tet_min_bary(const ub_glg *g, uint32_t t, const float p[3])
+{
+  float l[4];
+  return tet_bary(g, t, p, l) ? min4f(l) : -1e30f;
 }
 
 static uint32_t brute_locate(const ub_glg *g, const float p[3], float bary[4],
@@ -447,18 +454,8 @@ static uint32_t brute_locate(const ub_glg *g, const float p[3], float bary[4],
   uint32_t best_t = 0;
   for (uint32_t t = 0; t < g->tet_count; t++) {
     float l[4];
-    uint8_t fl = g->tet_flags[t];
-    if (fl == GLG_FLAG_SINGULAR)
+    if (!tet_bary(g, t, p, l))
       continue;
-    if (fl == GLG_FLAG_ILL) {
-      double ld[4];
-      if (!tet_bary_double(g, t, p, ld))
-        continue;
-      for (int i = 0; i < 4; i++)
-        l[i] = (float)ld[i];
-    } else {
-      rec_bary(&g->tet_data[t], p, l);
-    }
     float mn = min4f(l);
     if (mn > best_min) {
       best_min = mn;
@@ -1281,18 +1278,8 @@ static uint32_t walk_within(const ub_glg *g, const float p[3], uint32_t base)
       best = t;
     const struct ub_glg_tet *r = &g->tet_data[t];
     float l[4];
-    uint8_t fl = g->tet_flags[t];
-    if (fl == GLG_FLAG_SINGULAR)
+    if (!tet_bary(g, t, p, l))
       break;
-    if (fl) {
-      double ld[4];
-      if (!tet_bary_double(g, t, p, ld))
-        break;
-      for (int i = 0; i < 4; i++)
-        l[i] = (float)ld[i];
-    } else {
-      rec_bary(r, p, l);
-    }
     int k = -1;
     float kv = -GLG_EPS;
     for (int i = 0; i < 4; i++)
