@@ -18,7 +18,12 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <threads.h>
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <immintrin.h>
+#endif
 
+#include "runtime/cpu.h"
 #include "runtime/crc32.h"
 #include "runtime/half.h"
 #include "runtime/texel_links.h"
@@ -1134,12 +1139,43 @@ static int cur_u32s(ubk_cursor *c, uint32_t *out, size_t n)
   return 1;
 }
 
+#if defined(__x86_64__) && defined(__GNUC__)
+/* Halves (little-endian, as on x86) to floats 8 at a time with F16C: exact like
+ * ub_half_to_float (every half is a normal float or zero; VCVTPH2PS ignores DAZ), and
+ * 10% of loading a 460 MB bake file in the scalar loop. Returns the values done. */
+__attribute__((target("avx,f16c"))) static size_t halves_f16c(const uint8_t *p, float *out,
+                                                               size_t n)
+{
+  size_t i = 0;
+  for (; i + 8 <= n; i += 8)
+    _mm256_storeu_ps(out + i,
+                     _mm256_cvtph_ps(_mm_loadu_si128((const __m128i *)(const void *)(p + 2 * i))));
+  _mm256_zeroupper();
+  return i;
+}
+
+static int g_halves_f16c;
+static once_flag g_halves_once = ONCE_FLAG_INIT;
+
+static void halves_probe(void)
+{
+  const unsigned need = UB_CPU_AVX | UB_CPU_F16C;
+  g_halves_f16c = (ub_cpu_features() & need) == need;
+}
+#endif
+
 static int cur_halves(ubk_cursor *c, float *out, size_t n)
 {
   const uint8_t *p;
   if (n > c->left / 2 || !cur_take(c, n * 2, &p))
     return 0;
-  for (size_t i = 0; i < n; i++) {
+  size_t i = 0;
+#if defined(__x86_64__) && defined(__GNUC__)
+  call_once(&g_halves_once, halves_probe);
+  if (g_halves_f16c)
+    i = halves_f16c(p, out, n);
+#endif
+  for (; i < n; i++) {
     uint8_t b[2];
     memcpy(b, p + i * 2, 2);
     out[i] = ub_half_to_float(le_get16(b));

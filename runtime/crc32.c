@@ -1,5 +1,7 @@
 #include "runtime/crc32.h"
 
+#include <threads.h>
+
 /* Byte-at-a-time table for the reflected polynomial 0xEDB88320 (const: no lazy init,
  * no mutable global). */
 static const uint32_t ub_crc32_table[256] = {
@@ -48,10 +50,44 @@ static const uint32_t ub_crc32_table[256] = {
   0xb40bbe37u, 0xc30c8ea1u, 0x5a05df1bu, 0x2d02ef8du,
 };
 
+/* Slicing by 8 (Intel's "slice-by-8"): ub_crc32_slice[k][b] is the CRC state after byte b
+ * followed by k zero bytes, so eight input bytes cost eight independent table loads
+ * instead of a chain of eight dependent ones (~8× the byte-at-a-time rate: the CRC was
+ * 14% of loading a 460 MB bake file). Table 0 is the const table above; 1..7 are derived
+ * from it once (call_once), since 7 KB of literals would be unreadable. */
+static uint32_t ub_crc32_slice[8][256];
+static once_flag ub_crc32_once = ONCE_FLAG_INIT;
+
+static void crc32_init_slices(void)
+{
+  for (int b = 0; b < 256; b++) {
+    uint32_t c = ub_crc32_table[b];
+    ub_crc32_slice[0][b] = c;
+    for (int k = 1; k < 8; k++) {
+      c = ub_crc32_table[c & 0xffu] ^ (c >> 8);
+      ub_crc32_slice[k][b] = c;
+    }
+  }
+}
+
 uint32_t ub_crc32_update(uint32_t crc, const void *data, size_t size)
 {
   const uint8_t *p = (const uint8_t *)data;
   crc = ~crc;
+  if (size >= 64) {
+    call_once(&ub_crc32_once, crc32_init_slices);
+    const uint32_t(*t)[256] = (const uint32_t(*)[256])ub_crc32_slice;
+    for (; size >= 8; size -= 8, p += 8) {
+      /* little-endian byte order of the state, independent of the host's */
+      uint32_t lo = crc ^ ((uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 |
+                           (uint32_t)p[3] << 24);
+      uint32_t hi = (uint32_t)p[4] | (uint32_t)p[5] << 8 | (uint32_t)p[6] << 16 |
+                    (uint32_t)p[7] << 24;
+      crc = t[7][lo & 0xffu] ^ t[6][(lo >> 8) & 0xffu] ^ t[5][(lo >> 16) & 0xffu] ^
+            t[4][lo >> 24] ^ t[3][hi & 0xffu] ^ t[2][(hi >> 8) & 0xffu] ^
+            t[1][(hi >> 16) & 0xffu] ^ t[0][hi >> 24];
+    }
+  }
   for (size_t i = 0; i < size; i++)
     crc = ub_crc32_table[(crc ^ p[i]) & 0xffu] ^ (crc >> 8);
   return ~crc;

@@ -304,6 +304,30 @@ static void test_crc_and_half(void)
   ASSERT_TRUE(ub_crc32_update(0, "123456789", 9) == 0xCBF43926u);
   uint32_t c = ub_crc32_update(0, "1234", 4);
   ASSERT_TRUE(ub_crc32_update(c, "56789", 5) == 0xCBF43926u);
+  /* The sliced loop (8 bytes at a time from 64 on) against a bit-at-a-time CRC of the
+   * same bytes, over lengths and split points that start and end it anywhere. */
+  {
+    uint8_t buf[600];
+    uint32_t x = 12345u;
+    for (size_t i = 0; i < sizeof buf; i++) {
+      x = x * 1664525u + 1013904223u;
+      buf[i] = (uint8_t)(x >> 24);
+    }
+    int bad = 0;
+    for (size_t n = 0; n <= sizeof buf; n += (n < 140 ? 1 : 37)) {
+      uint32_t r = 0xffffffffu;
+      for (size_t i = 0; i < n; i++) {
+        r ^= buf[i];
+        for (int b = 0; b < 8; b++)
+          r = (r >> 1) ^ (0xEDB88320u & (0u - (r & 1u)));
+      }
+      r = ~r;
+      bad += ub_crc32_update(0, buf, n) != r;
+      size_t cut = n / 3 + 1 < n ? n / 3 + 1 : n;
+      bad += ub_crc32_update(ub_crc32_update(0, buf, cut), buf + cut, n - cut) != r;
+    }
+    ASSERT_TRUE(bad == 0);
+  }
 
   /* Every half converts to a float and back to itself (NaNs stay NaN). */
   int bad_roundtrip = 0, bad_ties = 0;
