@@ -3,11 +3,14 @@
  * its sets. Prints figures; asserts nothing.
  *
  *   bench_estate [--scale S] [--full] [--bounces N] [--texel-size M] [--no-extrapolate]
- *                [--param k=v ...] [--ubk FILE.ubk [--repeat N]]
+ *                [--param k=v ...] [--ubk FILE.ubk [--repeat N]] [--jobs N]
  *
  * --ubk FILE skips generating and baking and measures the run-time on a file already baked
  * (e.g. estate_small, or a full ESTATE bake): records, memory, toggles, all-sets update;
  * --repeat N repeats the toggle loop N times (for a profiler).
+ * --jobs N (default: the CPUs, at most 8) also measures toggles and the all-sets update
+ * split into N jobs (ub_runtime_update_begin/job/end) on N OpenMP threads, against a
+ * memcpy of the same bytes by N threads (each its share) in the same run; 1: not.
  * --scale S (default 0.05) shrinks rooms, room sets and props (the 16-set hall stays);
  * --full is --scale 1 (hours on 2 cores). The reduced level is baked with --bounces
  * (default 2) and --texel-size (default 0.2 m; 0: the level's 0.138 m) so that it ends in
@@ -90,11 +93,91 @@ static double record_bytes(const ub_bakefile_record *r)
   return 28.0 * r->texel_count + 58.0 * r->probe_count;
 }
 
+/* One update split into `jobs` jobs on as many OpenMP threads. */
+static void update_jobs(ub_runtime *rt, int jobs, ub_runtime_update_stats *us)
+{
+  uint32_t n = 0;
+  if (ub_runtime_update_begin(rt, (uint32_t)jobs, &n) != UB_OK) {
+    fprintf(stderr, "bench_estate: ub_runtime_update_begin(%d) failed\n", jobs);
+    exit(1);
+  }
+#pragma omp parallel for num_threads(jobs) schedule(static, 1)
+  for (int j = 0; j < (int)n; j++)
+    ub_runtime_update_job(rt, (uint32_t)j);
+  ub_runtime_update_end(rt, us);
+}
+
+/* Toggles (best of 3 per set and state) and the all-sets update with `jobs` jobs, the
+ * latter alternating with a memcpy of the same bytes by `jobs` threads (ca, cb: cn bytes
+ * each, as for the one-thread figure). */
+static void bench_jobs(ub_runtime *rt, int jobs, char *ca, char *cb, size_t cn)
+{
+  const uint32_t nd = ub_runtime_dls_count(rt);
+  const float one[3] = {1, 1, 1}, zero[3] = {0, 0, 0};
+  ub_runtime_update_stats us;
+  for (uint32_t d = 0; d < nd; d++)
+    ub_runtime_set_dls(rt, d, one);
+  update_jobs(rt, jobs, &us);
+  double *tog = malloc(sizeof(double) * (2 * nd + 1)), *cls[2];
+  cls[0] = malloc(sizeof(double) * (2 * nd + 1));
+  cls[1] = malloc(sizeof(double) * (2 * nd + 1));
+  uint32_t ncls[2] = {0, 0};
+  for (uint32_t i = 0; i < 2 * nd; i++)
+    tog[i] = 1e30;
+  for (int pass = 0; pass < 3; pass++)
+    for (uint32_t d = 0; d < nd; d++)
+      for (int ph = 0; ph < 2; ph++) {
+        ub_runtime_set_dls(rt, d, ph ? one : zero);
+        double t = ub_bench_now();
+        update_jobs(rt, jobs, &us);
+        t = (ub_bench_now() - t) * 1e3;
+        tog[2 * d + ph] = t < tog[2 * d + ph] ? t : tog[2 * d + ph];
+      }
+  for (uint32_t i = 0; i < 2 * nd; i++) {
+    int hall = !strncmp(ub_runtime_dls_name(rt, i / 2), "hall_", 5);
+    cls[hall][ncls[hall]++] = tog[i];
+  }
+  double tall = 1e30, tcpy = 1e30, bytes = 0.0;
+  for (int run = 0; run < 7 && ca; run++) {
+    float w = run & 1 ? 1.0f : 0.5f;
+    const float rgb[3] = {w, w, w};
+    for (uint32_t d = 0; d < nd; d++)
+      ub_runtime_set_dls(rt, d, rgb);
+    double t = ub_bench_now();
+    update_jobs(rt, jobs, &us);
+    t = ub_bench_now() - t;
+    tall = t < tall ? t : tall;
+    bytes = (double)(us.bytes_read + us.bytes_written);
+    char *dst = run & 1 ? ca : cb;
+    const char *src = run & 1 ? cb : ca;
+    t = ub_bench_now();
+#pragma omp parallel for num_threads(jobs) schedule(static, 1)
+    for (int j = 0; j < jobs; j++) {
+      size_t a = cn * (size_t)j / (size_t)jobs, b = cn * (size_t)(j + 1) / (size_t)jobs;
+      memcpy(dst + a, src + a, b - a);
+    }
+    t = ub_bench_now() - t;
+    tcpy = t < tcpy ? t : tcpy;
+  }
+  printf("  with %d jobs on %d threads (ub_runtime_update_begin/job/end): one set toggled median "
+         "%.3f ms (room sets %.3f, hall sets %.3f) [0.1 ms]; all %u sets changed: %.2f ms, "
+         "%.2f GB/s; memcpy by %d threads %.2f GB/s; ratio %.0f%%\n", jobs, jobs,
+         ub_bench_percentile(tog, 2 * nd, 0.5),
+         ncls[0] ? ub_bench_percentile(cls[0], ncls[0], 0.5) : 0.0,
+         ncls[1] ? ub_bench_percentile(cls[1], ncls[1], 0.5) : 0.0, nd, tall * 1e3,
+         bytes / tall / 1e9, jobs, 2.0 * (double)cn / tcpy / 1e9,
+         100.0 * (bytes / tall) / (2.0 * (double)cn / tcpy));
+  free(tog);
+  free(cls[0]);
+  free(cls[1]);
+}
+
 int main(int argc, char **argv)
 {
   const char *build = getenv("UB_BUILD") ? getenv("UB_BUILD") : "build";
   double scale = 0.05, texel = 0.2;
   int bounces = 2, extrapolate = 1, full = 0, repeat = 1;
+  int jobs = omp_get_num_procs() < 8 ? omp_get_num_procs() : 8;
   const char *ubk_in = NULL;
   char **params = malloc(sizeof(char *) * (size_t)(argc + 1));
   int nparams = 0;
@@ -102,10 +185,13 @@ int main(int argc, char **argv)
     if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
       printf("usage: bench_estate [--scale S] [--full] [--bounces N] [--texel-size M]\n"
              "                    [--no-extrapolate] [--param k=v ...]\n"
+             "                    [--ubk FILE.ubk [--repeat N]] [--jobs N]\n"
              "Generates the ESTATE-scale level (ubake-genlevel estate) at scale S (default 0.05;\n"
              "--full: 1), bakes it at draft (reduced: --bounces 2, --texel-size 0.2 by default;\n"
              "full: the level's settings), loads it in the run-time and toggles its sets;\n"
              "extrapolates the bake to full scale from a --plan-only of the full level.\n"
+             "--ubk: the run-time figures of a file already baked; --jobs N: toggles and the\n"
+             "all-sets update also split into N jobs on N threads (default: the CPUs, <= 8).\n"
              "UB_BUILD: the build folder (default build).\n");
       return 0;
     } else if (!strcmp(argv[i], "--scale") && i + 1 < argc) {
@@ -127,6 +213,12 @@ int main(int argc, char **argv)
     } else if (!strcmp(argv[i], "--repeat") && i + 1 < argc) {
       repeat = atoi(argv[++i]);
       repeat = repeat < 1 ? 1 : repeat;
+    } else if (!strcmp(argv[i], "--jobs") && i + 1 < argc) {
+      jobs = atoi(argv[++i]);
+      if (jobs < 1 || jobs > 64) {
+        fprintf(stderr, "bench_estate: --jobs wants 1..64, got %s\n", argv[i]);
+        return 2;
+      }
     } else if (!strcmp(argv[i], "--no-extrapolate")) {
       extrapolate = 0;
     } else if (!strcmp(argv[i], "--param") && i + 1 < argc) {
@@ -394,6 +486,8 @@ int main(int argc, char **argv)
   printf("  all %u sets changed: %.2f ms, %.1f MB moved, %.2f GB/s; memcpy %.2f GB/s; ratio %.0f%% "
          "(target >= 50%%; paper 1.47 ms on a PS4 GPU)\n",
          nd, tall * 1e3, all_bytes / 1e6, gbs, cgbs, 100.0 * gbs / cgbs);
+  if (jobs > 1)
+    bench_jobs(rt, jobs, ca, cb, cn);
   free(ca);
   free(cb);
   free(tog);

@@ -90,22 +90,18 @@ struct ub_blend {
   uint32_t *elem_groups;
   uint32_t *stamp; /* per group, the update epoch that collected it */
   uint32_t epoch;
-  uint32_t *work;  /* group ids of one update */
-  float *scratch;  /* BLEND_CHUNK × stride floats, streaming mode */
-  float *dec;      /* max(BLEND_DECODE_FLOATS, max_overlap × stride) floats, half records */
-  size_t dec_floats;
-  /* Scratch for combinations above BLEND_SPECIALISED (max_overlap entries each). */
-  uint32_t *scr_act;
-  const char **scr_src;
-  const float **scr_rows;
-  const float **scr_w;
-  /* AVX + F16C path (chosen at create): weight patterns and member sources. */
+  uint32_t *work;  /* group ids of one update, ascending (ub_blend_update_begin) */
+  uint32_t work_count;
+  uint64_t *wcost; /* group_count + 1: prefix sums of the work's costs (parts' split) */
+  size_t dec_floats; /* max(BLEND_DECODE_FLOATS, max_overlap × stride), half records */
+  /* Per part of an update (job_cap of them; part 0's made at create). */
+  struct blend_scratch *js;
+  uint32_t job_cap;
+  /* AVX + F16C path (chosen at create): weight patterns. */
   int avx;
   float *wpat;           /* element_count × 32 floats, 32-byte aligned: each element's
                             weight at every lane j as ω[j mod 3] (period 24 = 3 × 8 lanes,
                             8 more for unaligned tails), kept by set_weight */
-  const float **avx_w;   /* max(max_overlap, 1): the non-zero members' patterns */
-  const char **avx_src;  /* max(max_overlap, 1): the non-zero members' values */
   /* UB_BLEND_ROW_QUERY: every unit (a run, or a list group's receiver) by its first
    * receiver, and the weights the rows were last computed with. */
   struct blend_unit_ref *rmap;
@@ -113,6 +109,20 @@ struct ub_blend {
   float *wlast;         /* element_count × 3 */
   size_t engine_bytes, record_bytes;
 };
+
+/* One part's scratch: an update's parts may run on several threads at once. */
+typedef struct blend_scratch {
+  float *rows;           /* BLEND_CHUNK × stride floats, streaming mode */
+  float *dec;            /* dec_floats floats, half records without F16C */
+  /* combinations above BLEND_SPECIALISED (max_overlap entries each) */
+  uint32_t *act;
+  const char **src;
+  const float **rowp;
+  const float **w;
+  /* AVX path: the non-zero members' patterns and values (max(max_overlap, 1)) */
+  const float **avx_w;
+  const char **avx_src;
+} blend_scratch;
 
 typedef struct blend_unit_ref {
   uint32_t first, len; /* receivers [first, first + len) */
@@ -265,8 +275,8 @@ BLEND_INLINE void blend_row_any(float *restrict o, const float *restrict bs,
 
 typedef struct blend_call {
   const ub_blend *b;
-  float *out;     /* NULL: streaming, rows go through scratch to fn */
-  float *scratch; /* BLEND_CHUNK rows */
+  float *out;     /* NULL: streaming, rows go through s->rows to fn */
+  const blend_scratch *s; /* this part's */
   ub_blend_touched_fn fn;
   void *user;
 } blend_call;
@@ -406,7 +416,7 @@ BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const
       src[m] = vb + (list ? (i0 * gk + act[m]) * rowb : act[m] * block + i0 * rowb);
     for (uint32_t i = 0; i < len;) {
       const uint32_t n = len - i < chunk ? len - i : chunk;
-      float *o = out ? out + (size_t)(r + i) * S : c->scratch;
+      float *o = out ? out + (size_t)(r + i) * S : c->s->rows;
       avx_flat(o, bs + (size_t)i * S, src, wp, k, (size_t)n * S, half);
       if (c->fn) {
         _mm256_zeroupper();
@@ -439,13 +449,13 @@ static void group_blend_avx(const blend_call *c, const blend_group *g, const uin
 {
   const ub_blend *b = c->b;
   const uint32_t *mem = b->members + g->member_off;
-  const float **wp = b->avx_w;
+  const float **wp = c->s->avx_w;
   for (uint32_t m = 0; m < k; m++)
     wp[m] = b->wpat + 32 * (size_t)mem[act[m]];
   if (b->value_size == 2)
-    avx_group_h(c, g, act, b->avx_src, wp, k);
+    avx_group_h(c, g, act, c->s->avx_src, wp, k);
   else
-    avx_group_f(c, g, act, b->avx_src, wp, k);
+    avx_group_f(c, g, act, c->s->avx_src, wp, k);
 }
 #endif
 
@@ -458,9 +468,9 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
   const ub_blend *b = c->b;
   const char *src_l[BLEND_SPECIALISED];
   const float *rows_l[BLEND_SPECIALISED], *w_l[BLEND_SPECIALISED];
-  const char **src = k <= BLEND_SPECIALISED ? src_l : b->scr_src;
-  const float **rows = k <= BLEND_SPECIALISED ? rows_l : b->scr_rows;
-  const float **w = k <= BLEND_SPECIALISED ? w_l : b->scr_w;
+  const char **src = k <= BLEND_SPECIALISED ? src_l : c->s->src;
+  const float **rows = k <= BLEND_SPECIALISED ? rows_l : c->s->rowp;
+  const float **w = k <= BLEND_SPECIALISED ? w_l : c->s->w;
   const int list = (g->k_mode & GROUP_LIST) != 0;
   const uint32_t *mem = b->members + g->member_off;
   const size_t vs = b->value_size, rowb = (size_t)S * vs, block = (size_t)g->receivers * rowb;
@@ -490,7 +500,7 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
       uint32_t n = len - i < chunk ? len - i : chunk;
       for (uint32_t m = 0; m < k; m++) {
         if (decode) {
-          float *dst = b->dec + (size_t)m * n * S;
+          float *dst = c->s->dec + (size_t)m * n * S;
           decode((const uint16_t *)(const void *)src[m], dst, (size_t)n * S);
           rows[m] = dst;
         } else {
@@ -498,7 +508,7 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
         }
         src[m] += (size_t)n * rowb;
       }
-      float *o0 = out ? out + (size_t)(r + i) * S : c->scratch, *o = o0;
+      float *o0 = out ? out + (size_t)(r + i) * S : c->s->rows, *o = o0;
       for (uint32_t q = 0; q < n; q++) {
         if (fixed)
           blend_row_fixed(o, bs, rows, w, k, S);
@@ -570,7 +580,7 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
   const uint32_t gk = g->k_mode & ~GROUP_LIST;
   const uint32_t *mem = b->members + g->member_off;
   uint32_t act_l[BLEND_SPECIALISED];
-  uint32_t *act = gk <= BLEND_SPECIALISED ? act_l : b->scr_act;
+  uint32_t *act = gk <= BLEND_SPECIALISED ? act_l : c->s->act;
   uint32_t k = 0;
   for (uint32_t m = 0; m < gk; m++) { /* branch-free: the pattern is data */
     act[k] = m;
@@ -626,66 +636,104 @@ static int cmp_u32(const void *a, const void *b)
   return (x > y) - (x < y);
 }
 
-void ub_blend_update(ub_blend *b, ub_blend_touched_fn touched, void *user, float *out_values,
-                     ub_blend_stats *out_stats)
+/* A group's share of an update's work, for splitting it into parts: its rows (base and
+ * members' record rows) plus a constant for its tables and call. */
+static uint64_t group_cost(const blend_group *g)
 {
-  assert(b && (out_values || touched));
-  ub_blend_stats st;
-  memset(&st, 0, sizeof st);
-  if (++b->epoch == 0) { /* wrapped: forget every stamp */
-    memset(b->stamp, 0, (size_t)b->group_count * sizeof *b->stamp);
-    b->epoch = 1;
-  }
+  return (uint64_t)g->receivers * ((g->k_mode & ~GROUP_LIST) + 1u) + 16u;
+}
+
+void ub_blend_update_begin(ub_blend *b, int all)
+{
+  assert(b);
   uint32_t n = 0;
-  for (uint32_t i = 0; i < b->dirty_count; i++) {
-    uint32_t e = b->dirty_list[i];
-    b->dirty[e] = 0;
+  if (all) {
+    for (uint32_t i = 0; i < b->dirty_count; i++)
+      b->dirty[b->dirty_list[i]] = 0;
     if (b->wlast)
-      memcpy(b->wlast + (size_t)e * 3, b->weight + (size_t)e * 3, 3 * sizeof(float));
-    for (uint32_t j = b->elem_off[e]; j < b->elem_off[e + 1]; j++) {
-      uint32_t g = b->elem_groups[j];
-      if (b->stamp[g] != b->epoch) {
-        b->stamp[g] = b->epoch;
-        b->work[n++] = g;
+      memcpy(b->wlast, b->weight, (size_t)b->element_count * 3 * sizeof(float));
+    for (uint32_t g = 0; g < b->group_count; g++)
+      b->work[n++] = g;
+  } else {
+    if (++b->epoch == 0) { /* wrapped: forget every stamp */
+      memset(b->stamp, 0, (size_t)b->group_count * sizeof *b->stamp);
+      b->epoch = 1;
+    }
+    for (uint32_t i = 0; i < b->dirty_count; i++) {
+      uint32_t e = b->dirty_list[i];
+      b->dirty[e] = 0;
+      if (b->wlast)
+        memcpy(b->wlast + (size_t)e * 3, b->weight + (size_t)e * 3, 3 * sizeof(float));
+      for (uint32_t j = b->elem_off[e]; j < b->elem_off[e + 1]; j++) {
+        uint32_t g = b->elem_groups[j];
+        if (b->stamp[g] != b->epoch) {
+          b->stamp[g] = b->epoch;
+          b->work[n++] = g;
+        }
       }
+    }
+    if (n > b->group_count / 16) { /* many groups: scanning the stamps beats sorting */
+      n = 0;
+      for (uint32_t g = 0; g < b->group_count; g++)
+        if (b->stamp[g] == b->epoch)
+          b->work[n++] = g;
+    } else {
+      qsort(b->work, n, sizeof *b->work, cmp_u32);
     }
   }
   b->dirty_count = 0;
+  b->work_count = n;
+  b->wcost[0] = 0;
+  for (uint32_t i = 0; i < n; i++)
+    b->wcost[i + 1] = b->wcost[i] + group_cost(&b->groups[b->work[i]]);
+}
 
-  blend_call c = {b, out_values, b->scratch, touched, user};
-  unsigned csr = fp_mode_enter();
-  if (n > b->group_count / 16) { /* many groups: scanning the stamps is cheaper than sorting */
-    for (uint32_t g = 0; g < b->group_count; g++)
-      if (b->stamp[g] == b->epoch)
-        process_group(&c, g, &st);
-  } else {
-    qsort(b->work, n, sizeof *b->work, cmp_u32);
-    for (uint32_t i = 0; i < n; i++)
-      process_group(&c, b->work[i], &st);
+/* First work item of part p of `parts`: the first i with wcost[i]·parts ≥ p·total (so
+ * part 0 starts at 0, part `parts` at work_count, and the split depends on the work and
+ * the part count only). */
+static uint32_t part_start(const ub_blend *b, uint32_t p, uint32_t parts)
+{
+  const uint64_t goal = (uint64_t)p * b->wcost[b->work_count];
+  uint32_t lo = 0, hi = b->work_count;
+  while (lo < hi) {
+    uint32_t mid = lo + (hi - lo) / 2;
+    if (b->wcost[mid] * parts >= goal)
+      hi = mid;
+    else
+      lo = mid + 1;
   }
+  return lo;
+}
+
+void ub_blend_update_part(const ub_blend *b, uint32_t part, uint32_t parts,
+                          ub_blend_touched_fn touched, void *user, float *out_values,
+                          ub_blend_stats *out_stats)
+{
+  assert(b && (out_values || touched) && parts >= 1 && part < parts && parts <= b->job_cap);
+  ub_blend_stats st;
+  memset(&st, 0, sizeof st);
+  blend_call c = {b, out_values, &b->js[part], touched, user};
+  const uint32_t i0 = part_start(b, part, parts), i1 = part_start(b, part + 1, parts);
+  unsigned csr = fp_mode_enter();
+  for (uint32_t i = i0; i < i1; i++)
+    process_group(&c, b->work[i], &st);
   fp_mode_leave(csr);
   if (out_stats)
     *out_stats = st;
 }
 
+void ub_blend_update(ub_blend *b, ub_blend_touched_fn touched, void *user, float *out_values,
+                     ub_blend_stats *out_stats)
+{
+  ub_blend_update_begin(b, 0);
+  ub_blend_update_part(b, 0, 1, touched, user, out_values, out_stats);
+}
+
 void ub_blend_update_all(ub_blend *b, ub_blend_touched_fn touched, void *user,
                          float *out_values, ub_blend_stats *out_stats)
 {
-  assert(b && (out_values || touched));
-  ub_blend_stats st;
-  memset(&st, 0, sizeof st);
-  for (uint32_t i = 0; i < b->dirty_count; i++)
-    b->dirty[b->dirty_list[i]] = 0;
-  b->dirty_count = 0;
-  if (b->wlast)
-    memcpy(b->wlast, b->weight, (size_t)b->element_count * 3 * sizeof(float));
-  blend_call c = {b, out_values, b->scratch, touched, user};
-  unsigned csr = fp_mode_enter();
-  for (uint32_t g = 0; g < b->group_count; g++)
-    process_group(&c, g, &st);
-  fp_mode_leave(csr);
-  if (out_stats)
-    *out_stats = st;
+  ub_blend_update_begin(b, 1);
+  ub_blend_update_part(b, 0, 1, touched, user, out_values, out_stats);
 }
 
 /* ---- weights ----------------------------------------------------------------------- */
@@ -755,6 +803,73 @@ size_t ub_blend_memory_bytes(const ub_blend *b)
   return b ? b->engine_bytes : 0;
 }
 
+static void scratch_free(blend_scratch *s)
+{
+  free(s->rows);
+  free(s->dec);
+  free(s->act);
+  free((void *)s->src);
+  free((void *)s->rowp);
+  free((void *)s->w);
+  free((void *)s->avx_w);
+  free((void *)s->avx_src);
+  memset(s, 0, sizeof *s);
+}
+
+/* One part's scratch; its bytes added to *acc. 0 when out of memory (s freed). */
+static int scratch_alloc(const ub_blend *b, blend_scratch *s, size_t *acc)
+{
+  memset(s, 0, sizeof *s);
+  const size_t sk = b->max_overlap > BLEND_SPECIALISED ? b->max_overlap : 1;
+  const size_t na = b->max_overlap ? b->max_overlap : 1;
+  size_t bytes = (size_t)BLEND_CHUNK * b->stride * sizeof(float) +
+                 sk * (sizeof(uint32_t) + sizeof(char *) + 2 * sizeof(float *));
+  s->rows = malloc((size_t)BLEND_CHUNK * b->stride * sizeof(float));
+  s->act = malloc(sk * sizeof(uint32_t));
+  s->src = malloc(sk * sizeof(char *));
+  s->rowp = malloc(sk * sizeof(float *));
+  s->w = malloc(sk * sizeof(float *));
+  int ok = s->rows && s->act && s->src && s->rowp && s->w;
+  if (b->value_size == 2) {
+    s->dec = malloc(b->dec_floats * sizeof(float));
+    bytes += b->dec_floats * sizeof(float);
+    ok = ok && s->dec;
+  }
+  if (b->avx) {
+    s->avx_w = malloc(na * sizeof(float *));
+    s->avx_src = malloc(na * sizeof(char *));
+    bytes += na * (sizeof(float *) + sizeof(char *));
+    ok = ok && s->avx_w && s->avx_src;
+  }
+  if (!ok) {
+    scratch_free(s);
+    return 0;
+  }
+  if (acc)
+    *acc += bytes;
+  return 1;
+}
+
+ub_result ub_blend_reserve_parts(ub_blend *b, uint32_t parts)
+{
+  assert(b);
+  if (parts == 0 || parts > UB_BLEND_MAX_PARTS)
+    return UB_ERR_INVALID_ARGUMENT;
+  if (parts <= b->job_cap)
+    return UB_OK;
+  blend_scratch *js = realloc(b->js, (size_t)parts * sizeof *js);
+  if (!js)
+    return UB_ERR_OUT_OF_MEMORY;
+  b->js = js;
+  while (b->job_cap < parts) {
+    if (!scratch_alloc(b, &b->js[b->job_cap], &b->engine_bytes))
+      return UB_ERR_OUT_OF_MEMORY;
+    b->engine_bytes += sizeof *js;
+    b->job_cap++;
+  }
+  return UB_OK;
+}
+
 void ub_blend_free(ub_blend *b)
 {
   if (!b)
@@ -773,15 +888,11 @@ void ub_blend_free(ub_blend *b)
   free(b->elem_groups);
   free(b->stamp);
   free(b->work);
-  free(b->scratch);
-  free(b->dec);
-  free(b->scr_act);
+  free(b->wcost);
+  for (uint32_t j = 0; b->js && j < b->job_cap; j++)
+    scratch_free(&b->js[j]);
+  free(b->js);
   free(b->wpat);
-  free((void *)b->avx_w);
-  free((void *)b->avx_src);
-  free((void *)b->scr_src);
-  free((void *)b->scr_rows);
-  free((void *)b->scr_w);
   free(b->rmap);
   free(b->wlast);
   free(b);
@@ -1143,36 +1254,29 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
   b->elem_off[0] = 0;
 
   /* 6. Update state and scratch. */
-  size_t sk = maxk > BLEND_SPECIALISED ? maxk : 1;
   b->stamp = calloc_n(G, sizeof(uint32_t), acc);
   b->work = alloc_n(G, sizeof(uint32_t), acc);
-  b->scratch = alloc_n((size_t)BLEND_CHUNK * b->stride, sizeof(float), acc);
-  if (b->value_size == 2) {
-    b->dec_floats = (size_t)maxk * b->stride > BLEND_DECODE_FLOATS
-                        ? (size_t)maxk * b->stride : BLEND_DECODE_FLOATS;
-    b->dec = alloc_n(b->dec_floats, sizeof(float), acc);
-    if (!b->dec)
-      return UB_ERR_OUT_OF_MEMORY;
-  }
+  b->wcost = alloc_n((size_t)G + 1, sizeof(uint64_t), acc);
+  if (!b->stamp || !b->work || !b->wcost)
+    return UB_ERR_OUT_OF_MEMORY;
+  b->wcost[0] = 0;
+  b->dec_floats = (size_t)maxk * b->stride > BLEND_DECODE_FLOATS
+                      ? (size_t)maxk * b->stride : BLEND_DECODE_FLOATS;
 #if BLEND_F16C
   if (b->avx) {
-    size_t na = maxk ? maxk : 1, ne = E ? E : 1;
+    size_t ne = E ? E : 1;
     b->wpat = aligned_alloc(32, ne * 32 * sizeof(float));
-    b->avx_w = alloc_n(na, sizeof(float *), acc);
-    b->avx_src = alloc_n(na, sizeof(char *), acc);
-    if (!b->wpat || !b->avx_w || !b->avx_src)
+    if (!b->wpat)
       return UB_ERR_OUT_OF_MEMORY;
     memset(b->wpat, 0, ne * 32 * sizeof(float)); /* every weight starts at 0 */
     *acc += ne * 32 * sizeof(float);
   }
 #endif
-  b->scr_act = alloc_n(sk, sizeof(uint32_t), acc);
-  b->scr_src = alloc_n(sk, sizeof(char *), acc);
-  b->scr_rows = alloc_n(sk, sizeof(float *), acc);
-  b->scr_w = alloc_n(sk, sizeof(float *), acc);
-  if (!b->stamp || !b->work || !b->scratch || !b->scr_act || !b->scr_src || !b->scr_rows ||
-      !b->scr_w)
+  /* part 0's scratch (a plain update's) */
+  b->js = alloc_n(1, sizeof *b->js, acc);
+  if (!b->js || !scratch_alloc(b, &b->js[0], acc))
     return UB_ERR_OUT_OF_MEMORY;
+  b->job_cap = 1;
   return UB_OK;
 }
 

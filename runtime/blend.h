@@ -53,8 +53,9 @@
  * or always NULL (streaming).
  * Floating point: updates run with FTZ/DAZ cleared (restored on return), so results do not
  * depend on the caller's MXCSR.
- * Thread safety: an instance is single-threaded (no locks); distinct instances are
- * independent and may be updated on different threads at once. The log is used during
+ * Thread safety: an instance is single-threaded (no locks) except for the parts of one
+ * parallel update (below); distinct instances are independent and may be updated on
+ * different threads at once. The log is used during
  * ub_blend_create() only.
  */
 #ifndef UBAKE_RUNTIME_BLEND_H
@@ -173,6 +174,28 @@ void ub_blend_update(ub_blend *b, ub_blend_touched_fn touched, void *user,
 /* The same for every group (every touched receiver), dirty or not. */
 void ub_blend_update_all(ub_blend *b, ub_blend_touched_fn touched, void *user,
                          float *out_values, ub_blend_stats *out_stats);
+
+/* Parallel updates (a job system's threads; the engine starts none):
+ *   ub_blend_update_begin(b, all) collects the groups to recompute (those of dirty
+ *   elements, or with all != 0 every group), clears the dirty marks and takes the weights;
+ *   ub_blend_update_part(b, p, parts, …) for every p < parts recomputes part p of them:
+ *   consecutive groups (ascending, as a plain update) of about a parts-th of the rows
+ *   each; the parts may run on different threads at once (they write disjoint receivers
+ *   and use their own scratch; touched is called from the part's thread);
+ *   parts ≤ the parts reserved with ub_blend_reserve_parts (1 after create).
+ * Every receiver gets the same bits whatever the split: a group is never divided and
+ * each group's operations do not depend on the others. No weight may change and no other
+ * update may start until every part has returned. ub_blend_update() is begin + the one
+ * part of 1; the stats of the parts add up to a plain update's. */
+#define UB_BLEND_MAX_PARTS 256
+/* Scratch for `parts` parts (kept until free; counted in engine_bytes). Errors:
+ * UB_ERR_INVALID_ARGUMENT (0 or > UB_BLEND_MAX_PARTS), UB_ERR_OUT_OF_MEMORY (the parts
+ * reserved before stay usable). */
+ub_result ub_blend_reserve_parts(ub_blend *b, uint32_t parts);
+void ub_blend_update_begin(ub_blend *b, int all);
+void ub_blend_update_part(const ub_blend *b, uint32_t part, uint32_t parts,
+                          ub_blend_touched_fn touched, void *user, float *out_values,
+                          ub_blend_stats *out_stats);
 
 /* Receiver r's row as the last update (or create) left it: base + Σ ω_i·S_i under the
  * weights of that update, with the update's operations in its order (the same bits as

@@ -94,6 +94,9 @@ struct ub_runtime {
    * writes it sequentially, then the untouched ones in slot order (ahd_index). */
   ub_ahd *ahd;
   int ahd_ranked;
+  /* Jobs of the update in progress (ub_runtime_update_begin … end). */
+  struct rt_job *jobs;
+  uint32_t job_cap, job_count;
   uint32_t lit_count;    /* triangles with tri_atlas >= 0 */
   uint32_t *lit_tris;
 };
@@ -316,6 +319,7 @@ void ub_runtime_free(ub_runtime *rt)
   if (!rt)
     return;
   free(rt->ahd);
+  free(rt->jobs);
   if (rt->fallback)
     for (uint32_t a = 0; a < rt->bf->atlas_count; a++) {
       free(rt->fallback[a].pixel);
@@ -1079,6 +1083,13 @@ float ub_runtime_dls_weight_from_lights(const float *strengths, uint32_t count)
   return (float)(s / count);
 }
 
+/* One job's results (ub_runtime_update_job), added up by ub_runtime_update_end. */
+typedef struct rt_job {
+  ub_blend_stats lm, glg, llg;
+  uint64_t texels;    /* re-encoded */
+  double seconds[3];  /* lightmap, GLG, LLG */
+} rt_job;
+
 typedef struct touched_ctx {
   ub_runtime *rt;
   uint64_t texels;
@@ -1163,52 +1174,97 @@ static double rt_now(void)
   return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
-ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
+ub_result ub_runtime_update_begin(ub_runtime *rt, uint32_t max_jobs, uint32_t *out_jobs)
 {
-  assert(rt);
-  ub_runtime_update_stats st;
-  memset(&st, 0, sizeof st);
-  double t0 = out_stats ? rt_now() : 0.0, t1 = t0, t2 = t0;
+  assert(rt && out_jobs);
+  if (max_jobs == 0 || max_jobs > UB_RUNTIME_MAX_JOBS)
+    return UB_ERR_INVALID_ARGUMENT;
+  if (max_jobs > rt->job_cap) {
+    rt_job *j = realloc(rt->jobs, (size_t)max_jobs * sizeof *j);
+    if (!j)
+      return UB_ERR_OUT_OF_MEMORY;
+    rt->jobs = j;
+    rt->job_cap = max_jobs;
+  }
+  ub_blend *bl[3] = {rt->lm_blend, rt->glg_blend, rt->llg_blend};
+  for (int i = 0; i < 3; i++)
+    if (bl[i]) {
+      ub_result r = ub_blend_reserve_parts(bl[i], max_jobs);
+      if (r != UB_OK)
+        return r;
+    }
+  for (int i = 0; i < 3; i++)
+    if (bl[i])
+      ub_blend_update_begin(bl[i], 0);
+  memset(rt->jobs, 0, (size_t)max_jobs * sizeof *rt->jobs);
+  rt->job_count = max_jobs;
+  *out_jobs = max_jobs;
+  return UB_OK;
+}
+
+void ub_runtime_update_job(ub_runtime *rt, uint32_t job)
+{
+  assert(rt && job < rt->job_count);
+  rt_job *jb = &rt->jobs[job];
+  const uint32_t parts = rt->job_count;
+  double t0 = rt_now(), t1 = t0, t2 = t0;
   if (rt->lm_blend) {
     touched_ctx tc;
     memset(&tc, 0, sizeof tc);
     tc.rt = rt;
-    ub_blend_stats bs;
-    ub_blend_update(rt->lm_blend, lm_touched, &tc, NULL, &bs);
+    ub_blend_update_part(rt->lm_blend, job, parts, lm_touched, &tc, NULL, &jb->lm);
     touched_flush(&tc);
-    st.texels_written = bs.receivers;
-    st.texels_reencoded = tc.texels;
-    /* the blend streams its rows; the re-encode reads the normals, writes the AHD */
-    st.bytes_read += bs.bytes_read + tc.texels * 3 * sizeof(float);
-    st.bytes_written += tc.texels * sizeof(ub_ahd);
-    st.groups += bs.groups;
-  }
-  if (out_stats)
+    jb->texels = tc.texels;
     t1 = rt_now();
+  }
   if (rt->glg_blend) {
-    ub_blend_stats bs;
-    ub_blend_update(rt->glg_blend, glg_touched, rt, rt->glg_cur, &bs);
-    st.probes_written = bs.receivers;
-    st.bytes_read += bs.bytes_read;
-    st.bytes_written += bs.bytes_written;
-    st.groups += bs.groups;
-  }
-  if (out_stats)
+    ub_blend_update_part(rt->glg_blend, job, parts, glg_touched, rt, rt->glg_cur, &jb->glg);
     t2 = rt_now();
-  if (rt->llg_blend) {
-    ub_blend_stats bs;
-    ub_blend_update(rt->llg_blend, NULL, NULL, rt->llg_cur, &bs); /* models read llg_cur */
-    st.llg_probes_written = bs.receivers;
-    st.bytes_read += bs.bytes_read;
-    st.bytes_written += bs.bytes_written;
-    st.groups += bs.groups;
+  } else
+    t2 = t1;
+  if (rt->llg_blend) /* models read llg_cur */
+    ub_blend_update_part(rt->llg_blend, job, parts, NULL, NULL, rt->llg_cur, &jb->llg);
+  jb->seconds[0] = t1 - t0;
+  jb->seconds[1] = t2 - t1;
+  jb->seconds[2] = rt_now() - t2;
+}
+
+void ub_runtime_update_end(ub_runtime *rt, ub_runtime_update_stats *out_stats)
+{
+  assert(rt);
+  ub_runtime_update_stats st;
+  memset(&st, 0, sizeof st);
+  for (uint32_t j = 0; j < rt->job_count; j++) {
+    const rt_job *jb = &rt->jobs[j];
+    st.texels_written += jb->lm.receivers;
+    st.texels_reencoded += jb->texels;
+    /* the lightmap blend streams its rows; the re-encode reads the normals, writes the
+     * AHD */
+    st.bytes_read += jb->lm.bytes_read + jb->texels * 3 * sizeof(float) +
+                     jb->glg.bytes_read + jb->llg.bytes_read;
+    st.bytes_written += jb->texels * sizeof(ub_ahd) + jb->glg.bytes_written +
+                        jb->llg.bytes_written;
+    st.probes_written += jb->glg.receivers;
+    st.llg_probes_written += jb->llg.receivers;
+    st.groups += jb->lm.groups + jb->glg.groups + jb->llg.groups;
+    st.seconds_lightmap = fmax(st.seconds_lightmap, jb->seconds[0]);
+    st.seconds_glg = fmax(st.seconds_glg, jb->seconds[1]);
+    st.seconds_llg = fmax(st.seconds_llg, jb->seconds[2]);
   }
-  if (out_stats) {
-    st.seconds_lightmap = t1 - t0;
-    st.seconds_glg = t2 - t1;
-    st.seconds_llg = rt_now() - t2;
+  rt->job_count = 0;
+  if (out_stats)
     *out_stats = st;
-  }
+}
+
+ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats)
+{
+  assert(rt);
+  uint32_t jobs;
+  ub_result r = ub_runtime_update_begin(rt, 1, &jobs);
+  if (r != UB_OK)
+    return r;
+  ub_runtime_update_job(rt, 0);
+  ub_runtime_update_end(rt, out_stats);
   return UB_OK;
 }
 

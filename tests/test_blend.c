@@ -12,6 +12,7 @@
 
 #include <stdint.h>
 #include <string.h>
+#include <threads.h>
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #endif
@@ -824,6 +825,117 @@ static void test_store_half(uint32_t S)
   free(oh);
 }
 
+/* ---- parallel updates (ub_blend_update_begin / _part) ------------------------------- */
+
+typedef struct part_job {
+  ub_blend *b;
+  uint32_t part, parts;
+  float *out;          /* NULL: streaming into log.copy */
+  touch_log log;       /* this part's reports (count shared: disjoint receivers) */
+  ub_blend_stats st;
+} part_job;
+
+static int part_main(void *arg)
+{
+  part_job *j = arg;
+  ub_blend_update_part(j->b, j->part, j->parts, on_touched, &j->log, j->out, &j->st);
+  return 0;
+}
+
+/* Engines updated in parts on threads (2, 3, 7 parts, out array and streaming) against a
+ * plain engine under the same weight changes: every row bit-identical, every touched
+ * receiver reported exactly once in all, the parts' stats adding up to the plain update's. */
+static void test_parts(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
+{
+  uint8_t **cover = malloc(sizeof(uint8_t *) * E);
+  for (uint32_t e = 0; e < E; e++) {
+    cover[e] = calloc(R, 1);
+    uint32_t start = rnd_below(R), size = 10 + rnd_below(R / 4);
+    for (uint32_t r = start; r < R && r < start + size; r++)
+      cover[e][r] = rnd() < 0.9;
+  }
+  rep p;
+  rep_init(&p, R, S, E, st, cover);
+  for (uint32_t e = 0; e < E; e++)
+    free(cover[e]);
+  free(cover);
+  const size_t nf = (size_t)R * S;
+  enum { NE = 4 };
+  const uint32_t parts_of[NE] = {1, 2, 3, 7};
+  const int stream_of[NE] = {0, 0, 1, 1};
+  ub_blend *b[NE + 1] = {0};
+  float *out[NE + 1];
+  ub_blend_desc d = rep_desc(&p, "parts");
+  for (int i = 0; i <= NE; i++) {
+    out[i] = malloc(sizeof(float) * nf);
+    ASSERT_OK(ub_blend_create(&d, NULL, out[i], &b[i]));
+    if (!b[i])
+      return;
+    if (i < NE)
+      ASSERT_OK(ub_blend_reserve_parts(b[i], parts_of[i]));
+  }
+  ASSERT_TRUE(ub_blend_reserve_parts(b[0], 0) == UB_ERR_INVALID_ARGUMENT);
+  ASSERT_TRUE(ub_blend_reserve_parts(b[0], UB_BLEND_MAX_PARTS + 1) == UB_ERR_INVALID_ARGUMENT);
+  uint8_t *count = calloc(R, 1);
+  int bad_bits = 0, bad_reports = 0, bad_stats = 0, nonempty_parts = 0;
+  for (int round = 0; round < 60; round++) {
+    int all = round % 10 == 9;
+    for (int c = 1 + (int)rnd_below(4); c > 0; c--) {
+      uint32_t e = rnd_below(E);
+      float w[3];
+      rnd_weight(w);
+      if (rnd() < 0.3)
+        w[0] = w[1] = w[2] = 0.0f;
+      for (int i = 0; i <= NE; i++)
+        ASSERT_OK(ub_blend_set_weight(b[i], e, w));
+    }
+    ub_blend_stats ref;
+    if (all)
+      ub_blend_update_all(b[NE], NULL, NULL, out[NE], &ref);
+    else
+      ub_blend_update(b[NE], NULL, NULL, out[NE], &ref);
+    for (int i = 0; i < NE; i++) {
+      const uint32_t P = parts_of[i];
+      part_job jobs[7];
+      thrd_t th[7];
+      memset(count, 0, R);
+      ub_blend_update_begin(b[i], all);
+      for (uint32_t q = 0; q < P; q++) {
+        jobs[q] = (part_job){b[i], q, P, stream_of[i] ? NULL : out[i],
+                             {count, 0, S, stream_of[i] ? NULL : out[i],
+                              stream_of[i] ? out[i] : NULL, 0}, {0}};
+        ASSERT_TRUE(thrd_create(&th[q], part_main, &jobs[q]) == thrd_success);
+      }
+      uint64_t recv = 0, groups = 0, bytes = 0;
+      for (uint32_t q = 0; q < P; q++) {
+        thrd_join(th[q], NULL);
+        recv += jobs[q].st.receivers;
+        groups += jobs[q].st.groups;
+        bytes += jobs[q].st.bytes_read;
+        bad_reports += jobs[q].log.rows_bad;
+        nonempty_parts += jobs[q].st.groups > 0 && P > 1;
+      }
+      bad_stats += recv != ref.receivers || groups != ref.groups || bytes != ref.bytes_read;
+      for (uint32_t r = 0; r < R; r++) {
+        uint32_t touched = p.off[r + 1] > p.off[r];
+        bad_reports += count[r] > 1 || (all && count[r] != touched);
+      }
+      bad_bits += memcmp(out[i], out[NE], sizeof(float) * nf) != 0;
+    }
+  }
+  printf("parts R=%u S=%u %s: %d of %d engine-updates differ in bits, %d bad reports, "
+         "%d bad stats, %d non-empty parts\n", R, S, st == UB_BLEND_FLOAT16 ? "half" : "float",
+         bad_bits, 60 * NE, bad_reports, bad_stats, nonempty_parts);
+  ASSERT_TRUE(bad_bits == 0 && bad_reports == 0 && bad_stats == 0);
+  ASSERT_TRUE(nonempty_parts > 60); /* the splits did split */
+  free(count);
+  for (int i = 0; i <= NE; i++) {
+    ub_blend_free(b[i]);
+    free(out[i]);
+  }
+  rep_free(&p);
+}
+
 int main(void)
 {
   const uint32_t strides[] = {12, 27, 9, 48};
@@ -839,5 +951,7 @@ int main(void)
   test_compact();
   scenario(100000, 12, 200, UB_BLEND_FLOAT16, 1000);
   scenario(30000, 27, 120, UB_BLEND_FLOAT32, 400);
+  test_parts(20000, 12, 40, UB_BLEND_FLOAT16);
+  test_parts(6000, 27, 30, UB_BLEND_FLOAT32);
   TEST_MAIN_END();
 }

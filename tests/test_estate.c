@@ -10,6 +10,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <threads.h>
 
 #include "test_util.h"
 #include "ubake/bake.h"
@@ -229,6 +230,105 @@ static void check_blend(const char *ubk, const ub_bakefile *bf)
   ub_runtime_free(rt);
 }
 
+/* The decoded AHD lightmap at fixed points of the lit triangles and LLG irradiance at
+ * fixed points (what a parallel update writes besides the SH the snapshot reads). */
+static void take_decoded(const ub_runtime *rt, float *out, int n)
+{
+  const ub_bakefile *f = ub_runtime_bakefile(rt);
+  uint32_t h = 777u;
+  const float nrm[3] = {0.3f, 0.4f, 0.866f};
+  for (int i = 0; i < n; i++) {
+    h = h * 1664525u + 1013904223u;
+    uint32_t t = (h >> 4) % f->triangle_count;
+    out[6 * i] = out[6 * i + 1] = out[6 * i + 2] = -1.0f;
+    ub_runtime_lightmap_at(rt, t, 0.25f, 0.35f, nrm, out + 6 * i);
+    const float *v = f->positions + 3 * (size_t)f->indices[3 * (size_t)t];
+    float p[3] = {v[0], v[1] + 0.5f, v[2]};
+    out[6 * i + 3] = out[6 * i + 4] = out[6 * i + 5] = -1.0f;
+    ub_runtime_query_llg(rt, p, nrm, out + 6 * i + 3);
+  }
+}
+
+typedef struct job_arg {
+  ub_runtime *rt;
+  uint32_t job;
+} job_arg;
+
+static int job_main(void *arg)
+{
+  job_arg *a = arg;
+  ub_runtime_update_job(a->rt, a->job);
+  return 0;
+}
+
+/* ub_runtime_update_begin/job/end with 2, 3 and 5 jobs on threads against a plain
+ * ub_runtime_update of a second run-time under the same random states: identical texel
+ * SH, GLG probes, decoded AHD and LLG queries, and the same counts. */
+static void check_jobs(const char *ubk)
+{
+  ub_runtime *ra = NULL, *rb = NULL;
+  ASSERT_OK(ub_runtime_load(ubk, NULL, &ra));
+  ASSERT_OK(ub_runtime_load(ubk, NULL, &rb));
+  if (!ra || !rb)
+    return;
+  uint32_t nd = ub_runtime_dls_count(ra), jobs = 0;
+  ASSERT_TRUE(ub_runtime_update_begin(rb, 0, &jobs) == UB_ERR_INVALID_ARGUMENT);
+  ASSERT_TRUE(ub_runtime_update_begin(rb, UB_RUNTIME_MAX_JOBS + 1, &jobs) ==
+              UB_ERR_INVALID_ARGUMENT);
+  enum { NQ = 3000 };
+  float *qa = malloc(6 * NQ * sizeof(float)), *qb = malloc(6 * NQ * sizeof(float));
+  uint32_t h = 4242u;
+  size_t bad = 0, bad_q = 0, bad_stats = 0;
+  for (int round = 0; round < 9; round++) {
+    for (int c = 0; c < (round % 3 == 0 ? (int)nd : 3); c++) {
+      h = h * 1664525u + 1013904223u;
+      uint32_t d = round % 3 == 0 ? (uint32_t)c : (h >> 8) % nd;
+      float w = (h >> 29) < 3 ? 0.0f : (float)((h >> 12) & 0xff) / 128.0f;
+      float rgb[3] = {w, w * 0.6f, w * 1.2f};
+      ASSERT_OK(ub_runtime_set_dls(ra, d, rgb));
+      ASSERT_OK(ub_runtime_set_dls(rb, d, rgb));
+    }
+    ub_runtime_update_stats sa, sb;
+    ASSERT_OK(ub_runtime_update(ra, &sa));
+    const uint32_t want = round % 3 == 0 ? 2 : round % 3 == 1 ? 3 : 5;
+    ASSERT_OK(ub_runtime_update_begin(rb, want, &jobs));
+    ASSERT_TRUE(jobs == want);
+    thrd_t th[5];
+    job_arg args[5];
+    for (uint32_t j = 0; j < jobs && j < 5; j++) {
+      args[j] = (job_arg){rb, j};
+      ASSERT_TRUE(thrd_create(&th[j], job_main, &args[j]) == thrd_success);
+    }
+    for (uint32_t j = 0; j < jobs && j < 5; j++)
+      thrd_join(th[j], NULL);
+    ub_runtime_update_end(rb, &sb);
+    bad_stats += sa.texels_written != sb.texels_written ||
+                 sa.texels_reencoded != sb.texels_reencoded ||
+                 sa.probes_written != sb.probes_written ||
+                 sa.llg_probes_written != sb.llg_probes_written ||
+                 sa.bytes_read != sb.bytes_read || sa.bytes_written != sb.bytes_written ||
+                 sa.groups != sb.groups;
+    snap a, b;
+    take(ra, &a);
+    take(rb, &b);
+    bad += diff(&a, &b);
+    free(a.tex);
+    free(a.glg);
+    free(b.tex);
+    free(b.glg);
+    take_decoded(ra, qa, NQ);
+    take_decoded(rb, qb, NQ);
+    bad_q += memcmp(qa, qb, 6 * NQ * sizeof(float)) != 0;
+  }
+  printf("jobs (2, 3, 5 on threads) vs plain updates, 9 states: %zu SH values, %zu decoded "
+         "query sets, %zu stats differ (want 0)\n", bad, bad_q, bad_stats);
+  ASSERT_TRUE(bad == 0 && bad_q == 0 && bad_stats == 0);
+  free(qa);
+  free(qb);
+  ub_runtime_free(ra);
+  ub_runtime_free(rb);
+}
+
 int main(void)
 {
   const char *b = getenv("UB_BUILD");
@@ -259,6 +359,7 @@ int main(void)
     ASSERT_TRUE(bf->llg_count > 0);
     check_records(bf);
     check_blend(st.ubk_path, bf);
+    check_jobs(st.ubk_path);
   }
   ub_bakefile_free(bf);
   TEST_MAIN_END();

@@ -193,6 +193,22 @@ typedef struct ub_runtime_update_stats {
 } ub_runtime_update_stats;
 ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats);
 
+/* The same update split into jobs for the game's job system (the library starts no
+ * thread): ub_runtime_update_begin() takes the changed weights and splits the work into
+ * *out_jobs ≤ max_jobs jobs of about equal size (whole overlap groups, never divided);
+ * call ub_runtime_update_job(rt, j) once for every j < *out_jobs, on any threads, at
+ * the same time or not; then ub_runtime_update_end(). Every texel and probe gets the
+ * same bits as with ub_runtime_update() (which is begin(1) + job 0 + end), whatever the
+ * job count. Between begin and end nothing else may use rt (no set, query or update).
+ * Stats: the jobs' counts added; seconds_* the longest job's time in that part.
+ * Errors (nothing started, the changes stay pending): UB_ERR_INVALID_ARGUMENT (max_jobs
+ * 0 or above UB_RUNTIME_MAX_JOBS), UB_ERR_OUT_OF_MEMORY (the jobs' scratch, made once
+ * for the largest count asked: ~12 KB per job and representation). */
+#define UB_RUNTIME_MAX_JOBS 256u
+ub_result ub_runtime_update_begin(ub_runtime *rt, uint32_t max_jobs, uint32_t *out_jobs);
+void ub_runtime_update_job(ub_runtime *rt, uint32_t job);
+void ub_runtime_update_end(ub_runtime *rt, ub_runtime_update_stats *out_stats);
+
 struct ub_glg;
 /* Every GLG probe's current radiance SH L2 (probe × 27): base + Σ weight·set, raw (linear
  * in the weights) or windowed (what queries interpolate; probes an update changed and no
