@@ -273,6 +273,15 @@ BLEND_INLINE void blend_row_any(float *restrict o, const float *restrict bs,
 #define blend_row_any blend_row_scalar
 #endif
 
+/* Where member slot m's row for the group's receiver at position pos (among the group's
+ * receivers) is, in bytes from the group's values (see blend_group): a list group holds
+ * per receiver its members' rows one after the other, a run group one block per member. */
+BLEND_INLINE size_t member_row_off(int list, size_t gk, size_t m, size_t pos, size_t rowb,
+                                   size_t block)
+{
+  return list ? (pos * gk + m) * rowb : m * block + pos * rowb;
+}
+
 typedef struct blend_call {
   const ub_blend *b;
   float *out;     /* NULL: streaming, rows go through s->rows to fn */
@@ -413,7 +422,7 @@ BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const
     u += list ? 1 : 2;
     const float *bs = unit_base(b, &gb, r, len);
     for (uint32_t m = 0; m < k; m++)
-      src[m] = vb + (list ? (i0 * gk + act[m]) * rowb : act[m] * block + i0 * rowb);
+      src[m] = vb + member_row_off(list, gk, act[m], i0, rowb, block);
     for (uint32_t i = 0; i < len;) {
       const uint32_t n = len - i < chunk ? len - i : chunk;
       float *o = out ? out + (size_t)(r + i) * S : c->s->rows;
@@ -495,7 +504,7 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
     u += list ? 1 : 2;
     const float *bs = unit_base(b, &gb, r, len);
     for (uint32_t m = 0; m < k; m++)
-      src[m] = vb + (list ? (i0 * gk + act[m]) * rowb : act[m] * block + i0 * rowb);
+      src[m] = vb + member_row_off(list, gk, act[m], i0, rowb, block);
     for (uint32_t i = 0; i < len;) {
       uint32_t n = len - i < chunk ? len - i : chunk;
       for (uint32_t m = 0; m < k; m++) {
@@ -1358,7 +1367,7 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
     const float *w = b->wlast + (size_t)mem[m] * 3;
     if (w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f)
       continue;
-    const char *src = vb + (list ? ((size_t)pos * gk + m) * rowb : m * block + (size_t)pos * rowb);
+    const char *src = vb + member_row_off(list, gk, m, pos, rowb, block);
     for (uint32_t j = 0; j < S; j++) {
       float v = vs == 2 ? ub_half_to_float(((const uint16_t *)(const void *)src)[j])
                         : ((const float *)(const void *)src)[j];
