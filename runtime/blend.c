@@ -286,6 +286,7 @@ typedef struct blend_call {
   const ub_blend *b;
   float *out;     /* NULL: streaming, rows go through s->rows to fn */
   const blend_scratch *s; /* this part's */
+  uint32_t qlo, qhi; /* the current group's receivers to compute: positions [qlo, qhi) */
   ub_blend_touched_fn fn;
   void *user;
 } blend_call;
@@ -306,6 +307,60 @@ BLEND_INLINE const float *unit_base(const ub_blend *b, const float **gb, uint32_
 BLEND_INLINE const float *group_base(const ub_blend *b, const blend_group *g)
 {
   return b->obase ? b->obase + (size_t)g->base_row * b->stride : NULL;
+}
+
+/* Walks a group's units over its receivers at positions [lo, hi) (a part of an update
+ * may hold a stretch of a group): per unit its first receiver r, its first position i0,
+ * its base rows bs and the stretch [s0, s1) of it inside the range. A list group (one
+ * receiver per unit) starts at lo directly. */
+typedef struct unit_iter {
+  const uint32_t *u;
+  const float *gb;
+  uint32_t un, units, lo, hi;
+  size_t i0;
+  int list;
+} unit_iter;
+
+BLEND_INLINE void unit_iter_init(unit_iter *it, const ub_blend *b, const blend_group *g,
+                                 uint32_t lo, uint32_t hi)
+{
+  it->list = (g->k_mode & GROUP_LIST) != 0;
+  it->u = b->units + g->unit_off;
+  it->gb = group_base(b, g);
+  it->un = 0;
+  it->units = g->units;
+  it->lo = lo;
+  it->hi = hi;
+  it->i0 = 0;
+  if (it->list && lo) {
+    it->u += lo;
+    it->un = lo;
+    it->i0 = lo;
+    if (it->gb)
+      it->gb += (size_t)lo * b->stride;
+  }
+}
+
+BLEND_INLINE int unit_next(unit_iter *it, const ub_blend *b, uint32_t *r, size_t *i0,
+                           const float **bs, uint32_t *s0, uint32_t *s1)
+{
+  while (it->un < it->units && it->i0 < it->hi) {
+    const uint32_t rr = it->u[0], len = it->list ? 1 : it->u[1];
+    it->u += it->list ? 1 : 2;
+    it->un++;
+    const float *base = unit_base(b, &it->gb, rr, len);
+    const size_t at = it->i0;
+    it->i0 += len;
+    if (at + len <= it->lo)
+      continue;
+    *r = rr;
+    *i0 = at;
+    *bs = base;
+    *s0 = it->lo > at ? (uint32_t)(it->lo - at) : 0;
+    *s1 = it->hi - at < len ? (uint32_t)(it->hi - at) : len;
+    return 1;
+  }
+  return 0;
 }
 
 #if BLEND_F16C
@@ -412,19 +467,18 @@ BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const
   const size_t vs = half ? 2 : 4, rowb = (size_t)S * vs, block = (size_t)g->receivers * rowb;
   const size_t gk = g->k_mode & ~GROUP_LIST;
   const char *vb = (const char *)b->values + g->val_off * vs;
-  const uint32_t *u = b->units + g->unit_off;
   float *out = c->out;
-  const float *gb = group_base(b, g);
   const uint32_t chunk = c->fn || !out ? BLEND_CHUNK : UINT32_MAX;
-  size_t i0 = 0; /* receivers of the group before this unit */
-  for (uint32_t un = 0; un < g->units; un++) {
-    const uint32_t r = u[0], len = list ? 1 : u[1];
-    u += list ? 1 : 2;
-    const float *bs = unit_base(b, &gb, r, len);
+  unit_iter it;
+  unit_iter_init(&it, b, g, c->qlo, c->qhi);
+  uint32_t r, s0, s1;
+  size_t i0; /* receivers of the group before this unit */
+  const float *bs;
+  while (unit_next(&it, b, &r, &i0, &bs, &s0, &s1)) {
     for (uint32_t m = 0; m < k; m++)
-      src[m] = vb + member_row_off(list, gk, act[m], i0, rowb, block);
-    for (uint32_t i = 0; i < len;) {
-      const uint32_t n = len - i < chunk ? len - i : chunk;
+      src[m] = vb + member_row_off(list, gk, act[m], i0 + s0, rowb, block);
+    for (uint32_t i = s0; i < s1;) {
+      const uint32_t n = s1 - i < chunk ? s1 - i : chunk;
       float *o = out ? out + (size_t)(r + i) * S : c->s->rows;
       avx_flat(o, bs + (size_t)i * S, src, wp, k, (size_t)n * S, half);
       if (c->fn) {
@@ -435,7 +489,6 @@ BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const
         src[m] += (size_t)n * rowb;
       i += n;
     }
-    i0 += len;
   }
 }
 
@@ -485,9 +538,7 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
   const size_t vs = b->value_size, rowb = (size_t)S * vs, block = (size_t)g->receivers * rowb;
   const size_t gk = g->k_mode & ~GROUP_LIST;
   const char *vb = (const char *)b->values + g->val_off * vs;
-  const uint32_t *u = b->units + g->unit_off;
   const blend_decode_fn decode = b->decode;
-  const float *gb = group_base(b, g);
   float *out = c->out;
 
   /* Receivers per chunk: bounded by the decode scratch (half) and the streaming scratch. */
@@ -498,15 +549,17 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
   }
   for (uint32_t m = 0; m < k; m++)
     w[m] = b->wexp + (size_t)mem[act[m]] * b->wstride;
-  size_t i0 = 0;
-  for (uint32_t un = 0; un < g->units; un++) {
-    const uint32_t r = u[0], len = list ? 1 : u[1];
-    u += list ? 1 : 2;
-    const float *bs = unit_base(b, &gb, r, len);
+  unit_iter it;
+  unit_iter_init(&it, b, g, c->qlo, c->qhi);
+  uint32_t r, s0, s1;
+  size_t i0;
+  const float *bs;
+  while (unit_next(&it, b, &r, &i0, &bs, &s0, &s1)) {
     for (uint32_t m = 0; m < k; m++)
-      src[m] = vb + member_row_off(list, gk, act[m], i0, rowb, block);
-    for (uint32_t i = 0; i < len;) {
-      uint32_t n = len - i < chunk ? len - i : chunk;
+      src[m] = vb + member_row_off(list, gk, act[m], i0 + s0, rowb, block);
+    bs += (size_t)s0 * S;
+    for (uint32_t i = s0; i < s1;) {
+      uint32_t n = s1 - i < chunk ? s1 - i : chunk;
       for (uint32_t m = 0; m < k; m++) {
         if (decode) {
           float *dst = c->s->dec + (size_t)m * n * S;
@@ -532,7 +585,6 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
         c->fn(c->user, r + i, n, o0);
       i += n;
     }
-    i0 += len;
   }
 }
 
@@ -568,17 +620,18 @@ static void group_copy_base(const blend_call *c, const blend_group *g)
 {
   const ub_blend *b = c->b;
   const uint32_t S = b->stride;
-  const int list = (g->k_mode & GROUP_LIST) != 0;
-  const uint32_t *u = b->units + g->unit_off;
-  const float *gb = group_base(b, g);
-  for (uint32_t un = 0; un < g->units; un++) {
-    const uint32_t r = u[0], len = list ? 1 : u[1];
-    u += list ? 1 : 2;
-    const float *bs = unit_base(b, &gb, r, len);
+  unit_iter it;
+  unit_iter_init(&it, b, g, c->qlo, c->qhi);
+  uint32_t r, s0, s1;
+  size_t i0;
+  const float *bs;
+  while (unit_next(&it, b, &r, &i0, &bs, &s0, &s1)) {
+    const uint32_t f = r + s0, n = s1 - s0;
+    bs += (size_t)s0 * S;
     if (c->out)
-      memcpy(c->out + (size_t)r * S, bs, (size_t)len * S * sizeof(float));
+      memcpy(c->out + (size_t)f * S, bs, (size_t)n * S * sizeof(float));
     if (c->fn) /* streaming: the base rows are the result, no copy */
-      c->fn(c->user, r, len, c->out ? c->out + (size_t)r * S : bs);
+      c->fn(c->user, f, n, c->out ? c->out + (size_t)f * S : bs);
   }
 }
 
@@ -604,15 +657,17 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
   else
     group_blend(c, g, act, k);
 
-  uint64_t row = (uint64_t)b->stride * sizeof(float);
-  uint64_t words = (uint64_t)g->units * ((g->k_mode & GROUP_LIST) ? 1 : 2);
-  st->groups++;
-  st->groups_base += k == 0;
-  st->receivers += g->receivers;
-  st->bytes_written += c->out ? g->receivers * row : 0;
-  st->bytes_read += g->receivers * row +
-                    (uint64_t)k * g->receivers * b->stride * b->value_size +
-                    words * sizeof(uint32_t) + sizeof *g;
+  /* A group split between parts: the part holding its start counts the group and its
+   * tables, so the parts' stats add up to a whole update's. */
+  const uint64_t row = (uint64_t)b->stride * sizeof(float), n = c->qhi - c->qlo;
+  const uint64_t words = (uint64_t)g->units * ((g->k_mode & GROUP_LIST) ? 1 : 2);
+  const int first = c->qlo == 0;
+  st->groups += first;
+  st->groups_base += first && k == 0;
+  st->receivers += n;
+  st->bytes_written += c->out ? n * row : 0;
+  st->bytes_read += n * row + (uint64_t)k * n * b->stride * b->value_size +
+                    (first ? words * sizeof(uint32_t) + sizeof *g : 0);
 }
 
 /* Updates run with FTZ and DAZ off (restored after): the half decode is exact and the
@@ -697,21 +752,42 @@ void ub_blend_update_begin(ub_blend *b, int all)
     b->wcost[i + 1] = b->wcost[i] + group_cost(&b->groups[b->work[i]]);
 }
 
-/* First work item of part p of `parts`: the first i with wcost[i]·parts ≥ p·total (so
- * part 0 starts at 0, part `parts` at work_count, and the split depends on the work and
- * the part count only). */
-static uint32_t part_start(const ub_blend *b, uint32_t p, uint32_t parts)
+/* Where part p of `parts` starts: work item *item, receiver position *pos in its group.
+ * The goal is p·total/parts cost units: the item whose cost range holds it, and in it
+ * the receivers before the goal (the group's constant counted at its start). Bounds grow
+ * with p; they depend on the work and the part count only. */
+static void part_bound(const ub_blend *b, uint32_t p, uint32_t parts, uint32_t *item,
+                       uint32_t *pos)
 {
-  const uint64_t goal = (uint64_t)p * b->wcost[b->work_count];
-  uint32_t lo = 0, hi = b->work_count;
+  *pos = 0;
+  if (p == 0 || b->work_count == 0) {
+    *item = 0;
+    return;
+  }
+  if (p >= parts) {
+    *item = b->work_count;
+    return;
+  }
+  const uint64_t goal = (uint64_t)p * b->wcost[b->work_count]; /* in cost × parts */
+  uint32_t lo = 0, hi = b->work_count; /* first i with wcost[i]·parts > goal */
   while (lo < hi) {
     uint32_t mid = lo + (hi - lo) / 2;
-    if (b->wcost[mid] * parts >= goal)
+    if (b->wcost[mid] * parts > goal)
       hi = mid;
     else
       lo = mid + 1;
   }
-  return lo;
+  const uint32_t i = lo - 1; /* wcost[0] = 0 ≤ goal < wcost[n]·parts */
+  const blend_group *g = &b->groups[b->work[i]];
+  const uint64_t off = (goal - b->wcost[i] * parts) / parts;
+  const uint64_t per = (g->k_mode & ~GROUP_LIST) + 1u;
+  const uint64_t q = off <= 16 ? 0 : (off - 16) / per;
+  if (q >= g->receivers) {
+    *item = i + 1;
+  } else {
+    *item = i;
+    *pos = (uint32_t)q;
+  }
 }
 
 void ub_blend_update_part(const ub_blend *b, uint32_t part, uint32_t parts,
@@ -721,11 +797,18 @@ void ub_blend_update_part(const ub_blend *b, uint32_t part, uint32_t parts,
   assert(b && (out_values || touched) && parts >= 1 && part < parts && parts <= b->job_cap);
   ub_blend_stats st;
   memset(&st, 0, sizeof st);
-  blend_call c = {b, out_values, &b->js[part], touched, user};
-  const uint32_t i0 = part_start(b, part, parts), i1 = part_start(b, part + 1, parts);
+  blend_call c = {b, out_values, &b->js[part], 0, 0, touched, user};
+  uint32_t i0, q0, i1, q1;
+  part_bound(b, part, parts, &i0, &q0);
+  part_bound(b, part + 1, parts, &i1, &q1);
   unsigned csr = fp_mode_enter();
-  for (uint32_t i = i0; i < i1; i++)
-    process_group(&c, b->work[i], &st);
+  for (uint32_t i = i0; i < i1 + (q1 > 0) && i < b->work_count; i++) {
+    const blend_group *g = &b->groups[b->work[i]];
+    c.qlo = i == i0 ? q0 : 0;
+    c.qhi = i == i1 ? q1 : g->receivers;
+    if (c.qlo < c.qhi)
+      process_group(&c, b->work[i], &st);
+  }
   fp_mode_leave(csr);
   if (out_stats)
     *out_stats = st;

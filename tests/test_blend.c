@@ -868,6 +868,7 @@ static void test_parts(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
   ub_blend_desc d = rep_desc(&p, "parts");
   for (int i = 0; i <= NE; i++) {
     out[i] = malloc(sizeof(float) * nf);
+    d.flags = i < NE && (i & 1) ? UB_BLEND_OWN_BASE : 0; /* both ways of holding base rows */
     ASSERT_OK(ub_blend_create(&d, NULL, out[i], &b[i]));
     if (!b[i])
       return;
