@@ -22,6 +22,7 @@
 #include "ubake/ahd.h"
 
 #include <math.h>
+#include <stdatomic.h>
 #include <stddef.h>
 
 #include "runtime/cpu.h"
@@ -341,11 +342,15 @@ void ub_ahd_encode_iz8_rows(const float *const rows[8], const float *unit_normal
                             ub_ahd *const out[8])
 {
 #if defined(AHD_HAVE_AVX)
-  static int avx = -1; /* benign race: every thread computes the same value */
-  if (avx < 0) {
-    avx = (ub_cpu_features() & UB_CPU_AVX) ? 1 : 0;
+  /* every thread computes the same value; atomic, since the run-time's update jobs run
+   * this on several threads at once */
+  static _Atomic int avx = -1;
+  int use = atomic_load_explicit(&avx, memory_order_relaxed);
+  if (use < 0) {
+    use = (ub_cpu_features() & UB_CPU_AVX) ? 1 : 0;
+    atomic_store_explicit(&avx, use, memory_order_relaxed);
   }
-  if (avx) {
+  if (use) {
     encode_iz8_avx(rows, unit_normals, out);
     return;
   }

@@ -12,7 +12,7 @@
 
 #include <stdint.h>
 #include <string.h>
-#include <threads.h>
+#include <pthread.h>
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #endif
@@ -835,11 +835,11 @@ typedef struct part_job {
   ub_blend_stats st;
 } part_job;
 
-static int part_main(void *arg)
+static void *part_main(void *arg)
 {
   part_job *j = arg;
   ub_blend_update_part(j->b, j->part, j->parts, on_touched, &j->log, j->out, &j->st);
-  return 0;
+  return NULL;
 }
 
 /* Engines updated in parts on threads (2, 3, 7 parts, out array and streaming) against a
@@ -898,18 +898,18 @@ static void test_parts(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
     for (int i = 0; i < NE; i++) {
       const uint32_t P = parts_of[i];
       part_job jobs[7];
-      thrd_t th[7];
+      pthread_t th[7];
       memset(count, 0, R);
       ub_blend_update_begin(b[i], all);
       for (uint32_t q = 0; q < P; q++) {
         jobs[q] = (part_job){b[i], q, P, stream_of[i] ? NULL : out[i],
                              {count, 0, S, stream_of[i] ? NULL : out[i],
                               stream_of[i] ? out[i] : NULL, 0}, {0}};
-        ASSERT_TRUE(thrd_create(&th[q], part_main, &jobs[q]) == thrd_success);
+        ASSERT_TRUE(pthread_create(&th[q], NULL, part_main, &jobs[q]) == 0);
       }
       uint64_t recv = 0, groups = 0, bytes = 0;
       for (uint32_t q = 0; q < P; q++) {
-        thrd_join(th[q], NULL);
+        pthread_join(th[q], NULL);
         recv += jobs[q].st.receivers;
         groups += jobs[q].st.groups;
         bytes += jobs[q].st.bytes_read;

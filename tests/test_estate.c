@@ -10,7 +10,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <threads.h>
+#include <pthread.h>
 
 #include "test_util.h"
 #include "ubake/bake.h"
@@ -254,11 +254,11 @@ typedef struct job_arg {
   uint32_t job;
 } job_arg;
 
-static int job_main(void *arg)
+static void *job_main(void *arg)
 {
   job_arg *a = arg;
   ub_runtime_update_job(a->rt, a->job);
-  return 0;
+  return NULL;
 }
 
 /* ub_runtime_update_begin/job/end with 2, 3 and 5 jobs on threads against a plain
@@ -293,14 +293,14 @@ static void check_jobs(const char *ubk)
     const uint32_t want = round % 3 == 0 ? 2 : round % 3 == 1 ? 3 : 5;
     ASSERT_OK(ub_runtime_update_begin(rb, want, &jobs));
     ASSERT_TRUE(jobs == want);
-    thrd_t th[5];
+    pthread_t th[5];
     job_arg args[5];
     for (uint32_t j = 0; j < jobs && j < 5; j++) {
       args[j] = (job_arg){rb, j};
-      ASSERT_TRUE(thrd_create(&th[j], job_main, &args[j]) == thrd_success);
+      ASSERT_TRUE(pthread_create(&th[j], NULL, job_main, &args[j]) == 0);
     }
     for (uint32_t j = 0; j < jobs && j < 5; j++)
-      thrd_join(th[j], NULL);
+      pthread_join(th[j], NULL);
     ub_runtime_update_end(rb, &sb);
     bad_stats += sa.texels_written != sb.texels_written ||
                  sa.texels_reencoded != sb.texels_reencoded ||
