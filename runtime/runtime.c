@@ -1177,8 +1177,8 @@ static double rt_now(void)
 ub_result ub_runtime_update_begin(ub_runtime *rt, uint32_t max_jobs, uint32_t *out_jobs)
 {
   assert(rt && out_jobs);
-  if (max_jobs == 0 || max_jobs > UB_RUNTIME_MAX_JOBS)
-    return UB_ERR_INVALID_ARGUMENT;
+  if (max_jobs == 0 || max_jobs > UB_RUNTIME_MAX_JOBS || rt->job_count)
+    return UB_ERR_INVALID_ARGUMENT; /* (job_count: an update begun and not ended) */
   if (max_jobs > rt->job_cap) {
     rt_job *j = realloc(rt->jobs, (size_t)max_jobs * sizeof *j);
     if (!j)

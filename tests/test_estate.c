@@ -293,6 +293,8 @@ static void check_jobs(const char *ubk)
     const uint32_t want = round % 3 == 0 ? 2 : round % 3 == 1 ? 3 : 5;
     ASSERT_OK(ub_runtime_update_begin(rb, want, &jobs));
     ASSERT_TRUE(jobs == want);
+    uint32_t again = 0;
+    ASSERT_TRUE(ub_runtime_update_begin(rb, 2, &again) == UB_ERR_INVALID_ARGUMENT);
     pthread_t th[5];
     job_arg args[5];
     for (uint32_t j = 0; j < jobs && j < 5; j++) {

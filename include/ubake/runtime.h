@@ -202,7 +202,7 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats);
  * job count. Between begin and end nothing else may use rt (no set, query or update).
  * Stats: the jobs' counts added; seconds_* the longest job's time in that part.
  * Errors (nothing started, the changes stay pending): UB_ERR_INVALID_ARGUMENT (max_jobs
- * 0 or above UB_RUNTIME_MAX_JOBS), UB_ERR_OUT_OF_MEMORY (the jobs' scratch, made once
+ * 0 or above UB_RUNTIME_MAX_JOBS, or an update begun and not ended), UB_ERR_OUT_OF_MEMORY (the jobs' scratch, made once
  * for the largest count asked: ~12 KB per job and representation). */
 #define UB_RUNTIME_MAX_JOBS 256u
 ub_result ub_runtime_update_begin(ub_runtime *rt, uint32_t max_jobs, uint32_t *out_jobs);
