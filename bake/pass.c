@@ -591,6 +591,9 @@ static float *nee_block(pass_ctx *c, const ub_rt *rt, const ub_ray *rays, const 
     free(w);
     return NULL;
   }
+  /* ub_hash4(seed, key, id, j) for the pick below */
+  uint32_t hb = ub_hash_mix(ub_hash_mix(ub_hash_mix(UB_HASH_SEED, c->seed),
+                                        d->pass_id * 0x10000u + 0x2000u), id);
   size_t m = 0;
   for (size_t j = 0; j < n; j++) {
     const ub_hit *h = &hits[sorted_of[j]];
@@ -619,7 +622,7 @@ static float *nee_block(pass_ctx *c, const ub_rt *rt, const ub_ray *rays, const 
     }
     if (!(total > 0.0))
       continue;
-    double u = ub_u01(ub_hash4(c->seed, d->pass_id * 0x10000u + 0x2000u, id, (uint32_t)j)) * total;
+    double u = ub_u01(ub_hash_mix(hb, (uint32_t)j)) * total;
     uint32_t pick = 0;
     double acc = 0.0;
     for (uint32_t k = 0; k < non; k++) {
@@ -693,14 +696,16 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
   if (!shadow_alloc(c, cap, &rays, &rec, &occ))
     return;
   size_t n = 0;
+  uint32_t hk = ub_hash_mix(ub_hash_mix(UB_HASH_SEED, c->seed),
+                            d->pass_id * 0x10000u + 0x1000u + c->bounce);
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
     const float *cdf = tl[tl_group(nrm)];
     int first = 1;
+    uint32_t hr = ub_hash_mix(hk, rs->id_base + r); /* ub_hash4(seed, key, id, k) below */
     for (uint32_t k = 0; cdf && k < M; k++) {
-      uint32_t h = ub_hash4(c->seed, d->pass_id * 0x10000u + 0x1000u + c->bounce,
-                            rs->id_base + r, k);
+      uint32_t h = ub_hash_mix(hr, k);
       uint32_t cl = ub_cdf_pick(cdf, K, ub_u01(h));
       uint32_t b0 = c->tl_start[cl], b1 = c->tl_start[cl + 1];
       if (b1 <= b0)
@@ -1281,11 +1286,13 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   if (kx < 1)
     kx = 1;
   uint32_t ky = N / kx;
+  uint32_t hk = ub_hash_mix(ub_hash_mix(UB_HASH_SEED, c->seed), d->pass_id * 0x10000u + c->bounce);
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
+    uint32_t hr = ub_hash_mix(hk, rs->id_base + r); /* ub_hash4(seed, key, id, j) below */
     for (uint32_t j = 0; j < N; j++) {
-      uint32_t h = ub_hash4(c->seed, d->pass_id * 0x10000u + c->bounce, rs->id_base + r, j);
+      uint32_t h = ub_hash_mix(hr, j);
       float u1 = ub_u01(h), u2 = ub_u01(ub_hash4(h, 7, 0, 0));
       if (j < kx * ky) {
         u1 = ((float)(j % kx) + u1) / (float)kx;
