@@ -1166,21 +1166,25 @@ static inline size_t hit_pixel(const ub_lightmap *lm, const ub_atlas *at, const 
   return (size_t)ty * at->width + (size_t)tx;
 }
 
-/* What the shading of a block's gather hits will read at random in level-sized arrays
- * (the lightmap image around the hit; with texel lights, the texel under it and its
- * tables), asked of the memory system for all hits first: the loop below then finds them
- * in cache instead of waiting out one dependent miss after another per hit (perf of the
- * full ESTATE bake: a third of the pass kernels' time). Reads nothing the results depend
- * on. */
-static void prefetch_hits(const pass_ctx *c, const ub_hit *hits, const uint32_t *hit_of,
-                          size_t n, const float *const *tl)
+/* Where a gather hit lands in the lightmap, worked out once per block at bounces >= 1 for
+ * its three readers (nee_skip_mask, prefetch_hits, the shading in gather_block; each
+ * computed it again, up to three tri_uv and texel_of reads per hit). */
+typedef struct hit_texel {
+  float u, v;  /* lightmap UV of the hit (hit_pixel) */
+  uint32_t px; /* the atlas pixel under it */
+  int32_t a;   /* its atlas, -1: a miss or a triangle without lightmap */
+  int32_t t;   /* the texel at px, -1: none */
+} hit_texel;
+
+/* Fills out[q] for each ray q of a block (hit_of: ray → its hit). */
+static void hit_texels(const pass_ctx *c, const ub_hit *hits, const uint32_t *hit_of, size_t n,
+                       hit_texel *out)
 {
   const ub_lightmap *lm = c->lm;
-  int tl_any = 0;
-  for (int g = 0; tl && g < UB_TL_GROUPS; g++)
-    tl_any |= tl[g] != NULL;
   for (size_t j = 0; j < n; j++) {
     const ub_hit *h = &hits[hit_of[j]];
+    hit_texel *o = &out[j];
+    o->a = o->t = -1;
     if (h->tri == UB_RT_MISS)
       continue;
     int32_t a = lm->tri_atlas[h->tri];
@@ -1189,17 +1193,38 @@ static void prefetch_hits(const pass_ctx *c, const ub_hit *hits, const uint32_t 
     const ub_atlas *at = &lm->atlases[a];
     float uv[2];
     size_t px = hit_pixel(lm, at, h, uv);
-    __builtin_prefetch(c->img[a] + 4 * px);
-    if (!tl_any)
+    o->u = uv[0];
+    o->v = uv[1];
+    o->px = (uint32_t)px; /* atlases are at most UB_ATLAS_MAX_SIZE² pixels */
+    o->a = a;
+    o->t = at->texel_of[px];
+  }
+}
+
+/* What the shading of a block's gather hits will read at random in level-sized arrays
+ * (the lightmap image around the hit; with texel lights, the texel under it and its
+ * tables), asked of the memory system for all hits first: the loop below then finds them
+ * in cache instead of waiting out one dependent miss after another per hit (perf of the
+ * full ESTATE bake: a third of the pass kernels' time). Reads nothing the results depend
+ * on. */
+static void prefetch_hits(const pass_ctx *c, const hit_texel *hx, size_t n,
+                          const float *const *tl)
+{
+  int tl_any = 0;
+  for (int g = 0; tl && g < UB_TL_GROUPS; g++)
+    tl_any |= tl[g] != NULL;
+  for (size_t j = 0; j < n; j++) {
+    if (hx[j].a < 0)
       continue;
-    int32_t t = at->texel_of[px];
-    if (t < 0)
+    __builtin_prefetch(c->img[hx[j].a] + 4 * (size_t)hx[j].px);
+    if (!tl_any || hx[j].t < 0)
       continue;
+    size_t t = (size_t)hx[j].t;
     __builtin_prefetch(&c->tl_area[t]);
     __builtin_prefetch(&c->tl_of[t]);
     if (c->tl_pc)
       __builtin_prefetch(&c->tl_pc[t]);
-    __builtin_prefetch(&c->tl_rad[3 * (size_t)t]);
+    __builtin_prefetch(&c->tl_rad[3 * t]);
   }
 }
 
@@ -1221,9 +1246,8 @@ static inline int tl_readable(const pass_ctx *c, const ub_hit *h, const float di
  * no memory: every ray gets its NEE, as before). */
 static uint8_t *nee_skip_mask(const pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr,
                               const ub_ray *rays, const ub_hit *hits, const uint32_t *sorted_of,
-                              const float *const *tl)
+                              const hit_texel *hx, const float *const *tl)
 {
-  const ub_lightmap *lm = c->lm;
   uint32_t N = rs->rays;
   if (!c->tl_full || !tl)
     return NULL;
@@ -1243,15 +1267,10 @@ static uint8_t *nee_skip_mask(const pass_ctx *c, const recv_set *rs, uint32_t r0
         skip[q] = 1;
         continue;
       }
-      if (!tl_cdf || h->tri == UB_RT_MISS || dot3(h->ng, ray->dir) >= 0.0f)
+      if (!tl_cdf || h->tri == UB_RT_MISS || dot3(h->ng, ray->dir) >= 0.0f || hx[q].a < 0)
         continue;
-      int32_t a = lm->tri_atlas[h->tri];
-      if (a < 0)
-        continue;
-      const ub_atlas *at = &lm->atlases[a];
-      float uv[2];
       float ce;
-      skip[q] = (uint8_t)tl_readable(c, h, ray->dir, at->texel_of[hit_pixel(lm, at, h, uv)], &ce);
+      skip[q] = (uint8_t)tl_readable(c, h, ray->dir, hx[q].t, &ce);
     }
   }
   return skip;
@@ -1263,7 +1282,6 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
 {
   const ub_pass_desc *d = c->d;
   const ub_scene *s = c->s;
-  const ub_lightmap *lm = c->lm;
   uint32_t N = rs->rays;
   size_t n = (size_t)nr * N;
   ub_ray *rays = malloc(n * sizeof *rays);
@@ -1271,7 +1289,9 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   ub_hit *hits = malloc(n * sizeof *hits);
   uint32_t *order = malloc(n * sizeof *order);
   uint32_t *bucket = malloc(n * sizeof *bucket);
-  if (!rays || !sorted || !hits || !order || !bucket) {
+  hit_texel *hx = c->bounce >= 1 ? malloc(n * sizeof *hx) : NULL;
+  if (!rays || !sorted || !hits || !order || !bucket || (c->bounce >= 1 && !hx)) {
+    free(hx);
     free(rays);
     free(sorted);
     free(hits);
@@ -1333,14 +1353,16 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   /* Scatter hits back to ray order (bucket reused as the inverse permutation). */
   for (size_t j = 0; j < n; j++)
     bucket[order[j]] = (uint32_t)j;
+  if (hx)
+    hit_texels(c, hits, bucket, n, hx);
   float *nee = NULL;
   if (c->bounce == 1 && c->nee) {
-    uint8_t *skip = nee_skip_mask(c, rs, r0, nr, rays, hits, bucket, tl);
+    uint8_t *skip = nee_skip_mask(c, rs, r0, nr, rays, hits, bucket, hx, tl);
     nee = nee_block(c, d->rt, rays, hits, bucket, skip, n, rs->id_base + r0);
     free(skip);
   }
-  if (c->bounce >= 1)
-    prefetch_hits(c, hits, bucket, n, tl);
+  if (hx)
+    prefetch_hits(c, hx, n, tl);
 
   uint64_t backface = 0, unlit = 0, clamped = 0, misses = 0, sky_hits = 0, emitter_hits = 0;
   uint32_t ne = (d->emissive && d->emitters) ? d->emitters->count : 0;
@@ -1400,7 +1422,8 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
             backface++;
             continue;
           }
-          int32_t a = lm->tri_atlas[h->tri];
+          const hit_texel *hq = &hx[(size_t)i * N + j];
+          int32_t a = hq->a;
           float e[3] = {0.0f, 0.0f, 0.0f};
           int llg_lit = 0;
           if (a < 0 && c->llg_prev) {
@@ -1420,10 +1443,8 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
            * variance see */
           int32_t t_hit = -1;
           if (a >= 0) {
-            const ub_atlas *at = &lm->atlases[a];
-            float uv[2];
-            t_hit = at->texel_of[hit_pixel(lm, at, h, uv)];
-            float u = uv[0], v = uv[1];
+            t_hit = hq->t;
+            float u = hq->u, v = hq->v;
             const float *tl_cdf = tl ? tl[tl_group(nrm)] : NULL;
             if (tl_cdf) {
               int32_t t = t_hit;
@@ -1501,6 +1522,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   atomic_fetch_add(&c->sky_hits, sky_hits);
   atomic_fetch_add(&c->emitter_hits, emitter_hits);
   free(nee);
+  free(hx);
   free(rays);
   free(sorted);
   free(hits);
