@@ -2094,13 +2094,19 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
    * included at all: the fixed per-texel sample points of far punctual lights (a
    * quadrature, the same for every seed) and the bounces the auto-stop leaves out (a
    * bias, not noise). */
-  tx->acc_var = scr_take(scache, SCR_ACC_VAR, B_T);
-  pr->acc_var = scr_take(scache, SCR_PR_ACC_VAR, B_P);
-  tx->acc_pvar = scr_take(scache, SCR_ACC_PVAR, B_T);
-  pr->acc_pvar = scr_take(scache, SCR_PR_ACC_PVAR, B_P);
-  float *rel2 = scr_take(scache, SCR_REL2, ((size_t)T + 1) * sizeof(float));
-  double *var_tx = scr_take(scache, SCR_VAR_TX, B_T);
-  double *var_pr = scr_take(scache, SCR_VAR_PR, B_P);
+  /* Without them (no_error_estimate) these stay NULL and every use below is skipped. */
+  const int est = !d->no_error_estimate || d->target_error > 0.0;
+  float *rel2 = NULL;
+  double *var_tx = NULL, *var_pr = NULL;
+  if (est) {
+    tx->acc_var = scr_take(scache, SCR_ACC_VAR, B_T);
+    pr->acc_var = scr_take(scache, SCR_PR_ACC_VAR, B_P);
+    tx->acc_pvar = scr_take(scache, SCR_ACC_PVAR, B_T);
+    pr->acc_pvar = scr_take(scache, SCR_PR_ACC_PVAR, B_P);
+    rel2 = scr_take(scache, SCR_REL2, ((size_t)T + 1) * sizeof(float));
+    var_tx = scr_take(scache, SCR_VAR_TX, B_T);
+    var_pr = scr_take(scache, SCR_VAR_PR, B_P);
+  }
   if (LP)
     c.llg_prev = calloc((size_t)LP * 27, sizeof(float));
   pr->acc_sh = scr_take(scache, SCR_PR_ACC_SH, B_PSH);
@@ -2114,8 +2120,9 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
             (d->outside_bounce_iz && d->outside_bounces && d->texel_subset && !outside) ||
             !out->probe_direct || !out->probe_indirect || !lg->acc_sh ||
             !lg->acc_sh_np || !llg_total || (LP && !c.llg_prev) || !out->llg_direct ||
-            !out->llg_indirect || !tx->acc_var || !pr->acc_var || !var_tx || !var_pr ||
-            !tx->acc_pvar || !pr->acc_pvar || !rel2;
+            !out->llg_indirect ||
+            (est && (!tx->acc_var || !pr->acc_var || !var_tx || !var_pr || !tx->acc_pvar ||
+                     !pr->acc_pvar || !rel2));
   int shared = 0;
   if (!oom && act && lm->atlas_count)
     shared = d->cache && d->cache->ok && d->cache->lm == lm && sparse_base_ready(d->cache, lm);
@@ -2171,16 +2178,18 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     res = atomic_load(&c.cancelled) == 2 ? UB_ERR_OUT_OF_MEMORY : UB_ERR_CANCELLED;
     goto done;
   }
-  for (uint32_t i = 0; i < nact; i++) {
-    uint32_t t = ACT(i);
-    var_tx[t] += tx->acc_var[t] + tx->acc_pvar[t];
+  if (est) {
+    for (uint32_t i = 0; i < nact; i++) {
+      uint32_t t = ACT(i);
+      var_tx[t] += tx->acc_var[t] + tx->acc_pvar[t];
+    }
+    for (uint32_t i = 0; i < npact; i++) {
+      uint32_t q = PACT(i);
+      var_pr[q] += pr->acc_var[q] + pr->acc_pvar[q];
+    }
+    /* What bounce 1 reads (src or its non-punctual part), and its relative variance. */
+    relative_variance(&c, c.nee ? tx->acc_src_np : tx->acc_src, rel2, act, nact);
   }
-  for (uint32_t i = 0; i < npact; i++) {
-    uint32_t q = PACT(i);
-    var_pr[q] += pr->acc_var[q] + pr->acc_pvar[q];
-  }
-  /* What bounce 1 reads (src or its non-punctual part), and its relative variance. */
-  relative_variance(&c, c.nee ? tx->acc_src_np : tx->acc_src, rel2, act, nact);
   c.prev_rel2 = rel2;
   double total_energy = energy_of(tx->acc_iz, act, nact);
   double src_energy = outgoing_energy(&c, tx->acc_src, act, nact);
@@ -2246,12 +2255,14 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       size_t t = ACT(i);
       memset(tx->acc_sh + 12 * t, 0, 12 * sizeof(double));
       memset(tx->acc_iz + 3 * t, 0, 3 * sizeof(double));
-      tx->acc_var[t] = tx->acc_pvar[t] = 0.0;
+      if (est)
+        tx->acc_var[t] = tx->acc_pvar[t] = 0.0;
     }
     for (uint32_t i = 0; i < npact; i++) {
       size_t q = PACT(i);
       memset(pr->acc_sh + 27 * q, 0, 27 * sizeof(double));
-      pr->acc_var[q] = pr->acc_pvar[q] = 0.0;
+      if (est)
+        pr->acc_var[q] = pr->acc_pvar[q] = 0.0;
     }
     for (uint32_t i = 0; i < nlact; i++)
       memset(lg->acc_sh + 27 * (size_t)LACT(i), 0, 27 * sizeof(double));
@@ -2275,8 +2286,10 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
           continue;
         memcpy(tx->acc_iz + 3 * (size_t)t, tx->acc_iz + 3 * (size_t)g, 3 * sizeof(double));
         memcpy(tx->acc_sh + 12 * (size_t)t, tx->acc_sh + 12 * (size_t)g, 12 * sizeof(double));
-        tx->acc_var[t] = tx->acc_var[g];
-        tx->acc_pvar[t] = tx->acc_pvar[g];
+        if (est) {
+          tx->acc_var[t] = tx->acc_var[g];
+          tx->acc_pvar[t] = tx->acc_pvar[g];
+        }
       }
     }
     if (d->llg_gather_donor && d->llg_gather_subset) {
@@ -2295,7 +2308,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
         sh_total[j] += tx->acc_sh[j];
       for (size_t j = 3 * t; j < 3 * t + 3; j++)
         iz_total[j] += tx->acc_iz[j];
-      var_tx[t] += tx->acc_var[t] + tx->acc_pvar[t];
+      if (est)
+        var_tx[t] += tx->acc_var[t] + tx->acc_pvar[t];
       out->texel_indirect[t] += (float)lum3d(tx->acc_iz + 3 * t);
       if (b <= d->keep_bounce_iz)
         for (int j = 0; j < 3; j++)
@@ -2305,7 +2319,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       size_t q = PACT(i);
       for (size_t j = 27 * q; j < 27 * q + 27; j++)
         probe_total[j] += pr->acc_sh[j];
-      var_pr[q] += pr->acc_var[q] + pr->acc_pvar[q];
+      if (est)
+        var_pr[q] += pr->acc_var[q] + pr->acc_pvar[q];
       out->probe_indirect[q] += (float)(M_PI * UB_Y0 * lum3d(pr->acc_sh + 27 * q));
     }
     for (uint32_t i = 0; i < nlact; i++) {
@@ -2359,7 +2374,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     build_images(&c, tx->acc_iz);
     texel_lights_build(&c, tx->acc_iz);
     c.tl_full = 0;
-    relative_variance(&c, tx->acc_iz, rel2, act, nact);
+    if (est)
+      relative_variance(&c, tx->acc_iz, rel2, act, nact);
     for (uint32_t i = 0; i < nlact; i++)
       for (size_t j = 27 * (size_t)LACT(i); j < 27 * (size_t)LACT(i) + 27; j++)
         c.llg_prev[j] = (float)lg->acc_sh[j];
@@ -2434,12 +2450,12 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     res = UB_ERR_OUT_OF_MEMORY;
     goto done;
   }
-  for (uint32_t i = 0; i < nact; i++) {
+  for (uint32_t i = 0; est && i < nact; i++) {
     uint32_t t = ACT(i);
     float v = (float)sqrt(var_tx[t]);
     out->texel_se[t] = isfinite(v) ? v : 0.0f;
   }
-  for (uint32_t i = 0; i < npact; i++) {
+  for (uint32_t i = 0; est && i < npact; i++) {
     uint32_t q = PACT(i);
     float v = (float)sqrt(var_pr[q]);
     out->probe_se[q] = isfinite(v) ? v : 0.0f;
