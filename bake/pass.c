@@ -1176,14 +1176,15 @@ typedef struct hit_texel {
   int32_t t;   /* the texel at px, -1: none */
 } hit_texel;
 
-/* Fills out[q] for each ray q of a block (hit_of: ray → its hit). */
-static void hit_texels(const pass_ctx *c, const ub_hit *hits, const uint32_t *hit_of, size_t n,
+/* Fills out[q] for each ray q of a block, in the hits' order (hits[j] is ray order[j]'s):
+ * reading the hits in ray order was a cache miss per hit. */
+static void hit_texels(const pass_ctx *c, const ub_hit *hits, const uint32_t *order, size_t n,
                        hit_texel *out)
 {
   const ub_lightmap *lm = c->lm;
   for (size_t j = 0; j < n; j++) {
-    const ub_hit *h = &hits[hit_of[j]];
-    hit_texel *o = &out[j];
+    const ub_hit *h = &hits[j];
+    hit_texel *o = &out[order[j]];
     o->a = o->t = -1;
     if (h->tri == UB_RT_MISS)
       continue;
@@ -1354,7 +1355,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   for (size_t j = 0; j < n; j++)
     bucket[order[j]] = (uint32_t)j;
   if (hx)
-    hit_texels(c, hits, bucket, n, hx);
+    hit_texels(c, hits, order, n, hx);
   float *nee = NULL;
   if (c->bounce == 1 && c->nee) {
     uint8_t *skip = nee_skip_mask(c, rs, r0, nr, rays, hits, bucket, hx, tl);
