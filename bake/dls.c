@@ -989,6 +989,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     pd.llg_subset = sub ? cl : NULL;
     pd.llg_subset_count = ncl;
     pd.keep_bounce_iz = UB_DLS_INFLUENCE_BOUNCES;
+    pd.no_error_estimate = 1; /* neither pass's texel_se / probe_se is read */
     if (plan->influence_sparse) {
       if (!sub) /* no reach bound: every texel is a candidate */
         for (uint32_t t = 0; t < lm->texel_count; t++)
@@ -1096,6 +1097,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     pd.emissive = 0;
     pd.sky = 0;
     pd.pass_id = 3 + 2 * d;
+    pd.no_error_estimate = 1;
     pd.texel_subset = kt;
     pd.texel_subset_count = nkt;
     pd.probe_subset = kp;

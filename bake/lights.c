@@ -171,22 +171,6 @@ void ub_emitters_sample(const ub_emitters *em, const ub_scene *scene, float u0, 
   *out_pdf_area = em->area[lo] > 0.0f ? p_tri / em->area[lo] : 0.0f;
 }
 
-uint32_t ub_hash4(uint32_t a, uint32_t b, uint32_t c, uint32_t d)
-{
-  /* Chained lowbias32-style integer mixing (Wellons). */
-  uint32_t h = 0x9E3779B9u;
-  uint32_t v[4] = {a, b, c, d};
-  for (int i = 0; i < 4; i++) {
-    h ^= v[i] + 0x7F4A7C15u + (h << 6) + (h >> 2);
-    h ^= h >> 16;
-    h *= 0x7FEB352Du;
-    h ^= h >> 15;
-    h *= 0x846CA68Bu;
-    h ^= h >> 16;
-  }
-  return h;
-}
-
 void ub_onb(const float n[3], float out_t[3], float out_b[3])
 {
   /* Duff et al. 2017, branchless orthonormal basis. */

@@ -39,8 +39,26 @@ void ub_emitters_sample(const ub_emitters *em, const ub_scene *scene, float u0, 
                         float u2, float out_p[3], float out_n[3], float out_le[3],
                         float *out_pdf_area);
 
-/* Hash-based random numbers (DESIGN §3): a pure function of its inputs. */
-uint32_t ub_hash4(uint32_t a, uint32_t b, uint32_t c, uint32_t d);
+/* Hash-based random numbers (DESIGN §3): a pure function of its inputs. ub_hash4 chains
+ * one mixing step per input (lowbias32-style integer mixing, Wellons) from UB_HASH_SEED,
+ * so a loop drawing many numbers whose first inputs agree (a receiver's gather rays: all
+ * but the ray index) can mix those once and finish each number with one ub_hash_mix: the
+ * same bits for a quarter of the work. Inline: a pass hashes several times per ray. */
+#define UB_HASH_SEED 0x9E3779B9u
+static inline uint32_t ub_hash_mix(uint32_t h, uint32_t v)
+{
+  h ^= v + 0x7F4A7C15u + (h << 6) + (h >> 2);
+  h ^= h >> 16;
+  h *= 0x7FEB352Du;
+  h ^= h >> 15;
+  h *= 0x846CA68Bu;
+  h ^= h >> 16;
+  return h;
+}
+static inline uint32_t ub_hash4(uint32_t a, uint32_t b, uint32_t c, uint32_t d)
+{
+  return ub_hash_mix(ub_hash_mix(ub_hash_mix(ub_hash_mix(UB_HASH_SEED, a), b), c), d);
+}
 /* Uniform float in [0, 1) from a hash. */
 static inline float ub_u01(uint32_t h) { return (float)(h >> 8) * (1.0f / 16777216.0f); }
 /* The entry u falls into of a cumulative table (n > 0 entries, non-decreasing, last 1):

@@ -591,6 +591,9 @@ static float *nee_block(pass_ctx *c, const ub_rt *rt, const ub_ray *rays, const 
     free(w);
     return NULL;
   }
+  /* ub_hash4(seed, key, id, j) for the pick below */
+  uint32_t hb = ub_hash_mix(ub_hash_mix(ub_hash_mix(UB_HASH_SEED, c->seed),
+                                        d->pass_id * 0x10000u + 0x2000u), id);
   size_t m = 0;
   for (size_t j = 0; j < n; j++) {
     const ub_hit *h = &hits[sorted_of[j]];
@@ -619,7 +622,7 @@ static float *nee_block(pass_ctx *c, const ub_rt *rt, const ub_ray *rays, const 
     }
     if (!(total > 0.0))
       continue;
-    double u = ub_u01(ub_hash4(c->seed, d->pass_id * 0x10000u + 0x2000u, id, (uint32_t)j)) * total;
+    double u = ub_u01(ub_hash_mix(hb, (uint32_t)j)) * total;
     uint32_t pick = 0;
     double acc = 0.0;
     for (uint32_t k = 0; k < non; k++) {
@@ -693,14 +696,16 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
   if (!shadow_alloc(c, cap, &rays, &rec, &occ))
     return;
   size_t n = 0;
+  uint32_t hk = ub_hash_mix(ub_hash_mix(UB_HASH_SEED, c->seed),
+                            d->pass_id * 0x10000u + 0x1000u + c->bounce);
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
     const float *cdf = tl[tl_group(nrm)];
     int first = 1;
+    uint32_t hr = ub_hash_mix(hk, rs->id_base + r); /* ub_hash4(seed, key, id, k) below */
     for (uint32_t k = 0; cdf && k < M; k++) {
-      uint32_t h = ub_hash4(c->seed, d->pass_id * 0x10000u + 0x1000u + c->bounce,
-                            rs->id_base + r, k);
+      uint32_t h = ub_hash_mix(hr, k);
       uint32_t cl = ub_cdf_pick(cdf, K, ub_u01(h));
       uint32_t b0 = c->tl_start[cl], b1 = c->tl_start[cl + 1];
       if (b1 <= b0)
@@ -1161,21 +1166,26 @@ static inline size_t hit_pixel(const ub_lightmap *lm, const ub_atlas *at, const 
   return (size_t)ty * at->width + (size_t)tx;
 }
 
-/* What the shading of a block's gather hits will read at random in level-sized arrays
- * (the lightmap image around the hit; with texel lights, the texel under it and its
- * tables), asked of the memory system for all hits first: the loop below then finds them
- * in cache instead of waiting out one dependent miss after another per hit (perf of the
- * full ESTATE bake: a third of the pass kernels' time). Reads nothing the results depend
- * on. */
-static void prefetch_hits(const pass_ctx *c, const ub_hit *hits, const uint32_t *hit_of,
-                          size_t n, const float *const *tl)
+/* Where a gather hit lands in the lightmap, worked out once per block at bounces >= 1 for
+ * its three readers (nee_skip_mask, prefetch_hits, the shading in gather_block; each
+ * computed it again, up to three tri_uv and texel_of reads per hit). */
+typedef struct hit_texel {
+  float u, v;  /* lightmap UV of the hit (hit_pixel) */
+  uint32_t px; /* the atlas pixel under it */
+  int32_t a;   /* its atlas, -1: a miss or a triangle without lightmap */
+  int32_t t;   /* the texel at px, -1: none */
+} hit_texel;
+
+/* Fills out[q] for each ray q of a block, in the hits' order (hits[j] is ray order[j]'s):
+ * reading the hits in ray order was a cache miss per hit. */
+static void hit_texels(const pass_ctx *c, const ub_hit *hits, const uint32_t *order, size_t n,
+                       hit_texel *out)
 {
   const ub_lightmap *lm = c->lm;
-  int tl_any = 0;
-  for (int g = 0; tl && g < UB_TL_GROUPS; g++)
-    tl_any |= tl[g] != NULL;
   for (size_t j = 0; j < n; j++) {
-    const ub_hit *h = &hits[hit_of[j]];
+    const ub_hit *h = &hits[j];
+    hit_texel *o = &out[order[j]];
+    o->a = o->t = -1;
     if (h->tri == UB_RT_MISS)
       continue;
     int32_t a = lm->tri_atlas[h->tri];
@@ -1184,17 +1194,38 @@ static void prefetch_hits(const pass_ctx *c, const ub_hit *hits, const uint32_t 
     const ub_atlas *at = &lm->atlases[a];
     float uv[2];
     size_t px = hit_pixel(lm, at, h, uv);
-    __builtin_prefetch(c->img[a] + 4 * px);
-    if (!tl_any)
+    o->u = uv[0];
+    o->v = uv[1];
+    o->px = (uint32_t)px; /* atlases are at most UB_ATLAS_MAX_SIZE² pixels */
+    o->a = a;
+    o->t = at->texel_of[px];
+  }
+}
+
+/* What the shading of a block's gather hits will read at random in level-sized arrays
+ * (the lightmap image around the hit; with texel lights, the texel under it and its
+ * tables), asked of the memory system for all hits first: the loop below then finds them
+ * in cache instead of waiting out one dependent miss after another per hit (perf of the
+ * full ESTATE bake: a third of the pass kernels' time). Reads nothing the results depend
+ * on. */
+static void prefetch_hits(const pass_ctx *c, const hit_texel *hx, size_t n,
+                          const float *const *tl)
+{
+  int tl_any = 0;
+  for (int g = 0; tl && g < UB_TL_GROUPS; g++)
+    tl_any |= tl[g] != NULL;
+  for (size_t j = 0; j < n; j++) {
+    if (hx[j].a < 0)
       continue;
-    int32_t t = at->texel_of[px];
-    if (t < 0)
+    __builtin_prefetch(c->img[hx[j].a] + 4 * (size_t)hx[j].px);
+    if (!tl_any || hx[j].t < 0)
       continue;
+    size_t t = (size_t)hx[j].t;
     __builtin_prefetch(&c->tl_area[t]);
     __builtin_prefetch(&c->tl_of[t]);
     if (c->tl_pc)
       __builtin_prefetch(&c->tl_pc[t]);
-    __builtin_prefetch(&c->tl_rad[3 * (size_t)t]);
+    __builtin_prefetch(&c->tl_rad[3 * t]);
   }
 }
 
@@ -1216,9 +1247,8 @@ static inline int tl_readable(const pass_ctx *c, const ub_hit *h, const float di
  * no memory: every ray gets its NEE, as before). */
 static uint8_t *nee_skip_mask(const pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr,
                               const ub_ray *rays, const ub_hit *hits, const uint32_t *sorted_of,
-                              const float *const *tl)
+                              const hit_texel *hx, const float *const *tl)
 {
-  const ub_lightmap *lm = c->lm;
   uint32_t N = rs->rays;
   if (!c->tl_full || !tl)
     return NULL;
@@ -1238,54 +1268,86 @@ static uint8_t *nee_skip_mask(const pass_ctx *c, const recv_set *rs, uint32_t r0
         skip[q] = 1;
         continue;
       }
-      if (!tl_cdf || h->tri == UB_RT_MISS || dot3(h->ng, ray->dir) >= 0.0f)
+      if (!tl_cdf || h->tri == UB_RT_MISS || dot3(h->ng, ray->dir) >= 0.0f || hx[q].a < 0)
         continue;
-      int32_t a = lm->tri_atlas[h->tri];
-      if (a < 0)
-        continue;
-      const ub_atlas *at = &lm->atlases[a];
-      float uv[2];
       float ce;
-      skip[q] = (uint8_t)tl_readable(c, h, ray->dir, at->texel_of[hit_pixel(lm, at, h, uv)], &ce);
+      skip[q] = (uint8_t)tl_readable(c, h, ray->dir, hx[q].t, &ce);
     }
   }
   return skip;
 }
 
+/* A thread's gather arrays, kept from block to block of a run_blocks call. A block's are
+ * ~2 MB; allocated and freed per block, glibc gave the pages back and faulted them in
+ * again (estate_small draft: 1.3-1.5 s of system time per bake, 0.2 s with these). */
+typedef struct gather_scratch {
+  size_t cap; /* rays each array holds */
+  ub_ray *rays, *sorted;
+  ub_hit *hits;
+  uint32_t *order, *bucket;
+  hit_texel *hx;
+} gather_scratch;
+
+static void gather_scratch_free(gather_scratch *g)
+{
+  free(g->rays);
+  free(g->sorted);
+  free(g->hits);
+  free(g->order);
+  free(g->bucket);
+  free(g->hx);
+  memset(g, 0, sizeof *g);
+}
+
+/* Room for n rays; 0 when out of memory (then holds none). */
+static int gather_scratch_reserve(gather_scratch *g, size_t n)
+{
+  if (n <= g->cap)
+    return 1;
+  gather_scratch_free(g);
+  g->rays = malloc(n * sizeof *g->rays);
+  g->sorted = malloc(n * sizeof *g->sorted);
+  g->hits = malloc(n * sizeof *g->hits);
+  g->order = malloc(n * sizeof *g->order);
+  g->bucket = malloc(n * sizeof *g->bucket);
+  g->hx = malloc(n * sizeof *g->hx);
+  if (!g->rays || !g->sorted || !g->hits || !g->order || !g->bucket || !g->hx) {
+    gather_scratch_free(g);
+    return 0;
+  }
+  g->cap = n;
+  return 1;
+}
+
 /* Gather rays: bounce 0 sees the sky and emitters (MIS), bounce k reads bounce k-1. */
 static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr,
-                         const float *const *tl)
+                         const float *const *tl, gather_scratch *gs)
 {
   const ub_pass_desc *d = c->d;
   const ub_scene *s = c->s;
-  const ub_lightmap *lm = c->lm;
   uint32_t N = rs->rays;
   size_t n = (size_t)nr * N;
-  ub_ray *rays = malloc(n * sizeof *rays);
-  ub_ray *sorted = malloc(n * sizeof *sorted);
-  ub_hit *hits = malloc(n * sizeof *hits);
-  uint32_t *order = malloc(n * sizeof *order);
-  uint32_t *bucket = malloc(n * sizeof *bucket);
-  if (!rays || !sorted || !hits || !order || !bucket) {
-    free(rays);
-    free(sorted);
-    free(hits);
-    free(order);
-    free(bucket);
+  if (!gather_scratch_reserve(gs, n)) {
     atomic_store(&c->cancelled, 2);
     return;
   }
+  ub_ray *rays = gs->rays, *sorted = gs->sorted;
+  ub_hit *hits = gs->hits;
+  uint32_t *order = gs->order, *bucket = gs->bucket;
+  hit_texel *hx = c->bounce >= 1 ? gs->hx : NULL;
   /* Stratified directions: the first kx·ky rays on a jittered kx × ky grid (kx = ⌊√N⌋),
    * the few left over (N not a multiple of kx) uniformly random. */
   uint32_t kx = (uint32_t)sqrtf((float)N);
   if (kx < 1)
     kx = 1;
   uint32_t ky = N / kx;
+  uint32_t hk = ub_hash_mix(ub_hash_mix(UB_HASH_SEED, c->seed), d->pass_id * 0x10000u + c->bounce);
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
+    uint32_t hr = ub_hash_mix(hk, rs->id_base + r); /* ub_hash4(seed, key, id, j) below */
     for (uint32_t j = 0; j < N; j++) {
-      uint32_t h = ub_hash4(c->seed, d->pass_id * 0x10000u + c->bounce, rs->id_base + r, j);
+      uint32_t h = ub_hash_mix(hr, j);
       float u1 = ub_u01(h), u2 = ub_u01(ub_hash4(h, 7, 0, 0));
       if (j < kx * ky) {
         u1 = ((float)(j % kx) + u1) / (float)kx;
@@ -1326,14 +1388,16 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   /* Scatter hits back to ray order (bucket reused as the inverse permutation). */
   for (size_t j = 0; j < n; j++)
     bucket[order[j]] = (uint32_t)j;
+  if (hx)
+    hit_texels(c, hits, order, n, hx);
   float *nee = NULL;
   if (c->bounce == 1 && c->nee) {
-    uint8_t *skip = nee_skip_mask(c, rs, r0, nr, rays, hits, bucket, tl);
+    uint8_t *skip = nee_skip_mask(c, rs, r0, nr, rays, hits, bucket, hx, tl);
     nee = nee_block(c, d->rt, rays, hits, bucket, skip, n, rs->id_base + r0);
     free(skip);
   }
-  if (c->bounce >= 1)
-    prefetch_hits(c, hits, bucket, n, tl);
+  if (hx)
+    prefetch_hits(c, hx, n, tl);
 
   uint64_t backface = 0, unlit = 0, clamped = 0, misses = 0, sky_hits = 0, emitter_hits = 0;
   uint32_t ne = (d->emissive && d->emitters) ? d->emitters->count : 0;
@@ -1393,7 +1457,8 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
             backface++;
             continue;
           }
-          int32_t a = lm->tri_atlas[h->tri];
+          const hit_texel *hq = &hx[(size_t)i * N + j];
+          int32_t a = hq->a;
           float e[3] = {0.0f, 0.0f, 0.0f};
           int llg_lit = 0;
           if (a < 0 && c->llg_prev) {
@@ -1413,10 +1478,8 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
            * variance see */
           int32_t t_hit = -1;
           if (a >= 0) {
-            const ub_atlas *at = &lm->atlases[a];
-            float uv[2];
-            t_hit = at->texel_of[hit_pixel(lm, at, h, uv)];
-            float u = uv[0], v = uv[1];
+            t_hit = hq->t;
+            float u = hq->u, v = hq->v;
             const float *tl_cdf = tl ? tl[tl_group(nrm)] : NULL;
             if (tl_cdf) {
               int32_t t = t_hit;
@@ -1494,11 +1557,6 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   atomic_fetch_add(&c->sky_hits, sky_hits);
   atomic_fetch_add(&c->emitter_hits, emitter_hits);
   free(nee);
-  free(rays);
-  free(sorted);
-  free(hits);
-  free(order);
-  free(bucket);
 }
 
 /* Builds the per-atlas image of the irradiance a later bounce reads, dilated. */
@@ -1590,39 +1648,44 @@ static void run_blocks(pass_ctx *c, int direct, int gather, const char *stage, d
   }
   uint32_t nblocks = first[3];
   atomic_store(&c->blocks_done, 0);
-#pragma omp parallel for schedule(dynamic, 1)
-  for (uint32_t b = 0; b < nblocks; b++) {
-    if (atomic_load(&c->cancelled))
-      continue;
-    int s = b >= first[2] ? 2 : b >= first[1];
-    const recv_set *rs = &c->sets[s];
-    uint32_t r0 = (b - first[s]) * per_set[s];
-    uint32_t nr = rs->active - r0 < per_set[s] ? rs->active - r0 : per_set[s];
-    if (direct)
-      direct_block(c, rs, r0, nr);
-    /* this block's texel-light tables per receiver group, NULL where they are off */
-    const float *tl[UB_TL_GROUPS] = {NULL};
-    float *tl_buf = NULL;
-    int tl_any = 0;
-    if (gather && c->bounce >= 1 && c->tl_on && rs->samples) {
-      tl_buf = malloc((size_t)UB_TL_GROUPS * c->tl_K * sizeof *tl_buf);
-      for (int g = 0; tl_buf && g < UB_TL_GROUPS; g++)
-        if (tl_block_table(c, rs, r0, nr, g, tl_buf + (size_t)g * c->tl_K)) {
-          tl[g] = tl_buf + (size_t)g * c->tl_K;
-          tl_any = 1;
-        }
+#pragma omp parallel
+  {
+    gather_scratch gs = {0};
+#pragma omp for schedule(dynamic, 1)
+    for (uint32_t b = 0; b < nblocks; b++) {
+      if (atomic_load(&c->cancelled))
+        continue;
+      int s = b >= first[2] ? 2 : b >= first[1];
+      const recv_set *rs = &c->sets[s];
+      uint32_t r0 = (b - first[s]) * per_set[s];
+      uint32_t nr = rs->active - r0 < per_set[s] ? rs->active - r0 : per_set[s];
+      if (direct)
+        direct_block(c, rs, r0, nr);
+      /* this block's texel-light tables per receiver group, NULL where they are off */
+      const float *tl[UB_TL_GROUPS] = {NULL};
+      float *tl_buf = NULL;
+      int tl_any = 0;
+      if (gather && c->bounce >= 1 && c->tl_on && rs->samples) {
+        tl_buf = malloc((size_t)UB_TL_GROUPS * c->tl_K * sizeof *tl_buf);
+        for (int g = 0; tl_buf && g < UB_TL_GROUPS; g++)
+          if (tl_block_table(c, rs, r0, nr, g, tl_buf + (size_t)g * c->tl_K)) {
+            tl[g] = tl_buf + (size_t)g * c->tl_K;
+            tl_any = 1;
+          }
+      }
+      if (gather)
+        gather_block(c, rs, r0, nr, tl, &gs);
+      if (tl_any)
+        texel_light_block(c, rs, r0, nr, tl);
+      free(tl_buf);
+      uint32_t done = atomic_fetch_add(&c->blocks_done, 1) + 1;
+      if (omp_get_thread_num() == 0) {
+        double f = (double)done / nblocks;
+        if (report(c, stage, f, share0 + (share1 - share0) * f))
+          atomic_store(&c->cancelled, 1);
+      }
     }
-    if (gather)
-      gather_block(c, rs, r0, nr, tl);
-    if (tl_any)
-      texel_light_block(c, rs, r0, nr, tl);
-    free(tl_buf);
-    uint32_t done = atomic_fetch_add(&c->blocks_done, 1) + 1;
-    if (omp_get_thread_num() == 0) {
-      double f = (double)done / nblocks;
-      if (report(c, stage, f, share0 + (share1 - share0) * f))
-        atomic_store(&c->cancelled, 1);
-    }
+    gather_scratch_free(&gs);
   }
 }
 
@@ -2065,13 +2128,19 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
    * included at all: the fixed per-texel sample points of far punctual lights (a
    * quadrature, the same for every seed) and the bounces the auto-stop leaves out (a
    * bias, not noise). */
-  tx->acc_var = scr_take(scache, SCR_ACC_VAR, B_T);
-  pr->acc_var = scr_take(scache, SCR_PR_ACC_VAR, B_P);
-  tx->acc_pvar = scr_take(scache, SCR_ACC_PVAR, B_T);
-  pr->acc_pvar = scr_take(scache, SCR_PR_ACC_PVAR, B_P);
-  float *rel2 = scr_take(scache, SCR_REL2, ((size_t)T + 1) * sizeof(float));
-  double *var_tx = scr_take(scache, SCR_VAR_TX, B_T);
-  double *var_pr = scr_take(scache, SCR_VAR_PR, B_P);
+  /* Without them (no_error_estimate) these stay NULL and every use below is skipped. */
+  const int est = !d->no_error_estimate || d->target_error > 0.0;
+  float *rel2 = NULL;
+  double *var_tx = NULL, *var_pr = NULL;
+  if (est) {
+    tx->acc_var = scr_take(scache, SCR_ACC_VAR, B_T);
+    pr->acc_var = scr_take(scache, SCR_PR_ACC_VAR, B_P);
+    tx->acc_pvar = scr_take(scache, SCR_ACC_PVAR, B_T);
+    pr->acc_pvar = scr_take(scache, SCR_PR_ACC_PVAR, B_P);
+    rel2 = scr_take(scache, SCR_REL2, ((size_t)T + 1) * sizeof(float));
+    var_tx = scr_take(scache, SCR_VAR_TX, B_T);
+    var_pr = scr_take(scache, SCR_VAR_PR, B_P);
+  }
   if (LP)
     c.llg_prev = calloc((size_t)LP * 27, sizeof(float));
   pr->acc_sh = scr_take(scache, SCR_PR_ACC_SH, B_PSH);
@@ -2085,8 +2154,9 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
             (d->outside_bounce_iz && d->outside_bounces && d->texel_subset && !outside) ||
             !out->probe_direct || !out->probe_indirect || !lg->acc_sh ||
             !lg->acc_sh_np || !llg_total || (LP && !c.llg_prev) || !out->llg_direct ||
-            !out->llg_indirect || !tx->acc_var || !pr->acc_var || !var_tx || !var_pr ||
-            !tx->acc_pvar || !pr->acc_pvar || !rel2;
+            !out->llg_indirect ||
+            (est && (!tx->acc_var || !pr->acc_var || !var_tx || !var_pr || !tx->acc_pvar ||
+                     !pr->acc_pvar || !rel2));
   int shared = 0;
   if (!oom && act && lm->atlas_count)
     shared = d->cache && d->cache->ok && d->cache->lm == lm && sparse_base_ready(d->cache, lm);
@@ -2142,16 +2212,18 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     res = atomic_load(&c.cancelled) == 2 ? UB_ERR_OUT_OF_MEMORY : UB_ERR_CANCELLED;
     goto done;
   }
-  for (uint32_t i = 0; i < nact; i++) {
-    uint32_t t = ACT(i);
-    var_tx[t] += tx->acc_var[t] + tx->acc_pvar[t];
+  if (est) {
+    for (uint32_t i = 0; i < nact; i++) {
+      uint32_t t = ACT(i);
+      var_tx[t] += tx->acc_var[t] + tx->acc_pvar[t];
+    }
+    for (uint32_t i = 0; i < npact; i++) {
+      uint32_t q = PACT(i);
+      var_pr[q] += pr->acc_var[q] + pr->acc_pvar[q];
+    }
+    /* What bounce 1 reads (src or its non-punctual part), and its relative variance. */
+    relative_variance(&c, c.nee ? tx->acc_src_np : tx->acc_src, rel2, act, nact);
   }
-  for (uint32_t i = 0; i < npact; i++) {
-    uint32_t q = PACT(i);
-    var_pr[q] += pr->acc_var[q] + pr->acc_pvar[q];
-  }
-  /* What bounce 1 reads (src or its non-punctual part), and its relative variance. */
-  relative_variance(&c, c.nee ? tx->acc_src_np : tx->acc_src, rel2, act, nact);
   c.prev_rel2 = rel2;
   double total_energy = energy_of(tx->acc_iz, act, nact);
   double src_energy = outgoing_energy(&c, tx->acc_src, act, nact);
@@ -2217,12 +2289,14 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       size_t t = ACT(i);
       memset(tx->acc_sh + 12 * t, 0, 12 * sizeof(double));
       memset(tx->acc_iz + 3 * t, 0, 3 * sizeof(double));
-      tx->acc_var[t] = tx->acc_pvar[t] = 0.0;
+      if (est)
+        tx->acc_var[t] = tx->acc_pvar[t] = 0.0;
     }
     for (uint32_t i = 0; i < npact; i++) {
       size_t q = PACT(i);
       memset(pr->acc_sh + 27 * q, 0, 27 * sizeof(double));
-      pr->acc_var[q] = pr->acc_pvar[q] = 0.0;
+      if (est)
+        pr->acc_var[q] = pr->acc_pvar[q] = 0.0;
     }
     for (uint32_t i = 0; i < nlact; i++)
       memset(lg->acc_sh + 27 * (size_t)LACT(i), 0, 27 * sizeof(double));
@@ -2246,8 +2320,10 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
           continue;
         memcpy(tx->acc_iz + 3 * (size_t)t, tx->acc_iz + 3 * (size_t)g, 3 * sizeof(double));
         memcpy(tx->acc_sh + 12 * (size_t)t, tx->acc_sh + 12 * (size_t)g, 12 * sizeof(double));
-        tx->acc_var[t] = tx->acc_var[g];
-        tx->acc_pvar[t] = tx->acc_pvar[g];
+        if (est) {
+          tx->acc_var[t] = tx->acc_var[g];
+          tx->acc_pvar[t] = tx->acc_pvar[g];
+        }
       }
     }
     if (d->llg_gather_donor && d->llg_gather_subset) {
@@ -2266,7 +2342,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
         sh_total[j] += tx->acc_sh[j];
       for (size_t j = 3 * t; j < 3 * t + 3; j++)
         iz_total[j] += tx->acc_iz[j];
-      var_tx[t] += tx->acc_var[t] + tx->acc_pvar[t];
+      if (est)
+        var_tx[t] += tx->acc_var[t] + tx->acc_pvar[t];
       out->texel_indirect[t] += (float)lum3d(tx->acc_iz + 3 * t);
       if (b <= d->keep_bounce_iz)
         for (int j = 0; j < 3; j++)
@@ -2276,7 +2353,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       size_t q = PACT(i);
       for (size_t j = 27 * q; j < 27 * q + 27; j++)
         probe_total[j] += pr->acc_sh[j];
-      var_pr[q] += pr->acc_var[q] + pr->acc_pvar[q];
+      if (est)
+        var_pr[q] += pr->acc_var[q] + pr->acc_pvar[q];
       out->probe_indirect[q] += (float)(M_PI * UB_Y0 * lum3d(pr->acc_sh + 27 * q));
     }
     for (uint32_t i = 0; i < nlact; i++) {
@@ -2330,7 +2408,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     build_images(&c, tx->acc_iz);
     texel_lights_build(&c, tx->acc_iz);
     c.tl_full = 0;
-    relative_variance(&c, tx->acc_iz, rel2, act, nact);
+    if (est)
+      relative_variance(&c, tx->acc_iz, rel2, act, nact);
     for (uint32_t i = 0; i < nlact; i++)
       for (size_t j = 27 * (size_t)LACT(i); j < 27 * (size_t)LACT(i) + 27; j++)
         c.llg_prev[j] = (float)lg->acc_sh[j];
@@ -2405,12 +2484,12 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     res = UB_ERR_OUT_OF_MEMORY;
     goto done;
   }
-  for (uint32_t i = 0; i < nact; i++) {
+  for (uint32_t i = 0; est && i < nact; i++) {
     uint32_t t = ACT(i);
     float v = (float)sqrt(var_tx[t]);
     out->texel_se[t] = isfinite(v) ? v : 0.0f;
   }
-  for (uint32_t i = 0; i < npact; i++) {
+  for (uint32_t i = 0; est && i < npact; i++) {
     uint32_t q = PACT(i);
     float v = (float)sqrt(var_pr[q]);
     out->probe_se[q] = isfinite(v) ? v : 0.0f;

@@ -99,6 +99,11 @@ typedef struct ub_pass_desc {
    * they meet it or have had max_rounds rounds (0 = UB_ADAPT_MAX_ROUNDS). */
   double target_error;
   uint32_t max_rounds;
+  /* 1: no standard error estimates (texel_se and probe_se stay 0): their per-sample work
+   * (each receiver's sample variance, the variance inherited from the lightmap read) is
+   * skipped, for a caller that reads neither (the DLS passes). Ignored with target_error,
+   * whose rounds need them. The other outputs are the same bits either way. */
+  int no_error_estimate;
   ub_progress_fn progress;
   void *progress_user;
   double progress_base, progress_span; /* this pass's share of the whole bake */
@@ -143,7 +148,8 @@ typedef struct ub_pass_result {
   double gather_seconds;
   /* Standard error estimates (luminance, W/m²) from each receiver's own samples, bounces
    * taken as independent: texels along the normal (of iz), probes of the DC irradiance
-   * (probe_direct + probe_indirect). Zero for receivers outside the influence subset. */
+   * (probe_direct + probe_indirect). Zero for receivers outside the influence subset,
+   * and for all of them with desc.no_error_estimate. */
   float *texel_se;               /* texel_count */
   float *probe_se;               /* probe_count */
   uint64_t rays_adaptive;        /* gather + shadow rays of the adaptive rounds */
