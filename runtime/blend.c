@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "runtime/cpu.h"
+#include "runtime/fpmode.h"
 #include "runtime/half.h"
 
 #if defined(__SSE2__)
@@ -311,7 +312,7 @@ BLEND_INLINE const float *group_base(const ub_blend *b, const blend_group *g)
 
 /* Walks a group's units over its receivers at positions [lo, hi) (a part of an update
  * may hold a stretch of a group): per unit its first receiver r, its first position i0,
- * its base rows bs and the stretch [s0, s1) of it inside the range. A list group (one
+ * the stretch [s0, s1) of it inside the range and bs, the base row of receiver r + s0. A list group (one
  * receiver per unit) starts at lo directly. */
 typedef struct unit_iter {
   const uint32_t *u;
@@ -355,9 +356,9 @@ BLEND_INLINE int unit_next(unit_iter *it, const ub_blend *b, uint32_t *r, size_t
       continue;
     *r = rr;
     *i0 = at;
-    *bs = base;
     *s0 = it->lo > at ? (uint32_t)(it->lo - at) : 0;
     *s1 = it->hi - at < len ? (uint32_t)(it->hi - at) : len;
+    *bs = base + (size_t)*s0 * b->stride;
     return 1;
   }
   return 0;
@@ -480,7 +481,7 @@ BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const
     for (uint32_t i = s0; i < s1;) {
       const uint32_t n = s1 - i < chunk ? s1 - i : chunk;
       float *o = out ? out + (size_t)(r + i) * S : c->s->rows;
-      avx_flat(o, bs + (size_t)i * S, src, wp, k, (size_t)n * S, half);
+      avx_flat(o, bs + (size_t)(i - s0) * S, src, wp, k, (size_t)n * S, half);
       if (c->fn) {
         _mm256_zeroupper();
         c->fn(c->user, r + i, n, o);
@@ -557,7 +558,6 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
   while (unit_next(&it, b, &r, &i0, &bs, &s0, &s1)) {
     for (uint32_t m = 0; m < k; m++)
       src[m] = vb + member_row_off(list, gk, act[m], i0 + s0, rowb, block);
-    bs += (size_t)s0 * S;
     for (uint32_t i = s0; i < s1;) {
       uint32_t n = s1 - i < chunk ? s1 - i : chunk;
       for (uint32_t m = 0; m < k; m++) {
@@ -627,7 +627,6 @@ static void group_copy_base(const blend_call *c, const blend_group *g)
   const float *bs;
   while (unit_next(&it, b, &r, &i0, &bs, &s0, &s1)) {
     const uint32_t f = r + s0, n = s1 - s0;
-    bs += (size_t)s0 * S;
     if (c->out)
       memcpy(c->out + (size_t)f * S, bs, (size_t)n * S * sizeof(float));
     if (c->fn) /* streaming: the base rows are the result, no copy */
@@ -668,30 +667,6 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
   st->bytes_written += c->out ? n * row : 0;
   st->bytes_read += n * row + (uint64_t)k * n * b->stride * b->value_size +
                     (first ? words * sizeof(uint32_t) + sizeof *g : 0);
-}
-
-/* Updates run with FTZ and DAZ off (restored after): the half decode is exact and the
- * results do not depend on the caller's floating-point mode. */
-static unsigned fp_mode_enter(void)
-{
-#if BLEND_SSE2
-  unsigned csr = _mm_getcsr();
-  if (csr & 0x8040u)
-    _mm_setcsr(csr & ~0x8040u);
-  return csr;
-#else
-  return 0;
-#endif
-}
-
-static void fp_mode_leave(unsigned csr)
-{
-#if BLEND_SSE2
-  if (csr & 0x8040u)
-    _mm_setcsr(csr);
-#else
-  (void)csr;
-#endif
 }
 
 static int cmp_u32(const void *a, const void *b)
@@ -801,7 +776,7 @@ void ub_blend_update_part(const ub_blend *b, uint32_t part, uint32_t parts,
   uint32_t i0, q0, i1, q1;
   part_bound(b, part, parts, &i0, &q0);
   part_bound(b, part + 1, parts, &i1, &q1);
-  unsigned csr = fp_mode_enter();
+  unsigned csr = ub_fp_mode_enter();
   for (uint32_t i = i0; i < i1 + (q1 > 0) && i < b->work_count; i++) {
     const blend_group *g = &b->groups[b->work[i]];
     c.qlo = i == i0 ? q0 : 0;
@@ -809,7 +784,7 @@ void ub_blend_update_part(const ub_blend *b, uint32_t part, uint32_t parts,
     if (c.qlo < c.qhi)
       process_group(&c, b->work[i], &st);
   }
-  fp_mode_leave(csr);
+  ub_fp_mode_leave(csr);
   if (out_stats)
     *out_stats = st;
 }
@@ -895,6 +870,18 @@ size_t ub_blend_memory_bytes(const ub_blend *b)
   return b ? b->engine_bytes : 0;
 }
 
+/* malloc(n * size) with overflow check; counts what the engine keeps in *acc. */
+static void *alloc_n(size_t n, size_t size, size_t *acc)
+{
+  if (size && n > SIZE_MAX / size)
+    return NULL;
+  size_t bytes = n * size;
+  void *p = malloc(bytes ? bytes : 1);
+  if (p && acc)
+    *acc += bytes;
+  return p;
+}
+
 static void scratch_free(blend_scratch *s)
 {
   free(s->rows);
@@ -914,23 +901,20 @@ static int scratch_alloc(const ub_blend *b, blend_scratch *s, size_t *acc)
   memset(s, 0, sizeof *s);
   const size_t sk = b->max_overlap > BLEND_SPECIALISED ? b->max_overlap : 1;
   const size_t na = b->max_overlap ? b->max_overlap : 1;
-  size_t bytes = (size_t)BLEND_CHUNK * b->stride * sizeof(float) +
-                 sk * (sizeof(uint32_t) + sizeof(char *) + 2 * sizeof(float *));
-  s->rows = malloc((size_t)BLEND_CHUNK * b->stride * sizeof(float));
-  s->act = malloc(sk * sizeof(uint32_t));
-  s->src = malloc(sk * sizeof(char *));
-  s->rowp = malloc(sk * sizeof(float *));
-  s->w = malloc(sk * sizeof(float *));
+  size_t bytes = 0;
+  s->rows = alloc_n((size_t)BLEND_CHUNK * b->stride, sizeof(float), &bytes);
+  s->act = alloc_n(sk, sizeof(uint32_t), &bytes);
+  s->src = alloc_n(sk, sizeof(char *), &bytes);
+  s->rowp = alloc_n(sk, sizeof(float *), &bytes);
+  s->w = alloc_n(sk, sizeof(float *), &bytes);
   int ok = s->rows && s->act && s->src && s->rowp && s->w;
   if (b->value_size == 2) {
-    s->dec = malloc(b->dec_floats * sizeof(float));
-    bytes += b->dec_floats * sizeof(float);
+    s->dec = alloc_n(b->dec_floats, sizeof(float), &bytes);
     ok = ok && s->dec;
   }
   if (b->avx) {
-    s->avx_w = malloc(na * sizeof(float *));
-    s->avx_src = malloc(na * sizeof(char *));
-    bytes += na * (sizeof(float *) + sizeof(char *));
+    s->avx_w = alloc_n(na, sizeof(float *), &bytes);
+    s->avx_src = alloc_n(na, sizeof(char *), &bytes);
     ok = ok && s->avx_w && s->avx_src;
   }
   if (!ok) {
@@ -992,17 +976,6 @@ void ub_blend_free(ub_blend *b)
 
 /* ---- create ------------------------------------------------------------------------ */
 
-/* malloc(n * size) with overflow check; counts what the engine keeps in *acc. */
-static void *alloc_n(size_t n, size_t size, size_t *acc)
-{
-  if (size && n > SIZE_MAX / size)
-    return NULL;
-  size_t bytes = n * size;
-  void *p = malloc(bytes ? bytes : 1);
-  if (p && acc)
-    *acc += bytes;
-  return p;
-}
 
 static void *calloc_n(size_t n, size_t size, size_t *acc)
 {
@@ -1445,7 +1418,7 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
    * term ω[j mod 3]·v rounded to float, then added (C11 evaluates float in float here:
    * FLT_EVAL_METHOD 0 on x86-64, and the build does not contract to FMA), with FTZ/DAZ
    * off as during an update (the caller's mode is restored). */
-  unsigned csr = fp_mode_enter();
+  unsigned csr = ub_fp_mode_enter();
   for (uint32_t m = 0; m < gk; m++) {
     const float *w = b->wlast + (size_t)mem[m] * 3;
     if (w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f)
@@ -1458,7 +1431,7 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
       out_row[j] = out_row[j] + t;
     }
   }
-  fp_mode_leave(csr);
+  ub_fp_mode_leave(csr);
   return 1;
 }
 

@@ -179,12 +179,13 @@ void ub_blend_update_all(ub_blend *b, ub_blend_touched_fn touched, void *user,
  *   ub_blend_update_begin(b, all) collects the groups to recompute (those of dirty
  *   elements, or with all != 0 every group), clears the dirty marks and takes the weights;
  *   ub_blend_update_part(b, p, parts, …) for every p < parts recomputes part p of them:
- *   consecutive groups (ascending, as a plain update) of about a parts-th of the rows
- *   each; the parts may run on different threads at once (they write disjoint receivers
- *   and use their own scratch; touched is called from the part's thread);
- *   parts ≤ the parts reserved with ub_blend_reserve_parts (1 after create).
- * Every receiver gets the same bits whatever the split: a group is never divided and
- * each group's operations do not depend on the others. No weight may change and no other
+ *   about a parts-th of their rows, in the plain update's order (ascending groups; a
+ *   group may be cut at a receiver between two parts); the parts may run on different
+ *   threads at once (they write disjoint receivers and use their own scratch; touched is
+ *   called from the part's thread); parts ≤ the parts reserved with
+ *   ub_blend_reserve_parts (1 after create).
+ * Every receiver gets the same bits whatever the split: a receiver's operations depend
+ * only on its group's members and weights, never on where a part starts. No weight may change and no other
  * update may start until every part has returned. ub_blend_update() is begin + the one
  * part of 1; the stats of the parts add up to a plain update's. */
 #define UB_BLEND_MAX_PARTS 256

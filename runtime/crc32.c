@@ -2,8 +2,8 @@
 
 #include <threads.h>
 
-/* Byte-at-a-time table for the reflected polynomial 0xEDB88320 (const: no lazy init,
- * no mutable global). */
+/* Byte-at-a-time table for the reflected polynomial 0xEDB88320 (const; the slices
+ * below are derived from it once). */
 static const uint32_t ub_crc32_table[256] = {
   0x00000000u, 0x77073096u, 0xee0e612cu, 0x990951bau, 0x076dc419u, 0x706af48fu,
   0xe963a535u, 0x9e6495a3u, 0x0edb8832u, 0x79dcb8a4u, 0xe0d5e91eu, 0x97d2d988u,

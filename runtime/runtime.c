@@ -9,6 +9,7 @@
 #include <time.h>
 
 #include "runtime/blend.h"
+#include "runtime/fpmode.h"
 #include "runtime/half.h"
 #include "runtime/texel_links.h"
 #include "runtime/texel_sh.h"
@@ -100,6 +101,13 @@ struct ub_runtime {
   uint32_t lit_count;    /* triangles with tri_atlas >= 0 */
   uint32_t *lit_tris;
 };
+
+/* One job's results (ub_runtime_update_job), added up by ub_runtime_update_end. */
+typedef struct rt_job {
+  ub_blend_stats lm, glg, llg;
+  uint64_t texels;    /* re-encoded */
+  double seconds[3];  /* lightmap, GLG, LLG */
+} rt_job;
 
 static const float ub_rt_luma[3] = {0.2126f, 0.7152f, 0.0722f};
 
@@ -878,8 +886,10 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
   }
   rt->bf = bf;
   rt->pixel_first = calloc((size_t)bf->atlas_count + 1, sizeof *rt->pixel_first);
-  if (!rt->pixel_first)
+  rt->jobs = calloc(1, sizeof *rt->jobs); /* a plain update's: it cannot run out of memory */
+  if (!rt->pixel_first || !rt->jobs)
     goto oom;
+  rt->job_cap = 1;
   for (uint32_t a = 0; a < bf->atlas_count; a++)
     rt->pixel_first[a + 1] =
         rt->pixel_first[a] + (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
@@ -1083,13 +1093,6 @@ float ub_runtime_dls_weight_from_lights(const float *strengths, uint32_t count)
   return (float)(s / count);
 }
 
-/* One job's results (ub_runtime_update_job), added up by ub_runtime_update_end. */
-typedef struct rt_job {
-  ub_blend_stats lm, glg, llg;
-  uint64_t texels;    /* re-encoded */
-  double seconds[3];  /* lightmap, GLG, LLG */
-} rt_job;
-
 typedef struct touched_ctx {
   ub_runtime *rt;
   uint64_t texels;
@@ -1207,6 +1210,9 @@ void ub_runtime_update_job(ub_runtime *rt, uint32_t job)
   assert(rt && job < rt->job_count);
   rt_job *jb = &rt->jobs[job];
   const uint32_t parts = rt->job_count;
+  /* the whole job, the last texels' encode (touched_flush) included, in the blend's mode:
+   * which texels end a job depends on the split, their bits must not */
+  const unsigned csr = ub_fp_mode_enter();
   double t0 = rt_now(), t1 = t0, t2 = t0;
   if (rt->lm_blend) {
     touched_ctx tc;
@@ -1227,6 +1233,7 @@ void ub_runtime_update_job(ub_runtime *rt, uint32_t job)
   jb->seconds[0] = t1 - t0;
   jb->seconds[1] = t2 - t1;
   jb->seconds[2] = rt_now() - t2;
+  ub_fp_mode_leave(csr);
 }
 
 void ub_runtime_update_end(ub_runtime *rt, ub_runtime_update_stats *out_stats)

@@ -877,7 +877,7 @@ static void test_parts(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
   }
   ASSERT_TRUE(ub_blend_reserve_parts(b[0], 0) == UB_ERR_INVALID_ARGUMENT);
   ASSERT_TRUE(ub_blend_reserve_parts(b[0], UB_BLEND_MAX_PARTS + 1) == UB_ERR_INVALID_ARGUMENT);
-  uint8_t *count = calloc(R, 1);
+  uint8_t *count = calloc(R, 1), *ref_count = calloc(R, 1);
   int bad_bits = 0, bad_reports = 0, bad_stats = 0, nonempty_parts = 0;
   for (int round = 0; round < 60; round++) {
     int all = round % 10 == 9;
@@ -891,10 +891,12 @@ static void test_parts(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
         ASSERT_OK(ub_blend_set_weight(b[i], e, w));
     }
     ub_blend_stats ref;
+    memset(ref_count, 0, R);
+    touch_log rl = {ref_count, 0, S, out[NE], NULL, 0};
     if (all)
-      ub_blend_update_all(b[NE], NULL, NULL, out[NE], &ref);
+      ub_blend_update_all(b[NE], on_touched, &rl, out[NE], &ref);
     else
-      ub_blend_update(b[NE], NULL, NULL, out[NE], &ref);
+      ub_blend_update(b[NE], on_touched, &rl, out[NE], &ref);
     for (int i = 0; i < NE; i++) {
       const uint32_t P = parts_of[i];
       part_job jobs[7];
@@ -907,19 +909,23 @@ static void test_parts(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
                               stream_of[i] ? out[i] : NULL, 0}, {0}};
         ASSERT_TRUE(pthread_create(&th[q], NULL, part_main, &jobs[q]) == 0);
       }
-      uint64_t recv = 0, groups = 0, bytes = 0;
+      uint64_t recv = 0, groups = 0, bytes = 0, written = 0, gbase = 0;
       for (uint32_t q = 0; q < P; q++) {
         pthread_join(th[q], NULL);
         recv += jobs[q].st.receivers;
         groups += jobs[q].st.groups;
         bytes += jobs[q].st.bytes_read;
+        written += jobs[q].st.bytes_written;
+        gbase += jobs[q].st.groups_base;
         bad_reports += jobs[q].log.rows_bad;
         nonempty_parts += jobs[q].st.groups > 0 && P > 1;
       }
-      bad_stats += recv != ref.receivers || groups != ref.groups || bytes != ref.bytes_read;
+      bad_stats += recv != ref.receivers || groups != ref.groups || bytes != ref.bytes_read ||
+                   (!stream_of[i] && written != ref.bytes_written) || gbase != ref.groups_base;
+      /* the receivers the plain update reported, each once (all: every touched one) */
       for (uint32_t r = 0; r < R; r++) {
         uint32_t touched = p.off[r + 1] > p.off[r];
-        bad_reports += count[r] > 1 || (all && count[r] != touched);
+        bad_reports += count[r] != ref_count[r] || (all && count[r] != touched);
       }
       bad_bits += memcmp(out[i], out[NE], sizeof(float) * nf) != 0;
     }
@@ -930,10 +936,49 @@ static void test_parts(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
   ASSERT_TRUE(bad_bits == 0 && bad_reports == 0 && bad_stats == 0);
   ASSERT_TRUE(nonempty_parts > 60); /* the splits did split */
   free(count);
+  free(ref_count);
   for (int i = 0; i <= NE; i++) {
     ub_blend_free(b[i]);
     free(out[i]);
   }
+  rep_free(&p);
+}
+
+/* One element over every receiver: one group of one run. Seven parts must each hold a
+ * stretch of it (the split cuts the group) and give the plain update's bits. */
+static void test_parts_one_group(void)
+{
+  const uint32_t R = 5000, S = 12;
+  uint8_t *cover[1] = {malloc(R)};
+  memset(cover[0], 1, R);
+  rep p;
+  rep_init(&p, R, S, 1, UB_BLEND_FLOAT16, cover);
+  free(cover[0]);
+  ub_blend_desc d = rep_desc(&p, "one group");
+  float *oa = malloc(sizeof(float) * R * S), *ob = malloc(sizeof(float) * R * S);
+  ub_blend *a = NULL, *b = NULL;
+  ASSERT_OK(ub_blend_create(&d, NULL, oa, &a));
+  ASSERT_OK(ub_blend_create(&d, NULL, ob, &b));
+  if (!a || !b)
+    return;
+  ASSERT_OK(ub_blend_reserve_parts(b, 7));
+  const float w[3] = {0.7f, 1.3f, 0.2f};
+  ASSERT_OK(ub_blend_set_weight(a, 0, w));
+  ASSERT_OK(ub_blend_set_weight(b, 0, w));
+  ub_blend_update(a, NULL, NULL, oa, NULL);
+  ub_blend_update_begin(b, 0);
+  int filled = 0;
+  for (uint32_t q = 0; q < 7; q++) { /* in reverse order: parts are independent */
+    ub_blend_stats st;
+    ub_blend_update_part(b, 6 - q, 7, NULL, NULL, ob, &st);
+    filled += st.receivers > 0 && st.receivers < R;
+  }
+  ASSERT_TRUE(filled == 7);
+  ASSERT_TRUE(memcmp(oa, ob, sizeof(float) * R * S) == 0);
+  ub_blend_free(a);
+  ub_blend_free(b);
+  free(oa);
+  free(ob);
   rep_free(&p);
 }
 
@@ -954,5 +999,6 @@ int main(void)
   scenario(30000, 27, 120, UB_BLEND_FLOAT32, 400);
   test_parts(20000, 12, 40, UB_BLEND_FLOAT16);
   test_parts(6000, 27, 30, UB_BLEND_FLOAT32);
+  test_parts_one_group();
   TEST_MAIN_END();
 }

@@ -11,6 +11,9 @@
 #include <stdlib.h>
 #include <string.h>
 #include <pthread.h>
+#if defined(__SSE2__)
+#include <xmmintrin.h>
+#endif
 
 #include "test_util.h"
 #include "ubake/bake.h"
@@ -249,15 +252,41 @@ static void take_decoded(const ub_runtime *rt, float *out, int n)
   }
 }
 
+/* Every covered texel's decoded AHD irradiance for a tilted normal (all of its AHD). */
+static void take_ahd(const ub_runtime *rt, float *out, size_t *n)
+{
+  const ub_bakefile *f = ub_runtime_bakefile(rt);
+  const float nrm[3] = {-0.5f, 0.6f, 0.62f};
+  size_t k = 0;
+  for (uint32_t a = 0; a < f->atlas_count; a++)
+    for (uint32_t y = 0; y < f->atlases[a].height; y++)
+      for (uint32_t x = 0; x < f->atlases[a].width; x++)
+        if (f->atlases[a].coverage[(size_t)y * f->atlases[a].width + x]) {
+          if (out)
+            ub_runtime_texel_irradiance(rt, a, x, y, nrm, out + 3 * k);
+          k++;
+        }
+  *n = k;
+}
+
 typedef struct job_arg {
   ub_runtime *rt;
   uint32_t job;
+  int ftz; /* run the job with FTZ and DAZ set, as a game thread may */
 } job_arg;
 
 static void *job_main(void *arg)
 {
   job_arg *a = arg;
+#if defined(__SSE2__)
+  unsigned csr = _mm_getcsr();
+  if (a->ftz)
+    _mm_setcsr(csr | 0x8040u);
+#endif
   ub_runtime_update_job(a->rt, a->job);
+#if defined(__SSE2__)
+  _mm_setcsr(csr);
+#endif
   return NULL;
 }
 
@@ -277,6 +306,9 @@ static void check_jobs(const char *ubk)
               UB_ERR_INVALID_ARGUMENT);
   enum { NQ = 3000 };
   float *qa = malloc(6 * NQ * sizeof(float)), *qb = malloc(6 * NQ * sizeof(float));
+  size_t nt = 0;
+  take_ahd(ra, NULL, &nt);
+  float *ta = malloc((3 * nt + 1) * sizeof(float)), *tb = malloc((3 * nt + 1) * sizeof(float));
   uint32_t h = 4242u;
   size_t bad = 0, bad_q = 0, bad_stats = 0;
   for (int round = 0; round < 9; round++) {
@@ -298,7 +330,7 @@ static void check_jobs(const char *ubk)
     pthread_t th[5];
     job_arg args[5];
     for (uint32_t j = 0; j < jobs && j < 5; j++) {
-      args[j] = (job_arg){rb, j};
+      args[j] = (job_arg){rb, j, round % 2};
       ASSERT_TRUE(pthread_create(&th[j], NULL, job_main, &args[j]) == 0);
     }
     for (uint32_t j = 0; j < jobs && j < 5; j++)
@@ -321,12 +353,18 @@ static void check_jobs(const char *ubk)
     take_decoded(ra, qa, NQ);
     take_decoded(rb, qb, NQ);
     bad_q += memcmp(qa, qb, 6 * NQ * sizeof(float)) != 0;
+    take_ahd(ra, ta, &nt);
+    take_ahd(rb, tb, &nt);
+    bad_q += memcmp(ta, tb, 3 * nt * sizeof(float)) != 0;
   }
-  printf("jobs (2, 3, 5 on threads) vs plain updates, 9 states: %zu SH values, %zu decoded "
-         "query sets, %zu stats differ (want 0)\n", bad, bad_q, bad_stats);
+  printf("jobs (2, 3, 5 on threads, every other state with FTZ/DAZ set on them) vs plain "
+         "updates, 9 states: %zu SH values, %zu decoded query sets (AHD at 3000 points, every "
+         "texel's AHD), %zu stats differ (want 0)\n", bad, bad_q, bad_stats);
   ASSERT_TRUE(bad == 0 && bad_q == 0 && bad_stats == 0);
   free(qa);
   free(qb);
+  free(ta);
+  free(tb);
   ub_runtime_free(ra);
   ub_runtime_free(rb);
 }

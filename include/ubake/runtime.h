@@ -191,15 +191,19 @@ typedef struct ub_runtime_update_stats {
    * that reads them, see ubake/glg.h "Lazy windowing"), LLG blend. */
   double seconds_lightmap, seconds_glg, seconds_llg;
 } ub_runtime_update_stats;
+/* UB_OK, or UB_ERR_INVALID_ARGUMENT while a job-split update (below) is begun and not
+ * ended (nothing changes). */
 ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats);
 
 /* The same update split into jobs for the game's job system (the library starts no
  * thread): ub_runtime_update_begin() takes the changed weights and splits the work into
- * *out_jobs ≤ max_jobs jobs of about equal size (whole overlap groups, never divided);
- * call ub_runtime_update_job(rt, j) once for every j < *out_jobs, on any threads, at
- * the same time or not; then ub_runtime_update_end(). Every texel and probe gets the
- * same bits as with ub_runtime_update() (which is begin(1) + job 0 + end), whatever the
- * job count. Between begin and end nothing else may use rt (no set, query or update).
+ * *out_jobs = max_jobs jobs of about equal size (runs of overlap groups, a large group
+ * cut at a receiver; with little work some jobs are empty); call
+ * ub_runtime_update_job(rt, j) once for every j < *out_jobs, on any threads, at the same
+ * time or not (each job sets the floating-point mode it needs on its thread and restores
+ * it); then ub_runtime_update_end(). A receiver's operations do not depend on where the
+ * cuts fall: every texel and probe gets the same bits as with ub_runtime_update()
+ * (which is begin(1) + job 0 + end), whatever the job count. Between begin and end nothing else may use rt (no set, query or update).
  * Stats: the jobs' counts added; seconds_* the longest job's time in that part.
  * Errors (nothing started, the changes stay pending): UB_ERR_INVALID_ARGUMENT (max_jobs
  * 0 or above UB_RUNTIME_MAX_JOBS, or an update begun and not ended), UB_ERR_OUT_OF_MEMORY (the jobs' scratch, made once
