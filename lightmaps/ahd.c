@@ -22,7 +22,6 @@
 #include "ubake/ahd.h"
 
 #include <math.h>
-#include <stdatomic.h>
 #include <stddef.h>
 
 #include "runtime/cpu.h"
@@ -342,15 +341,7 @@ void ub_ahd_encode_iz8_rows(const float *const rows[8], const float *unit_normal
                             ub_ahd *const out[8])
 {
 #if defined(AHD_HAVE_AVX)
-  /* every thread computes the same value; atomic, since the run-time's update jobs run
-   * this on several threads at once */
-  static _Atomic int avx = -1;
-  int use = atomic_load_explicit(&avx, memory_order_relaxed);
-  if (use < 0) {
-    use = (ub_cpu_features() & UB_CPU_AVX) ? 1 : 0;
-    atomic_store_explicit(&avx, use, memory_order_relaxed);
-  }
-  if (use) {
+  if (ub_cpu_features_cached() & UB_CPU_AVX) {
     encode_iz8_avx(rows, unit_normals, out);
     return;
   }

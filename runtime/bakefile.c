@@ -18,7 +18,6 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
-#include <threads.h>
 #if defined(__x86_64__) && defined(__GNUC__)
 #include <immintrin.h>
 #endif
@@ -1156,14 +1155,6 @@ __attribute__((target("avx,f16c"))) static size_t halves_f16c(const uint8_t *p, 
   return i;
 }
 
-static int g_halves_f16c;
-static once_flag g_halves_once = ONCE_FLAG_INIT;
-
-static void halves_probe(void)
-{
-  const unsigned need = UB_CPU_AVX | UB_CPU_F16C;
-  g_halves_f16c = (ub_cpu_features() & need) == need;
-}
 #endif
 
 static int cur_halves(ubk_cursor *c, float *out, size_t n)
@@ -1173,8 +1164,8 @@ static int cur_halves(ubk_cursor *c, float *out, size_t n)
     return 0;
   size_t i = 0;
 #if defined(__x86_64__) && defined(__GNUC__)
-  call_once(&g_halves_once, halves_probe);
-  if (g_halves_f16c)
+  const unsigned need = UB_CPU_AVX | UB_CPU_F16C;
+  if ((ub_cpu_features_cached() & need) == need)
     i = halves_f16c(p, out, n);
 #endif
   for (; i < n; i++) {

@@ -7,6 +7,8 @@
 #ifndef UBAKE_RUNTIME_CPU_H
 #define UBAKE_RUNTIME_CPU_H
 
+#include <stdatomic.h>
+
 #define UB_CPU_AVX 1u
 #define UB_CPU_F16C 2u /* only with UB_CPU_AVX (the conversions use ymm registers) */
 
@@ -34,5 +36,19 @@ static inline unsigned ub_cpu_features(void)
   return 0;
 }
 #endif
+
+/* ub_cpu_features(), asked once per translation unit and kept (atomic: any thread may be
+ * first; they all find the same answer). For hot paths that cannot cache it in an object
+ * made beforehand (the AHD encoder, the bake file reader). */
+static inline unsigned ub_cpu_features_cached(void)
+{
+  static _Atomic unsigned cached = ~0u;
+  unsigned f = atomic_load_explicit(&cached, memory_order_relaxed);
+  if (f == ~0u) {
+    f = ub_cpu_features();
+    atomic_store_explicit(&cached, f, memory_order_relaxed);
+  }
+  return f;
+}
 
 #endif
