@@ -93,9 +93,14 @@ static double record_bytes(const ub_bakefile_record *r)
   return 28.0 * r->texel_count + 58.0 * r->probe_count;
 }
 
-/* One update split into `jobs` jobs on as many OpenMP threads. */
-static void update_jobs(ub_runtime *rt, int jobs, ub_runtime_update_stats *us)
+/* One update: plain with one job (ub_runtime_update, as a game without a job system calls
+ * it), else split into `jobs` jobs on as many OpenMP threads. */
+static void update_n(ub_runtime *rt, int jobs, ub_runtime_update_stats *us)
 {
+  if (jobs <= 1) {
+    ub_runtime_update(rt, us);
+    return;
+  }
   uint32_t n = 0;
   if (ub_runtime_update_begin(rt, (uint32_t)jobs, &n) != UB_OK) {
     fprintf(stderr, "bench_estate: ub_runtime_update_begin(%d) failed\n", jobs);
@@ -107,58 +112,119 @@ static void update_jobs(ub_runtime *rt, int jobs, ub_runtime_update_stats *us)
   ub_runtime_update_end(rt, us);
 }
 
-/* Toggles (best of 3 per set and state) and the all-sets update with `jobs` jobs, the
- * latter alternating with a memcpy of the same bytes by `jobs` threads (ca, cb: cn bytes
- * each, as for the one-thread figure). */
-static void bench_jobs(ub_runtime *rt, int jobs, char *ca, char *cb, size_t cn)
+/* What the toggles cost besides their time: every toggle's part seconds (lightmap, GLG,
+ * LLG), the first pass's bytes and receivers. */
+typedef struct toggle_sums {
+  double seconds[3], bytes, texels, probes, llg;
+} toggle_sums;
+
+/* Each set off, then on again (the others as they are: on), `passes` times; tog[2d + 0/1]
+ * the best milliseconds of set d's off/on update. sums may be NULL. */
+static void toggle_times(ub_runtime *rt, int jobs, int passes, double *tog, toggle_sums *sums)
 {
   const uint32_t nd = ub_runtime_dls_count(rt);
   const float one[3] = {1, 1, 1}, zero[3] = {0, 0, 0};
   ub_runtime_update_stats us;
-  for (uint32_t d = 0; d < nd; d++)
-    ub_runtime_set_dls(rt, d, one);
-  update_jobs(rt, jobs, &us);
-  double *tog = malloc(sizeof(double) * (2 * nd + 1)), *cls[2];
-  cls[0] = malloc(sizeof(double) * (2 * nd + 1));
-  cls[1] = malloc(sizeof(double) * (2 * nd + 1));
-  uint32_t ncls[2] = {0, 0};
   for (uint32_t i = 0; i < 2 * nd; i++)
     tog[i] = 1e30;
-  for (int pass = 0; pass < 3; pass++)
+  for (int pass = 0; pass < passes; pass++)
     for (uint32_t d = 0; d < nd; d++)
       for (int ph = 0; ph < 2; ph++) {
         ub_runtime_set_dls(rt, d, ph ? one : zero);
         double t = ub_bench_now();
-        update_jobs(rt, jobs, &us);
+        update_n(rt, jobs, &us);
         t = (ub_bench_now() - t) * 1e3;
-        tog[2 * d + ph] = t < tog[2 * d + ph] ? t : tog[2 * d + ph];
+        if (t < tog[2 * d + ph])
+          tog[2 * d + ph] = t;
+        if (!sums)
+          continue;
+        sums->seconds[0] += us.seconds_lightmap;
+        sums->seconds[1] += us.seconds_glg;
+        sums->seconds[2] += us.seconds_llg;
+        if (pass == 0) {
+          sums->bytes += (double)(us.bytes_read + us.bytes_written);
+          sums->texels += (double)us.texels_written;
+          sums->probes += (double)us.probes_written;
+          sums->llg += (double)us.llg_probes_written;
+        }
       }
-  for (uint32_t i = 0; i < 2 * nd; i++) {
+}
+
+/* By class: the hall's sets reach the big shared space (and each other: up to 16
+ * overlaps), a room's set its room; at full scale rooms are most of the sets. cls[1]
+ * gets the hall sets' toggles of tog, cls[0] the rooms' (each 2 × sets entries). */
+static void toggle_classes(const ub_runtime *rt, const double *tog, double *cls[2],
+                           uint32_t ncls[2])
+{
+  ncls[0] = ncls[1] = 0;
+  for (uint32_t i = 0; i < 2 * ub_runtime_dls_count(rt); i++) {
     int hall = !strncmp(ub_runtime_dls_name(rt, i / 2), "hall_", 5);
     cls[hall][ncls[hall]++] = tog[i];
   }
-  double tall = 1e30, tcpy = 1e30, bytes = 0.0;
-  for (int run = 0; run < 7 && ca; run++) {
+}
+
+/* Every set changed at once, 7 times, alternating with a memcpy of the same bytes by
+ * `jobs` threads (each its share; *ca, *cb: *cn bytes each, made at the first run when
+ * NULL): the best seconds of each and the bytes an update moves. */
+static void all_sets_times(ub_runtime *rt, int jobs, char **ca, char **cb, size_t *cn,
+                           double *tall, double *tcpy, double *bytes)
+{
+  const uint32_t nd = ub_runtime_dls_count(rt);
+  ub_runtime_update_stats us;
+  *tall = *tcpy = 1e30;
+  for (int run = 0; run < 7; run++) {
     float w = run & 1 ? 1.0f : 0.5f;
     const float rgb[3] = {w, w, w};
     for (uint32_t d = 0; d < nd; d++)
       ub_runtime_set_dls(rt, d, rgb);
     double t = ub_bench_now();
-    update_jobs(rt, jobs, &us);
+    update_n(rt, jobs, &us);
     t = ub_bench_now() - t;
-    tall = t < tall ? t : tall;
-    bytes = (double)(us.bytes_read + us.bytes_written);
-    char *dst = run & 1 ? ca : cb;
-    const char *src = run & 1 ? cb : ca;
+    *tall = t < *tall ? t : *tall;
+    *bytes = (double)(us.bytes_read + us.bytes_written);
+    if (!*ca) {
+      *cn = (size_t)(*bytes / 2.0) + 1;
+      *ca = malloc(*cn);
+      *cb = malloc(*cn);
+      memset(*ca, 1, *cn);
+      memset(*cb, 2, *cn);
+    }
+    char *dst = run & 1 ? *ca : *cb;
+    const char *src = run & 1 ? *cb : *ca;
     t = ub_bench_now();
+    if (jobs <= 1) {
+      memcpy(dst, src, *cn);
+    } else {
 #pragma omp parallel for num_threads(jobs) schedule(static, 1)
-    for (int j = 0; j < jobs; j++) {
-      size_t a = cn * (size_t)j / (size_t)jobs, b = cn * (size_t)(j + 1) / (size_t)jobs;
-      memcpy(dst + a, src + a, b - a);
+      for (int j = 0; j < jobs; j++) {
+        size_t a = *cn * (size_t)j / (size_t)jobs, b = *cn * (size_t)(j + 1) / (size_t)jobs;
+        memcpy(dst + a, src + a, b - a);
+      }
     }
     t = ub_bench_now() - t;
-    tcpy = t < tcpy ? t : tcpy;
+    *tcpy = t < *tcpy ? t : *tcpy;
   }
+}
+
+/* Toggles (best of 3 per set and state) and the all-sets update with `jobs` jobs, the
+ * latter against a memcpy by `jobs` threads (ca, cb: cn bytes each, from the one-thread
+ * figure). */
+static void bench_jobs(ub_runtime *rt, int jobs, char *ca, char *cb, size_t cn)
+{
+  const uint32_t nd = ub_runtime_dls_count(rt);
+  const float one[3] = {1, 1, 1};
+  ub_runtime_update_stats us;
+  for (uint32_t d = 0; d < nd; d++)
+    ub_runtime_set_dls(rt, d, one);
+  update_n(rt, jobs, &us);
+  double *tog = malloc(sizeof(double) * (2 * nd + 1)), *cls[2];
+  cls[0] = malloc(sizeof(double) * (2 * nd + 1));
+  cls[1] = malloc(sizeof(double) * (2 * nd + 1));
+  uint32_t ncls[2];
+  toggle_times(rt, jobs, 3, tog, NULL);
+  toggle_classes(rt, tog, cls, ncls);
+  double tall, tcpy, bytes = 0.0;
+  all_sets_times(rt, jobs, &ca, &cb, &cn, &tall, &tcpy, &bytes);
   printf("  with %d jobs on %d threads (ub_runtime_update_begin/job/end): one set toggled median "
          "%.3f ms (room sets %.3f, hall sets %.3f) [0.1 ms]; all %u sets changed: %.2f ms, "
          "%.2f GB/s; memcpy by %d threads %.2f GB/s; ratio %.0f%%\n", jobs, jobs,
@@ -385,72 +451,23 @@ int main(int argc, char **argv)
   tl = ub_bench_now() - tl;
   long rss1 = ub_bench_rss_kb();
   uint32_t nd = ub_runtime_dls_count(rt);
-  const float one[3] = {1, 1, 1}, zero[3] = {0, 0, 0};
   ub_runtime_update(rt, NULL);
   enum { PASSES = 3 };
   double *tog = malloc(sizeof(double) * (2 * nd + 1));
-  for (uint32_t i = 0; i < 2 * nd; i++)
-    tog[i] = 1e30;
-  ub_runtime_update_stats us;
-  double tog_bytes = 0.0, tog_texels = 0.0, tog_probes = 0.0, tog_llg = 0.0;
-  double tog_s[3] = {0, 0, 0}; /* lightmap, GLG, LLG seconds, summed over every toggle */
-  for (int pass = 0; pass < PASSES * repeat; pass++)
-    for (uint32_t d = 0; d < nd; d++)
-      for (int ph = 0; ph < 2; ph++) {
-        ub_runtime_set_dls(rt, d, ph ? one : zero);
-        double t = ub_bench_now();
-        ub_runtime_update(rt, &us);
-        t = (ub_bench_now() - t) * 1e3;
-        if (t < tog[2 * d + ph])
-          tog[2 * d + ph] = t;
-        tog_s[0] += us.seconds_lightmap;
-        tog_s[1] += us.seconds_glg;
-        tog_s[2] += us.seconds_llg;
-        if (pass == 0) {
-          tog_bytes += (double)(us.bytes_read + us.bytes_written);
-          tog_texels += (double)us.texels_written;
-          tog_probes += (double)us.probes_written;
-          tog_llg += (double)us.llg_probes_written;
-        }
-      }
-  /* By class: the hall's sets reach the big shared space (and each other: up to 16
-   * overlaps), a room's set its room; at full scale rooms are most of the sets. */
+  toggle_sums ts = {{0, 0, 0}, 0, 0, 0, 0};
+  toggle_times(rt, 1, PASSES * repeat, tog, &ts);
   double *tog_c[2];
-  uint32_t ntog_c[2] = {0, 0};
+  uint32_t ntog_c[2];
   tog_c[0] = malloc(sizeof(double) * (2 * nd + 1));
   tog_c[1] = malloc(sizeof(double) * (2 * nd + 1));
-  for (uint32_t i = 0; i < 2 * nd; i++) {
-    int hall = !strncmp(ub_runtime_dls_name(rt, i / 2), "hall_", 5);
-    tog_c[hall][ntog_c[hall]++] = tog[i];
-  }
+  toggle_classes(rt, tog, tog_c, ntog_c);
   double tmed = ub_bench_percentile(tog, 2 * nd, 0.5), tp90 = ub_bench_percentile(tog, 2 * nd, 0.9),
          tmax = ub_bench_percentile(tog, 2 * nd, 1.0);
   /* Every set changed at once, alternating with memcpy of the same bytes. */
-  double tall = 1e30, tcpy = 1e30, all_bytes = 0.0;
+  double tall, tcpy, all_bytes = 0.0;
   char *ca = NULL, *cb = NULL;
   size_t cn = 0;
-  for (int run = 0; run < 7; run++) {
-    float w = run & 1 ? 1.0f : 0.5f;
-    const float rgb[3] = {w, w, w};
-    for (uint32_t d = 0; d < nd; d++)
-      ub_runtime_set_dls(rt, d, rgb);
-    double t = ub_bench_now();
-    ub_runtime_update(rt, &us);
-    t = ub_bench_now() - t;
-    tall = t < tall ? t : tall;
-    all_bytes = (double)(us.bytes_read + us.bytes_written);
-    if (!ca) {
-      cn = (size_t)(all_bytes / 2.0) + 1;
-      ca = malloc(cn);
-      cb = malloc(cn);
-      memset(ca, 1, cn);
-      memset(cb, 2, cn);
-    }
-    t = ub_bench_now();
-    memcpy(run & 1 ? ca : cb, run & 1 ? cb : ca, cn);
-    t = ub_bench_now() - t;
-    tcpy = t < tcpy ? t : tcpy;
-  }
+  all_sets_times(rt, 1, &ca, &cb, &cn, &tall, &tcpy, &all_bytes);
   double gbs = all_bytes / tall / 1e9, cgbs = 2.0 * (double)cn / tcpy / 1e9;
   printf("run-time: load %.2f s, resident +%.1f MB (base + %u sets' records %.1f MB on disk)\n", tl,
          (rss1 - rss0) / 1024.0, nd, rec_sum / 1048576.0);
@@ -465,7 +482,7 @@ int main(int argc, char **argv)
   }
   printf("  one set toggled (others on), best of %d: median %.3f ms, p90 %.3f ms, max %.3f ms; "
          "mean %.2f MB moved (target <= 0.1 ms)\n",
-         PASSES, tmed, tp90, tmax, tog_bytes / (2.0 * nd) / 1e6);
+         PASSES, tmed, tp90, tmax, ts.bytes / (2.0 * nd) / 1e6);
   if (ntog_c[0] && ntog_c[1])
     printf("  by class: room sets (%u toggles) median %.3f ms, p90 %.3f; hall sets (%u) median "
            "%.3f ms, p90 %.3f\n", ntog_c[0], ub_bench_percentile(tog_c[0], ntog_c[0], 0.5),
@@ -473,15 +490,15 @@ int main(int argc, char **argv)
            ub_bench_percentile(tog_c[1], ntog_c[1], 0.5),
            ub_bench_percentile(tog_c[1], ntog_c[1], 0.9));
   printf("  per toggle (mean): %.0f texels re-blended and re-encoded, %.0f GLG probes re-blended "
-         "(windowed when a query reads them), %.0f LLG probes\n", tog_texels / (2.0 * nd), tog_probes / (2.0 * nd),
-         tog_llg / (2.0 * nd));
+         "(windowed when a query reads them), %.0f LLG probes\n", ts.texels / (2.0 * nd), ts.probes / (2.0 * nd),
+         ts.llg / (2.0 * nd));
   {
-    double sum = tog_s[0] + tog_s[1] + tog_s[2] + 1e-30;
+    double sum = ts.seconds[0] + ts.seconds[1] + ts.seconds[2] + 1e-30;
     printf("  toggle time by part (all toggles): lightmap blend + AHD %.0f%%, GLG blend + "
-           "marking %.0f%%, LLG %.0f%%; mean %.3f / %.3f / %.3f ms\n", 100.0 * tog_s[0] / sum,
-           100.0 * tog_s[1] / sum, 100.0 * tog_s[2] / sum,
-           tog_s[0] * 1e3 / (2.0 * nd * PASSES * repeat), tog_s[1] * 1e3 / (2.0 * nd * PASSES * repeat),
-           tog_s[2] * 1e3 / (2.0 * nd * PASSES * repeat));
+           "marking %.0f%%, LLG %.0f%%; mean %.3f / %.3f / %.3f ms\n", 100.0 * ts.seconds[0] / sum,
+           100.0 * ts.seconds[1] / sum, 100.0 * ts.seconds[2] / sum,
+           ts.seconds[0] * 1e3 / (2.0 * nd * PASSES * repeat), ts.seconds[1] * 1e3 / (2.0 * nd * PASSES * repeat),
+           ts.seconds[2] * 1e3 / (2.0 * nd * PASSES * repeat));
   }
   printf("  all %u sets changed: %.2f ms, %.1f MB moved, %.2f GB/s; memcpy %.2f GB/s; ratio %.0f%% "
          "(target >= 50%%; paper 1.47 ms on a PS4 GPU)\n",
