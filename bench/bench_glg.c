@@ -4,8 +4,10 @@
  * walk (a moving object: consecutive points 1 cm apart, one tet cache) and for random
  * points in the level's bounds, single thread; prints tets, probes, bytes per probe, the
  * run-time GLG memory and the bake seconds spent on probes vs lightmaps. Asserts nothing.
- * Also: random points through ub_glg_query_batch, the GLG reading half SH (speed and the
- * irradiance difference it makes), a byte breakdown per probe, and the per-update
+ * The run-time's GLG is the compact store (half SH, per-probe exponent and window, 58 B
+ * per probe). Also: random points through ub_glg_query_batch, the same GLG over float SH
+ * windowed per probe (the 108 B/probe store before it: speed and the irradiance
+ * difference), a byte breakdown per probe, and the per-update
  * windowing cost (ub_sh2_window vs the reference search on every probe's raw SH).
  * Baselines in the same run: a plain 27-float SH evaluation loop (the cost floor of the
  * irradiance step alone), a dependent random read over an array the size of the GLG's
@@ -68,11 +70,17 @@ int main(int argc, char **argv)
   }
   const ub_glg *g = ub_runtime_glg(rt);
   const ub_bakefile *bf = ub_runtime_bakefile(rt);
+  /* The file as written (the run-time's copy has no positions, neighbours or float SH). */
+  ub_bakefile *nbf = NULL;
+  if (ub_bakefile_read(ubk, NULL, &nbf) != UB_OK) {
+    fprintf(stderr, "bench_glg: cannot read %s\n", ubk);
+    return 1;
+  }
   float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-  for (uint32_t i = 0; i < bf->glg_probe_count; i++)
+  for (uint32_t i = 0; i < nbf->glg_probe_count; i++)
     for (int a = 0; a < 3; a++) {
-      lo[a] = fminf(lo[a], bf->glg_positions[3 * i + a]);
-      hi[a] = fmaxf(hi[a], bf->glg_positions[3 * i + a]);
+      lo[a] = fminf(lo[a], nbf->glg_positions[3 * i + a]);
+      hi[a] = fmaxf(hi[a], nbf->glg_positions[3 * i + a]);
     }
   /* Rounds of (coherent, random, baseline), each figure the median over the rounds: the
    * machine is shared, so one round can be disturbed. */
@@ -85,41 +93,28 @@ int main(int argc, char **argv)
     for (int a = 0; a < 3; a++)
       pts[3 * i + a] = lo[a] + (hi[a] - lo[a]) * ub_u01(ub_hash4(5, i, a, 0));
   uint32_t cache;
-  /* The same GLG reading windowed SH in half (what a 54 B/probe run-time store would be). */
-  uint16_t *sh_half = malloc((size_t)bf->glg_probe_count * 27 * sizeof *sh_half);
-  int8_t *sh_exp = malloc(bf->glg_probe_count);
-  const float *win = ub_runtime_glg_probe_sh(rt, 1);
-  for (uint32_t q = 0; q < bf->glg_probe_count; q++) {
-    /* per-probe power of two: the largest coefficient near 2^14 in half */
-    float mx = 0.0f;
-    for (int k = 0; k < 27; k++)
-      mx = fmaxf(mx, fabsf(win[27 * (size_t)q + k]));
-    int e = mx > 0.0f ? (int)ceilf(log2f(mx)) - 14 : 0;
-    e = e < -100 ? -100 : e > 100 ? 100 : e;
-    sh_exp[q] = (int8_t)e;
-    for (int k = 0; k < 27; k++)
-      sh_half[27 * (size_t)q + k] = ub_half_from_float(ldexpf(win[27 * (size_t)q + k], -e));
-  }
+  /* The same GLG over float SH, every probe windowed by ub_sh2_window (the store before
+   * the compact one: 108 B of SH per probe). */
+  float *sh_win = malloc((size_t)nbf->glg_probe_count * 27 * sizeof *sh_win);
+  memcpy(sh_win, nbf->glg_sh, (size_t)nbf->glg_probe_count * 27 * sizeof *sh_win);
+  for (uint32_t q = 0; q < nbf->glg_probe_count; q++)
+    ub_sh2_window(sh_win + 27 * (size_t)q);
   ub_glg gh;
-  ub_bakefile *nbf = NULL;
-  if (ub_bakefile_read(ubk, NULL, &nbf) != UB_OK)
-    nbf = NULL;
   {
     ub_glg_desc d;
     memset(&d, 0, sizeof d);
-    d.probe_count = bf->glg_probe_count;
-    d.positions = bf->glg_positions;
-    d.sh_half = sh_half;
-    d.sh_half_exp = sh_exp;
-    d.tet_count = bf->glg_tet_count;
-    d.tets = bf->glg_tets;
-    d.neigh = nbf ? nbf->glg_neigh : NULL; /* the run-time's bake file has none */
-    d.leak_plane_count = bf->glg_plane_count;
-    d.leak_planes = bf->glg_planes;
-    d.leak_plane_of = bf->glg_plane_of;
+    d.probe_count = nbf->glg_probe_count;
+    d.positions = nbf->glg_positions;
+    d.sh = sh_win;
+    d.tet_count = nbf->glg_tet_count;
+    d.tets = nbf->glg_tets;
+    d.neigh = nbf->glg_neigh;
+    d.leak_plane_count = nbf->glg_plane_count;
+    d.leak_planes = nbf->glg_planes;
+    d.leak_plane_of = nbf->glg_plane_of;
     d.sh_windowed = 1;
-    if (!d.neigh || ub_glg_init(&gh, &d, NULL) != UB_OK) {
-      fprintf(stderr, "bench_glg: half-SH GLG init failed\n");
+    if (ub_glg_init(&gh, &d, NULL) != UB_OK) {
+      fprintf(stderr, "bench_glg: float-SH GLG init failed\n");
       return 1;
     }
   }
@@ -186,7 +181,7 @@ int main(int argc, char **argv)
     ub_glg_query_batch(g, M, pts, nrm, NULL, rgb);
     bat_r[round] = M / (ub_bench_now() - t0);
     sink += rgb[1];
-    /* Half SH: one by one (one cache) and batched. */
+    /* Float SH: one by one (one cache) and batched. */
     cache = UB_GLG_NO_CACHE;
     t0 = ub_bench_now();
     for (uint32_t i = 0; i < M; i++) {
@@ -217,7 +212,7 @@ int main(int argc, char **argv)
     t0 = ub_bench_now();
     for (uint32_t i = 0, q = 0; i < N; i++) {
       float e[3], n[3] = {0, 1, 0};
-      ub_sh2_irradiance(bf->glg_sh + 27 * (size_t)q, n, e);
+      ub_sh2_irradiance(sh_win + 27 * (size_t)q, n, e);
       q = q + 1 == bf->glg_probe_count ? 0 : q + 1;
       sink += e[1];
     }
@@ -227,7 +222,7 @@ int main(int argc, char **argv)
          baseline = median(base_r, ROUNDS), batch = median(bat_r, ROUNDS),
          half1 = median(half_r, ROUNDS), halfb = median(halfb_r, ROUNDS),
          lat = median(lat_r, ROUNDS), mcbw = median(mc_r, ROUNDS);
-  /* Half SH vs float: irradiance difference at the random points, relative to the
+  /* Compact vs float SH: irradiance difference at the random points, relative to the
    * point's mean irradiance (E for the normal and its opposite, summed). */
   double half_err = 0.0;
   for (uint32_t i = 0; i < M; i++) {
@@ -247,7 +242,7 @@ int main(int argc, char **argv)
   double win_fast = 0.0, win_ref = 0.0;
   unsigned win_count = 0;
   {
-    const float *raw = ub_runtime_glg_probe_sh(rt, 0);
+    const float *raw = nbf->glg_sh;
     float sh[27];
     uint32_t np = bf->glg_probe_count;
     double t0 = ub_bench_now();
@@ -299,9 +294,6 @@ int main(int argc, char **argv)
     outside += li.outside;
     fallback += li.fallback;
   }
-  size_t owned = ub_glg_owned_bytes(g);
-  double file_bytes = (double)bf->glg_probe_count * (12 + 54) + (double)bf->glg_tet_count * 36 +
-                      (double)bf->glg_plane_count * 16;
   printf("bench_glg %s: %u probes, %u tets (%.2f per probe), %u leak planes\n", ubk,
          bf->glg_probe_count, bf->glg_tet_count, (double)bf->glg_tet_count / bf->glg_probe_count,
          bf->glg_plane_count);
@@ -318,9 +310,9 @@ int main(int argc, char **argv)
          100.0 * fallback / M);
   printf("  random points, batched (ub_glg_query_batch, no caches): %.2f M queries/s (x%.2f "
          "the one-by-one rate)\n", batch * 1e-6, batch / random);
-  printf("  half SH + per-probe exponent (55 B/probe): coherent n/a, random %.2f M/s one by one, %.2f M/s batched; "
-         "max |E_half - E_float| = %.1e x (E(n) + E(-n))\n", half1 * 1e-6, halfb * 1e-6,
-         half_err);
+  printf("  the same GLG over float SH windowed per probe (108 B/probe): random %.2f M/s one by "
+         "one, %.2f M/s batched; compact vs float: max |E_compact - E_float| = %.1e x (E(n) + "
+         "E(-n))\n", half1 * 1e-6, halfb * 1e-6, half_err);
   printf("  baseline SH irradiance only: %.2f M/s; coherent/baseline = %.2f\n", baseline * 1e-6,
          coherent / baseline);
   printf("  baseline dependent miss over %.1f MB: %.0f ns; random query = %.1f misses' time "
@@ -333,33 +325,25 @@ int main(int argc, char **argv)
     ub_glg_memory gm, hm;
     ub_glg_memory_usage(g, &gm);
     ub_glg_memory_usage(&gh, &hm);
-    double np = bf->glg_probe_count;
-    printf("  query-time bytes per probe (float SH / half SH): SH %.1f / %.1f, positions %.1f, "
-           "tet walk records %.1f (64 B x %.2f tets), tet corners %.1f, flags %.1f, leak planes "
-           "%.1f, hull %.1f, start grid %.1f; total %.1f / %.1f (target <= 64)\n",
-           gm.sh / np, hm.sh / np, gm.positions / np, gm.walk_records / np,
-           bf->glg_tet_count / np, gm.tet_corners / np, gm.tet_flags / np, gm.leak / np,
-           gm.hull / np, gm.start_grid / np, gm.total / np, hm.total / np);
+    double np = bf->glg_probe_count, nt = bf->glg_tet_count;
+    double tets = gm.walk_records + gm.tet_corners + gm.tet_flags + gm.leak + gm.hull +
+                  gm.start_grid;
+    printf("  bytes per GLG probe at query time, compact store: probe %.1f (SH half 54 + a "
+           "32-bit word: exponent, window, stale) + kept positions %.1f (hull faces' and %u "
+           "badly shaped tets' corners) = %.1f (target <= 64); float store %.1f + %.1f\n",
+           gm.sh / np, gm.positions / np, g->ill_tet_count, (gm.sh + gm.positions) / np,
+           hm.sh / np, hm.positions / np);
+    printf("  tet structure per probe: walk records %.1f (64 B x %.2f tets), tet corners "
+           "%.1f, flags %.1f, leak planes %.1f, hull %.1f, start grid %.1f = %.1f; all "
+           "together %.1f B/probe (float store %.1f)\n",
+           gm.walk_records / np, nt / np, gm.tet_corners / np, gm.tet_flags / np,
+           gm.leak / np, gm.hull / np, gm.start_grid / np, tets / np, gm.total / np,
+           hm.total / np);
     ub_runtime_memory rm;
     ub_runtime_memory_usage(rt, &rm);
-    printf("  run-time GLG total (ub_runtime_memory_usage .glg, float SH raw + windowed + "
-           "owned): %.1f B/probe\n", rm.glg / np);
+    printf("  run-time GLG total (ub_runtime_memory_usage .glg, compact store + walk data; "
+           "tets and leak planes are in .geometry): %.1f B/probe\n", rm.glg / np);
   }
-  printf("  bytes per probe: %.1f in the file (positions f32, SH L2 half, tets, neighbours, "
-         "planes), %.1f in the run-time (+ walk tables %.1f; SH as float %d)\n",
-         file_bytes / bf->glg_probe_count,
-         (owned + (double)bf->glg_probe_count * (12 + 108) + (double)bf->glg_tet_count * 36) /
-             bf->glg_probe_count,
-         (double)owned / bf->glg_probe_count, 108);
-  /* A compact layout, computed from the counts (a proposal, not what the run-time does). */
-  double compact = (double)bf->glg_tet_count * (32 + 4 + 1) +
-                   (double)bf->glg_probe_count * (12 + 54 + 2) + (double)bf->glg_plane_count * 16;
-  printf("  compact layout (proposal): 32 B/tet (corners + neighbours, barycentrics from "
-         "positions) + 4 B/tet plane index + 1 B/tet plane sides + planes + positions f32 + "
-         "windowed SH once in half = %.1f B/probe (%.2f tets per probe are %.1f B of it); "
-         "probe payload alone (position + SH half) 66 B (target <= 64)\n",
-         compact / bf->glg_probe_count, (double)bf->glg_tet_count / bf->glg_probe_count,
-         (double)bf->glg_tet_count * 37 / bf->glg_probe_count);
   if (st.stage_count) {
     double probes = 0, lm = 0;
     for (uint32_t s = 0; s < st.stage_count; s++) {
@@ -383,20 +367,21 @@ int main(int argc, char **argv)
       const ub_bakefile *bs = ub_runtime_bakefile(rs);
       uint32_t np = bs->glg_probe_count, sets = ub_runtime_dls_count(rs);
       float *before = malloc((size_t)np * 27 * sizeof *before), sh[27];
+      float *cur = malloc((size_t)np * 27 * sizeof *cur);
       double t_upd = 0.0, t_fast = 0.0, t_ref = 0.0;
       uint64_t probes = 0;
       for (int rep = 0; rep < 3; rep++)
         for (uint32_t e = 0; e < sets; e++)
           for (int on = 0; on < 2; on++) {
             const float w[3] = {(float)on, (float)on, (float)on};
-            memcpy(before, ub_runtime_glg_probe_sh(rs, 0), (size_t)np * 27 * sizeof *before);
+            ub_runtime_glg_probe_sh(rs, 0, before);
             ub_runtime_set_dls(rs, e, w);
             ub_runtime_update_stats us;
             double t0 = ub_bench_now();
             ub_runtime_update(rs, &us);
             t_upd += ub_bench_now() - t0;
             /* the touched probes are those whose raw SH changed */
-            const float *cur = ub_runtime_glg_probe_sh(rs, 0);
+            ub_runtime_glg_probe_sh(rs, 0, cur);
             for (uint32_t q = 0; q < np; q++) {
               if (!memcmp(before + 27 * (size_t)q, cur + 27 * (size_t)q, sizeof sh))
                 continue;
@@ -419,6 +404,7 @@ int main(int argc, char **argv)
              100.0 * t_fast / t_upd, probes / (6.0 * sets), 1e3 * t_ref / (6.0 * sets),
              100.0 * t_ref / (t_upd - t_fast + t_ref));
       free(before);
+      free(cur);
     } else {
       printf("  %s: no GLG with dynamic light sets, toggle figures skipped\n", argv[2]);
     }
@@ -427,8 +413,7 @@ int main(int argc, char **argv)
   printf("  (checksum %.3g)\n", sink);
   ub_glg_release(&gh);
   ub_bakefile_free(nbf);
-  free(sh_half);
-  free(sh_exp);
+  free(sh_win);
   free(nrm);
   free(rgb);
   free(chase);

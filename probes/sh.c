@@ -551,10 +551,12 @@ phase2:;
   *w2 = 0.0;
 }
 
-static unsigned window_impl(float sh[27], int fast)
+/* The window of every channel: w1, w2 per channel (1, 1 unchanged; 0, 0 zeroed). */
+static unsigned window_weights(const float sh[27], int fast, double w1o[3], double w2o[3])
 {
   unsigned flags = 0;
   for (int c = 0; c < 3; c++) {
+    w1o[c] = w2o[c] = 1.0;
     int finite = 1, nonzero = 0;
     for (int k = 0; k < 9; k++) {
       if (!isfinite(sh[k * 3 + c]))
@@ -565,8 +567,7 @@ static unsigned window_impl(float sh[27], int fast)
     if (finite && !nonzero && sh[c] >= 0.0f)
       continue; /* constant, non-negative */
     if (!finite || !(sh[c] > 0.0f)) {
-      for (int k = 0; k < 9; k++)
-        sh[k * 3 + c] = 0.0f;
+      w1o[c] = w2o[c] = 0.0;
       flags |= UB_SH2_ZEROED(c);
       continue;
     }
@@ -582,16 +583,29 @@ static unsigned window_impl(float sh[27], int fast)
     double f0 = sh_quad_min_n(&q, 1.0, 1.0, n0, &delta0);
     if (f0 >= target)
       continue;
-    double w1, w2;
     if (fast)
-      window_search_fast(&q, target, f0, n0, delta0, &w1, &w2);
+      window_search_fast(&q, target, f0, n0, delta0, &w1o[c], &w2o[c]);
     else
-      window_search_reference(&q, target, &w1, &w2);
-    for (int k = 1; k < 4; k++)
-      sh[k * 3 + c] = (float)(sh[k * 3 + c] * w1);
-    for (int k = 4; k < 9; k++)
-      sh[k * 3 + c] = (float)(sh[k * 3 + c] * w2);
+      window_search_reference(&q, target, &w1o[c], &w2o[c]);
     flags |= UB_SH2_WINDOWED(c);
+  }
+  return flags;
+}
+
+static unsigned window_impl(float sh[27], int fast)
+{
+  double w1[3], w2[3];
+  unsigned flags = window_weights(sh, fast, w1, w2);
+  for (int c = 0; c < 3; c++) {
+    if (flags & UB_SH2_ZEROED(c)) {
+      for (int k = 0; k < 9; k++)
+        sh[k * 3 + c] = 0.0f;
+    } else if (flags & UB_SH2_WINDOWED(c)) {
+      for (int k = 1; k < 4; k++)
+        sh[k * 3 + c] = (float)(sh[k * 3 + c] * w1[c]);
+      for (int k = 4; k < 9; k++)
+        sh[k * 3 + c] = (float)(sh[k * 3 + c] * w2[c]);
+    }
   }
   return flags;
 }
@@ -599,6 +613,17 @@ static unsigned window_impl(float sh[27], int fast)
 unsigned ub_sh2_window(float sh[27])
 {
   return window_impl(sh, 1);
+}
+
+unsigned ub_sh2_window_weights(const float sh[27], float out_w1[3], float out_w2[3])
+{
+  double w1[3], w2[3];
+  unsigned flags = window_weights(sh, 1, w1, w2);
+  for (int c = 0; c < 3; c++) {
+    out_w1[c] = (float)w1[c];
+    out_w2[c] = (float)w2[c];
+  }
+  return flags;
 }
 
 unsigned ub_sh2_window_reference(float sh[27])

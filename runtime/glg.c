@@ -38,6 +38,7 @@ struct ub_glg_hull {
   uint32_t tet;
   uint8_t corner;
   uint8_t fc[3];
+  float p[9]; /* the positions of v[0..2] (the GLG keeps no other probe positions) */
 };
 
 _Static_assert(sizeof(struct ub_glg_tet) == 64, "walk record is one cache line");
@@ -98,9 +99,20 @@ static inline float min4f(const float l[4])
   return a < b ? a : b;
 }
 
-static const float *probe_pos(const ub_glg *g, uint32_t i)
+/* Corner i of a badly shaped tet t (ill-conditioned or singular): the positions kept
+ * for them (ill_ids ascending), found by bisection. */
+static const float *tet_corner(const ub_glg *g, uint32_t t, int i)
 {
-  return g->positions + 3 * (size_t)i;
+  uint32_t lo = 0, hi = g->ill_tet_count;
+  while (hi - lo > 1) {
+    uint32_t mid = lo + (hi - lo) / 2;
+    if (g->ill_ids[mid] <= t)
+      lo = mid;
+    else
+      hi = mid;
+  }
+  assert(g->ill_tet_count && g->ill_ids[lo] == t);
+  return g->ill_pos + 12 * (size_t)lo + 3 * i;
 }
 
 /* ---- barycentrics ------------------------------------------------------------------- */
@@ -117,12 +129,11 @@ static inline void rec_bary(const struct ub_glg_tet *r, const float p[3], float 
 /* Double-precision barycentrics from the positions; 0 if the tet is singular. */
 static int tet_bary_double(const ub_glg *g, uint32_t t, const float p[3], double l[4])
 {
-  const uint32_t *v = g->tets + 4 * (size_t)t;
   double a[3], b[3], c[3], d[3], q[3], e1[3], e2[3], e3[3], x[3], r1[3], r2[3], r3[3];
-  d3load(probe_pos(g, v[0]), a);
-  d3load(probe_pos(g, v[1]), b);
-  d3load(probe_pos(g, v[2]), c);
-  d3load(probe_pos(g, v[3]), d);
+  d3load(tet_corner(g, t, 0), a);
+  d3load(tet_corner(g, t, 1), b);
+  d3load(tet_corner(g, t, 2), c);
+  d3load(tet_corner(g, t, 3), d);
   d3load(p, q);
   d3sub(b, a, e1);
   d3sub(c, a, e2);
@@ -239,9 +250,9 @@ static void hull_eval(const ub_glg *g, const double p[3], uint32_t h, hull_hit *
 {
   const struct ub_glg_hull *f = &g->hull[h];
   double a[3], b[3], c[3], q[3], e[3];
-  d3load(probe_pos(g, f->v[0]), a);
-  d3load(probe_pos(g, f->v[1]), b);
-  d3load(probe_pos(g, f->v[2]), c);
+  d3load(f->p, a);
+  d3load(f->p + 3, b);
+  d3load(f->p + 6, c);
   out->face = h;
   out->region = closest_on_tri(p, a, b, c, out->w);
   for (int i = 0; i < 3; i++)
@@ -256,16 +267,16 @@ static int hull_sees(const ub_glg *g, const double p[3], const hull_hit *hit, ui
   const struct ub_glg_hull *f = &g->hull[h];
   const struct ub_glg_hull *fh = &g->hull[hit->face];
   double a[3], b[3], c[3], e1[3], e2[3], n[3], q[3], d[3];
-  d3load(probe_pos(g, f->v[0]), a);
-  d3load(probe_pos(g, f->v[1]), b);
-  d3load(probe_pos(g, f->v[2]), c);
+  d3load(f->p, a);
+  d3load(f->p + 3, b);
+  d3load(f->p + 6, c);
   d3sub(b, a, e1);
   d3sub(c, a, e2);
   d3cross(e1, e2, n);
   double qa[3], qb[3], qc[3];
-  d3load(probe_pos(g, fh->v[0]), qa);
-  d3load(probe_pos(g, fh->v[1]), qb);
-  d3load(probe_pos(g, fh->v[2]), qc);
+  d3load(fh->p, qa);
+  d3load(fh->p + 3, qb);
+  d3load(fh->p + 6, qc);
   for (int i = 0; i < 3; i++)
     q[i] = hit->w[0] * qa[i] + hit->w[1] * qb[i] + hit->w[2] * qc[i];
   d3sub(p, q, d);
@@ -393,16 +404,15 @@ static uint32_t hull_result(const ub_glg *g, const hull_hit *hit, float bary[4])
 
 static void singular_weights(const ub_glg *g, uint32_t t, const float p[3], float bary[4])
 {
-  const uint32_t *v = g->tets + 4 * (size_t)t;
   double q[3], best = HUGE_VAL;
   d3load(p, q);
   bary[0] = bary[1] = bary[2] = bary[3] = 0.0f;
   float out[4] = {0.25f, 0.25f, 0.25f, 0.25f};
   for (int i = 0; i < 4; i++) {
     double a[3], b[3], c[3], w[3], x[3], e[3];
-    d3load(probe_pos(g, v[face_of[i][0]]), a);
-    d3load(probe_pos(g, v[face_of[i][1]]), b);
-    d3load(probe_pos(g, v[face_of[i][2]]), c);
+    d3load(tet_corner(g, t, face_of[i][0]), a);
+    d3load(tet_corner(g, t, face_of[i][1]), b);
+    d3load(tet_corner(g, t, face_of[i][2]), c);
     closest_on_tri(q, a, b, c, w);
     for (int k = 0; k < 3; k++)
       x[k] = w[0] * a[k] + w[1] * b[k] + w[2] * c[k];
@@ -621,9 +631,9 @@ static int hull_outside(const ub_glg *g, const float p[3], uint32_t h)
 {
   const struct ub_glg_hull *f = &g->hull[h];
   double a[3], b[3], c[3], q[3], e1[3], e2[3], n[3], d[3];
-  d3load(probe_pos(g, f->v[0]), a);
-  d3load(probe_pos(g, f->v[1]), b);
-  d3load(probe_pos(g, f->v[2]), c);
+  d3load(f->p, a);
+  d3load(f->p + 3, b);
+  d3load(f->p + 6, c);
   d3load(p, q);
   d3sub(b, a, e1);
   d3sub(c, a, e2);
@@ -897,8 +907,20 @@ void ub_glg_mark_stale(ub_glg *g, uint32_t first, uint32_t count)
     atomic_store_explicit(st + q, GLG_STALE, memory_order_relaxed);
 }
 
+static uint32_t cp_word(const ub_glg *g, uint32_t v);
+
 uint32_t ub_glg_refresh(const ub_glg *g)
 {
+  if (g && g->cp_rows) {
+    uint32_t n = 0;
+    for (uint32_t q = 0; q < g->probe_count; q++)
+      if (atomic_load_explicit((_Atomic uint32_t *)g->cp_word + q, memory_order_relaxed) &
+          0x8000u) {
+        cp_word(g, q);
+        n++;
+      }
+    return n;
+  }
   if (!g || !g->stale)
     return 0;
   uint32_t n = 0;
@@ -914,9 +936,244 @@ uint32_t ub_glg_refresh(const ub_glg *g)
   return n;
 }
 
+/* ---- compact probe store -------------------------------------------------------- */
+
+/* The word: bits 0..7 window code, 8..10 zeroed channels, 15 stale, 16..23 e + 128. */
+#define CP_STALE 0x8000u
+#define CP_CODE(w) ((w) & 0xFFu)
+#define CP_ZERO(w) (((w) >> 8) & 7u)
+#define CP_EXP(w) ((int)(((w) >> 16) & 0xFFu) - 128)
+
+/* Band weights of a window code: w1 = 1 − code/255, w2 = max(0, 1 − 2·code/255). */
+#define CPW(c) {(float)(1.0 - (c) / 255.0), (float)((c) < 128 ? 1.0 - 2.0 * (c) / 255.0 : 0.0)}
+#define CPW4(b) CPW(b), CPW(b + 1), CPW(b + 2), CPW(b + 3)
+#define CPW16(b) CPW4(b), CPW4(b + 4), CPW4(b + 8), CPW4(b + 12)
+#define CPW64(b) CPW16(b), CPW16(b + 16), CPW16(b + 32), CPW16(b + 48)
+static const float cp_wtab[256][2] = {CPW64(0), CPW64(64), CPW64(128), CPW64(192)};
+#undef CPW
+#undef CPW4
+#undef CPW16
+#undef CPW64
+
+static inline _Atomic uint32_t *cp_words(const ub_glg *g)
+{
+  return (_Atomic uint32_t *)g->cp_word;
+}
+
+static inline float pow2f(int e) /* |e| ≤ 126 */
+{
+  union { uint32_t u; float f; } x = {(uint32_t)(127 + e) << 23};
+  return x.f;
+}
+
+/* Raw row v decoded: h·2^e (exact: a power of two times a half). */
+static void cp_decode(const ub_glg *g, uint32_t v, uint32_t w, float out[27])
+{
+  const uint16_t *h = g->cp_rows + 27 * (size_t)v;
+  float s = pow2f(CP_EXP(w));
+  for (int k = 0; k < 27; k++)
+    out[k] = s * ub_half_to_float(h[k]);
+}
+
+/* Row v with the window of word w applied: (2^e·w_band)·h, zeroed channels 0. */
+static void cp_windowed(const ub_glg *g, uint32_t v, uint32_t w, float out[27])
+{
+  const uint16_t *h = g->cp_rows + 27 * (size_t)v;
+  float s = pow2f(CP_EXP(w)), sb[3] = {s, s * cp_wtab[CP_CODE(w)][0], s * cp_wtab[CP_CODE(w)][1]};
+  for (int k = 0; k < 27; k++) {
+    float x = sb[k < 3 ? 0 : k < 12 ? 1 : 2] * ub_half_to_float(h[k]);
+    out[k] = (CP_ZERO(w) >> (k % 3) & 1u) ? 0.0f : x;
+  }
+}
+
+/* The window of probe v (word w, stale): the shared code, raised until every channel of
+ * the windowed stored values is non-negative for every normal (see ubake/glg.h). */
+static uint32_t cp_find_window(const ub_glg *g, uint32_t v, uint32_t w)
+{
+  float raw[27], w1[3], w2[3];
+  cp_decode(g, v, w, raw);
+  unsigned flags = ub_sh2_window_weights(raw, w1, w2);
+  unsigned zero = 0;
+  double tau2 = 0.0; /* τ/2 = 1 − w1 */
+  for (int c = 0; c < 3; c++) {
+    if (flags & UB_SH2_ZEROED(c))
+      zero |= 1u << c;
+    else if ((flags & UB_SH2_WINDOWED(c)) && 1.0 - (double)w1[c] > tau2)
+      tau2 = 1.0 - (double)w1[c];
+  }
+  uint32_t code = 0;
+  if (tau2 > 0.0) {
+    double x = ceil(tau2 * 255.0);
+    code = x >= 255.0 ? 255u : (uint32_t)x;
+  }
+  uint32_t nw = (w & ~(CP_STALE | 0x7FFu)) | zero << 8;
+  if (code || zero) /* anything windowed: check the stored values with the quantised code */
+    for (uint32_t step = 1;; step *= 2) {
+      float row[27], mn[3];
+      cp_windowed(g, v, nw | code, row);
+      ub_sh2_irradiance_min(row, mn);
+      int ok = 1;
+      for (int c = 0; c < 3; c++)
+        ok &= (zero >> c & 1u) || mn[c] >= 0.0f;
+      if (ok || code == 255u)
+        break;
+      code = code + step > 255u ? 255u : code + step;
+    }
+  return nw | code;
+}
+
+/* Probe v's word, its window found first when stale (published with one CAS; a racing
+ * query computes the same word). */
+static uint32_t cp_word(const ub_glg *g, uint32_t v)
+{
+  uint32_t w = atomic_load_explicit(cp_words(g) + v, memory_order_relaxed);
+  if (__builtin_expect(!(w & CP_STALE), 1))
+    return w;
+  uint32_t nw = cp_find_window(g, v, w);
+  atomic_compare_exchange_strong_explicit(cp_words(g) + v, &w, nw, memory_order_relaxed,
+                                          memory_order_relaxed);
+  return nw;
+}
+
+/* Encodes one raw row: e with the largest |value| in [2^13, 2^14) after scaling. */
+static uint32_t cp_encode(const float *row, uint16_t *h)
+{
+  float mx = 0.0f;
+  unsigned bad = 0;
+  for (int k = 0; k < 27; k++) {
+    if (!isfinite(row[k]))
+      bad |= 1u << (k % 3);
+    else if (fabsf(row[k]) > mx)
+      mx = fabsf(row[k]);
+  }
+  int e = 0;
+  if (mx > 0.0f) {
+    frexpf(mx, &e); /* mx < 2^e */
+    e -= 14;
+    e = e < -100 ? -100 : e > 100 ? 100 : e;
+  }
+  float s = pow2f(-e);
+  for (int k = 0; k < 27; k++)
+    h[k] = (bad >> (k % 3) & 1u) ? 0 : ub_half_from_float(row[k] * s);
+  return (uint32_t)(e + 128) << 16 | CP_STALE;
+}
+
+void ub_glg_set_probes(ub_glg *g, uint32_t first, uint32_t count, const float *rows)
+{
+  assert(g && g->cp_rows && first <= g->probe_count && count <= g->probe_count - first);
+  for (uint32_t i = 0; i < count; i++) {
+    uint32_t w = cp_encode(rows + 27 * (size_t)i, g->cp_rows + 27 * ((size_t)first + i));
+    atomic_store_explicit(cp_words(g) + first + i, w, memory_order_relaxed);
+  }
+}
+
+void ub_glg_probe_sh(const ub_glg *g, uint32_t v, int windowed, float out[27])
+{
+  assert(g && v < g->probe_count);
+  if (g->cp_rows) {
+    if (windowed)
+      cp_windowed(g, v, cp_word(g, v), out);
+    else
+      cp_decode(g, v, atomic_load_explicit(cp_words(g) + v, memory_order_relaxed), out);
+    return;
+  }
+  if (g->sh_half) {
+    float s = g->sh_half_exp ? pow2f(g->sh_half_exp[v]) : 1.0f;
+    for (int k = 0; k < 27; k++)
+      out[k] = s * ub_half_to_float(g->sh_half[27 * (size_t)v + k]);
+  } else if (windowed && g->stale) {
+    float tmp[28];
+    memcpy(out, glg_row(g, v, tmp), 27 * sizeof(float));
+    return;
+  } else {
+    memcpy(out, (!windowed && g->sh_raw ? g->sh_raw : g->sh) + 27 * (size_t)v, 27 * sizeof(float));
+  }
+  if (windowed && !g->sh_windowed)
+    ub_sh2_window(out);
+}
+
+/* Compact interpolation: out = Σ (λ_i·2^e_i·w_band,i)·h_i, summed left to right in every
+ * path (AVX + F16C, scalar), so both give the same bits. */
+static void interp4_compact_scalar(const ub_glg *g, const uint32_t v[4], const float bw[4][3],
+                                   const unsigned zero[4], float out[27])
+{
+  for (int k = 0; k < 27; k++) {
+    int b = k < 3 ? 0 : k < 12 ? 1 : 2;
+    float acc = 0.0f;
+    for (int i = 0; i < 4; i++) {
+      float x = ((zero[i] >> (k % 3)) & 1u) ? 0.0f : bw[i][b];
+      float t = x * ub_half_to_float(g->cp_rows[27 * (size_t)v[i] + k]);
+      acc = i ? acc + t : t;
+    }
+    out[k] = acc;
+  }
+}
+
+#if defined(GLG_HAVE_AVX_PATH)
+/* Lanes 3k + c: coefficient k, channel c. Lanes 0..2 band 0, 3..11 band 1, 12..26 band 2;
+ * the blocks start at 0, 8, 16, 19 (as interp4_avx). */
+__attribute__((target("avx,f16c"))) static void interp4_compact_f16c(const ub_glg *g,
+                                                                     const uint32_t v[4],
+                                                                     const float bw[4][3],
+                                                                     float out[27])
+{
+  __m256 w0[4], w8[4], w16[4];
+  const uint16_t *h[4];
+  for (int i = 0; i < 4; i++) {
+    __m256 a = _mm256_set1_ps(bw[i][0]), b = _mm256_set1_ps(bw[i][1]),
+           c = _mm256_set1_ps(bw[i][2]);
+    w0[i] = _mm256_blend_ps(a, b, 0xF8);
+    w8[i] = _mm256_blend_ps(b, c, 0xF0);
+    w16[i] = c;
+    h[i] = g->cp_rows + 27 * (size_t)v[i];
+  }
+#define GLG_H8(s, k) _mm256_cvtph_ps(_mm_loadu_si128((const __m128i *)(const void *)((s) + (k))))
+#define GLG_BLOCK(W, k)                                                                      \
+  do {                                                                                       \
+    __m256 acc = _mm256_mul_ps(W[0], GLG_H8(h[0], k));                                      \
+    acc = _mm256_add_ps(acc, _mm256_mul_ps(W[1], GLG_H8(h[1], k)));                         \
+    acc = _mm256_add_ps(acc, _mm256_mul_ps(W[2], GLG_H8(h[2], k)));                         \
+    acc = _mm256_add_ps(acc, _mm256_mul_ps(W[3], GLG_H8(h[3], k)));                         \
+    _mm256_storeu_ps(out + (k), acc);                                                        \
+  } while (0)
+  GLG_BLOCK(w0, 0);
+  GLG_BLOCK(w8, 8);
+  GLG_BLOCK(w16, 16);
+  GLG_BLOCK(w16, 19);
+#undef GLG_BLOCK
+#undef GLG_H8
+}
+#endif
+
+static void interp4_compact(const ub_glg *g, const uint32_t v[4], const float w[4], float out[27])
+{
+  float bw[4][3];
+  unsigned zero[4], anyzero = 0;
+  for (int i = 0; i < 4; i++) {
+    uint32_t wd = cp_word(g, v[i]);
+    float s = w[i] * pow2f(CP_EXP(wd));
+    bw[i][0] = s;
+    bw[i][1] = s * cp_wtab[CP_CODE(wd)][0];
+    bw[i][2] = s * cp_wtab[CP_CODE(wd)][1];
+    zero[i] = CP_ZERO(wd);
+    anyzero |= zero[i];
+  }
+#if defined(GLG_HAVE_AVX_PATH)
+  if (g->simd && !anyzero) {
+    interp4_compact_f16c(g, v, bw, out);
+    return;
+  }
+#endif
+  interp4_compact_scalar(g, v, bw, zero, out);
+}
+
 static inline void interp4(const ub_glg *g, const uint32_t v[4], const float w[4],
                            float out[27])
 {
+  if (g->cp_rows) {
+    interp4_compact(g, v, w, out);
+    return;
+  }
   if (g->sh_half) {
     float ws[4] = {w[0], w[1], w[2], w[3]};
     if (g->sh_half_exp) /* w·2^e: exact unless it underflows (|e| ≤ 100, checked at init) */
@@ -1127,8 +1384,9 @@ void ub_glg_query_batch(const ub_glg *g, uint32_t count, const float *points,
 #if defined(__GNUC__)
       const uint32_t *v = g->tets + 4 * (size_t)tet[i];
       for (int k = 0; k < 4; k++) {
-        const char *row = g->sh_half ? (const char *)(g->sh_half + 27 * (size_t)v[k])
-                                     : (const char *)(g->sh + 27 * (size_t)v[k]);
+        const char *row = g->cp_rows   ? (const char *)(g->cp_rows + 27 * (size_t)v[k])
+                          : g->sh_half ? (const char *)(g->sh_half + 27 * (size_t)v[k])
+                                       : (const char *)(g->sh + 27 * (size_t)v[k]);
         __builtin_prefetch(row);
         __builtin_prefetch(row + 64);
       }
@@ -1295,13 +1553,13 @@ static uint32_t walk_within(const ub_glg *g, const float p[3], uint32_t base)
   return best;
 }
 
-static ub_result build_start_grid(ub_glg *g)
+static ub_result build_start_grid(ub_glg *g, const float *positions)
 {
   float lo[3] = {HUGE_VALF, HUGE_VALF, HUGE_VALF}, hi[3] = {-HUGE_VALF, -HUGE_VALF, -HUGE_VALF};
   for (uint32_t i = 0; i < g->probe_count; i++)
     for (int a = 0; a < 3; a++) {
-      lo[a] = fminf(lo[a], g->positions[3 * (size_t)i + a]);
-      hi[a] = fmaxf(hi[a], g->positions[3 * (size_t)i + a]);
+      lo[a] = fminf(lo[a], positions[3 * (size_t)i + a]);
+      hi[a] = fmaxf(hi[a], positions[3 * (size_t)i + a]);
     }
   double ext[3], diag = 0.0;
   for (int a = 0; a < 3; a++) {
@@ -1405,7 +1663,7 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
     return UB_ERR_INVALID_ARGUMENT;
   memset(g, 0, sizeof *g);
   if (!d || !d->positions || (!d->sh && !d->sh_half) || !d->tets || !d->neigh || d->probe_count < 4 ||
-      d->tet_count < 1) {
+      d->tet_count < 1 || (d->compact && (!d->sh || d->sh_windowed))) {
     ub_log_printf(log, UB_LOG_ERROR, "glg: missing arrays or fewer than 4 probes / 1 tet");
     return UB_ERR_INVALID_ARGUMENT;
   }
@@ -1425,8 +1683,21 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
       return UB_ERR_INVALID_DATA;
     }
   g->probe_count = d->probe_count;
-  g->positions = d->positions;
-  g->sh = d->sh_half ? NULL : d->sh;
+  if (d->compact) { /* every probe encoded now, windowed lazily */
+    g->cp_rows = malloc((size_t)d->probe_count * 27 * sizeof *g->cp_rows);
+    g->cp_word = malloc((size_t)d->probe_count * sizeof(uint32_t));
+    if (!g->cp_rows || !g->cp_word) {
+      free(g->cp_rows);
+      free(g->cp_word);
+      memset(g, 0, sizeof *g);
+      ub_log_printf(log, UB_LOG_ERROR, "glg: out of memory (%u probes)", d->probe_count);
+      return UB_ERR_OUT_OF_MEMORY;
+    }
+    for (uint32_t q = 0; q < d->probe_count; q++)
+      atomic_init(cp_words(g) + q,
+                  cp_encode(d->sh + 27 * (size_t)q, g->cp_rows + 27 * (size_t)q));
+  }
+  g->sh = d->sh_half || d->compact ? NULL : d->sh;
   g->sh_half = d->sh_half;
   g->sh_half_exp = d->sh_half ? d->sh_half_exp : NULL;
   if (g->sh_half_exp)
@@ -1439,12 +1710,12 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
       }
 #if defined(GLG_HAVE_AVX_PATH)
   unsigned cpu = ub_cpu_features();
-  g->simd = (cpu & UB_CPU_AVX) && (!d->sh_half || (cpu & UB_CPU_F16C));
+  g->simd = (cpu & UB_CPU_AVX) && ((!d->sh_half && !d->compact) || (cpu & UB_CPU_F16C));
 #endif
   g->tet_count = d->tet_count;
   g->tets = d->tets;
   g->corner_visible = d->corner_visible;
-  g->sh_windowed = d->sh_windowed;
+  g->sh_windowed = d->sh_windowed || d->compact;
   if (d->leak_plane_of) {
     if (d->leak_plane_count && !d->leak_planes) {
       ub_log_printf(log, UB_LOG_ERROR, "glg: leak planes missing");
@@ -1533,7 +1804,7 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
     double a[3], e[3][3], inv[3][3], lmax2 = 0.0;
     double q[4][3];
     for (int i = 0; i < 4; i++)
-      d3load(probe_pos(g, v[i]), q[i]);
+      d3load(d->positions + 3 * (size_t)v[i], q[i]);
     memcpy(a, q[0], sizeof a);
     for (int i = 0; i < 3; i++)
       d3sub(q[i + 1], a, e[i]);
@@ -1589,9 +1860,28 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
         f->v[1] = f->v[2];
         f->v[2] = tv;
       }
+      for (int k = 0; k < 3; k++)
+        memcpy(f->p + 3 * k, d->positions + 3 * (size_t)f->v[k], 3 * sizeof(float));
       r->nb[i] = -(int32_t)h - 1;
       h++;
     }
+  }
+  if (g->ill_tet_count) { /* the badly shaped tets' corners, for tet_corner */
+    g->ill_ids = malloc((size_t)g->ill_tet_count * sizeof *g->ill_ids);
+    g->ill_pos = malloc((size_t)g->ill_tet_count * 12 * sizeof *g->ill_pos);
+    if (!g->ill_ids || !g->ill_pos) {
+      res = UB_ERR_OUT_OF_MEMORY;
+      goto fail;
+    }
+    uint32_t k = 0;
+    for (uint32_t t = 0; t < d->tet_count; t++)
+      if (g->tet_flags[t]) {
+        g->ill_ids[k] = t;
+        for (int i = 0; i < 4; i++)
+          memcpy(g->ill_pos + 12 * (size_t)k + 3 * i, d->positions + 3 * (size_t)d->tets[4 * (size_t)t + i],
+                 3 * sizeof(float));
+        k++;
+      }
   }
   if (g->leak_plane_of) {
     /* Each corner's side of its tet's leak plane (see leak_weights). */
@@ -1607,7 +1897,7 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
       const float *n = g->leak_planes + 4 * (size_t)pl;
       unsigned bits = 0;
       for (int i = 0; i < 4; i++) {
-        const float *x = probe_pos(g, d->tets[4 * (size_t)t + i]);
+        const float *x = d->positions + 3 * (size_t)d->tets[4 * (size_t)t + i];
         float si = n[0] * x[0] + n[1] * x[1] + n[2] * x[2] + n[3];
         bits |= (si < 0.0f ? 1u : 0u) << i;       /* dropped when p is on the + side */
         bits |= (si > 0.0f ? 1u : 0u) << (4 + i); /* dropped when p is on the − side */
@@ -1619,7 +1909,7 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
   if (res != UB_OK)
     goto fail;
   g->walk_cap = 4 * (uint32_t)cbrt((double)d->tet_count) + 64;
-  res = build_start_grid(g);
+  res = build_start_grid(g, d->positions);
   if (res != UB_OK)
     goto fail;
   if (g->ill_tet_count)
@@ -1642,8 +1932,12 @@ void ub_glg_release(ub_glg *g)
   free(g->tet_flags);
   free(g->leak_drop);
   free(g->hull);
+  free(g->ill_ids);
+  free(g->ill_pos);
   free(g->start_grid);
   free(g->stale);
+  free(g->cp_rows);
+  free(g->cp_word);
   memset(g, 0, sizeof *g);
 }
 
@@ -1664,7 +1958,9 @@ size_t ub_glg_owned_bytes(const ub_glg *g)
     return 0;
   return (size_t)g->tet_count * (sizeof(struct ub_glg_tet) + 1 + (g->leak_drop ? 1 : 0)) +
          (size_t)g->hull_count * sizeof(struct ub_glg_hull) + grid_bytes(g) +
-         (g->stale ? (size_t)g->probe_count : 0);
+         (size_t)g->ill_tet_count * (4 + 12 * sizeof(float)) +
+         (g->stale ? (size_t)g->probe_count : 0) +
+         (g->cp_rows ? (size_t)g->probe_count * (27 * sizeof(uint16_t) + sizeof(uint32_t)) : 0);
 }
 
 void ub_glg_memory_usage(const ub_glg *g, ub_glg_memory *out)
@@ -1674,9 +1970,11 @@ void ub_glg_memory_usage(const ub_glg *g, ub_glg_memory *out)
   if (!g || !g->tet_data)
     return;
   size_t np = g->probe_count, nt = g->tet_count;
-  out->positions = np * 3 * sizeof(float);
-  out->sh = np * (g->sh_half ? 27 * sizeof(uint16_t) + (g->sh_half_exp ? 1 : 0)
-                             : 27 * sizeof(float));
+  out->positions = (size_t)g->ill_tet_count * (4 + 12 * sizeof(float)) +
+                   (size_t)g->hull_count * 9 * sizeof(float);
+  out->sh = np * (g->cp_rows ? 27 * sizeof(uint16_t) + sizeof(uint32_t)
+                  : g->sh_half ? 27 * sizeof(uint16_t) + (g->sh_half_exp ? 1 : 0)
+                               : 27 * sizeof(float));
   out->walk_records = nt * sizeof(struct ub_glg_tet);
   out->tet_corners = nt * 4 * sizeof(uint32_t);
   out->tet_flags = nt;
@@ -1684,7 +1982,7 @@ void ub_glg_memory_usage(const ub_glg *g, ub_glg_memory *out)
     out->leak = nt * (sizeof(uint32_t) + 1) + (size_t)g->leak_plane_count * 4 * sizeof(float);
   if (g->corner_visible)
     out->leak += nt * 4;
-  out->hull = (size_t)g->hull_count * sizeof(struct ub_glg_hull);
+  out->hull = (size_t)g->hull_count * (sizeof(struct ub_glg_hull) - 9 * sizeof(float));
   out->start_grid = grid_bytes(g);
   out->total = out->positions + out->sh + out->walk_records + out->tet_corners +
                out->tet_flags + out->leak + out->hull + out->start_grid;

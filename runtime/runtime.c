@@ -74,10 +74,6 @@ struct ub_runtime {
    * irradiance along the texel's stored normal), where half rounding keeps I_z to half
    * precision even under grazing light; readers unpack a texel before use (texel_sh_at). */
   float lm_scale, glg_scale, llg_scale;
-  float *glg_cur;          /* probes × 27: base + Σ sets (raw; NULL without sets) */
-  float *glg_win;          /* probes × 27: windowed per probe, what the GLG reads. A convex
-                              blend of windowed probes keeps irradiance ≥ 0, so queries
-                              need no windowing (which costs 1–15 µs when it triggers). */
   ub_blend *lm_blend, *glg_blend, *llg_blend;
   ub_blend_record *lm_rec, *glg_rec, *llg_rec;
   /* Elements: the sets, then the file's doors/objects/combinations (ELEM). value is what
@@ -363,19 +359,15 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt->tch_rank);
   free(rt->tch_slot);
   free(rt->tch_grp);
-  free(rt->glg_win);
   free(rt->lit_tris);
   if (rt->has_glg)
     ub_glg_release(&rt->glg);
   /* Detach the bake file's arrays that point into the current state (setup_elements). */
-  if (rt->glg_cur && rt->bf->glg_sh == rt->glg_cur)
-    rt->bf->glg_sh = NULL;
   for (uint32_t m = 0; rt->llg_cur && m < rt->bf->llg_count; m++)
     if (rt->bf->llgs[m].probe_sh == rt->llg_cur + rt->llg_first[m] * 27)
       rt->bf->llgs[m].probe_sh = NULL;
   free(rt->llg_cur);
   free(rt->llg_first);
-  free(rt->glg_cur);
   ub_bakefile_free(rt->bf);
   free(rt);
 }
@@ -626,9 +618,10 @@ static ub_result rank_ahd(ub_runtime *rt)
 }
 
 /* Blend engines for the elements' lightmap, GLG and LLG records; sets start at weight 1,
- * doors closed, objects shown. Afterwards the run-time keeps a float copy of the probes'
- * current state (glg_cur + the windowed glg_win, llg_cur; the texels' is computed on
- * demand by the lightmap blend, whose rows the AHD re-encode streams), the
+ * doors closed, objects shown. Afterwards the run-time keeps a float copy of the LLG
+ * probes' current state (llg_cur; the GLG's is its compact store, into which the GLG blend
+ * streams its rows; the texels' is computed on demand by the lightmap blend, whose rows
+ * the AHD re-encode streams), the
  * base rows of the touched receivers inside the blends (UB_BLEND_OWN_BASE) and the
  * records in half; the bake file's float copies are freed or point into the current state
  * (runtime.h, ub_runtime_bakefile). */
@@ -796,11 +789,12 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     bd.stride = 27;
     bd.base = bf->glg_sh;
     bd.elements = rt->glg_rec;
-    r = ub_blend_create(&bd, log, rt->glg_cur, &rt->glg_blend);
+    /* Streaming: each update's rows go to the GLG's compact store (glg_touched). */
+    r = ub_blend_create(&bd, log, NULL, &rt->glg_blend);
     if (r != UB_OK)
       return r;
     free(bf->glg_sh);
-    bf->glg_sh = rt->glg_cur; /* the raw current state; detached in ub_runtime_free */
+    bf->glg_sh = NULL;
   }
   for (uint32_t m = 0; m < bf->llg_count; m++)
     rt->llg_first[m + 1] = rt->llg_first[m] + (uint64_t)bf->llgs[m].dims[0] *
@@ -935,36 +929,28 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
     gd.leak_plane_count = bf->glg_plane_count;
     gd.leak_planes = bf->glg_planes;
     gd.leak_plane_of = bf->glg_plane_of;
-    size_t sh_bytes = (size_t)bf->glg_probe_count * 27 * sizeof(float);
-    rt->glg_win = malloc(sh_bytes);
-    if (!rt->glg_win)
-      goto oom;
-    if (bf->dls_count || bf->elem_count) {
-      /* The elements blend into glg_cur; it starts as the base. */
-      rt->glg_cur = malloc(sh_bytes);
-      if (!rt->glg_cur)
-        goto oom;
-      memcpy(rt->glg_cur, bf->glg_sh, sh_bytes);
-    }
-    /* Every probe starts stale: the first query that reads one windows it (ubake/glg.h,
-     * lazy windowing), so loading windows nothing and probes nobody looks at never are
+    /* The GLG's compact store (ubake/glg.h): raw SH in half with a per-probe exponent and
+     * window, 58 B per probe. Every probe starts stale: the first query that reads one
+     * finds its window, so loading windows nothing and probes nobody looks at never are
      * (windowing all of kaos's 35,822 probes took ~0.1 s at load). */
-    memcpy(rt->glg_win, bf->glg_sh, sh_bytes);
-    gd.sh = rt->glg_win;
-    gd.sh_windowed = 1;
+    gd.compact = 1;
     r = ub_glg_init(&rt->glg, &gd, log);
     rt->has_glg = r == UB_OK;
-    if (r == UB_OK) { /* the walk records hold the neighbours: 16 B per tet less */
-      free(bf->glg_neigh);
-      bf->glg_neigh = NULL;
-    }
-    if (r == UB_OK)
-      r = ub_glg_enable_lazy(&rt->glg, rt->glg_win, rt->glg_cur ? rt->glg_cur : bf->glg_sh);
     if (r != UB_OK) {
       ub_runtime_free(rt);
       return r;
     }
-    ub_glg_mark_stale(&rt->glg, 0, bf->glg_probe_count);
+    /* The walk records hold the neighbours (16 B per tet), the GLG the positions it needs
+     * (hull faces, badly shaped tets) and its own SH: the file's copies go. The elements'
+     * blend reads the base SH first (setup_elements frees it then). */
+    free(bf->glg_neigh);
+    bf->glg_neigh = NULL;
+    free(bf->glg_positions);
+    bf->glg_positions = NULL;
+    if (!bf->dls_count && !bf->elem_count) {
+      free(bf->glg_sh);
+      bf->glg_sh = NULL;
+    }
   }
   if (bf->dls_count || bf->elem_count) {
     r = setup_elements(rt, path, log);
@@ -1165,9 +1151,8 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
  * toggle on the ESTATE-scale level (1.96 -> 0.51 ms without it). */
 static void glg_touched(void *user, uint32_t first, uint32_t count, const float *rows)
 {
-  (void)rows;
   ub_runtime *rt = user;
-  ub_glg_mark_stale(&rt->glg, first, count);
+  ub_glg_set_probes(&rt->glg, first, count, rows);
 }
 
 static double rt_now(void)
@@ -1224,7 +1209,7 @@ void ub_runtime_update_job(ub_runtime *rt, uint32_t job)
     t1 = rt_now();
   }
   if (rt->glg_blend) {
-    ub_blend_update_part(rt->glg_blend, job, parts, glg_touched, rt, rt->glg_cur, &jb->glg);
+    ub_blend_update_part(rt->glg_blend, job, parts, glg_touched, rt, NULL, &jb->glg);
     t2 = rt_now();
   } else
     t2 = t1;
@@ -1288,16 +1273,14 @@ ub_result ub_runtime_query_glg(const ub_runtime *rt, const float p[3], const flo
   return UB_OK;
 }
 
-const float *ub_runtime_glg_probe_sh(const ub_runtime *rt, int windowed)
+ub_result ub_runtime_glg_probe_sh(const ub_runtime *rt, int windowed, float *out)
 {
-  assert(rt);
+  assert(rt && out);
   if (!rt->has_glg)
-    return NULL;
-  if (windowed) {
-    ub_glg_refresh(&rt->glg); /* the stale probes (thread safe against queries) */
-    return rt->glg_win;
-  }
-  return rt->glg_cur ? rt->glg_cur : rt->bf->glg_sh;
+    return UB_ERR_NOT_BAKED;
+  for (uint32_t q = 0; q < rt->glg.probe_count; q++)
+    ub_glg_probe_sh(&rt->glg, q, windowed, out + 27 * (size_t)q);
+  return UB_OK;
 }
 
 const ub_glg *ub_runtime_glg(const ub_runtime *rt)
@@ -1323,7 +1306,7 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
                (size_t)bf->triangle_count * (3 * U + sizeof(int32_t) + 9 * F) +
                (bf->tri_role ? (size_t)bf->triangle_count * U : 0) +
                (size_t)bf->light_count * sizeof(ub_bakefile_light) +
-               (size_t)bf->glg_probe_count * 3 * F +
+               (bf->glg_positions ? (size_t)bf->glg_probe_count * 3 * F : 0) +
                (size_t)bf->glg_tet_count * (4 * U + (bf->glg_neigh ? 4 * sizeof(int32_t) : 0) + U) +
                (size_t)bf->glg_plane_count * 4 * F + (size_t)rt->lit_count * U;
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
@@ -1351,7 +1334,8 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
   if (rt->llg_cur)
     m.llg += (size_t)rt->llg_first[bf->llg_count] * 27 * F;
   if (rt->has_glg)
-    m.glg = (size_t)bf->glg_probe_count * 27 * F * 2 + ub_glg_owned_bytes(&rt->glg); /* raw + windowed */
+    m.glg = ub_glg_owned_bytes(&rt->glg) + /* compact store, walk data */
+            (bf->glg_sh ? (size_t)bf->glg_probe_count * 27 * F : 0);
   /* Records: the blends' copies of the values (half, group order; the receiver indices
    * are in their tables); anything the bake file still holds (a failed setup). */
   ub_blend *bl[3] = {rt->lm_blend, rt->glg_blend, rt->llg_blend};

@@ -89,9 +89,8 @@ static void take(const ub_runtime *rt, snap *s)
       }
   s->nglg = (size_t)f->glg_probe_count * 27;
   s->glg = malloc((s->nglg + 1) * sizeof *s->glg);
-  const float *g = ub_runtime_glg_probe_sh(rt, 0);
-  if (g)
-    memcpy(s->glg, g, s->nglg * sizeof *g);
+  if (ub_runtime_glg_probe_sh(rt, 0, s->glg) != UB_OK)
+    memset(s->glg, 0, s->nglg * sizeof *s->glg);
 }
 
 /* Number of floats that differ (bitwise). */

@@ -1168,10 +1168,15 @@ static int sw_run(sweep *s)
     return 0;
 
   /* 2. Ground truth at fixed points, cached. */
-  if (!sw_pick_points(s, ub_runtime_bakefile(mid)) || !sw_references(s)) {
+  /* the file as written: a run-time's copy keeps no GLG probe positions */
+  ub_bakefile *midf = NULL;
+  if (ub_bakefile_read(st.ubk_path, NULL, &midf) != UB_OK || !sw_pick_points(s, midf) ||
+      !sw_references(s)) {
+    ub_bakefile_free(midf);
     ub_runtime_free(mid);
     return 0;
   }
+  ub_bakefile_free(midf);
 
   /* 3. The converged bake (per-texel ground truth). */
   if (s->converged_rays) {

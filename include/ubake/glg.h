@@ -41,6 +41,26 @@
  *     and writes it back, so an update costs no windowing and only probes something
  *     looks at are ever windowed. The same bits as windowing every probe at once.
  *
+ *   - Compact probe store (desc.compact = 1, what the run-time uses): 58 B per probe.
+ *     Each probe's RAW SH is kept in IEEE half times a per-probe power of two 2^e (the
+ *     largest coefficient near 2^14, so dark probes next to bright ones keep 11 bits),
+ *     plus one 32-bit word: e, the probe's window and a stale bit. The window is one
+ *     parameter τ ∈ [0, 2] shared by the three channels, w1 = 1 − τ/2, w2 = max(0, 1 − τ)
+ *     (ub_sh2_window's two phases as one curve), stored as code = 255·τ/2 rounded UP:
+ *     τ = the largest channel's τ_c from ub_sh2_window_weights. Every τ between a
+ *     channel's own and 1 keeps its irradiance ≥ 0 (the minimum over normals is concave in
+ *     τ, ≥ margin at τ_c and ≥ 0 at τ = 1 for a non-negative radiance), and the code is
+ *     checked on the stored values with ub_sh2_irradiance_min and raised until every
+ *     channel passes (at code 255 only the DC term is left). A channel that is not finite
+ *     or has DC ≤ 0 is zeroed (3 bits). The query applies the window while interpolating:
+ *     corner i contributes (λ_i·2^e_i·w_band)·h, one product more per corner and band
+ *     than plain half SH. Windows are found lazily: ub_glg_set_probes stores new raw rows
+ *     and marks them stale, the first query that reads a stale probe finds its window
+ *     (a few µs when it rings) and publishes the word with one atomic compare-and-swap
+ *     (rows are never written by queries, so readers never see a torn row). Probe
+ *     positions are not kept: only hull faces' and badly shaped tets' corners (the walk
+ *     records hold the rest).
+ *
  *   - Speed: one query = the cached-tet test (or a walk), leak weights, a 4 × 27
  *     interpolation (AVX when the CPU has it, else SSE2; the same bits) and the cosine
  *     convolution. Random points are bound by the walk's dependent cache misses;
@@ -89,6 +109,8 @@ typedef struct ub_glg_desc {
   const float *leak_planes;       /* leak_plane_count × 4: unit normal, d; or NULL */
   const uint32_t *leak_plane_of;  /* tet_count: plane index or UB_GLG_NO_LEAK_PLANE; or NULL */
   int sh_windowed;                /* 1: every probe's sh already went through ub_sh2_window */
+  int compact; /* 1: the GLG keeps its own compact probe store (below) made from sh (raw,
+                  float; sh_windowed 0; sh_half NULL), read during init only */
 } ub_glg_desc;
 
 #define UB_GLG_NO_LEAK_PLANE 0xFFFFFFFFu
@@ -97,9 +119,8 @@ typedef struct ub_glg_tet ub_glg_tet;   /* private: 64-byte per-tet walk record 
 typedef struct ub_glg_hull ub_glg_hull; /* private: one hull face */
 
 typedef struct ub_glg {
-  /* borrowed (see ub_glg_desc) */
+  /* borrowed (see ub_glg_desc; positions are read during init only) */
   uint32_t probe_count;
-  const float *positions;
   const float *sh;
   const uint16_t *sh_half; /* non-NULL: probes read from here instead of sh */
   const int8_t *sh_half_exp;
@@ -115,7 +136,9 @@ typedef struct ub_glg {
   uint8_t *tet_flags;    /* per tet: 0 normal, 1 ill-conditioned (double), 2 singular */
   uint8_t *leak_drop;    /* per tet with a leak plane: corners dropped on each side */
   uint32_t hull_count;
-  ub_glg_hull *hull;     /* hull faces with hull-surface adjacency */
+  ub_glg_hull *hull;     /* hull faces with hull-surface adjacency and corner positions */
+  uint32_t *ill_ids;     /* the ill-conditioned and singular tets, ascending ... */
+  float *ill_pos;        /* ... and their corners' positions (12 floats each) */
   uint32_t *start_grid;  /* start grid: a base tet per 4 × 4 × 4 cells, then ... */
   int16_t *start_delta;  /* ... per cell, the tet at its centre − its block's base (in the
                             same allocation as start_grid) */
@@ -131,6 +154,10 @@ typedef struct ub_glg {
   float *sh_win;
   const float *sh_raw;
   void *stale;
+  /* compact probe store (desc.compact): per probe 27 halves (raw SH · 2^−e) and a 32-bit
+   * word (private: atomic; exponent e, window code, zeroed channels, stale bit) */
+  uint16_t *cp_rows;
+  void *cp_word;
 } ub_glg;
 
 /* Optional diagnostics of one locate. */
@@ -200,19 +227,30 @@ void ub_glg_mark_stale(ub_glg *g, uint32_t first, uint32_t count);
  * many it found stale. */
 uint32_t ub_glg_refresh(const ub_glg *g);
 
-/* Bytes owned by g (per-tet records, flags, hull, start grid). */
+/* Compact store only: probes [first, first + count) have new raw SH (count × 27 floats;
+ * a channel with a non-finite value is stored as zero); they are marked stale. Not
+ * concurrently with queries; distinct ranges may be set from different threads at once. */
+void ub_glg_set_probes(ub_glg *g, uint32_t first, uint32_t count, const float *rows);
+
+/* Probe v's SH as a query reads it: windowed = 1 the windowed row (a stale probe is
+ * windowed now; compact store: (2^e·w_band)·h per coefficient), 0 the raw row (float
+ * store: desc.sh / the lazy raw rows; half stores: decoded). Thread safe like queries. */
+void ub_glg_probe_sh(const ub_glg *g, uint32_t v, int windowed, float out[27]);
+
+/* Bytes owned by g (per-tet records, flags, hull, start grid, compact store). */
 size_t ub_glg_owned_bytes(const ub_glg *g);
 
 /* What a query reads, in bytes, borrowed and owned (the run-time's other copies of the
  * probe SH, e.g. the raw blend state, are the caller's to add). */
 typedef struct ub_glg_memory {
-  size_t positions;    /* probes × 12 (hull projection, badly shaped tets) */
-  size_t sh;           /* probes × 108 (float) or × 54 (half; + 1 with exponents) */
+  size_t positions;    /* kept corner positions: badly shaped tets × 52, in hull faces × 36 */
+  size_t sh;           /* probes × 108 (float) or × 54 (half; + 1 with exponents; compact
+                          store + 4: exponent, window, stale) */
   size_t walk_records; /* tets × 64: barycentric matrix, origin, neighbours */
   size_t tet_corners;  /* tets × 16 (borrowed tets) */
   size_t tet_flags;    /* tets × 1 */
   size_t leak;         /* tets × (4 plane index + 1 sides) + planes × 16 (+ tets × 4 vis) */
-  size_t hull;         /* hull faces × 32 */
+  size_t hull;         /* hull faces × 32 (their positions in .positions) */
   size_t start_grid;   /* cells × 2 + blocks of 4 × 4 × 4 cells × 4 */
   size_t total;
 } ub_glg_memory;

@@ -39,16 +39,17 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
 void ub_runtime_free(ub_runtime *rt);
 
 /* The loaded bake file, read-only, owned by rt. It differs from one read with
- * ub_bakefile_read(): glg_neigh is NULL (the GLG's walk records hold the neighbours;
- * glg_tets, glg_positions and the leak planes stay). When the file has dynamic elements
- * (sets, doors, objects), the run-time keeps one float copy of each probe
- * representation's current state and the records in half precision (as the file stores
- * them), so also: every record's texel_sh, probe_sh and llg_probe_sh and its receiver
- * indices (texel_index, probe_index, llg_probe_index) are NULL (the blends keep what they
- * need; counts, names and kinds are kept; read the file with ub_bakefile_read() for the
- * records themselves); atlases[a].sh are NULL (read the lightmap through the queries);
- * glg_sh and llgs[m].probe_sh hold the CURRENT raw state (base + Σ weight·record, as
- * ub_runtime_glg_probe_sh(rt, 0)), updated by ub_runtime_update(). */
+ * ub_bakefile_read(): glg_neigh, glg_positions and glg_sh are NULL (the GLG keeps its own
+ * compact probe store and the positions it needs, its walk records hold the neighbours;
+ * glg_tets and the leak planes stay; ub_runtime_glg_probe_sh gives the SH). When the file
+ * has dynamic elements (sets, doors, objects), the run-time keeps one float copy of the
+ * LLG probes' current state and the records in half precision (as the file stores them),
+ * so also: every record's texel_sh, probe_sh and llg_probe_sh and its receiver indices
+ * (texel_index, probe_index, llg_probe_index) are NULL (the blends keep what they need;
+ * counts, names and kinds are kept; read the file with ub_bakefile_read() for the records
+ * themselves); atlases[a].sh are NULL (read the lightmap through the queries);
+ * llgs[m].probe_sh hold the CURRENT raw state (base + Σ weight·record), updated by
+ * ub_runtime_update(). */
 const ub_bakefile *ub_runtime_bakefile(const ub_runtime *rt);
 
 /* Bytes the run-time holds (its own arrays and its bake file's), by what they serve. */
@@ -60,8 +61,7 @@ typedef struct ub_runtime_memory {
                        lightmap blend computes it; else the file's halves; without
                        elements the file's float SH; touched: encode normal, slot and
                        rank); coverage/touched bitmaps; fallback encode normals */
-  size_t glg;       /* raw current + windowed SH, the GLG's acceleration data and lazy
-                       windowing state */
+  size_t glg;       /* the GLG's compact probe store (58 B/probe) and its walk data */
   size_t llg;       /* LLG probe SH (current state) */
   size_t records;   /* element records: their values (half), held by the blends */
   size_t blend;     /* the blend engines: tables, weights, touched receivers' base rows */
@@ -214,10 +214,11 @@ void ub_runtime_update_job(ub_runtime *rt, uint32_t job);
 void ub_runtime_update_end(ub_runtime *rt, ub_runtime_update_stats *out_stats);
 
 struct ub_glg;
-/* Every GLG probe's current radiance SH L2 (probe × 27): base + Σ weight·set, raw (linear
- * in the weights) or windowed (what queries interpolate; probes an update changed and no
- * query has read yet are windowed by this call). NULL without a GLG. */
-const float *ub_runtime_glg_probe_sh(const ub_runtime *rt, int windowed);
+/* Every GLG probe's current radiance SH L2 into out (probe × 27 floats), as the GLG's
+ * compact store holds it (ubake/glg.h): raw = base + Σ weight·set rounded to half with the
+ * probe's exponent, or windowed (what queries interpolate; probes an update changed and no
+ * query has read yet are windowed by this call). UB_ERR_NOT_BAKED without a GLG. */
+ub_result ub_runtime_glg_probe_sh(const ub_runtime *rt, int windowed, float *out);
 
 /* The run-time GLG (for resampling into LLG boxes, see ubake/glg.h), or NULL. */
 const struct ub_glg *ub_runtime_glg(const ub_runtime *rt);

@@ -93,6 +93,11 @@ void ub_sh2_irradiance_min(const float sh[27], float out_min_rgb[3]);
  * Returns UB_SH2_WINDOWED / UB_SH2_ZEROED bits (0 = unchanged). */
 unsigned ub_sh2_window(float sh[27]);
 
+/* The window ub_sh2_window() would apply, without applying it: per channel the l=1 and
+ * l=2 band weights (1, 1 for a channel left unchanged, 0, 0 for a zeroed one, with
+ * w1 = 1 − t/2 in both phases). Same result bits. */
+unsigned ub_sh2_window_weights(const float sh[27], float out_w1[3], float out_w2[3]);
+
 /* The same window found by the original bracketing search (regula falsi / golden section,
  * ~10–40 exact minima per channel) and the looser test E0 ≥ |b| + ‖M‖_F: the reference
  * the tests compare ub_sh2_window with (the window parameter agrees to ~1e-7). */
