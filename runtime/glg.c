@@ -915,7 +915,7 @@ uint32_t ub_glg_refresh(const ub_glg *g)
     uint32_t n = 0;
     for (uint32_t q = 0; q < g->probe_count; q++)
       if (atomic_load_explicit((_Atomic uint32_t *)g->cp_word + q, memory_order_relaxed) &
-          0x8000u) {
+          (1u << 24)) {
         cp_word(g, q);
         n++;
       }
@@ -938,18 +938,21 @@ uint32_t ub_glg_refresh(const ub_glg *g)
 
 /* ---- compact probe store -------------------------------------------------------- */
 
-/* The word: bits 0..7 window code, 8..10 zeroed channels, 15 stale, 16..23 e + 128. */
-#define CP_STALE 0x8000u
-#define CP_CODE(w) ((w) & 0xFFu)
-#define CP_ZERO(w) (((w) >> 8) & 7u)
-#define CP_EXP(w) ((int)(((w) >> 16) & 0xFFu) - 128)
+/* The word: bits 0..20 a 7-bit window code per channel, 21..23 zeroed channels, 24 stale,
+ * 25..31 e + 64. */
+#define CP_STALE (1u << 24)
+#define CP_CODE(w, c) (((w) >> (7 * (c))) & 0x7Fu)
+#define CP_ZERO(w) (((w) >> 21) & 7u)
+#define CP_EXP(w) ((int)((w) >> 25) - 64)
+#define CP_EXP_MIN -64
+#define CP_EXP_MAX 63
 
-/* Band weights of a window code: w1 = 1 − code/255, w2 = max(0, 1 − 2·code/255). */
-#define CPW(c) {(float)(1.0 - (c) / 255.0), (float)((c) < 128 ? 1.0 - 2.0 * (c) / 255.0 : 0.0)}
+/* Band weights of a window code: w1 = 1 − code/127, w2 = max(0, 1 − 2·code/127). */
+#define CPW(c) {(float)(1.0 - (c) / 127.0), (float)((c) < 64 ? 1.0 - 2.0 * (c) / 127.0 : 0.0)}
 #define CPW4(b) CPW(b), CPW(b + 1), CPW(b + 2), CPW(b + 3)
 #define CPW16(b) CPW4(b), CPW4(b + 4), CPW4(b + 8), CPW4(b + 12)
 #define CPW64(b) CPW16(b), CPW16(b + 16), CPW16(b + 32), CPW16(b + 48)
-static const float cp_wtab[256][2] = {CPW64(0), CPW64(64), CPW64(128), CPW64(192)};
+static const float cp_wtab[128][2] = {CPW64(0), CPW64(64)};
 #undef CPW
 #undef CPW4
 #undef CPW16
@@ -966,6 +969,26 @@ static inline float pow2f(int e) /* |e| ≤ 126 */
   return x.f;
 }
 
+/* Per corner weights: s = λ·2^e; per channel c the band factors s, s·w1_c, s·w2_c (0 for a
+ * zeroed channel), laid out as bw[band][c]. */
+static inline void cp_weights(uint32_t w, float lam, float bw[3][4])
+{
+  float s = lam * pow2f(CP_EXP(w));
+  unsigned z = CP_ZERO(w);
+  for (int c = 0; c < 3; c++) {
+    const float *t = cp_wtab[CP_CODE(w, c)];
+    float zc = (z >> c) & 1u ? 0.0f : 1.0f; /* (s·w)·z: the AVX path's operations */
+    bw[0][c] = s * zc;
+    bw[1][c] = (s * t[0]) * zc;
+    bw[2][c] = (s * t[1]) * zc;
+  }
+  bw[0][3] = bw[1][3] = bw[2][3] = 0.0f;
+}
+
+/* 1 per kept channel, 0 per zeroed one (CP_ZERO bits), as 4 lanes. */
+static const float cp_ztab[8][4] = {{1, 1, 1, 0}, {0, 1, 1, 0}, {1, 0, 1, 0}, {0, 0, 1, 0},
+                                    {1, 1, 0, 0}, {0, 1, 0, 0}, {1, 0, 0, 0}, {0, 0, 0, 0}};
+
 /* Raw row v decoded: h·2^e (exact: a power of two times a half). */
 static void cp_decode(const ub_glg *g, uint32_t v, uint32_t w, float out[27])
 {
@@ -975,67 +998,74 @@ static void cp_decode(const ub_glg *g, uint32_t v, uint32_t w, float out[27])
     out[k] = s * ub_half_to_float(h[k]);
 }
 
-/* Row v with the window of word w applied: (2^e·w_band)·h, zeroed channels 0. */
+/* Row v with the window of word w applied: (2^e·w_band,c)·h, zeroed channels 0. */
 static void cp_windowed(const ub_glg *g, uint32_t v, uint32_t w, float out[27])
 {
   const uint16_t *h = g->cp_rows + 27 * (size_t)v;
-  float s = pow2f(CP_EXP(w)), sb[3] = {s, s * cp_wtab[CP_CODE(w)][0], s * cp_wtab[CP_CODE(w)][1]};
-  for (int k = 0; k < 27; k++) {
-    float x = sb[k < 3 ? 0 : k < 12 ? 1 : 2] * ub_half_to_float(h[k]);
-    out[k] = (CP_ZERO(w) >> (k % 3) & 1u) ? 0.0f : x;
-  }
+  float bw[3][4];
+  cp_weights(w, 1.0f, bw);
+  for (int k = 0; k < 27; k++)
+    out[k] = bw[k < 3 ? 0 : k < 12 ? 1 : 2][k % 3] * ub_half_to_float(h[k]);
 }
 
-/* The window of probe v (word w, stale): the shared code, raised until every channel of
- * the windowed stored values is non-negative for every normal (see ubake/glg.h). */
+/* The window of probe v (word w, stale): per channel the code of ub_sh2_window's τ rounded
+ * up, raised until the channel of the windowed stored values is non-negative for every
+ * normal (see ubake/glg.h). */
 static uint32_t cp_find_window(const ub_glg *g, uint32_t v, uint32_t w)
 {
   float raw[27], w1[3], w2[3];
   cp_decode(g, v, w, raw);
   unsigned flags = ub_sh2_window_weights(raw, w1, w2);
-  unsigned zero = 0;
-  double tau2 = 0.0; /* τ/2 = 1 − w1 */
+  uint32_t nw = w & ~(CP_STALE | 0xFFFFFFu), check = 0;
   for (int c = 0; c < 3; c++) {
-    if (flags & UB_SH2_ZEROED(c))
-      zero |= 1u << c;
-    else if ((flags & UB_SH2_WINDOWED(c)) && 1.0 - (double)w1[c] > tau2)
-      tau2 = 1.0 - (double)w1[c];
-  }
-  uint32_t code = 0;
-  if (tau2 > 0.0) {
-    double x = ceil(tau2 * 255.0);
-    code = x >= 255.0 ? 255u : (uint32_t)x;
-  }
-  uint32_t nw = (w & ~(CP_STALE | 0x7FFu)) | zero << 8;
-  if (code || zero) /* anything windowed: check the stored values with the quantised code */
-    for (uint32_t step = 1;; step *= 2) {
-      float row[27], mn[3];
-      cp_windowed(g, v, nw | code, row);
-      ub_sh2_irradiance_min(row, mn);
-      int ok = 1;
-      for (int c = 0; c < 3; c++)
-        ok &= (zero >> c & 1u) || mn[c] >= 0.0f;
-      if (ok || code == 255u)
-        break;
-      code = code + step > 255u ? 255u : code + step;
+    if (flags & UB_SH2_ZEROED(c)) {
+      nw |= 1u << (21 + c);
+    } else if (flags & UB_SH2_WINDOWED(c)) {
+      double x = ceil((1.0 - (double)w1[c]) * 127.0); /* τ/2 = 1 − w1 */
+      uint32_t code = x >= 127.0 ? 127u : x <= 0.0 ? 0u : (uint32_t)x;
+      nw |= code << (7 * c);
+      check |= 1u << c;
     }
-  return nw | code;
+  }
+  for (uint32_t step = 1; check; step *= 2) {
+    float row[27], mn[3];
+    cp_windowed(g, v, nw, row);
+    ub_sh2_irradiance_min(row, mn);
+    for (int c = 0; c < 3; c++) {
+      if (!(check >> c & 1u))
+        continue;
+      uint32_t code = CP_CODE(nw, c);
+      if (mn[c] >= 0.0f || code == 127u) {
+        check &= ~(1u << c);
+        continue;
+      }
+      uint32_t up = code + step > 127u ? 127u : code + step;
+      nw = (nw & ~(0x7Fu << (7 * c))) | up << (7 * c);
+    }
+  }
+  return nw;
 }
 
 /* Probe v's word, its window found first when stale (published with one CAS; a racing
  * query computes the same word). */
-static uint32_t cp_word(const ub_glg *g, uint32_t v)
+__attribute__((noinline)) static uint32_t cp_word_slow(const ub_glg *g, uint32_t v, uint32_t w)
 {
-  uint32_t w = atomic_load_explicit(cp_words(g) + v, memory_order_relaxed);
-  if (__builtin_expect(!(w & CP_STALE), 1))
-    return w;
   uint32_t nw = cp_find_window(g, v, w);
   atomic_compare_exchange_strong_explicit(cp_words(g) + v, &w, nw, memory_order_relaxed,
                                           memory_order_relaxed);
   return nw;
 }
 
-/* Encodes one raw row: e with the largest |value| in [2^13, 2^14) after scaling. */
+static inline uint32_t cp_word(const ub_glg *g, uint32_t v)
+{
+  uint32_t w = atomic_load_explicit(cp_words(g) + v, memory_order_relaxed);
+  if (__builtin_expect(!(w & CP_STALE), 1))
+    return w;
+  return cp_word_slow(g, v, w);
+}
+
+/* Encodes one raw row: e with the largest |value| in [2^13, 2^14) after scaling (e in
+ * [−64, 63]; a channel with a value that is not finite, or too large even so, is 0). */
 static uint32_t cp_encode(const float *row, uint16_t *h)
 {
   float mx = 0.0f;
@@ -1050,12 +1080,15 @@ static uint32_t cp_encode(const float *row, uint16_t *h)
   if (mx > 0.0f) {
     frexpf(mx, &e); /* mx < 2^e */
     e -= 14;
-    e = e < -100 ? -100 : e > 100 ? 100 : e;
+    e = e < CP_EXP_MIN ? CP_EXP_MIN : e > CP_EXP_MAX ? CP_EXP_MAX : e;
   }
   float s = pow2f(-e);
   for (int k = 0; k < 27; k++)
+    if (!(bad >> (k % 3) & 1u) && !(fabsf(row[k] * s) <= 65504.0f))
+      bad |= 1u << (k % 3);
+  for (int k = 0; k < 27; k++)
     h[k] = (bad >> (k % 3) & 1u) ? 0 : ub_half_from_float(row[k] * s);
-  return (uint32_t)(e + 128) << 16 | CP_STALE;
+  return (uint32_t)(e + 64) << 25 | CP_STALE;
 }
 
 void ub_glg_set_probes(ub_glg *g, uint32_t first, uint32_t count, const float *rows)
@@ -1092,17 +1125,16 @@ void ub_glg_probe_sh(const ub_glg *g, uint32_t v, int windowed, float out[27])
     ub_sh2_window(out);
 }
 
-/* Compact interpolation: out = Σ (λ_i·2^e_i·w_band,i)·h_i, summed left to right in every
+/* Compact interpolation: out = Σ (λ_i·2^e_i·w_band,c,i)·h_i, summed left to right in every
  * path (AVX + F16C, scalar), so both give the same bits. */
-static void interp4_compact_scalar(const ub_glg *g, const uint32_t v[4], const float bw[4][3],
-                                   const unsigned zero[4], float out[27])
+static void interp4_compact_scalar(const ub_glg *g, const uint32_t v[4], float bw[4][3][4],
+                                   float out[27])
 {
   for (int k = 0; k < 27; k++) {
     int b = k < 3 ? 0 : k < 12 ? 1 : 2;
     float acc = 0.0f;
     for (int i = 0; i < 4; i++) {
-      float x = ((zero[i] >> (k % 3)) & 1u) ? 0.0f : bw[i][b];
-      float t = x * ub_half_to_float(g->cp_rows[27 * (size_t)v[i] + k]);
+      float t = bw[i][b][k % 3] * ub_half_to_float(g->cp_rows[27 * (size_t)v[i] + k]);
       acc = i ? acc + t : t;
     }
     out[k] = acc;
@@ -1111,20 +1143,33 @@ static void interp4_compact_scalar(const ub_glg *g, const uint32_t v[4], const f
 
 #if defined(GLG_HAVE_AVX_PATH)
 /* Lanes 3k + c: coefficient k, channel c. Lanes 0..2 band 0, 3..11 band 1, 12..26 band 2;
- * the blocks start at 0, 8, 16, 19 (as interp4_avx). */
-__attribute__((target("avx,f16c"))) static void interp4_compact_f16c(const ub_glg *g,
-                                                                     const uint32_t v[4],
-                                                                     const float bw[4][3],
-                                                                     float out[27])
+ * the blocks start at 0, 8, 16, 19 (as interp4_avx): with B = (b0, b1, b2, ·) the band-1
+ * and C the band-2 factors of the channels, block 0 = (a a a b0 | b1 b2 b0 b1), block 8 =
+ * (b2 b0 b1 b2 | c0 c1 c2 c0), blocks 16 and 19 = (c1 c2 c0 c1 | c2 c0 c1 c2). */
+__attribute__((target("avx,f16c,sse4.1"))) static void interp4_compact_f16c(const ub_glg *g,
+                                                                            const uint32_t v[4],
+                                                                            const float w[4],
+                                                                            float out[27])
 {
   __m256 w0[4], w8[4], w16[4];
   const uint16_t *h[4];
   for (int i = 0; i < 4; i++) {
-    __m256 a = _mm256_set1_ps(bw[i][0]), b = _mm256_set1_ps(bw[i][1]),
-           c = _mm256_set1_ps(bw[i][2]);
-    w0[i] = _mm256_blend_ps(a, b, 0xF8);
-    w8[i] = _mm256_blend_ps(b, c, 0xF0);
-    w16[i] = c;
+    uint32_t wd = cp_word(g, v[i]);
+    const float *t0 = cp_wtab[CP_CODE(wd, 0)], *t1 = cp_wtab[CP_CODE(wd, 1)],
+                *t2 = cp_wtab[CP_CODE(wd, 2)];
+    __m128 s = _mm_set1_ps(w[i] * pow2f(CP_EXP(wd))), z = _mm_loadu_ps(cp_ztab[CP_ZERO(wd)]);
+    __m128 a = _mm_mul_ps(s, z);
+    __m128 b = _mm_mul_ps(_mm_mul_ps(s, _mm_setr_ps(t0[0], t1[0], t2[0], 0.0f)), z);
+    __m128 c = _mm_mul_ps(_mm_mul_ps(s, _mm_setr_ps(t0[1], t1[1], t2[1], 0.0f)), z);
+    __m128 l0 = _mm_blend_ps(a, _mm_shuffle_ps(b, b, 0), 8);  /* a0 a1 a2 b0 */
+    __m128 h0 = _mm_shuffle_ps(b, b, _MM_SHUFFLE(1, 0, 2, 1));  /* b1 b2 b0 b1 */
+    __m128 l8 = _mm_shuffle_ps(b, b, _MM_SHUFFLE(2, 1, 0, 2));  /* b2 b0 b1 b2 */
+    __m128 h8 = _mm_shuffle_ps(c, c, _MM_SHUFFLE(0, 2, 1, 0));  /* c0 c1 c2 c0 */
+    __m128 l16 = _mm_shuffle_ps(c, c, _MM_SHUFFLE(1, 0, 2, 1)); /* c1 c2 c0 c1 */
+    __m128 h16 = _mm_shuffle_ps(c, c, _MM_SHUFFLE(2, 1, 0, 2)); /* c2 c0 c1 c2 */
+    w0[i] = _mm256_insertf128_ps(_mm256_castps128_ps256(l0), h0, 1);
+    w8[i] = _mm256_insertf128_ps(_mm256_castps128_ps256(l8), h8, 1);
+    w16[i] = _mm256_insertf128_ps(_mm256_castps128_ps256(l16), h16, 1);
     h[i] = g->cp_rows + 27 * (size_t)v[i];
   }
 #define GLG_H8(s, k) _mm256_cvtph_ps(_mm_loadu_si128((const __m128i *)(const void *)((s) + (k))))
@@ -1147,24 +1192,16 @@ __attribute__((target("avx,f16c"))) static void interp4_compact_f16c(const ub_gl
 
 static void interp4_compact(const ub_glg *g, const uint32_t v[4], const float w[4], float out[27])
 {
-  float bw[4][3];
-  unsigned zero[4], anyzero = 0;
-  for (int i = 0; i < 4; i++) {
-    uint32_t wd = cp_word(g, v[i]);
-    float s = w[i] * pow2f(CP_EXP(wd));
-    bw[i][0] = s;
-    bw[i][1] = s * cp_wtab[CP_CODE(wd)][0];
-    bw[i][2] = s * cp_wtab[CP_CODE(wd)][1];
-    zero[i] = CP_ZERO(wd);
-    anyzero |= zero[i];
-  }
 #if defined(GLG_HAVE_AVX_PATH)
-  if (g->simd && !anyzero) {
-    interp4_compact_f16c(g, v, bw, out);
+  if (g->simd) {
+    interp4_compact_f16c(g, v, w, out);
     return;
   }
 #endif
-  interp4_compact_scalar(g, v, bw, zero, out);
+  float bw[4][3][4];
+  for (int i = 0; i < 4; i++)
+    cp_weights(cp_word(g, v[i]), w[i], bw[i]);
+  interp4_compact_scalar(g, v, bw, out);
 }
 
 static inline void interp4(const ub_glg *g, const uint32_t v[4], const float w[4],

@@ -44,22 +44,21 @@
  *   - Compact probe store (desc.compact = 1, what the run-time uses): 58 B per probe.
  *     Each probe's RAW SH is kept in IEEE half times a per-probe power of two 2^e (the
  *     largest coefficient near 2^14, so dark probes next to bright ones keep 11 bits),
- *     plus one 32-bit word: e, the probe's window and a stale bit. The window is one
- *     parameter τ ∈ [0, 2] shared by the three channels, w1 = 1 − τ/2, w2 = max(0, 1 − τ)
- *     (ub_sh2_window's two phases as one curve), stored as code = 255·τ/2 rounded UP:
- *     τ = the largest channel's τ_c from ub_sh2_window_weights. Every τ between a
- *     channel's own and 1 keeps its irradiance ≥ 0 (the minimum over normals is concave in
- *     τ, ≥ margin at τ_c and ≥ 0 at τ = 1 for a non-negative radiance), and the code is
- *     checked on the stored values with ub_sh2_irradiance_min and raised until every
- *     channel passes (at code 255 only the DC term is left). A channel that is not finite
- *     or has DC ≤ 0 is zeroed (3 bits). The query applies the window while interpolating:
- *     corner i contributes (λ_i·2^e_i·w_band)·h, one product more per corner and band
- *     than plain half SH. Windows are found lazily: ub_glg_set_probes stores new raw rows
- *     and marks them stale, the first query that reads a stale probe finds its window
- *     (a few µs when it rings) and publishes the word with one atomic compare-and-swap
- *     (rows are never written by queries, so readers never see a torn row). Probe
- *     positions are not kept: only hull faces' and badly shaped tets' corners (the walk
- *     records hold the rest).
+ *     plus one 32-bit word: e, the probe's window and a stale bit. The window of a
+ *     channel is ub_sh2_window's, as one parameter τ ∈ [0, 2] (w1 = 1 − τ/2, w2 =
+ *     max(0, 1 − τ): its two phases as one curve) stored in 7 bits, code = 127·τ/2
+ *     rounded UP (for a non-negative radiance every τ between the channel's own and 1
+ *     keeps its irradiance ≥ 0: the minimum over normals is concave in τ); the code is
+ *     then checked on the stored values with ub_sh2_irradiance_min and raised until the
+ *     channel passes (at 127 only its DC term is left). A channel that is not finite or
+ *     has DC ≤ 0 is zeroed (3 bits). The query applies the windows while interpolating:
+ *     corner i contributes (λ_i·2^e_i·w_band,c)·h, one product more per corner, band and
+ *     channel than plain half SH. Windows are found lazily: ub_glg_set_probes stores new
+ *     raw rows and marks them stale, the first query that reads a stale probe finds its
+ *     window (a few µs when it rings) and publishes the word with one atomic
+ *     compare-and-swap (rows are never written by queries, so readers never see a torn
+ *     row). Probe positions are not kept: only hull faces' and badly shaped tets'
+ *     corners (the walk records hold the rest).
  *
  *   - Speed: one query = the cached-tet test (or a walk), leak weights, a 4 × 27
  *     interpolation (AVX when the CPU has it, else SSE2; the same bits) and the cosine
