@@ -143,7 +143,7 @@ int main(int argc, char **argv)
   char *mc_a = malloc(mc_bytes), *mc_b = malloc(mc_bytes);
   memset(mc_a, 1, mc_bytes);
   memset(mc_b, 2, mc_bytes);
-  double cohf_r[ROUNDS], bat_r[ROUNDS], half_r[ROUNDS], halfb_r[ROUNDS], lat_r[ROUNDS], mc_r[ROUNDS];
+  double cohf_r[ROUNDS], cohc_r[ROUNDS], bat_r[ROUNDS], half_r[ROUNDS], halfb_r[ROUNDS], lat_r[ROUNDS], mc_r[ROUNDS];
   for (int round = 0; round < ROUNDS; round++) {
     /* Coherent: a walk 1 cm per step, bouncing inside the bounds (the same path each
      * round). */
@@ -162,6 +162,25 @@ int main(int argc, char **argv)
       sink += e[1];
     }
     coh_r[round] = N / (ub_bench_now() - t0);
+    /* the same path through a cursor (the rows of the current tet held by the caller) */
+    {
+      float q[3] = {0.5f * (lo[0] + hi[0]), 0.5f * (lo[1] + hi[1]), 0.5f * (lo[2] + hi[2])};
+      float u[3] = {0.0062f, 0.0041f, 0.0066f};
+      ub_glg_cursor cur;
+      ub_glg_cursor_init(&cur);
+      t0 = ub_bench_now();
+      for (uint32_t i = 0; i < N; i++) {
+        for (int a = 0; a < 3; a++) {
+          q[a] += u[a];
+          if (q[a] < lo[a] || q[a] > hi[a])
+            u[a] = -u[a];
+        }
+        float n[3] = {0, 1, 0}, e[3];
+        ub_glg_query_cursor(g, q, n, &cur, e);
+        sink += e[1];
+      }
+      cohc_r[round] = N / (ub_bench_now() - t0);
+    }
     /* the same path over the float store */
     p[0] = 0.5f * (lo[0] + hi[0]), p[1] = 0.5f * (lo[1] + hi[1]), p[2] = 0.5f * (lo[2] + hi[2]);
     v[0] = 0.0062f, v[1] = 0.0041f, v[2] = 0.0066f;
@@ -236,7 +255,8 @@ int main(int argc, char **argv)
   }
   double coherent = median(coh_r, ROUNDS), random = median(rnd_r, ROUNDS),
          baseline = median(base_r, ROUNDS), batch = median(bat_r, ROUNDS),
-         half1 = median(half_r, ROUNDS), cohf = median(cohf_r, ROUNDS), halfb = median(halfb_r, ROUNDS),
+         half1 = median(half_r, ROUNDS), cohf = median(cohf_r, ROUNDS),
+         cohc = median(cohc_r, ROUNDS), halfb = median(halfb_r, ROUNDS),
          lat = median(lat_r, ROUNDS), mcbw = median(mc_r, ROUNDS);
   /* Compact vs float SH: irradiance difference at the random points, relative to the
    * point's mean irradiance (E for the normal and its opposite, summed). */
@@ -316,6 +336,9 @@ int main(int argc, char **argv)
   printf("  coherent walk (1 cm steps): %.2f M queries/s per core (target >= 20); median of %d "
          "rounds, range %.2f..%.2f\n", coherent * 1e-6, ROUNDS, coh_r[0] * 1e-6,
          coh_r[ROUNDS - 1] * 1e-6);
+  printf("  coherent walk with a cursor (ub_glg_query_cursor: the tet's 4 windowed rows held "
+         "by the caller): %.2f M queries/s per core (target >= 20); range %.2f..%.2f\n",
+         cohc * 1e-6, cohc_r[0] * 1e-6, cohc_r[ROUNDS - 1] * 1e-6);
   printf("  random points:              %.2f M queries/s per core (target >= 3); range "
          "%.2f..%.2f\n", random * 1e-6, rnd_r[0] * 1e-6, rnd_r[ROUNDS - 1] * 1e-6);
   printf("  coherent walk: %.3f walk steps per query, a new tet every %.1f queries, %.3f%% "

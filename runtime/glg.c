@@ -947,8 +947,12 @@ uint32_t ub_glg_refresh(const ub_glg *g)
 #define CP_EXP_MIN -64
 #define CP_EXP_MAX 63
 
-/* Band weights of a window code: w1 = 1 − code/127, w2 = max(0, 1 − 2·code/127). */
-#define CPW(c) {(float)(1.0 - (c) / 127.0), (float)((c) < 64 ? 1.0 - 2.0 * (c) / 127.0 : 0.0)}
+/* Band weights of a window code (τ/2 = code/128): w1 = 1 − code/128, w2 = max(0, 1 −
+ * code/64); code 127 is w1 = w2 = 0. Each has ≤ 8 significant bits, so w·h is exact in
+ * float for any half h: windowed rows (2^e·w)·h are exact, and a query's terms
+ * (λ·2^e)·(w·h) round once, like λ·row (what a cursor's cached rows give, bit for bit). */
+#define CPW(c)                                                                              \
+  {(c) == 127 ? 0.0f : (float)(1.0 - (c) / 128.0), (c) >= 64 ? 0.0f : (float)(1.0 - (c) / 64.0)}
 #define CPW4(b) CPW(b), CPW(b + 1), CPW(b + 2), CPW(b + 3)
 #define CPW16(b) CPW4(b), CPW4(b + 4), CPW4(b + 8), CPW4(b + 12)
 #define CPW64(b) CPW16(b), CPW16(b + 16), CPW16(b + 32), CPW16(b + 48)
@@ -969,18 +973,17 @@ static inline float pow2f(int e) /* |e| ≤ 126 */
   return x.f;
 }
 
-/* Per corner weights: s = λ·2^e; per channel c the band factors s, s·w1_c, s·w2_c (0 for a
- * zeroed channel), laid out as bw[band][c]. */
-static inline void cp_weights(uint32_t w, float lam, float bw[3][4])
+/* A probe's band factors per channel c: 1, w1_c, w2_c (all 0 for a zeroed channel), laid
+ * out as bw[band][c]. */
+static inline void cp_weights(uint32_t w, float bw[3][4])
 {
-  float s = lam * pow2f(CP_EXP(w));
   unsigned z = CP_ZERO(w);
   for (int c = 0; c < 3; c++) {
     const float *t = cp_wtab[CP_CODE(w, c)];
-    float zc = (z >> c) & 1u ? 0.0f : 1.0f; /* (s·w)·z: the AVX path's operations */
-    bw[0][c] = s * zc;
-    bw[1][c] = (s * t[0]) * zc;
-    bw[2][c] = (s * t[1]) * zc;
+    int zc = (z >> c) & 1u;
+    bw[0][c] = zc ? 0.0f : 1.0f;
+    bw[1][c] = zc ? 0.0f : t[0];
+    bw[2][c] = zc ? 0.0f : t[1];
   }
   bw[0][3] = bw[1][3] = bw[2][3] = 0.0f;
 }
@@ -1002,10 +1005,10 @@ static void cp_decode(const ub_glg *g, uint32_t v, uint32_t w, float out[27])
 static void cp_windowed(const ub_glg *g, uint32_t v, uint32_t w, float out[27])
 {
   const uint16_t *h = g->cp_rows + 27 * (size_t)v;
-  float bw[3][4];
-  cp_weights(w, 1.0f, bw);
+  float bw[3][4], s = pow2f(CP_EXP(w));
+  cp_weights(w, bw);
   for (int k = 0; k < 27; k++)
-    out[k] = bw[k < 3 ? 0 : k < 12 ? 1 : 2][k % 3] * ub_half_to_float(h[k]);
+    out[k] = s * (bw[k < 3 ? 0 : k < 12 ? 1 : 2][k % 3] * ub_half_to_float(h[k]));
 }
 
 /* The window of probe v (word w, stale): per channel the code of ub_sh2_window's τ rounded
@@ -1021,7 +1024,7 @@ static uint32_t cp_find_window(const ub_glg *g, uint32_t v, uint32_t w)
     if (flags & UB_SH2_ZEROED(c)) {
       nw |= 1u << (21 + c);
     } else if (flags & UB_SH2_WINDOWED(c)) {
-      double x = ceil((1.0 - (double)w1[c]) * 127.0); /* τ/2 = 1 − w1 */
+      double x = ceil((1.0 - (double)w1[c]) * 128.0); /* τ/2 = 1 − w1 */
       uint32_t code = x >= 127.0 ? 127u : x <= 0.0 ? 0u : (uint32_t)x;
       nw |= code << (7 * c);
       check |= 1u << c;
@@ -1098,6 +1101,7 @@ void ub_glg_set_probes(ub_glg *g, uint32_t first, uint32_t count, const float *r
     uint32_t w = cp_encode(rows + 27 * (size_t)i, g->cp_rows + 27 * ((size_t)first + i));
     atomic_store_explicit(cp_words(g) + first + i, w, memory_order_relaxed);
   }
+  atomic_fetch_add_explicit(cp_words(g) + g->probe_count, 1u, memory_order_relaxed);
 }
 
 void ub_glg_probe_sh(const ub_glg *g, uint32_t v, int windowed, float out[27])
@@ -1125,16 +1129,23 @@ void ub_glg_probe_sh(const ub_glg *g, uint32_t v, int windowed, float out[27])
     ub_sh2_window(out);
 }
 
-/* Compact interpolation: out = Σ (λ_i·2^e_i·w_band,c,i)·h_i, summed left to right in every
- * path (AVX + F16C, scalar), so both give the same bits. */
-static void interp4_compact_scalar(const ub_glg *g, const uint32_t v[4], float bw[4][3][4],
+/* Compact interpolation: out = Σ (λ_i·2^e_i)·(w_band,c,i·h_i), the product in brackets
+ * exact, summed left to right in every path (AVX + F16C, scalar, a cursor's rows), so all
+ * give the same bits. */
+static void interp4_compact_scalar(const ub_glg *g, const uint32_t v[4], const float w[4],
                                    float out[27])
 {
+  float bw[4][3][4], s[4];
+  for (int i = 0; i < 4; i++) {
+    uint32_t wd = cp_word(g, v[i]);
+    cp_weights(wd, bw[i]);
+    s[i] = w[i] * pow2f(CP_EXP(wd));
+  }
   for (int k = 0; k < 27; k++) {
     int b = k < 3 ? 0 : k < 12 ? 1 : 2;
     float acc = 0.0f;
     for (int i = 0; i < 4; i++) {
-      float t = bw[i][b][k % 3] * ub_half_to_float(g->cp_rows[27 * (size_t)v[i] + k]);
+      float t = s[i] * (bw[i][b][k % 3] * ub_half_to_float(g->cp_rows[27 * (size_t)v[i] + k]));
       acc = i ? acc + t : t;
     }
     out[k] = acc;
@@ -1146,48 +1157,80 @@ static void interp4_compact_scalar(const ub_glg *g, const uint32_t v[4], float b
  * the blocks start at 0, 8, 16, 19 (as interp4_avx): with B = (b0, b1, b2, ·) the band-1
  * and C the band-2 factors of the channels, block 0 = (a a a b0 | b1 b2 b0 b1), block 8 =
  * (b2 b0 b1 b2 | c0 c1 c2 c0), blocks 16 and 19 = (c1 c2 c0 c1 | c2 c0 c1 c2). */
+/* The three pattern vectors of a probe's word (band factors per lane, see above). */
+__attribute__((target("avx,f16c,sse4.1"))) static inline void cp_patterns(uint32_t wd,
+                                                                           __m256 *p0,
+                                                                           __m256 *p8,
+                                                                           __m256 *p16)
+{
+  const float *t0 = cp_wtab[CP_CODE(wd, 0)], *t1 = cp_wtab[CP_CODE(wd, 1)],
+              *t2 = cp_wtab[CP_CODE(wd, 2)];
+  __m128 a = _mm_set1_ps(1.0f);
+  __m128 b = _mm_setr_ps(t0[0], t1[0], t2[0], 0.0f), c = _mm_setr_ps(t0[1], t1[1], t2[1], 0.0f);
+  if (__builtin_expect(CP_ZERO(wd) != 0, 0)) {
+    __m128 z = _mm_loadu_ps(cp_ztab[CP_ZERO(wd)]);
+    a = z;
+    b = _mm_mul_ps(b, z);
+    c = _mm_mul_ps(c, z);
+  }
+  __m128 l0 = _mm_blend_ps(a, _mm_shuffle_ps(b, b, 0), 8);  /* a0 a1 a2 b0 */
+  __m128 h0 = _mm_shuffle_ps(b, b, _MM_SHUFFLE(1, 0, 2, 1));  /* b1 b2 b0 b1 */
+  __m128 l8 = _mm_shuffle_ps(b, b, _MM_SHUFFLE(2, 1, 0, 2));  /* b2 b0 b1 b2 */
+  __m128 h8 = _mm_shuffle_ps(c, c, _MM_SHUFFLE(0, 2, 1, 0));  /* c0 c1 c2 c0 */
+  __m128 l16 = _mm_shuffle_ps(c, c, _MM_SHUFFLE(1, 0, 2, 1)); /* c1 c2 c0 c1 */
+  __m128 h16 = _mm_shuffle_ps(c, c, _MM_SHUFFLE(2, 1, 0, 2)); /* c2 c0 c1 c2 */
+  *p0 = _mm256_insertf128_ps(_mm256_castps128_ps256(l0), h0, 1);
+  *p8 = _mm256_insertf128_ps(_mm256_castps128_ps256(l8), h8, 1);
+  *p16 = _mm256_insertf128_ps(_mm256_castps128_ps256(l16), h16, 1);
+}
+
+#define GLG_H8(s, k) _mm256_cvtph_ps(_mm_loadu_si128((const __m128i *)(const void *)((s) + (k))))
+
 __attribute__((target("avx,f16c,sse4.1"))) static void interp4_compact_f16c(const ub_glg *g,
                                                                             const uint32_t v[4],
                                                                             const float w[4],
                                                                             float out[27])
 {
-  __m256 w0[4], w8[4], w16[4];
+  __m256 p0[4], p8[4], p16[4], s[4];
   const uint16_t *h[4];
   for (int i = 0; i < 4; i++) {
     uint32_t wd = cp_word(g, v[i]);
-    const float *t0 = cp_wtab[CP_CODE(wd, 0)], *t1 = cp_wtab[CP_CODE(wd, 1)],
-                *t2 = cp_wtab[CP_CODE(wd, 2)];
-    __m128 s = _mm_set1_ps(w[i] * pow2f(CP_EXP(wd))), z = _mm_loadu_ps(cp_ztab[CP_ZERO(wd)]);
-    __m128 a = _mm_mul_ps(s, z);
-    __m128 b = _mm_mul_ps(_mm_mul_ps(s, _mm_setr_ps(t0[0], t1[0], t2[0], 0.0f)), z);
-    __m128 c = _mm_mul_ps(_mm_mul_ps(s, _mm_setr_ps(t0[1], t1[1], t2[1], 0.0f)), z);
-    __m128 l0 = _mm_blend_ps(a, _mm_shuffle_ps(b, b, 0), 8);  /* a0 a1 a2 b0 */
-    __m128 h0 = _mm_shuffle_ps(b, b, _MM_SHUFFLE(1, 0, 2, 1));  /* b1 b2 b0 b1 */
-    __m128 l8 = _mm_shuffle_ps(b, b, _MM_SHUFFLE(2, 1, 0, 2));  /* b2 b0 b1 b2 */
-    __m128 h8 = _mm_shuffle_ps(c, c, _MM_SHUFFLE(0, 2, 1, 0));  /* c0 c1 c2 c0 */
-    __m128 l16 = _mm_shuffle_ps(c, c, _MM_SHUFFLE(1, 0, 2, 1)); /* c1 c2 c0 c1 */
-    __m128 h16 = _mm_shuffle_ps(c, c, _MM_SHUFFLE(2, 1, 0, 2)); /* c2 c0 c1 c2 */
-    w0[i] = _mm256_insertf128_ps(_mm256_castps128_ps256(l0), h0, 1);
-    w8[i] = _mm256_insertf128_ps(_mm256_castps128_ps256(l8), h8, 1);
-    w16[i] = _mm256_insertf128_ps(_mm256_castps128_ps256(l16), h16, 1);
+    cp_patterns(wd, &p0[i], &p8[i], &p16[i]);
+    s[i] = _mm256_set1_ps(w[i] * pow2f(CP_EXP(wd)));
     h[i] = g->cp_rows + 27 * (size_t)v[i];
   }
-#define GLG_H8(s, k) _mm256_cvtph_ps(_mm_loadu_si128((const __m128i *)(const void *)((s) + (k))))
-#define GLG_BLOCK(W, k)                                                                      \
+#define GLG_TERM(P, i, k) _mm256_mul_ps(s[i], _mm256_mul_ps(P[i], GLG_H8(h[i], k)))
+#define GLG_BLOCK(P, k)                                                                      \
   do {                                                                                       \
-    __m256 acc = _mm256_mul_ps(W[0], GLG_H8(h[0], k));                                      \
-    acc = _mm256_add_ps(acc, _mm256_mul_ps(W[1], GLG_H8(h[1], k)));                         \
-    acc = _mm256_add_ps(acc, _mm256_mul_ps(W[2], GLG_H8(h[2], k)));                         \
-    acc = _mm256_add_ps(acc, _mm256_mul_ps(W[3], GLG_H8(h[3], k)));                         \
+    __m256 acc = GLG_TERM(P, 0, k);                                                          \
+    acc = _mm256_add_ps(acc, GLG_TERM(P, 1, k));                                             \
+    acc = _mm256_add_ps(acc, GLG_TERM(P, 2, k));                                             \
+    acc = _mm256_add_ps(acc, GLG_TERM(P, 3, k));                                             \
     _mm256_storeu_ps(out + (k), acc);                                                        \
   } while (0)
-  GLG_BLOCK(w0, 0);
-  GLG_BLOCK(w8, 8);
-  GLG_BLOCK(w16, 16);
-  GLG_BLOCK(w16, 19);
+  GLG_BLOCK(p0, 0);
+  GLG_BLOCK(p8, 8);
+  GLG_BLOCK(p16, 16);
+  GLG_BLOCK(p16, 19);
 #undef GLG_BLOCK
-#undef GLG_H8
+#undef GLG_TERM
 }
+
+/* Probe v's windowed row (2^e·w)·h, exact, into out (27 floats; 28 written, the last 0). */
+__attribute__((target("avx,f16c,sse4.1"))) static void cp_row_f16c(const ub_glg *g, uint32_t v,
+                                                                   float out[28])
+{
+  uint32_t wd = cp_word(g, v);
+  __m256 p0, p8, p16, s = _mm256_set1_ps(pow2f(CP_EXP(wd)));
+  cp_patterns(wd, &p0, &p8, &p16);
+  const uint16_t *h = g->cp_rows + 27 * (size_t)v;
+  _mm256_storeu_ps(out, _mm256_mul_ps(s, _mm256_mul_ps(p0, GLG_H8(h, 0))));
+  _mm256_storeu_ps(out + 8, _mm256_mul_ps(s, _mm256_mul_ps(p8, GLG_H8(h, 8))));
+  _mm256_storeu_ps(out + 16, _mm256_mul_ps(s, _mm256_mul_ps(p16, GLG_H8(h, 16))));
+  _mm256_storeu_ps(out + 19, _mm256_mul_ps(s, _mm256_mul_ps(p16, GLG_H8(h, 19))));
+  out[27] = 0.0f;
+}
+#undef GLG_H8
 #endif
 
 static void interp4_compact(const ub_glg *g, const uint32_t v[4], const float w[4], float out[27])
@@ -1198,10 +1241,7 @@ static void interp4_compact(const ub_glg *g, const uint32_t v[4], const float w[
     return;
   }
 #endif
-  float bw[4][3][4];
-  for (int i = 0; i < 4; i++)
-    cp_weights(cp_word(g, v[i]), w[i], bw[i]);
-  interp4_compact_scalar(g, v, bw, out);
+  interp4_compact_scalar(g, v, w, out);
 }
 
 static inline void interp4(const ub_glg *g, const uint32_t v[4], const float w[4],
@@ -1294,10 +1334,10 @@ static void shade(const ub_glg *g, float sh[28], const float n[3], float out_rgb
   out_rgb[2] = e2 > 0.0f ? e2 : 0.0f;
 }
 
-void ub_glg_sample(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
-                   float out_sh[27])
+/* The tet for p and its interpolation weights (barycentrics with the leak weights). */
+static inline uint32_t sample_locate(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
+                                     float w[4])
 {
-  float w[4];
   uint32_t t = inout_tet_cache ? *inout_tet_cache : GLG_NONE;
   /* Fast path, the same answer as ub_glg_locate's first test: p (finite) still inside
    * the cached, well-shaped tet. */
@@ -1312,7 +1352,58 @@ void ub_glg_sample(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
     t = ub_glg_locate_ex(g, p, inout_tet_cache, w, NULL);
   }
   leak_weights(g, t, p, w);
+  return t;
+}
+
+void ub_glg_sample(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
+                   float out_sh[27])
+{
+  float w[4];
+  uint32_t t = sample_locate(g, p, inout_tet_cache, w);
   interp4(g, g->tets + 4 * (size_t)t, w, out_sh);
+}
+
+void ub_glg_cursor_init(ub_glg_cursor *c)
+{
+  assert(c);
+  memset(c, 0, sizeof *c);
+  c->tet = c->rows_tet = UB_GLG_NO_CACHE;
+}
+
+void ub_glg_query_cursor(const ub_glg *g, const float p[3], const float n[3], ub_glg_cursor *c,
+                         float out_rgb[3])
+{
+  if (!g->cp_rows) {
+    ub_glg_query(g, p, n, &c->tet, out_rgb);
+    return;
+  }
+  float w[4], sh[28];
+  sh[27] = 0.0f;
+  uint32_t t = sample_locate(g, p, &c->tet, w);
+  uint32_t gen = atomic_load_explicit(cp_words(g) + g->probe_count, memory_order_relaxed);
+  if (t != c->rows_tet || gen != c->generation) {
+    const uint32_t *v = g->tets + 4 * (size_t)t;
+    for (int i = 0; i < 4; i++) {
+#if defined(GLG_HAVE_AVX_PATH)
+      if (g->simd) {
+        cp_row_f16c(g, v[i], c->rows[i]);
+        continue;
+      }
+#endif
+      cp_windowed(g, v[i], cp_word(g, v[i]), c->rows[i]);
+      c->rows[i][27] = 0.0f;
+    }
+    c->rows_tet = t;
+    c->generation = gen;
+  }
+  /* λ_i·row_i: the compact kernel's terms (λ_i·2^e_i)·(w·h_i), bit for bit */
+#if defined(GLG_HAVE_AVX_PATH)
+  if (g->simd)
+    interp4_avx(c->rows[0], c->rows[1], c->rows[2], c->rows[3], w, sh);
+  else
+#endif
+    interp4_sse(c->rows[0], c->rows[1], c->rows[2], c->rows[3], w, sh);
+  shade(g, sh, n, out_rgb);
 }
 
 void ub_glg_query(const ub_glg *g, const float p[3], const float n[3],
@@ -1722,7 +1813,7 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
   g->probe_count = d->probe_count;
   if (d->compact) { /* every probe encoded now, windowed lazily */
     g->cp_rows = malloc((size_t)d->probe_count * 27 * sizeof *g->cp_rows);
-    g->cp_word = malloc((size_t)d->probe_count * sizeof(uint32_t));
+    g->cp_word = malloc(((size_t)d->probe_count + 1) * sizeof(uint32_t)); /* + generation */
     if (!g->cp_rows || !g->cp_word) {
       free(g->cp_rows);
       free(g->cp_word);
@@ -1733,6 +1824,7 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
     for (uint32_t q = 0; q < d->probe_count; q++)
       atomic_init(cp_words(g) + q,
                   cp_encode(d->sh + 27 * (size_t)q, g->cp_rows + 27 * (size_t)q));
+    atomic_init(cp_words(g) + d->probe_count, 0u);
   }
   g->sh = d->sh_half || d->compact ? NULL : d->sh;
   g->sh_half = d->sh_half;

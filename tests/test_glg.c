@@ -1418,7 +1418,10 @@ static void test_compact(void)
   float *qp = malloc(3 * Q * sizeof *qp), *qn = malloc(3 * Q * sizeof *qn);
   float *got = malloc(3 * Q * sizeof *got), *want = malloc(3 * Q * sizeof *want);
   double worst_def = 0.0;
-  int same_bits = 1, finite = 1;
+  int same_bits = 1, finite = 1, cursor_bits = 1;
+  ub_glg_cursor cur;
+  ub_glg_cursor_init(&cur);
+  uint32_t pc = UB_GLG_NO_CACHE; /* a tet cache following the cursor's points */
   for (int i = 0; i < Q; i++) {
     for (int a = 0; a < 3; a++)
       qp[3 * i + a] = (float)(-0.5 + 5.0 * rnd());
@@ -1431,6 +1434,18 @@ static void test_compact(void)
     ub_glg_query(&g, qp + 3 * i, qn + 3 * i, &cache, rgb);
     query_scalar(&g, qp + 3 * i, qn + 3 * i, rs);
     same_bits &= !memcmp(rgb, rs, sizeof rgb);
+    /* a cursor: the same bits, for a random point (a new tet) and 20 steps of 2 mm */
+    float cq[3];
+    ub_glg_query(&g, qp + 3 * i, qn + 3 * i, &pc, rs);
+    ub_glg_query_cursor(&g, qp + 3 * i, qn + 3 * i, &cur, cq);
+    cursor_bits &= !memcmp(rs, cq, sizeof rs) && pc == cur.tet;
+    if (i % 10 == 0)
+      for (int st = 1; st <= 20; st++) {
+        float pp[3] = {qp[3 * i] + 0.002f * st, qp[3 * i + 1] + 0.001f * st, qp[3 * i + 2]};
+        ub_glg_query(&g, pp, qn + 3 * i, &pc, rs);
+        ub_glg_query_cursor(&g, pp, qn + 3 * i, &cur, cq);
+        cursor_bits &= !memcmp(rs, cq, sizeof rs) && pc == cur.tet;
+      }
     for (int k = 0; k < 27; k++) {
       double e = 0.0, mag = 0.0;
       for (int c = 0; c < 4; c++) {
@@ -1445,10 +1460,11 @@ static void test_compact(void)
       finite &= isfinite(rgb[c]) && rgb[c] >= 0.0f;
   }
   printf("compact queries: %d points, interpolation vs the definition worst %.2e of the "
-         "magnitudes; AVX and scalar kernels %s\n", Q, worst_def,
-         same_bits ? "bit-identical" : "DIFFER");
+         "magnitudes; AVX and scalar kernels %s; cursor queries %s\n", Q, worst_def,
+         same_bits ? "bit-identical" : "DIFFER", cursor_bits ? "bit-identical" : "DIFFER");
   ASSERT_TRUE(worst_def < 1e-6);
   ASSERT_TRUE(same_bits);
+  ASSERT_TRUE(cursor_bits);
   ASSERT_TRUE(finite);
   /* new rows, read stale by 4 threads at once, vs a GLG built from them */
   int mismatch = 0;
@@ -1456,7 +1472,14 @@ static void test_compact(void)
     uint32_t first = rndu(np / 2), count = np / 3;
     for (uint32_t q = first; q < first + count; q++)
       (q % 2 ? lobe_sh : physical_sh)(raw + 27 * (size_t)q);
+    /* a cursor holding the rows of the tets around probe `first` before the change */
+    float at[3], cq[3], rs[3];
+    memcpy(at, m->points + 3 * (size_t)first, sizeof at);
+    ub_glg_query_cursor(&g, at, qn, &cur, cq);
     ub_glg_set_probes(&g, first, count, raw + 27 * (size_t)first);
+    ub_glg_query(&g, at, qn, &pc, rs);
+    ub_glg_query_cursor(&g, at, qn, &cur, cq);
+    mismatch += memcmp(cq, rs, sizeof cq) != 0;
     ub_glg fresh;
     ASSERT_OK(ub_glg_init(&fresh, &d, &test_log));
     for (int i = 0; i < Q; i++) {
@@ -1480,6 +1503,13 @@ static void test_compact(void)
       }
     }
     mismatch += memcmp(got, want, 3 * Q * sizeof(float)) != 0;
+    /* the cursor from before the change: its rows are stale, it must not use them */
+    for (int i = 0; i < Q; i += 7) {
+      float cq[3], rs[3];
+      ub_glg_query(&g, qp + 3 * i, qn + 3 * i, &pc, rs);
+      ub_glg_query_cursor(&g, qp + 3 * i, qn + 3 * i, &cur, cq);
+      mismatch += memcmp(cq, rs, sizeof cq) != 0;
+    }
     ub_glg_refresh(&g);
     ASSERT_TRUE(ub_glg_refresh(&g) == 0);
     ub_glg_release(&fresh);

@@ -194,6 +194,24 @@ void ub_glg_sample(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
 void ub_glg_query(const ub_glg *g, const float p[3], const float n[3],
                   uint32_t *inout_tet_cache, float out_rgb[3]);
 
+/* A moving object's cursor: its tet cache and, with the compact store, the windowed rows
+ * of that tet's four probes, so consecutive queries in one tet read 4 × 27 floats instead
+ * of decoding and windowing the probes (the same bits as ub_glg_query). Valid for one
+ * ub_glg; ub_glg_set_probes makes its rows stale (a generation count). 464 bytes.
+ * Initialise with ub_glg_cursor_init. Thread safety: one cursor per thread, like a tet
+ * cache. */
+typedef struct ub_glg_cursor {
+  uint32_t tet;        /* the tet cache (as inout_tet_cache) */
+  uint32_t rows_tet;   /* the tet whose rows are held, UB_GLG_NO_CACHE: none */
+  uint32_t generation; /* the store's generation they are from */
+  uint32_t pad;
+  float rows[4][28];
+} ub_glg_cursor;
+void ub_glg_cursor_init(ub_glg_cursor *c);
+/* ub_glg_query through a cursor (any store; without the compact one, only its tet). */
+void ub_glg_query_cursor(const ub_glg *g, const float p[3], const float n[3], ub_glg_cursor *c,
+                         float out_rgb[3]);
+
 /* count queries at once (points, normals: count × 3; out_rgb: count × 3), the same answers
  * as count calls of ub_glg_query. inout_tet_caches: count caches (each as above) or NULL
  * (every walk starts from the start grid). Many independent queries (particles, a frame's
