@@ -1429,14 +1429,11 @@ void ub_glg_cursor_init(ub_glg_cursor *c)
   c->tet = c->rows_tet = UB_GLG_NO_CACHE;
 }
 
-void ub_glg_query_cursor(const ub_glg *g, const float p[3], const float n[3], ub_glg_cursor *c,
-                         float out_rgb[3])
+/* ub_glg_sample through a cursor (compact store): the interpolated windowed SH into sh
+ * (28 floats, the last 0). */
+static void cursor_sample(const ub_glg *g, const float p[3], ub_glg_cursor *c, float sh[28])
 {
-  if (!g->cp_rows) {
-    ub_glg_query(g, p, n, &c->tet, out_rgb);
-    return;
-  }
-  float w[4], sh[28];
+  float w[4];
   sh[27] = 0.0f;
   uint32_t t = sample_locate(g, p, &c->tet, w);
   uint32_t gen = atomic_load_explicit(cp_words(g) + g->probe_count, memory_order_relaxed);
@@ -1462,6 +1459,17 @@ void ub_glg_query_cursor(const ub_glg *g, const float p[3], const float n[3], ub
   else
 #endif
     interp4_sse(c->rows[0], c->rows[1], c->rows[2], c->rows[3], w, sh);
+}
+
+void ub_glg_query_cursor(const ub_glg *g, const float p[3], const float n[3], ub_glg_cursor *c,
+                         float out_rgb[3])
+{
+  if (!g->cp_rows) {
+    ub_glg_query(g, p, n, &c->tet, out_rgb);
+    return;
+  }
+  float sh[28];
+  cursor_sample(g, p, c, sh);
   shade(g, sh, n, out_rgb);
 }
 
@@ -1609,6 +1617,11 @@ ub_result ub_glg_resample_llg(const ub_glg *g, const float center[3], const floa
   uint32_t local = GLG_NONE;
   uint32_t *cache = inout_tet_cache ? inout_tet_cache : &local;
   const uint32_t dims[3] = {nx, ny, nz};
+  /* compact store: the current tet's windowed rows held while the points stay in it (the
+   * same bits as ub_glg_sample) */
+  ub_glg_cursor cur;
+  ub_glg_cursor_init(&cur);
+  cur.tet = *cache;
   for (uint32_t iz = 0; iz < nz; iz++) {
     for (uint32_t jy = 0; jy < ny; jy++) {
       uint32_t iy = (iz & 1) ? ny - 1 - jy : jy; /* serpentine: neighbours stay adjacent */
@@ -1621,10 +1634,19 @@ ub_result ub_glg_resample_llg(const ub_glg *g, const float center[3], const floa
           for (int i = 0; i < 3; i++)
             p[i] += s * half[a] * axes[3 * a + i];
         }
-        ub_glg_sample(g, p, cache, out_sh + 27 * ((size_t)ix + nx * ((size_t)iy + (size_t)ny * iz)));
+        float *o = out_sh + 27 * ((size_t)ix + nx * ((size_t)iy + (size_t)ny * iz));
+        if (g->cp_rows) {
+          float sh[28];
+          cursor_sample(g, p, &cur, sh);
+          memcpy(o, sh, 27 * sizeof *o);
+        } else {
+          ub_glg_sample(g, p, cache, o);
+        }
       }
     }
   }
+  if (g->cp_rows)
+    *cache = cur.tet;
   return UB_OK;
 }
 

@@ -1273,6 +1273,18 @@ ub_result ub_runtime_query_glg(const ub_runtime *rt, const float p[3], const flo
   return UB_OK;
 }
 
+ub_result ub_runtime_query_glg_cursor(const ub_runtime *rt, const float p[3], const float n[3],
+                                      ub_glg_cursor *cursor, float out_rgb[3])
+{
+  assert(rt && p && n && cursor && out_rgb);
+  if (!rt->has_glg)
+    return UB_ERR_NOT_BAKED;
+  if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2]))
+    return UB_ERR_INVALID_ARGUMENT;
+  ub_glg_query_cursor(&rt->glg, p, n, cursor, out_rgb);
+  return UB_OK;
+}
+
 ub_result ub_runtime_glg_probe_sh(const ub_runtime *rt, int windowed, float *out)
 {
   assert(rt && out);

@@ -1465,6 +1465,30 @@ static void test_compact(void)
   ASSERT_TRUE(worst_def < 1e-6);
   ASSERT_TRUE(same_bits);
   ASSERT_TRUE(cursor_bits);
+  /* the LLG resample (a cursor inside) equals ub_glg_sample along its serpentine order */
+  {
+    enum { NX = 5, NY = 4, NZ = 3 };
+    const float ctr[3] = {2.0f, 2.1f, 1.9f}, ax[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1},
+                hx[3] = {0.8f, 0.5f, 0.4f};
+    float *rs_sh = malloc(NX * NY * NZ * 27 * sizeof *rs_sh), one[27];
+    uint32_t rc = UB_GLG_NO_CACHE, sc = UB_GLG_NO_CACHE;
+    ASSERT_OK(ub_glg_resample_llg(&g, ctr, ax, hx, NX, NY, NZ, &rc, rs_sh));
+    int same = 1;
+    for (int iz = 0; iz < NZ; iz++)
+      for (int jy = 0; jy < NY; jy++) {
+        int iy = (iz & 1) ? NY - 1 - jy : jy;
+        for (int jx = 0; jx < NX; jx++) {
+          int ix = ((iz * NY + jy) & 1) ? NX - 1 - jx : jx;
+          float pp[3] = {ctr[0] + (-1.0f + 2.0f * (float)ix / (NX - 1)) * hx[0],
+                         ctr[1] + (-1.0f + 2.0f * (float)iy / (NY - 1)) * hx[1],
+                         ctr[2] + (-1.0f + 2.0f * (float)iz / (NZ - 1)) * hx[2]};
+          ub_glg_sample(&g, pp, &sc, one);
+          same &= !memcmp(one, rs_sh + 27 * (ix + NX * (iy + NY * iz)), sizeof one);
+        }
+      }
+    ASSERT_TRUE(same && rc == sc);
+    free(rs_sh);
+  }
   ASSERT_TRUE(finite);
   /* new rows, read stale by 4 threads at once, vs a GLG built from them */
   int mismatch = 0;

@@ -110,6 +110,12 @@ ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint
  * or thread), or NULL. UB_ERR_NOT_BAKED when the file has no GLG. */
 ub_result ub_runtime_query_glg(const ub_runtime *rt, const float p[3], const float n[3],
                                uint32_t *inout_tet_cache, float out_rgb[3]);
+/* The same through a moving object's cursor (ubake/glg.h: its tet and that tet's four
+ * probes' windowed rows, so consecutive queries in one tet skip decoding the probes; the
+ * same bits). Initialise it with ub_glg_cursor_init; one per object or thread. */
+struct ub_glg_cursor;
+ub_result ub_runtime_query_glg_cursor(const ub_runtime *rt, const float p[3], const float n[3],
+                                      struct ub_glg_cursor *cursor, float out_rgb[3]);
 
 /* Irradiance (W/m², ≥ 0) from the local light grids (ubake/llg.h) at p for unit normal n
  * (normalised here). The model: the first whose box contains p, else the one whose box is
