@@ -154,10 +154,14 @@ static ub_result validate_glg(const ub_bakefile *bf, const char *name, const ub_
   static const char *where = "section GLGP";
   size_t bad;
   uint32_t p = bf->glg_probe_count, t = bf->glg_tet_count, k = bf->glg_plane_count;
-  assert(p == 0 || (bf->glg_positions && bf->glg_sh));
   assert(t == 0 || bf->glg_tets); /* glg_plane_of may be NULL: no planes */
-  if (t && !bf->glg_neigh) { /* a run-time's bake file (ub_runtime_bakefile) */
+  /* a run-time's bake file (ub_runtime_bakefile) keeps neither: the GLG holds its own */
+  if (t && !bf->glg_neigh) {
     ubk_error(log, name, where, "%u tetrahedra without their neighbours", t);
+    return UB_ERR_INVALID_ARGUMENT;
+  }
+  if (p && (!bf->glg_positions || !bf->glg_sh)) {
+    ubk_error(log, name, where, "%u probes without their positions or SH", p);
     return UB_ERR_INVALID_ARGUMENT;
   }
   assert(k == 0 || bf->glg_planes);
@@ -272,9 +276,13 @@ static ub_result validate_records(const ub_bakefile *bf, int elem, const char *n
         ubk_error(log, name, where, "record %u: name '%s' used twice", d, r->name);
         return UB_ERR_INVALID_DATA;
       }
-    assert(r->texel_count == 0 || (r->texel_index && r->texel_sh));
-    assert(r->probe_count == 0 || (r->probe_index && r->probe_sh));
-    assert(r->llg_probe_count == 0 || (r->llg_probe_index && r->llg_probe_sh));
+    /* a run-time's bake file keeps counts without the arrays (the blends hold them) */
+    if ((r->texel_count && (!r->texel_index || !r->texel_sh)) ||
+        (r->probe_count && (!r->probe_index || !r->probe_sh)) ||
+        (r->llg_probe_count && (!r->llg_probe_index || !r->llg_probe_sh))) {
+      ubk_error(log, name, where, "record %u (%s): receivers or values missing", d, r->name);
+      return UB_ERR_INVALID_ARGUMENT;
+    }
     if (!isfinite(r->mean_intensity) || r->mean_intensity < 0.0f) {
       ubk_error(log, name, where, "record %u (%s): mean intensity not finite and >= 0", d, r->name);
       return UB_ERR_INVALID_DATA;
@@ -464,7 +472,10 @@ static ub_result validate(const ub_bakefile *bf, const char *name, const ub_log 
                 at->height, UB_UBK_ATLAS_MAX_DIM);
       return UB_ERR_INVALID_DATA;
     }
-    assert(at->sh && at->coverage && at->normal);
+    if (!at->sh || !at->coverage || !at->normal) { /* e.g. a run-time's bake file */
+      ubk_error(log, name, "section ATLS", "atlas %u: SH, coverage or normals missing", a);
+      return UB_ERR_INVALID_ARGUMENT;
+    }
     size_t texels = (size_t)at->width * at->height;
     for (size_t i = 0; i < texels; i++)
       if (at->coverage[i] > 2) {

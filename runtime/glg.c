@@ -950,7 +950,7 @@ uint32_t ub_glg_refresh(const ub_glg *g)
 /* Band weights of a window code (τ/2 = code/128): w1 = 1 − code/128, w2 = max(0, 1 −
  * code/64); code 127 is w1 = w2 = 0. Each has ≤ 8 significant bits, so w·h is exact in
  * float for any half h: windowed rows (2^e·w)·h are exact, and a query's terms
- * (λ·2^e)·(w·h) round once, like λ·row (what a cursor's cached rows give, bit for bit). */
+ * λ·((2^e·w)·h) round once, like λ·row (what a cursor's cached rows give, bit for bit). */
 #define CPW(c)                                                                              \
   {(c) == 127 ? 0.0f : (float)(1.0 - (c) / 128.0), (c) >= 64 ? 0.0f : (float)(1.0 - (c) / 64.0)}
 #define CPW4(b) CPW(b), CPW(b + 1), CPW(b + 2), CPW(b + 3)
@@ -1008,7 +1008,7 @@ static void cp_windowed(const ub_glg *g, uint32_t v, uint32_t w, float out[27])
   float bw[3][4], s = pow2f(CP_EXP(w));
   cp_weights(w, bw);
   for (int k = 0; k < 27; k++)
-    out[k] = s * (bw[k < 3 ? 0 : k < 12 ? 1 : 2][k % 3] * ub_half_to_float(h[k]));
+    out[k] = (s * bw[k < 3 ? 0 : k < 12 ? 1 : 2][k % 3]) * ub_half_to_float(h[k]); /* exact */
 }
 
 /* The window of probe v (word w, stale): per channel the code of ub_sh2_window's τ rounded
@@ -1054,9 +1054,10 @@ static uint32_t cp_find_window(const ub_glg *g, uint32_t v, uint32_t w)
 __attribute__((noinline)) static uint32_t cp_word_slow(const ub_glg *g, uint32_t v, uint32_t w)
 {
   uint32_t nw = cp_find_window(g, v, w);
-  atomic_compare_exchange_strong_explicit(cp_words(g) + v, &w, nw, memory_order_relaxed,
-                                          memory_order_relaxed);
-  return nw;
+  if (atomic_compare_exchange_strong_explicit(cp_words(g) + v, &w, nw, memory_order_relaxed,
+                                              memory_order_relaxed))
+    return nw;
+  return w & CP_STALE ? nw : w; /* another query published first: use its word */
 }
 
 static inline uint32_t cp_word(const ub_glg *g, uint32_t v)
@@ -1188,23 +1189,27 @@ void ub_glg_probe_sh(const ub_glg *g, uint32_t v, int windowed, float out[27])
     ub_sh2_window(out);
 }
 
-/* Compact interpolation: out = Σ (λ_i·2^e_i)·(w_band,c,i·h_i), the product in brackets
- * exact, summed left to right in every path (AVX + F16C, scalar, a cursor's rows), so all
- * give the same bits. */
+/* Compact interpolation: out = Σ λ_i·((2^e_i·w_band,c,i)·h_i), the product in brackets
+ * exact (w·h has ≤ 19 significant bits and 2^e·w·h ≥ 2^-95 stays normal), so each term
+ * rounds once whatever λ is; summed left to right in every path (AVX + F16C, scalar, a
+ * cursor's rows λ_i·row_i), so all give the same bits. */
 static void interp4_compact_scalar(const ub_glg *g, const uint32_t v[4], const float w[4],
                                    float out[27])
 {
-  float bw[4][3][4], s[4];
+  float bw[4][3][4];
   for (int i = 0; i < 4; i++) {
     uint32_t wd = cp_word(g, v[i]);
     cp_weights(wd, bw[i]);
-    s[i] = w[i] * pow2f(CP_EXP(wd));
+    float e = pow2f(CP_EXP(wd));
+    for (int b = 0; b < 3; b++)
+      for (int c = 0; c < 3; c++)
+        bw[i][b][c] *= e; /* exact */
   }
   for (int k = 0; k < 27; k++) {
     int b = k < 3 ? 0 : k < 12 ? 1 : 2;
     float acc = 0.0f;
     for (int i = 0; i < 4; i++) {
-      float t = s[i] * (bw[i][b][k % 3] * ub_half_to_float(g->cp_rows[27 * (size_t)v[i] + k]));
+      float t = w[i] * (bw[i][b][k % 3] * ub_half_to_float(g->cp_rows[27 * (size_t)v[i] + k]));
       acc = i ? acc + t : t;
     }
     out[k] = acc;
@@ -1255,7 +1260,11 @@ __attribute__((target("avx,f16c,sse4.1"))) static void interp4_compact_f16c(cons
   for (int i = 0; i < 4; i++) {
     uint32_t wd = cp_word(g, v[i]);
     cp_patterns(wd, &p0[i], &p8[i], &p16[i]);
-    s[i] = _mm256_set1_ps(w[i] * pow2f(CP_EXP(wd)));
+    __m256 e = _mm256_set1_ps(pow2f(CP_EXP(wd))); /* 2^e·w: exact */
+    p0[i] = _mm256_mul_ps(p0[i], e);
+    p8[i] = _mm256_mul_ps(p8[i], e);
+    p16[i] = _mm256_mul_ps(p16[i], e);
+    s[i] = _mm256_set1_ps(w[i]);
     h[i] = g->cp_rows + 27 * (size_t)v[i];
   }
 #define GLG_TERM(P, i, k) _mm256_mul_ps(s[i], _mm256_mul_ps(P[i], GLG_H8(h[i], k)))
@@ -1280,13 +1289,16 @@ __attribute__((target("avx,f16c,sse4.1"))) static void cp_row_f16c(const ub_glg 
                                                                    float out[28])
 {
   uint32_t wd = cp_word(g, v);
-  __m256 p0, p8, p16, s = _mm256_set1_ps(pow2f(CP_EXP(wd)));
+  __m256 p0, p8, p16, e = _mm256_set1_ps(pow2f(CP_EXP(wd)));
   cp_patterns(wd, &p0, &p8, &p16);
+  p0 = _mm256_mul_ps(p0, e);
+  p8 = _mm256_mul_ps(p8, e);
+  p16 = _mm256_mul_ps(p16, e);
   const uint16_t *h = g->cp_rows + 27 * (size_t)v;
-  _mm256_storeu_ps(out, _mm256_mul_ps(s, _mm256_mul_ps(p0, GLG_H8(h, 0))));
-  _mm256_storeu_ps(out + 8, _mm256_mul_ps(s, _mm256_mul_ps(p8, GLG_H8(h, 8))));
-  _mm256_storeu_ps(out + 16, _mm256_mul_ps(s, _mm256_mul_ps(p16, GLG_H8(h, 16))));
-  _mm256_storeu_ps(out + 19, _mm256_mul_ps(s, _mm256_mul_ps(p16, GLG_H8(h, 19))));
+  _mm256_storeu_ps(out, _mm256_mul_ps(p0, GLG_H8(h, 0)));
+  _mm256_storeu_ps(out + 8, _mm256_mul_ps(p8, GLG_H8(h, 8)));
+  _mm256_storeu_ps(out + 16, _mm256_mul_ps(p16, GLG_H8(h, 16)));
+  _mm256_storeu_ps(out + 19, _mm256_mul_ps(p16, GLG_H8(h, 19)));
   out[27] = 0.0f;
 }
 #undef GLG_H8
@@ -1872,7 +1884,7 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
     return UB_ERR_INVALID_ARGUMENT;
   memset(g, 0, sizeof *g);
   if (!d || !d->positions || (!d->sh && !d->sh_half) || !d->tets || !d->neigh || d->probe_count < 4 ||
-      d->tet_count < 1 || (d->compact && (!d->sh || d->sh_windowed))) {
+      d->tet_count < 1 || (d->compact && (!d->sh || d->sh_half || d->sh_windowed))) {
     ub_log_printf(log, UB_LOG_ERROR, "glg: missing arrays or fewer than 4 probes / 1 tet");
     return UB_ERR_INVALID_ARGUMENT;
   }
@@ -1892,21 +1904,6 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
       return UB_ERR_INVALID_DATA;
     }
   g->probe_count = d->probe_count;
-  if (d->compact) { /* every probe encoded now, windowed lazily */
-    g->cp_rows = malloc((size_t)d->probe_count * 27 * sizeof *g->cp_rows);
-    g->cp_word = malloc(((size_t)d->probe_count + 1) * sizeof(uint32_t)); /* + generation */
-    if (!g->cp_rows || !g->cp_word) {
-      free(g->cp_rows);
-      free(g->cp_word);
-      memset(g, 0, sizeof *g);
-      ub_log_printf(log, UB_LOG_ERROR, "glg: out of memory (%u probes)", d->probe_count);
-      return UB_ERR_OUT_OF_MEMORY;
-    }
-    for (uint32_t q = 0; q < d->probe_count; q++)
-      atomic_init(cp_words(g) + q,
-                  cp_encode(d->sh + 27 * (size_t)q, g->cp_rows + 27 * (size_t)q));
-    atomic_init(cp_words(g) + d->probe_count, 0u);
-  }
   g->sh = d->sh_half || d->compact ? NULL : d->sh;
   g->sh_half = d->sh_half;
   g->sh_half_exp = d->sh_half ? d->sh_half_exp : NULL;
@@ -1950,6 +1947,19 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
     g->leak_plane_of = d->leak_plane_of;
   }
 
+  if (d->compact) { /* every probe encoded now, windowed lazily */
+    g->cp_rows = malloc((size_t)d->probe_count * 27 * sizeof *g->cp_rows);
+    g->cp_word = malloc(((size_t)d->probe_count + 1) * sizeof(uint32_t)); /* + generation */
+    if (!g->cp_rows || !g->cp_word) {
+      ub_log_printf(log, UB_LOG_ERROR, "glg: out of memory (%u probes)", d->probe_count);
+      ub_glg_release(g);
+      return UB_ERR_OUT_OF_MEMORY;
+    }
+    for (uint32_t q = 0; q < d->probe_count; q++)
+      atomic_init(cp_words(g) + q,
+                  cp_encode(d->sh + 27 * (size_t)q, g->cp_rows + 27 * (size_t)q));
+    atomic_init(cp_words(g) + d->probe_count, 0u);
+  }
   ub_result res = UB_OK;
   /* Topology: indices, neighbour symmetry, shared faces; count hull faces. */
   uint32_t hull_count = 0;

@@ -1146,9 +1146,9 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
   tc->texels += count;
 }
 
-/* The probes the blend just wrote: stale, windowed by the first query that reads them
- * (ub_glg_enable_lazy). Windowing at update time was three quarters of a room set's
- * toggle on the ESTATE-scale level (1.96 -> 0.51 ms without it). */
+/* The probes the blend just wrote go to the GLG's compact store, stale: windowed by the
+ * first query that reads them (ubake/glg.h). Windowing at update time was three quarters
+ * of a room set's toggle on the ESTATE-scale level (1.96 -> 0.51 ms without it). */
 static void glg_touched(void *user, uint32_t first, uint32_t count, const float *rows)
 {
   ub_runtime *rt = user;

@@ -109,6 +109,18 @@ static void test_linearity(ub_runtime *rt)
     ASSERT_TRUE(same);
     ASSERT_TRUE(changed >= 3);
   }
+  /* A run-time's bake file lacks the GLG arrays the run-time keeps its own way: writing it
+   * is refused with an error (no abort, nothing written). */
+  {
+    char wpath[1200];
+    snprintf(wpath, sizeof wpath, "%s/test_out/dls/runtime_copy.ubk", g_build);
+    remove(wpath);
+    ASSERT_TRUE(ub_bakefile_write(bf, wpath, NULL) == UB_ERR_INVALID_ARGUMENT);
+    FILE *f = fopen(wpath, "rb");
+    ASSERT_TRUE(f == NULL);
+    if (f)
+      fclose(f);
+  }
   set2(rt, 1, 1);
   ASSERT_OK(ub_runtime_glg_probe_sh(rt, 0, s11));
   set2(rt, 1, 0);

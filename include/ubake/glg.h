@@ -46,14 +46,14 @@
  *     largest coefficient near 2^14, so dark probes next to bright ones keep 11 bits),
  *     plus one 32-bit word: e, the probe's window and a stale bit. The window of a
  *     channel is ub_sh2_window's, as one parameter τ ∈ [0, 2] (w1 = 1 − τ/2, w2 =
- *     max(0, 1 − τ): its two phases as one curve) stored in 7 bits, code = 127·τ/2
- *     rounded UP (for a non-negative radiance every τ between the channel's own and 1
+ *     max(0, 1 − τ): its two phases as one curve) stored in 7 bits, code = 128·τ/2
+ *     rounded UP (127: w1 = w2 = 0) (for a non-negative radiance every τ between the channel's own and 1
  *     keeps its irradiance ≥ 0: the minimum over normals is concave in τ); the code is
  *     then checked on the stored values with ub_sh2_irradiance_min and raised until the
  *     channel passes (at 127 only its DC term is left). A channel that is not finite or
  *     has DC ≤ 0 is zeroed (3 bits). The query applies the windows while interpolating:
- *     corner i contributes (λ_i·2^e_i·w_band,c)·h, one product more per corner, band and
- *     channel than plain half SH. Windows are found lazily: ub_glg_set_probes stores new
+ *     corner i contributes λ_i·((2^e_i·w_band,c)·h), the bracket exact, one product more per
+ *     coefficient than plain half SH. Windows are found lazily: ub_glg_set_probes stores new
  *     raw rows and marks them stale, the first query that reads a stale probe finds its
  *     window (a few µs when it rings) and publishes the word with one atomic
  *     compare-and-swap (rows are never written by queries, so readers never see a torn
