@@ -39,6 +39,49 @@ static double median(double *v, int n)
   return v[n / 2];
 }
 
+/* The coherent path: from the bounds' centre, 1 cm per step, bouncing inside them. */
+typedef struct walk {
+  float p[3], v[3];
+} walk;
+
+static void walk_init(walk *w, const float lo[3], const float hi[3])
+{
+  for (int a = 0; a < 3; a++)
+    w->p[a] = 0.5f * (lo[a] + hi[a]);
+  w->v[0] = 0.0062f, w->v[1] = 0.0041f, w->v[2] = 0.0066f; /* |v| ≈ 1 cm */
+}
+
+static void walk_step(walk *w, const float lo[3], const float hi[3])
+{
+  for (int a = 0; a < 3; a++) {
+    w->p[a] += w->v[a];
+    if (w->p[a] < lo[a] || w->p[a] > hi[a])
+      w->v[a] = -w->v[a];
+  }
+}
+
+/* Queries per second along N steps of the path: with a tet cache, or a cursor. */
+static double coherent_rate(const ub_glg *g, int with_cursor, const float lo[3],
+                            const float hi[3], uint32_t N, double *sink)
+{
+  walk w;
+  walk_init(&w, lo, hi);
+  uint32_t cache = UB_GLG_NO_CACHE;
+  ub_glg_cursor cur;
+  ub_glg_cursor_init(&cur);
+  double t0 = ub_bench_now();
+  for (uint32_t i = 0; i < N; i++) {
+    walk_step(&w, lo, hi);
+    float n[3] = {0, 1, 0}, e[3];
+    if (with_cursor)
+      ub_glg_query_cursor(g, w.p, n, &cur, e);
+    else
+      ub_glg_query(g, w.p, n, &cache, e);
+    *sink += e[1];
+  }
+  return N / (ub_bench_now() - t0);
+}
+
 int main(int argc, char **argv)
 {
   const char *build = getenv("UB_BUILD") ? getenv("UB_BUILD") : "build";
@@ -145,58 +188,11 @@ int main(int argc, char **argv)
   memset(mc_b, 2, mc_bytes);
   double cohf_r[ROUNDS], cohc_r[ROUNDS], bat_r[ROUNDS], half_r[ROUNDS], halfb_r[ROUNDS], lat_r[ROUNDS], mc_r[ROUNDS];
   for (int round = 0; round < ROUNDS; round++) {
-    /* Coherent: a walk 1 cm per step, bouncing inside the bounds (the same path each
-     * round). */
-    float p[3] = {0.5f * (lo[0] + hi[0]), 0.5f * (lo[1] + hi[1]), 0.5f * (lo[2] + hi[2])};
-    float v[3] = {0.0062f, 0.0041f, 0.0066f}; /* |v| ≈ 1 cm */
-    cache = UB_GLG_NO_CACHE;
-    double t0 = ub_bench_now();
-    for (uint32_t i = 0; i < N; i++) {
-      for (int a = 0; a < 3; a++) {
-        p[a] += v[a];
-        if (p[a] < lo[a] || p[a] > hi[a])
-          v[a] = -v[a];
-      }
-      float n[3] = {0, 1, 0}, e[3];
-      ub_glg_query(g, p, n, &cache, e);
-      sink += e[1];
-    }
-    coh_r[round] = N / (ub_bench_now() - t0);
-    /* the same path through a cursor (the rows of the current tet held by the caller) */
-    {
-      float q[3] = {0.5f * (lo[0] + hi[0]), 0.5f * (lo[1] + hi[1]), 0.5f * (lo[2] + hi[2])};
-      float u[3] = {0.0062f, 0.0041f, 0.0066f};
-      ub_glg_cursor cur;
-      ub_glg_cursor_init(&cur);
-      t0 = ub_bench_now();
-      for (uint32_t i = 0; i < N; i++) {
-        for (int a = 0; a < 3; a++) {
-          q[a] += u[a];
-          if (q[a] < lo[a] || q[a] > hi[a])
-            u[a] = -u[a];
-        }
-        float n[3] = {0, 1, 0}, e[3];
-        ub_glg_query_cursor(g, q, n, &cur, e);
-        sink += e[1];
-      }
-      cohc_r[round] = N / (ub_bench_now() - t0);
-    }
-    /* the same path over the float store */
-    p[0] = 0.5f * (lo[0] + hi[0]), p[1] = 0.5f * (lo[1] + hi[1]), p[2] = 0.5f * (lo[2] + hi[2]);
-    v[0] = 0.0062f, v[1] = 0.0041f, v[2] = 0.0066f;
-    cache = UB_GLG_NO_CACHE;
-    t0 = ub_bench_now();
-    for (uint32_t i = 0; i < N; i++) {
-      for (int a = 0; a < 3; a++) {
-        p[a] += v[a];
-        if (p[a] < lo[a] || p[a] > hi[a])
-          v[a] = -v[a];
-      }
-      float n[3] = {0, 1, 0}, e[3];
-      ub_glg_query(&gh, p, n, &cache, e);
-      sink += e[1];
-    }
-    cohf_r[round] = N / (ub_bench_now() - t0);
+    /* Coherent: the walk (the same path each round) with a tet cache, with a cursor, and
+     * over the float store. */
+    coh_r[round] = coherent_rate(g, 0, lo, hi, N, &sink);
+    cohc_r[round] = coherent_rate(g, 1, lo, hi, N, &sink);
+    cohf_r[round] = coherent_rate(&gh, 0, lo, hi, N, &sink);
     if (getenv("UB_BENCH_COHERENT_ONLY")) { /* for profiling the coherent path */
       rnd_r[round] = base_r[round] = bat_r[round] = half_r[round] = halfb_r[round] = 0.0;
       lat_r[round] = mc_r[round] = 0.0;
@@ -204,7 +200,7 @@ int main(int argc, char **argv)
     }
     /* Random points in the level's bounds, one cache. */
     cache = UB_GLG_NO_CACHE;
-    t0 = ub_bench_now();
+    double t0 = ub_bench_now();
     for (uint32_t i = 0; i < M; i++) {
       float n[3] = {0, 1, 0}, e[3];
       ub_glg_query(g, pts + 3 * i, n, &cache, e);
@@ -299,19 +295,15 @@ int main(int argc, char **argv)
   /* The coherent walk's locate statistics (one pass of the same path). */
   double csteps = 0.0, cgrid = 0.0, cnew = 0.0;
   {
-    float p[3] = {0.5f * (lo[0] + hi[0]), 0.5f * (lo[1] + hi[1]), 0.5f * (lo[2] + hi[2])};
-    float v[3] = {0.0062f, 0.0041f, 0.0066f};
+    walk w;
+    walk_init(&w, lo, hi);
     uint32_t prev = UB_GLG_NO_CACHE;
     cache = UB_GLG_NO_CACHE;
     for (uint32_t i = 0; i < N; i++) {
-      for (int a = 0; a < 3; a++) {
-        p[a] += v[a];
-        if (p[a] < lo[a] || p[a] > hi[a])
-          v[a] = -v[a];
-      }
+      walk_step(&w, lo, hi);
       ub_glg_locate_info li;
       float bary[4];
-      ub_glg_locate_ex(g, p, &cache, bary, &li);
+      ub_glg_locate_ex(g, w.p, &cache, bary, &li);
       csteps += li.steps;
       cgrid += li.from_grid;
       cnew += cache != prev;

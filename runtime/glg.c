@@ -846,6 +846,22 @@ static void interp4_half_scalar(const uint16_t *s0, const uint16_t *s1, const ui
              w[2] * ub_half_to_float(s2[k]) + w[3] * ub_half_to_float(s3[k]);
 }
 
+/* ---- compact probe store: the word (the rest below) ------------------------------- */
+
+/* The word: bits 0..20 a 7-bit window code per channel, 21..23 zeroed channels, 24 stale,
+ * 25..31 e + 64. */
+#define CP_STALE (1u << 24)
+#define CP_CODE(w, c) (((w) >> (7 * (c))) & 0x7Fu)
+#define CP_ZERO(w) (((w) >> 21) & 7u)
+#define CP_EXP(w) ((int)((w) >> 25) - 64)
+#define CP_EXP_MIN -64
+#define CP_EXP_MAX 63
+
+static inline _Atomic uint32_t *cp_words(const ub_glg *g)
+{
+  return (_Atomic uint32_t *)g->cp_word;
+}
+
 /* ---- lazy windowing -------------------------------------------------------------- */
 
 enum { GLG_WINDOWED = 0, GLG_STALE = 1, GLG_WRITING = 2 };
@@ -914,8 +930,7 @@ uint32_t ub_glg_refresh(const ub_glg *g)
   if (g && g->cp_rows) {
     uint32_t n = 0;
     for (uint32_t q = 0; q < g->probe_count; q++)
-      if (atomic_load_explicit((_Atomic uint32_t *)g->cp_word + q, memory_order_relaxed) &
-          (1u << 24)) {
+      if (atomic_load_explicit(cp_words(g) + q, memory_order_relaxed) & CP_STALE) {
         cp_word(g, q);
         n++;
       }
@@ -938,14 +953,6 @@ uint32_t ub_glg_refresh(const ub_glg *g)
 
 /* ---- compact probe store -------------------------------------------------------- */
 
-/* The word: bits 0..20 a 7-bit window code per channel, 21..23 zeroed channels, 24 stale,
- * 25..31 e + 64. */
-#define CP_STALE (1u << 24)
-#define CP_CODE(w, c) (((w) >> (7 * (c))) & 0x7Fu)
-#define CP_ZERO(w) (((w) >> 21) & 7u)
-#define CP_EXP(w) ((int)((w) >> 25) - 64)
-#define CP_EXP_MIN -64
-#define CP_EXP_MAX 63
 
 /* Band weights of a window code (τ/2 = code/128): w1 = 1 − code/128, w2 = max(0, 1 −
  * code/64); code 127 is w1 = w2 = 0. Each has ≤ 8 significant bits, so w·h is exact in
@@ -962,28 +969,24 @@ static const float cp_wtab[128][2] = {CPW64(0), CPW64(64)};
 #undef CPW16
 #undef CPW64
 
-static inline _Atomic uint32_t *cp_words(const ub_glg *g)
-{
-  return (_Atomic uint32_t *)g->cp_word;
-}
-
 static inline float pow2f(int e) /* |e| ≤ 126 */
 {
   union { uint32_t u; float f; } x = {(uint32_t)(127 + e) << 23};
   return x.f;
 }
 
-/* A probe's band factors per channel c: 1, w1_c, w2_c (all 0 for a zeroed channel), laid
- * out as bw[band][c]. */
+/* A probe's band factors per channel c times 2^e (exact): 2^e, 2^e·w1_c, 2^e·w2_c (all 0
+ * for a zeroed channel), laid out as bw[band][c]. */
 static inline void cp_weights(uint32_t w, float bw[3][4])
 {
   unsigned z = CP_ZERO(w);
+  float e = pow2f(CP_EXP(w));
   for (int c = 0; c < 3; c++) {
     const float *t = cp_wtab[CP_CODE(w, c)];
     int zc = (z >> c) & 1u;
-    bw[0][c] = zc ? 0.0f : 1.0f;
-    bw[1][c] = zc ? 0.0f : t[0];
-    bw[2][c] = zc ? 0.0f : t[1];
+    bw[0][c] = zc ? 0.0f : e;
+    bw[1][c] = zc ? 0.0f : t[0] * e;
+    bw[2][c] = zc ? 0.0f : t[1] * e;
   }
   bw[0][3] = bw[1][3] = bw[2][3] = 0.0f;
 }
@@ -1005,10 +1008,10 @@ static void cp_decode(const ub_glg *g, uint32_t v, uint32_t w, float out[27])
 static void cp_windowed(const ub_glg *g, uint32_t v, uint32_t w, float out[27])
 {
   const uint16_t *h = g->cp_rows + 27 * (size_t)v;
-  float bw[3][4], s = pow2f(CP_EXP(w));
+  float bw[3][4];
   cp_weights(w, bw);
   for (int k = 0; k < 27; k++)
-    out[k] = (s * bw[k < 3 ? 0 : k < 12 ? 1 : 2][k % 3]) * ub_half_to_float(h[k]); /* exact */
+    out[k] = bw[k < 3 ? 0 : k < 12 ? 1 : 2][k % 3] * ub_half_to_float(h[k]); /* exact */
 }
 
 /* The window of probe v (word w, stale): per channel the code of ub_sh2_window's τ rounded
@@ -1143,19 +1146,24 @@ __attribute__((target("avx,f16c"))) static uint32_t cp_encode_f16c(const float *
 }
 #endif
 
+/* Probe v's row from row (the same halves and word on every path), its word returned. */
+static uint32_t cp_encode_probe(const ub_glg *g, const float *row, uint32_t v)
+{
+  uint16_t *h = g->cp_rows + 27 * (size_t)v;
+#if defined(GLG_HAVE_AVX_PATH)
+  if (g->simd)
+    return cp_encode_f16c(row, h);
+#endif
+  return cp_encode(row, h);
+}
+
 void ub_glg_set_probes(ub_glg *g, uint32_t first, uint32_t count, const float *rows)
 {
   assert(g && g->cp_rows && first <= g->probe_count && count <= g->probe_count - first);
-  for (uint32_t i = 0; i < count; i++) {
-    const float *r = rows + 27 * (size_t)i;
-    uint16_t *h = g->cp_rows + 27 * ((size_t)first + i);
-#if defined(GLG_HAVE_AVX_PATH)
-    uint32_t w = g->simd ? cp_encode_f16c(r, h) : cp_encode(r, h);
-#else
-    uint32_t w = cp_encode(r, h);
-#endif
-    atomic_store_explicit(cp_words(g) + first + i, w, memory_order_relaxed);
-  }
+  for (uint32_t i = 0; i < count; i++)
+    atomic_store_explicit(cp_words(g) + first + i,
+                          cp_encode_probe(g, rows + 27 * (size_t)i, first + i),
+                          memory_order_relaxed);
   /* A new generation for cursors: a relaxed load and store, not a locked add (one per
    * call was most of this function). Concurrent calls may write the same value: it is
    * still greater than any generation a cursor took before them, which is all it needs. */
@@ -1197,14 +1205,8 @@ static void interp4_compact_scalar(const ub_glg *g, const uint32_t v[4], const f
                                    float out[27])
 {
   float bw[4][3][4];
-  for (int i = 0; i < 4; i++) {
-    uint32_t wd = cp_word(g, v[i]);
-    cp_weights(wd, bw[i]);
-    float e = pow2f(CP_EXP(wd));
-    for (int b = 0; b < 3; b++)
-      for (int c = 0; c < 3; c++)
-        bw[i][b][c] *= e; /* exact */
-  }
+  for (int i = 0; i < 4; i++)
+    cp_weights(cp_word(g, v[i]), bw[i]);
   for (int k = 0; k < 27; k++) {
     int b = k < 3 ? 0 : k < 12 ? 1 : 2;
     float acc = 0.0f;
@@ -1221,7 +1223,8 @@ static void interp4_compact_scalar(const ub_glg *g, const uint32_t v[4], const f
  * the blocks start at 0, 8, 16, 19 (as interp4_avx): with B = (b0, b1, b2, ·) the band-1
  * and C the band-2 factors of the channels, block 0 = (a a a b0 | b1 b2 b0 b1), block 8 =
  * (b2 b0 b1 b2 | c0 c1 c2 c0), blocks 16 and 19 = (c1 c2 c0 c1 | c2 c0 c1 c2). */
-/* The three pattern vectors of a probe's word (band factors per lane, see above). */
+/* The three pattern vectors of a probe's word: band factors per lane (see above) times
+ * 2^e, exact. */
 __attribute__((target("avx,f16c,sse4.1"))) static inline void cp_patterns(uint32_t wd,
                                                                            __m256 *p0,
                                                                            __m256 *p8,
@@ -1243,9 +1246,10 @@ __attribute__((target("avx,f16c,sse4.1"))) static inline void cp_patterns(uint32
   __m128 h8 = _mm_shuffle_ps(c, c, _MM_SHUFFLE(0, 2, 1, 0));  /* c0 c1 c2 c0 */
   __m128 l16 = _mm_shuffle_ps(c, c, _MM_SHUFFLE(1, 0, 2, 1)); /* c1 c2 c0 c1 */
   __m128 h16 = _mm_shuffle_ps(c, c, _MM_SHUFFLE(2, 1, 0, 2)); /* c2 c0 c1 c2 */
-  *p0 = _mm256_insertf128_ps(_mm256_castps128_ps256(l0), h0, 1);
-  *p8 = _mm256_insertf128_ps(_mm256_castps128_ps256(l8), h8, 1);
-  *p16 = _mm256_insertf128_ps(_mm256_castps128_ps256(l16), h16, 1);
+  __m256 e = _mm256_set1_ps(pow2f(CP_EXP(wd)));
+  *p0 = _mm256_mul_ps(_mm256_insertf128_ps(_mm256_castps128_ps256(l0), h0, 1), e);
+  *p8 = _mm256_mul_ps(_mm256_insertf128_ps(_mm256_castps128_ps256(l8), h8, 1), e);
+  *p16 = _mm256_mul_ps(_mm256_insertf128_ps(_mm256_castps128_ps256(l16), h16, 1), e);
 }
 
 #define GLG_H8(s, k) _mm256_cvtph_ps(_mm_loadu_si128((const __m128i *)(const void *)((s) + (k))))
@@ -1258,12 +1262,7 @@ __attribute__((target("avx,f16c,sse4.1"))) static void interp4_compact_f16c(cons
   __m256 p0[4], p8[4], p16[4], s[4];
   const uint16_t *h[4];
   for (int i = 0; i < 4; i++) {
-    uint32_t wd = cp_word(g, v[i]);
-    cp_patterns(wd, &p0[i], &p8[i], &p16[i]);
-    __m256 e = _mm256_set1_ps(pow2f(CP_EXP(wd))); /* 2^e·w: exact */
-    p0[i] = _mm256_mul_ps(p0[i], e);
-    p8[i] = _mm256_mul_ps(p8[i], e);
-    p16[i] = _mm256_mul_ps(p16[i], e);
+    cp_patterns(cp_word(g, v[i]), &p0[i], &p8[i], &p16[i]);
     s[i] = _mm256_set1_ps(w[i]);
     h[i] = g->cp_rows + 27 * (size_t)v[i];
   }
@@ -1288,12 +1287,8 @@ __attribute__((target("avx,f16c,sse4.1"))) static void interp4_compact_f16c(cons
 __attribute__((target("avx,f16c,sse4.1"))) static void cp_row_f16c(const ub_glg *g, uint32_t v,
                                                                    float out[28])
 {
-  uint32_t wd = cp_word(g, v);
-  __m256 p0, p8, p16, e = _mm256_set1_ps(pow2f(CP_EXP(wd)));
-  cp_patterns(wd, &p0, &p8, &p16);
-  p0 = _mm256_mul_ps(p0, e);
-  p8 = _mm256_mul_ps(p8, e);
-  p16 = _mm256_mul_ps(p16, e);
+  __m256 p0, p8, p16;
+  cp_patterns(cp_word(g, v), &p0, &p8, &p16);
   const uint16_t *h = g->cp_rows + 27 * (size_t)v;
   _mm256_storeu_ps(out, _mm256_mul_ps(p0, GLG_H8(h, 0)));
   _mm256_storeu_ps(out + 8, _mm256_mul_ps(p8, GLG_H8(h, 8)));
@@ -1956,8 +1951,7 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
       return UB_ERR_OUT_OF_MEMORY;
     }
     for (uint32_t q = 0; q < d->probe_count; q++)
-      atomic_init(cp_words(g) + q,
-                  cp_encode(d->sh + 27 * (size_t)q, g->cp_rows + 27 * (size_t)q));
+      atomic_init(cp_words(g) + q, cp_encode_probe(g, d->sh + 27 * (size_t)q, q));
     atomic_init(cp_words(g) + d->probe_count, 0u);
   }
   ub_result res = UB_OK;

@@ -1174,6 +1174,28 @@ static void lobe_sh(float out[27])
       out[3 * k + c] = (float)(k == 0 ? 0.5 + rnd() : 2.0 * rnd() - 1.0);
 }
 
+/* Each of 4 threads queries every point, in its own order (concurrent first reads of
+ * stale probes); thread 0's answers into got. */
+static void query_4_threads(const ub_glg *g, const float *qp, const float *qn, int Q, float *got)
+{
+#pragma omp parallel num_threads(4)
+  {
+#if defined(_OPENMP)
+    int th = omp_get_thread_num();
+#else
+    int th = 0;
+#endif
+    uint32_t cache = UB_GLG_NO_CACHE;
+    for (int j = 0; j < Q; j++) {
+      int i = (j * (2 * th + 1) + 97 * th) % Q;
+      float rgb[3];
+      ub_glg_query(g, qp + 3 * i, qn + 3 * i, &cache, rgb);
+      if (th == 0)
+        memcpy(got + 3 * i, rgb, sizeof rgb);
+    }
+  }
+}
+
 /* Probes change, are marked stale and are windowed by whichever query reads them first,
  * from 4 threads at once: every answer bit-identical to a GLG whose probes were all
  * windowed at once, and after ub_glg_refresh the written-back rows equal ub_sh2_window of
@@ -1225,23 +1247,7 @@ static void test_lazy_window(void)
         qp[3 * i + a] = (float)(-0.5 + 5.0 * rnd());
       rnd_dir(qn + 3 * i);
     }
-    /* each thread queries every point, in its own order: concurrent first reads */
-#pragma omp parallel num_threads(4)
-    {
-#if defined(_OPENMP)
-      int th = omp_get_thread_num();
-#else
-      int th = 0;
-#endif
-      uint32_t cache = UB_GLG_NO_CACHE;
-      for (int j = 0; j < Q; j++) {
-        int i = (j * (2 * th + 1) + 97 * th) % Q;
-        float rgb[3];
-        ub_glg_query(&lazy, qp + 3 * i, qn + 3 * i, &cache, rgb);
-        if (th == 0)
-          memcpy(got + 3 * i, rgb, sizeof rgb);
-      }
-    }
+    query_4_threads(&lazy, qp, qn, Q, got);
     for (int i = 0; i < Q; i++) {
       uint32_t cache = UB_GLG_NO_CACHE;
       ub_glg_query(&ref, qp + 3 * i, qn + 3 * i, &cache, want + 3 * i);
@@ -1359,6 +1365,23 @@ static void test_compact(void)
   ub_glg_memory mem;
   ub_glg_memory_usage(&g, &mem);
   ASSERT_TRUE(mem.sh == (size_t)np * 58);
+  /* the scalar encoder gives the F16C one's halves and words (same store through a copy
+   * of the GLG with its SIMD flag off) */
+  {
+    float *r0 = malloc((size_t)np * 27 * sizeof *r0), row[27];
+    for (uint32_t q = 0; q < np; q++)
+      ub_glg_probe_sh(&g, q, 0, r0 + 27 * (size_t)q);
+    ub_glg sc = g;
+    sc.simd = 0;
+    ub_glg_set_probes(&sc, 0, np, raw);
+    int same_enc = 1;
+    for (uint32_t q = 0; q < np; q++) {
+      ub_glg_probe_sh(&g, q, 0, row);
+      same_enc &= !memcmp(row, r0 + 27 * (size_t)q, sizeof row);
+    }
+    ASSERT_TRUE(same_enc);
+    free(r0);
+  }
   /* probe 5, channel 1 not finite (init refuses that; an update stores it as zero) */
   float bad[27];
   memcpy(bad, raw + 27 * 5, sizeof bad);
@@ -1510,22 +1533,7 @@ static void test_compact(void)
       uint32_t cache = UB_GLG_NO_CACHE;
       ub_glg_query(&fresh, qp + 3 * i, qn + 3 * i, &cache, want + 3 * i);
     }
-#pragma omp parallel num_threads(4)
-    {
-#if defined(_OPENMP)
-      int th = omp_get_thread_num();
-#else
-      int th = 0;
-#endif
-      uint32_t cache = UB_GLG_NO_CACHE;
-      for (int j = 0; j < Q; j++) {
-        int i = (j * (2 * th + 1) + 97 * th) % Q;
-        float rgb[3];
-        ub_glg_query(&g, qp + 3 * i, qn + 3 * i, &cache, rgb);
-        if (th == 0)
-          memcpy(got + 3 * i, rgb, sizeof rgb);
-      }
-    }
+    query_4_threads(&g, qp, qn, Q, got);
     mismatch += memcmp(got, want, 3 * Q * sizeof(float)) != 0;
     /* the cursor from before the change: its rows are stale, it must not use them */
     for (int i = 0; i < Q; i += 7) {
