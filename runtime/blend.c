@@ -73,10 +73,14 @@ struct ub_blend {
   uint32_t receiver_count, stride, wstride, element_count, group_count;
   uint32_t value_size, kernel;
   blend_decode_fn decode; /* half → float, NULL for float records */
+  blend_decode_fn bdecode; /* half → float, UB_BLEND_BASE_HALF's base rows */
   uint32_t touched, max_overlap, run_groups;
   uint64_t runs, memberships, unit_words;
   const float *base;     /* the caller's base, NULL with UB_BLEND_OWN_BASE */
-  float *obase;          /* UB_BLEND_OWN_BASE: touched receivers' base rows, group order */
+  char *obase;           /* UB_BLEND_OWN_BASE: touched receivers' base rows, group order:
+                            floats, or (UB_BLEND_BASE_HALF) halves times bscale */
+  uint32_t base_size;    /* bytes per base value: 4, or 2 with UB_BLEND_BASE_HALF */
+  float bscale;          /* UB_BLEND_BASE_HALF: a power of two ≥ 1, else 1 */
   float *weight;        /* element_count × 3 */
   float *wexp;          /* element_count × wstride: weight[c] at every j ≡ c (mod 3) */
   uint8_t *nonzero;     /* weight != (0, 0, 0) */
@@ -115,6 +119,7 @@ struct ub_blend {
 typedef struct blend_scratch {
   float *rows;           /* BLEND_CHUNK × stride floats, streaming mode */
   float *dec;            /* dec_floats floats, half records without F16C */
+  float *bdec;           /* BLEND_CHUNK × stride floats: half base rows decoded */
   /* combinations above BLEND_SPECIALISED (max_overlap entries each) */
   uint32_t *act;
   const char **src;
@@ -294,20 +299,29 @@ typedef struct blend_call {
 
 /* Base rows of a group's next unit (len receivers from r): the engine's own copy (stored
  * in group order, so consecutive units are consecutive rows) or the caller's array. */
-BLEND_INLINE const float *unit_base(const ub_blend *b, const float **gb, uint32_t r,
-                                    uint32_t len)
+BLEND_INLINE const char *unit_base(const ub_blend *b, const char **gb, uint32_t r,
+                                   uint32_t len)
 {
   if (b->obase) {
-    const float *p = *gb;
-    *gb += (size_t)len * b->stride;
+    const char *p = *gb;
+    *gb += (size_t)len * b->stride * b->base_size;
     return p;
   }
-  return b->base + (size_t)r * b->stride;
+  return (const char *)(b->base + (size_t)r * b->stride);
 }
 
-BLEND_INLINE const float *group_base(const ub_blend *b, const blend_group *g)
+BLEND_INLINE const char *group_base(const ub_blend *b, const blend_group *g)
 {
-  return b->obase ? b->obase + (size_t)g->base_row * b->stride : NULL;
+  return b->obase ? b->obase + (size_t)g->base_row * b->stride * b->base_size : NULL;
+}
+
+/* n values of half base rows → float (exact: a half times a power of two). */
+static void decode_base(const ub_blend *b, const char *src, float *dst, size_t n)
+{
+  b->bdecode((const uint16_t *)(const void *)src, dst, n);
+  if (b->bscale != 1.0f)
+    for (size_t i = 0; i < n; i++)
+      dst[i] *= b->bscale;
 }
 
 /* Walks a group's units over its receivers at positions [lo, hi) (a part of an update
@@ -316,7 +330,7 @@ BLEND_INLINE const float *group_base(const ub_blend *b, const blend_group *g)
  * receiver per unit) starts at lo directly. */
 typedef struct unit_iter {
   const uint32_t *u;
-  const float *gb;
+  const char *gb;
   uint32_t un, units, lo, hi;
   size_t i0;
   int list;
@@ -338,18 +352,18 @@ BLEND_INLINE void unit_iter_init(unit_iter *it, const ub_blend *b, const blend_g
     it->un = lo;
     it->i0 = lo;
     if (it->gb)
-      it->gb += (size_t)lo * b->stride;
+      it->gb += (size_t)lo * b->stride * b->base_size;
   }
 }
 
 BLEND_INLINE int unit_next(unit_iter *it, const ub_blend *b, uint32_t *r, size_t *i0,
-                           const float **bs, uint32_t *s0, uint32_t *s1)
+                           const char **bs, uint32_t *s0, uint32_t *s1)
 {
   while (it->un < it->units && it->i0 < it->hi) {
     const uint32_t rr = it->u[0], len = it->list ? 1 : it->u[1];
     it->u += it->list ? 1 : 2;
     it->un++;
-    const float *base = unit_base(b, &it->gb, rr, len);
+    const char *base = unit_base(b, &it->gb, rr, len);
     const size_t at = it->i0;
     it->i0 += len;
     if (at + len <= it->lo)
@@ -358,7 +372,7 @@ BLEND_INLINE int unit_next(unit_iter *it, const ub_blend *b, uint32_t *r, size_t
     *i0 = at;
     *s0 = it->lo > at ? (uint32_t)(it->lo - at) : 0;
     *s1 = it->hi - at < len ? (uint32_t)(it->hi - at) : len;
-    *bs = base + (size_t)*s0 * b->stride;
+    *bs = base + (size_t)*s0 * b->stride * b->base_size;
     return 1;
   }
   return 0;
@@ -393,15 +407,32 @@ BLEND_AVX_INLINE __m128 avx_load4(const char *src, size_t j, const int half)
  * to 16 streams at once, more than the hardware prefetchers follow well). */
 #define BLEND_PF_VALUES 384
 
-/* o[j] = bs[j] + Σ_m wp[m][j mod 24]·src_m[j], j < nf. */
-BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
+/* Base values j.. as float: floats, or (hb) halves times the scale (exact). */
+BLEND_AVX_INLINE __m256 avx_base8(const char *bs, size_t j, const int hb, const __m256 sc)
+{
+  if (hb)
+    return _mm256_mul_ps(avx_load8(bs, j, 1), sc);
+  return avx_load8(bs, j, 0);
+}
+
+BLEND_AVX_INLINE __m128 avx_base4(const char *bs, size_t j, const int hb, const __m256 sc)
+{
+  if (hb)
+    return _mm_mul_ps(avx_load4(bs, j, 1), _mm256_castps256_ps128(sc));
+  return avx_load4(bs, j, 0);
+}
+
+/* o[j] = base[j] + Σ_m wp[m][j mod 24]·src_m[j], j < nf; base: bs as floats, or (hb) as
+ * halves times sc. */
+BLEND_AVX_INLINE void avx_flat(float *restrict o, const char *restrict bs,
                                const char *const *src, const float *const *wp,
-                               const uint32_t k, const size_t nf, const int half)
+                               const uint32_t k, const size_t nf, const int half,
+                               const int hb, const __m256 sc)
 {
   size_t j = 0;
   for (; j + 24 <= nf; j += 24) {
-    __m256 a0 = _mm256_loadu_ps(bs + j), a1 = _mm256_loadu_ps(bs + j + 8),
-           a2 = _mm256_loadu_ps(bs + j + 16);
+    __m256 a0 = avx_base8(bs, j, hb, sc), a1 = avx_base8(bs, j + 8, hb, sc),
+           a2 = avx_base8(bs, j + 16, hb, sc);
     for (uint32_t m = 0; m < k; m++) {
       const float *w = wp[m];
       _mm_prefetch(src[m] + (j + BLEND_PF_VALUES) * (half ? 2 : 4), _MM_HINT_T0);
@@ -415,14 +446,14 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
   }
   for (; j + 8 <= nf; j += 8) {
     const size_t ph = j % 24;
-    __m256 a = _mm256_loadu_ps(bs + j);
+    __m256 a = avx_base8(bs, j, hb, sc);
     for (uint32_t m = 0; m < k; m++)
       a = _mm256_add_ps(a, _mm256_mul_ps(_mm256_loadu_ps(wp[m] + ph), avx_load8(src[m], j, half)));
     _mm256_storeu_ps(o + j, a);
   }
   for (; j + 4 <= nf; j += 4) {
     const size_t ph = j % 24;
-    __m128 a = _mm_loadu_ps(bs + j);
+    __m128 a = avx_base4(bs, j, hb, sc);
     for (uint32_t m = 0; m < k; m++)
       a = _mm_add_ps(a, _mm_mul_ps(_mm_loadu_ps(wp[m] + ph), avx_load4(src[m], j, half)));
     _mm_storeu_ps(o + j, a);
@@ -434,7 +465,7 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
      * pattern has 32 lanes and period 3, so lanes ph..ph+3 (ph <= 23) are right. The same
      * operations per value as above: the same bits as the scalar kernel. */
     const size_t j0 = nf - 4, ph = j0 % 24;
-    __m128 a = _mm_loadu_ps(bs + j0);
+    __m128 a = avx_base4(bs, j0, hb, sc);
     for (uint32_t m = 0; m < k; m++)
       a = _mm_add_ps(a, _mm_mul_ps(_mm_loadu_ps(wp[m] + ph), avx_load4(src[m], j0, half)));
     const int skip = (int)(j - j0); /* 1..3 lanes already written */
@@ -443,7 +474,9 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
     j = nf;
   }
   for (; j < nf; j++) { /* a row of 3 alone */
-    float acc = bs[j];
+    float acc = hb ? ub_half_to_float(((const uint16_t *)(const void *)bs)[j]) *
+                         _mm256_cvtss_f32(sc)
+                   : ((const float *)(const void *)bs)[j];
     for (uint32_t m = 0; m < k; m++) {
       float v = half ? ub_half_to_float(((const uint16_t *)(const void *)src[m])[j])
                      : ((const float *)(const void *)src[m])[j];
@@ -460,9 +493,11 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const float *restrict bs,
  * The whole loop is AVX code, so a list group costs no call per receiver. */
 BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const uint32_t *act,
                                 const char **src, const float *const *wp, const uint32_t k,
-                                const int half)
+                                const int half, const int hb)
 {
   const ub_blend *b = c->b;
+  const __m256 sc = _mm256_set1_ps(b->bscale);
+  const size_t bsz = hb ? 2 : 4;
   const uint32_t S = b->stride;
   const int list = (g->k_mode & GROUP_LIST) != 0;
   const size_t vs = half ? 2 : 4, rowb = (size_t)S * vs, block = (size_t)g->receivers * rowb;
@@ -474,14 +509,14 @@ BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const
   unit_iter_init(&it, b, g, c->qlo, c->qhi);
   uint32_t r, s0, s1;
   size_t i0; /* receivers of the group before this unit */
-  const float *bs;
+  const char *bs;
   while (unit_next(&it, b, &r, &i0, &bs, &s0, &s1)) {
     for (uint32_t m = 0; m < k; m++)
       src[m] = vb + member_row_off(list, gk, act[m], i0 + s0, rowb, block);
     for (uint32_t i = s0; i < s1;) {
       const uint32_t n = s1 - i < chunk ? s1 - i : chunk;
       float *o = out ? out + (size_t)(r + i) * S : c->s->rows;
-      avx_flat(o, bs + (size_t)(i - s0) * S, src, wp, k, (size_t)n * S, half);
+      avx_flat(o, bs + (size_t)(i - s0) * S * bsz, src, wp, k, (size_t)n * S, half, hb, sc);
       if (c->fn) {
         _mm256_zeroupper();
         c->fn(c->user, r + i, n, o);
@@ -493,19 +528,19 @@ BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const
   }
 }
 
-BLEND_AVX static void avx_group_h(const blend_call *c, const blend_group *g, const uint32_t *act,
-                                  const char **src, const float *const *wp, uint32_t k)
-{
-  avx_group(c, g, act, src, wp, k, 1);
-  _mm256_zeroupper();
-}
-
-BLEND_AVX static void avx_group_f(const blend_call *c, const blend_group *g, const uint32_t *act,
-                                  const char **src, const float *const *wp, uint32_t k)
-{
-  avx_group(c, g, act, src, wp, k, 0);
-  _mm256_zeroupper();
-}
+/* The four kinds: half or float records (h/f) × half or float base rows (h/f). */
+#define BLEND_AVX_GROUP(name, half, hb)                                                  \
+  BLEND_AVX static void name(const blend_call *c, const blend_group *g, const uint32_t *act, \
+                             const char **src, const float *const *wp, uint32_t k)        \
+  {                                                                                      \
+    avx_group(c, g, act, src, wp, k, half, hb);                                          \
+    _mm256_zeroupper();                                                                  \
+  }
+BLEND_AVX_GROUP(avx_group_hf, 1, 0)
+BLEND_AVX_GROUP(avx_group_ff, 0, 0)
+BLEND_AVX_GROUP(avx_group_hh, 1, 1)
+BLEND_AVX_GROUP(avx_group_fh, 0, 1)
+#undef BLEND_AVX_GROUP
 
 static void group_blend_avx(const blend_call *c, const blend_group *g, const uint32_t *act,
                             uint32_t k)
@@ -515,10 +550,11 @@ static void group_blend_avx(const blend_call *c, const blend_group *g, const uin
   const float **wp = c->s->avx_w;
   for (uint32_t m = 0; m < k; m++)
     wp[m] = b->wpat + 32 * (size_t)mem[act[m]];
+  const int hb = b->base_size == 2;
   if (b->value_size == 2)
-    avx_group_h(c, g, act, c->s->avx_src, wp, k);
+    (hb ? avx_group_hh : avx_group_hf)(c, g, act, c->s->avx_src, wp, k);
   else
-    avx_group_f(c, g, act, c->s->avx_src, wp, k);
+    (hb ? avx_group_fh : avx_group_ff)(c, g, act, c->s->avx_src, wp, k);
 }
 #endif
 
@@ -542,8 +578,10 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
   const blend_decode_fn decode = b->decode;
   float *out = c->out;
 
-  /* Receivers per chunk: bounded by the decode scratch (half) and the streaming scratch. */
-  uint32_t chunk = out ? UINT32_MAX : BLEND_CHUNK;
+  /* Receivers per chunk: bounded by the decode scratch (half), the streaming scratch and
+   * the base rows' decode scratch (half base). */
+  const int hb = b->base_size == 2;
+  uint32_t chunk = out && !hb ? UINT32_MAX : BLEND_CHUNK;
   if (decode) {
     size_t fit = b->dec_floats / ((size_t)k * S);
     chunk = fit < chunk ? (uint32_t)fit : chunk; /* ≥ 1: dec_floats ≥ max_overlap × S */
@@ -554,12 +592,20 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
   unit_iter_init(&it, b, g, c->qlo, c->qhi);
   uint32_t r, s0, s1;
   size_t i0;
-  const float *bs;
-  while (unit_next(&it, b, &r, &i0, &bs, &s0, &s1)) {
+  const char *bsu;
+  while (unit_next(&it, b, &r, &i0, &bsu, &s0, &s1)) {
     for (uint32_t m = 0; m < k; m++)
       src[m] = vb + member_row_off(list, gk, act[m], i0 + s0, rowb, block);
     for (uint32_t i = s0; i < s1;) {
       uint32_t n = s1 - i < chunk ? s1 - i : chunk;
+      const float *bs;
+      if (hb) {
+        decode_base(b, bsu, c->s->bdec, (size_t)n * S);
+        bs = c->s->bdec;
+      } else {
+        bs = (const float *)(const void *)bsu;
+      }
+      bsu += (size_t)n * S * b->base_size;
       for (uint32_t m = 0; m < k; m++) {
         if (decode) {
           float *dst = c->s->dec + (size_t)m * n * S;
@@ -624,13 +670,22 @@ static void group_copy_base(const blend_call *c, const blend_group *g)
   unit_iter_init(&it, b, g, c->qlo, c->qhi);
   uint32_t r, s0, s1;
   size_t i0;
-  const float *bs;
-  while (unit_next(&it, b, &r, &i0, &bs, &s0, &s1)) {
-    const uint32_t f = r + s0, n = s1 - s0;
-    if (c->out)
-      memcpy(c->out + (size_t)f * S, bs, (size_t)n * S * sizeof(float));
-    if (c->fn) /* streaming: the base rows are the result, no copy */
-      c->fn(c->user, f, n, c->out ? c->out + (size_t)f * S : bs);
+  const char *bsu;
+  while (unit_next(&it, b, &r, &i0, &bsu, &s0, &s1)) {
+    for (uint32_t f = r + s0, n; f < r + s1; f += n) {
+      /* float base: the whole unit at once; half base: decoded a chunk at a time */
+      n = b->base_size == 4 ? r + s1 - f : r + s1 - f < BLEND_CHUNK ? r + s1 - f : BLEND_CHUNK;
+      const float *bs = (const float *)(const void *)bsu;
+      if (b->base_size == 2) {
+        decode_base(b, bsu, c->s->bdec, (size_t)n * S);
+        bs = c->s->bdec;
+      }
+      bsu += (size_t)n * S * b->base_size;
+      if (c->out)
+        memcpy(c->out + (size_t)f * S, bs, (size_t)n * S * sizeof(float));
+      if (c->fn) /* streaming: the base rows are the result, no copy */
+        c->fn(c->user, f, n, c->out ? c->out + (size_t)f * S : bs);
+    }
   }
 }
 
@@ -665,7 +720,7 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
   st->groups_base += first && k == 0;
   st->receivers += n;
   st->bytes_written += c->out ? n * row : 0;
-  st->bytes_read += n * row + (uint64_t)k * n * b->stride * b->value_size +
+  st->bytes_read += n * b->stride * b->base_size + (uint64_t)k * n * b->stride * b->value_size +
                     (first ? words * sizeof(uint32_t) + sizeof *g : 0);
 }
 
@@ -861,6 +916,7 @@ void ub_blend_get_info(const ub_blend *b, ub_blend_info *out_info)
   in.runs = b->runs;
   in.memberships = b->memberships;
   in.engine_bytes = b->engine_bytes;
+  in.base_scale = b->bscale;
   in.record_bytes = b->record_bytes;
   *out_info = in;
 }
@@ -886,6 +942,7 @@ static void scratch_free(blend_scratch *s)
 {
   free(s->rows);
   free(s->dec);
+  free(s->bdec);
   free(s->act);
   free((void *)s->src);
   free((void *)s->rowp);
@@ -911,6 +968,10 @@ static int scratch_alloc(const ub_blend *b, blend_scratch *s, size_t *acc)
   if (b->value_size == 2) {
     s->dec = alloc_n(b->dec_floats, sizeof(float), &bytes);
     ok = ok && s->dec;
+  }
+  if (b->base_size == 2) {
+    s->bdec = alloc_n((size_t)BLEND_CHUNK * b->stride, sizeof(float), &bytes);
+    ok = ok && s->bdec;
   }
   if (b->avx) {
     s->avx_w = alloc_n(na, sizeof(float *), &bytes);
@@ -1016,6 +1077,11 @@ static ub_result validate(const ub_blend_desc *d, const ub_log *log, uint64_t *o
       ((d->flags & UB_BLEND_STORE_HALF) && d->storage != UB_BLEND_FLOAT32)) {
     ub_log_printf(log, UB_LOG_ERROR, "blend %s: unknown storage %d (UB_BLEND_STORE_HALF "
                   "takes float records)", nm, (int)d->storage);
+    return UB_ERR_INVALID_ARGUMENT;
+  }
+  if ((d->flags & UB_BLEND_BASE_HALF) && !(d->flags & UB_BLEND_OWN_BASE)) {
+    ub_log_printf(log, UB_LOG_ERROR, "blend %s: UB_BLEND_BASE_HALF needs UB_BLEND_OWN_BASE",
+                  nm);
     return UB_ERR_INVALID_ARGUMENT;
   }
   if ((uint64_t)d->receiver_count * d->stride > SIZE_MAX / sizeof(float)) {
@@ -1287,16 +1353,32 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
 
   /* 4b. UB_BLEND_OWN_BASE: the touched receivers' base rows, in group order. */
   if (d->flags & UB_BLEND_OWN_BASE) {
-    b->obase = alloc_n((size_t)T * b->stride, sizeof(float), acc);
+    const uint32_t S = b->stride;
+    b->obase = alloc_n((size_t)T * S, b->base_size, acc);
     if (!b->obase)
       return UB_ERR_OUT_OF_MEMORY;
+    if (b->base_size == 2) { /* the scale: the touched rows' largest |value| ≤ 32768 */
+      float mx = 0.0f;
+      for (uint32_t i = 0; i < T; i++)
+        for (uint32_t j = 0; j < S; j++)
+          mx = fmaxf(mx, fabsf(d->base[(size_t)t->order[i] * S + j]));
+      while (mx / b->bscale > 32768.0f)
+        b->bscale *= 2.0f;
+    }
     uint32_t row = 0;
     for (uint32_t g = 0; g < G; g++) {
       b->groups[g].base_row = row;
       const uint32_t *rs = t->order + t->g_start[g];
-      for (uint32_t i = 0; i < t->g_n[g]; i++, row++)
-        memcpy(b->obase + (size_t)row * b->stride, d->base + (size_t)rs[i] * b->stride,
-               (size_t)b->stride * sizeof(float));
+      for (uint32_t i = 0; i < t->g_n[g]; i++, row++) {
+        const float *src = d->base + (size_t)rs[i] * S;
+        if (b->base_size == 2) {
+          uint16_t *h = (uint16_t *)(void *)b->obase + (size_t)row * S;
+          for (uint32_t j = 0; j < S; j++) /* exact division: a power of two */
+            h[j] = ub_half_from_float(src[j] / b->bscale);
+        } else {
+          memcpy(b->obase + (size_t)row * S * sizeof(float), src, (size_t)S * sizeof(float));
+        }
+      }
     }
   }
 
@@ -1407,18 +1489,20 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
   const blend_group *g = &b->groups[e->group];
   const uint32_t pos = e->pos + (r - e->first), gk = g->k_mode & ~GROUP_LIST;
   const int list = (g->k_mode & GROUP_LIST) != 0;
-  const float *bs = b->obase ? b->obase + ((size_t)g->base_row + pos) * S
-                             : b->base + (size_t)r * S;
+  const char *bsu = b->obase ? b->obase + ((size_t)g->base_row + pos) * S * b->base_size
+                             : (const char *)(b->base + (size_t)r * S);
   const size_t vs = b->value_size, rowb = (size_t)S * vs, block = (size_t)g->receivers * rowb;
   const char *vb = (const char *)b->values + g->val_off * vs;
   const uint32_t *mem = b->members + g->member_off;
-  for (uint32_t j = 0; j < S; j++)
-    out_row[j] = bs[j];
-  /* As the kernels: the members in id order, those with a non-zero weight only, each
-   * term ω[j mod 3]·v rounded to float, then added (C11 evaluates float in float here:
-   * FLT_EVAL_METHOD 0 on x86-64, and the build does not contract to FMA), with FTZ/DAZ
-   * off as during an update (the caller's mode is restored). */
+  /* As the kernels: the base row, then the members in id order, those with a non-zero
+   * weight only, each term ω[j mod 3]·v rounded to float, then added (C11 evaluates float
+   * in float here: FLT_EVAL_METHOD 0 on x86-64, and the build does not contract to FMA),
+   * with FTZ/DAZ off as during an update (the caller's mode is restored). */
   unsigned csr = ub_fp_mode_enter();
+  if (b->base_size == 2)
+    decode_base(b, bsu, out_row, S);
+  else
+    memcpy(out_row, bsu, S * sizeof(float));
   for (uint32_t m = 0; m < gk; m++) {
     const float *w = b->wlast + (size_t)mem[m] * 3;
     if (w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f)
@@ -1461,6 +1545,9 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
   b->avx = !(desc->flags & UB_BLEND_PORTABLE) && cpu_has_f16c();
 #endif
   b->base = desc->base;
+  b->base_size = (desc->flags & UB_BLEND_BASE_HALF) ? 2 : 4;
+  b->bscale = 1.0f;
+  b->bdecode = b->base_size == 2 ? pick_decoder((desc->flags & UB_BLEND_PORTABLE) != 0) : NULL;
   b->memberships = memberships;
   b->record_bytes = memberships * (uint64_t)S * b->value_size;
   b->weight = calloc_n((size_t)E * 3, sizeof(float), &b->engine_bytes);
@@ -1488,6 +1575,15 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
     goto oom;
   if (out_values && desc->receiver_count)
     memcpy(out_values, desc->base, (size_t)desc->receiver_count * S * sizeof(float));
+  if (out_values && b->base_size == 2) { /* the touched rows as the engine holds them */
+    blend_call c = {b, out_values, &b->js[0], 0, 0, NULL, NULL};
+    unsigned csr = ub_fp_mode_enter(); /* exact decoding needs DAZ off */
+    for (uint32_t g = 0; g < b->group_count; g++) {
+      c.qhi = b->groups[g].receivers;
+      group_copy_base(&c, &b->groups[g]);
+    }
+    ub_fp_mode_leave(csr);
+  }
   if (desc->flags & UB_BLEND_OWN_BASE)
     b->base = NULL; /* never read again: the caller may free it */
   *out_blend = b;

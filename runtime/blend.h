@@ -89,6 +89,15 @@ extern "C" {
 /* ub_blend_row() is available: the engine keeps a map from receivers to their groups'
  * units (one entry per run, one per list receiver) and the weights of the last update. */
 #define UB_BLEND_ROW_QUERY 8u
+/* With UB_BLEND_OWN_BASE: the engine's base rows are kept as IEEE half times a power of
+ * two, base_scale (info), the smallest ≥ 1 that brings the touched rows' largest |value|
+ * to ≤ 32768: each value rounded once to nearest (relative error ≤ 2^-11, absolute ≤
+ * 2^-25·base_scale; exact when the rows are already halves times a power of two ≥
+ * base_scale, as a bake file's are). Half the bytes of the base rows, read and kept.
+ * Results are those of a float engine whose base is the rounded rows, bit for bit: a
+ * half is turned into float and multiplied by base_scale exactly. The out array given to
+ * create gets the rounded rows too (touched receivers), so it always holds the state. */
+#define UB_BLEND_BASE_HALF 16u
 
 typedef enum ub_blend_storage {
   UB_BLEND_FLOAT32 = 0, /* record values are float */
@@ -110,7 +119,8 @@ typedef struct ub_blend_desc {
   uint32_t element_count;
   const ub_blend_record *elements; /* element_count records; element id = index */
   uint32_t flags;            /* 0, or UB_BLEND_PORTABLE | UB_BLEND_OWN_BASE |
-                                UB_BLEND_STORE_HALF | UB_BLEND_ROW_QUERY */
+                                UB_BLEND_STORE_HALF | UB_BLEND_ROW_QUERY |
+                                UB_BLEND_BASE_HALF (with UB_BLEND_OWN_BASE) */
 } ub_blend_desc;
 
 /* Counters of one update (all for that call only). */
@@ -118,7 +128,8 @@ typedef struct ub_blend_stats {
   uint32_t groups;          /* groups recomputed */
   uint32_t groups_base;     /* of which all weights were 0: base rows copied */
   uint64_t receivers;       /* receivers written, each exactly once */
-  uint64_t bytes_read;      /* base rows + record rows of non-zero members + group tables */
+  uint64_t bytes_read;      /* base rows (as kept: 2 or 4 bytes a value) + record rows of
+                             * non-zero members + group tables */
   uint64_t bytes_written;   /* rows stored to out_values: receivers × stride × 4 (0 when
                              * streaming) */
 } ub_blend_stats;
@@ -137,6 +148,7 @@ typedef struct ub_blend_info {
   size_t engine_bytes;        /* the engine's tables, weights, scratch, own base rows */
   size_t record_bytes;        /* the engine's copy of the record values (memberships ×
                                  stride × 2 or 4 bytes), not in engine_bytes */
+  float base_scale;           /* UB_BLEND_BASE_HALF: the base rows' scale, else 1 */
 } ub_blend_info;
 
 /* Reports the receivers an update just recomputed: [first, first + count), whose final
@@ -151,7 +163,8 @@ typedef struct ub_blend ub_blend;
 
 /* Validates desc (stride, sorted unique in-range indices, finite base and values), builds
  * the groups and, if out_values is not NULL, copies base into it (receiver_count × stride
- * floats). Errors: UB_ERR_INVALID_ARGUMENT (NULL pointers, bad stride or storage),
+ * floats). Errors: UB_ERR_INVALID_ARGUMENT (NULL pointers, bad stride or storage, or
+ * UB_BLEND_BASE_HALF without UB_BLEND_OWN_BASE),
  * UB_ERR_INVALID_DATA (records or base), UB_ERR_OUT_OF_MEMORY; one message to log naming
  * desc->name, the element and the position. */
 ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *out_values,

@@ -772,13 +772,16 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   bd.storage = UB_BLEND_FLOAT32;
   bd.element_count = n;
   bd.elements = rt->lm_rec;
-  /* Keeps only the touched receivers' base rows, and the records as half; streams its
-   * rows to the re-encode, queries ask it for a texel's row (ub_blend_row). */
-  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_STORE_HALF | UB_BLEND_ROW_QUERY;
+  /* Keeps only the touched receivers' base rows (in half, as lm_static) and the records
+   * as half; streams its rows to the re-encode, queries ask it for a texel's row
+   * (ub_blend_row). */
+  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_STORE_HALF | UB_BLEND_ROW_QUERY | UB_BLEND_BASE_HALF;
   r = ub_blend_create(&bd, log, NULL, &rt->lm_blend);
   if (r != UB_OK)
     return r;
-  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_STORE_HALF;
+  /* Base rows in half too (UB_BLEND_BASE_HALF): the touched texels' as the untouched ones'
+   * (lm_static); the probes' are the file's halves, kept exactly. */
+  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_STORE_HALF | UB_BLEND_BASE_HALF;
   free(rt->lm_base);
   rt->lm_base = NULL;
   free(rt->lm_tbase);

@@ -944,6 +944,157 @@ static void test_parts(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
   rep_free(&p);
 }
 
+/* ---- UB_BLEND_BASE_HALF: base rows kept as half × a power of two ------------------- */
+
+/* An engine keeping its base rows as half (AVX, portable, streaming, split into parts)
+ * gives the bits of a float engine whose base is the rounded rows, round after round. */
+static void test_base_half(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
+{
+  uint8_t **cover = malloc(sizeof(uint8_t *) * E);
+  for (uint32_t e = 0; e < E; e++) {
+    cover[e] = calloc(R, 1);
+    if (e % 3 == 2) { /* scattered: list groups */
+      for (uint32_t i = 0; i < R / 20; i++)
+        cover[e][rnd_below(R)] = 1;
+    } else {
+      uint32_t start = rnd_below(R), size = 10 + rnd_below(R / 4);
+      for (uint32_t r = start; r < R && r < start + size; r++)
+        cover[e][r] = rnd() < 0.9;
+    }
+  }
+  rep p;
+  rep_init(&p, R, S, E, st, cover);
+  for (uint32_t e = 0; e < E; e++)
+    free(cover[e]);
+  free(cover);
+  const size_t nf = (size_t)R * S;
+  uint8_t *tmask = calloc(R, 1);
+  for (uint32_t e = 0; e < E; e++)
+    for (uint32_t i = 0; i < p.cnt[e]; i++)
+      tmask[p.idx[e][i]] = 1;
+  /* bright values beyond the half range (a scale > 1) and tiny ones (half subnormals) */
+  for (size_t i = 0; i < nf; i++) {
+    double x = rnd();
+    if (x < 0.01)
+      p.base[i] *= 3e5f;
+    else if (x < 0.03)
+      p.base[i] *= 1e-6f;
+  }
+  ub_blend_desc d = rep_desc(&p, "base half");
+  d.flags = UB_BLEND_BASE_HALF; /* without UB_BLEND_OWN_BASE: refused */
+  ub_blend *bad = NULL;
+  ASSERT_TRUE(ub_blend_create(&d, NULL, NULL, &bad) == UB_ERR_INVALID_ARGUMENT && !bad);
+
+  enum { NH = 3 };
+  const uint32_t flags_of[NH] = {UB_BLEND_ROW_QUERY, UB_BLEND_PORTABLE | UB_BLEND_ROW_QUERY,
+                                 0};
+  const int stream_of[NH] = {0, 0, 1}, parts_of[NH] = {1, 3, 2};
+  ub_blend *h[NH] = {0};
+  float *out[NH];
+  for (int i = 0; i < NH; i++) {
+    out[i] = malloc(sizeof(float) * nf);
+    memset(out[i], 0xff, sizeof(float) * nf);
+    d.flags = UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF | flags_of[i];
+    ASSERT_OK(ub_blend_create(&d, NULL, stream_of[i] ? NULL : out[i], &h[i]));
+    if (!h[i])
+      return;
+    ASSERT_OK(ub_blend_reserve_parts(h[i], (uint32_t)parts_of[i]));
+  }
+  ub_blend_info in;
+  ub_blend_get_info(h[0], &in);
+  const float sc = in.base_scale;
+  ASSERT_TRUE(sc > 1.0f && sc == ldexpf(1.0f, ilogbf(sc)));
+  /* the reference: a float engine over the rounded rows (touched receivers only) */
+  float *rb = malloc(sizeof(float) * nf);
+  memcpy(rb, p.base, sizeof(float) * nf);
+  int bad_round = 0;
+  float mx = 0.0f;
+  for (uint32_t r = 0; r < R; r++)
+    for (uint32_t j = 0; tmask[r] && j < S; j++) {
+      float *v = &rb[(size_t)r * S + j];
+      mx = fmaxf(mx, fabsf(*v));
+      float q = ub_half_to_float(ub_half_from_float(*v / sc)) * sc;
+      bad_round += !(fabsf(q - *v) <= ldexpf(fabsf(*v), -11) + ldexpf(sc, -25));
+      *v = q;
+    }
+  ASSERT_TRUE(bad_round == 0 && mx / sc <= 32768.0f && mx / sc > 16384.0f);
+  ub_blend_desc dr = d;
+  dr.base = rb;
+  dr.flags = 0;
+  float *ref = malloc(sizeof(float) * nf);
+  ub_blend *bref = NULL, *bown = NULL;
+  ASSERT_OK(ub_blend_create(&dr, NULL, ref, &bref));
+  dr.flags = UB_BLEND_OWN_BASE | UB_BLEND_ROW_QUERY; /* h[0]'s flags, float rows */
+  ASSERT_OK(ub_blend_create(&dr, NULL, NULL, &bown));
+  if (!bref || !bown)
+    return;
+  ub_blend_info io;
+  ub_blend_get_info(bown, &io);
+  /* the rows at half the bytes (less the base decode scratch) */
+  ASSERT_TRUE(io.engine_bytes - in.engine_bytes + (size_t)64 * S * sizeof(float) >=
+              (size_t)in.touched_receivers * S * 2);
+  ASSERT_TRUE(memcmp(out[0], ref, sizeof(float) * nf) == 0); /* create: the rounded rows */
+  ASSERT_TRUE(memcmp(out[1], ref, sizeof(float) * nf) == 0);
+  memcpy(out[2], ref, sizeof(float) * nf); /* streaming: filled by the reports */
+  uint8_t *count = calloc(R, 1);
+  float row[UB_BLEND_MAX_STRIDE];
+  int bad_bits = 0, bad_rows = 0, bad_bytes = 0;
+  for (int round = 0; round < 50; round++) {
+    const int all = round % 10 == 9, off = round == 49;
+    for (uint32_t e = 0; e < E; e++)
+      if (off || rnd() < 0.15) {
+        float w[3] = {0.0f, 0.0f, 0.0f};
+        if (!off)
+          rnd_weight(w);
+        ASSERT_OK(ub_blend_set_weight(bref, e, w));
+        for (int i = 0; i < NH; i++)
+          ASSERT_OK(ub_blend_set_weight(h[i], e, w));
+      }
+    ub_blend_stats sr, sh;
+    (all ? ub_blend_update_all : ub_blend_update)(bref, NULL, NULL, ref, &sr);
+    for (int i = 0; i < NH; i++) {
+      memset(count, 0, R);
+      touch_log tl = {count, 0, S, stream_of[i] ? NULL : out[i], stream_of[i] ? out[i] : NULL,
+                      0};
+      memset(&sh, 0, sizeof sh);
+      ub_blend_update_begin(h[i], all);
+      for (int q = 0; q < parts_of[i]; q++) {
+        ub_blend_stats sq;
+        ub_blend_update_part(h[i], (uint32_t)q, (uint32_t)parts_of[i], on_touched, &tl,
+                             stream_of[i] ? NULL : out[i], &sq);
+        sh.receivers += sq.receivers;
+        sh.bytes_read += sq.bytes_read;
+      }
+      bad_bits += memcmp(out[i], ref, sizeof(float) * nf) != 0 || tl.rows_bad;
+      /* base rows read at 2 bytes a value, not 4 */
+      bad_bytes += sh.receivers != sr.receivers ||
+                   sh.bytes_read + sr.receivers * S * 2 != sr.bytes_read;
+    }
+    for (int q = 0; q < 200; q++) {
+      uint32_t r = rnd_below(R);
+      int ok = ub_blend_row(h[q & 1], r, row);
+      bad_rows += tmask[r] ? !ok || memcmp(row, ref + (size_t)r * S, sizeof(float) * S) != 0
+                           : ok;
+    }
+  }
+  printf("base half R=%u S=%u %s: scale %g, %d of %d engine-updates differ in bits, %d bad "
+         "row queries, %d bad byte counts\n", R, S, st == UB_BLEND_FLOAT16 ? "half" : "float",
+         (double)sc, bad_bits, 50 * NH, bad_rows, bad_bytes);
+  ASSERT_TRUE(bad_bits == 0 && bad_rows == 0 && bad_bytes == 0);
+  ASSERT_TRUE(memcmp(ref, rb, sizeof(float) * nf) == 0); /* all off: the rounded base */
+  free(count);
+  free(tmask);
+  free(rb);
+  free(ref);
+  ub_blend_free(bref);
+  ub_blend_free(bown);
+  for (int i = 0; i < NH; i++) {
+    ub_blend_free(h[i]);
+    free(out[i]);
+  }
+  rep_free(&p);
+}
+
 /* One element over every receiver: one group of one run. Seven parts must each hold a
  * stretch of it (the split cuts the group) and give the plain update's bits. */
 static void test_parts_one_group(void)
@@ -1000,5 +1151,7 @@ int main(void)
   test_parts(20000, 12, 40, UB_BLEND_FLOAT16);
   test_parts(6000, 27, 30, UB_BLEND_FLOAT32);
   test_parts_one_group();
+  test_base_half(20000, 12, 30, UB_BLEND_FLOAT16);
+  test_base_half(5000, 27, 20, UB_BLEND_FLOAT32);
   TEST_MAIN_END();
 }
