@@ -476,7 +476,7 @@ int main(int argc, char **argv)
   ub_runtime_memory_usage(rt, &mu);
   {
     const double M = 1048576.0;
-    printf("  run-time memory (counted): %.1f MB = geometry %.1f + lightmap %.1f + GLG %.1f + "
+    printf("  run-time memory (counted): %.1f MiB = geometry %.1f + lightmap %.1f + GLG %.1f + "
            "LLG %.1f + records %.1f + blend engines %.1f\n", mu.total / M, mu.geometry / M,
            mu.lightmap / M, mu.glg / M, mu.llg / M, mu.records / M, mu.blend / M);
   }

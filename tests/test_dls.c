@@ -2,7 +2,9 @@
  * - linearity: base + sets is exact per receiver (texels along their normal, GLG SH);
  * - an RGB tint scales its set channel-wise;
  * - toggling returns the identical state (no drift);
- * - several states vs the reference path tracer with the same state (3 s.e. + 5%). */
+ * - several states vs the reference path tracer with the same state (3 s.e. + 5%);
+ * - `ubake info --json --memory` lists each set (lights, receivers, bytes) and the
+ *   run-time memory by part. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -259,6 +261,63 @@ static void test_states_vs_reference(ub_runtime *rt)
   ub_scene_free(scene);
 }
 
+/* `ubake info --json --memory`: each set with its lights and receivers as the bake file
+ * holds them and its bytes (28 per texel pixel: index + 12 halves; 58 per probe: index
+ * + 27 halves), and the run-time's bytes by part = ub_runtime_memory_usage of rt. */
+static void test_info(const char *ubk, const ub_runtime *rt)
+{
+  char cmd[2300];
+  snprintf(cmd, sizeof cmd, "'%s/ubake' info '%s' --json --memory", g_build, ubk);
+  FILE *p = popen(cmd, "r");
+  ASSERT_TRUE(p != NULL);
+  if (!p)
+    return;
+  size_t cap = 1 << 16, n = 0;
+  char *out = malloc(cap);
+  size_t got;
+  while (out && (got = fread(out + n, 1, cap - 1 - n, p)) > 0)
+    n += got;
+  ASSERT_TRUE(pclose(p) == 0 && out);
+  if (!out)
+    return;
+  out[n] = 0;
+  ub_bakefile *bf = NULL;
+  ASSERT_OK(ub_bakefile_read(ubk, NULL, &bf));
+  int bad = 0;
+  for (uint32_t d = 0; bf && d < bf->dls_count; d++) {
+    const ub_bakefile_record *rc = &bf->dls[d];
+    char key[128];
+    snprintf(key, sizeof key, "{\"name\": \"%s\",", rc->name);
+    const char *at = strstr(out, key);
+    unsigned lights = 0, texels = 0, probes = 0, llg = 0;
+    unsigned long long bytes = 0;
+    if (!at || sscanf(at + strlen(key), " \"lights\": %u, \"texels\": %u, \"probes\": %u, "
+                      "\"llg_probes\": %u, \"bytes\": %llu", &lights, &texels, &probes, &llg,
+                      &bytes) != 5) {
+      bad++;
+      continue;
+    }
+    bad += lights != rc->light_count || texels != rc->texel_count ||
+           probes != rc->probe_count || llg != rc->llg_probe_count ||
+           bytes != 28ull * texels + 58ull * (probes + llg) || texels == 0;
+  }
+  ub_bakefile_free(bf);
+  ub_runtime_memory m;
+  ub_runtime_memory_usage(rt, &m);
+  const char *mj = strstr(out, "\"runtime_memory\": {");
+  unsigned long long g = 0, l = 0, gl = 0, ll = 0, rec = 0, bl = 0, tot = 0;
+  int nm = mj ? sscanf(mj, "\"runtime_memory\": {\"geometry\": %llu, \"lightmap\": %llu, "
+                       "\"glg\": %llu, \"llg\": %llu, \"records\": %llu, \"blend\": %llu, "
+                       "\"total\": %llu", &g, &l, &gl, &ll, &rec, &bl, &tot) : 0;
+  printf("ubake info --json --memory: %d of 2 sets wrong; run-time %llu bytes (here %zu)\n",
+         bad, tot, m.total);
+  ASSERT_TRUE(bad == 0 && nm == 7);
+  ASSERT_TRUE(tot == m.total && g == m.geometry && l == m.lightmap && gl == m.glg &&
+              ll == m.llg && rec == m.records && bl == m.blend && rec > 0 &&
+              g + l + gl + ll + rec + bl == tot);
+  free(out);
+}
+
 int main(void)
 {
   const char *b = getenv("UB_BUILD");
@@ -284,6 +343,7 @@ int main(void)
     ASSERT_TRUE(ub_runtime_dls_find(rt, "nope") == -1);
     const float bad[3] = {NAN, 0, 0};
     ASSERT_TRUE(ub_runtime_set_dls(rt, 0, bad) == UB_ERR_INVALID_ARGUMENT);
+    test_info(st.ubk_path, rt);
     test_linearity(rt);
     test_toggle(rt);
     test_states_vs_reference(rt);

@@ -412,19 +412,42 @@ static const char *element_name(const ub_bakefile *bf, int32_t e)
 
 /* ---- info -------------------------------------------------------------------------- */
 
-static const char *INFO_HELP = "usage: ubake info DIR/NAME.ubk [--json]\n"
-                               "Prints what the bake file holds: geometry, atlases, texels, bytes.\n";
+static const char *INFO_HELP =
+    "usage: ubake info DIR/NAME.ubk [--json] [--memory]\n"
+    "Prints what the bake file holds: geometry, atlases, texels, bytes.\n"
+    "  --json      the same as one JSON object\n"
+    "  --memory    also load it in the run-time and print what the run-time holds, by\n"
+    "              part (ub_runtime_memory_usage: geometry, lightmap, GLG, LLG, records,\n"
+    "              blend engines), and the load time\n";
+
+/* The run-time's bytes for path (loads it): 0 on success. */
+static int info_memory(const char *path, const ub_log *log, ub_runtime_memory *out,
+                       double *out_seconds)
+{
+  struct timespec t0, t1;
+  clock_gettime(CLOCK_MONOTONIC, &t0);
+  ub_runtime *rt = NULL;
+  if (ub_runtime_load(path, log, &rt) != UB_OK)
+    return 1;
+  clock_gettime(CLOCK_MONOTONIC, &t1);
+  ub_runtime_memory_usage(rt, out);
+  ub_runtime_free(rt);
+  *out_seconds = (double)(t1.tv_sec - t0.tv_sec) + 1e-9 * (double)(t1.tv_nsec - t0.tv_nsec);
+  return 0;
+}
 
 static int cmd_info(int argc, char **argv)
 {
   const char *path = NULL;
-  int json = 0;
+  int json = 0, memory = 0;
   for (int i = 0; i < argc; i++) {
     if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
       fputs(INFO_HELP, stdout);
       return 0;
     } else if (!strcmp(argv[i], "--json")) {
       json = 1;
+    } else if (!strcmp(argv[i], "--memory")) {
+      memory = 1;
     } else if (argv[i][0] == '-') {
       return usage_error("info", "unknown option");
     } else {
@@ -441,6 +464,12 @@ static int cmd_info(int argc, char **argv)
     return fail(&ls, r, path);
   struct stat sb;
   long long bytes = stat(path, &sb) == 0 ? (long long)sb.st_size : -1;
+  ub_runtime_memory mem;
+  double load_s = 0.0;
+  if (memory && info_memory(path, &log, &mem, &load_s)) {
+    ub_bakefile_free(bf);
+    return fail(&ls, UB_ERR_INVALID_DATA, path);
+  }
   uint64_t covered = 0, dilated = 0, total = 0;
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     size_t npx = (size_t)bf->atlases[a].width * bf->atlases[a].height;
@@ -498,7 +527,13 @@ static int cmd_info(int argc, char **argv)
              (int)rc->parent[1], rc->texel_count, rc->probe_count, rc->llg_probe_count,
              record_bytes(rc));
     }
-    printf("]}\n");
+    printf("]");
+    if (memory)
+      printf(", \"runtime_memory\": {\"geometry\": %zu, \"lightmap\": %zu, \"glg\": %zu, "
+             "\"llg\": %zu, \"records\": %zu, \"blend\": %zu, \"total\": %zu, "
+             "\"load_seconds\": %.3f}", mem.geometry, mem.lightmap, mem.glg, mem.llg,
+             mem.records, mem.blend, mem.total, load_s);
+    printf("}\n");
   } else {
     printf("%s: level %s, %lld bytes, seed %u, %u bounces\n", path, bf->level_name, bytes,
            bf->seed, bf->bounces);
@@ -543,6 +578,11 @@ static int cmd_info(int argc, char **argv)
              element_kind_name(rc->kind), rc->name, rc->texel_count, rc->probe_count,
              rc->llg_probe_count, record_bytes(rc), parents);
     }
+    if (memory)
+      printf("  run-time memory: %.1f MiB = geometry %.1f + lightmap %.1f + GLG %.1f + LLG %.1f"
+             " + records %.1f + blend engines %.1f (loaded in %.2f s)\n", mem.total / 1048576.0,
+             mem.geometry / 1048576.0, mem.lightmap / 1048576.0, mem.glg / 1048576.0,
+             mem.llg / 1048576.0, mem.records / 1048576.0, mem.blend / 1048576.0, load_s);
   }
   ub_bakefile_free(bf);
   return 0;
