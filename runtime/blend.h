@@ -79,8 +79,9 @@ extern "C" {
  * (in group order, so a group's base rows are read as one stream) and never reads
  * desc->base after create: the caller may free it. The rows no element touches are the
  * caller's out array, set to base at create and never written again, so base and
- * current share them. Memory: touched × stride × 4 bytes instead of receiver_count ×
- * stride × 4 (ESTATE-like: 36% of texels touched). Same results, bit for bit. */
+ * current share them. Memory: touched × stride × 4 bytes (2 with UB_BLEND_BASE_HALF)
+ * instead of receiver_count × stride × 4 (ESTATE-like: 36% of texels touched). Same
+ * results, bit for bit. */
 #define UB_BLEND_OWN_BASE 2u
 /* Float records (UB_BLEND_FLOAT32) kept by the engine as half (runtime/half.h, round to
  * nearest even; values must be within the half range: scale them first): the engine then

@@ -41,14 +41,15 @@ void ub_runtime_free(ub_runtime *rt);
 /* The loaded bake file, read-only, owned by rt. It differs from one read with
  * ub_bakefile_read(): glg_neigh, glg_positions and glg_sh are NULL (the GLG keeps its own
  * compact probe store and the positions it needs, its walk records hold the neighbours;
- * glg_tets and the leak planes stay; ub_runtime_glg_probe_sh gives the SH). When the file
+ * glg_tets and the leak planes stay; ub_runtime_glg_probe_sh gives the SH); atlases[a].sh
+ * are NULL (the run-time keeps the texels' SH as the file's halves, or computes them from
+ * the records: read the lightmap through the queries). When the file
  * has dynamic elements (sets, doors, objects), the run-time keeps one float copy of the
  * LLG probes' current state and the records in half precision (as the file stores them),
  * so also: every record's texel_sh, probe_sh and llg_probe_sh and its receiver indices
  * (texel_index, probe_index, llg_probe_index) are NULL (the blends keep what they need;
  * counts, names and kinds are kept; read the file with ub_bakefile_read() for the records
- * themselves); atlases[a].sh are NULL (read the lightmap through the queries);
- * llgs[m].probe_sh hold the CURRENT raw state (base + Σ weight·record), updated by
+ * themselves); llgs[m].probe_sh hold the CURRENT raw state (base + Σ weight·record), updated by
  * ub_runtime_update(). */
 const ub_bakefile *ub_runtime_bakefile(const ub_runtime *rt);
 
@@ -58,9 +59,9 @@ typedef struct ub_runtime_memory {
                        coverage; GLG positions, tets, leak planes; LLG model meshes,
                        visibility, self terms */
   size_t lightmap;  /* per covered texel: AHD, SH (where a record touches it none: the
-                       lightmap blend computes it; else the file's halves; without
-                       elements the file's float SH; touched: encode normal, slot and
-                       rank); coverage/touched bitmaps; fallback encode normals */
+                       lightmap blend computes it; else the file's halves; touched: encode
+                       normal, slot and rank); coverage/touched bitmaps; fallback encode
+                       normals */
   size_t glg;       /* the GLG's compact probe store (58 B/probe) and its walk data */
   size_t llg;       /* LLG probe SH (current state) */
   size_t records;   /* element records: their values (half), held by the blends */
