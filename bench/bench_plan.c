@@ -27,10 +27,10 @@ static double mean_irradiance(const char *ubk)
   for (uint32_t a = 0; a < f->atlas_count; a++)
     for (size_t px = 0; px < (size_t)f->atlases[a].width * f->atlases[a].height; px++)
       if (f->atlases[a].coverage[px] == 1) {
-        float e[3];
-        ub_runtime_texel_irradiance(rt, a, (uint32_t)(px % f->atlases[a].width),
-                                    (uint32_t)(px / f->atlases[a].width),
-                                    f->atlases[a].normal + 3 * px, e);
+        float e[3], nn[3];
+        uint32_t x = (uint32_t)(px % f->atlases[a].width), y = (uint32_t)(px / f->atlases[a].width);
+        ub_runtime_texel_normal(rt, a, x, y, nn);
+        ub_runtime_texel_irradiance(rt, a, x, y, nn, e);
         s += e[1];
         n++;
       }

@@ -32,6 +32,9 @@ struct ub_runtime {
    * texels only (per atlas, pixels ascending; a zero normal: none in the atlas, the SH's
    * own direction is used). */
   ub_rt_fallback *fallback; /* atlas_count */
+  /* Per atlas, every pixel's stored normal as the file's halves (3 per pixel; made at the
+   * end of load, when the bake file's float copies go: the same values, half the bytes). */
+  uint16_t **nrm;
   uint64_t *pixel_first; /* atlas_count + 1: first global pixel of each atlas */
   /* Per-texel run-time arrays hold covered texels only (coverage != 0; ESTATE-like levels
    * cover ~60% of their atlas pixels): a texel's slot is its rank among the covered
@@ -270,12 +273,24 @@ static ub_result encode_fallbacks(const ub_bakefile_atlas *at, ub_rt_fallback *o
   return UB_OK;
 }
 
-/* The encode normal of covered texel i (unit, or zero: use the SH's direction); returns
- * whether it is the texel's own normal (then the I_z form unpacks with it). */
-static int encode_normal(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, size_t i,
-                         float out_n[3])
+/* ub_texel_normal of pixel i's stored normal in atlas a (the bake file's floats during
+ * load, the same values from rt->nrm after it). */
+static int stored_normal(const ub_runtime *rt, uint32_t a, size_t i, float out_n[3])
 {
-  if (ub_texel_normal(&at->normal[i * 3], out_n))
+  const float *f = rt->bf->atlases[a].normal;
+  if (f)
+    return ub_texel_normal(&f[i * 3], out_n);
+  const uint16_t *h = rt->nrm[a] + i * 3;
+  const float n[3] = {ub_half_to_float(h[0]), ub_half_to_float(h[1]), ub_half_to_float(h[2])};
+  return ub_texel_normal(n, out_n);
+}
+
+/* The encode normal of covered texel i of atlas a (unit, or zero: use the SH's direction);
+ * returns whether it is the texel's own normal (then the I_z form unpacks with it). */
+static int encode_normal(const ub_runtime *rt, uint32_t a, size_t i, float out_n[3])
+{
+  const ub_rt_fallback *fb = &rt->fallback[a];
+  if (stored_normal(rt, a, i, out_n))
     return 1;
   size_t lo = 0, hi = fb->count;
   while (lo < hi) {
@@ -294,25 +309,25 @@ static int encode_normal(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, 
 
 /* Covered pixel i's SH L1 from its row (I_z form when packed, else plain) into out_sh, and
  * its encode normal into out_n (see encode_normal). */
-static void texel_sh_at(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, const float *row,
-                        int packed, size_t i, float out_sh[UB_SH1_FLOATS], float out_n[3])
+static void texel_sh_at(const ub_runtime *rt, uint32_t a, const float *row, int packed,
+                        size_t i, float out_sh[UB_SH1_FLOATS], float out_n[3])
 {
   memcpy(out_sh, row, UB_SH1_FLOATS * sizeof(float));
-  if (encode_normal(at, fb, i, out_n) && packed)
+  if (encode_normal(rt, a, i, out_n) && packed)
     ub_texel_sh_unpack(out_sh, out_n);
 }
 
 /* The AHD of one covered pixel i from its SH row. A packed row of a texel with its own
  * normal (the I_z form along that normal) is encoded as it is (ub_ahd_encode_iz). */
-static void encode_texel(const ub_bakefile_atlas *at, const ub_rt_fallback *fb, const float *row,
-                         int packed, size_t i, ub_ahd *out)
+static void encode_texel(const ub_runtime *rt, uint32_t a, const float *row, int packed,
+                         size_t i, ub_ahd *out)
 {
   float v[UB_SH1_FLOATS], n[3];
-  if (packed && ub_texel_normal(&at->normal[i * 3], n)) {
+  if (packed && stored_normal(rt, a, i, n)) {
     ub_ahd_encode_iz(row, n, out);
     return;
   }
-  texel_sh_at(at, fb, row, packed, i, v, n);
+  texel_sh_at(rt, a, row, packed, i, v, n);
   if (n[0] == 0.0f && n[1] == 0.0f && n[2] == 0.0f)
     sh_dominant_direction(v, n);
   ub_ahd_encode(v, n, out);
@@ -330,6 +345,10 @@ void ub_runtime_free(ub_runtime *rt)
       free(rt->fallback[a].normal);
     }
   free(rt->fallback);
+  if (rt->nrm)
+    for (uint32_t a = 0; a < rt->bf->atlas_count; a++)
+      free(rt->nrm[a]);
+  free(rt->nrm);
   free(rt->pixel_first);
   if (rt->cov_bits)
     for (uint32_t a = 0; a < rt->bf->atlas_count; a++)
@@ -689,6 +708,30 @@ static int setup_static(ub_runtime *rt)
   return ok;
 }
 
+/* The atlases' stored normals as halves (rt->nrm), the bake file's floats freed: the file
+ * stores them in half, so the floats convert back exactly and every reader (stored_normal)
+ * gets the same values. 0 when out of memory (nothing freed). */
+static int normals_to_half(ub_runtime *rt)
+{
+  ub_bakefile *bf = rt->bf;
+  rt->nrm = calloc(bf->atlas_count, sizeof *rt->nrm);
+  if (!rt->nrm)
+    return 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    size_t n = (size_t)bf->atlases[a].width * bf->atlases[a].height * 3;
+    rt->nrm[a] = malloc((n ? n : 1) * sizeof **rt->nrm);
+    if (!rt->nrm[a])
+      return 0;
+    for (size_t k = 0; k < n; k++)
+      rt->nrm[a][k] = ub_half_from_float(bf->atlases[a].normal[k]);
+  }
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    free(bf->atlases[a].normal);
+    bf->atlases[a].normal = NULL;
+  }
+  return 1;
+}
+
 /* Blend engines for the elements' lightmap, GLG and LLG records; sets start at weight 1,
  * doors closed, objects shown. Afterwards the run-time keeps a float copy of the LLG
  * probes' current state (llg_cur; the GLG's is its compact store, into which the GLG blend
@@ -948,7 +991,7 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
       if (encode_fallbacks(at, &rt->fallback[a]) != UB_OK)
         goto oom;
       for (uint64_t k = 0; k < ns; k++)
-        encode_texel(at, &rt->fallback[a], at->sh + (size_t)sp[k] * UB_SH1_FLOATS, 0, sp[k],
+        encode_texel(rt, a, at->sh + (size_t)sp[k] * UB_SH1_FLOATS, 0, sp[k],
                      &rt->ahd[rt->slot_first[a] + k]);
     }
   }
@@ -1007,6 +1050,8 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
   } else if (bf->atlas_count && !setup_static(rt)) {
     goto oom;
   }
+  if (bf->atlas_count && !normals_to_half(rt))
+    goto oom;
   *out = rt;
   return UB_OK;
 oom:
@@ -1181,7 +1226,7 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
       uint32_t a = 0;
       while (s >= rt->slot_first[a + 1])
         a++;
-      encode_texel(&rt->bf->atlases[a], &rt->fallback[a], rows, 1, rt->slot_pixel[s], out);
+      encode_texel(rt, a, rows, 1, rt->slot_pixel[s], out);
       continue;
     }
     memcpy(tc->pn + 3 * tc->np, un, 3 * sizeof(float));
@@ -1372,7 +1417,7 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     size_t t = (size_t)bf->atlases[a].width * bf->atlases[a].height;
     size_t ns = rt->slot_first ? (size_t)(rt->slot_first[a + 1] - rt->slot_first[a]) : 0;
-    m.geometry += t * (3 * F + 1);
+    m.geometry += t * (3 * sizeof(uint16_t) + 1); /* normals (halves), coverage */
     m.lightmap += ns * (sizeof(ub_ahd) + U) + (t + 63) / 64 * (8 + U) +
                   (bf->atlases[a].sh ? t * UB_SH1_FLOATS * F : 0) +
                   (rt->fallback ? (size_t)rt->fallback[a].count * (U + 3 * F) : 0);
@@ -1418,6 +1463,20 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
   }
   m.total = m.geometry + m.lightmap + m.glg + m.llg + m.records + m.blend;
   *out = m;
+}
+
+ub_result ub_runtime_texel_normal(const ub_runtime *rt, uint32_t atlas, uint32_t x, uint32_t y,
+                                  float out_n[3])
+{
+  assert(rt && out_n);
+  const ub_bakefile *bf = rt->bf;
+  if (atlas >= bf->atlas_count || x >= bf->atlases[atlas].width ||
+      y >= bf->atlases[atlas].height)
+    return UB_ERR_INVALID_ARGUMENT;
+  const uint16_t *h = rt->nrm[atlas] + ((size_t)y * bf->atlases[atlas].width + x) * 3;
+  for (int k = 0; k < 3; k++)
+    out_n[k] = ub_half_to_float(h[k]);
+  return UB_OK;
 }
 
 ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint32_t x,
@@ -1606,7 +1665,7 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
         row = srow;
       }
     }
-    texel_sh_at(at, &rt->fallback[atlas], row, cur, i, ts, tn);
+    texel_sh_at(rt, atlas, row, cur, i, ts, tn);
     for (int c = 0; c < UB_SH1_FLOATS; c++)
       sh[c] += wt * ts[c];
     for (int c = 0; c < 3; c++)

@@ -83,8 +83,9 @@ static void texel_stats(const ub_runtime *rt, double *out_mean, double *out_p95_
         size_t px = (size_t)y * at->width + x;
         if (at->coverage[px] != 1)
           continue;
-        float rgb[3];
-        ub_runtime_texel_irradiance(rt, a, x, y, at->normal + 3 * px, rgb);
+        float rgb[3], nn[3];
+        ASSERT_OK(ub_runtime_texel_normal(rt, a, x, y, nn));
+        ub_runtime_texel_irradiance(rt, a, x, y, nn, rgb);
         sum += rgb[1];
         if (n == cap) {
           cap = cap ? 2 * cap : 1024;

@@ -1027,6 +1027,16 @@ static void test_runtime(void)
   if (rt && fr) {
     const ub_bakefile_atlas *at = &fr->atlases[0];
     ASSERT_TRUE(ub_runtime_bakefile(rt)->atlases[0].sh == NULL);
+    /* the stored normals, kept as the file's halves: the reader's values exactly */
+    ASSERT_TRUE(ub_runtime_bakefile(rt)->atlases[0].normal == NULL);
+    for (uint32_t t = 0; t < 4; t++) {
+      float nn[3];
+      ASSERT_OK(ub_runtime_texel_normal(rt, 0, t % 2, t / 2, nn));
+      ASSERT_TRUE(memcmp(nn, &at->normal[3 * t], sizeof nn) == 0);
+    }
+    float nx[3];
+    ASSERT_TRUE(ub_runtime_texel_normal(rt, 0, 2, 0, nx) == UB_ERR_INVALID_ARGUMENT);
+    ASSERT_TRUE(ub_runtime_texel_normal(rt, 1, 0, 0, nx) == UB_ERR_INVALID_ARGUMENT);
     float nz[3] = {0, 0, 1}, rgb[3], ref[3];
     for (uint32_t t = 0; t < 4; t++) {
       ASSERT_OK(ub_runtime_texel_irradiance(rt, 0, t % 2, t / 2, nz, rgb));

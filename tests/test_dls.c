@@ -44,7 +44,9 @@ static size_t texels(const ub_runtime *rt, double *out)
         if (f->atlases[a].coverage[px] != 1)
           continue;
         float e[3];
-        ub_runtime_texel_irradiance(rt, a, x, y, f->atlases[a].normal + 3 * px, e);
+        float nn[3];
+        ASSERT_OK(ub_runtime_texel_normal(rt, a, x, y, nn));
+        ub_runtime_texel_irradiance(rt, a, x, y, nn, e);
         if (out)
           out[n] = e[1];
         n++;

@@ -83,8 +83,9 @@ static void take(const ub_runtime *rt, snap *s)
         size_t px = (size_t)y * f->atlases[a].width + x;
         if (f->atlases[a].coverage[px] != 1)
           continue;
-        ASSERT_OK(ub_runtime_texel_irradiance(rt, a, x, y, f->atlases[a].normal + 3 * px,
-                                              s->tex + 3 * n));
+        float nn[3];
+        ASSERT_OK(ub_runtime_texel_normal(rt, a, x, y, nn));
+        ASSERT_OK(ub_runtime_texel_irradiance(rt, a, x, y, nn, s->tex + 3 * n));
         n++;
       }
   s->nglg = (size_t)f->glg_probe_count * 27;

@@ -61,7 +61,9 @@ static double mean_irradiance(const char *ubk)
         if (f->atlases[a].coverage[px] != 1)
           continue;
         float e[3];
-        ub_runtime_texel_irradiance(rt, a, x, y, f->atlases[a].normal + 3 * px, e);
+        float nn[3];
+        ub_runtime_texel_normal(rt, a, x, y, nn);
+        ub_runtime_texel_irradiance(rt, a, x, y, nn, e);
         s += e[1];
         n++;
       }

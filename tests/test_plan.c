@@ -95,9 +95,10 @@ static void compare(const char *a, const char *b, double *out_mean, double *out_
           size_t px = (size_t)y * at->width + x;
           if (at->coverage[px] != 1)
             continue;
-          float ea[3], eb[3];
-          ub_runtime_texel_irradiance(ra, t, x, y, at->normal + 3 * px, ea);
-          ub_runtime_texel_irradiance(rb, t, x, y, at->normal + 3 * px, eb);
+          float ea[3], eb[3], nn[3];
+          ub_runtime_texel_normal(ra, t, x, y, nn);
+          ub_runtime_texel_irradiance(ra, t, x, y, nn, ea);
+          ub_runtime_texel_irradiance(rb, t, x, y, nn, eb);
           if (pass == 0) {
             mean_b += eb[1];
             n++;
@@ -125,10 +126,10 @@ static double level_mean_irradiance(const ub_runtime *rt)
   for (uint32_t t = 0; t < f->atlas_count; t++)
     for (size_t px = 0; px < (size_t)f->atlases[t].width * f->atlases[t].height; px++)
       if (f->atlases[t].coverage[px] == 1) {
-        float e[3];
-        ub_runtime_texel_irradiance(rt, t, (uint32_t)(px % f->atlases[t].width),
-                                    (uint32_t)(px / f->atlases[t].width),
-                                    f->atlases[t].normal + 3 * px, e);
+        float e[3], nn[3];
+        uint32_t x = (uint32_t)(px % f->atlases[t].width), y = (uint32_t)(px / f->atlases[t].width);
+        ub_runtime_texel_normal(rt, t, x, y, nn);
+        ub_runtime_texel_irradiance(rt, t, x, y, nn, e);
         s += e[1];
         n++;
       }

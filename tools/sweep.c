@@ -754,9 +754,10 @@ static void sw_measure(sweep *s, const ub_runtime *rt, sweep_result *res)
         size_t px = (size_t)y * at->width + x;
         if (at->coverage[px] != 1 || ct->coverage[px] != 1)
           continue;
-        float b[3], c[3];
-        if (ub_runtime_texel_irradiance(rt, a, x, y, ct->normal + 3 * px, b) != UB_OK ||
-            ub_runtime_texel_irradiance(s->conv, a, x, y, ct->normal + 3 * px, c) != UB_OK)
+        float b[3], c[3], nn[3];
+        if (ub_runtime_texel_normal(s->conv, a, x, y, nn) != UB_OK ||
+            ub_runtime_texel_irradiance(rt, a, x, y, nn, b) != UB_OK ||
+            ub_runtime_texel_irradiance(s->conv, a, x, y, nn, c) != UB_OK)
           continue;
         double d = sw_lum(b) - sw_lum(c);
         td2 += d * d;

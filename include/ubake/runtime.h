@@ -43,7 +43,8 @@ void ub_runtime_free(ub_runtime *rt);
  * compact probe store and the positions it needs, its walk records hold the neighbours;
  * glg_tets and the leak planes stay; ub_runtime_glg_probe_sh gives the SH); atlases[a].sh
  * are NULL (the run-time keeps the texels' SH as the file's halves, or computes them from
- * the records: read the lightmap through the queries). When the file
+ * the records: read the lightmap through the queries) and so are atlases[a].normal (kept
+ * as the file's halves: ub_runtime_texel_normal). When the file
  * has dynamic elements (sets, doors, objects), the run-time keeps one float copy of the
  * LLG probes' current state and the records in half precision (as the file stores them),
  * so also: every record's texel_sh, probe_sh and llg_probe_sh and its receiver indices
@@ -104,6 +105,12 @@ ub_result ub_runtime_query_lightmap_ex(const ub_runtime *rt, const float p[3],
  * atlas or texel out of range or a zero / non-finite n (outputs untouched). */
 ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint32_t x,
                                       uint32_t y, const float n[3], float out_rgb[3]);
+/* The stored normal of texel (x, y) of atlas `atlas`, as the bake file has it (world, unit
+ * to half precision; zero for an empty texel or one without a normal): what the AHD
+ * encode and the I_z form use. UB_ERR_INVALID_ARGUMENT for an atlas or texel out of range
+ * (output untouched). */
+ub_result ub_runtime_texel_normal(const ub_runtime *rt, uint32_t atlas, uint32_t x, uint32_t y,
+                                  float out_n[3]);
 
 /* Irradiance (W/m², ≥ 0) from the global light grid at any point p for unit normal n:
  * tetrahedral interpolation of the probes' SH L2 with leak planes, windowed, convolved.

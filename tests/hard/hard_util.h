@@ -201,7 +201,7 @@ typedef struct hard_texels {
   const uint8_t *coverage;
   float *e;      /* w × h × 3 (0 for uncovered) */
   float *pos;    /* w × h × 3 */
-  const float *normal;
+  float *normal; /* w × h × 3: the stored normals (ub_runtime_texel_normal) */
 } hard_texels;
 
 static inline void hard_closest_uv(const float *a, const float *b, const float *c, double px, double py,
@@ -245,22 +245,24 @@ static inline int hard_texels_get(const ub_runtime *rt, uint32_t atlas, hard_tex
   out->w = at->width;
   out->h = at->height;
   out->coverage = at->coverage;
-  out->normal = at->normal;
+  out->normal = malloc(npx * 3 * sizeof(float));
   out->e = calloc(npx * 3, sizeof(float));
   out->pos = malloc(npx * 3 * sizeof(float));
   double *best = malloc(npx * sizeof(double));
-  if (!out->e || !out->pos || !best) {
+  if (!out->e || !out->pos || !out->normal || !best) {
     free(out->e);
     free(out->pos);
+    free(out->normal);
     free(best);
     return 0;
   }
   for (size_t i = 0; i < npx; i++) {
     best[i] = INFINITY;
     out->pos[3 * i] = out->pos[3 * i + 1] = out->pos[3 * i + 2] = NAN;
+    uint32_t x = (uint32_t)(i % at->width), y = (uint32_t)(i / at->width);
+    ub_runtime_texel_normal(rt, atlas, x, y, out->normal + 3 * i);
     if (at->coverage[i] == 1)
-      ub_runtime_texel_irradiance(rt, atlas, (uint32_t)(i % at->width), (uint32_t)(i / at->width),
-                                  at->normal + 3 * i, out->e + 3 * i);
+      ub_runtime_texel_irradiance(rt, atlas, x, y, out->normal + 3 * i, out->e + 3 * i);
   }
   for (uint32_t t = 0; t < bf->triangle_count; t++) {
     if (bf->tri_atlas[t] != (int32_t)atlas)
@@ -301,7 +303,8 @@ static inline void hard_texels_free(hard_texels *t)
 {
   free(t->e);
   free(t->pos);
-  t->e = t->pos = NULL;
+  free(t->normal);
+  t->e = t->pos = t->normal = NULL;
 }
 
 /* Median of up to 8 covered neighbours' green irradiance (8-connected); -1 if none. */

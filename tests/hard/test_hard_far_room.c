@@ -40,8 +40,9 @@ static void texel_sanity(const ub_runtime *rt, const char *what)
         size_t i = (size_t)y * at->width + x;
         if (at->coverage[i] != 1)
           continue;
-        float rgb[3];
-        ub_runtime_texel_irradiance(rt, a, x, y, at->normal + 3 * i, rgb);
+        float rgb[3], nn[3];
+        ub_runtime_texel_normal(rt, a, x, y, nn);
+        ub_runtime_texel_irradiance(rt, a, x, y, nn, rgb);
         bad += !isfinite(rgb[1]) || rgb[1] < 0.0f;
         n++;
       }

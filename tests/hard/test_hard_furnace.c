@@ -47,8 +47,9 @@ static double furnace_case(const char *base, const char *params, int bounces)
         size_t i = (size_t)y * at->width + x;
         if (at->coverage[i] != 1)
           continue;
-        float rgb[3];
-        ub_runtime_texel_irradiance(rt, a, x, y, at->normal + 3 * i, rgb);
+        float rgb[3], nn[3];
+        ub_runtime_texel_normal(rt, a, x, y, nn);
+        ub_runtime_texel_irradiance(rt, a, x, y, nn, rgb);
         for (int c = 0; c < 3; c++)
           bad += !isfinite(rgb[c]) || rgb[c] < 0.0f || !(fabs(rgb[c] - expect) <= 0.02 * expect);
         sum += rgb[1];
