@@ -140,6 +140,40 @@ static ub_blend_desc rep_desc(const rep *p, const char *name)
   return d;
 }
 
+/* Elements over runs: each a stretch of receivers, 90% of them, from a random start; with
+ * scatter_every > 0, every scatter_every-th element (e % scatter_every == scatter_every - 1)
+ * picks R/20 receivers anywhere instead (list groups). */
+static void rep_init_runs(rep *p, uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st,
+                          uint32_t scatter_every)
+{
+  uint8_t **cover = malloc(sizeof(uint8_t *) * E);
+  for (uint32_t e = 0; e < E; e++) {
+    cover[e] = calloc(R, 1);
+    if (scatter_every && e % scatter_every == scatter_every - 1) {
+      for (uint32_t i = 0; i < R / 20; i++)
+        cover[e][rnd_below(R)] = 1;
+    } else {
+      uint32_t start = rnd_below(R), size = 10 + rnd_below(R / 4);
+      for (uint32_t r = start; r < R && r < start + size; r++)
+        cover[e][r] = rnd() < 0.9;
+    }
+  }
+  rep_init(p, R, S, E, st, cover);
+  for (uint32_t e = 0; e < E; e++)
+    free(cover[e]);
+  free(cover);
+}
+
+/* R bytes: 1 where some element touches the receiver (free it). */
+static uint8_t *rep_touched_mask(const rep *p)
+{
+  uint8_t *m = calloc(p->R, 1);
+  for (uint32_t e = 0; e < p->E; e++)
+    for (uint32_t i = 0; i < p->cnt[e]; i++)
+      m[p->idx[e][i]] = 1;
+  return m;
+}
+
 /* Checks receiver r of out against the exact sum; returns 1 if good. */
 static int check_receiver(const rep *p, const float *out, uint32_t r)
 {
@@ -450,10 +484,7 @@ static void scenario(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, in
     base_copy[i] = NAN;
   int bad_own = 0, bad_rows = 0;
   /* Row queries (UB_BLEND_ROW_QUERY): the receivers some element touches. */
-  uint8_t *tmask = calloc(R, 1);
-  for (uint32_t e = 0; e < E; e++)
-    for (uint32_t i = 0; i < p.cnt[e]; i++)
-      tmask[p.idx[e][i]] = 1;
+  uint8_t *tmask = rep_touched_mask(&p);
   if (bo) /* at create: every weight 0, the base rows */
     bad_rows += row_mismatches(bo, p.base, p.base, tmask, R, S, R, 1);
   uint8_t *changed = calloc(E, 1), *expect = calloc(R, 1);
@@ -847,18 +878,8 @@ static void *part_main(void *arg)
  * receiver reported exactly once in all, the parts' stats adding up to the plain update's. */
 static void test_parts(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
 {
-  uint8_t **cover = malloc(sizeof(uint8_t *) * E);
-  for (uint32_t e = 0; e < E; e++) {
-    cover[e] = calloc(R, 1);
-    uint32_t start = rnd_below(R), size = 10 + rnd_below(R / 4);
-    for (uint32_t r = start; r < R && r < start + size; r++)
-      cover[e][r] = rnd() < 0.9;
-  }
   rep p;
-  rep_init(&p, R, S, E, st, cover);
-  for (uint32_t e = 0; e < E; e++)
-    free(cover[e]);
-  free(cover);
+  rep_init_runs(&p, R, S, E, st, 0);
   const size_t nf = (size_t)R * S;
   enum { NE = 4 };
   const uint32_t parts_of[NE] = {1, 2, 3, 7};
@@ -950,28 +971,10 @@ static void test_parts(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
  * gives the bits of a float engine whose base is the rounded rows, round after round. */
 static void test_base_half(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
 {
-  uint8_t **cover = malloc(sizeof(uint8_t *) * E);
-  for (uint32_t e = 0; e < E; e++) {
-    cover[e] = calloc(R, 1);
-    if (e % 3 == 2) { /* scattered: list groups */
-      for (uint32_t i = 0; i < R / 20; i++)
-        cover[e][rnd_below(R)] = 1;
-    } else {
-      uint32_t start = rnd_below(R), size = 10 + rnd_below(R / 4);
-      for (uint32_t r = start; r < R && r < start + size; r++)
-        cover[e][r] = rnd() < 0.9;
-    }
-  }
   rep p;
-  rep_init(&p, R, S, E, st, cover);
-  for (uint32_t e = 0; e < E; e++)
-    free(cover[e]);
-  free(cover);
+  rep_init_runs(&p, R, S, E, st, 3); /* every third element scattered: list groups */
   const size_t nf = (size_t)R * S;
-  uint8_t *tmask = calloc(R, 1);
-  for (uint32_t e = 0; e < E; e++)
-    for (uint32_t i = 0; i < p.cnt[e]; i++)
-      tmask[p.idx[e][i]] = 1;
+  uint8_t *tmask = rep_touched_mask(&p);
   /* bright values beyond the half range (a scale > 1) and tiny ones (half subnormals) */
   for (size_t i = 0; i < nf; i++) {
     double x = rnd();

@@ -424,15 +424,13 @@ static const char *INFO_HELP =
 static int info_memory(const char *path, const ub_log *log, ub_runtime_memory *out,
                        double *out_seconds)
 {
-  struct timespec t0, t1;
-  clock_gettime(CLOCK_MONOTONIC, &t0);
+  double t0 = now_s();
   ub_runtime *rt = NULL;
   if (ub_runtime_load(path, log, &rt) != UB_OK)
     return 1;
-  clock_gettime(CLOCK_MONOTONIC, &t1);
+  *out_seconds = now_s() - t0;
   ub_runtime_memory_usage(rt, out);
   ub_runtime_free(rt);
-  *out_seconds = (double)(t1.tv_sec - t0.tv_sec) + 1e-9 * (double)(t1.tv_nsec - t0.tv_nsec);
   return 0;
 }
 
