@@ -242,32 +242,58 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *const row
     t[10] = x10;
     t[11] = x11;
   }
-  float nt[3][8] __attribute__((aligned(32)));
-  #pragma GCC unroll 8
-  for (int j = 0; j < 8; j++)
-    #pragma GCC unroll 8
-    for (int k = 0; k < 3; k++)
-      nt[k][j] = nrm[3 * j + k];
-  const __m256 zero = _mm256_setzero_ps(), inf = _mm256_set1_ps(INFINITY);
+  /* the normals (8 × 3 contiguous floats) into x, y, z lanes by shuffles */
+  __m256 n0, n1, n2;
+  {
+    __m256 m03 = _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(nrm)),
+                                      _mm_loadu_ps(nrm + 12), 1); /* x0y0z0x1 x4y4z4x5 */
+    __m256 m14 = _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(nrm + 4)),
+                                      _mm_loadu_ps(nrm + 16), 1); /* y1z1x2y2 y5z5x6y6 */
+    __m256 m25 = _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(nrm + 8)),
+                                      _mm_loadu_ps(nrm + 20), 1); /* z2x3y3z3 z6x7y7z7 */
+    __m256 xy = _mm256_shuffle_ps(m14, m25, _MM_SHUFFLE(2, 1, 3, 2)); /* x2y2x3y3 */
+    __m256 yz = _mm256_shuffle_ps(m03, m14, _MM_SHUFFLE(1, 0, 2, 1)); /* y0z0y1z1 */
+    n0 = _mm256_shuffle_ps(m03, xy, _MM_SHUFFLE(2, 0, 3, 0));
+    n1 = _mm256_shuffle_ps(yz, xy, _MM_SHUFFLE(3, 1, 2, 0));
+    n2 = _mm256_shuffle_ps(yz, m25, _MM_SHUFFLE(3, 0, 3, 1));
+  }
+  const __m256 zero = _mm256_setzero_ps();
   const __m256 absm = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
+  {
+    /* x·0 is ±0 for a finite x, NaN for ±Inf and NaN: with every input finite (the rule)
+     * the scalar code's finite_or_zero changes nothing, else the eight go to it */
+    __m256 s[6];
+    #pragma GCC unroll 8
+    for (int j = 0; j < 6; j++)
+      s[j] = _mm256_add_ps(_mm256_mul_ps(t[2 * j], zero), _mm256_mul_ps(t[2 * j + 1], zero));
+    __m256 all = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(s[0], s[1]), _mm256_add_ps(s[2], s[3])),
+                               _mm256_add_ps(s[4], s[5]));
+    if (_mm256_movemask_ps(_mm256_cmp_ps(all, all, _CMP_UNORD_Q))) {
+      for (int j = 0; j < 8; j++)
+        ub_ahd_encode_iz(rows[j], nrm + 3 * j, out[j]);
+      return;
+    }
+  }
 #define AHD_ABS(x) _mm256_and_ps((x), absm)
-#define AHD_FIN(x) _mm256_and_ps((x), _mm256_cmp_ps(AHD_ABS(x), inf, _CMP_LT_OQ))
 /* m ? b : a for whole-lane compare masks m. Not _mm256_blendv_ps: GCC folds that into a
  * sign-bit select, which without AVX2 it lowers lane by lane through integer registers
  * (perf: a third of this function's time before). */
 #define AHD_SEL(a, b, m) _mm256_or_ps(_mm256_and_ps((m), (b)), _mm256_andnot_ps((m), (a)))
+/* x > 0 ? x : 0 (NaN and −0 give +0), and x < 0 ? 0 : x (NaN and −0 kept): maxps returns
+ * its second operand unless the first is greater */
+#define AHD_POS(x) _mm256_max_ps((x), zero)
+#define AHD_NONNEG(x) _mm256_max_ps(zero, (x))
 #define AHD_DOT(a0, a1, a2, b0, b1, b2)                                                  \
   _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(a0, b0), _mm256_mul_ps(a1, b1)),            \
                 _mm256_mul_ps(a2, b2))
   const __m256 kb = _mm256_set1_ps((2.0f * UB_PI / 3.0f) * UB_SH_Y1);
-  __m256 n0 = _mm256_load_ps(nt[0]), n1 = _mm256_load_ps(nt[1]), n2 = _mm256_load_ps(nt[2]);
   __m256 a[3], b[3][3], iz[3];
   #pragma GCC unroll 8
   for (int c = 0; c < 3; c++) {
-    b[c][0] = _mm256_mul_ps(kb, AHD_FIN(t[9 + c]));
-    b[c][1] = _mm256_mul_ps(kb, AHD_FIN(t[3 + c]));
-    b[c][2] = _mm256_mul_ps(kb, AHD_FIN(t[6 + c]));
-    iz[c] = AHD_FIN(t[c]);
+    b[c][0] = _mm256_mul_ps(kb, t[9 + c]);
+    b[c][1] = _mm256_mul_ps(kb, t[3 + c]);
+    b[c][2] = _mm256_mul_ps(kb, t[6 + c]);
+    iz[c] = t[c];
     a[c] = _mm256_sub_ps(iz[c], AHD_DOT(b[c][0], b[c][1], b[c][2], n0, n1, n2));
   }
   __m256 al = zero, bl[3] = {zero, zero, zero};
@@ -305,21 +331,20 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *const row
   o[5] = d2;
   #pragma GCC unroll 8
   for (int c = 0; c < 3; c++) {
-    __m256 z = _mm256_and_ps(iz[c], _mm256_cmp_ps(iz[c], zero, _CMP_GT_OQ));
+    __m256 z = AHD_POS(iz[c]);
     __m256 beta = AHD_DOT(b[c][0], b[c][1], b[c][2], d0, d1, d2);
     __m256 bn = AHD_DOT(b[c][0], b[c][1], b[c][2], n0, n1, n2);
     __m256 cd0 = _mm256_mul_ps(_mm256_sub_ps(_mm256_mul_ps(beta, sixth), _mm256_mul_ps(bn, q)),
                                inv_den);
-    cd0 = _mm256_and_ps(cd0, _mm256_cmp_ps(cd0, zero, _CMP_GT_OQ));
-    __m256 ca = _mm256_sub_ps(z, _mm256_mul_ps(cd0, dz));
-    ca = AHD_SEL(ca, zero, _mm256_cmp_ps(ca, zero, _CMP_LT_OQ));
-    __m256 cd = _mm256_mul_ps(_mm256_sub_ps(z, ca), inv_dz);
-    cd = _mm256_and_ps(cd, _mm256_cmp_ps(cd, zero, _CMP_GT_OQ));
+    cd0 = AHD_POS(cd0);
+    __m256 ca = AHD_NONNEG(_mm256_sub_ps(z, _mm256_mul_ps(cd0, dz)));
+    __m256 cd = AHD_POS(_mm256_mul_ps(_mm256_sub_ps(z, ca), inv_dz));
     o[c] = AHD_SEL(z, ca, dir);
     o[6 + c] = _mm256_and_ps(cd, dir);
   }
 #undef AHD_ABS
-#undef AHD_FIN
+#undef AHD_POS
+#undef AHD_NONNEG
 #undef AHD_SEL
 #undef AHD_DOT
   _Static_assert(sizeof(ub_ahd) == 9 * sizeof(float), "ub_ahd is 9 floats");

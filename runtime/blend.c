@@ -118,6 +118,9 @@ struct ub_blend {
 /* One part's scratch: an update's parts may run on several threads at once. */
 typedef struct blend_scratch {
   float *rows;           /* BLEND_CHUNK × stride floats, streaming mode */
+  /* streaming: rows[0 .. pend) hold receivers pend_first.. not yet handed to the callback
+   * (pieces of consecutive receivers, adjacent groups' too, go over together) */
+  uint32_t pend_first, pend;
   float *dec;            /* dec_floats floats, half records without F16C */
   float *bdec;           /* BLEND_CHUNK × stride floats: half base rows decoded */
   /* combinations above BLEND_SPECIALISED (max_overlap entries each) */
@@ -291,11 +294,45 @@ BLEND_INLINE size_t member_row_off(int list, size_t gk, size_t m, size_t pos, si
 typedef struct blend_call {
   const ub_blend *b;
   float *out;     /* NULL: streaming, rows go through s->rows to fn */
-  const blend_scratch *s; /* this part's */
+  blend_scratch *s; /* this part's */
   uint32_t qlo, qhi; /* the current group's receivers to compute: positions [qlo, qhi) */
   ub_blend_touched_fn fn;
   void *user;
 } blend_call;
+
+/* Streaming: hands the pending rows to the callback. */
+static void stream_flush(const blend_call *c)
+{
+  blend_scratch *s = c->s;
+  if (s->pend) {
+    c->fn(c->user, s->pend_first, s->pend, s->rows);
+    s->pend = 0;
+  }
+}
+
+/* Streaming: where the rows of receivers first, first + 1, … go, *n lowered to what fits:
+ * after the pending ones when they continue them (else those are handed over first).
+ * Pieces of one group's run and of adjacent groups (the run-time's texels are ranked group
+ * by group) then reach the callback as one, mostly BLEND_CHUNK receivers. */
+static float *stream_slot(const blend_call *c, uint32_t first, uint32_t *n)
+{
+  blend_scratch *s = c->s;
+  if (s->pend && first != s->pend_first + s->pend)
+    stream_flush(c);
+  if (!s->pend)
+    s->pend_first = first;
+  const uint32_t room = BLEND_CHUNK - s->pend;
+  *n = *n < room ? *n : room;
+  return s->rows + (size_t)s->pend * c->b->stride;
+}
+
+/* Streaming: n more rows written at stream_slot's place. */
+static void stream_done(const blend_call *c, uint32_t n)
+{
+  c->s->pend += n;
+  if (c->s->pend == BLEND_CHUNK)
+    stream_flush(c);
+}
 
 /* Base rows of a group's next unit (len receivers from r): the engine's own copy (stored
  * in group order, so consecutive units are consecutive rows) or the caller's array. */
@@ -514,12 +551,15 @@ BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const
     for (uint32_t m = 0; m < k; m++)
       src[m] = vb + member_row_off(list, gk, act[m], i0 + s0, rowb, block);
     for (uint32_t i = s0; i < s1;) {
-      const uint32_t n = s1 - i < chunk ? s1 - i : chunk;
-      float *o = out ? out + (size_t)(r + i) * S : c->s->rows;
+      uint32_t n = s1 - i < chunk ? s1 - i : chunk;
+      float *o = out ? out + (size_t)(r + i) * S : stream_slot(c, r + i, &n);
       avx_flat(o, bs + (size_t)(i - s0) * S * bsz, src, wp, k, (size_t)n * S, half, hb, sc);
       if (c->fn) {
         _mm256_zeroupper();
-        c->fn(c->user, r + i, n, o);
+        if (out)
+          c->fn(c->user, r + i, n, o);
+        else
+          stream_done(c, n);
       }
       for (uint32_t m = 0; m < k; m++)
         src[m] += (size_t)n * rowb;
@@ -598,6 +638,7 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
       src[m] = vb + member_row_off(list, gk, act[m], i0 + s0, rowb, block);
     for (uint32_t i = s0; i < s1;) {
       uint32_t n = s1 - i < chunk ? s1 - i : chunk;
+      float *o0 = out ? out + (size_t)(r + i) * S : stream_slot(c, r + i, &n), *o = o0;
       const float *bs;
       if (hb) {
         decode_base(b, bsu, c->s->bdec, (size_t)n * S);
@@ -616,7 +657,6 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
         }
         src[m] += (size_t)n * rowb;
       }
-      float *o0 = out ? out + (size_t)(r + i) * S : c->s->rows, *o = o0;
       for (uint32_t q = 0; q < n; q++) {
         if (fixed)
           blend_row_fixed(o, bs, rows, w, k, S);
@@ -627,8 +667,10 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
         for (uint32_t m = 0; m < k; m++)
           rows[m] += S;
       }
-      if (c->fn)
+      if (c->fn && out)
         c->fn(c->user, r + i, n, o0);
+      else if (c->fn)
+        stream_done(c, n);
       i += n;
     }
   }
@@ -681,10 +723,18 @@ static void group_copy_base(const blend_call *c, const blend_group *g)
         bs = c->s->bdec;
       }
       bsu += (size_t)n * S * b->base_size;
-      if (c->out)
+      if (c->out) {
         memcpy(c->out + (size_t)f * S, bs, (size_t)n * S * sizeof(float));
-      if (c->fn) /* streaming: the base rows are the result, no copy */
-        c->fn(c->user, f, n, c->out ? c->out + (size_t)f * S : bs);
+        if (c->fn)
+          c->fn(c->user, f, n, c->out + (size_t)f * S);
+      } else if (c->fn) { /* streaming: the base rows are the result */
+        for (uint32_t d = 0, m; d < n; d += m) {
+          m = n - d;
+          float *o = stream_slot(c, f + d, &m);
+          memcpy(o, bs + (size_t)d * S, (size_t)m * S * sizeof(float));
+          stream_done(c, m);
+        }
+      }
     }
   }
 }
@@ -839,6 +889,8 @@ void ub_blend_update_part(const ub_blend *b, uint32_t part, uint32_t parts,
     if (c.qlo < c.qhi)
       process_group(&c, b->work[i], &st);
   }
+  if (touched && !out_values)
+    stream_flush(&c);
   ub_fp_mode_leave(csr);
   if (out_stats)
     *out_stats = st;

@@ -156,7 +156,9 @@ typedef struct ub_blend_info {
  * rows are rows[0 .. count × stride) (= out_values + first × stride, or when streaming a
  * scratch or base rows valid during the call only). Called in ascending group order,
  * right after the rows are computed (cache-hot: re-encode AHD here); every recomputed
- * receiver is reported exactly once, in pieces of consecutive receivers. */
+ * receiver is reported exactly once, in pieces of consecutive receivers. When streaming,
+ * consecutive pieces (of one run, or of groups whose receivers continue each other) are
+ * handed over together, up to 32 receivers a call. */
 typedef void (*ub_blend_touched_fn)(void *user, uint32_t first, uint32_t count,
                                     const float *rows);
 

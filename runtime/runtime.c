@@ -55,6 +55,7 @@ struct ub_runtime {
                               (ub_texel_normal of the stored one, made once at load: it
                               was an eighth of a toggle), NaN first when the texel has
                               none (the fallback's) */
+  int lm_un_all;           /* every touched texel has a normal of its own (no NaN in lm_un) */
   uint16_t *lm_static;     /* untouched slots × 12 */
   float lm_static_scale;
   uint64_t *tch_bits;      /* ⌈slots / 64⌉ words: the slot is touched */
@@ -814,6 +815,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return UB_ERR_OUT_OF_MEMORY;
   }
+  rt->lm_un_all = 1;
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     const ub_bakefile_atlas *at = &bf->atlases[a];
     for (uint64_t sl = rt->slot_first[a]; sl < rt->slot_first[a + 1]; sl++) {
@@ -821,8 +823,10 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
       if (!slot_touched(rt, sl, &ix))
         continue;
       float *un = rt->lm_un + 3 * ix;
-      if (!ub_texel_normal(&at->normal[(size_t)rt->slot_pixel[sl] * 3], un))
+      if (!ub_texel_normal(&at->normal[(size_t)rt->slot_pixel[sl] * 3], un)) {
         un[0] = un[1] = un[2] = NAN;
+        rt->lm_un_all = 0;
+      }
     }
   }
   for (uint64_t sl = 0; sl < slots; sl++) {
@@ -1209,7 +1213,11 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
   const ub_runtime *rt = tc->rt;
   const float *un = rt->lm_un + (size_t)first * 3;
   ub_ahd *out = rt->ahd + first;
-  for (uint32_t i = 0; i < count; i++, rows += UB_SH1_FLOATS, un += 3, out++) {
+  uint32_t i = 0;
+  if (rt->lm_un_all && !tc->np) /* no texel without a normal: no checks */
+    for (; i + 8 <= count; i += 8, rows += 8 * UB_SH1_FLOATS, un += 24, out += 8)
+      ub_ahd_encode_iz8(rows, un, out);
+  for (; i < count; i++, rows += UB_SH1_FLOATS, un += 3, out++) {
     /* eight texels in a row with their own normals: encoded where they are */
     if (!tc->np && count - i >= 8 && !isnan(un[0]) && !isnan(un[3]) && !isnan(un[6]) &&
         !isnan(un[9]) && !isnan(un[12]) && !isnan(un[15]) && !isnan(un[18]) &&

@@ -235,6 +235,10 @@ typedef struct touch_log {
   const float *out; /* non-streaming: rows must be out + first × S */
   float *copy;      /* streaming: rows copied here */
   int rows_bad;
+  /* streaming: pieces longer than 32 receivers, and calls that continue the previous one
+   * while it was shorter than 32 (the engine hands consecutive pieces over together) */
+  uint32_t last_first, last_count;
+  int pieces_bad;
 } touch_log;
 
 static void on_touched(void *user, uint32_t first, uint32_t count, const float *rows)
@@ -246,8 +250,14 @@ static void on_touched(void *user, uint32_t first, uint32_t count, const float *
   t->total += count;
   if (t->out && rows != t->out + (size_t)first * t->S)
     t->rows_bad++;
-  if (t->copy)
+  if (t->copy) {
     memcpy(t->copy + (size_t)first * t->S, rows, sizeof(float) * count * t->S);
+    if (count > 32 || (t->last_count && t->last_count < 32 &&
+                       first == t->last_first + t->last_count))
+      t->pieces_bad++;
+    t->last_first = first;
+    t->last_count = count;
+  }
 }
 
 /* ---- 1. every overlap count 0…20 ------------------------------------------------------- */
@@ -488,8 +498,8 @@ static void scenario(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, in
   if (bo) /* at create: every weight 0, the base rows */
     bad_rows += row_mismatches(bo, p.base, p.base, tmask, R, S, R, 1);
   uint8_t *changed = calloc(E, 1), *expect = calloc(R, 1);
-  touch_log tl = {calloc(R, 1), 0, S, out, NULL, 0};
-  touch_log ts = {calloc(R, 1), 0, S, NULL, streamed, 0};
+  touch_log tl = {calloc(R, 1), 0, S, out, NULL, 0, 0, 0, 0};
+  touch_log ts = {calloc(R, 1), 0, S, NULL, streamed, 0, 0, 0, 0};
   int bad_updates = 0, bad_values = 0;
   for (int c = 0; c < changes;) {
     /* 1..5 weight changes, then an update. */
@@ -533,6 +543,7 @@ static void scenario(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, in
       ub_blend_stats ss;
       memset(ts.count, 0, R);
       ts.total = 0;
+      ts.last_count = 0;
       /* weights set, not yet updated: the rows are still the last update's */
       bad_rows += row_mismatches(bs, streamed, p.base, tmask, R, S, 200, 0);
       ub_blend_update(bs, on_touched, &ts, NULL, &ss);
@@ -581,6 +592,9 @@ static void scenario(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, in
   free(own_out);
   free(base_copy);
   ASSERT_TRUE(tl.rows_bad == 0);
+  printf("scenario R=%u S=%u: %d streamed pieces over 32 receivers or not joined to the "
+         "piece before them\n", R, S, ts.pieces_bad);
+  ASSERT_TRUE(ts.pieces_bad == 0);
   ASSERT_TRUE(bs != NULL);
   ub_blend_free(bs);
   int bad_final = 0;
@@ -913,7 +927,7 @@ static void test_parts(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
     }
     ub_blend_stats ref;
     memset(ref_count, 0, R);
-    touch_log rl = {ref_count, 0, S, out[NE], NULL, 0};
+    touch_log rl = {ref_count, 0, S, out[NE], NULL, 0, 0, 0, 0};
     if (all)
       ub_blend_update_all(b[NE], on_touched, &rl, out[NE], &ref);
     else
@@ -927,7 +941,7 @@ static void test_parts(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
       for (uint32_t q = 0; q < P; q++) {
         jobs[q] = (part_job){b[i], q, P, stream_of[i] ? NULL : out[i],
                              {count, 0, S, stream_of[i] ? NULL : out[i],
-                              stream_of[i] ? out[i] : NULL, 0}, {0}};
+                              stream_of[i] ? out[i] : NULL, 0, 0, 0, 0}, {0}};
         ASSERT_TRUE(pthread_create(&th[q], NULL, part_main, &jobs[q]) == 0);
       }
       uint64_t recv = 0, groups = 0, bytes = 0, written = 0, gbase = 0;
@@ -1058,7 +1072,7 @@ static void test_base_half(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
     for (int i = 0; i < NH; i++) {
       memset(count, 0, R);
       touch_log tl = {count, 0, S, stream_of[i] ? NULL : out[i], stream_of[i] ? out[i] : NULL,
-                      0};
+                      0, 0, 0, 0};
       memset(&sh, 0, sizeof sh);
       ub_blend_update_begin(h[i], all);
       for (int q = 0; q < parts_of[i]; q++) {
