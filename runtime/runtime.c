@@ -36,13 +36,20 @@ struct ub_runtime {
    * end of load, when the bake file's float copies go: the same values, half the bytes). */
   uint16_t **nrm;
   uint64_t *pixel_first; /* atlas_count + 1: first global pixel of each atlas */
-  /* Per-texel run-time arrays hold covered texels only (coverage != 0; ESTATE-like levels
+  /* Per-texel run-time arrays hold covered texels only (coverage 1; ESTATE-like levels
    * cover ~60% of their atlas pixels): a texel's slot is its rank among the covered
    * pixels of its atlas (slot_of), global slots number atlas after atlas. */
   uint64_t *slot_first;  /* atlas_count + 1: first global slot of each atlas */
-  uint64_t **cov_bits;   /* atlas_count arrays of ⌈pixels / 64⌉ words: coverage != 0 */
+  uint64_t **cov_bits;   /* atlas_count arrays of ⌈pixels / 64⌉ words: coverage 1 */
   uint32_t **cov_rank;   /* atlas_count arrays: covered pixels before each 64-pixel word */
   uint32_t *slot_pixel;  /* global slot → pixel within its atlas */
+  /* Dilated padding pixels (coverage 2) are no texels of their own: each shows the covered
+   * texel it copies (dil_src; build_dilation), so records, base rows and AHD hold covered
+   * texels only. Per atlas: the padding pixels some texel reaches, their rank per word,
+   * and per such pixel (ascending) the covered pixel it copies. */
+  uint64_t **dil_bits;
+  uint32_t **dil_rank;
+  uint32_t **dil_src;
   /* Dynamic light sets (when the file has any): blended SH, re-encoded where touched. */
   /* The texels' SH in the file's I_z form (below): the texels some record touches have
    * their current state computed by the lightmap blend (streamed into the AHD re-encode
@@ -144,7 +151,105 @@ static inline uint64_t ahd_index(const ub_runtime *rt, uint32_t a, uint64_t sa)
   return slot_touched(rt, s, &ix) ? ix : rt->touched + ix;
 }
 
-/* Builds the coverage bits, ranks and slot → pixel map; sets slot_first. */
+/* The covered texel (a pixel of coverage 1) that pixel i of atlas a shows: itself, or for
+ * a dilated padding pixel the texel it copies; -1 for an empty pixel (or padding no texel
+ * reaches). */
+static inline int64_t texel_pixel(const ub_runtime *rt, uint32_t a, size_t i)
+{
+  const uint8_t c = rt->bf->atlases[a].coverage[i];
+  if (c == 1)
+    return (int64_t)i;
+  if (c != 2)
+    return -1;
+  const uint64_t w = rt->dil_bits[a][i >> 6], bit = UINT64_C(1) << (i & 63);
+  if (!(w & bit))
+    return -1;
+  return rt->dil_src[a][rt->dil_rank[a][i >> 6] + (uint64_t)__builtin_popcountll(w & (bit - 1))];
+}
+
+/* Which covered texel each dilated padding pixel of atlas a copies, ring by ring as the
+ * baker grows its padding (ub_lightmap_dilate): a pixel of ring r copies the texel of its
+ * first 8-neighbour (rows top to bottom, left to right) filled by ring r − 1. The padding
+ * then shows its nearest texel's state exactly (the baker's ring averages are not kept:
+ * one texel's AHD per padding pixel is what a game's copy-dilation gives too). */
+static ub_result build_dilation(ub_runtime *rt, uint32_t a)
+{
+  const ub_bakefile_atlas *at = &rt->bf->atlases[a];
+  const size_t w = at->width, h = at->height, px = w * h, words = (px + 63) / 64;
+  int32_t *src = malloc((px ? px : 1) * sizeof *src);
+  uint32_t *ring = malloc((px ? px : 1) * sizeof *ring), *todo = NULL, *next = NULL;
+  rt->dil_bits[a] = calloc(words ? words : 1, sizeof **rt->dil_bits);
+  rt->dil_rank[a] = malloc((words ? words : 1) * sizeof **rt->dil_rank);
+  size_t nt = 0, nd = 0;
+  for (size_t i = 0; i < px; i++)
+    nt += at->coverage[i] == 2;
+  todo = malloc((nt ? nt : 1) * sizeof *todo);
+  next = malloc((nt ? nt : 1) * sizeof *next);
+  ub_result r = UB_ERR_OUT_OF_MEMORY;
+  if (!src || !ring || !todo || !next || !rt->dil_bits[a] || !rt->dil_rank[a])
+    goto done;
+  nt = 0;
+  for (size_t i = 0; i < px; i++) {
+    src[i] = at->coverage[i] == 1 ? (int32_t)i : -1;
+    ring[i] = 0;
+    if (at->coverage[i] == 2)
+      todo[nt++] = (uint32_t)i;
+  }
+  for (uint32_t pass = 1; nt; pass++) {
+    size_t nn = 0, filled = 0;
+    for (size_t k = 0; k < nt; k++) {
+      const size_t i = todo[k], x = i % w, y = i / w;
+      int32_t s = -1;
+      for (int dy = -1; dy <= 1 && s < 0; dy++)
+        for (int dx = -1; dx <= 1 && s < 0; dx++) {
+          if ((dx == 0 && dy == 0) || (dy < 0 && y == 0) || (dy > 0 && y + 1 >= h) ||
+              (dx < 0 && x == 0) || (dx > 0 && x + 1 >= w))
+            continue;
+          const size_t j = (size_t)((int64_t)i + dy * (int64_t)w + dx);
+          if (src[j] >= 0 && ring[j] < pass)
+            s = src[j];
+        }
+      if (s >= 0) {
+        src[i] = s;
+        ring[i] = pass;
+        filled++;
+      } else {
+        next[nn++] = (uint32_t)i;
+      }
+    }
+    uint32_t *t = todo;
+    todo = next;
+    next = t;
+    nt = nn;
+    if (!filled)
+      break; /* padding no texel reaches: shown as empty */
+  }
+  for (size_t i = 0; i < px; i++)
+    if (at->coverage[i] == 2 && src[i] >= 0) {
+      rt->dil_bits[a][i >> 6] |= UINT64_C(1) << (i & 63);
+      nd++;
+    }
+  rt->dil_src[a] = malloc((nd ? nd : 1) * sizeof **rt->dil_src);
+  if (!rt->dil_src[a])
+    goto done;
+  nd = 0;
+  for (size_t wd = 0; wd < words; wd++) {
+    rt->dil_rank[a][wd] = (uint32_t)nd;
+    for (size_t i = wd * 64; i < px && i < wd * 64 + 64; i++)
+      if (rt->dil_bits[a][wd] >> (i & 63) & 1)
+        rt->dil_src[a][nd++] = (uint32_t)src[i];
+  }
+  r = UB_OK;
+done:
+  free(src);
+  free(ring);
+  free(todo);
+  free(next);
+  return r;
+}
+
+/* Builds the coverage bits, ranks and slot → pixel map (covered texels: coverage 1) and
+ * the dilated padding's sources; sets slot_first. */
 static ub_result build_slots(ub_runtime *rt)
 {
   const ub_bakefile *bf = rt->bf;
@@ -152,7 +257,11 @@ static ub_result build_slots(ub_runtime *rt)
   rt->slot_first = calloc((size_t)na + 1, sizeof *rt->slot_first);
   rt->cov_bits = calloc(na ? na : 1, sizeof *rt->cov_bits);
   rt->cov_rank = calloc(na ? na : 1, sizeof *rt->cov_rank);
-  if (!rt->slot_first || !rt->cov_bits || !rt->cov_rank)
+  rt->dil_bits = calloc(na ? na : 1, sizeof *rt->dil_bits);
+  rt->dil_rank = calloc(na ? na : 1, sizeof *rt->dil_rank);
+  rt->dil_src = calloc(na ? na : 1, sizeof *rt->dil_src);
+  if (!rt->slot_first || !rt->cov_bits || !rt->cov_rank || !rt->dil_bits || !rt->dil_rank ||
+      !rt->dil_src)
     return UB_ERR_OUT_OF_MEMORY;
   for (uint32_t a = 0; a < na; a++) {
     const ub_bakefile_atlas *at = &bf->atlases[a];
@@ -165,12 +274,14 @@ static ub_result build_slots(ub_runtime *rt)
     for (size_t w = 0; w < words; w++) {
       rt->cov_rank[a][w] = (uint32_t)n;
       for (size_t i = w * 64; i < px && i < w * 64 + 64; i++)
-        if (at->coverage[i] != 0) {
+        if (at->coverage[i] == 1) {
           rt->cov_bits[a][w] |= UINT64_C(1) << (i & 63);
           n++;
         }
     }
     rt->slot_first[a + 1] = rt->slot_first[a] + n;
+    if (build_dilation(rt, a) != UB_OK)
+      return UB_ERR_OUT_OF_MEMORY;
   }
   uint64_t slots = rt->slot_first[na];
   rt->slot_pixel = malloc((size_t)(slots ? slots : 1) * sizeof *rt->slot_pixel);
@@ -180,7 +291,7 @@ static ub_result build_slots(ub_runtime *rt)
     const ub_bakefile_atlas *at = &bf->atlases[a];
     uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
     for (size_t i = 0; i < (size_t)at->width * at->height; i++)
-      if (at->coverage[i] != 0)
+      if (at->coverage[i] == 1)
         *sp++ = (uint32_t)i;
   }
   return UB_OK;
@@ -359,6 +470,17 @@ void ub_runtime_free(ub_runtime *rt)
       free(rt->cov_rank[a]);
   free(rt->cov_bits);
   free(rt->cov_rank);
+  for (uint32_t a = 0; a < rt->bf->atlas_count; a++) {
+    if (rt->dil_bits)
+      free(rt->dil_bits[a]);
+    if (rt->dil_rank)
+      free(rt->dil_rank[a]);
+    if (rt->dil_src)
+      free(rt->dil_src[a]);
+  }
+  free(rt->dil_bits);
+  free(rt->dil_rank);
+  free(rt->dil_src);
   free(rt->slot_first);
   free(rt->slot_pixel);
   free(rt->lm_idx);
@@ -511,8 +633,8 @@ static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs,
       if (rep == 0) {
         size_t px = 0;
         if (!pixel_locate(rt, rc->texel_index[i], &cursor, &px) ||
-            bf->atlases[cursor].coverage[px] == 0)
-          continue; /* an uncovered pixel: never read */
+            bf->atlases[cursor].coverage[px] != 1)
+          continue; /* an empty or padding pixel: never read (padding shows a texel) */
         rt->lm_idx[ei++] = (uint32_t)(rt->slot_first[cursor] + slot_of(rt, cursor, px));
         if (ub_texel_normal(&bf->atlases[cursor].normal[3 * px], un))
           ub_texel_sh_pack(row, un);
@@ -1426,7 +1548,11 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
     size_t t = (size_t)bf->atlases[a].width * bf->atlases[a].height;
     size_t ns = rt->slot_first ? (size_t)(rt->slot_first[a + 1] - rt->slot_first[a]) : 0;
     m.geometry += t * (3 * sizeof(uint16_t) + 1); /* normals (halves), coverage */
-    m.lightmap += ns * (sizeof(ub_ahd) + U) + (t + 63) / 64 * (8 + U) +
+    size_t nd = 0; /* padding pixels and their sources */
+    if (rt->dil_src && rt->dil_src[a] && t)
+      nd = rt->dil_rank[a][(t - 1) / 64] +
+           (size_t)__builtin_popcountll(rt->dil_bits[a][(t - 1) / 64]);
+    m.lightmap += ns * (sizeof(ub_ahd) + U) + (t + 63) / 64 * 2 * (8 + U) + nd * U +
                   (bf->atlases[a].sh ? t * UB_SH1_FLOATS * F : 0) +
                   (rt->fallback ? (size_t)rt->fallback[a].count * (U + 3 * F) : 0);
   }
@@ -1487,6 +1613,22 @@ ub_result ub_runtime_texel_normal(const ub_runtime *rt, uint32_t atlas, uint32_t
   return UB_OK;
 }
 
+ub_result ub_runtime_texel_source(const ub_runtime *rt, uint32_t atlas, uint32_t x, uint32_t y,
+                                  uint32_t *out_x, uint32_t *out_y)
+{
+  assert(rt && out_x && out_y);
+  if (atlas >= rt->bf->atlas_count || x >= rt->bf->atlases[atlas].width ||
+      y >= rt->bf->atlases[atlas].height)
+    return UB_ERR_INVALID_ARGUMENT;
+  const uint32_t w = rt->bf->atlases[atlas].width;
+  const int64_t t = texel_pixel(rt, atlas, (size_t)y * w + x);
+  if (t < 0)
+    return UB_ERR_NOT_BAKED;
+  *out_x = (uint32_t)((uint64_t)t % w);
+  *out_y = (uint32_t)((uint64_t)t / w);
+  return UB_OK;
+}
+
 ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint32_t x,
                                       uint32_t y, const float n[3], float out_rgb[3])
 {
@@ -1496,12 +1638,12 @@ ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint
       y >= rt->bf->atlases[atlas].height || !normalise3(n, nn))
     return UB_ERR_INVALID_ARGUMENT;
   const ub_bakefile_atlas *at = &rt->bf->atlases[atlas];
-  size_t i = (size_t)y * at->width + x;
-  if (at->coverage[i] == 0) {
+  const int64_t t = texel_pixel(rt, atlas, (size_t)y * at->width + x);
+  if (t < 0) {
     out_rgb[0] = out_rgb[1] = out_rgb[2] = 0.0f;
     return UB_OK;
   }
-  ub_ahd_irradiance(&rt->ahd[ahd_index(rt, atlas, slot_of(rt, atlas, i))], nn, out_rgb);
+  ub_ahd_irradiance(&rt->ahd[ahd_index(rt, atlas, slot_of(rt, atlas, (size_t)t))], nn, out_rgb);
   return UB_OK;
 }
 
@@ -1650,9 +1792,10 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
     int64_t x = x0 + (k & 1), y = y0 + (k >> 1);
     x = x < 0 ? 0 : x >= w ? w - 1 : x;
     y = y < 0 ? 0 : y >= h ? h - 1 : y;
-    size_t i = (size_t)y * (size_t)w + (size_t)x;
-    if (at->coverage[i] == 0)
+    const int64_t ti = texel_pixel(rt, atlas, (size_t)y * (size_t)w + (size_t)x);
+    if (ti < 0)
       continue;
+    const size_t i = (size_t)ti; /* padding: the texel it copies */
     double wt = ((k & 1) ? tx : 1.0f - tx) * ((k >> 1) ? ty : 1.0f - ty);
     if (!(wt > 0.0))
       continue;
@@ -1688,11 +1831,11 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
       for (int64_t x = cx - UB_RT_EMPTY_SEARCH_RADIUS; x <= cx + UB_RT_EMPTY_SEARCH_RADIUS; x++) {
         if (x < 0 || y < 0 || x >= w || y >= h)
           continue;
-        size_t i = (size_t)y * (size_t)w + (size_t)x;
+        const int64_t ti = texel_pixel(rt, atlas, (size_t)y * (size_t)w + (size_t)x);
         double dx = (double)x - fx, dy = (double)y - fy, d2 = dx * dx + dy * dy;
-        if (at->coverage[i] != 0 && d2 < best) {
+        if (ti >= 0 && d2 < best) {
           best = d2;
-          bi = i;
+          bi = (size_t)ti;
         }
       }
     if (best == INFINITY)

@@ -1002,9 +1002,9 @@ static void test_runtime(void)
   }
   ub_runtime_free(rt);
 
-  /* A dilated texel without a stored normal is encoded with its covered neighbour's
-   * normal: AHD is exact along the encoding normal, so its irradiance for that normal
-   * matches the SH irradiance. */
+  /* Dilated padding (here without stored normals, and with SH of its own in the file)
+   * shows the covered texel it copies, its nearest: both padding texels show texel (0, 0),
+   * exact along that texel's normal. */
   bf = make_quad(2, L, 1);
   {
     ub_bakefile_atlas *at = &bf->atlases[0];
@@ -1035,18 +1035,25 @@ static void test_runtime(void)
       ASSERT_TRUE(memcmp(nn, &at->normal[3 * t], sizeof nn) == 0);
     }
     float nx[3];
+    uint32_t sx0 = 0, sy0 = 0;
     ASSERT_TRUE(ub_runtime_texel_normal(rt, 0, 2, 0, nx) == UB_ERR_INVALID_ARGUMENT);
     ASSERT_TRUE(ub_runtime_texel_normal(rt, 1, 0, 0, nx) == UB_ERR_INVALID_ARGUMENT);
     float nz[3] = {0, 0, 1}, rgb[3], ref[3];
     for (uint32_t t = 0; t < 4; t++) {
+      uint32_t sx = 9, sy = 9;
+      ub_result rs = ub_runtime_texel_source(rt, 0, t % 2, t / 2, &sx, &sy);
+      ASSERT_TRUE(at->coverage[t] ? rs == UB_OK && sx == 0 && sy == 0
+                                  : rs == UB_ERR_NOT_BAKED && sx == 9 && sy == 9);
       ASSERT_OK(ub_runtime_texel_irradiance(rt, 0, t % 2, t / 2, nz, rgb));
       if (at->coverage[t])
-        ub_sh1_irradiance(&at->sh[t * UB_SH1_FLOATS], nz, ref);
+        ub_sh1_irradiance(&at->sh[0], nz, ref); /* texel (0, 0)'s */
       else
         ref[0] = ref[1] = ref[2] = 0.0f;
       for (int c = 0; c < 3; c++)
         ASSERT_NEAR(rgb[c], ref[c], 1e-5, 1e-5);
     }
+    ASSERT_TRUE(ub_runtime_texel_source(rt, 0, 2, 0, &sx0, &sy0) == UB_ERR_INVALID_ARGUMENT);
+    ASSERT_TRUE(ub_runtime_texel_source(rt, 1, 0, 0, &sx0, &sy0) == UB_ERR_INVALID_ARGUMENT);
     /* A query over the empty texel's quarter blends the three non-empty ones only. */
     float q[3] = {0.25f, 0.1f, 0.75f};
     ASSERT_OK(ub_runtime_query_lightmap(rt, q, nz, rgb, NULL));

@@ -135,7 +135,8 @@ static double check_texels(const ub_runtime *rt, const ub_bakefile *bf, const fl
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     const ub_bakefile_atlas *at = &bf->atlases[a];
     for (size_t i = 0; i < (size_t)at->width * at->height; i++) {
-      ok[p0 + i] = at->coverage[i] != 0 && ub_texel_normal(&at->normal[3 * i], nrm[p0 + i]);
+      /* covered texels; padding shows one of them (check_padding) */
+      ok[p0 + i] = at->coverage[i] == 1 && ub_texel_normal(&at->normal[3 * i], nrm[p0 + i]);
       for (int k = 0; k < 12; k++)
         sum[(p0 + i) * 12 + k] = at->sh[i * 12 + k];
     }
@@ -187,6 +188,59 @@ static double check_texels(const ub_runtime *rt, const ub_bakefile *bf, const fl
   free(nrm);
   free(ok);
   return worst;
+}
+
+/* Every padding pixel (coverage 2) shows a covered texel at its smallest Chebyshev
+ * distance to any covered texel, bit for bit (its irradiance for any normal is that
+ * texel's); empty pixels have none. Returns the pixels that do not; *out_padding: how many
+ * padding pixels there are. */
+static int check_padding(const ub_runtime *rt, const ub_bakefile *bf, uint64_t *out_padding)
+{
+  int bad = 0;
+  uint64_t np = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    const int64_t w = at->width, h = at->height;
+    for (int64_t y = 0; y < h; y++)
+      for (int64_t x = 0; x < w; x++) {
+        const uint8_t c = at->coverage[y * w + x];
+        uint32_t sx = 0, sy = 0;
+        ub_result r = ub_runtime_texel_source(rt, a, (uint32_t)x, (uint32_t)y, &sx, &sy);
+        if (c == 0) {
+          bad += r != UB_ERR_NOT_BAKED;
+          continue;
+        }
+        if (r != UB_OK) {
+          bad++;
+          continue;
+        }
+        if (c == 1) {
+          bad += sx != x || sy != y;
+          continue;
+        }
+        np++;
+        int64_t best = INT64_MAX; /* smallest Chebyshev distance to a covered texel */
+        for (int64_t d = 1; d <= 16 && best == INT64_MAX; d++)
+          for (int64_t yy = y - d; yy <= y + d; yy++)
+            for (int64_t xx = x - d; xx <= x + d; xx++)
+              if (yy >= 0 && xx >= 0 && yy < h && xx < w && at->coverage[yy * w + xx] == 1)
+                best = d;
+        const int64_t dx = llabs((int64_t)sx - x), dy = llabs((int64_t)sy - y);
+        if (at->coverage[(int64_t)sy * w + sx] != 1 || (dx > dy ? dx : dy) != best)
+          bad++;
+        float n[3], g0[3], g1[3];
+        const float ns[2][3] = {{0.0f, 1.0f, 0.0f}, {0.6f, 0.0f, -0.8f}};
+        for (int k = 0; k < 2; k++) {
+          memcpy(n, ns[k], sizeof n);
+          if (ub_runtime_texel_irradiance(rt, a, (uint32_t)x, (uint32_t)y, n, g0) != UB_OK ||
+              ub_runtime_texel_irradiance(rt, a, sx, sy, n, g1) != UB_OK ||
+              memcmp(g0, g1, sizeof g0) != 0)
+            bad++;
+        }
+      }
+  }
+  *out_padding = np;
+  return bad;
 }
 
 static int rejects(const ub_bakefile *bf, const char *path)
@@ -304,6 +358,11 @@ int main(void)
     double t0 = check_texels(rt, back, def, 7);
     printf("default state, texels (half records): worst error %.2e of the I_z magnitudes\n", t0);
     ASSERT_TRUE(t0 < 1e-3);
+    uint64_t npad = 0;
+    int bad_pad = check_padding(rt, back, &npad);
+    printf("default state: %d of %llu padding pixels do not show a nearest covered texel\n",
+           bad_pad, (unsigned long long)npad);
+    ASSERT_TRUE(bad_pad == 0 && npad > 0);
 
     const float tint[3] = {0.5f, 1.0f, 2.0f};
     ASSERT_OK(ub_runtime_set_dls(rt, 0, tint));
@@ -320,6 +379,8 @@ int main(void)
     double t1 = check_texels(rt, back, st1, 7);
     printf("same state, texels (half records): worst error %.2e of the I_z magnitudes\n", t1);
     ASSERT_TRUE(t1 < 1e-3);
+    bad_pad = check_padding(rt, back, &npad);
+    ASSERT_TRUE(bad_pad == 0 && npad > 0);
 
     /* Back to the default: identical bits. */
     const float one[3] = {1, 1, 1};

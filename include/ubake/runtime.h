@@ -4,7 +4,9 @@
  * What it is: a ub_runtime holds a validated bake file (ubake/bakefile.h) and, per
  * lightmap texel, the AHD encoding (ubake/ahd.h) of its baked SH L1, made once at load
  * time with the texel's stored normal (a texel without a usable normal takes the normal
- * of the nearest texel that has one). Lightmap queries find the closest lightmapped
+ * of the nearest texel that has one). The padding the baker dilates around charts
+ * (coverage 2) has no state of its own: each padding pixel shows the covered texel it
+ * copies (ub_runtime_texel_source). Lightmap queries find the closest lightmapped
  * surface point, filter the AHD atlas bilinearly there and decode irradiance for a normal.
  * It does not depend on Embree or on the baker.
  *
@@ -101,8 +103,9 @@ ub_result ub_runtime_query_lightmap_ex(const ub_runtime *rt, const float p[3],
                                        ub_runtime_lightmap_hit *out_hit);
 
 /* Irradiance (W/m²) decoded from the AHD of texel (x, y) of atlas `atlas` for unit normal
- * n (normalised here); 0 for an empty texel (coverage 0). UB_ERR_INVALID_ARGUMENT for an
- * atlas or texel out of range or a zero / non-finite n (outputs untouched). */
+ * n (normalised here); for a padding pixel its source texel's (ub_runtime_texel_source);
+ * 0 for an empty texel (coverage 0). UB_ERR_INVALID_ARGUMENT for an atlas or texel out of
+ * range or a zero / non-finite n (outputs untouched). */
 ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint32_t x,
                                       uint32_t y, const float n[3], float out_rgb[3]);
 /* The stored normal of texel (x, y) of atlas `atlas`, as the bake file has it (world, unit
@@ -111,6 +114,15 @@ ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint
  * (output untouched). */
 ub_result ub_runtime_texel_normal(const ub_runtime *rt, uint32_t atlas, uint32_t x, uint32_t y,
                                   float out_n[3]);
+/* The covered texel (coverage 1) whose state pixel (x, y) of atlas `atlas` shows: itself,
+ * or for a padding pixel (coverage 2) the texel it copies — one at the smallest Chebyshev
+ * distance, found ring by ring as the baker grows its padding (each ring's pixel takes its
+ * first 8-neighbour of the ring before, rows top to bottom, left to right). A game fills
+ * its lightmap's padding by copying these texels' AHD. UB_ERR_NOT_BAKED for an empty
+ * pixel (or padding no texel reaches), UB_ERR_INVALID_ARGUMENT out of range (outputs
+ * untouched). */
+ub_result ub_runtime_texel_source(const ub_runtime *rt, uint32_t atlas, uint32_t x, uint32_t y,
+                                  uint32_t *out_x, uint32_t *out_y);
 
 /* Irradiance (W/m², ≥ 0) from the global light grid at any point p for unit normal n:
  * tetrahedral interpolation of the probes' SH L2 with leak planes, windowed, convolved.
