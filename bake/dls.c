@@ -44,174 +44,48 @@ void ub_dls_records_free(ub_bakefile_record *records, uint32_t count)
   free(records);
 }
 
-/* Doubles (from 1024) the capacity of a pixel list and its 12-float rows; 0 when out of
- * memory (both arrays still valid, to be freed by the caller). */
-static int grow_rows(uint32_t **px, float **rows, size_t *cap)
+/* (pixel, texel) pairs ordered by pixel. */
+static int pixel_pair_cmp(const void *pa, const void *pb)
 {
-  size_t nc = *cap ? 2 * *cap : 1024;
-  uint32_t *np = realloc(*px, nc * sizeof *np);
-  if (!np)
-    return 0;
-  *px = np;
-  float *nr = realloc(*rows, nc * 12 * sizeof *nr);
-  if (!nr)
-    return 0;
-  *rows = nr;
-  *cap = nc;
-  return 1;
+  const uint64_t x = *(const uint64_t *)pa, y = *(const uint64_t *)pb;
+  return (x > y) - (x < y);
 }
 
-/* The set's texel SH into sparse atlas pixels, with the same dilation as the base so
- * padding texels follow when the set is toggled (no seams under bilinear filtering).
- * Works per atlas on the bounding rectangle of the kept texels plus the dilation rings. */
+/* The set's texel SH at the kept texels' atlas pixels, ascending, rows that are all zero
+ * left out. No padding: the run-time shows each dilated padding pixel as the covered
+ * texel it copies (ub_runtime_texel_source), so padding rows would never be read. */
 ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint32_t nkept,
                               const float *sh, ub_bakefile_record *rec)
 {
-  size_t cap = 0, n = 0;
-  uint32_t *idx = NULL;
-  float *val = NULL;
-  uint64_t pixel_base = 0;
-  /* per atlas: pixel ring levels, pixel -> row in vals (or -1), the rows' pixels and values */
-  uint8_t *lev = NULL;
-  int32_t *slot = NULL;
-  uint32_t *vpx = NULL;
-  float *vals = NULL;
-  for (uint32_t a = 0; a < lm->atlas_count; a++) {
-    const ub_atlas *at = &lm->atlases[a];
-    uint32_t x0 = UINT32_MAX, y0 = UINT32_MAX, x1 = 0, y1 = 0, m = 0;
-    for (uint32_t i = 0; i < nkept; i++) {
-      uint32_t t = kept[i];
-      if (lm->texel_atlas[t] != a)
-        continue;
-      uint32_t x = lm->texel_xy[2 * t], y = lm->texel_xy[2 * t + 1];
-      x0 = x < x0 ? x : x0;
-      y0 = y < y0 ? y : y0;
-      x1 = x > x1 ? x : x1;
-      y1 = y > y1 ? y : y1;
-      m++;
-    }
-    if (m == 0) {
-      pixel_base += (uint64_t)at->width * at->height;
-      continue;
-    }
-    x0 = x0 >= UB_DILATE_RINGS ? x0 - UB_DILATE_RINGS : 0;
-    y0 = y0 >= UB_DILATE_RINGS ? y0 - UB_DILATE_RINGS : 0;
-    x1 = x1 + UB_DILATE_RINGS < at->width ? x1 + UB_DILATE_RINGS : at->width - 1;
-    y1 = y1 + UB_DILATE_RINGS < at->height ? y1 + UB_DILATE_RINGS : at->height - 1;
-    uint32_t w = x1 - x0 + 1, h = y1 - y0 + 1;
-    size_t wh = (size_t)w * h;
-    /* The dilation of the window (kept texels' SH, every other covered texel 0, rings
-     * grown inside the window only) without a 12-channel image of it: the window is most
-     * of the atlas when a set's charts are spread (ESTATE full scale: 128 MB and two
-     * copies of it per set). A byte map of each pixel's ring (0 covered, k = filled by
-     * dilation pass k, UB_DILATE_RINGS + 1 never), then only the pixels next to kept
-     * texels ring by ring, each the mean of its filled neighbours in the window in the
-     * dilation's (dy, dx) order: the same float operations as ub_lightmap_dilate. */
-    enum { NR = UB_DILATE_RINGS };
-    lev = malloc(wh ? wh : 1);
-    slot = malloc((wh ? wh : 1) * sizeof *slot);
-    size_t vcap = (size_t)m * 9 + 16, nv = 0;
-    vpx = malloc(vcap * sizeof *vpx);
-    vals = malloc(vcap * 12 * sizeof *vals);
-    if (!lev || !slot || !vpx || !vals)
-      goto oom;
-    for (uint32_t y = y0; y <= y1; y++)
-      for (uint32_t x = x0; x <= x1; x++)
-        lev[(size_t)(y - y0) * w + (x - x0)] = at->texel_of[(size_t)y * at->width + x] >= 0 ? 0 : 1;
-    ub_lightmap_dilate_levels(lev, w, h, NR);
-    for (size_t i = 0; i < wh; i++)
-      slot[i] = -1;
-    for (uint32_t i = 0; i < nkept; i++) {
-      uint32_t t = kept[i];
-      if (lm->texel_atlas[t] != a)
-        continue;
-      size_t q = (size_t)(lm->texel_xy[2 * t + 1] - y0) * w + (lm->texel_xy[2 * t] - x0);
-      slot[q] = (int32_t)nv;
-      vpx[nv] = (uint32_t)q;
-      memcpy(vals + 12 * nv++, sh + 12 * (size_t)t, 12 * sizeof(float));
-    }
-    size_t from = 0;
-    for (uint8_t ring = 1; ring <= NR; ring++) {
-      size_t to = nv;
-      for (size_t k = from; k < to; k++) {
-        uint32_t x = vpx[k] % w, y = vpx[k] / w;
-        for (int dy = -1; dy <= 1; dy++)
-          for (int dx = -1; dx <= 1; dx++) {
-            int64_t xx = (int64_t)x + dx, yy = (int64_t)y + dy;
-            if (!(dx || dy) || xx < 0 || yy < 0 || xx >= w || yy >= h)
-              continue;
-            size_t j = (size_t)yy * w + (size_t)xx;
-            if (lev[j] != ring || slot[j] >= 0)
-              continue;
-            if (nv == vcap && !grow_rows(&vpx, &vals, &vcap))
-              goto oom;
-            slot[j] = (int32_t)nv;
-            vpx[nv++] = (uint32_t)j;
-          }
-      }
-      /* this ring's new pixels: the mean of their filled neighbours (rings < ring; those
-       * not in vals hold 0) */
-      for (size_t k = to; k < nv; k++) {
-        uint32_t x = vpx[k] % w, y = vpx[k] / w;
-        float sum[12] = {0};
-        uint32_t cnt = 0;
-        for (int dy = -1; dy <= 1; dy++) {
-          int64_t yy = (int64_t)y + dy;
-          if (yy < 0 || yy >= h)
-            continue;
-          for (int dx = -1; dx <= 1; dx++) {
-            int64_t xx = (int64_t)x + dx;
-            if ((dx == 0 && dy == 0) || xx < 0 || xx >= w)
-              continue;
-            size_t j = (size_t)yy * w + (size_t)xx;
-            if (lev[j] >= ring)
-              continue;
-            cnt++;
-            if (slot[j] >= 0)
-              for (int c = 0; c < 12; c++)
-                sum[c] += vals[12 * (size_t)slot[j] + c];
-            else
-              for (int c = 0; c < 12; c++)
-                sum[c] += 0.0f;
-          }
-        }
-        float inv = 1.0f / (float)cnt; /* cnt >= 1: a ring pixel has a filled neighbour */
-        for (int c = 0; c < 12; c++)
-          vals[12 * k + c] = sum[c] * inv;
-      }
-      from = to;
-    }
-    /* out in pixel order, the pixels with some non-zero value (as the full window did) */
-    for (uint32_t y = 0; y < h; y++)
-      for (uint32_t x = 0; x < w; x++) {
-        int32_t sl = slot[(size_t)y * w + x];
-        if (sl < 0)
-          continue;
-        const float *v = vals + 12 * (size_t)sl;
-        int nz = 0;
-        for (int k = 0; k < 12; k++)
-          nz |= v[k] != 0.0f;
-        if (!nz)
-          continue;
-        if (n == cap && !grow_rows(&idx, &val, &cap))
-          goto oom;
-        idx[n] = (uint32_t)(pixel_base + (uint64_t)(y + y0) * at->width + (x + x0));
-        memcpy(val + 12 * n, v, 12 * sizeof(float));
-        n++;
-      }
-    free(lev), free(slot), free(vpx), free(vals);
-    lev = NULL, slot = NULL, vpx = NULL, vals = NULL;
-    pixel_base += (uint64_t)at->width * at->height;
+  uint64_t *pair = malloc((nkept ? nkept : 1) * sizeof *pair);
+  uint32_t *idx = malloc((nkept ? nkept : 1) * sizeof *idx);
+  float *val = malloc((nkept ? nkept : 1) * 12 * sizeof *val);
+  if (!pair || !idx || !val) {
+    free(pair);
+    free(idx);
+    free(val);
+    return UB_ERR_OUT_OF_MEMORY;
   }
+  for (uint32_t i = 0; i < nkept; i++)
+    pair[i] = (uint64_t)ub_dls_texel_pixel(lm, kept[i]) << 32 | kept[i];
+  qsort(pair, nkept, sizeof *pair, pixel_pair_cmp);
+  size_t n = 0;
+  for (uint32_t i = 0; i < nkept; i++) {
+    const float *v = sh + 12 * (size_t)(uint32_t)pair[i];
+    int nz = 0;
+    for (int k = 0; k < 12; k++)
+      nz |= v[k] != 0.0f;
+    if (!nz)
+      continue;
+    idx[n] = (uint32_t)(pair[i] >> 32);
+    memcpy(val + 12 * n, v, 12 * sizeof(float));
+    n++;
+  }
+  free(pair);
   rec->texel_count = (uint32_t)n;
   rec->texel_index = idx;
   rec->texel_sh = val;
   return UB_OK;
-oom:
-  free(lev), free(slot), free(vpx), free(vals);
-  free(idx);
-  free(val);
-  return UB_ERR_OUT_OF_MEMORY;
 }
 
 /* ---- Uniform voxel grids: the reach bound's and the sparse probe grid's ---- */

@@ -93,8 +93,9 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
 void ub_dls_records_free(ub_bakefile_record *records, uint32_t count);
 
 /* Sparse atlas pixels of a record from per-texel SH (sh: texel_count × 12, read at the
- * kept texels only), dilated like the base so padding follows (no seams under bilinear
- * filtering). Fills rec->texel_count/texel_index/texel_sh; shared by DLS and door records. */
+ * kept texels only): the kept texels' pixels, ascending (no padding: the run-time shows
+ * padding as the texel it copies). Fills rec->texel_count/texel_index/texel_sh; shared by
+ * DLS, door and object records. */
 ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint32_t nkept,
                               const float *sh, ub_bakefile_record *rec);
 
