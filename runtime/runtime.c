@@ -445,6 +445,15 @@ static void encode_texel(const ub_runtime *rt, uint32_t a, const float *row, int
   ub_ahd_encode(v, n, out);
 }
 
+/* Frees records_prepare's halves of n elements (the blend made from them keeps its own). */
+static void free_rec_values(ub_blend_record *recs, uint32_t n)
+{
+  for (uint32_t e = 0; recs && e < n; e++) {
+    free((void *)(uintptr_t)recs[e].values);
+    recs[e].values = NULL;
+  }
+}
+
 void ub_runtime_free(ub_runtime *rt)
 {
   if (!rt)
@@ -487,6 +496,9 @@ void ub_runtime_free(ub_runtime *rt)
   ub_blend_free(rt->lm_blend);
   ub_blend_free(rt->glg_blend);
   ub_blend_free(rt->llg_blend);
+  free_rec_values(rt->lm_rec, rt->elem_total);
+  free_rec_values(rt->glg_rec, rt->elem_total);
+  free_rec_values(rt->llg_rec, rt->elem_total);
   free(rt->lm_rec);
   free(rt->glg_rec);
   free(rt->llg_rec);
@@ -595,14 +607,14 @@ static int pixel_locate(const ub_runtime *rt, uint64_t p, uint32_t *inout_atlas,
   return 1;
 }
 
-/* One representation's records readied for its blend, in place in the bake file's float
- * arrays: texel rows in the I_z form, every value divided by one power-of-two scale that
- * brings the representation into the half range (the blend keeps them as half,
- * UB_BLEND_STORE_HALF; the weights are multiplied by the scale: (w·s)·h and w·(s·h) round
- * to the same float). Values that came from the file's halves come back bit for bit (a
- * power-of-two scale is exact; the I_z re-pack of a texel is exact to float rounding, far
- * below half rounding). Texel records: receivers become global slots (rt->lm_idx) and
- * entries on uncovered pixels (never read) are dropped. */
+/* One representation's records readied for its blend: texel rows in the I_z form, every
+ * value divided by one power-of-two scale that brings the representation into the half
+ * range and rounded to half (recs[e].values, the run-time's; the bake file's floats are
+ * freed; the blend keeps the halves, the weights are multiplied by the scale: (w·s)·h and
+ * w·(s·h) round to the same float). Values that came from the file's halves come back bit
+ * for bit (a power-of-two scale is exact; the I_z re-pack of a texel is exact to float
+ * rounding, far below half rounding). Texel records: receivers become global slots
+ * (rt->lm_idx) and entries on empty or padding pixels (never read) are dropped. */
 static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs, float *out_scale)
 {
   ub_bakefile *bf = rt->bf;
@@ -646,14 +658,26 @@ static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs,
       for (uint32_t k = 0; k < stride; k++)
         mx = fmax(mx, fabs((double)row[k]));
     }
-    recs[e].values = v;
-    recs[e].count = kept;
+    recs[e].count = kept; /* values: the halves, below */
   }
+  /* The values as the halves the blend keeps (ub_half_from_float, as its
+   * UB_BLEND_STORE_HALF would round), the bake file's floats freed record by record: the blends are created from
+   * halves, so the floats of every record do not wait for all three blends (ESTATE full
+   * scale: −225 MB at the load's peak). */
   float s = half_pool_scale(mx);
-  for (uint32_t e = 0; e < n && s != 1.0f; e++) {
-    float *v = (float *)(uintptr_t)recs[e].values;
-    for (size_t i = 0; i < (size_t)recs[e].count * stride; i++)
-      v[i] /= s;
+  for (uint32_t e = 0; e < n; e++) {
+    ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
+    float **own = rep == 0 ? &rc->texel_sh : rep == 1 ? &rc->probe_sh : &rc->llg_probe_sh;
+    const float *v = *own;
+    const size_t nv = (size_t)recs[e].count * stride;
+    uint16_t *hv = malloc((nv ? nv : 1) * sizeof *hv);
+    if (!hv)
+      return UB_ERR_OUT_OF_MEMORY;
+    for (size_t i = 0; i < nv; i++)
+      hv[i] = ub_half_from_float(s != 1.0f ? v[i] / s : v[i]);
+    free(*own);
+    *own = NULL;
+    recs[e].values = hv; /* the run-time's now (ub_runtime_free, setup_elements) */
   }
   *out_scale = s;
   return UB_OK;
@@ -713,7 +737,7 @@ static int recv_at_cmp(const void *pa, const void *pb)
 }
 
 /* Sorts a record's receivers ascending, its rows (stride floats each) along. */
-static ub_result sort_record(uint32_t *recv, float *rows, uint32_t count, uint32_t stride)
+static ub_result sort_record(uint32_t *recv, uint16_t *rows, uint32_t count, uint32_t stride)
 {
   uint32_t i = 1;
   while (i < count && recv[i - 1] < recv[i])
@@ -721,7 +745,7 @@ static ub_result sort_record(uint32_t *recv, float *rows, uint32_t count, uint32
   if (i >= count)
     return UB_OK;
   recv_at *o = malloc((size_t)count * sizeof *o);
-  float *tmp = malloc((size_t)count * stride * sizeof *tmp);
+  uint16_t *tmp = malloc((size_t)count * stride * sizeof *tmp);
   if (!o || !tmp) {
     free(o);
     free(tmp);
@@ -968,7 +992,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
       slot_touched(rt, rv[i], &ix);
       rv[i] = (uint32_t)ix;
     }
-    r = sort_record(rv, (float *)(uintptr_t)rt->lm_rec[e].values, rt->lm_rec[e].count,
+    r = sort_record(rv, (uint16_t *)(uintptr_t)rt->lm_rec[e].values, rt->lm_rec[e].count,
                     UB_SH1_FLOATS);
     if (r != UB_OK) {
       ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
@@ -981,19 +1005,20 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   bd.receiver_count = (uint32_t)touched;
   bd.stride = UB_SH1_FLOATS;
   bd.base = rt->lm_tbase;
-  bd.storage = UB_BLEND_FLOAT32;
+  bd.storage = UB_BLEND_FLOAT16; /* records_prepare's halves */
   bd.element_count = n;
   bd.elements = rt->lm_rec;
   /* Keeps only the touched receivers' base rows (in half, as lm_static) and the records
    * as half; streams its rows to the re-encode, queries ask it for a texel's row
    * (ub_blend_row). */
-  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_STORE_HALF | UB_BLEND_ROW_QUERY | UB_BLEND_BASE_HALF;
+  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_ROW_QUERY | UB_BLEND_BASE_HALF;
   r = ub_blend_create(&bd, log, NULL, &rt->lm_blend);
   if (r != UB_OK)
     return r;
+  free_rec_values(rt->lm_rec, n);
   /* Base rows in half too (UB_BLEND_BASE_HALF): the touched texels' as the untouched ones'
    * (lm_static); the probes' are the file's halves, kept exactly. */
-  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_STORE_HALF | UB_BLEND_BASE_HALF;
+  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF;
   free(rt->lm_base);
   rt->lm_base = NULL;
   free(rt->lm_tbase);
@@ -1008,6 +1033,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     r = ub_blend_create(&bd, log, NULL, &rt->glg_blend);
     if (r != UB_OK)
       return r;
+    free_rec_values(rt->glg_rec, n);
     free(bf->glg_sh);
     bf->glg_sh = NULL;
   }
@@ -1033,6 +1059,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     r = ub_blend_create(&bd, log, rt->llg_cur, &rt->llg_blend);
     if (r != UB_OK)
       return r;
+    free_rec_values(rt->llg_rec, n);
     free(rt->llg_base);
     rt->llg_base = NULL;
     /* Each model's grid (what queries read) becomes its slice of the blend's output. */
@@ -1058,8 +1085,10 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     rc->probe_index = NULL;
     rc->llg_probe_index = NULL;
     rt->lm_rec[e].receivers = rt->glg_rec[e].receivers = rt->llg_rec[e].receivers = NULL;
-    rt->lm_rec[e].values = rt->glg_rec[e].values = rt->llg_rec[e].values = NULL;
   }
+  free_rec_values(rt->lm_rec, n);
+  free_rec_values(rt->glg_rec, n);
+  free_rec_values(rt->llg_rec, n);
   for (uint32_t e = 0; e < n && r == UB_OK; e++) {
     uint32_t kind = element_record(bf, e)->kind;
     float v = kind == UB_ELEMENT_DOOR ? 0.0f : 1.0f;
