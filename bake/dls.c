@@ -10,8 +10,6 @@
 #include <string.h>
 #include <time.h>
 
-#define UB_DILATE_RINGS 4
-
 static double now_s(void)
 {
   struct timespec ts;

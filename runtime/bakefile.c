@@ -228,6 +228,15 @@ static int sorted_below(const uint32_t *idx, uint32_t n, uint64_t limit, uint32_
 }
 
 /* Records of sections DLSR (elem = 0) and ELEM (elem = 1). */
+/* n halves all finite (v may be NULL when n is 0). */
+static int halves_finite(const uint16_t *v, size_t n)
+{
+  for (size_t i = 0; i < n; i++)
+    if ((v[i] & 0x7c00u) == 0x7c00u)
+      return 0;
+  return 1;
+}
+
 static ub_result validate_records(const ub_bakefile *bf, int elem, const char *name,
                                   const ub_log *log)
 {
@@ -277,9 +286,9 @@ static ub_result validate_records(const ub_bakefile *bf, int elem, const char *n
         return UB_ERR_INVALID_DATA;
       }
     /* a run-time's bake file keeps counts without the arrays (the blends hold them) */
-    if ((r->texel_count && (!r->texel_index || !r->texel_sh)) ||
-        (r->probe_count && (!r->probe_index || !r->probe_sh)) ||
-        (r->llg_probe_count && (!r->llg_probe_index || !r->llg_probe_sh))) {
+    if ((r->texel_count && (!r->texel_index || !(r->texel_sh || r->texel_sh_half))) ||
+        (r->probe_count && (!r->probe_index || !(r->probe_sh || r->probe_sh_half))) ||
+        (r->llg_probe_count && (!r->llg_probe_index || !(r->llg_probe_sh || r->llg_probe_sh_half)))) {
       ubk_error(log, name, where, "record %u (%s): receivers or values missing", d, r->name);
       return UB_ERR_INVALID_ARGUMENT;
     }
@@ -304,9 +313,14 @@ static ub_result validate_records(const ub_bakefile *bf, int elem, const char *n
                 (unsigned long long)llg_probes);
       return UB_ERR_INVALID_DATA;
     }
-    if (!all_finite(r->texel_sh, (size_t)r->texel_count * UB_SH1_FLOATS, &bad) ||
-        !all_finite(r->probe_sh, (size_t)r->probe_count * UB_GLG_SH_FLOATS, &bad) ||
-        !all_finite(r->llg_probe_sh, (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS, &bad)) {
+    if ((r->texel_sh && !all_finite(r->texel_sh, (size_t)r->texel_count * UB_SH1_FLOATS, &bad)) ||
+        (r->probe_sh && !all_finite(r->probe_sh, (size_t)r->probe_count * UB_GLG_SH_FLOATS, &bad)) ||
+        (r->llg_probe_sh &&
+         !all_finite(r->llg_probe_sh, (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS, &bad)) ||
+        !halves_finite(r->texel_sh_half, r->texel_sh ? 0 : (size_t)r->texel_count * UB_SH1_FLOATS) ||
+        !halves_finite(r->probe_sh_half, r->probe_sh ? 0 : (size_t)r->probe_count * UB_GLG_SH_FLOATS) ||
+        !halves_finite(r->llg_probe_sh_half,
+                       r->llg_probe_sh ? 0 : (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS)) {
       ubk_error(log, name, where, "record %u (%s): non-finite SH", d, r->name);
       return UB_ERR_INVALID_DATA;
     }
@@ -925,6 +939,15 @@ ub_result ub_bakefile_write_ex(const ub_bakefile *bf, const char *path, const ub
   assert(bf && path);
   if (out_clamped)
     *out_clamped = 0;
+  for (uint32_t e = 0; e < bf->dls_count + bf->elem_count; e++) {
+    const ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
+    if ((rc->texel_count && !rc->texel_sh) || (rc->probe_count && !rc->probe_sh) ||
+        (rc->llg_probe_count && !rc->llg_probe_sh)) {
+      ubk_error(log, path, "write", "record %s: no float values (read as halves, or a "
+                "run-time's bake file)", rc->name);
+      return UB_ERR_INVALID_ARGUMENT;
+    }
+  }
   ub_result r = validate(bf, path, log);
   if (r != UB_OK)
     return r;
@@ -1187,6 +1210,17 @@ static int cur_halves(ubk_cursor *c, float *out, size_t n)
   return 1;
 }
 
+/* n halves as they are (little-endian in the file). */
+static int cur_halves_raw(ubk_cursor *c, uint16_t *out, size_t n)
+{
+  const uint8_t *p;
+  if (n > c->left / 2 || !cur_take(c, n * 2, &p))
+    return 0;
+  for (size_t i = 0; i < n; i++)
+    out[i] = le_get16(p + i * 2);
+  return 1;
+}
+
 /* calloc of count × size with the product overflow-checked. */
 static void *calloc_array(uint64_t count, size_t size)
 {
@@ -1200,6 +1234,7 @@ static void *calloc_array(uint64_t count, size_t size)
 typedef struct ubk_reader {
   const char *name;
   const ub_log *log;
+  unsigned flags; /* UB_BAKEFILE_RECORD_HALVES */
 } ubk_reader;
 
 static ub_result parse_meta(const ubk_reader *rd, const uint8_t *p, uint64_t size,
@@ -1485,12 +1520,24 @@ static ub_result parse_records(const ubk_reader *rd, const uint8_t *p, uint64_t 
     r->texel_index = calloc_array(r->texel_count, sizeof(uint32_t));
     r->probe_index = calloc_array(r->probe_count, sizeof(uint32_t));
     r->llg_probe_index = calloc_array(r->llg_probe_count, sizeof(uint32_t));
-    r->texel_sh = calloc_array((uint64_t)r->texel_count * UB_SH1_FLOATS, sizeof(float));
-    r->probe_sh = calloc_array((uint64_t)r->probe_count * UB_GLG_SH_FLOATS, sizeof(float));
-    r->llg_probe_sh = calloc_array((uint64_t)r->llg_probe_count * UB_GLG_SH_FLOATS, sizeof(float));
-    if ((r->texel_count && (!r->texel_index || !r->texel_sh)) ||
-        (r->probe_count && (!r->probe_index || !r->probe_sh)) ||
-        (r->llg_probe_count && (!r->llg_probe_index || !r->llg_probe_sh))) {
+    const size_t nt = (size_t)r->texel_count * UB_SH1_FLOATS,
+                 np = (size_t)r->probe_count * UB_GLG_SH_FLOATS,
+                 nl = (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS;
+    const int halves = (rd->flags & UB_BAKEFILE_RECORD_HALVES) != 0;
+    if (halves) {
+      r->texel_sh_half = calloc_array(nt, sizeof(uint16_t));
+      r->probe_sh_half = calloc_array(np, sizeof(uint16_t));
+      r->llg_probe_sh_half = calloc_array(nl, sizeof(uint16_t));
+      r->sh_half_scale = scale;
+    } else {
+      r->texel_sh = calloc_array(nt, sizeof(float));
+      r->probe_sh = calloc_array(np, sizeof(float));
+      r->llg_probe_sh = calloc_array(nl, sizeof(float));
+    }
+    if ((r->texel_count && (!r->texel_index || !(halves ? (void *)r->texel_sh_half : (void *)r->texel_sh))) ||
+        (r->probe_count && (!r->probe_index || !(halves ? (void *)r->probe_sh_half : (void *)r->probe_sh))) ||
+        (r->llg_probe_count &&
+         (!r->llg_probe_index || !(halves ? (void *)r->llg_probe_sh_half : (void *)r->llg_probe_sh)))) {
       ubk_error(rd->log, rd->name, where, "out of memory");
       return UB_ERR_OUT_OF_MEMORY;
     }
@@ -1499,15 +1546,19 @@ static ub_result parse_records(const ubk_reader *rd, const uint8_t *p, uint64_t 
     int ok = cur_u32s(&c, r->texel_index, r->texel_count) &&
              cur_u32s(&c, r->probe_index, r->probe_count) &&
              cur_u32s(&c, r->llg_probe_index, r->llg_probe_count) &&
-             cur_halves(&c, r->texel_sh, (size_t)r->texel_count * UB_SH1_FLOATS) &&
-             cur_halves(&c, r->probe_sh, (size_t)r->probe_count * UB_GLG_SH_FLOATS) &&
-             cur_halves(&c, r->llg_probe_sh, (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS) &&
+             (halves ? cur_halves_raw(&c, r->texel_sh_half, nt) &&
+                           cur_halves_raw(&c, r->probe_sh_half, np) &&
+                           cur_halves_raw(&c, r->llg_probe_sh_half, nl)
+                     : cur_halves(&c, r->texel_sh, nt) && cur_halves(&c, r->probe_sh, np) &&
+                           cur_halves(&c, r->llg_probe_sh, nl)) &&
              cur_take(&c, (size_t)(align8(block) - block), &pad);
     assert(ok); /* guaranteed by the exact size walk above */
     (void)ok;
-    apply_scale(r->texel_sh, (size_t)r->texel_count * UB_SH1_FLOATS, scale);
-    apply_scale(r->probe_sh, (size_t)r->probe_count * UB_GLG_SH_FLOATS, scale);
-    apply_scale(r->llg_probe_sh, (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS, scale);
+    if (!halves) {
+      apply_scale(r->texel_sh, nt, scale);
+      apply_scale(r->probe_sh, np, scale);
+      apply_scale(r->llg_probe_sh, nl, scale);
+    }
   }
   return UB_OK;
 }
@@ -1521,7 +1572,7 @@ static void unpack_record_texels(ub_bakefile *bf, ub_bakefile_record *recs, uint
     pixels += (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
   for (uint32_t d = 0; d < count; d++) {
     ub_bakefile_record *r = &recs[d];
-    for (uint32_t i = 0; i < r->texel_count; i++) {
+    for (uint32_t i = 0; r->texel_sh && i < r->texel_count; i++) {
       if (r->texel_index[i] >= pixels)
         continue;
       const float *n = pixel_normal(bf, r->texel_index[i]);
@@ -1733,13 +1784,22 @@ static ub_result parse_llgm(const ubk_reader *rd, const uint8_t *p, uint64_t siz
   return UB_OK;
 }
 
+static ub_result read_memory_ex(const void *data, size_t size, const char *name,
+                                const ub_log *log, unsigned flags, ub_bakefile **out_bf);
+
 ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *name,
                                   const ub_log *log, ub_bakefile **out_bf)
+{
+  return read_memory_ex(data, size, name, log, 0, out_bf);
+}
+
+static ub_result read_memory_ex(const void *data, size_t size, const char *name,
+                                const ub_log *log, unsigned flags, ub_bakefile **out_bf)
 {
   assert(out_bf);
   assert(data || size == 0);
   const uint8_t *d = (const uint8_t *)data;
-  ubk_reader rd = {name ? name : "(memory)", log};
+  ubk_reader rd = {name ? name : "(memory)", log, flags};
 
   if (size < UB_UBK_HEADER_SIZE) {
     ubk_error(log, rd.name, "header", "file is %zu bytes, shorter than the %u-byte header",
@@ -1897,6 +1957,12 @@ ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *nam
 
 ub_result ub_bakefile_read(const char *path, const ub_log *log, ub_bakefile **out_bf)
 {
+  return ub_bakefile_read_ex(path, log, 0, out_bf);
+}
+
+ub_result ub_bakefile_read_ex(const char *path, const ub_log *log, unsigned flags,
+                              ub_bakefile **out_bf)
+{
   assert(path && out_bf);
   FILE *f = fopen(path, "rb");
   if (!f) {
@@ -1938,7 +2004,7 @@ ub_result ub_bakefile_read(const char *path, const ub_log *log, ub_bakefile **ou
     free(buf);
     return UB_ERR_IO;
   }
-  ub_result r = ub_bakefile_read_memory(buf, size, path, log, out_bf);
+  ub_result r = read_memory_ex(buf, size, path, log, flags, out_bf);
   free(buf);
   return r;
 }
@@ -1975,6 +2041,9 @@ void ub_bakefile_free(ub_bakefile *bf)
       free(recs[d].probe_sh);
       free(recs[d].llg_probe_index);
       free(recs[d].llg_probe_sh);
+      free(recs[d].texel_sh_half);
+      free(recs[d].probe_sh_half);
+      free(recs[d].llg_probe_sh_half);
     }
     free(recs);
   }

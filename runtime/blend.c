@@ -117,10 +117,12 @@ struct ub_blend {
 
 /* One part's scratch: an update's parts may run on several threads at once. */
 typedef struct blend_scratch {
-  float *rows;           /* BLEND_CHUNK × stride floats, streaming mode */
   /* streaming: rows[0 .. pend) hold receivers pend_first.. not yet handed to the callback
-   * (pieces of consecutive receivers, adjacent groups' too, go over together) */
+   * (pieces of consecutive receivers, adjacent groups' too, go over together); written
+   * per chunk by the part's thread: first, with a cache line of padding at the end (pad)
+   * so parts on other threads never share its line */
   uint32_t pend_first, pend;
+  float *rows;           /* BLEND_CHUNK × stride floats, streaming mode */
   float *dec;            /* dec_floats floats, half records without F16C */
   float *bdec;           /* BLEND_CHUNK × stride floats: half base rows decoded */
   /* combinations above BLEND_SPECIALISED (max_overlap entries each) */
@@ -131,6 +133,7 @@ typedef struct blend_scratch {
   /* AVX path: the non-zero members' patterns and values (max(max_overlap, 1)) */
   const float **avx_w;
   const char **avx_src;
+  char pad[64];
 } blend_scratch;
 
 typedef struct blend_unit_ref {
@@ -525,8 +528,9 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const char *restrict bs,
 }
 
 /* A group's units: member m's values for the unit's receivers are one stretch of its
- * block (see blend_group), so a run is blended as flat arrays; the callback gets each
- * piece right after it is computed (upper AVX state cleared first: it runs SSE code).
+ * block (see blend_group), so a run is blended as flat arrays; the callback gets the
+ * pieces when BLEND_CHUNK receivers are waiting or the next piece does not continue them
+ * (stream_slot; upper AVX state cleared first: it runs SSE code).
  * The whole loop is AVX code, so a list group costs no call per receiver. */
 BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const uint32_t *act,
                                 const char **src, const float *const *wp, const uint32_t k,

@@ -168,61 +168,52 @@ static inline int64_t texel_pixel(const ub_runtime *rt, uint32_t a, size_t i)
 }
 
 /* Which covered texel each dilated padding pixel of atlas a copies, ring by ring as the
- * baker grows its padding (ub_lightmap_dilate): a pixel of ring r copies the texel of its
- * first 8-neighbour (rows top to bottom, left to right) filled by ring r − 1. The padding
- * then shows its nearest texel's state exactly (the baker's ring averages are not kept:
- * one texel's AHD per padding pixel is what a game's copy-dilation gives too). */
+ * baker grows its padding (ub_lightmap_dilate): a pixel of ring r (r 8-neighbour steps
+ * through padding from the nearest covered texel) copies the texel of its first
+ * 8-neighbour (rows top to bottom, left to right) of ring r − 1: a texel at the smallest
+ * Chebyshev distance. One breadth-first search from the covered texels, linear in the
+ * pixels (a file's padding may be any shape). The padding then shows that texel's state
+ * exactly (the baker's ring averages are not kept: one texel's AHD per padding pixel is
+ * what a game's copy-dilation gives too); padding no texel reaches shows nothing. */
 static ub_result build_dilation(ub_runtime *rt, uint32_t a)
 {
   const ub_bakefile_atlas *at = &rt->bf->atlases[a];
   const size_t w = at->width, h = at->height, px = w * h, words = (px + 63) / 64;
   int32_t *src = malloc((px ? px : 1) * sizeof *src);
-  uint32_t *ring = malloc((px ? px : 1) * sizeof *ring), *todo = NULL, *next = NULL;
+  uint32_t *ring = malloc((px ? px : 1) * sizeof *ring);
+  uint32_t *queue = malloc((px ? px : 1) * sizeof *queue);
   rt->dil_bits[a] = calloc(words ? words : 1, sizeof **rt->dil_bits);
   rt->dil_rank[a] = malloc((words ? words : 1) * sizeof **rt->dil_rank);
-  size_t nt = 0, nd = 0;
-  for (size_t i = 0; i < px; i++)
-    nt += at->coverage[i] == 2;
-  todo = malloc((nt ? nt : 1) * sizeof *todo);
-  next = malloc((nt ? nt : 1) * sizeof *next);
   ub_result r = UB_ERR_OUT_OF_MEMORY;
-  if (!src || !ring || !todo || !next || !rt->dil_bits[a] || !rt->dil_rank[a])
+  if (!src || !ring || !queue || !rt->dil_bits[a] || !rt->dil_rank[a])
     goto done;
-  nt = 0;
+  size_t head = 0, tail = 0, nd = 0;
   for (size_t i = 0; i < px; i++) {
-    src[i] = at->coverage[i] == 1 ? (int32_t)i : -1;
-    ring[i] = 0;
-    if (at->coverage[i] == 2)
-      todo[nt++] = (uint32_t)i;
-  }
-  for (uint32_t pass = 1; nt; pass++) {
-    size_t nn = 0, filled = 0;
-    for (size_t k = 0; k < nt; k++) {
-      const size_t i = todo[k], x = i % w, y = i / w;
-      int32_t s = -1;
-      for (int dy = -1; dy <= 1 && s < 0; dy++)
-        for (int dx = -1; dx <= 1 && s < 0; dx++) {
-          if ((dx == 0 && dy == 0) || (dy < 0 && y == 0) || (dy > 0 && y + 1 >= h) ||
-              (dx < 0 && x == 0) || (dx > 0 && x + 1 >= w))
-            continue;
-          const size_t j = (size_t)((int64_t)i + dy * (int64_t)w + dx);
-          if (src[j] >= 0 && ring[j] < pass)
-            s = src[j];
-        }
-      if (s >= 0) {
-        src[i] = s;
-        ring[i] = pass;
-        filled++;
-      } else {
-        next[nn++] = (uint32_t)i;
-      }
+    src[i] = -1;
+    ring[i] = UINT32_MAX;
+    if (at->coverage[i] == 1) {
+      src[i] = (int32_t)i;
+      ring[i] = 0;
+      queue[tail++] = (uint32_t)i;
     }
-    uint32_t *t = todo;
-    todo = next;
-    next = t;
-    nt = nn;
-    if (!filled)
-      break; /* padding no texel reaches: shown as empty */
+  }
+  /* Dequeued in ring order: a padding pixel's ring r − 1 neighbours have their texel. */
+  while (head < tail) {
+    const size_t i = queue[head++], x = i % w, y = i / w;
+    const uint32_t ri = ring[i];
+    for (int dy = -1; dy <= 1; dy++)
+      for (int dx = -1; dx <= 1; dx++) {
+        if ((dx == 0 && dy == 0) || (dy < 0 && y == 0) || (dy > 0 && y + 1 >= h) ||
+            (dx < 0 && x == 0) || (dx > 0 && x + 1 >= w))
+          continue;
+        const size_t j = (size_t)((int64_t)i + dy * (int64_t)w + dx);
+        if (ri > 0 && src[i] < 0 && ring[j] == ri - 1)
+          src[i] = src[j]; /* the first ring r − 1 neighbour in scan order */
+        if (at->coverage[j] == 2 && ring[j] == UINT32_MAX) {
+          ring[j] = ri + 1;
+          queue[tail++] = (uint32_t)j;
+        }
+      }
   }
   for (size_t i = 0; i < px; i++)
     if (at->coverage[i] == 2 && src[i] >= 0) {
@@ -243,8 +234,7 @@ static ub_result build_dilation(ub_runtime *rt, uint32_t a)
 done:
   free(src);
   free(ring);
-  free(todo);
-  free(next);
+  free(queue);
   return r;
 }
 
@@ -445,7 +435,8 @@ static void encode_texel(const ub_runtime *rt, uint32_t a, const float *row, int
   ub_ahd_encode(v, n, out);
 }
 
-/* Frees records_prepare's halves of n elements (the blend made from them keeps its own). */
+/* Frees the records' halves records_prepare handed to n elements (the blend made from them
+ * keeps its own copy). */
 static void free_rec_values(ub_blend_record *recs, uint32_t n)
 {
   for (uint32_t e = 0; recs && e < n; e++) {
@@ -607,13 +598,12 @@ static int pixel_locate(const ub_runtime *rt, uint64_t p, uint32_t *inout_atlas,
   return 1;
 }
 
-/* One representation's records readied for its blend: texel rows in the I_z form, every
- * value divided by one power-of-two scale that brings the representation into the half
- * range and rounded to half (recs[e].values, the run-time's; the bake file's floats are
- * freed; the blend keeps the halves, the weights are multiplied by the scale: (w·s)·h and
- * w·(s·h) round to the same float). Values that came from the file's halves come back bit
- * for bit (a power-of-two scale is exact; the I_z re-pack of a texel is exact to float
- * rounding, far below half rounding). Texel records: receivers become global slots
+/* One representation's records readied for its blend from the file's halves (read with
+ * UB_BAKEFILE_RECORD_HALVES; texel rows in the file's I_z form, as the blend wants them):
+ * every value brought from the file's scale to one power-of-two scale for the whole
+ * representation that keeps it in the half range (recs[e].values, the run-time's now;
+ * the blend keeps the halves, the weights are multiplied by the scale: (w·s)·h and
+ * w·(s·h) round to the same float). Texel records: receivers become global slots
  * (rt->lm_idx) and entries on empty or padding pixels (never read) are dropped. */
 static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs, float *out_scale)
 {
@@ -636,48 +626,43 @@ static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs,
   for (uint32_t e = 0; e < n; e++) {
     ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
     uint32_t count = rep == 0 ? rc->texel_count : rep == 1 ? rc->probe_count : rc->llg_probe_count;
-    float *v = rep == 0 ? rc->texel_sh : rep == 1 ? rc->probe_sh : rc->llg_probe_sh;
+    uint16_t *v = rep == 0 ? rc->texel_sh_half : rep == 1 ? rc->probe_sh_half : rc->llg_probe_sh_half;
+    const double fs = rc->sh_half_scale;
     uint32_t cursor = 0, kept = 0;
     if (rep == 0)
       recs[e].receivers = rt->lm_idx + ei;
     for (uint32_t i = 0; i < count; i++) {
-      float *row = v + (size_t)i * stride, un[3];
+      const uint16_t *row = v + (size_t)i * stride;
       if (rep == 0) {
         size_t px = 0;
         if (!pixel_locate(rt, rc->texel_index[i], &cursor, &px) ||
             bf->atlases[cursor].coverage[px] != 1)
           continue; /* an empty or padding pixel: never read (padding shows a texel) */
         rt->lm_idx[ei++] = (uint32_t)(rt->slot_first[cursor] + slot_of(rt, cursor, px));
-        if (ub_texel_normal(&bf->atlases[cursor].normal[3 * px], un))
-          ub_texel_sh_pack(row, un);
         if (kept != i) /* compact in place */
-          memmove(v + (size_t)kept * stride, row, stride * sizeof(float));
+          memmove(v + (size_t)kept * stride, row, stride * sizeof *v);
         row = v + (size_t)kept * stride;
       }
       kept++;
       for (uint32_t k = 0; k < stride; k++)
-        mx = fmax(mx, fabs((double)row[k]));
+        mx = fmax(mx, fabs((double)ub_half_to_float(row[k]) * fs));
     }
-    recs[e].count = kept; /* values: the halves, below */
+    recs[e].count = kept;
   }
-  /* The values as the halves the blend keeps (ub_half_from_float, as its
-   * UB_BLEND_STORE_HALF would round), the bake file's floats freed record by record: the blends are created from
-   * halves, so the floats of every record do not wait for all three blends (ESTATE full
-   * scale: −225 MB at the load's peak). */
+  /* The file's halves (texel rows in its I_z form already) become the blend's, in place:
+   * rescaled from the file's scale to the pool's (both powers of two: exact but for half
+   * subnormals and rounding when the pool's is larger), the arrays handed over to recs. */
   float s = half_pool_scale(mx);
   for (uint32_t e = 0; e < n; e++) {
     ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
-    float **own = rep == 0 ? &rc->texel_sh : rep == 1 ? &rc->probe_sh : &rc->llg_probe_sh;
-    const float *v = *own;
+    uint16_t **own = rep == 0 ? &rc->texel_sh_half : rep == 1 ? &rc->probe_sh_half : &rc->llg_probe_sh_half;
+    uint16_t *v = *own;
+    const float fs = rc->sh_half_scale;
     const size_t nv = (size_t)recs[e].count * stride;
-    uint16_t *hv = malloc((nv ? nv : 1) * sizeof *hv);
-    if (!hv)
-      return UB_ERR_OUT_OF_MEMORY;
-    for (size_t i = 0; i < nv; i++)
-      hv[i] = ub_half_from_float(s != 1.0f ? v[i] / s : v[i]);
-    free(*own);
+    for (size_t i = 0; fs != s && i < nv; i++)
+      v[i] = ub_half_from_float(ub_half_to_float(v[i]) * fs / s);
     *own = NULL;
-    recs[e].values = hv; /* the run-time's now (ub_runtime_free, setup_elements) */
+    recs[e].values = v; /* the run-time's now (free_rec_values) */
   }
   *out_scale = s;
   return UB_OK;
@@ -1005,7 +990,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   bd.receiver_count = (uint32_t)touched;
   bd.stride = UB_SH1_FLOATS;
   bd.base = rt->lm_tbase;
-  bd.storage = UB_BLEND_FLOAT16; /* records_prepare's halves */
+  bd.storage = UB_BLEND_FLOAT16; /* the file's halves (records_prepare) */
   bd.element_count = n;
   bd.elements = rt->lm_rec;
   /* Keeps only the touched receivers' base rows (in half, as lm_static) and the records
@@ -1074,10 +1059,10 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   rt->lm_idx = NULL;
   for (uint32_t e = 0; e < n; e++) {
     ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
-    free(rc->texel_sh);
-    free(rc->probe_sh);
-    free(rc->llg_probe_sh);
-    rc->texel_sh = rc->probe_sh = rc->llg_probe_sh = NULL;
+    free(rc->texel_sh_half);
+    free(rc->probe_sh_half);
+    free(rc->llg_probe_sh_half);
+    rc->texel_sh_half = rc->probe_sh_half = rc->llg_probe_sh_half = NULL;
     free(rc->texel_index);
     free(rc->probe_index);
     free(rc->llg_probe_index);
@@ -1113,7 +1098,8 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
 {
   assert(path && out);
   ub_bakefile *bf = NULL;
-  ub_result r = ub_bakefile_read(path, log, &bf);
+  /* records as the file's halves: the blends keep halves, no float copy on the way */
+  ub_result r = ub_bakefile_read_ex(path, log, UB_BAKEFILE_RECORD_HALVES, &bf);
   if (r != UB_OK)
     return r;
   ub_runtime *rt = calloc(1, sizeof *rt);
@@ -1618,6 +1604,9 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
   for (uint32_t e = 0; e < n; e++) {
     const ub_bakefile_record *r = element_record(bf, e);
     m.records += (r->texel_index ? (size_t)r->texel_count * U : 0) +
+                 (r->texel_sh_half ? (size_t)r->texel_count * UB_SH1_FLOATS * 2 : 0) +
+                 (r->probe_sh_half ? (size_t)r->probe_count * 27 * 2 : 0) +
+                 (r->llg_probe_sh_half ? (size_t)r->llg_probe_count * 27 * 2 : 0) +
                  (r->texel_sh ? (size_t)r->texel_count * UB_SH1_FLOATS * F : 0) +
                  (r->probe_index ? (size_t)r->probe_count * U : 0) +
                  (r->probe_sh ? (size_t)r->probe_count * 27 * F : 0) +

@@ -1062,6 +1062,33 @@ static void test_runtime(void)
   ub_bakefile_free(fr);
   ub_runtime_free(rt);
 
+  /* Padding no texel reaches through padding (a file may hold any shape): shows nothing.
+   * 3 × 3: texel (0, 0) covered, (1, 0) padding next to it, (2, 2) padding alone among
+   * empty pixels. */
+  bf = make_quad(3, L, 1);
+  for (int i = 0; i < 9; i++)
+    bf->atlases[0].coverage[i] = 0;
+  bf->atlases[0].coverage[0] = 1;
+  bf->atlases[0].coverage[1] = 2;
+  bf->atlases[0].coverage[8] = 2;
+  ASSERT_OK(ub_bakefile_write(bf, p, &log));
+  ub_bakefile_free(bf);
+  rt = NULL;
+  ASSERT_OK(ub_runtime_load(p, &log, &rt));
+  if (rt) {
+    uint32_t sx = 9, sy = 9;
+    float nz[3] = {0, 1, 0}, rgb[3] = {1, 1, 1}, own[3];
+    ASSERT_OK(ub_runtime_texel_source(rt, 0, 1, 0, &sx, &sy));
+    ASSERT_TRUE(sx == 0 && sy == 0);
+    ASSERT_TRUE(ub_runtime_texel_source(rt, 0, 2, 2, &sx, &sy) == UB_ERR_NOT_BAKED);
+    ASSERT_OK(ub_runtime_texel_irradiance(rt, 0, 2, 2, nz, rgb));
+    ASSERT_TRUE(rgb[0] == 0.0f && rgb[1] == 0.0f && rgb[2] == 0.0f);
+    ASSERT_OK(ub_runtime_texel_irradiance(rt, 0, 1, 0, nz, rgb));
+    ASSERT_OK(ub_runtime_texel_irradiance(rt, 0, 0, 0, nz, own));
+    ASSERT_TRUE(memcmp(rgb, own, sizeof rgb) == 0 && own[0] > 0.0f);
+  }
+  ub_runtime_free(rt);
+
   /* No atlases: loads, but lightmap queries say "not baked". */
   bf = make_quad(1, L, 0);
   ASSERT_OK(ub_bakefile_write(bf, p, &log));
@@ -1151,6 +1178,65 @@ static void test_bright_sections(void)
   ub_bakefile_free(bf);
 }
 
+/* UB_BAKEFILE_RECORD_HALVES: the records' values as the file's halves and scale; a plain
+ * read's floats are those halves times the scale (texel rows then unpacked from the I_z
+ * form along the pixel's stored normal), bit for bit; such a bake file is not written. */
+static void test_record_halves(void)
+{
+  ub_bakefile *bf = make_sample();
+  bf->dls_count = 1;
+  bf->dls = calloc(1, sizeof *bf->dls);
+  ub_bakefile_record *r = &bf->dls[0];
+  snprintf(r->name, sizeof r->name, "lamp");
+  r->parent[0] = r->parent[1] = -1;
+  r->light_count = 1;
+  const uint32_t tp[5] = {0, 1, 2, 5, 13}; /* empty, covered, padding... pixels of both atlases */
+  r->texel_count = 5;
+  r->texel_index = malloc(sizeof tp);
+  memcpy(r->texel_index, tp, sizeof tp);
+  r->texel_sh = malloc(5 * 12 * sizeof(float));
+  for (int i = 0; i < 60; i++)
+    r->texel_sh[i] = frand(-5e5f, 5e5f); /* beyond the half range: a scale > 1 */
+  r->probe_count = 2;
+  r->probe_index = malloc(2 * sizeof(uint32_t));
+  r->probe_index[0] = 0;
+  r->probe_index[1] = 3;
+  r->probe_sh = malloc(54 * sizeof(float));
+  for (int i = 0; i < 54; i++)
+    r->probe_sh[i] = frand(-7.0f, 7.0f);
+  char path[1200], back[1200];
+  snprintf(path, sizeof path, "%s/halves.ubk", tmp_dir);
+  snprintf(back, sizeof back, "%s/halves_back.ubk", tmp_dir);
+  ASSERT_OK(ub_bakefile_write(bf, path, NULL));
+  ub_bakefile *fl = NULL, *hf = NULL;
+  ASSERT_OK(ub_bakefile_read(path, NULL, &fl));
+  ASSERT_OK(ub_bakefile_read_ex(path, NULL, UB_BAKEFILE_RECORD_HALVES, &hf));
+  if (fl && hf && fl->dls_count == 1 && hf->dls_count == 1) {
+    const ub_bakefile_record *a = &fl->dls[0], *b = &hf->dls[0];
+    ASSERT_TRUE(!b->texel_sh && !b->probe_sh && b->texel_sh_half && b->probe_sh_half);
+    ASSERT_TRUE(!a->texel_sh_half && !a->probe_sh_half && b->sh_half_scale > 1.0f);
+    int bad = 0;
+    for (uint32_t i = 0; i < b->texel_count; i++) {
+      float row[12];
+      for (int k = 0; k < 12; k++)
+        row[k] = ub_half_to_float(b->texel_sh_half[12 * i + k]) * b->sh_half_scale;
+      uint32_t px = b->texel_index[i], at = px < 12 ? 0 : 1, loc = at ? px - 12 : px;
+      float un[3];
+      if (ub_texel_normal(&hf->atlases[at].normal[3 * loc], un))
+        ub_texel_sh_unpack(row, un);
+      bad += memcmp(row, &a->texel_sh[12 * i], sizeof row) != 0;
+    }
+    for (uint32_t i = 0; i < 54; i++)
+      bad += ub_half_to_float(b->probe_sh_half[i]) * b->sh_half_scale != a->probe_sh[i];
+    ASSERT_TRUE(bad == 0);
+    ASSERT_TRUE(ub_bakefile_write(hf, back, NULL) == UB_ERR_INVALID_ARGUMENT);
+    ASSERT_TRUE(!file_exists(back));
+  }
+  ub_bakefile_free(fl);
+  ub_bakefile_free(hf);
+  ub_bakefile_free(bf);
+}
+
 int main(void)
 {
   const char *base = getenv("TMPDIR");
@@ -1166,6 +1252,7 @@ int main(void)
   test_writer_errors();
   test_runtime();
   test_bright_sections();
+  test_record_halves();
   const char *corpus = getenv("UB_WRITE_FUZZ_CORPUS");
   if (corpus)
     write_corpus(corpus);

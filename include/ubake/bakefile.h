@@ -80,6 +80,12 @@ typedef struct ub_bakefile_record {
   uint32_t llg_probe_count;
   uint32_t *llg_probe_index;
   float *llg_probe_sh;      /* llg_probe_count × 27: radiance SH L2, W/(m²·sr) */
+  /* Read with UB_BAKEFILE_RECORD_HALVES: the values as the file stores them instead (the
+   * three float arrays above NULL): IEEE halves, value = half × sh_half_scale (a power of
+   * two); texel rows in the file's I_z form (runtime/texel_sh.h: packed along the pixel's
+   * stored normal where it has one, as written). Such a bake file cannot be written. */
+  uint16_t *texel_sh_half, *probe_sh_half, *llg_probe_sh_half;
+  float sh_half_scale;
 } ub_bakefile_record;
 
 /* A punctual light as the run-time sees it (section LITE): primary lights' direct light is
@@ -172,6 +178,10 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
 ub_result ub_bakefile_write_ex(const ub_bakefile *bf, const char *path, const ub_log *log,
                                uint64_t *out_clamped);
 ub_result ub_bakefile_read(const char *path, const ub_log *log, ub_bakefile **out_bf);
+/* Flags of ub_bakefile_read_ex. */
+#define UB_BAKEFILE_RECORD_HALVES 1u /* records' SH as the file's halves (see the record) */
+ub_result ub_bakefile_read_ex(const char *path, const ub_log *log, unsigned flags,
+                              ub_bakefile **out_bf);
 /* name: used in messages only (e.g. the file name). */
 ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *name,
                                   const ub_log *log, ub_bakefile **out_bf);
