@@ -228,7 +228,7 @@ static int sorted_below(const uint32_t *idx, uint32_t n, uint64_t limit, uint32_
 }
 
 /* Records of sections DLSR (elem = 0) and ELEM (elem = 1). */
-/* n halves all finite (v may be NULL when n is 0). */
+/* n halves all finite. */
 static int halves_finite(const uint16_t *v, size_t n)
 {
   for (size_t i = 0; i < n; i++)
@@ -317,10 +317,12 @@ static ub_result validate_records(const ub_bakefile *bf, int elem, const char *n
         (r->probe_sh && !all_finite(r->probe_sh, (size_t)r->probe_count * UB_GLG_SH_FLOATS, &bad)) ||
         (r->llg_probe_sh &&
          !all_finite(r->llg_probe_sh, (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS, &bad)) ||
-        !halves_finite(r->texel_sh_half, r->texel_sh ? 0 : (size_t)r->texel_count * UB_SH1_FLOATS) ||
-        !halves_finite(r->probe_sh_half, r->probe_sh ? 0 : (size_t)r->probe_count * UB_GLG_SH_FLOATS) ||
-        !halves_finite(r->llg_probe_sh_half,
-                       r->llg_probe_sh ? 0 : (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS)) {
+        (r->texel_sh_half &&
+         !halves_finite(r->texel_sh_half, (size_t)r->texel_count * UB_SH1_FLOATS)) ||
+        (r->probe_sh_half &&
+         !halves_finite(r->probe_sh_half, (size_t)r->probe_count * UB_GLG_SH_FLOATS)) ||
+        (r->llg_probe_sh_half &&
+         !halves_finite(r->llg_probe_sh_half, (size_t)r->llg_probe_count * UB_GLG_SH_FLOATS))) {
       ubk_error(log, name, where, "record %u (%s): non-finite SH", d, r->name);
       return UB_ERR_INVALID_DATA;
     }

@@ -517,9 +517,21 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt);
 }
 
-static const ub_bakefile_record *element_record(const ub_bakefile *bf, uint32_t e)
+static ub_bakefile_record *element_record_rw(ub_bakefile *bf, uint32_t e)
 {
   return e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
+}
+
+static const ub_bakefile_record *element_record(const ub_bakefile *bf, uint32_t e)
+{
+  return element_record_rw((ub_bakefile *)(uintptr_t)bf, e);
+}
+
+/* A record's values of one representation (0 texels, 1 GLG probes, 2 LLG probes) as read
+ * with UB_BAKEFILE_RECORD_HALVES: where the array is held. */
+static uint16_t **record_halves(ub_bakefile_record *rc, int rep)
+{
+  return rep == 0 ? &rc->texel_sh_half : rep == 1 ? &rc->probe_sh_half : &rc->llg_probe_sh_half;
 }
 
 /* The weight an element's record is applied with (see runtime.h). */
@@ -624,9 +636,9 @@ static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs,
   double mx = 0.0;
   size_t ei = 0;
   for (uint32_t e = 0; e < n; e++) {
-    ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
+    ub_bakefile_record *rc = element_record_rw(bf, e);
     uint32_t count = rep == 0 ? rc->texel_count : rep == 1 ? rc->probe_count : rc->llg_probe_count;
-    uint16_t *v = rep == 0 ? rc->texel_sh_half : rep == 1 ? rc->probe_sh_half : rc->llg_probe_sh_half;
+    uint16_t *v = *record_halves(rc, rep);
     const double fs = rc->sh_half_scale;
     uint32_t cursor = 0, kept = 0;
     if (rep == 0)
@@ -654,8 +666,8 @@ static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs,
    * subnormals and rounding when the pool's is larger), the arrays handed over to recs. */
   float s = half_pool_scale(mx);
   for (uint32_t e = 0; e < n; e++) {
-    ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
-    uint16_t **own = rep == 0 ? &rc->texel_sh_half : rep == 1 ? &rc->probe_sh_half : &rc->llg_probe_sh_half;
+    ub_bakefile_record *rc = element_record_rw(bf, e);
+    uint16_t **own = record_halves(rc, rep);
     uint16_t *v = *own;
     const float fs = rc->sh_half_scale;
     const size_t nv = (size_t)recs[e].count * stride;
@@ -1054,15 +1066,12 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     }
   }
   /* The blends keep their own half copies of the records' values, in group order, and
-   * the receiver indices they need: the records' float and index arrays go. */
+   * the receiver indices they need: the records' index arrays go (records_prepare handed
+   * their values over already). */
   free(rt->lm_idx);
   rt->lm_idx = NULL;
   for (uint32_t e = 0; e < n; e++) {
-    ub_bakefile_record *rc = e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
-    free(rc->texel_sh_half);
-    free(rc->probe_sh_half);
-    free(rc->llg_probe_sh_half);
-    rc->texel_sh_half = rc->probe_sh_half = rc->llg_probe_sh_half = NULL;
+    ub_bakefile_record *rc = element_record_rw(bf, e);
     free(rc->texel_index);
     free(rc->probe_index);
     free(rc->llg_probe_index);
@@ -1617,13 +1626,20 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
   *out = m;
 }
 
+/* Texel (x, y) of atlas `atlas` exists (the texel accessors' range check). */
+static int texel_in_range(const ub_runtime *rt, uint32_t atlas, uint32_t x, uint32_t y)
+{
+  const ub_bakefile *bf = rt->bf;
+  return atlas < bf->atlas_count && x < bf->atlases[atlas].width &&
+         y < bf->atlases[atlas].height;
+}
+
 ub_result ub_runtime_texel_normal(const ub_runtime *rt, uint32_t atlas, uint32_t x, uint32_t y,
                                   float out_n[3])
 {
   assert(rt && out_n);
   const ub_bakefile *bf = rt->bf;
-  if (atlas >= bf->atlas_count || x >= bf->atlases[atlas].width ||
-      y >= bf->atlases[atlas].height)
+  if (!texel_in_range(rt, atlas, x, y))
     return UB_ERR_INVALID_ARGUMENT;
   const uint16_t *h = rt->nrm[atlas] + ((size_t)y * bf->atlases[atlas].width + x) * 3;
   for (int k = 0; k < 3; k++)
@@ -1635,8 +1651,7 @@ ub_result ub_runtime_texel_source(const ub_runtime *rt, uint32_t atlas, uint32_t
                                   uint32_t *out_x, uint32_t *out_y)
 {
   assert(rt && out_x && out_y);
-  if (atlas >= rt->bf->atlas_count || x >= rt->bf->atlases[atlas].width ||
-      y >= rt->bf->atlases[atlas].height)
+  if (!texel_in_range(rt, atlas, x, y))
     return UB_ERR_INVALID_ARGUMENT;
   const uint32_t w = rt->bf->atlases[atlas].width;
   const int64_t t = texel_pixel(rt, atlas, (size_t)y * w + x);
@@ -1652,8 +1667,7 @@ ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint
 {
   assert(rt && n && out_rgb);
   float nn[3];
-  if (atlas >= rt->bf->atlas_count || x >= rt->bf->atlases[atlas].width ||
-      y >= rt->bf->atlases[atlas].height || !normalise3(n, nn))
+  if (!texel_in_range(rt, atlas, x, y) || !normalise3(n, nn))
     return UB_ERR_INVALID_ARGUMENT;
   const ub_bakefile_atlas *at = &rt->bf->atlases[atlas];
   const int64_t t = texel_pixel(rt, atlas, (size_t)y * at->width + x);

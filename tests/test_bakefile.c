@@ -1145,16 +1145,23 @@ static void remove_tree(const char *dir)
 /* Probe and record SH far beyond the half range (a sun of 1e6 W/m²) round-trip within
  * half precision (2^-11 relative, 1e-3 with margin) thanks to the sections' power-of-two
  * scales, instead of clamping at 65504. */
+/* One DLS record (no receivers yet) named name, added to a bake file without any. */
+static ub_bakefile_record *add_dls_record(ub_bakefile *bf, const char *name)
+{
+  bf->dls_count = 1;
+  bf->dls = calloc(1, sizeof *bf->dls);
+  ub_bakefile_record *r = &bf->dls[0];
+  snprintf(r->name, sizeof r->name, "%s", name);
+  r->parent[0] = r->parent[1] = -1;
+  return r;
+}
+
 static void test_bright_sections(void)
 {
   ub_bakefile *bf = make_sample();
   for (int i = 0; i < 5 * 27; i++)
     bf->glg_sh[i] = (i % 2 ? 1.0f : -1.0f) * (float)(1e6 * (1 + i % 7));
-  bf->dls_count = 1;
-  bf->dls = calloc(1, sizeof *bf->dls);
-  ub_bakefile_record *r = &bf->dls[0];
-  snprintf(r->name, sizeof r->name, "sun");
-  r->parent[0] = r->parent[1] = -1;
+  ub_bakefile_record *r = add_dls_record(bf, "sun");
   r->probe_count = 2;
   r->probe_index = malloc(2 * sizeof(uint32_t));
   r->probe_index[0] = 1;
@@ -1184,11 +1191,7 @@ static void test_bright_sections(void)
 static void test_record_halves(void)
 {
   ub_bakefile *bf = make_sample();
-  bf->dls_count = 1;
-  bf->dls = calloc(1, sizeof *bf->dls);
-  ub_bakefile_record *r = &bf->dls[0];
-  snprintf(r->name, sizeof r->name, "lamp");
-  r->parent[0] = r->parent[1] = -1;
+  ub_bakefile_record *r = add_dls_record(bf, "lamp");
   r->light_count = 1;
   const uint32_t tp[5] = {0, 1, 2, 5, 13}; /* empty, covered, padding... pixels of both atlases */
   r->texel_count = 5;
