@@ -4,7 +4,8 @@
  * run-time's ranked texels) and on eight scattered rows; in cache (4096 texels, encoded
  * again and again) and streaming (1.6 M texels, the ESTATE-scale level's touched texels:
  * the rows, normals and AHD from and to memory), the latter against memcpy of the same bytes
- * in the same run. Prints figures, asserts nothing.
+ * in the same run; and the run-time's form, eight contiguous texels packed (ub_ahd_packed,
+ * 16 B a texel). Prints figures, asserts nothing.
  *
  * usage: bench_ahd [--texels N] [--rounds R] */
 #include <stdint.h>
@@ -38,7 +39,9 @@ static void make_texels(size_t n, float *rows, float *nrm)
   }
 }
 
-typedef enum { MODE_SCALAR, MODE_IZ8, MODE_ROWS } mode;
+typedef enum { MODE_SCALAR, MODE_IZ8, MODE_ROWS, MODE_PACKED, MODE_COUNT } mode;
+
+static ub_ahd_packed *g_packed; /* MODE_PACKED's output, as many texels as out */
 
 static void encode_all(mode md, const float *rows, const float *nrm, ub_ahd *out, size_t n)
 {
@@ -51,6 +54,8 @@ static void encode_all(mode md, const float *rows, const float *nrm, ub_ahd *out
   for (; i + 8 <= n; i += 8) {
     if (md == MODE_IZ8) {
       ub_ahd_encode_iz8(rows + 12 * i, nrm + 3 * i, out + i);
+    } else if (md == MODE_PACKED) {
+      ub_ahd_encode_iz8_packed(rows + 12 * i, nrm + 3 * i, 1.0f, g_packed + i);
     } else {
       /* eight rows in a scattered order (a list group's receivers) */
       const float *rp[8];
@@ -102,25 +107,31 @@ int main(int argc, char **argv)
     rounds = 1;
   float *rows = malloc(big * 12 * sizeof(float)), *nrm = malloc(big * 3 * sizeof(float));
   ub_ahd *out = malloc(big * sizeof(ub_ahd));
+  g_packed = malloc(big * sizeof *g_packed);
   size_t cbytes = big * (12 * sizeof(float) + 3 * sizeof(float) + sizeof(ub_ahd));
   char *ca = malloc(cbytes), *cb = malloc(cbytes);
-  if (!rows || !nrm || !out || !ca || !cb) {
+  if (!rows || !nrm || !out || !g_packed || !ca || !cb) {
     fprintf(stderr, "bench_ahd: out of memory\n");
     return 1;
   }
   make_texels(big, rows, nrm);
   memset(out, 0, big * sizeof(ub_ahd));
+  memset(g_packed, 0, big * sizeof *g_packed);
   memset(ca, 1, cbytes);
   memset(cb, 2, cbytes);
   printf("bench_ahd: load average %.1f\n", ub_bench_load_average());
-  const char *names[3] = {"scalar (ub_ahd_encode_iz)", "8 contiguous (ub_ahd_encode_iz8)",
-                          "8 scattered (ub_ahd_encode_iz8_rows)"};
+  const char *names[MODE_COUNT] = {"scalar (ub_ahd_encode_iz)",
+                                   "8 contiguous (ub_ahd_encode_iz8)",
+                                   "8 scattered (ub_ahd_encode_iz8_rows)",
+                                   "8 contiguous packed (ub_ahd_encode_iz8_packed)"};
+  /* bytes a texel moves: rows 48 + normal 12 read, AHD written (36 B, packed 16 B) */
+  const double tbytes[MODE_COUNT] = {96.0, 96.0, 96.0, 76.0};
   const size_t small = 4096;
-  double tsmall[3], tbig[3];
-  for (int m = 0; m < 3; m++)
+  double tsmall[MODE_COUNT], tbig[MODE_COUNT];
+  for (int m = 0; m < MODE_COUNT; m++)
     tsmall[m] = time_mode((mode)m, rows, nrm, out, small, rounds * 50);
   double tcpy = 1e30;
-  for (int m = 0; m < 3; m++) {
+  for (int m = 0; m < MODE_COUNT; m++) {
     tbig[m] = 1e30;
     for (int r = 0; r < rounds; r++) { /* alternating with memcpy of the same bytes */
       double t = time_mode((mode)m, rows, nrm, out, big, 1);
@@ -134,19 +145,21 @@ int main(int argc, char **argv)
   /* memcpy moved cbytes/2 read + cbytes/2 written = the encode's cbytes */
   double cgbs = (double)cbytes / tcpy / 1e9;
   printf("  in cache, %zu texels: ", small);
-  for (int m = 0; m < 3; m++)
+  for (int m = 0; m < MODE_COUNT; m++)
     printf("%s%s %.2f ns/texel", m ? "; " : "", names[m], tsmall[m] * 1e9);
   printf("\n  streaming %zu texels (%.0f MB: rows 48 B, normal 12 B read, AHD 36 B written per "
-         "texel): ",
+         "texel, 16 B packed): ",
          big, (double)cbytes / 1e6);
-  for (int m = 0; m < 3; m++)
+  for (int m = 0; m < MODE_COUNT; m++)
     printf("%s%s %.2f ns/texel (%.2f GB/s)", m ? "; " : "", names[m], tbig[m] * 1e9,
-           96.0 / tbig[m] / 1e9);
-  printf("\n  memcpy of the same bytes %.2f GB/s; 8 contiguous at %.0f%% of it\n", cgbs,
-         100.0 * (96.0 / tbig[MODE_IZ8] / 1e9) / cgbs);
+           tbytes[m] / tbig[m] / 1e9);
+  printf("\n  memcpy of the same bytes %.2f GB/s; 8 contiguous at %.0f%% of it, packed at "
+         "%.0f%%\n", cgbs, 100.0 * (96.0 / tbig[MODE_IZ8] / 1e9) / cgbs,
+         100.0 * (76.0 / tbig[MODE_PACKED] / 1e9) / cgbs);
   free(rows);
   free(nrm);
   free(out);
+  free(g_packed);
   free(ca);
   free(cb);
   return 0;

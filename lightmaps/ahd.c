@@ -25,6 +25,7 @@
 #include <stddef.h>
 
 #include "runtime/cpu.h"
+#include "runtime/half.h"
 
 #if defined(__x86_64__) && defined(__GNUC__)
 #include <immintrin.h>
@@ -188,6 +189,65 @@ static void ahd_encode_terms(const float a[3], const float b[3][3], const float 
   out_ahd->direction[2] = d[2];
 }
 
+/* A colour value for ub_ahd_packed: value / scale (inv_scale = 1/scale, a power of two:
+ * exact) in half, rounded to nearest even; saturated at the largest half (and NaN to it,
+ * as minps does in the AVX path). */
+static uint16_t pack_colour(float v, float inv_scale)
+{
+  float x = v * inv_scale;
+  if (!(x <= UB_HALF_MAX))
+    x = UB_HALF_MAX;
+  return ub_half_from_float(x);
+}
+
+/* Unit direction d → octahedral (u, v) ∈ [-1, 1]² as snorm16 (round to nearest in the
+ * current rounding mode, as cvtps2dq does); a zero direction gives (0, 0). */
+static void pack_direction(const float d[3], int16_t out[2])
+{
+  float s = (fabsf(d[0]) + fabsf(d[1])) + fabsf(d[2]), inv = 1.0f / s;
+  float u = d[0] * inv, v = d[1] * inv;
+  if (!(s > 0.0f))
+    u = v = 0.0f;
+  if (d[2] < 0.0f) {
+    float su = u >= 0.0f ? 1.0f : -1.0f, sv = v >= 0.0f ? 1.0f : -1.0f;
+    float nu = (1.0f - fabsf(v)) * su, nv = (1.0f - fabsf(u)) * sv;
+    u = nu;
+    v = nv;
+  }
+  out[0] = (int16_t)lrintf(u * 32767.0f);
+  out[1] = (int16_t)lrintf(v * 32767.0f);
+}
+
+void ub_ahd_pack(const ub_ahd *in, float inv_scale, ub_ahd_packed *out)
+{
+  for (int c = 0; c < 3; c++) {
+    out->ambient[c] = pack_colour(in->ambient[c], inv_scale);
+    out->directional[c] = pack_colour(in->directional[c], inv_scale);
+  }
+  pack_direction(in->direction, out->oct);
+}
+
+void ub_ahd_unpack(const ub_ahd_packed *in, float scale, ub_ahd *out)
+{
+  for (int c = 0; c < 3; c++) {
+    out->ambient[c] = ub_half_to_float(in->ambient[c]) * scale;
+    out->directional[c] = ub_half_to_float(in->directional[c]) * scale;
+  }
+  float u = fmaxf((float)in->oct[0] / 32767.0f, -1.0f);
+  float v = fmaxf((float)in->oct[1] / 32767.0f, -1.0f);
+  float z = 1.0f - fabsf(u) - fabsf(v);
+  if (z < 0.0f) {
+    float nu = (1.0f - fabsf(v)) * (u >= 0.0f ? 1.0f : -1.0f);
+    float nv = (1.0f - fabsf(u)) * (v >= 0.0f ? 1.0f : -1.0f);
+    u = nu;
+    v = nv;
+  }
+  float l = sqrtf(u * u + v * v + z * z);
+  out->direction[0] = u / l;
+  out->direction[1] = v / l;
+  out->direction[2] = z / l;
+}
+
 #if defined(AHD_HAVE_AVX)
 /* In-register 8 × 8 transpose: r[j] holds 8 floats of row j; afterwards r[k] holds element
  * k of every row (its own inverse). */
@@ -218,8 +278,8 @@ __attribute__((target("avx"))) static inline void transpose8_avx(__m256 r[8])
  * blends, so each lane gives the scalar bits. rows[j]: texel j's 12 floats; nrm: 8 × 3
  * unit normals; out[j]: where texel j's AHD goes. Texels move into and out of the lanes
  * by register transposes (8 × 8 and 8 × 4), not through memory element by element. */
-__attribute__((target("avx"))) static void encode_iz8_avx(const float *const rows[8],
-                                                          const float *nrm, ub_ahd *const out[8])
+__attribute__((target("avx"))) static inline int encode_iz8_lanes(const float *const rows[8],
+                                                                  const float *nrm, __m256 o[9])
 {
   __m256 t[12];
   {
@@ -268,11 +328,8 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *const row
       s[j] = _mm256_add_ps(_mm256_mul_ps(t[2 * j], zero), _mm256_mul_ps(t[2 * j + 1], zero));
     __m256 all = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(s[0], s[1]), _mm256_add_ps(s[2], s[3])),
                                _mm256_add_ps(s[4], s[5]));
-    if (_mm256_movemask_ps(_mm256_cmp_ps(all, all, _CMP_UNORD_Q))) {
-      for (int j = 0; j < 8; j++)
-        ub_ahd_encode_iz(rows[j], nrm + 3 * j, out[j]);
-      return;
-    }
+    if (_mm256_movemask_ps(_mm256_cmp_ps(all, all, _CMP_UNORD_Q)))
+      return 0;
   }
 #define AHD_ABS(x) _mm256_and_ps((x), absm)
 /* m ? b : a for whole-lane compare masks m. Not _mm256_blendv_ps: GCC folds that into a
@@ -325,7 +382,6 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *const row
   __m256 inv_dz = _mm256_and_ps(_mm256_div_ps(one, dz), dir);
   __m256 q = _mm256_sub_ps(_mm256_set1_ps(0.25f), dz);
   /* o: the struct's 9 floats per texel in lanes (ambient, direction, directional) */
-  __m256 o[9];
   o[3] = d0;
   o[4] = d1;
   o[5] = d2;
@@ -347,6 +403,19 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *const row
 #undef AHD_NONNEG
 #undef AHD_SEL
 #undef AHD_DOT
+  return 1;
+}
+
+/* encode_iz8_lanes, then the eight AHD out of the lanes by a register transpose. */
+__attribute__((target("avx"))) static void encode_iz8_avx(const float *const rows[8],
+                                                          const float *nrm, ub_ahd *const out[8])
+{
+  __m256 o[9];
+  if (!encode_iz8_lanes(rows, nrm, o)) {
+    for (int j = 0; j < 8; j++)
+      ub_ahd_encode_iz(rows[j], nrm + 3 * j, out[j]);
+    return;
+  }
   _Static_assert(sizeof(ub_ahd) == 9 * sizeof(float), "ub_ahd is 9 floats");
   __m128 lo8 = _mm256_castps256_ps128(o[8]), hi8 = _mm256_extractf128_ps(o[8], 1);
   __m128 last[8] = {lo8, _mm_shuffle_ps(lo8, lo8, 1), _mm_shuffle_ps(lo8, lo8, 2),
@@ -359,6 +428,74 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *const row
     _mm256_storeu_ps(dst, o[j]);
     _mm_store_ss(dst + 8, last[j]);
   }
+}
+
+/* encode_iz8_lanes, then packed (ub_ahd_pack's bits): the six colours through F16C, the
+ * direction octahedral as in pack_direction, and the eight 16-byte texels out of the
+ * lanes by a transpose of 16-bit words. */
+__attribute__((target("avx,f16c"))) static void encode_iz8_packed_avx(const float *const rows[8],
+                                                                    const float *nrm,
+                                                                    float inv_scale,
+                                                                    ub_ahd_packed *const out[8])
+{
+  _Static_assert(sizeof(ub_ahd_packed) == 16, "ub_ahd_packed is 16 bytes");
+  __m256 o[9];
+  if (!encode_iz8_lanes(rows, nrm, o)) {
+    for (int j = 0; j < 8; j++) {
+      ub_ahd a;
+      ub_ahd_encode_iz(rows[j], nrm + 3 * j, &a);
+      ub_ahd_pack(&a, inv_scale, out[j]);
+    }
+    return;
+  }
+  const __m256 invs = _mm256_set1_ps(inv_scale), hmax = _mm256_set1_ps(UB_HALF_MAX);
+  const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f);
+  const __m256 absm = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
+  __m128i w[8];
+  static const int col[6] = {0, 1, 2, 6, 7, 8}; /* ambient, directional */
+  #pragma GCC unroll 6
+  for (int k = 0; k < 6; k++) /* minps: NaN → the second operand, as pack_colour */
+    w[k] = _mm256_cvtps_ph(_mm256_min_ps(_mm256_mul_ps(o[col[k]], invs), hmax),
+                           _MM_FROUND_TO_NEAREST_INT);
+  {
+    __m256 ax = _mm256_and_ps(o[3], absm), ay = _mm256_and_ps(o[4], absm);
+    __m256 s = _mm256_add_ps(_mm256_add_ps(ax, ay), _mm256_and_ps(o[5], absm));
+    __m256 ok = _mm256_cmp_ps(s, zero, _CMP_GT_OQ);
+    __m256 inv = _mm256_div_ps(one, s);
+    __m256 u = _mm256_and_ps(_mm256_mul_ps(o[3], inv), ok);
+    __m256 v = _mm256_and_ps(_mm256_mul_ps(o[4], inv), ok);
+    __m256 low = _mm256_cmp_ps(o[5], zero, _CMP_LT_OQ);
+    const __m256 m1 = _mm256_set1_ps(-1.0f);
+    __m256 geu = _mm256_cmp_ps(u, zero, _CMP_GE_OQ), gev = _mm256_cmp_ps(v, zero, _CMP_GE_OQ);
+    __m256 su = _mm256_or_ps(_mm256_and_ps(geu, one), _mm256_andnot_ps(geu, m1));
+    __m256 sv = _mm256_or_ps(_mm256_and_ps(gev, one), _mm256_andnot_ps(gev, m1));
+    __m256 nu = _mm256_mul_ps(_mm256_sub_ps(one, _mm256_and_ps(v, absm)), su);
+    __m256 nv = _mm256_mul_ps(_mm256_sub_ps(one, _mm256_and_ps(u, absm)), sv);
+    u = _mm256_or_ps(_mm256_and_ps(low, nu), _mm256_andnot_ps(low, u));
+    v = _mm256_or_ps(_mm256_and_ps(low, nv), _mm256_andnot_ps(low, v));
+    const __m256 k = _mm256_set1_ps(32767.0f);
+    __m256i iu = _mm256_cvtps_epi32(_mm256_mul_ps(u, k));
+    __m256i iv = _mm256_cvtps_epi32(_mm256_mul_ps(v, k));
+    w[6] = _mm_packs_epi32(_mm256_castsi256_si128(iu), _mm256_extractf128_si256(iu, 1));
+    w[7] = _mm_packs_epi32(_mm256_castsi256_si128(iv), _mm256_extractf128_si256(iv, 1));
+  }
+  /* 8 × 8 transpose of 16-bit words: w[k] lane j → texel j word k */
+  __m128i a0 = _mm_unpacklo_epi16(w[0], w[1]), a1 = _mm_unpackhi_epi16(w[0], w[1]);
+  __m128i a2 = _mm_unpacklo_epi16(w[2], w[3]), a3 = _mm_unpackhi_epi16(w[2], w[3]);
+  __m128i a4 = _mm_unpacklo_epi16(w[4], w[5]), a5 = _mm_unpackhi_epi16(w[4], w[5]);
+  __m128i a6 = _mm_unpacklo_epi16(w[6], w[7]), a7 = _mm_unpackhi_epi16(w[6], w[7]);
+  __m128i b0 = _mm_unpacklo_epi32(a0, a2), b1 = _mm_unpackhi_epi32(a0, a2);
+  __m128i b2 = _mm_unpacklo_epi32(a1, a3), b3 = _mm_unpackhi_epi32(a1, a3);
+  __m128i b4 = _mm_unpacklo_epi32(a4, a6), b5 = _mm_unpackhi_epi32(a4, a6);
+  __m128i b6 = _mm_unpacklo_epi32(a5, a7), b7 = _mm_unpackhi_epi32(a5, a7);
+  _mm_storeu_si128((__m128i *)(void *)out[0], _mm_unpacklo_epi64(b0, b4));
+  _mm_storeu_si128((__m128i *)(void *)out[1], _mm_unpackhi_epi64(b0, b4));
+  _mm_storeu_si128((__m128i *)(void *)out[2], _mm_unpacklo_epi64(b1, b5));
+  _mm_storeu_si128((__m128i *)(void *)out[3], _mm_unpackhi_epi64(b1, b5));
+  _mm_storeu_si128((__m128i *)(void *)out[4], _mm_unpacklo_epi64(b2, b6));
+  _mm_storeu_si128((__m128i *)(void *)out[5], _mm_unpackhi_epi64(b2, b6));
+  _mm_storeu_si128((__m128i *)(void *)out[6], _mm_unpacklo_epi64(b3, b7));
+  _mm_storeu_si128((__m128i *)(void *)out[7], _mm_unpackhi_epi64(b3, b7));
 }
 #endif
 
@@ -397,4 +534,33 @@ void ub_ahd_irradiance(const ub_ahd *ahd, const float n[3], float out_rgb[3])
     float e = ahd->ambient[c] + ahd->directional[c] * t;
     out_rgb[c] = e > 0.0f ? e : 0.0f;
   }
+}
+
+void ub_ahd_encode_iz8_rows_packed(const float *const rows[8], const float *unit_normals,
+                                   float inv_scale, ub_ahd_packed *const out[8])
+{
+#if defined(AHD_HAVE_AVX)
+  const unsigned need = UB_CPU_AVX | UB_CPU_F16C;
+  if ((ub_cpu_features_cached() & need) == need) {
+    encode_iz8_packed_avx(rows, unit_normals, inv_scale, out);
+    return;
+  }
+#endif
+  for (int j = 0; j < 8; j++) {
+    ub_ahd a;
+    ub_ahd_encode_iz(rows[j], unit_normals + 3 * j, &a);
+    ub_ahd_pack(&a, inv_scale, out[j]);
+  }
+}
+
+void ub_ahd_encode_iz8_packed(const float *sh_iz, const float *unit_normals, float inv_scale,
+                              ub_ahd_packed *out_packed)
+{
+  const float *rows[8];
+  ub_ahd_packed *out[8];
+  for (int j = 0; j < 8; j++) {
+    rows[j] = sh_iz + 12 * j;
+    out[j] = out_packed + j;
+  }
+  ub_ahd_encode_iz8_rows_packed(rows, unit_normals, inv_scale, out);
 }

@@ -97,10 +97,16 @@ struct ub_runtime {
   uint64_t *llg_first;     /* llg_count + 1 */
   ub_glg glg;            /* valid when has_glg */
   int has_glg;
-  /* The AHD of every covered texel (slots entries): in global slot order until the
-   * records are set up, then (ahd_ranked) the touched texels first by rank, so an update
-   * writes it sequentially, then the untouched ones in slot order (ahd_index). */
-  ub_ahd *ahd;
+  /* The AHD of every covered texel (slots entries), packed (ubake/ahd.h, 16 B: halves of
+   * value / ahd_scale and an octahedral direction; what a game uploads): made by pack_ahd
+   * once the records' scale is known, from ahd_f, the float AHD the load encodes from the
+   * base (slot order; ahd_max its largest colour). With records (ahd_ranked) the touched
+   * texels come first by rank, so an update writes it sequentially, then the untouched
+   * ones in slot order (ahd_index). */
+  ub_ahd_packed *ahd;
+  ub_ahd *ahd_f;
+  double ahd_max;
+  float ahd_scale, ahd_inv_scale; /* a power of two ≥ 1, and its inverse */
   int ahd_ranked;
   /* Jobs of the update in progress (ub_runtime_update_begin … end). */
   struct rt_job *jobs;
@@ -435,6 +441,15 @@ static void encode_texel(const ub_runtime *rt, uint32_t a, const float *row, int
   ub_ahd_encode(v, n, out);
 }
 
+/* encode_texel, packed at the run-time's AHD scale. */
+static void encode_texel_packed(const ub_runtime *rt, uint32_t a, const float *row, int packed,
+                                size_t i, ub_ahd_packed *out)
+{
+  ub_ahd f;
+  encode_texel(rt, a, row, packed, i, &f);
+  ub_ahd_pack(&f, rt->ahd_inv_scale, out);
+}
+
 /* Frees the records' halves records_prepare handed to n elements (the blend made from them
  * keeps its own copy). */
 static void free_rec_values(ub_blend_record *recs, uint32_t n)
@@ -450,6 +465,7 @@ void ub_runtime_free(ub_runtime *rt)
   if (!rt)
     return;
   free(rt->ahd);
+  free(rt->ahd_f);
   free(rt->jobs);
   if (rt->fallback)
     for (uint32_t a = 0; a < rt->bf->atlas_count; a++) {
@@ -763,19 +779,29 @@ static ub_result sort_record(uint32_t *recv, uint16_t *rows, uint32_t count, uin
   return UB_OK;
 }
 
-/* Moves the AHD array from slot order to ahd_index order (touched texels by rank first). */
-static ub_result rank_ahd(ub_runtime *rt)
+/* rt->ahd from the load's float AHD (ahd_f, slot order, freed), in ahd_index order
+ * (ranked: touched texels by rank first). The scale: the smallest power of two ≥
+ * records_scale (the lightmap records' own, 1 without) that brings the base's largest
+ * colour to ≤ 16384, a quarter of the half range (headroom for sets adding light). */
+static ub_result pack_ahd(ub_runtime *rt, int ranked, float records_scale)
 {
   const ub_bakefile *bf = rt->bf;
   uint64_t slots = rt->slot_first[bf->atlas_count];
-  ub_ahd *o = malloc((size_t)(slots ? slots : 1) * sizeof *o);
+  ub_ahd_packed *o = malloc((size_t)(slots ? slots : 1) * sizeof *o);
   if (!o)
     return UB_ERR_OUT_OF_MEMORY;
-  rt->ahd_ranked = 1;
+  float s = records_scale >= 1.0f ? records_scale : 1.0f;
+  while (rt->ahd_max / s > 16384.0 && s < 1e30f)
+    s *= 2.0f;
+  rt->ahd_scale = s;
+  rt->ahd_inv_scale = 1.0f / s;
+  rt->ahd_ranked = ranked;
   for (uint32_t a = 0; a < bf->atlas_count; a++)
     for (uint64_t sa = 0; sa < rt->slot_first[a + 1] - rt->slot_first[a]; sa++)
-      o[ahd_index(rt, a, sa)] = rt->ahd[rt->slot_first[a] + sa];
-  free(rt->ahd);
+      ub_ahd_pack(&rt->ahd_f[rt->slot_first[a] + sa], rt->ahd_inv_scale,
+                  &o[ahd_index(rt, a, sa)]);
+  free(rt->ahd_f);
+  rt->ahd_f = NULL;
   rt->ahd = o;
   return UB_OK;
 }
@@ -1095,7 +1121,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     ub_log_printf(log, UB_LOG_ERROR, "%s: cannot apply the elements' default values", path);
     return r;
   }
-  r = rank_ahd(rt);
+  r = pack_ahd(rt, 1, rt->lm_scale);
   if (r != UB_OK) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return r;
@@ -1130,9 +1156,9 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
     goto oom;
   if (bf->atlas_count) {
     uint64_t slots = rt->slot_first[bf->atlas_count];
-    rt->ahd = malloc((size_t)(slots ? slots : 1) * sizeof *rt->ahd);
+    rt->ahd_f = malloc((size_t)(slots ? slots : 1) * sizeof *rt->ahd_f);
     rt->fallback = calloc(bf->atlas_count, sizeof *rt->fallback);
-    if (!rt->ahd || !rt->fallback)
+    if (!rt->ahd_f || !rt->fallback)
       goto oom;
     for (uint32_t a = 0; a < bf->atlas_count; a++) {
       const ub_bakefile_atlas *at = &bf->atlases[a];
@@ -1140,9 +1166,12 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
       const uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
       if (encode_fallbacks(at, &rt->fallback[a]) != UB_OK)
         goto oom;
-      for (uint64_t k = 0; k < ns; k++)
-        encode_texel(rt, a, at->sh + (size_t)sp[k] * UB_SH1_FLOATS, 0, sp[k],
-                     &rt->ahd[rt->slot_first[a] + k]);
+      for (uint64_t k = 0; k < ns; k++) {
+        ub_ahd *f = &rt->ahd_f[rt->slot_first[a] + k];
+        encode_texel(rt, a, at->sh + (size_t)sp[k] * UB_SH1_FLOATS, 0, sp[k], f);
+        for (int c = 0; c < 3; c++)
+          rt->ahd_max = fmax(rt->ahd_max, fmax(f->ambient[c], f->directional[c]));
+      }
     }
   }
   for (uint32_t t = 0; t < bf->triangle_count; t++)
@@ -1197,7 +1226,7 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
       ub_runtime_free(rt);
       return r;
     }
-  } else if (bf->atlas_count && !setup_static(rt)) {
+  } else if (bf->atlas_count && (!setup_static(rt) || pack_ahd(rt, 0, 1.0f) != UB_OK)) {
     goto oom;
   }
   if (bf->atlas_count && !normals_to_half(rt))
@@ -1329,7 +1358,7 @@ typedef struct touched_ctx {
    * over pieces of one group's run; their rows live only during the call: copied) */
   uint32_t np;
   const float *prow[8]; /* into qrow */
-  ub_ahd *pout[8];
+  ub_ahd_packed *pout[8];
   float pn[24];
   float qrow[8][UB_SH1_FLOATS];
 } touched_ctx;
@@ -1339,13 +1368,13 @@ static void touched_flush(touched_ctx *tc)
 {
   if (!tc->np)
     return;
-  ub_ahd pad[8];
+  ub_ahd_packed pad[8];
   for (uint32_t j = tc->np; j < 8; j++) {
     tc->prow[j] = tc->prow[0];
     tc->pout[j] = &pad[j];
     memcpy(tc->pn + 3 * j, tc->pn, 3 * sizeof(float));
   }
-  ub_ahd_encode_iz8_rows(tc->prow, tc->pn, tc->pout);
+  ub_ahd_encode_iz8_rows_packed(tc->prow, tc->pn, tc->rt->ahd_inv_scale, tc->pout);
   tc->np = 0;
 }
 
@@ -1358,17 +1387,18 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
   touched_ctx *tc = user;
   const ub_runtime *rt = tc->rt;
   const float *un = rt->lm_un + (size_t)first * 3;
-  ub_ahd *out = rt->ahd + first;
+  ub_ahd_packed *out = rt->ahd + first;
+  const float inv_scale = rt->ahd_inv_scale;
   uint32_t i = 0;
   if (rt->lm_un_all && !tc->np) /* no texel without a normal: no checks */
     for (; i + 8 <= count; i += 8, rows += 8 * UB_SH1_FLOATS, un += 24, out += 8)
-      ub_ahd_encode_iz8(rows, un, out);
+      ub_ahd_encode_iz8_packed(rows, un, inv_scale, out);
   for (; i < count; i++, rows += UB_SH1_FLOATS, un += 3, out++) {
     /* eight texels in a row with their own normals: encoded where they are */
     if (!tc->np && count - i >= 8 && !isnan(un[0]) && !isnan(un[3]) && !isnan(un[6]) &&
         !isnan(un[9]) && !isnan(un[12]) && !isnan(un[15]) && !isnan(un[18]) &&
         !isnan(un[21])) {
-      ub_ahd_encode_iz8(rows, un, out);
+      ub_ahd_encode_iz8_packed(rows, un, inv_scale, out);
       i += 7;
       rows += 7 * UB_SH1_FLOATS;
       un += 7 * 3;
@@ -1380,7 +1410,7 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
       uint32_t a = 0;
       while (s >= rt->slot_first[a + 1])
         a++;
-      encode_texel(rt, a, rows, 1, rt->slot_pixel[s], out);
+      encode_texel_packed(rt, a, rows, 1, rt->slot_pixel[s], out);
       continue;
     }
     memcpy(tc->pn + 3 * tc->np, un, 3 * sizeof(float));
@@ -1481,7 +1511,7 @@ void ub_runtime_update_end(ub_runtime *rt, ub_runtime_update_stats *out_stats)
      * AHD */
     st.bytes_read += jb->lm.bytes_read + jb->texels * 3 * sizeof(float) +
                      jb->glg.bytes_read + jb->llg.bytes_read;
-    st.bytes_written += jb->texels * sizeof(ub_ahd) + jb->glg.bytes_written +
+    st.bytes_written += jb->texels * sizeof(ub_ahd_packed) + jb->glg.bytes_written +
                         jb->llg.bytes_written;
     st.probes_written += jb->glg.receivers;
     st.llg_probes_written += jb->llg.receivers;
@@ -1576,7 +1606,7 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
     if (rt->dil_src && rt->dil_src[a] && t)
       nd = rt->dil_rank[a][(t - 1) / 64] +
            (size_t)__builtin_popcountll(rt->dil_bits[a][(t - 1) / 64]);
-    m.lightmap += ns * (sizeof(ub_ahd) + U) + (t + 63) / 64 * 2 * (8 + U) + nd * U +
+    m.lightmap += ns * (sizeof(ub_ahd_packed) + U) + (t + 63) / 64 * 2 * (8 + U) + nd * U +
                   (bf->atlases[a].sh ? t * UB_SH1_FLOATS * F : 0) +
                   (rt->fallback ? (size_t)rt->fallback[a].count * (U + 3 * F) : 0);
   }
@@ -1662,6 +1692,26 @@ ub_result ub_runtime_texel_source(const ub_runtime *rt, uint32_t atlas, uint32_t
   return UB_OK;
 }
 
+/* Covered pixel i's SH row in the current state: the file's floats while loading (plain
+ * SH), afterwards (tch_bits) in I_z form, from the lightmap blend for a touched texel, from
+ * the halves for the others (into srow). */
+static const float *texel_row(const ub_runtime *rt, uint32_t a, size_t i,
+                              float srow[UB_SH1_FLOATS])
+{
+  if (!rt->tch_bits)
+    return rt->bf->atlases[a].sh + i * UB_SH1_FLOATS;
+  uint64_t ix;
+  if (slot_touched(rt, rt->slot_first[a] + slot_of(rt, a, i), &ix)) {
+    int got = ub_blend_row(rt->lm_blend, (uint32_t)ix, srow);
+    assert(got); /* a touched texel is in a group */
+    (void)got;
+  } else {
+    for (int c = 0; c < UB_SH1_FLOATS; c++)
+      srow[c] = ub_half_to_float(rt->lm_static[ix * UB_SH1_FLOATS + c]) * rt->lm_static_scale;
+  }
+  return srow;
+}
+
 ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint32_t x,
                                       uint32_t y, const float n[3], float out_rgb[3])
 {
@@ -1675,7 +1725,48 @@ ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint
     out_rgb[0] = out_rgb[1] = out_rgb[2] = 0.0f;
     return UB_OK;
   }
-  ub_ahd_irradiance(&rt->ahd[ahd_index(rt, atlas, slot_of(rt, atlas, (size_t)t))], nn, out_rgb);
+  /* the texel's AHD in float, encoded from its current SH as the update does (the
+   * stored, packed one is this rounded to half: ub_runtime_texel_ahd) */
+  float srow[UB_SH1_FLOATS];
+  ub_ahd ahd;
+  encode_texel(rt, atlas, texel_row(rt, atlas, (size_t)t, srow), rt->tch_bits != NULL,
+               (size_t)t, &ahd);
+  ub_ahd_irradiance(&ahd, nn, out_rgb);
+  return UB_OK;
+}
+
+float ub_runtime_ahd_scale(const ub_runtime *rt)
+{
+  assert(rt);
+  return rt->ahd ? rt->ahd_scale : 1.0f;
+}
+
+ub_result ub_runtime_texel_ahd(const ub_runtime *rt, uint32_t atlas, uint32_t x, uint32_t y,
+                               ub_ahd_packed *out)
+{
+  assert(rt && out);
+  if (!texel_in_range(rt, atlas, x, y))
+    return UB_ERR_INVALID_ARGUMENT;
+  const int64_t t = texel_pixel(rt, atlas, (size_t)y * rt->bf->atlases[atlas].width + x);
+  if (t < 0)
+    return UB_ERR_NOT_BAKED;
+  *out = rt->ahd[ahd_index(rt, atlas, slot_of(rt, atlas, (size_t)t))];
+  return UB_OK;
+}
+
+ub_result ub_runtime_atlas_ahd(const ub_runtime *rt, uint32_t atlas, ub_ahd_packed *out)
+{
+  assert(rt && out);
+  if (atlas >= rt->bf->atlas_count)
+    return UB_ERR_INVALID_ARGUMENT;
+  const size_t n = (size_t)rt->bf->atlases[atlas].width * rt->bf->atlases[atlas].height;
+  for (size_t i = 0; i < n; i++) {
+    const int64_t t = texel_pixel(rt, atlas, i);
+    if (t < 0)
+      memset(&out[i], 0, sizeof out[i]);
+    else
+      out[i] = rt->ahd[ahd_index(rt, atlas, slot_of(rt, atlas, (size_t)t))];
+  }
   return UB_OK;
 }
 
@@ -1814,7 +1905,7 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
   /* Bilinear over the texels' linear data (SH L1 of the current state and the encode
    * normals), then one AHD encode: filtering the AHD parameters themselves (non-linear)
    * is off by up to 40% along the normal between texels that are each exact. */
-  const int cur = rt->tch_bits != NULL; /* records: rows in I_z form, blend or halves */
+  const int cur = rt->tch_bits != NULL; /* texel_row's rows are in I_z form */
   double sw = 0, sh[UB_SH1_FLOATS] = {0}, nn[3] = {0, 0, 0};
   /* not across a wall or closed door standing between texels (runtime/texel_links.h) */
   unsigned keep = ub_texel_links_keep(at->link, w, h, x0, y0, tx, ty);
@@ -1834,21 +1925,7 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
     sw += wt;
     float ts[UB_SH1_FLOATS], tn[3];
     float srow[UB_SH1_FLOATS];
-    const float *row = at->sh ? at->sh + i * UB_SH1_FLOATS : srow;
-    if (cur) {
-      uint64_t ix;
-      if (slot_touched(rt, rt->slot_first[atlas] + slot_of(rt, atlas, i), &ix)) {
-        int got = ub_blend_row(rt->lm_blend, (uint32_t)ix, srow);
-        assert(got); /* a touched texel is in a group */
-        (void)got;
-        row = srow;
-      } else {
-        for (int c = 0; c < UB_SH1_FLOATS; c++)
-          srow[c] = ub_half_to_float(rt->lm_static[ix * UB_SH1_FLOATS + c]) * rt->lm_static_scale;
-        row = srow;
-      }
-    }
-    texel_sh_at(rt, atlas, row, cur, i, ts, tn);
+    texel_sh_at(rt, atlas, texel_row(rt, atlas, i, srow), cur, i, ts, tn);
     for (int c = 0; c < UB_SH1_FLOATS; c++)
       sh[c] += wt * ts[c];
     for (int c = 0; c < 3; c++)
@@ -1872,7 +1949,7 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
       }
     if (best == INFINITY)
       return 0;
-    *out = rt->ahd[ahd_index(rt, atlas, slot_of(rt, atlas, bi))];
+    ub_ahd_unpack(&rt->ahd[ahd_index(rt, atlas, slot_of(rt, atlas, bi))], rt->ahd_scale, out);
     return 1;
   }
   float fsh[UB_SH1_FLOATS], fn[3] = {(float)nn[0], (float)nn[1], (float)nn[2]}, un[3];

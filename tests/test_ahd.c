@@ -321,10 +321,12 @@ static void test_encode_iz8_bits(void)
   static const float special[] = {0.0f, -0.0f, 1e-40f, -1e-40f, 1e-30f, 1e30f, -1.0f,
                                   INFINITY, -INFINITY, NAN};
   const int ns = (int)(sizeof special / sizeof special[0]);
-  int mismatches = 0, total = 0;
+  int mismatches = 0, total = 0, pmismatch = 0, saturated = 0;
   for (int round = 0; round < 4000; round++) {
     float sh[96], n[24];
     ub_ahd got[8], want[8];
+    ub_ahd_packed gotp[8], wantp;
+    const float inv_scale = (round & 1) ? 0.125f : 1.0f;
     for (int j = 0; j < 8; j++) {
       rnd_dir(n + 3 * j);
       double m;
@@ -347,11 +349,18 @@ static void test_encode_iz8_bits(void)
       else if (kind == 4) /* a negative (delta) texel */
         for (int k = 0; k < 12; k++)
           sh[12 * j + k] = -sh[12 * j + k];
+      else if (kind == 5) /* beyond the half range at this scale: saturated when packed */
+        for (int k = 0; k < 12; k++)
+          sh[12 * j + k] *= 3e5f;
     }
     ub_ahd_encode_iz8(sh, n, got);
+    ub_ahd_encode_iz8_packed(sh, n, inv_scale, gotp);
     for (int j = 0; j < 8; j++) {
       ub_ahd_encode_iz(sh + 12 * j, n + 3 * j, &want[j]);
       total++;
+      ub_ahd_pack(&want[j], inv_scale, &wantp);
+      pmismatch += memcmp(&gotp[j], &wantp, sizeof wantp) != 0;
+      saturated += wantp.ambient[0] == 0x7bffu || wantp.directional[1] == 0x7bffu;
       if (memcmp(&got[j], &want[j], sizeof want[j]) != 0) {
         if (mismatches++ < 3)
           printf("encode_iz8 lane %d differs: ambient %.9g/%.9g dir %.9g/%.9g\n", j,
@@ -362,12 +371,85 @@ static void test_encode_iz8_bits(void)
   }
   printf("ub_ahd_encode_iz8: %d of %d texels differ from ub_ahd_encode_iz in any bit\n",
          mismatches, total);
+  printf("ub_ahd_encode_iz8_packed: %d of %d texels differ from ub_ahd_encode_iz + "
+         "ub_ahd_pack (%d saturated)\n", pmismatch, total, saturated);
   ASSERT_TRUE(mismatches == 0);
+  ASSERT_TRUE(pmismatch == 0);
+  ASSERT_TRUE(saturated > 0);
+}
+
+/* ub_ahd_pack / ub_ahd_unpack: colours within half rounding (2^-11 relative, 2^-25 ×
+ * scale absolute below the normal range), saturated at 65504 × scale, never Inf; the
+ * octahedral direction within 1e-4 rad everywhere on the sphere (both hemispheres, the
+ * axes, the folds); the decoded irradiance within 2^-10 of the float AHD's. */
+static void test_pack_bounds(void)
+{
+  double worst_col = 0.0, worst_ang = 0.0, worst_e = 0.0;
+  static const float axes[][3] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1},
+                                  {0, 0, -1}, {0.70710678f, 0, -0.70710678f},
+                                  {0, -0.70710678f, -0.70710678f}};
+  for (int round = 0; round < 200000; round++) {
+    const float scale = (round & 3) == 3 ? 4.0f : 1.0f;
+    ub_ahd a, b;
+    if (round < 8)
+      memcpy(a.direction, axes[round], sizeof a.direction);
+    else
+      rnd_dir(a.direction);
+    for (int c = 0; c < 3; c++) {
+      a.ambient[c] = (float)(pow(10.0, -6.0 + 10.0 * rnd()));
+      a.directional[c] = (float)(pow(10.0, -6.0 + 10.0 * rnd()));
+    }
+    ub_ahd_packed p;
+    ub_ahd_pack(&a, 1.0f / scale, &p);
+    ub_ahd_unpack(&p, scale, &b);
+    for (int c = 0; c < 3; c++) {
+      const float *x[2] = {a.ambient, a.directional}, *y[2] = {b.ambient, b.directional};
+      for (int k = 0; k < 2; k++) {
+        double want = x[k][c] < 65504.0f * scale ? x[k][c] : 65504.0 * scale;
+        double err = fabs(y[k][c] - want), tol = ldexp(fabs(want), -11) + ldexp(scale, -25);
+        ASSERT_TRUE(isfinite(y[k][c]));
+        if (err / tol > worst_col)
+          worst_col = err / tol;
+      }
+    }
+    /* the angle as atan2(|a × b|, a · b): acos near 1 would see float roundoff as 6e-4 */
+    const float *u = a.direction, *v = b.direction;
+    double cx = (double)u[1] * v[2] - (double)u[2] * v[1];
+    double cy = (double)u[2] * v[0] - (double)u[0] * v[2];
+    double cz = (double)u[0] * v[1] - (double)u[1] * v[0];
+    double ang = atan2(sqrt(cx * cx + cy * cy + cz * cz),
+                       (double)u[0] * v[0] + (double)u[1] * v[1] + (double)u[2] * v[2]);
+    if (ang > worst_ang)
+      worst_ang = ang;
+    if (a.ambient[0] < 1e3f && a.directional[0] < 1e3f && a.ambient[0] > 1e-3f &&
+        a.directional[0] > 1e-3f) {
+      float n[3], ea[3], eb[3];
+      rnd_dir(n);
+      ub_ahd_irradiance(&a, n, ea);
+      ub_ahd_irradiance(&b, n, eb);
+      double rel = fabs(eb[0] - ea[0]) / (a.ambient[0] + a.directional[0]);
+      if (rel > worst_e)
+        worst_e = rel;
+    }
+  }
+  printf("ub_ahd_pack: worst colour error %.3f of half rounding, direction %.2e rad, "
+         "irradiance %.2e of C_a + C_d\n", worst_col, worst_ang, worst_e);
+  ASSERT_TRUE(worst_col <= 1.0);
+  ASSERT_TRUE(worst_ang < 1e-4);
+  ASSERT_TRUE(worst_e < ldexp(1.0, -10));
+  /* a zero direction packs to (0, 0) and unpacks to +z; the largest colour to 65504 */
+  ub_ahd z = {{1e9f, 0, 0}, {0, 0, 0}, {0, 0, 0}}, zb;
+  ub_ahd_packed zp;
+  ub_ahd_pack(&z, 1.0f, &zp);
+  ub_ahd_unpack(&zp, 1.0f, &zb);
+  ASSERT_TRUE(zp.oct[0] == 0 && zp.oct[1] == 0 && zb.direction[2] == 1.0f);
+  ASSERT_TRUE(zb.ambient[0] == 65504.0f);
 }
 
 int main(void)
 {
   test_encode_iz8_bits();
+  test_pack_bounds();
   test_irradiance_quadrature();
   test_edge_cases();
   test_encode_exact_and_bounded();

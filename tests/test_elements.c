@@ -20,6 +20,7 @@
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
 #include "ubake/glg.h"
+#include "ubake/ahd.h"
 #include "ubake/runtime.h"
 
 static void copy_record(const ub_bakefile_record *src, ub_bakefile_record *dst, uint32_t kind,
@@ -243,6 +244,65 @@ static int check_padding(const ub_runtime *rt, const ub_bakefile *bf, uint64_t *
   return bad;
 }
 
+/* The packed AHD a game uploads (ub_runtime_atlas_ahd, ub_runtime_texel_ahd): empty pixels
+ * zero and NOT_BAKED, padding the bits of its source texel, every covered texel's decoded
+ * irradiance (stored normal, and a fixed one) within the packing's bound of
+ * ub_runtime_texel_irradiance (the float AHD): 2^-10 of C_a + C_d. Returns the failures;
+ * *out_worst: the worst error in units of that bound. */
+static int check_packed(const ub_runtime *rt, const ub_bakefile *bf, double *out_worst)
+{
+  int bad = 0;
+  double worst = 0.0;
+  const float scale = ub_runtime_ahd_scale(rt);
+  bad += !(scale >= 1.0f) || frexpf(scale, &(int){0}) != 0.5f; /* a power of two ≥ 1 */
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    const uint32_t w = at->width, h = at->height;
+    ub_ahd_packed *img = malloc((size_t)w * h * sizeof *img), one;
+    ASSERT_TRUE(img != NULL);
+    ASSERT_OK(ub_runtime_atlas_ahd(rt, a, img));
+    static const ub_ahd_packed zero;
+    for (uint32_t y = 0; y < h; y++)
+      for (uint32_t x = 0; x < w; x++) {
+        const ub_ahd_packed *p = &img[(size_t)y * w + x];
+        const uint8_t c = at->coverage[(size_t)y * w + x];
+        ub_result r = ub_runtime_texel_ahd(rt, a, x, y, &one);
+        if (c == 0) {
+          bad += r != UB_ERR_NOT_BAKED || memcmp(p, &zero, sizeof zero) != 0;
+          continue;
+        }
+        uint32_t sx, sy;
+        if (r != UB_OK || memcmp(p, &one, sizeof one) != 0 ||
+            ub_runtime_texel_source(rt, a, x, y, &sx, &sy) != UB_OK ||
+            memcmp(p, &img[(size_t)sy * w + sx], sizeof *p) != 0) {
+          bad++;
+          continue;
+        }
+        if (c != 1)
+          continue;
+        ub_ahd d;
+        ub_ahd_unpack(p, scale, &d);
+        float ns[2][3] = {{0.0f, 1.0f, 0.0f}, {0.6f, 0.0f, -0.8f}};
+        if (ub_runtime_texel_normal(rt, a, x, y, ns[0]) != UB_OK ||
+            !(ns[0][0] != 0.0f || ns[0][1] != 0.0f || ns[0][2] != 0.0f))
+          ns[0][1] = 1.0f;
+        for (int k = 0; k < 2; k++) {
+          float e[3], g[3];
+          ub_ahd_irradiance(&d, ns[k], e);
+          bad += ub_runtime_texel_irradiance(rt, a, x, y, ns[k], g) != UB_OK;
+          for (int ch = 0; ch < 3; ch++) {
+            double tol = ldexp(d.ambient[ch] + d.directional[ch], -10) + ldexp(scale, -24);
+            double q = fabs((double)e[ch] - g[ch]) / tol;
+            worst = q > worst ? q : worst;
+          }
+        }
+      }
+    free(img);
+  }
+  *out_worst = worst;
+  return bad + (worst > 1.0);
+}
+
 static int rejects(const ub_bakefile *bf, const char *path)
 {
   if (ub_bakefile_write(bf, path, NULL) != UB_OK)
@@ -363,6 +423,11 @@ int main(void)
     printf("default state: %d of %llu padding pixels do not show a nearest covered texel\n",
            bad_pad, (unsigned long long)npad);
     ASSERT_TRUE(bad_pad == 0 && npad > 0);
+    double pk = 0.0;
+    int bad_pk = check_packed(rt, back, &pk);
+    printf("default state: packed AHD, %d failures, worst %.3f of the packing's bound\n",
+           bad_pk, pk);
+    ASSERT_TRUE(bad_pk == 0 && pk > 0.0);
 
     const float tint[3] = {0.5f, 1.0f, 2.0f};
     ASSERT_OK(ub_runtime_set_dls(rt, 0, tint));
@@ -381,6 +446,10 @@ int main(void)
     ASSERT_TRUE(t1 < 1e-3);
     bad_pad = check_padding(rt, back, &npad);
     ASSERT_TRUE(bad_pad == 0 && npad > 0);
+    bad_pk = check_packed(rt, back, &pk);
+    printf("tinted state: packed AHD, %d failures, worst %.3f of the packing's bound\n",
+           bad_pk, pk);
+    ASSERT_TRUE(bad_pk == 0 && pk > 0.0);
 
     /* Back to the default: identical bits. */
     const float one[3] = {1, 1, 1};

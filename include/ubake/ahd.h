@@ -11,6 +11,8 @@
 #ifndef UBAKE_AHD_H
 #define UBAKE_AHD_H
 
+#include <stdint.h>
+
 #ifdef __cplusplus
 extern "C" {
 #endif
@@ -35,6 +37,26 @@ void ub_ahd_encode_iz8(const float *sh_iz, const float *unit_normals, ub_ahd *ou
  * addresses; an out must not overlap a row). */
 void ub_ahd_encode_iz8_rows(const float *const rows[8], const float *unit_normals,
                             ub_ahd *const out[8]);
+/* The run-time's stored AHD texel, 16 bytes, laid out for a GPU texture: ambient and
+ * directional RGB as IEEE half of value / scale (scale a power of two ≥ 1, the same for a
+ * whole lightmap: ub_runtime_ahd_scale; relative error ≤ 2^-11, saturated at 65504·scale),
+ * the direction octahedral-mapped to [-1, 1]² (u = x/(|x|+|y|+|z|), v likewise, folded
+ * when z < 0) as snorm16 (angular error below 1e-4 rad). */
+typedef struct ub_ahd_packed {
+  uint16_t ambient[3];     /* half */
+  uint16_t directional[3]; /* half */
+  int16_t oct[2];          /* snorm16 */
+} ub_ahd_packed;
+/* in → packed; inv_scale = 1 / scale. */
+void ub_ahd_pack(const ub_ahd *in, float inv_scale, ub_ahd_packed *out);
+/* packed → AHD (direction renormalised to unit length). */
+void ub_ahd_unpack(const ub_ahd_packed *in, float scale, ub_ahd *out);
+/* ub_ahd_encode_iz8 / _rows, packed: the bits of ub_ahd_encode_iz then ub_ahd_pack (AVX
+ * and F16C when the CPU has them). */
+void ub_ahd_encode_iz8_packed(const float *sh_iz, const float *unit_normals, float inv_scale,
+                              ub_ahd_packed *out_packed);
+void ub_ahd_encode_iz8_rows_packed(const float *const rows[8], const float *unit_normals,
+                                   float inv_scale, ub_ahd_packed *const out[8]);
 /* Irradiance (W/m²) for any unit normal n'. */
 void ub_ahd_irradiance(const ub_ahd *ahd, const float n[3], float out_rgb[3]);
 /* Irradiance from the SH L1 directly (cosine convolution), W/m², never negative. */

@@ -2,12 +2,13 @@
  * queries the way the game would.
  *
  * What it is: a ub_runtime holds a validated bake file (ubake/bakefile.h) and, per
- * lightmap texel, the AHD encoding (ubake/ahd.h) of its baked SH L1, made once at load
- * time with the texel's stored normal (a texel without a usable normal takes the normal
- * of the nearest texel that has one). The padding the baker dilates around charts
- * (coverage 2) has no state of its own: each padding pixel shows the covered texel it
- * copies (ub_runtime_texel_source). Lightmap queries find the closest lightmapped
- * surface point, filter the AHD atlas bilinearly there and decode irradiance for a normal.
+ * lightmap texel, the AHD encoding (ubake/ahd.h) of its SH L1 in the current state with
+ * the texel's stored normal (a texel without a usable normal takes the normal of the
+ * nearest texel that has one), stored packed (ub_ahd_packed, 16 B: what a game uploads).
+ * The padding the baker dilates around charts (coverage 2) has no state of its own: each
+ * padding pixel shows the covered texel it copies (ub_runtime_texel_source). Lightmap
+ * queries find the closest lightmapped surface point, filter the texels' SH and normals
+ * bilinearly there, encode that to AHD and decode irradiance for a normal.
  * It does not depend on Embree or on the baker.
  *
  * Lifecycle: ub_runtime_load() → queries → ub_runtime_free() (NULL-safe). On failure
@@ -25,6 +26,7 @@
 
 #include <stdint.h>
 
+#include "ubake/ahd.h"
 #include "ubake/bakefile.h"
 #include "ubake/error.h"
 
@@ -61,7 +63,7 @@ typedef struct ub_runtime_memory {
   size_t geometry;  /* triangles, vertices, UVs, albedo, roles, lights; atlas normals and
                        coverage; GLG positions, tets, leak planes; LLG model meshes,
                        visibility, self terms */
-  size_t lightmap;  /* per covered texel: AHD, SH (where a record touches it none: the
+  size_t lightmap;  /* per covered texel: AHD (16 B packed), SH (where a record touches it none: the
                        lightmap blend computes it; else the file's halves; touched: encode
                        normal, slot and rank); coverage/touched bitmaps; fallback encode
                        normals */
@@ -104,8 +106,11 @@ ub_result ub_runtime_query_lightmap_ex(const ub_runtime *rt, const float p[3],
 
 /* Irradiance (W/m²) decoded from the AHD of texel (x, y) of atlas `atlas` for unit normal
  * n (normalised here); for a padding pixel its source texel's (ub_runtime_texel_source);
- * 0 for an empty texel (coverage 0). UB_ERR_INVALID_ARGUMENT for an atlas or texel out of
- * range or a zero / non-finite n (outputs untouched). */
+ * 0 for an empty texel (coverage 0). The AHD in float, encoded from the texel's current
+ * SH as an update encodes it (along the texel's stored normal it is the SH's irradiance,
+ * linear in the sets' weights to float rounding); the stored, packed AHD a game uploads
+ * (ub_runtime_texel_ahd) is this rounded to half. UB_ERR_INVALID_ARGUMENT for an atlas or
+ * texel out of range or a zero / non-finite n (outputs untouched). */
 ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint32_t x,
                                       uint32_t y, const float n[3], float out_rgb[3]);
 /* The stored normal of texel (x, y) of atlas `atlas`, as the bake file has it (world, unit
@@ -123,6 +128,22 @@ ub_result ub_runtime_texel_normal(const ub_runtime *rt, uint32_t atlas, uint32_t
  * untouched). */
 ub_result ub_runtime_texel_source(const ub_runtime *rt, uint32_t atlas, uint32_t x, uint32_t y,
                                   uint32_t *out_x, uint32_t *out_y);
+
+/* The stored AHD lightmap (ubake/ahd.h, ub_ahd_packed: 16 bytes a texel, halves of value /
+ * ub_runtime_ahd_scale and an octahedral direction): what a game uploads to its lightmap
+ * texture and re-uploads where an update re-encoded texels. The scale is a power of two
+ * ≥ 1, fixed at load (1 unless the level is brighter than 16384 W/m² or its records need
+ * more); colours saturate at 65504 × scale. */
+float ub_runtime_ahd_scale(const ub_runtime *rt);
+/* Texel (x, y)'s packed AHD in the current state (a padding pixel: its source texel's).
+ * UB_ERR_NOT_BAKED for an empty pixel, UB_ERR_INVALID_ARGUMENT out of range (output
+ * untouched). */
+ub_result ub_runtime_texel_ahd(const ub_runtime *rt, uint32_t atlas, uint32_t x, uint32_t y,
+                               ub_ahd_packed *out);
+/* The whole atlas's packed AHD, width × height texels row by row, as a texture: padding
+ * pixels copy their source texel, empty pixels are zero. UB_ERR_INVALID_ARGUMENT for an
+ * atlas out of range. */
+ub_result ub_runtime_atlas_ahd(const ub_runtime *rt, uint32_t atlas, ub_ahd_packed *out);
 
 /* Irradiance (W/m², ≥ 0) from the global light grid at any point p for unit normal n:
  * tetrahedral interpolation of the probes' SH L2 with leak planes, windowed, convolved.
