@@ -111,6 +111,15 @@ struct ub_runtime {
   /* Jobs of the update in progress (ub_runtime_update_begin … end). */
   struct rt_job *jobs;
   uint32_t job_cap, job_count;
+  /* The texels each job re-encoded, as runs of ranks (first, count) merged where they
+   * continue each other: chg_cap pairs per job (the lightmap blend's groups + 1: a group's
+   * ranks are one run, so a job never has more), job_cap jobs. The last update's jobs
+   * (chg_jobs) stay there for ub_runtime_changed_texels; chg_all when a job ran out of
+   * room (never expected): every touched texel counts as changed. */
+  uint32_t *chg_runs;
+  uint32_t chg_cap, chg_jobs;
+  uint64_t chg_texels;
+  int chg_all;
   uint32_t lit_count;    /* triangles with tri_atlas >= 0 */
   uint32_t *lit_tris;
 };
@@ -119,6 +128,8 @@ struct ub_runtime {
 typedef struct rt_job {
   ub_blend_stats lm, glg, llg;
   uint64_t texels;    /* re-encoded */
+  uint32_t runs;      /* runs of them in chg_runs */
+  int runs_full;      /* some did not fit */
   double seconds[3];  /* lightmap, GLG, LLG */
 } rt_job;
 
@@ -467,6 +478,7 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt->ahd);
   free(rt->ahd_f);
   free(rt->jobs);
+  free(rt->chg_runs);
   if (rt->fallback)
     for (uint32_t a = 0; a < rt->bf->atlas_count; a++) {
       free(rt->fallback[a].pixel);
@@ -1039,6 +1051,14 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   if (r != UB_OK)
     return r;
   free_rec_values(rt->lm_rec, n);
+  {
+    ub_blend_info in;
+    ub_blend_get_info(rt->lm_blend, &in);
+    rt->chg_cap = in.group_count + 1;
+    rt->chg_runs = malloc((size_t)rt->job_cap * rt->chg_cap * 2 * sizeof *rt->chg_runs);
+    if (!rt->chg_runs)
+      return UB_ERR_OUT_OF_MEMORY;
+  }
   /* Base rows in half too (UB_BLEND_BASE_HALF): the touched texels' as the untouched ones'
    * (lm_static); the probes' are the file's halves, kept exactly. */
   bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF;
@@ -1169,8 +1189,10 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
       for (uint64_t k = 0; k < ns; k++) {
         ub_ahd *f = &rt->ahd_f[rt->slot_first[a] + k];
         encode_texel(rt, a, at->sh + (size_t)sp[k] * UB_SH1_FLOATS, 0, sp[k], f);
-        for (int c = 0; c < 3; c++)
-          rt->ahd_max = fmax(rt->ahd_max, fmax(f->ambient[c], f->directional[c]));
+        for (int c = 0; c < 3; c++) {
+          const double v = f->ambient[c] > f->directional[c] ? f->ambient[c] : f->directional[c];
+          rt->ahd_max = v > rt->ahd_max ? v : rt->ahd_max;
+        }
       }
     }
   }
@@ -1231,6 +1253,9 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
   }
   if (bf->atlas_count && !normals_to_half(rt))
     goto oom;
+  rt->chg_texels = 0; /* the set-up's update: the whole atlas is new */
+  rt->chg_jobs = 0;
+  rt->chg_all = 0;
   *out = rt;
   return UB_OK;
 oom:
@@ -1361,6 +1386,9 @@ typedef struct touched_ctx {
   ub_ahd_packed *pout[8];
   float pn[24];
   float qrow[8][UB_SH1_FLOATS];
+  /* the job's runs of re-encoded ranks (rt->chg_runs) */
+  uint32_t *runs, nruns, cap;
+  int full;
 } touched_ctx;
 
 /* Encodes the waiting texels (padded to eight lanes with copies of the first). */
@@ -1387,6 +1415,17 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
   touched_ctx *tc = user;
   const ub_runtime *rt = tc->rt;
   const float *un = rt->lm_un + (size_t)first * 3;
+  if (count) { /* one run per group, consecutive pieces joined */
+    uint32_t *last = tc->nruns ? tc->runs + 2 * (tc->nruns - 1) : NULL;
+    if (last && last[0] + last[1] == first)
+      last[1] += count;
+    else if (tc->nruns < tc->cap) {
+      tc->runs[2 * tc->nruns] = first;
+      tc->runs[2 * tc->nruns + 1] = count;
+      tc->nruns++;
+    } else
+      tc->full = 1;
+  }
   ub_ahd_packed *out = rt->ahd + first;
   const float inv_scale = rt->ahd_inv_scale;
   uint32_t i = 0;
@@ -1445,6 +1484,12 @@ ub_result ub_runtime_update_begin(ub_runtime *rt, uint32_t max_jobs, uint32_t *o
   if (max_jobs == 0 || max_jobs > UB_RUNTIME_MAX_JOBS || rt->job_count)
     return UB_ERR_INVALID_ARGUMENT; /* (job_count: an update begun and not ended) */
   if (max_jobs > rt->job_cap) {
+    if (rt->chg_runs) {
+      uint32_t *c = realloc(rt->chg_runs, (size_t)max_jobs * rt->chg_cap * 2 * sizeof *c);
+      if (!c)
+        return UB_ERR_OUT_OF_MEMORY;
+      rt->chg_runs = c;
+    }
     rt_job *j = realloc(rt->jobs, (size_t)max_jobs * sizeof *j);
     if (!j)
       return UB_ERR_OUT_OF_MEMORY;
@@ -1480,9 +1525,13 @@ void ub_runtime_update_job(ub_runtime *rt, uint32_t job)
     touched_ctx tc;
     memset(&tc, 0, sizeof tc);
     tc.rt = rt;
+    tc.runs = rt->chg_runs + (size_t)job * rt->chg_cap * 2;
+    tc.cap = rt->chg_cap;
     ub_blend_update_part(rt->lm_blend, job, parts, lm_touched, &tc, NULL, &jb->lm);
     touched_flush(&tc);
     jb->texels = tc.texels;
+    jb->runs = tc.nruns;
+    jb->runs_full = tc.full;
     t1 = rt_now();
   }
   if (rt->glg_blend) {
@@ -1503,6 +1552,7 @@ void ub_runtime_update_end(ub_runtime *rt, ub_runtime_update_stats *out_stats)
   assert(rt);
   ub_runtime_update_stats st;
   memset(&st, 0, sizeof st);
+  rt->chg_all = 0;
   for (uint32_t j = 0; j < rt->job_count; j++) {
     const rt_job *jb = &rt->jobs[j];
     st.texels_written += jb->lm.receivers;
@@ -1519,7 +1569,10 @@ void ub_runtime_update_end(ub_runtime *rt, ub_runtime_update_stats *out_stats)
     st.seconds_lightmap = fmax(st.seconds_lightmap, jb->seconds[0]);
     st.seconds_glg = fmax(st.seconds_glg, jb->seconds[1]);
     st.seconds_llg = fmax(st.seconds_llg, jb->seconds[2]);
+    rt->chg_all |= jb->runs_full;
   }
+  rt->chg_jobs = rt->job_count;
+  rt->chg_texels = rt->chg_all ? rt->touched : st.texels_reencoded;
   rt->job_count = 0;
   if (out_stats)
     *out_stats = st;
@@ -1610,6 +1663,7 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
                   (bf->atlases[a].sh ? t * UB_SH1_FLOATS * F : 0) +
                   (rt->fallback ? (size_t)rt->fallback[a].count * (U + 3 * F) : 0);
   }
+  m.lightmap += (size_t)rt->job_cap * rt->chg_cap * 2 * U; /* changed-texel runs */
   if (rt->tch_bits) {
     size_t slots = (size_t)rt->slot_first[bf->atlas_count], words = (slots + 63) / 64, t = 0;
     for (size_t w = 0; w < words; w++)
@@ -1752,6 +1806,53 @@ ub_result ub_runtime_texel_ahd(const ub_runtime *rt, uint32_t atlas, uint32_t x,
     return UB_ERR_NOT_BAKED;
   *out = rt->ahd[ahd_index(rt, atlas, slot_of(rt, atlas, (size_t)t))];
   return UB_OK;
+}
+
+uint64_t ub_runtime_changed_texel_count(const ub_runtime *rt)
+{
+  assert(rt);
+  return rt->chg_texels;
+}
+
+/* Changed texel `rank` (a touched texel's rank) into out. */
+static void changed_texel(const ub_runtime *rt, uint64_t rank, ub_runtime_texel_change *out)
+{
+  const uint64_t s = rt->tch_slot[rank];
+  uint32_t a = 0;
+  while (s >= rt->slot_first[a + 1])
+    a++;
+  const uint32_t px = rt->slot_pixel[s], w = rt->bf->atlases[a].width, y = px / w;
+  out->atlas = a;
+  out->x = px - y * w;
+  out->y = y;
+  out->ahd = rt->ahd[rank];
+}
+
+size_t ub_runtime_changed_texels(const ub_runtime *rt, uint64_t start, size_t max,
+                                 ub_runtime_texel_change *out)
+{
+  assert(rt && (out || !max));
+  size_t n = 0;
+  if (rt->chg_all) {
+    for (uint64_t k = start; k < rt->touched && n < max; k++)
+      changed_texel(rt, k, &out[n++]);
+    return n;
+  }
+  uint64_t seen = 0; /* changed texels in the runs before */
+  for (uint32_t j = 0; j < rt->chg_jobs && n < max; j++) {
+    const uint32_t *runs = rt->chg_runs + (size_t)j * rt->chg_cap * 2;
+    for (uint32_t r = 0; r < rt->jobs[j].runs && n < max; r++) {
+      const uint64_t first = runs[2 * r], count = runs[2 * r + 1];
+      if (seen + count <= start) {
+        seen += count;
+        continue;
+      }
+      for (uint64_t k = start > seen ? start - seen : 0; k < count && n < max; k++)
+        changed_texel(rt, first + k, &out[n++]);
+      seen += count;
+    }
+  }
+  return n;
 }
 
 ub_result ub_runtime_atlas_ahd(const ub_runtime *rt, uint32_t atlas, ub_ahd_packed *out)

@@ -429,6 +429,11 @@ int main(void)
            bad_pk, pk);
     ASSERT_TRUE(bad_pk == 0 && pk > 0.0);
 
+    /* An update that changes nothing changes no texel (test_estate: the changed texels) */
+    ub_runtime_update_stats ust;
+    ASSERT_OK(ub_runtime_update(rt, &ust));
+    ASSERT_TRUE(ust.texels_reencoded == 0 && ub_runtime_changed_texel_count(rt) == 0);
+
     const float tint[3] = {0.5f, 1.0f, 2.0f};
     ASSERT_OK(ub_runtime_set_dls(rt, 0, tint));
     ASSERT_OK(ub_runtime_set_element(rt, (uint32_t)door, 0.5f));

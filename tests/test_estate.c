@@ -161,6 +161,85 @@ static void check_records(const ub_bakefile *bf)
   free(over);
 }
 
+/* Every atlas's packed AHD, one after the other (ub_runtime_atlas_ahd). */
+static ub_ahd_packed *ahd_snapshot(const ub_runtime *rt, const ub_bakefile *bf)
+{
+  size_t n = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++)
+    n += (size_t)bf->atlases[a].width * bf->atlases[a].height;
+  ub_ahd_packed *s = malloc((n ? n : 1) * sizeof *s);
+  ASSERT_TRUE(s != NULL);
+  n = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    ASSERT_OK(ub_runtime_atlas_ahd(rt, a, s + n));
+    n += (size_t)bf->atlases[a].width * bf->atlases[a].height;
+  }
+  return s;
+}
+
+/* The last update's changed texels (ub_runtime_changed_texels) against the AHD before
+ * (snapshot) and now: as many as the update re-encoded (reencoded), covered texels, each
+ * once, each with its current packed AHD; every covered texel whose AHD differs from the
+ * snapshot among them; read in two pieces the same as at once. Returns the failures;
+ * *out_list (may be NULL) gets the list (caller frees), *out_n its length, *out_moved the
+ * texels whose AHD differs. */
+static int check_changed(const ub_runtime *rt, const ub_bakefile *bf, const ub_ahd_packed *before,
+                         uint64_t reencoded, ub_runtime_texel_change **out_list, size_t *out_n,
+                         uint64_t *out_moved)
+{
+  int bad = 0;
+  const uint64_t n = ub_runtime_changed_texel_count(rt);
+  bad += n != reencoded;
+  ub_runtime_texel_change *l = malloc((n ? n : 1) * sizeof *l);
+  ub_runtime_texel_change *l2 = malloc((n ? n : 1) * sizeof *l2);
+  ASSERT_TRUE(l && l2);
+  bad += ub_runtime_changed_texels(rt, 0, (size_t)n + 5, l) != n;
+  size_t h = (size_t)n / 3;
+  bad += ub_runtime_changed_texels(rt, 0, h, l2) != h;
+  bad += ub_runtime_changed_texels(rt, h, (size_t)n, l2 + h) != n - h;
+  bad += n && memcmp(l, l2, (size_t)n * sizeof *l) != 0;
+  ub_ahd_packed *now = ahd_snapshot(rt, bf);
+  size_t total = 0;
+  uint64_t moved = 0;
+  size_t *first = malloc((bf->atlas_count + 1) * sizeof *first);
+  ASSERT_TRUE(first != NULL);
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    first[a] = total;
+    total += (size_t)bf->atlases[a].width * bf->atlases[a].height;
+  }
+  uint8_t *in = calloc(total ? total : 1, 1);
+  ASSERT_TRUE(in != NULL);
+  for (uint64_t k = 0; k < n; k++) {
+    const ub_runtime_texel_change *c = &l[k];
+    if (c->atlas >= bf->atlas_count || c->x >= bf->atlases[c->atlas].width ||
+        c->y >= bf->atlases[c->atlas].height) {
+      bad++;
+      continue;
+    }
+    const size_t px = (size_t)c->y * bf->atlases[c->atlas].width + c->x;
+    bad += bf->atlases[c->atlas].coverage[px] != 1 || in[first[c->atlas] + px]++ != 0 ||
+           memcmp(&c->ahd, &now[first[c->atlas] + px], sizeof c->ahd) != 0;
+  }
+  for (uint32_t a = 0; a < bf->atlas_count; a++)
+    for (size_t px = 0; px < (size_t)bf->atlases[a].width * bf->atlases[a].height; px++)
+      if (bf->atlases[a].coverage[px] == 1 &&
+          memcmp(&now[first[a] + px], &before[first[a] + px], sizeof *now) != 0) {
+        moved++;
+        bad += !in[first[a] + px];
+      }
+  free(in);
+  free(first);
+  free(now);
+  free(l2);
+  if (out_list)
+    *out_list = l;
+  else
+    free(l);
+  *out_n = (size_t)n;
+  *out_moved = moved;
+  return bad;
+}
+
 static void check_blend(const char *ubk, const ub_bakefile *bf)
 {
   ub_runtime *rt = NULL;
@@ -183,8 +262,18 @@ static void check_blend(const char *ubk, const ub_bakefile *bf)
   if (hall >= 0) {
     const float one[3] = {1, 1, 1};
     ub_runtime_update_stats st;
+    ub_ahd_packed *before = ahd_snapshot(rt, bf);
     ASSERT_OK(ub_runtime_set_dls(rt, (uint32_t)hall, one));
     ASSERT_OK(ub_runtime_update(rt, &st));
+    /* what a game re-uploads: the texels the toggle re-encoded, among them every texel
+     * whose packed AHD moved */
+    size_t nch = 0;
+    uint64_t moved = 0;
+    int bad_ch = check_changed(rt, bf, before, st.texels_reencoded, NULL, &nch, &moved);
+    printf("toggle hall_00 on: %zu changed texels listed (%llu with a new AHD), %d failures\n",
+           nch, (unsigned long long)moved, bad_ch);
+    ASSERT_TRUE(bad_ch == 0 && moved > 0 && nch >= moved);
+    free(before);
     const ub_bakefile_record *r = &bf->dls[hall];
     printf("toggle hall_00 on: %llu texels written (record %u), %llu GLG probes (record %u), "
            "%llu LLG probes (record %u)\n",
@@ -356,10 +445,21 @@ static void check_jobs(const char *ubk)
     take_ahd(ra, ta, &nt);
     take_ahd(rb, tb, &nt);
     bad_q += memcmp(ta, tb, 3 * nt * sizeof(float)) != 0;
+    /* the changed texels: the same list, in the same order, whatever the jobs */
+    const uint64_t nca = ub_runtime_changed_texel_count(ra);
+    ub_runtime_texel_change *ca = malloc((nca ? nca : 1) * sizeof *ca);
+    ub_runtime_texel_change *cb = malloc((nca ? nca : 1) * sizeof *cb);
+    ASSERT_TRUE(ca && cb);
+    bad_q += nca != sa.texels_reencoded || ub_runtime_changed_texel_count(rb) != nca ||
+             ub_runtime_changed_texels(ra, 0, (size_t)nca, ca) != nca ||
+             ub_runtime_changed_texels(rb, 0, (size_t)nca, cb) != nca ||
+             (nca && memcmp(ca, cb, (size_t)nca * sizeof *ca) != 0);
+    free(ca);
+    free(cb);
   }
   printf("jobs (2, 3, 5 on threads, every other state with FTZ/DAZ set on them) vs plain "
          "updates, 9 states: %zu SH values, %zu decoded query sets (AHD at 3000 points, every "
-         "texel's AHD), %zu stats differ (want 0)\n", bad, bad_q, bad_stats);
+         "texel's AHD, the changed-texel lists), %zu stats differ (want 0)\n", bad, bad_q, bad_stats);
   ASSERT_TRUE(bad == 0 && bad_q == 0 && bad_stats == 0);
   free(qa);
   free(qb);

@@ -145,6 +145,22 @@ ub_result ub_runtime_texel_ahd(const ub_runtime *rt, uint32_t atlas, uint32_t x,
  * atlas out of range. */
 ub_result ub_runtime_atlas_ahd(const ub_runtime *rt, uint32_t atlas, ub_ahd_packed *out);
 
+/* What changed in the lightmap at the last update (ub_runtime_update, or _end), for a
+ * game to re-upload: the texels it re-encoded (every texel of every overlap group holding
+ * an element whose value changed; the same count as the update's texels_reencoded), in
+ * the order the update wrote them. Padding pixels that copy a changed texel
+ * (ub_runtime_texel_source) change with it. Empty before the first update after load (the
+ * whole atlas is new then: ub_runtime_atlas_ahd). */
+typedef struct ub_runtime_texel_change {
+  uint32_t atlas, x, y;
+  ub_ahd_packed ahd; /* its new packed AHD */
+} ub_runtime_texel_change;
+uint64_t ub_runtime_changed_texel_count(const ub_runtime *rt);
+/* Changed texels [start, start + max) of the last update into out; returns how many were
+ * written (fewer than max at the end). Cost: the runs before start, then one texel each. */
+size_t ub_runtime_changed_texels(const ub_runtime *rt, uint64_t start, size_t max,
+                                 ub_runtime_texel_change *out);
+
 /* Irradiance (W/m², ≥ 0) from the global light grid at any point p for unit normal n:
  * tetrahedral interpolation of the probes' SH L2 with leak planes, windowed, convolved.
  * inout_tet_cache: a caller-owned cache (start at UB_GLG_NO_CACHE; one per moving object
