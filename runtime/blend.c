@@ -1416,8 +1416,10 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
     if (b->base_size == 2) { /* the scale: the touched rows' largest |value| ≤ 32768 */
       float mx = 0.0f;
       for (uint32_t i = 0; i < T; i++)
-        for (uint32_t j = 0; j < S; j++)
-          mx = fmaxf(mx, fabsf(d->base[(size_t)t->order[i] * S + j]));
+        for (uint32_t j = 0; j < S; j++) { /* finite (validated): a compare, no libm call */
+          const float v = fabsf(d->base[(size_t)t->order[i] * S + j]);
+          mx = v > mx ? v : mx;
+        }
       while (mx / b->bscale > 32768.0f)
         b->bscale *= 2.0f;
     }

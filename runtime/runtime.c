@@ -669,6 +669,8 @@ static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs,
     uint16_t *v = *record_halves(rc, rep);
     const double fs = rc->sh_half_scale;
     uint32_t cursor = 0, kept = 0;
+    uint16_t hmax = 0; /* the largest |value|'s bits: a finite half's magnitude orders as
+                          its bits without the sign */
     if (rep == 0)
       recs[e].receivers = rt->lm_idx + ei;
     for (uint32_t i = 0; i < count; i++) {
@@ -684,9 +686,13 @@ static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs,
         row = v + (size_t)kept * stride;
       }
       kept++;
-      for (uint32_t k = 0; k < stride; k++)
-        mx = fmax(mx, fabs((double)ub_half_to_float(row[k]) * fs));
+      for (uint32_t k = 0; k < stride; k++) {
+        const uint16_t m = row[k] & 0x7fffu;
+        hmax = m > hmax ? m : hmax;
+      }
     }
+    const double rmx = (double)ub_half_to_float(hmax) * fs;
+    mx = rmx > mx ? rmx : mx;
     recs[e].count = kept;
   }
   /* The file's halves (texel rows in its I_z form already) become the blend's, in place:
@@ -755,10 +761,32 @@ typedef struct recv_at {
   uint32_t recv, at;
 } recv_at;
 
-static int recv_at_cmp(const void *pa, const void *pb)
+/* Sorts o[0..n) by recv (unique keys, so any sort gives this order): least significant
+ * digit first, 11 bits a pass, as many passes as the largest key needs (ranks at full
+ * ESTATE scale: 21 bits, two passes); tmp: n entries of scratch. The result may end in
+ * tmp: returned. */
+static recv_at *radix_recv(recv_at *o, recv_at *tmp, uint32_t n)
 {
-  const recv_at *a = pa, *b = pb;
-  return a->recv < b->recv ? -1 : a->recv > b->recv;
+  uint32_t mx = 0;
+  for (uint32_t i = 0; i < n; i++)
+    mx = o[i].recv > mx ? o[i].recv : mx;
+  for (unsigned shift = 0; shift < 32 && (shift == 0 || (mx >> shift)); shift += 11) {
+    uint32_t cnt[2048] = {0};
+    for (uint32_t i = 0; i < n; i++)
+      cnt[(o[i].recv >> shift) & 2047u]++;
+    uint32_t sum = 0;
+    for (uint32_t d = 0; d < 2048; d++) {
+      const uint32_t c = cnt[d];
+      cnt[d] = sum;
+      sum += c;
+    }
+    for (uint32_t i = 0; i < n; i++)
+      tmp[cnt[(o[i].recv >> shift) & 2047u]++] = o[i];
+    recv_at *t = o;
+    o = tmp;
+    tmp = t;
+  }
+  return o;
 }
 
 /* Sorts a record's receivers ascending, its rows (stride floats each) along. */
@@ -769,24 +797,24 @@ static ub_result sort_record(uint32_t *recv, uint16_t *rows, uint32_t count, uin
     i++;
   if (i >= count)
     return UB_OK;
-  recv_at *o = malloc((size_t)count * sizeof *o);
+  recv_at *o0 = malloc((size_t)count * 2 * sizeof *o0);
   uint16_t *tmp = malloc((size_t)count * stride * sizeof *tmp);
-  if (!o || !tmp) {
-    free(o);
+  if (!o0 || !tmp) {
+    free(o0);
     free(tmp);
     return UB_ERR_OUT_OF_MEMORY;
   }
   for (i = 0; i < count; i++) {
-    o[i].recv = recv[i];
-    o[i].at = i;
+    o0[i].recv = recv[i];
+    o0[i].at = i;
   }
-  qsort(o, count, sizeof *o, recv_at_cmp);
+  const recv_at *o = radix_recv(o0, o0 + count, count);
   for (i = 0; i < count; i++) {
     recv[i] = o[i].recv;
     memcpy(tmp + (size_t)i * stride, rows + (size_t)o[i].at * stride, stride * sizeof *tmp);
   }
   memcpy(rows, tmp, (size_t)count * stride * sizeof *tmp);
-  free(o);
+  free(o0);
   free(tmp);
   return UB_OK;
 }
