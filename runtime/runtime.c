@@ -4,6 +4,7 @@
 
 #include <assert.h>
 #include <math.h>
+#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -95,6 +96,8 @@ struct ub_runtime {
    * touched probes copied back into each model's grid, which queries read. */
   float *llg_base, *llg_cur;
   uint64_t *llg_first;     /* llg_count + 1 */
+  atomic_uchar *llg_chg;   /* llg_count: the last update wrote some of the model's probes
+                              (set by any job: atomic) */
   ub_glg glg;            /* valid when has_glg */
   int has_glg;
   /* The AHD of every covered texel (slots entries), packed (ubake/ahd.h, 16 B: halves of
@@ -479,6 +482,7 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt->ahd_f);
   free(rt->jobs);
   free(rt->chg_runs);
+  free(rt->llg_chg);
   if (rt->fallback)
     for (uint32_t a = 0; a < rt->bf->atlas_count; a++) {
       free(rt->fallback[a].pixel);
@@ -1130,6 +1134,9 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     r = ub_blend_create(&bd, log, rt->llg_cur, &rt->llg_blend);
     if (r != UB_OK)
       return r;
+    rt->llg_chg = calloc(bf->llg_count, sizeof *rt->llg_chg);
+    if (!rt->llg_chg)
+      return UB_ERR_OUT_OF_MEMORY;
     free_rec_values(rt->llg_rec, n);
     free(rt->llg_base);
     rt->llg_base = NULL;
@@ -1281,6 +1288,8 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
   }
   if (bf->atlas_count && !normals_to_half(rt))
     goto oom;
+  for (uint32_t m = 0; rt->llg_chg && m < bf->llg_count; m++)
+    atomic_store_explicit(&rt->llg_chg[m], 0, memory_order_relaxed);
   rt->chg_texels = 0; /* the set-up's update: the whole atlas is new */
   rt->chg_jobs = 0;
   rt->chg_all = 0;
@@ -1499,6 +1508,23 @@ static void glg_touched(void *user, uint32_t first, uint32_t count, const float 
   ub_glg_set_probes(&rt->glg, first, count, rows);
 }
 
+/* The LLG probes [first, first + count) the blend just wrote: their models changed. */
+static void llg_touched(void *user, uint32_t first, uint32_t count, const float *rows)
+{
+  (void)rows;
+  const ub_runtime *rt = user;
+  uint32_t lo = 0, hi = rt->bf->llg_count; /* the model holding `first` */
+  while (hi - lo > 1) {
+    const uint32_t mid = (lo + hi) / 2;
+    if (rt->llg_first[mid] <= first)
+      lo = mid;
+    else
+      hi = mid;
+  }
+  for (uint32_t m = lo; m < rt->bf->llg_count && rt->llg_first[m] < (uint64_t)first + count; m++)
+    atomic_store_explicit(&rt->llg_chg[m], 1, memory_order_relaxed);
+}
+
 static double rt_now(void)
 {
   struct timespec ts;
@@ -1535,6 +1561,8 @@ ub_result ub_runtime_update_begin(ub_runtime *rt, uint32_t max_jobs, uint32_t *o
     if (bl[i])
       ub_blend_update_begin(bl[i], 0);
   memset(rt->jobs, 0, (size_t)max_jobs * sizeof *rt->jobs);
+  for (uint32_t m = 0; rt->llg_chg && m < rt->bf->llg_count; m++)
+    atomic_store_explicit(&rt->llg_chg[m], 0, memory_order_relaxed);
   rt->job_count = max_jobs;
   *out_jobs = max_jobs;
   return UB_OK;
@@ -1568,7 +1596,7 @@ void ub_runtime_update_job(ub_runtime *rt, uint32_t job)
   } else
     t2 = t1;
   if (rt->llg_blend) /* models read llg_cur */
-    ub_blend_update_part(rt->llg_blend, job, parts, NULL, NULL, rt->llg_cur, &jb->llg);
+    ub_blend_update_part(rt->llg_blend, job, parts, llg_touched, rt, rt->llg_cur, &jb->llg);
   jb->seconds[0] = t1 - t0;
   jb->seconds[1] = t2 - t1;
   jb->seconds[2] = rt_now() - t2;
@@ -1834,6 +1862,13 @@ ub_result ub_runtime_texel_ahd(const ub_runtime *rt, uint32_t atlas, uint32_t x,
     return UB_ERR_NOT_BAKED;
   *out = rt->ahd[ahd_index(rt, atlas, slot_of(rt, atlas, (size_t)t))];
   return UB_OK;
+}
+
+int ub_runtime_llg_changed(const ub_runtime *rt, uint32_t model)
+{
+  assert(rt);
+  return rt->llg_chg && model < rt->bf->llg_count &&
+         atomic_load_explicit(&rt->llg_chg[model], memory_order_relaxed);
 }
 
 uint64_t ub_runtime_changed_texel_count(const ub_runtime *rt)

@@ -263,8 +263,36 @@ static void check_blend(const char *ubk, const ub_bakefile *bf)
     const float one[3] = {1, 1, 1};
     ub_runtime_update_stats st;
     ub_ahd_packed *before = ahd_snapshot(rt, bf);
+    /* the LLG models' grids before (the run-time's bake file holds the current state) */
+    const ub_bakefile *rbf = ub_runtime_bakefile(rt);
+    size_t nlp = 0;
+    for (uint32_t m = 0; m < rbf->llg_count; m++)
+      nlp += (size_t)rbf->llgs[m].dims[0] * rbf->llgs[m].dims[1] * rbf->llgs[m].dims[2] * 27;
+    float *llg0 = malloc((nlp ? nlp : 1) * sizeof *llg0);
+    ASSERT_TRUE(llg0 != NULL);
+    for (uint32_t m = 0, o = 0; m < rbf->llg_count; m++) {
+      size_t c = (size_t)rbf->llgs[m].dims[0] * rbf->llgs[m].dims[1] * rbf->llgs[m].dims[2] * 27;
+      memcpy(llg0 + o, rbf->llgs[m].probe_sh, c * sizeof *llg0);
+      o += (uint32_t)c;
+    }
     ASSERT_OK(ub_runtime_set_dls(rt, (uint32_t)hall, one));
     ASSERT_OK(ub_runtime_update(rt, &st));
+    /* LLG models to re-upload: every model whose grid moved is flagged, not every model */
+    uint32_t moved_m = 0, flagged = 0, unflagged_moved = 0;
+    for (uint32_t m = 0, o = 0; m < rbf->llg_count; m++) {
+      size_t c = (size_t)rbf->llgs[m].dims[0] * rbf->llgs[m].dims[1] * rbf->llgs[m].dims[2] * 27;
+      int mv = memcmp(llg0 + o, rbf->llgs[m].probe_sh, c * sizeof *llg0) != 0;
+      int fl = ub_runtime_llg_changed(rt, m);
+      moved_m += mv;
+      flagged += fl;
+      unflagged_moved += mv && !fl;
+      o += (uint32_t)c;
+    }
+    printf("toggle hall_00 on: %u of %u LLG models flagged changed, %u moved, %u moved "
+           "unflagged (want 0)\n", flagged, rbf->llg_count, moved_m, unflagged_moved);
+    ASSERT_TRUE(moved_m > 0 && unflagged_moved == 0 && flagged < rbf->llg_count);
+    ASSERT_TRUE(!ub_runtime_llg_changed(rt, rbf->llg_count));
+    free(llg0);
     /* what a game re-uploads: the texels the toggle re-encoded, among them every texel
      * whose packed AHD moved */
     size_t nch = 0;
@@ -456,10 +484,12 @@ static void check_jobs(const char *ubk)
              (nca && memcmp(ca, cb, (size_t)nca * sizeof *ca) != 0);
     free(ca);
     free(cb);
+    for (uint32_t m = 0; m < ub_runtime_bakefile(ra)->llg_count; m++)
+      bad_q += ub_runtime_llg_changed(ra, m) != ub_runtime_llg_changed(rb, m);
   }
   printf("jobs (2, 3, 5 on threads, every other state with FTZ/DAZ set on them) vs plain "
          "updates, 9 states: %zu SH values, %zu decoded query sets (AHD at 3000 points, every "
-         "texel's AHD, the changed-texel lists), %zu stats differ (want 0)\n", bad, bad_q, bad_stats);
+         "texel's AHD, the changed-texel lists and LLG models), %zu stats differ (want 0)\n", bad, bad_q, bad_stats);
   ASSERT_TRUE(bad == 0 && bad_q == 0 && bad_stats == 0);
   free(qa);
   free(qb);

@@ -156,6 +156,10 @@ typedef struct ub_runtime_texel_change {
   ub_ahd_packed ahd; /* its new packed AHD */
 } ub_runtime_texel_change;
 uint64_t ub_runtime_changed_texel_count(const ub_runtime *rt);
+/* 1 when the last update wrote some of LLG model `model`'s probes (its grid in the bake
+ * file, llgs[model].probe_sh, is then new: a game re-uploads that model's grid), else 0
+ * (also for a model out of range, and before the first update after load). */
+int ub_runtime_llg_changed(const ub_runtime *rt, uint32_t model);
 /* Changed texels [start, start + max) of the last update into out; returns how many were
  * written (fewer than max at the end). Cost: the runs before start, then one texel each. */
 size_t ub_runtime_changed_texels(const ub_runtime *rt, uint64_t start, size_t max,
