@@ -54,7 +54,7 @@ static int atlas_setup(const ub_runtime *rt, uint32_t a, game_atlas *g)
     if (bf->atlases[a].coverage[i] == 2 &&
         ub_runtime_texel_source(rt, a, (uint32_t)(i % g->w), (uint32_t)(i / g->w), &sx, &sy) ==
             UB_OK) {
-      src[i] = sy * g->w + sx;
+      src[i] = (uint32_t)((size_t)sy * g->w + sx); /* < w × h: fits (a texture's pixels) */
       g->pad_first[src[i] + 1]++;
       npad++;
     }
@@ -75,6 +75,16 @@ static int atlas_setup(const ub_runtime *rt, uint32_t a, game_atlas *g)
   free(fill);
   free(src);
   return 1;
+}
+
+static void atlases_free(game_atlas *ga, uint32_t n)
+{
+  for (uint32_t a = 0; ga && a < n; a++) {
+    free(ga[a].tex);
+    free(ga[a].pad_first);
+    free(ga[a].pad);
+  }
+  free(ga);
 }
 
 /* After an update: the changed texels into the textures, with their padding (what a game
@@ -145,6 +155,8 @@ int main(int argc, char **argv)
     ok = atlas_setup(rt, a, &ga[a]);
   if (!ok) {
     fprintf(stderr, "example_game_loop: out of memory\n");
+    atlases_free(ga, atlases);
+    ub_runtime_free(rt);
     return 1;
   }
   printf("%s: %u atlas(es), %u dynamic light sets, %u LLG models; AHD scale %g\n", argv[1],
@@ -161,11 +173,23 @@ int main(int argc, char **argv)
     const uint32_t s = (h >> 8) % sets;
     const float w = (h >> 29) < 3 ? 0.0f : (float)((h >> 12) & 0xff) / 128.0f;
     const float rgb[3] = {w, w * 0.8f, w * 1.1f};
-    ub_runtime_set_dls(rt, s, rgb);
-    /* ... updates (ub_runtime_update_begin/job/end on its job system's threads, or): */
-    ub_runtime_update_stats st;
-    if (ub_runtime_update(rt, &st) != UB_OK)
-      return 1;
+    if (ub_runtime_set_dls(rt, s, rgb) != UB_OK)
+      bad++;
+    /* ... updates: every other frame split into jobs (ub_runtime_update_job(rt, j) would
+     * run on the job system's threads; here one after the other), else in one call */
+    if (t & 1) {
+      uint32_t jobs = 0;
+      if (ub_runtime_update_begin(rt, 2, &jobs) != UB_OK) {
+        bad++;
+        break;
+      }
+      for (uint32_t j = 0; j < jobs; j++)
+        ub_runtime_update_job(rt, j);
+      ub_runtime_update_end(rt, NULL);
+    } else if (ub_runtime_update(rt, NULL) != UB_OK) {
+      bad++;
+      break;
+    }
     /* ... re-uploads the lightmap texels and LLG grids that changed ... */
     texels += upload_changes(rt, ga);
     for (uint32_t m = 0; m < bf->llg_count; m++)
@@ -182,12 +206,7 @@ int main(int argc, char **argv)
   printf("%u toggles: %llu texels and %llu LLG grids re-uploaded; textures %s the run-time's "
          "atlases after every one (%u mismatches)\n", toggles, (unsigned long long)texels,
          (unsigned long long)models, bad ? "DIFFER from" : "equal", bad);
-  for (uint32_t a = 0; a < atlases; a++) {
-    free(ga[a].tex);
-    free(ga[a].pad_first);
-    free(ga[a].pad);
-  }
-  free(ga);
+  atlases_free(ga, atlases);
   ub_runtime_free(rt);
   return bad ? 1 : 0;
 }

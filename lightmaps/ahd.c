@@ -200,13 +200,15 @@ static uint16_t pack_colour(float v, float inv_scale)
   return ub_half_from_float(x);
 }
 
-/* Unit direction d → octahedral (u, v) ∈ [-1, 1]² as snorm16 (round to nearest in the
- * current rounding mode, as cvtps2dq does); a zero direction gives (0, 0). */
+/* Unit direction d → octahedral (u, v) ∈ [-1, 1]² as snorm16 (rounded in the current
+ * rounding mode, as cvtps2dq does: to nearest unless the caller changed it); a zero or
+ * non-finite direction gives (0, 0) (the encoder's directions are unit: the AVX path
+ * tests for zero only). */
 static void pack_direction(const float d[3], int16_t out[2])
 {
   float s = (fabsf(d[0]) + fabsf(d[1])) + fabsf(d[2]), inv = 1.0f / s;
   float u = d[0] * inv, v = d[1] * inv;
-  if (!(s > 0.0f))
+  if (!(s > 0.0f) || !(s < INFINITY)) /* zero, or not finite (NaN, ±Inf): no direction */
     u = v = 0.0f;
   if (d[2] < 0.0f) {
     float su = u >= 0.0f ? 1.0f : -1.0f, sv = v >= 0.0f ? 1.0f : -1.0f;

@@ -874,6 +874,14 @@ static void part_bound(const ub_blend *b, uint32_t p, uint32_t parts, uint32_t *
   }
 }
 
+uint32_t ub_blend_part_first(const ub_blend *b, uint32_t part, uint32_t parts)
+{
+  assert(b && parts >= 1 && part <= parts);
+  uint32_t item, pos;
+  part_bound(b, part, parts, &item, &pos);
+  return item;
+}
+
 void ub_blend_update_part(const ub_blend *b, uint32_t part, uint32_t parts,
                           ub_blend_touched_fn touched, void *user, float *out_values,
                           ub_blend_stats *out_stats)

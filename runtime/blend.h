@@ -214,6 +214,13 @@ void ub_blend_update_part(const ub_blend *b, uint32_t part, uint32_t parts,
                           ub_blend_touched_fn touched, void *user, float *out_values,
                           ub_blend_stats *out_stats);
 
+/* The first work item (a group to recompute, in the update's ascending order) of part
+ * `part` of `parts` of the update begun (part == parts: the work's size). Part p reaches
+ * from item first(p) to item first(p + 1) inclusive when a group is cut between them, so
+ * it touches at most first(p + 1) − first(p) + 1 groups, and all parts together at most
+ * groups + parts. */
+uint32_t ub_blend_part_first(const ub_blend *b, uint32_t part, uint32_t parts);
+
 /* Receiver r's row as the last update (or create) left it: base + Σ ω_i·S_i under the
  * weights of that update, with the update's operations in its order (the same bits as
  * the row it wrote or streamed), into out_row (stride floats). Needs UB_BLEND_ROW_QUERY

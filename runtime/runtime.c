@@ -101,26 +101,27 @@ struct ub_runtime {
   ub_glg glg;            /* valid when has_glg */
   int has_glg;
   /* The AHD of every covered texel (slots entries), packed (ubake/ahd.h, 16 B: halves of
-   * value / ahd_scale and an octahedral direction; what a game uploads): made by pack_ahd
-   * once the records' scale is known, from ahd_f, the float AHD the load encodes from the
-   * base (slot order; ahd_max its largest colour). With records (ahd_ranked) the touched
-   * texels come first by rank, so an update writes it sequentially, then the untouched
-   * ones in slot order (ahd_index). */
+   * value / ahd_scale and an octahedral direction; what a game uploads): always the pack of
+   * the float AHD encoded from the texel's current row (texel_row), as
+   * ub_runtime_texel_irradiance encodes it. Made by init_ahd (the untouched texels) and
+   * the set-up's update of every group (the touched ones). With records (ahd_ranked) the
+   * touched texels come first by rank, so an update writes it sequentially, then the
+   * untouched ones in slot order (ahd_index). */
   ub_ahd_packed *ahd;
-  ub_ahd *ahd_f;
-  double ahd_max;
   float ahd_scale, ahd_inv_scale; /* a power of two ≥ 1, and its inverse */
   int ahd_ranked;
   /* Jobs of the update in progress (ub_runtime_update_begin … end). */
   struct rt_job *jobs;
   uint32_t job_cap, job_count;
   /* The texels each job re-encoded, as runs of ranks (first, count) merged where they
-   * continue each other: chg_cap pairs per job (the lightmap blend's groups + 1: a group's
-   * ranks are one run, so a job never has more), job_cap jobs. The last update's jobs
-   * (chg_jobs) stay there for ub_runtime_changed_texels; chg_all when a job ran out of
-   * room (never expected): every touched texel counts as changed. */
+   * continue each other: a group's ranks are one run, so job j needs at most as many as
+   * the lightmap blend's part j has groups (ub_blend_part_first): its runs start at pair
+   * chg_at[j] = first(j) + j of the lightmap groups + job_cap pairs of chg_runs. The last
+   * update's jobs (chg_jobs) stay there for ub_runtime_changed_texels; chg_all when a job
+   * ran out of room (not expected): every touched texel then counts as changed. */
   uint32_t *chg_runs;
-  uint32_t chg_cap, chg_jobs;
+  uint32_t *chg_at;   /* job_cap: each job's first pair */
+  uint32_t chg_groups, chg_jobs;
   uint64_t chg_texels;
   int chg_all;
   uint32_t lit_count;    /* triangles with tri_atlas >= 0 */
@@ -479,9 +480,9 @@ void ub_runtime_free(ub_runtime *rt)
   if (!rt)
     return;
   free(rt->ahd);
-  free(rt->ahd_f);
   free(rt->jobs);
   free(rt->chg_runs);
+  free(rt->chg_at);
   free(rt->llg_chg);
   if (rt->fallback)
     for (uint32_t a = 0; a < rt->bf->atlas_count; a++) {
@@ -823,30 +824,45 @@ static ub_result sort_record(uint32_t *recv, uint16_t *rows, uint32_t count, uin
   return UB_OK;
 }
 
-/* rt->ahd from the load's float AHD (ahd_f, slot order, freed), in ahd_index order
- * (ranked: touched texels by rank first). The scale: the smallest power of two ≥
- * records_scale (the lightmap records' own, 1 without) that brings the base's largest
- * colour to ≤ 16384, a quarter of the half range (headroom for sets adding light). */
-static ub_result pack_ahd(ub_runtime *rt, int ranked, float records_scale)
+static const float *texel_row(const ub_runtime *rt, uint32_t a, size_t i,
+                              float srow[UB_SH1_FLOATS]);
+static ub_result update_begin_ex(ub_runtime *rt, uint32_t max_jobs, int all, uint32_t *out_jobs);
+
+/* rt->ahd in ahd_index order (ranked: the touched texels by rank first): the untouched
+ * texels encoded from their rows (lm_static), the touched ones left zero for the set-up's
+ * update of every group (it encodes them from the blend's rows). The scale: the largest of
+ * the rows' own power-of-two scales (the untouched rows', the blend's base rows' and its
+ * records', each bringing its values within 32768 × scale): colours of ordinary levels
+ * stay far inside the half range, the scale is 1 unless the level's SH is brighter than
+ * 32768. */
+static ub_result init_ahd(ub_runtime *rt, int ranked)
 {
   const ub_bakefile *bf = rt->bf;
   uint64_t slots = rt->slot_first[bf->atlas_count];
-  ub_ahd_packed *o = malloc((size_t)(slots ? slots : 1) * sizeof *o);
+  ub_ahd_packed *o = calloc((size_t)(slots ? slots : 1), sizeof *o);
   if (!o)
     return UB_ERR_OUT_OF_MEMORY;
-  float s = records_scale >= 1.0f ? records_scale : 1.0f;
-  while (rt->ahd_max / s > 16384.0 && s < 1e30f)
-    s *= 2.0f;
+  float s = rt->lm_static_scale >= 1.0f ? rt->lm_static_scale : 1.0f;
+  if (rt->lm_blend) {
+    ub_blend_info in;
+    ub_blend_get_info(rt->lm_blend, &in);
+    s = in.base_scale > s ? in.base_scale : s;
+    s = rt->lm_scale > s ? rt->lm_scale : s;
+  }
   rt->ahd_scale = s;
   rt->ahd_inv_scale = 1.0f / s;
   rt->ahd_ranked = ranked;
-  for (uint32_t a = 0; a < bf->atlas_count; a++)
-    for (uint64_t sa = 0; sa < rt->slot_first[a + 1] - rt->slot_first[a]; sa++)
-      ub_ahd_pack(&rt->ahd_f[rt->slot_first[a] + sa], rt->ahd_inv_scale,
-                  &o[ahd_index(rt, a, sa)]);
-  free(rt->ahd_f);
-  rt->ahd_f = NULL;
   rt->ahd = o;
+  for (uint32_t a = 0; a < bf->atlas_count; a++)
+    for (uint64_t sa = 0; sa < rt->slot_first[a + 1] - rt->slot_first[a]; sa++) {
+      const uint64_t sl = rt->slot_first[a] + sa;
+      uint64_t ix;
+      if (slot_touched(rt, sl, &ix))
+        continue;
+      float srow[UB_SH1_FLOATS];
+      const uint32_t px = rt->slot_pixel[sl];
+      encode_texel_packed(rt, a, texel_row(rt, a, px, srow), 1, px, &o[ahd_index(rt, a, sa)]);
+    }
   return UB_OK;
 }
 
@@ -1086,9 +1102,10 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   {
     ub_blend_info in;
     ub_blend_get_info(rt->lm_blend, &in);
-    rt->chg_cap = in.group_count + 1;
-    rt->chg_runs = malloc((size_t)rt->job_cap * rt->chg_cap * 2 * sizeof *rt->chg_runs);
-    if (!rt->chg_runs)
+    rt->chg_groups = in.group_count;
+    rt->chg_runs = malloc(((size_t)in.group_count + rt->job_cap) * 2 * sizeof *rt->chg_runs);
+    rt->chg_at = calloc(rt->job_cap, sizeof *rt->chg_at);
+    if (!rt->chg_runs || !rt->chg_at)
       return UB_ERR_OUT_OF_MEMORY;
   }
   /* Base rows in half too (UB_BLEND_BASE_HALF): the touched texels' as the untouched ones'
@@ -1176,12 +1193,20 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     ub_log_printf(log, UB_LOG_ERROR, "%s: cannot apply the elements' default values", path);
     return r;
   }
-  r = pack_ahd(rt, 1, rt->lm_scale);
+  r = init_ahd(rt, 1);
   if (r != UB_OK) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return r;
   }
-  return ub_runtime_update(rt, NULL);
+  /* every group, dirty or not (a group of closed doors only has weights 0): every touched
+   * texel's AHD encoded from the blend's row */
+  uint32_t jobs;
+  r = update_begin_ex(rt, 1, 1, &jobs);
+  if (r != UB_OK)
+    return r;
+  ub_runtime_update_job(rt, 0);
+  ub_runtime_update_end(rt, NULL);
+  return UB_OK;
 }
 
 ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
@@ -1211,25 +1236,13 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
     goto oom;
   if (bf->atlas_count) {
     uint64_t slots = rt->slot_first[bf->atlas_count];
-    rt->ahd_f = malloc((size_t)(slots ? slots : 1) * sizeof *rt->ahd_f);
+    (void)slots;
     rt->fallback = calloc(bf->atlas_count, sizeof *rt->fallback);
-    if (!rt->ahd_f || !rt->fallback)
+    if (!rt->fallback)
       goto oom;
-    for (uint32_t a = 0; a < bf->atlas_count; a++) {
-      const ub_bakefile_atlas *at = &bf->atlases[a];
-      uint64_t ns = rt->slot_first[a + 1] - rt->slot_first[a];
-      const uint32_t *sp = rt->slot_pixel + rt->slot_first[a];
-      if (encode_fallbacks(at, &rt->fallback[a]) != UB_OK)
+    for (uint32_t a = 0; a < bf->atlas_count; a++)
+      if (encode_fallbacks(&bf->atlases[a], &rt->fallback[a]) != UB_OK)
         goto oom;
-      for (uint64_t k = 0; k < ns; k++) {
-        ub_ahd *f = &rt->ahd_f[rt->slot_first[a] + k];
-        encode_texel(rt, a, at->sh + (size_t)sp[k] * UB_SH1_FLOATS, 0, sp[k], f);
-        for (int c = 0; c < 3; c++) {
-          const double v = f->ambient[c] > f->directional[c] ? f->ambient[c] : f->directional[c];
-          rt->ahd_max = v > rt->ahd_max ? v : rt->ahd_max;
-        }
-      }
-    }
   }
   for (uint32_t t = 0; t < bf->triangle_count; t++)
     rt->lit_count += bf->tri_atlas[t] >= 0;
@@ -1283,7 +1296,7 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
       ub_runtime_free(rt);
       return r;
     }
-  } else if (bf->atlas_count && (!setup_static(rt) || pack_ahd(rt, 0, 1.0f) != UB_OK)) {
+  } else if (bf->atlas_count && (!setup_static(rt) || init_ahd(rt, 0) != UB_OK)) {
     goto oom;
   }
   if (bf->atlas_count && !normals_to_half(rt))
@@ -1522,7 +1535,8 @@ static void llg_touched(void *user, uint32_t first, uint32_t count, const float 
       hi = mid;
   }
   for (uint32_t m = lo; m < rt->bf->llg_count && rt->llg_first[m] < (uint64_t)first + count; m++)
-    atomic_store_explicit(&rt->llg_chg[m], 1, memory_order_relaxed);
+    if (rt->llg_first[m + 1] > rt->llg_first[m]) /* (a model without probes never changes) */
+      atomic_store_explicit(&rt->llg_chg[m], 1, memory_order_relaxed);
 }
 
 static double rt_now(void)
@@ -1534,15 +1548,25 @@ static double rt_now(void)
 
 ub_result ub_runtime_update_begin(ub_runtime *rt, uint32_t max_jobs, uint32_t *out_jobs)
 {
+  return update_begin_ex(rt, max_jobs, 0, out_jobs);
+}
+
+/* ub_runtime_update_begin; all: every group of every blend, dirty or not. */
+static ub_result update_begin_ex(ub_runtime *rt, uint32_t max_jobs, int all, uint32_t *out_jobs)
+{
   assert(rt && out_jobs);
   if (max_jobs == 0 || max_jobs > UB_RUNTIME_MAX_JOBS || rt->job_count)
     return UB_ERR_INVALID_ARGUMENT; /* (job_count: an update begun and not ended) */
   if (max_jobs > rt->job_cap) {
     if (rt->chg_runs) {
-      uint32_t *c = realloc(rt->chg_runs, (size_t)max_jobs * rt->chg_cap * 2 * sizeof *c);
+      uint32_t *c = realloc(rt->chg_runs, ((size_t)rt->chg_groups + max_jobs) * 2 * sizeof *c);
       if (!c)
         return UB_ERR_OUT_OF_MEMORY;
       rt->chg_runs = c;
+      uint32_t *at = realloc(rt->chg_at, (size_t)max_jobs * sizeof *at);
+      if (!at)
+        return UB_ERR_OUT_OF_MEMORY;
+      rt->chg_at = at;
     }
     rt_job *j = realloc(rt->jobs, (size_t)max_jobs * sizeof *j);
     if (!j)
@@ -1559,7 +1583,9 @@ ub_result ub_runtime_update_begin(ub_runtime *rt, uint32_t max_jobs, uint32_t *o
     }
   for (int i = 0; i < 3; i++)
     if (bl[i])
-      ub_blend_update_begin(bl[i], 0);
+      ub_blend_update_begin(bl[i], all);
+  for (uint32_t j = 0; rt->chg_runs && j < max_jobs; j++) /* each job's runs (chg_at) */
+    rt->chg_at[j] = ub_blend_part_first(rt->lm_blend, j, max_jobs) + j;
   memset(rt->jobs, 0, (size_t)max_jobs * sizeof *rt->jobs);
   for (uint32_t m = 0; rt->llg_chg && m < rt->bf->llg_count; m++)
     atomic_store_explicit(&rt->llg_chg[m], 0, memory_order_relaxed);
@@ -1581,8 +1607,8 @@ void ub_runtime_update_job(ub_runtime *rt, uint32_t job)
     touched_ctx tc;
     memset(&tc, 0, sizeof tc);
     tc.rt = rt;
-    tc.runs = rt->chg_runs + (size_t)job * rt->chg_cap * 2;
-    tc.cap = rt->chg_cap;
+    tc.runs = rt->chg_runs + (size_t)rt->chg_at[job] * 2;
+    tc.cap = ub_blend_part_first(rt->lm_blend, job + 1, parts) + job + 1 - rt->chg_at[job];
     ub_blend_update_part(rt->lm_blend, job, parts, lm_touched, &tc, NULL, &jb->lm);
     touched_flush(&tc);
     jb->texels = tc.texels;
@@ -1719,7 +1745,10 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
                   (bf->atlases[a].sh ? t * UB_SH1_FLOATS * F : 0) +
                   (rt->fallback ? (size_t)rt->fallback[a].count * (U + 3 * F) : 0);
   }
-  m.lightmap += (size_t)rt->job_cap * rt->chg_cap * 2 * U; /* changed-texel runs */
+  if (rt->chg_runs) /* changed-texel runs */
+    m.lightmap += ((size_t)rt->chg_groups + rt->job_cap) * 2 * U + (size_t)rt->job_cap * U;
+  if (rt->llg_chg)
+    m.llg += bf->llg_count;
   if (rt->tch_bits) {
     size_t slots = (size_t)rt->slot_first[bf->atlas_count], words = (slots + 63) / 64, t = 0;
     for (size_t w = 0; w < words; w++)
@@ -1903,7 +1932,7 @@ size_t ub_runtime_changed_texels(const ub_runtime *rt, uint64_t start, size_t ma
   }
   uint64_t seen = 0; /* changed texels in the runs before */
   for (uint32_t j = 0; j < rt->chg_jobs && n < max; j++) {
-    const uint32_t *runs = rt->chg_runs + (size_t)j * rt->chg_cap * 2;
+    const uint32_t *runs = rt->chg_runs + (size_t)rt->chg_at[j] * 2;
     for (uint32_t r = 0; r < rt->jobs[j].runs && n < max; r++) {
       const uint64_t first = runs[2 * r], count = runs[2 * r + 1];
       if (seen + count <= start) {

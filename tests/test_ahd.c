@@ -5,6 +5,7 @@
 #include <string.h>
 
 #include "test_util.h"
+#include "runtime/cpu.h"
 #include "ubake/ahd.h"
 
 #define PI 3.14159265358979323846
@@ -371,8 +372,12 @@ static void test_encode_iz8_bits(void)
   }
   printf("ub_ahd_encode_iz8: %d of %d texels differ from ub_ahd_encode_iz in any bit\n",
          mismatches, total);
-  printf("ub_ahd_encode_iz8_packed: %d of %d texels differ from ub_ahd_encode_iz + "
-         "ub_ahd_pack (%d saturated)\n", pmismatch, total, saturated);
+  printf("ub_ahd_encode_iz8_packed (%s): %d of %d texels differ from ub_ahd_encode_iz + "
+         "ub_ahd_pack (%d saturated)\n",
+         (ub_cpu_features_cached() & (UB_CPU_AVX | UB_CPU_F16C)) == (UB_CPU_AVX | UB_CPU_F16C)
+             ? "AVX + F16C path"
+             : "scalar path: this CPU has no AVX + F16C",
+         pmismatch, total, saturated);
   ASSERT_TRUE(mismatches == 0);
   ASSERT_TRUE(pmismatch == 0);
   ASSERT_TRUE(saturated > 0);

@@ -17,6 +17,7 @@
 #include "runtime/blend.h"
 #include "runtime/texel_sh.h"
 #include "test_util.h"
+#include "test_rt_util.h"
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
 #include "ubake/glg.h"
@@ -409,6 +410,7 @@ int main(void)
     size_t nsh = (size_t)back->glg_probe_count * 27;
     float *start = glg_now(rt, back->glg_probe_count);
     ASSERT_TRUE(start != NULL);
+    ub_ahd_packed *ahd_start = ahd_snapshot(rt, back); /* the packed AHD, compared below */
     /* Default: sets 1, door closed (0), objects shown (applied 0), combos 0. */
     float def[7][3] = {{1, 1, 1}, {1, 1, 1}, {0, 0, 0}, {0, 0, 0}, {0, 0, 0}, {0, 0, 0}, {0, 0, 0}};
     double e0 = check_state(rt, back, def, 7);
@@ -465,6 +467,16 @@ int main(void)
     ASSERT_OK(ub_runtime_update(rt, NULL));
     float *end = glg_now(rt, back->glg_probe_count);
     ASSERT_TRUE(end && !memcmp(start, end, nsh * sizeof *start));
+    {
+      /* the stored AHD too: it depends on the state only, not on the updates before */
+      ub_ahd_packed *ahd_end = ahd_snapshot(rt, back);
+      size_t np = 0;
+      for (uint32_t a = 0; a < back->atlas_count; a++)
+        np += (size_t)back->atlases[a].width * back->atlases[a].height;
+      ASSERT_TRUE(!memcmp(ahd_start, ahd_end, np * sizeof *ahd_end));
+      free(ahd_end);
+      free(ahd_start);
+    }
     free(end);
     free(start);
   }

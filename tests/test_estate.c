@@ -16,6 +16,7 @@
 #endif
 
 #include "test_util.h"
+#include "test_rt_util.h"
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
 #include "ubake/runtime.h"
@@ -159,22 +160,6 @@ static void check_records(const ub_bakefile *bf)
   ASSERT_TRUE(share_sum / (bf->dls_count ? bf->dls_count : 1) < MAX_MEAN_SHARE);
   free(cov);
   free(over);
-}
-
-/* Every atlas's packed AHD, one after the other (ub_runtime_atlas_ahd). */
-static ub_ahd_packed *ahd_snapshot(const ub_runtime *rt, const ub_bakefile *bf)
-{
-  size_t n = 0;
-  for (uint32_t a = 0; a < bf->atlas_count; a++)
-    n += (size_t)bf->atlases[a].width * bf->atlases[a].height;
-  ub_ahd_packed *s = malloc((n ? n : 1) * sizeof *s);
-  ASSERT_TRUE(s != NULL);
-  n = 0;
-  for (uint32_t a = 0; a < bf->atlas_count; a++) {
-    ASSERT_OK(ub_runtime_atlas_ahd(rt, a, s + n));
-    n += (size_t)bf->atlases[a].width * bf->atlases[a].height;
-  }
-  return s;
 }
 
 /* The last update's changed texels (ub_runtime_changed_texels) against the AHD before

@@ -132,8 +132,11 @@ ub_result ub_runtime_texel_source(const ub_runtime *rt, uint32_t atlas, uint32_t
 /* The stored AHD lightmap (ubake/ahd.h, ub_ahd_packed: 16 bytes a texel, halves of value /
  * ub_runtime_ahd_scale and an octahedral direction): what a game uploads to its lightmap
  * texture and re-uploads where an update re-encoded texels. The scale is a power of two
- * ≥ 1, fixed at load (1 unless the level is brighter than 16384 W/m² or its records need
- * more); colours saturate at 65504 × scale. */
+ * ≥ 1, fixed at load: the largest of the lightmap rows' own scales (each brings the
+ * base's or the records' values within 32768 × scale; 1 unless the level is that bright).
+ * A colour above 65504 × scale (sets with large weights adding up there) is stored as
+ * 65504 × scale. The stored AHD depends on the current state only, not on the updates
+ * before it. */
 float ub_runtime_ahd_scale(const ub_runtime *rt);
 /* Texel (x, y)'s packed AHD in the current state (a padding pixel: its source texel's).
  * UB_ERR_NOT_BAKED for an empty pixel, UB_ERR_INVALID_ARGUMENT out of range (output
@@ -148,9 +151,10 @@ ub_result ub_runtime_atlas_ahd(const ub_runtime *rt, uint32_t atlas, ub_ahd_pack
 /* What changed in the lightmap at the last update (ub_runtime_update, or _end), for a
  * game to re-upload: the texels it re-encoded (every texel of every overlap group holding
  * an element whose value changed; the same count as the update's texels_reencoded), in
- * the order the update wrote them. Padding pixels that copy a changed texel
- * (ub_runtime_texel_source) change with it. Empty before the first update after load (the
- * whole atlas is new then: ub_runtime_atlas_ahd). */
+ * the order the update wrote them, the same list whatever the job count. Padding pixels
+ * that copy a changed texel (ub_runtime_texel_source) change with it. Empty before the
+ * first update after load (the whole atlas is new then: ub_runtime_atlas_ahd). Kept as
+ * runs of texels, one per overlap group: (groups + jobs) × 8 bytes. */
 typedef struct ub_runtime_texel_change {
   uint32_t atlas, x, y;
   ub_ahd_packed ahd; /* its new packed AHD */
