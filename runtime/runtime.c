@@ -33,9 +33,10 @@ struct ub_runtime {
    * texels only (per atlas, pixels ascending; a zero normal: none in the atlas, the SH's
    * own direction is used). */
   ub_rt_fallback *fallback; /* atlas_count */
-  /* Per atlas, every pixel's stored normal as the file's halves (3 per pixel; made at the
-   * end of load, when the bake file's float copies go: the same values, half the bytes). */
-  uint16_t **nrm;
+  /* Every covered texel's stored normal as the file's halves (3 per slot, global slot
+   * order; made at the end of load, when the bake file's float copies go: the same values,
+   * half the bytes; padding and empty pixels keep none: a padding pixel shows its source). */
+  uint16_t *nrm;
   uint64_t *pixel_first; /* atlas_count + 1: first global pixel of each atlas */
   /* Per-texel run-time arrays hold covered texels only (coverage 1; ESTATE-like levels
    * cover ~60% of their atlas pixels): a texel's slot is its rank among the covered
@@ -396,14 +397,15 @@ static ub_result encode_fallbacks(const ub_bakefile_atlas *at, ub_rt_fallback *o
   return UB_OK;
 }
 
-/* ub_texel_normal of pixel i's stored normal in atlas a (the bake file's floats during
- * load, the same values from rt->nrm after it). */
+/* ub_texel_normal of covered pixel i's stored normal in atlas a (the bake file's floats
+ * during load, the same values from rt->nrm after it). */
 static int stored_normal(const ub_runtime *rt, uint32_t a, size_t i, float out_n[3])
 {
   const float *f = rt->bf->atlases[a].normal;
   if (f)
     return ub_texel_normal(&f[i * 3], out_n);
-  const uint16_t *h = rt->nrm[a] + i * 3;
+  assert(rt->bf->atlases[a].coverage[i] == 1);
+  const uint16_t *h = rt->nrm + (rt->slot_first[a] + slot_of(rt, a, i)) * 3;
   const float n[3] = {ub_half_to_float(h[0]), ub_half_to_float(h[1]), ub_half_to_float(h[2])};
   return ub_texel_normal(n, out_n);
 }
@@ -490,9 +492,6 @@ void ub_runtime_free(ub_runtime *rt)
       free(rt->fallback[a].normal);
     }
   free(rt->fallback);
-  if (rt->nrm)
-    for (uint32_t a = 0; a < rt->bf->atlas_count; a++)
-      free(rt->nrm[a]);
   free(rt->nrm);
   free(rt->pixel_first);
   if (rt->cov_bits)
@@ -938,23 +937,21 @@ static int setup_static(ub_runtime *rt)
   return ok;
 }
 
-/* The atlases' stored normals as halves (rt->nrm), the bake file's floats freed: the file
- * stores them in half, so the floats convert back exactly and every reader (stored_normal)
- * gets the same values. 0 when out of memory (nothing freed). */
+/* The covered texels' stored normals as halves (rt->nrm, per slot), the bake file's floats
+ * freed: the file stores them in half, so the floats convert back exactly and every
+ * reader (stored_normal) gets the same values. 0 when out of memory (nothing freed). */
 static int normals_to_half(ub_runtime *rt)
 {
   ub_bakefile *bf = rt->bf;
-  rt->nrm = calloc(bf->atlas_count, sizeof *rt->nrm);
+  const uint64_t slots = rt->slot_first[bf->atlas_count];
+  rt->nrm = malloc((size_t)(slots ? slots : 1) * 3 * sizeof *rt->nrm);
   if (!rt->nrm)
     return 0;
-  for (uint32_t a = 0; a < bf->atlas_count; a++) {
-    size_t n = (size_t)bf->atlases[a].width * bf->atlases[a].height * 3;
-    rt->nrm[a] = malloc((n ? n : 1) * sizeof **rt->nrm);
-    if (!rt->nrm[a])
-      return 0;
-    for (size_t k = 0; k < n; k++)
-      rt->nrm[a][k] = ub_half_from_float(bf->atlases[a].normal[k]);
-  }
+  for (uint32_t a = 0; a < bf->atlas_count; a++)
+    for (uint64_t sl = rt->slot_first[a]; sl < rt->slot_first[a + 1]; sl++)
+      for (int k = 0; k < 3; k++)
+        rt->nrm[sl * 3 + k] =
+            ub_half_from_float(bf->atlases[a].normal[(size_t)rt->slot_pixel[sl] * 3 + k]);
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     free(bf->atlases[a].normal);
     bf->atlases[a].normal = NULL;
@@ -1736,7 +1733,7 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     size_t t = (size_t)bf->atlases[a].width * bf->atlases[a].height;
     size_t ns = rt->slot_first ? (size_t)(rt->slot_first[a + 1] - rt->slot_first[a]) : 0;
-    m.geometry += t * (3 * sizeof(uint16_t) + 1); /* normals (halves), coverage */
+    m.geometry += ns * 3 * sizeof(uint16_t) + t; /* covered texels' normals (halves), coverage */
     size_t nd = 0; /* padding pixels and their sources */
     if (rt->dil_src && rt->dil_src[a] && t)
       nd = rt->dil_rank[a][(t - 1) / 64] +
@@ -1810,7 +1807,12 @@ ub_result ub_runtime_texel_normal(const ub_runtime *rt, uint32_t atlas, uint32_t
   const ub_bakefile *bf = rt->bf;
   if (!texel_in_range(rt, atlas, x, y))
     return UB_ERR_INVALID_ARGUMENT;
-  const uint16_t *h = rt->nrm[atlas] + ((size_t)y * bf->atlases[atlas].width + x) * 3;
+  const int64_t t = texel_pixel(rt, atlas, (size_t)y * bf->atlases[atlas].width + x);
+  if (t < 0) { /* empty (or padding no texel reaches) */
+    out_n[0] = out_n[1] = out_n[2] = 0.0f;
+    return UB_OK;
+  }
+  const uint16_t *h = rt->nrm + (rt->slot_first[atlas] + slot_of(rt, atlas, (size_t)t)) * 3;
   for (int k = 0; k < 3; k++)
     out_n[k] = ub_half_to_float(h[k]);
   return UB_OK;

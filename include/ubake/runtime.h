@@ -115,8 +115,9 @@ ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint
                                       uint32_t y, const float n[3], float out_rgb[3]);
 /* The stored normal of texel (x, y) of atlas `atlas`, as the bake file has it (world, unit
  * to half precision; zero for an empty texel or one without a normal): what the AHD
- * encode and the I_z form use. UB_ERR_INVALID_ARGUMENT for an atlas or texel out of range
- * (output untouched). */
+ * encode and the I_z form use; for a padding pixel its source texel's
+ * (ub_runtime_texel_source), as for its irradiance. UB_ERR_INVALID_ARGUMENT for an atlas
+ * or texel out of range (output untouched). */
 ub_result ub_runtime_texel_normal(const ub_runtime *rt, uint32_t atlas, uint32_t x, uint32_t y,
                                   float out_n[3]);
 /* The covered texel (coverage 1) whose state pixel (x, y) of atlas `atlas` shows: itself,
