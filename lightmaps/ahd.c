@@ -220,6 +220,16 @@ static void pack_direction(const float d[3], int16_t out[2])
   out[1] = (int16_t)lrintf(v * 32767.0f);
 }
 
+float ub_ahd_pack_scale(double row_max)
+{
+  float s = 1.0f;
+  if (!(row_max > 0.0) || !isfinite(row_max))
+    return s;
+  while (row_max * 64.0 > (double)UB_HALF_MAX * s && s < 1e30f)
+    s *= 2.0f;
+  return s;
+}
+
 void ub_ahd_pack(const ub_ahd *in, float inv_scale, ub_ahd_packed *out)
 {
   for (int c = 0; c < 3; c++) {

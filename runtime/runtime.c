@@ -67,6 +67,8 @@ struct ub_runtime {
   int lm_un_all;           /* every touched texel has a normal of its own (no NaN in lm_un) */
   uint16_t *lm_static;     /* untouched slots × 12 */
   float lm_static_scale;
+  double lm_row_max;       /* the largest |value| of the lightmap's rows, base (every
+                              texel's) and records: what the AHD scale is chosen from */
   uint64_t *tch_bits;      /* ⌈slots / 64⌉ words: the slot is touched */
   uint32_t *tch_rank;      /* touched slots before each word */
   /* A touched slot's index (its "rank": in lm_un, tch_slot, the lightmap blend's
@@ -703,6 +705,8 @@ static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs,
    * rescaled from the file's scale to the pool's (both powers of two: exact but for half
    * subnormals and rounding when the pool's is larger), the arrays handed over to recs. */
   float s = half_pool_scale(mx);
+  if (rep == 0)
+    rt->lm_row_max = mx > rt->lm_row_max ? mx : rt->lm_row_max;
   for (uint32_t e = 0; e < n; e++) {
     ub_bakefile_record *rc = element_record_rw(bf, e);
     uint16_t **own = record_halves(rc, rep);
@@ -829,11 +833,10 @@ static ub_result update_begin_ex(ub_runtime *rt, uint32_t max_jobs, int all, uin
 
 /* rt->ahd in ahd_index order (ranked: the touched texels by rank first): the untouched
  * texels encoded from their rows (lm_static), the touched ones left zero for the set-up's
- * update of every group (it encodes them from the blend's rows). The scale: the largest of
- * the rows' own power-of-two scales (the untouched rows', the blend's base rows' and its
- * records', each bringing its values within 32768 × scale): colours of ordinary levels
- * stay far inside the half range, the scale is 1 unless the level's SH is brighter than
- * 32768. */
+ * update of every group (it encodes them from the blend's rows). The scale: the smallest
+ * power of two ≥ 1 that brings 64 × the largest row value (base or record) within the
+ * half range: an AHD colour can exceed its row's values (C_d up to ~10× them for light
+ * at d·n ≈ 0.25), and sets add up; 1 unless a row value exceeds 1023. */
 static ub_result init_ahd(ub_runtime *rt, int ranked)
 {
   const ub_bakefile *bf = rt->bf;
@@ -841,13 +844,7 @@ static ub_result init_ahd(ub_runtime *rt, int ranked)
   ub_ahd_packed *o = calloc((size_t)(slots ? slots : 1), sizeof *o);
   if (!o)
     return UB_ERR_OUT_OF_MEMORY;
-  float s = rt->lm_static_scale >= 1.0f ? rt->lm_static_scale : 1.0f;
-  if (rt->lm_blend) {
-    ub_blend_info in;
-    ub_blend_get_info(rt->lm_blend, &in);
-    s = in.base_scale > s ? in.base_scale : s;
-    s = rt->lm_scale > s ? rt->lm_scale : s;
-  }
+  const float s = ub_ahd_pack_scale(rt->lm_row_max);
   rt->ahd_scale = s;
   rt->ahd_inv_scale = 1.0f / s;
   rt->ahd_ranked = ranked;
@@ -902,14 +899,18 @@ static int static_rows(ub_runtime *rt)
                          sizeof(uint16_t));
   if (!rt->lm_static)
     return 0;
-  double smx = 0.0;
+  double smx = 0.0, amx = 0.0; /* untouched rows', every row's */
   for (uint64_t sl = 0; sl < slots; sl++) {
     uint64_t ix;
-    if (!slot_touched(rt, sl, &ix))
-      for (int k = 0; k < UB_SH1_FLOATS; k++)
-        smx = fmax(smx, fabs((double)rt->lm_base[sl * UB_SH1_FLOATS + k]));
+    const int un = !slot_touched(rt, sl, &ix);
+    for (int k = 0; k < UB_SH1_FLOATS; k++) {
+      const double v = fabs((double)rt->lm_base[sl * UB_SH1_FLOATS + k]);
+      amx = v > amx ? v : amx;
+      smx = un && v > smx ? v : smx;
+    }
   }
   rt->lm_static_scale = half_pool_scale(smx);
+  rt->lm_row_max = amx > rt->lm_row_max ? amx : rt->lm_row_max;
   for (uint64_t sl = 0; sl < slots; sl++) {
     uint64_t ix;
     const float *row = rt->lm_base + sl * UB_SH1_FLOATS;
@@ -1232,8 +1233,6 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
   if (build_slots(rt) != UB_OK)
     goto oom;
   if (bf->atlas_count) {
-    uint64_t slots = rt->slot_first[bf->atlas_count];
-    (void)slots;
     rt->fallback = calloc(bf->atlas_count, sizeof *rt->fallback);
     if (!rt->fallback)
       goto oom;
@@ -1745,7 +1744,7 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
   if (rt->chg_runs) /* changed-texel runs */
     m.lightmap += ((size_t)rt->chg_groups + rt->job_cap) * 2 * U + (size_t)rt->job_cap * U;
   if (rt->llg_chg)
-    m.llg += bf->llg_count;
+    m.llg += bf->llg_count * sizeof *rt->llg_chg;
   if (rt->tch_bits) {
     size_t slots = (size_t)rt->slot_first[bf->atlas_count], words = (slots + 63) / 64, t = 0;
     for (size_t w = 0; w < words; w++)

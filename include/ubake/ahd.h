@@ -47,6 +47,11 @@ typedef struct ub_ahd_packed {
   uint16_t directional[3]; /* half */
   int16_t oct[2];          /* snorm16 */
 } ub_ahd_packed;
+/* The scale for texels whose SH values (W/m², any coefficient, the I_z form's too) are at
+ * most row_max: the smallest power of two ≥ 1 that keeps 64 × row_max within the half
+ * range (an AHD colour can exceed its SH values, C_d up to ~10× them, and sets add up);
+ * 1 for row_max ≤ 1023, and for a zero or non-finite row_max. The run-time's rule. */
+float ub_ahd_pack_scale(double row_max);
 /* in → packed; inv_scale = 1 / scale. */
 void ub_ahd_pack(const ub_ahd *in, float inv_scale, ub_ahd_packed *out);
 /* packed → AHD (direction renormalised to unit length). */

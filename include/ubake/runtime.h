@@ -116,8 +116,8 @@ ub_result ub_runtime_texel_irradiance(const ub_runtime *rt, uint32_t atlas, uint
 /* The stored normal of texel (x, y) of atlas `atlas`, as the bake file has it (world, unit
  * to half precision; zero for an empty texel or one without a normal): what the AHD
  * encode and the I_z form use; for a padding pixel its source texel's
- * (ub_runtime_texel_source), as for its irradiance. UB_ERR_INVALID_ARGUMENT for an atlas
- * or texel out of range (output untouched). */
+ * (ub_runtime_texel_source), as for its irradiance (zero for padding no texel reaches).
+ * UB_ERR_INVALID_ARGUMENT for an atlas or texel out of range (output untouched). */
 ub_result ub_runtime_texel_normal(const ub_runtime *rt, uint32_t atlas, uint32_t x, uint32_t y,
                                   float out_n[3]);
 /* The covered texel (coverage 1) whose state pixel (x, y) of atlas `atlas` shows: itself,
@@ -133,9 +133,9 @@ ub_result ub_runtime_texel_source(const ub_runtime *rt, uint32_t atlas, uint32_t
 /* The stored AHD lightmap (ubake/ahd.h, ub_ahd_packed: 16 bytes a texel, halves of value /
  * ub_runtime_ahd_scale and an octahedral direction): what a game uploads to its lightmap
  * texture and re-uploads where an update re-encoded texels. The scale is a power of two
- * ≥ 1, fixed at load: the largest of the lightmap rows' own scales (each brings the
- * base's or the records' values within 32768 × scale; 1 unless the level is that bright).
- * A colour above 65504 × scale (sets with large weights adding up there) is stored as
+ * ≥ 1, fixed at load: 64 × the largest value of the lightmap's SH rows (base and records,
+ * W/m²) fits in the half range (1 unless a row value exceeds 1023). A colour above
+ * 65504 × scale (many bright sets adding up with large weights) is stored as
  * 65504 × scale. The stored AHD depends on the current state only, not on the updates
  * before it. */
 float ub_runtime_ahd_scale(const ub_runtime *rt);
@@ -155,7 +155,7 @@ ub_result ub_runtime_atlas_ahd(const ub_runtime *rt, uint32_t atlas, ub_ahd_pack
  * the order the update wrote them, the same list whatever the job count. Padding pixels
  * that copy a changed texel (ub_runtime_texel_source) change with it. Empty before the
  * first update after load (the whole atlas is new then: ub_runtime_atlas_ahd). Kept as
- * runs of texels, one per overlap group: (groups + jobs) × 8 bytes. */
+ * runs of texels, one per overlap group: (groups + jobs) × 8 bytes and 4 per job. */
 typedef struct ub_runtime_texel_change {
   uint32_t atlas, x, y;
   ub_ahd_packed ahd; /* its new packed AHD */

@@ -10,6 +10,10 @@
  * clamped to ±65504): finite, never negative, never above I (+0.1%: half rounding); along n
  * within 0.2% of I up to I = 1e5. Beyond the half range (I ≳ 1.3e5) the writer clamps the
  * coefficients (and counts them): the value along n is then printed, not asserted.
+ * Third pass, as the run-time stores its AHD (ub_ahd_packed: colours in half of value /
+ * ub_ahd_pack_scale(the row's largest value), octahedral direction): for every I up to
+ * 1e30 no colour saturates, finite, never negative, never above I (+0.2%), along n within
+ * 0.2% of I.
  * The L2 probe path (windowing, negative lobes) is covered by tests/test_sh.c
  * (test_window_delta, test_window_hostile). */
 #include <float.h>
@@ -59,10 +63,11 @@ int main(void)
 {
   const double scales[] = {1.0, 1e5, 1e10, 1e15, 1e19, 1e20, 1e25, 1e30};
   const int NW = 96, NN = 24, NQ = 200;
-  for (int half = 0; half < 2; half++)
+  for (int half = 0; half < 3; half++) /* 0: float, 1: stored as half, 2: packed AHD */
   for (size_t si = 0; si < sizeof scales / sizeof scales[0]; si++) {
     double I = scales[si];
     size_t checked = 0, nonfinite = 0, negative = 0, above = 0, along_bad = 0, sh1_bad = 0;
+    size_t saturated = 0;
     double worst_along = 0.0, worst_above = 0.0;
     for (int iw = 0; iw < NW; iw++) {
       float w[3];
@@ -82,7 +87,7 @@ int main(void)
         }
         float sh[12];
         baked_sh(w, n, I, sh);
-        if (half)
+        if (half == 1)
           for (int k = 0; k < 12; k++) {
             float v = sh[k] > UB_HALF_MAX ? UB_HALF_MAX : (sh[k] < -UB_HALF_MAX ? -UB_HALF_MAX : sh[k]);
             sh[k] = ub_half_to_float(ub_half_from_float(v));
@@ -90,6 +95,17 @@ int main(void)
         ub_ahd ahd;
         ub_ahd_encode(sh, n, &ahd);
         double wn = (double)w[0] * n[0] + (double)w[1] * n[1] + (double)w[2] * n[2];
+        if (half == 2) { /* the row's largest value: coefficients and I_z along n */
+          double mx = I * fmax(0.0, wn);
+          for (int k = 0; k < 12; k++)
+            mx = fmax(mx, fabs((double)sh[k]));
+          const float sc = ub_ahd_pack_scale(mx);
+          ub_ahd_packed p;
+          ub_ahd_pack(&ahd, 1.0f / sc, &p);
+          for (int c = 0; c < 3; c++)
+            saturated += p.ambient[c] == 0x7bffu || p.directional[c] == 0x7bffu;
+          ub_ahd_unpack(&p, sc, &ahd);
+        }
         for (int iq = 0; iq <= NQ; iq++) {
           float q[3], e[3], e1[3];
           if (iq < NQ)
@@ -105,7 +121,8 @@ int main(void)
             negative += e[c] < 0.0f || e1[c] < 0.0f;
             double over = (e[c] - Ic) / Ic;
             worst_above = fmax(worst_above, over);
-            double slack = half ? 1e-3 : 1e-5; /* half rounding: 2^-11 of the coefficients */
+            /* half rounding: 2^-11 of the coefficients; packed: of the colours */
+            double slack = half == 2 ? 2e-3 : half ? 1e-3 : 1e-5;
             above += e[c] > Ic * (1.0 + slack);
             sh1_bad += e1[c] > Ic * (1.0 + slack);
             if (iq == NQ) { /* along the stored normal: exact */
@@ -113,6 +130,8 @@ int main(void)
               double err = fabs(e[c] - expect);
               worst_along = fmax(worst_along, err / Ic);
               double tol = half ? 2e-3 * Ic : 1e-4 * expect + 1e-6 * Ic;
+              if (half == 2) /* colours and direction rounded: 2^-11 of C_a + C_d */
+                tol = 2e-3 * Ic;
               if ((!half || I <= 1e5) && !(err <= tol)) {
                 if (along_bad < 3)
                   fprintf(stderr, "  I=%g w.n=%.4f ch %d: E(n) = %.9g, exact %.9g\n", I, wn, c,
@@ -127,7 +146,11 @@ int main(void)
     printf("SH L1 delta (%s), I = %g: %zu checks; non-finite %zu, negative %zu, above I %zu (worst "
            "%.2e relative), along n worst |error|/I %.2e (%zu beyond tolerance); SH1 decode "
            "above I %zu\n",
-           half ? "stored as half" : "float", I, checked, nonfinite, negative, above, worst_above, worst_along, along_bad, sh1_bad);
+           half == 2 ? "packed AHD" : half ? "stored as half" : "float", I, checked, nonfinite,
+           negative, above, worst_above, worst_along, along_bad, sh1_bad);
+    if (half == 2)
+      printf("  packed AHD: %zu colours saturated (want 0)\n", saturated);
+    ASSERT_TRUE(saturated == 0);
     ASSERT_TRUE(nonfinite == 0);
     ASSERT_TRUE(negative == 0);
     ASSERT_TRUE(above == 0);
