@@ -204,18 +204,24 @@ static uint16_t pack_colour(float v, float inv_scale)
  * rounding mode, as cvtps2dq does: to nearest unless the caller changed it); a zero or
  * non-finite direction gives (0, 0) (the encoder's directions are unit: the AVX path
  * tests for zero only). */
+/* The octahedral fold of the lower hemisphere (its own inverse): (u, v) →
+ * ((1 − |v|)·sign u, (1 − |u|)·sign v), sign 0 = +1. */
+static void oct_fold(float *u, float *v)
+{
+  const float nu = (1.0f - fabsf(*v)) * (*u >= 0.0f ? 1.0f : -1.0f);
+  const float nv = (1.0f - fabsf(*u)) * (*v >= 0.0f ? 1.0f : -1.0f);
+  *u = nu;
+  *v = nv;
+}
+
 static void pack_direction(const float d[3], int16_t out[2])
 {
   float s = (fabsf(d[0]) + fabsf(d[1])) + fabsf(d[2]), inv = 1.0f / s;
   float u = d[0] * inv, v = d[1] * inv;
   if (!(s > 0.0f) || !(s < INFINITY)) /* zero, or not finite (NaN, ±Inf): no direction */
     u = v = 0.0f;
-  if (d[2] < 0.0f) {
-    float su = u >= 0.0f ? 1.0f : -1.0f, sv = v >= 0.0f ? 1.0f : -1.0f;
-    float nu = (1.0f - fabsf(v)) * su, nv = (1.0f - fabsf(u)) * sv;
-    u = nu;
-    v = nv;
-  }
+  if (d[2] < 0.0f)
+    oct_fold(&u, &v);
   out[0] = (int16_t)lrintf(u * 32767.0f);
   out[1] = (int16_t)lrintf(v * 32767.0f);
 }
@@ -248,12 +254,8 @@ void ub_ahd_unpack(const ub_ahd_packed *in, float scale, ub_ahd *out)
   float u = fmaxf((float)in->oct[0] / 32767.0f, -1.0f);
   float v = fmaxf((float)in->oct[1] / 32767.0f, -1.0f);
   float z = 1.0f - fabsf(u) - fabsf(v);
-  if (z < 0.0f) {
-    float nu = (1.0f - fabsf(v)) * (u >= 0.0f ? 1.0f : -1.0f);
-    float nv = (1.0f - fabsf(u)) * (v >= 0.0f ? 1.0f : -1.0f);
-    u = nu;
-    v = nv;
-  }
+  if (z < 0.0f)
+    oct_fold(&u, &v);
   float l = sqrtf(u * u + v * v + z * z);
   out->direction[0] = u / l;
   out->direction[1] = v / l;

@@ -175,6 +175,33 @@ static inline uint64_t ahd_index(const ub_runtime *rt, uint32_t a, uint64_t sa)
   return slot_touched(rt, s, &ix) ? ix : rt->touched + ix;
 }
 
+/* The atlas of global slot s (atlases are few: a scan). */
+static inline uint32_t slot_atlas(const ub_runtime *rt, uint64_t s)
+{
+  uint32_t a = 0;
+  while (s >= rt->slot_first[a + 1])
+    a++;
+  return a;
+}
+
+/* The packed AHD and the stored normal's halves of covered pixel i of atlas a. */
+static inline ub_ahd_packed *texel_ahd_of(const ub_runtime *rt, uint32_t a, size_t i)
+{
+  return &rt->ahd[ahd_index(rt, a, slot_of(rt, a, i))];
+}
+
+static inline const uint16_t *texel_nrm_of(const ub_runtime *rt, uint32_t a, size_t i)
+{
+  return rt->nrm + (rt->slot_first[a] + slot_of(rt, a, i)) * 3;
+}
+
+/* No LLG model changed (before an update; after the set-up's, which wrote them all). */
+static void llg_chg_clear(ub_runtime *rt)
+{
+  for (uint32_t m = 0; rt->llg_chg && m < rt->bf->llg_count; m++)
+    atomic_store_explicit(&rt->llg_chg[m], 0, memory_order_relaxed);
+}
+
 /* The covered texel (a pixel of coverage 1) that pixel i of atlas a shows: itself, or for
  * a dilated padding pixel the texel it copies; -1 for an empty pixel (or padding no texel
  * reaches). */
@@ -407,7 +434,7 @@ static int stored_normal(const ub_runtime *rt, uint32_t a, size_t i, float out_n
   if (f)
     return ub_texel_normal(&f[i * 3], out_n);
   assert(rt->bf->atlases[a].coverage[i] == 1);
-  const uint16_t *h = rt->nrm + (rt->slot_first[a] + slot_of(rt, a, i)) * 3;
+  const uint16_t *h = texel_nrm_of(rt, a, i);
   const float n[3] = {ub_half_to_float(h[0]), ub_half_to_float(h[1]), ub_half_to_float(h[2])};
   return ub_texel_normal(n, out_n);
 }
@@ -1297,8 +1324,7 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
   }
   if (bf->atlas_count && !normals_to_half(rt))
     goto oom;
-  for (uint32_t m = 0; rt->llg_chg && m < bf->llg_count; m++)
-    atomic_store_explicit(&rt->llg_chg[m], 0, memory_order_relaxed);
+  llg_chg_clear(rt);
   rt->chg_texels = 0; /* the set-up's update: the whole atlas is new */
   rt->chg_jobs = 0;
   rt->chg_all = 0;
@@ -1492,10 +1518,7 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
     }
     if (isnan(un[0])) {
       uint64_t s = rt->tch_slot[first + i];
-      uint32_t a = 0;
-      while (s >= rt->slot_first[a + 1])
-        a++;
-      encode_texel_packed(rt, a, rows, 1, rt->slot_pixel[s], out);
+      encode_texel_packed(rt, slot_atlas(rt, s), rows, 1, rt->slot_pixel[s], out);
       continue;
     }
     memcpy(tc->pn + 3 * tc->np, un, 3 * sizeof(float));
@@ -1583,8 +1606,7 @@ static ub_result update_begin_ex(ub_runtime *rt, uint32_t max_jobs, int all, uin
   for (uint32_t j = 0; rt->chg_runs && j < max_jobs; j++) /* each job's runs (chg_at) */
     rt->chg_at[j] = ub_blend_part_first(rt->lm_blend, j, max_jobs) + j;
   memset(rt->jobs, 0, (size_t)max_jobs * sizeof *rt->jobs);
-  for (uint32_t m = 0; rt->llg_chg && m < rt->bf->llg_count; m++)
-    atomic_store_explicit(&rt->llg_chg[m], 0, memory_order_relaxed);
+  llg_chg_clear(rt);
   rt->job_count = max_jobs;
   *out_jobs = max_jobs;
   return UB_OK;
@@ -1811,7 +1833,7 @@ ub_result ub_runtime_texel_normal(const ub_runtime *rt, uint32_t atlas, uint32_t
     out_n[0] = out_n[1] = out_n[2] = 0.0f;
     return UB_OK;
   }
-  const uint16_t *h = rt->nrm + (rt->slot_first[atlas] + slot_of(rt, atlas, (size_t)t)) * 3;
+  const uint16_t *h = texel_nrm_of(rt, atlas, (size_t)t);
   for (int k = 0; k < 3; k++)
     out_n[k] = ub_half_to_float(h[k]);
   return UB_OK;
@@ -1890,7 +1912,7 @@ ub_result ub_runtime_texel_ahd(const ub_runtime *rt, uint32_t atlas, uint32_t x,
   const int64_t t = texel_pixel(rt, atlas, (size_t)y * rt->bf->atlases[atlas].width + x);
   if (t < 0)
     return UB_ERR_NOT_BAKED;
-  *out = rt->ahd[ahd_index(rt, atlas, slot_of(rt, atlas, (size_t)t))];
+  *out = *texel_ahd_of(rt, atlas, (size_t)t);
   return UB_OK;
 }
 
@@ -1911,9 +1933,7 @@ uint64_t ub_runtime_changed_texel_count(const ub_runtime *rt)
 static void changed_texel(const ub_runtime *rt, uint64_t rank, ub_runtime_texel_change *out)
 {
   const uint64_t s = rt->tch_slot[rank];
-  uint32_t a = 0;
-  while (s >= rt->slot_first[a + 1])
-    a++;
+  const uint32_t a = slot_atlas(rt, s);
   const uint32_t px = rt->slot_pixel[s], w = rt->bf->atlases[a].width, y = px / w;
   out->atlas = a;
   out->x = px - y * w;
@@ -1959,7 +1979,7 @@ ub_result ub_runtime_atlas_ahd(const ub_runtime *rt, uint32_t atlas, ub_ahd_pack
     if (t < 0)
       memset(&out[i], 0, sizeof out[i]);
     else
-      out[i] = rt->ahd[ahd_index(rt, atlas, slot_of(rt, atlas, (size_t)t))];
+      out[i] = *texel_ahd_of(rt, atlas, (size_t)t);
   }
   return UB_OK;
 }
@@ -2143,7 +2163,7 @@ static int sample_ahd(const ub_runtime *rt, uint32_t atlas, float u, float v, ub
       }
     if (best == INFINITY)
       return 0;
-    ub_ahd_unpack(&rt->ahd[ahd_index(rt, atlas, slot_of(rt, atlas, bi))], rt->ahd_scale, out);
+    ub_ahd_unpack(texel_ahd_of(rt, atlas, bi), rt->ahd_scale, out);
     return 1;
   }
   float fsh[UB_SH1_FLOATS], fn[3] = {(float)nn[0], (float)nn[1], (float)nn[2]}, un[3];

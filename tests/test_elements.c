@@ -470,9 +470,7 @@ int main(void)
     {
       /* the stored AHD too: it depends on the state only, not on the updates before */
       ub_ahd_packed *ahd_end = ahd_snapshot(rt, back);
-      size_t np = 0;
-      for (uint32_t a = 0; a < back->atlas_count; a++)
-        np += (size_t)back->atlases[a].width * back->atlases[a].height;
+      const size_t np = atlas_pixels(back, back->atlas_count);
       ASSERT_TRUE(!memcmp(ahd_start, ahd_end, np * sizeof *ahd_end));
       free(ahd_end);
       free(ahd_start);

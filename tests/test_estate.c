@@ -184,14 +184,12 @@ static int check_changed(const ub_runtime *rt, const ub_bakefile *bf, const ub_a
   bad += ub_runtime_changed_texels(rt, h, (size_t)n, l2 + h) != n - h;
   bad += n && memcmp(l, l2, (size_t)n * sizeof *l) != 0;
   ub_ahd_packed *now = ahd_snapshot(rt, bf);
-  size_t total = 0;
+  const size_t total = atlas_pixels(bf, bf->atlas_count);
   uint64_t moved = 0;
   size_t *first = malloc((bf->atlas_count + 1) * sizeof *first);
   ASSERT_TRUE(first != NULL);
-  for (uint32_t a = 0; a < bf->atlas_count; a++) {
-    first[a] = total;
-    total += (size_t)bf->atlases[a].width * bf->atlases[a].height;
-  }
+  for (uint32_t a = 0; a < bf->atlas_count; a++)
+    first[a] = atlas_pixels(bf, a);
   uint8_t *in = calloc(total ? total : 1, 1);
   ASSERT_TRUE(in != NULL);
   for (uint64_t k = 0; k < n; k++) {

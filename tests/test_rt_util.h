@@ -8,19 +8,23 @@
 #include "ubake/bakefile.h"
 #include "ubake/runtime.h"
 
+/* The pixels of atlases [0, atlas_end), one after the other (atlas_end = atlas_count: all). */
+static inline size_t atlas_pixels(const ub_bakefile *bf, uint32_t atlas_end)
+{
+  size_t n = 0;
+  for (uint32_t a = 0; a < atlas_end && a < bf->atlas_count; a++)
+    n += (size_t)bf->atlases[a].width * bf->atlases[a].height;
+  return n;
+}
+
 /* Every atlas's packed AHD, one after the other (ub_runtime_atlas_ahd). */
 static ub_ahd_packed *ahd_snapshot(const ub_runtime *rt, const ub_bakefile *bf)
 {
-  size_t n = 0;
-  for (uint32_t a = 0; a < bf->atlas_count; a++)
-    n += (size_t)bf->atlases[a].width * bf->atlases[a].height;
+  const size_t n = atlas_pixels(bf, bf->atlas_count);
   ub_ahd_packed *s = malloc((n ? n : 1) * sizeof *s);
   ASSERT_TRUE(s != NULL);
-  n = 0;
-  for (uint32_t a = 0; a < bf->atlas_count; a++) {
-    ASSERT_OK(ub_runtime_atlas_ahd(rt, a, s + n));
-    n += (size_t)bf->atlases[a].width * bf->atlases[a].height;
-  }
+  for (uint32_t a = 0; a < bf->atlas_count; a++)
+    ASSERT_OK(ub_runtime_atlas_ahd(rt, a, s + atlas_pixels(bf, a)));
   return s;
 }
 

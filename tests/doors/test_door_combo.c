@@ -318,9 +318,8 @@ static void test_combo_llg(void)
     set_state(run, 0, 1);
     const ub_bakefile *rb = ub_runtime_bakefile(run);
     ub_ahd_packed *ahd1 = ahd_snapshot(run, rb);
-    size_t np = 0, differ = 0;
-    for (uint32_t a = 0; a < rb->atlas_count; a++)
-      np += (size_t)rb->atlases[a].width * rb->atlases[a].height;
+    const size_t np = atlas_pixels(rb, rb->atlas_count);
+    size_t differ = 0;
     for (size_t i = 0; i < np; i++)
       differ += memcmp(&ahd0[i], &ahd1[i], sizeof *ahd1) != 0;
     printf("back to the load's state: %zu of %zu packed AHD texels differ from the load's "
