@@ -214,6 +214,14 @@ void ub_blend_update_part(const ub_blend *b, uint32_t part, uint32_t parts,
                           ub_blend_touched_fn touched, void *user, float *out_values,
                           ub_blend_stats *out_stats);
 
+/* Part `part` of the update begun, without computing: touched(user, first, count, NULL)
+ * for the receivers update_part would recompute (the same pieces of consecutive
+ * receivers, ascending), so a caller can compute them later with ub_blend_row (which the
+ * weights taken at begin answer: UB_BLEND_ROW_QUERY). Stats: groups and receivers as
+ * update_part's, bytes_read the group tables, nothing written. */
+void ub_blend_mark_part(const ub_blend *b, uint32_t part, uint32_t parts,
+                        ub_blend_touched_fn touched, void *user, ub_blend_stats *out_stats);
+
 /* The first work item (a group to recompute, in the update's ascending order) of part
  * `part` of `parts` of the update begun (part == parts: the work's size). Part p reaches
  * from item first(p) to item first(p + 1) inclusive when a group is cut between them, so

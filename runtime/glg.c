@@ -851,6 +851,11 @@ static void interp4_half_scalar(const uint16_t *s0, const uint16_t *s1, const ui
 /* The word: bits 0..20 a 7-bit window code per channel, 21..23 zeroed channels, 24 stale,
  * 25..31 e + 64. */
 #define CP_STALE (1u << 24)
+/* Two words no encode makes (a stale word's codes are 0): the rows are not in the store
+ * (the row source has them, ub_glg_mark_unblended), and a query is writing them. Both
+ * carry the stale bit, so the fast path of cp_word never takes them. */
+#define CP_UNBLENDED (CP_STALE | 0x1FFFFFu)
+#define CP_FILLING (CP_STALE | 0x1FFFFEu)
 #define CP_CODE(w, c) (((w) >> (7 * (c))) & 0x7Fu)
 #define CP_ZERO(w) (((w) >> 21) & 7u)
 #define CP_EXP(w) ((int)((w) >> 25) - 64)
@@ -1052,10 +1057,56 @@ static uint32_t cp_find_window(const ub_glg *g, uint32_t v, uint32_t w)
   return nw;
 }
 
+static uint32_t cp_encode_probe(const ub_glg *g, const float *row, uint32_t v);
+static void cp_new_generation(ub_glg *g);
+
+/* Probe v's rows into the store when they are not there (word w, CP_UNBLENDED or
+ * CP_FILLING): the thread that moves the word to CP_FILLING asks the row source for the
+ * row, encodes it, finds its window and publishes the word (release); the others wait for
+ * it (acquire), so nobody reads a row being written. Returns the published word. */
+__attribute__((noinline)) static uint32_t cp_fill(const ub_glg *g, uint32_t v, uint32_t w)
+{
+  _Atomic uint32_t *pw = cp_words(g) + v;
+  for (;;) {
+    if (w == CP_UNBLENDED &&
+        atomic_compare_exchange_weak_explicit(pw, &w, CP_FILLING, memory_order_acquire,
+                                              memory_order_acquire)) {
+      float row[28] = {0};
+      if (!g->row_fn || !g->row_fn(g->row_user, v, row))
+        memset(row, 0, sizeof row);
+      uint32_t nw = cp_find_window(g, v, cp_encode_probe(g, row, v));
+      atomic_store_explicit(pw, nw, memory_order_release);
+      return nw;
+    }
+    if (w != CP_UNBLENDED && w != CP_FILLING)
+      return w;
+    if (w == CP_FILLING) {
+#if defined(__x86_64__) || defined(__i386__)
+      __builtin_ia32_pause();
+#endif
+      w = atomic_load_explicit(pw, memory_order_acquire);
+    }
+  }
+}
+
+/* Probe v's word with its rows in the store (stale or not). */
+static inline uint32_t cp_word_rows(const ub_glg *g, uint32_t v)
+{
+  uint32_t w = atomic_load_explicit(cp_words(g) + v, memory_order_acquire);
+  if (__builtin_expect(w == CP_UNBLENDED || w == CP_FILLING, 0))
+    w = cp_fill(g, v, w);
+  return w;
+}
+
 /* Probe v's word, its window found first when stale (published with one CAS; a racing
- * query computes the same word). */
+ * query computes the same word); its rows asked for first when not in the store. */
 __attribute__((noinline)) static uint32_t cp_word_slow(const ub_glg *g, uint32_t v, uint32_t w)
 {
+  if (w == CP_UNBLENDED || w == CP_FILLING) {
+    w = cp_fill(g, v, w);
+    if (!(w & CP_STALE))
+      return w;
+  }
   uint32_t nw = cp_find_window(g, v, w);
   if (atomic_compare_exchange_strong_explicit(cp_words(g) + v, &w, nw, memory_order_relaxed,
                                               memory_order_relaxed))
@@ -1065,7 +1116,8 @@ __attribute__((noinline)) static uint32_t cp_word_slow(const ub_glg *g, uint32_t
 
 static inline uint32_t cp_word(const ub_glg *g, uint32_t v)
 {
-  uint32_t w = atomic_load_explicit(cp_words(g) + v, memory_order_relaxed);
+  /* acquire: rows a query filled in (cp_fill) are read after their word (x86: a plain load) */
+  uint32_t w = atomic_load_explicit(cp_words(g) + v, memory_order_acquire);
   if (__builtin_expect(!(w & CP_STALE), 1))
     return w;
   return cp_word_slow(g, v, w);
@@ -1164,12 +1216,32 @@ void ub_glg_set_probes(ub_glg *g, uint32_t first, uint32_t count, const float *r
     atomic_store_explicit(cp_words(g) + first + i,
                           cp_encode_probe(g, rows + 27 * (size_t)i, first + i),
                           memory_order_relaxed);
+  cp_new_generation(g);
+}
+
+static void cp_new_generation(ub_glg *g)
+{
   /* A new generation for cursors: a relaxed load and store, not a locked add (one per
-   * call was most of this function). Concurrent calls may write the same value: it is
+   * call was most of ub_glg_set_probes). Concurrent calls may write the same value: it is
    * still greater than any generation a cursor took before them, which is all it needs. */
   _Atomic uint32_t *gen = cp_words(g) + g->probe_count;
   atomic_store_explicit(gen, atomic_load_explicit(gen, memory_order_relaxed) + 1u,
                         memory_order_relaxed);
+}
+
+void ub_glg_set_row_source(ub_glg *g, ub_glg_row_fn fn, void *user)
+{
+  assert(g);
+  g->row_fn = fn;
+  g->row_user = user;
+}
+
+void ub_glg_mark_unblended(ub_glg *g, uint32_t first, uint32_t count)
+{
+  assert(g && g->cp_rows && first <= g->probe_count && count <= g->probe_count - first);
+  for (uint32_t i = 0; i < count; i++)
+    atomic_store_explicit(cp_words(g) + first + i, CP_UNBLENDED, memory_order_relaxed);
+  cp_new_generation(g);
 }
 
 void ub_glg_probe_sh(const ub_glg *g, uint32_t v, int windowed, float out[27])
@@ -1179,7 +1251,7 @@ void ub_glg_probe_sh(const ub_glg *g, uint32_t v, int windowed, float out[27])
     if (windowed)
       cp_windowed(g, v, cp_word(g, v), out);
     else
-      cp_decode(g, v, atomic_load_explicit(cp_words(g) + v, memory_order_relaxed), out);
+      cp_decode(g, v, cp_word_rows(g, v), out);
     return;
   }
   if (g->sh_half) {

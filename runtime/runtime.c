@@ -995,6 +995,14 @@ static int normals_to_half(ub_runtime *rt)
  * base rows of the touched receivers inside the blends (UB_BLEND_OWN_BASE) and the
  * records in half; the bake file's float copies are freed or point into the current state
  * (runtime.h, ub_runtime_bakefile). */
+/* A GLG probe's current raw SH for the compact store (ub_glg_row_fn): read only, so
+ * queries on several threads may ask at once. */
+static int glg_row_source(void *user, uint32_t probe, float out[27])
+{
+  const ub_runtime *rt = user;
+  return ub_blend_row(rt->glg_blend, probe, out);
+}
+
 static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *log)
 {
   ub_bakefile *bf = rt->bf;
@@ -1146,10 +1154,15 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     bd.stride = 27;
     bd.base = bf->glg_sh;
     bd.elements = rt->glg_rec;
-    /* Streaming: each update's rows go to the GLG's compact store (glg_touched). */
+    /* Lazy: an update only marks the probes of the groups it would recompute
+     * (glg_marked); the first query that reads one asks the blend for its row
+     * (glg_row_source, ub_blend_row: the bits an eager update streams). */
+    bd.flags |= UB_BLEND_ROW_QUERY;
     r = ub_blend_create(&bd, log, NULL, &rt->glg_blend);
+    bd.flags &= ~UB_BLEND_ROW_QUERY;
     if (r != UB_OK)
       return r;
+    ub_glg_set_row_source(&rt->glg, glg_row_source, rt);
     free_rec_values(rt->glg_rec, n);
     free(bf->glg_sh);
     bf->glg_sh = NULL;
@@ -1531,13 +1544,15 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
   tc->texels += count;
 }
 
-/* The probes the blend just wrote go to the GLG's compact store, stale: windowed by the
- * first query that reads them (ubake/glg.h). Windowing at update time was three quarters
- * of a room set's toggle on the ESTATE-scale level (1.96 -> 0.51 ms without it). */
-static void glg_touched(void *user, uint32_t first, uint32_t count, const float *rows)
+/* The probes an update would recompute are only marked in the GLG's compact store: the
+ * first query that reads one blends it (glg_row_source) and windows it (ubake/glg.h).
+ * Windowing at update time was three quarters of a room set's toggle on the ESTATE-scale
+ * level (1.96 -> 0.51 ms without it); blending them was a quarter of what was left. */
+static void glg_marked(void *user, uint32_t first, uint32_t count, const float *rows)
 {
+  (void)rows;
   ub_runtime *rt = user;
-  ub_glg_set_probes(&rt->glg, first, count, rows);
+  ub_glg_mark_unblended(&rt->glg, first, count);
 }
 
 /* The LLG probes [first, first + count) the blend just wrote: their models changed. */
@@ -1635,7 +1650,7 @@ void ub_runtime_update_job(ub_runtime *rt, uint32_t job)
     t1 = rt_now();
   }
   if (rt->glg_blend) {
-    ub_blend_update_part(rt->glg_blend, job, parts, glg_touched, rt, NULL, &jb->glg);
+    ub_blend_mark_part(rt->glg_blend, job, parts, glg_marked, rt, &jb->glg);
     t2 = rt_now();
   } else
     t2 = t1;

@@ -260,6 +260,17 @@ static void on_touched(void *user, uint32_t first, uint32_t count, const float *
   }
 }
 
+/* on_touched for ub_blend_mark_part: counts, and rows must be NULL */
+static void on_marked(void *user, uint32_t first, uint32_t count, const float *rows)
+{
+  touch_log *t = user;
+  t->rows_bad += rows != NULL;
+  for (uint32_t i = 0; i < count; i++)
+    if (t->count[first + i] < 255)
+      t->count[first + i]++;
+  t->total += count;
+}
+
 /* ---- 1. every overlap count 0…20 ------------------------------------------------------- */
 
 static void test_overlaps(uint32_t S, ub_blend_storage st)
@@ -1017,6 +1028,15 @@ static void test_base_half(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
       return;
     ASSERT_OK(ub_blend_reserve_parts(h[i], (uint32_t)parts_of[i]));
   }
+  /* an engine only marked (ub_blend_mark_part, 3 parts), its rows asked for afterwards */
+  ub_blend *hm = NULL;
+  d.flags = UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF | UB_BLEND_ROW_QUERY;
+  ASSERT_OK(ub_blend_create(&d, NULL, NULL, &hm));
+  if (!hm)
+    return;
+  ASSERT_OK(ub_blend_reserve_parts(hm, 3));
+  uint8_t *mcount = calloc(R, 1);
+  int bad_marks = 0;
   ub_blend_info in;
   ub_blend_get_info(h[0], &in);
   const float sc = in.base_scale;
@@ -1066,6 +1086,7 @@ static void test_base_half(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
         ASSERT_OK(ub_blend_set_weight(bref, e, w));
         for (int i = 0; i < NH; i++)
           ASSERT_OK(ub_blend_set_weight(h[i], e, w));
+        ASSERT_OK(ub_blend_set_weight(hm, e, w));
       }
     ub_blend_stats sr, sh;
     (all ? ub_blend_update_all : ub_blend_update)(bref, NULL, NULL, ref, &sr);
@@ -1087,6 +1108,23 @@ static void test_base_half(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
       bad_bytes += sh.receivers != sr.receivers ||
                    sh.bytes_read + sr.receivers * S * 2 != sr.bytes_read;
     }
+    {
+      /* marking reports the receivers the updates recomputed (count: the last engine's),
+       * each once, without rows; a row query then gives each the update's bits */
+      memset(mcount, 0, R);
+      touch_log tm = {mcount, 0, S, NULL, NULL, 0, 0, 0, 0};
+      ub_blend_update_begin(hm, all);
+      for (uint32_t q = 0; q < 3; q++) {
+        ub_blend_stats sq;
+        ub_blend_mark_part(hm, q, 3, on_marked, &tm, &sq);
+        bad_marks += sq.bytes_written != 0;
+      }
+      bad_marks += tm.rows_bad != 0 || memcmp(mcount, count, R) != 0;
+      for (uint32_t r = 0; r < R; r++)
+        if (mcount[r])
+          bad_marks += !ub_blend_row(hm, r, row) ||
+                       memcmp(row, ref + (size_t)r * S, sizeof(float) * S) != 0;
+    }
     for (int q = 0; q < 200; q++) {
       uint32_t r = rnd_below(R);
       int ok = ub_blend_row(h[q & 1], r, row);
@@ -1097,8 +1135,12 @@ static void test_base_half(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
   printf("base half R=%u S=%u %s: scale %g, %d of %d engine-updates differ in bits, %d bad "
          "row queries, %d bad byte counts\n", R, S, st == UB_BLEND_FLOAT16 ? "half" : "float",
          (double)sc, bad_bits, 50 * NH, bad_rows, bad_bytes);
-  ASSERT_TRUE(bad_bits == 0 && bad_rows == 0 && bad_bytes == 0);
+  printf("  marked only (ub_blend_mark_part, 3 parts), rows asked for afterwards: %d bad "
+         "marks or rows\n", bad_marks);
+  ASSERT_TRUE(bad_bits == 0 && bad_rows == 0 && bad_bytes == 0 && bad_marks == 0);
   ASSERT_TRUE(memcmp(ref, rb, sizeof(float) * nf) == 0); /* all off: the rounded base */
+  ub_blend_free(hm);
+  free(mcount);
   free(count);
   free(tmask);
   free(rb);

@@ -10,6 +10,7 @@
 #if defined(_OPENMP)
 #include <omp.h>
 #endif
+#include <stdatomic.h>
 #include <stdint.h>
 #include <string.h>
 #include <sys/stat.h>
@@ -1313,6 +1314,21 @@ static void query_scalar(const ub_glg *g, const float p[3], const float n[3], fl
   ub_glg_query(&s, p, n, &cache, rgb);
 }
 
+/* Row source for the lazy-blending rounds of test_compact: the probes' rows from an
+ * array, counting the calls (queries on 4 threads call it). */
+typedef struct row_src {
+  const float *raw;
+  _Atomic uint32_t calls;
+} row_src;
+
+static int row_src_fn(void *user, uint32_t probe, float out[27])
+{
+  row_src *rs = user;
+  atomic_fetch_add_explicit(&rs->calls, 1u, memory_order_relaxed);
+  memcpy(out, rs->raw + 27 * (size_t)probe, 27 * sizeof(float));
+  return 1;
+}
+
 /* The compact store (desc.compact): raw rows decode to within half rounding of the input;
  * every windowed row has irradiance >= 0 for every normal (exact minimum) in every kept
  * channel, a row that needs no window is kept as it is, a non-finite or DC <= 0 channel
@@ -1547,6 +1563,59 @@ static void test_compact(void)
     ub_glg_release(&fresh);
   }
   ASSERT_TRUE(mismatch == 0);
+  /* Lazy blending: probes marked unblended take their rows from the row source when a
+   * query first reads them, on 4 threads at once: the bits of a GLG built from the rows
+   * (and of ub_glg_set_probes with them); the source is asked once per marked probe read,
+   * never for one nobody reads, and never again once the row is in the store. */
+  row_src src = {.raw = raw};
+  atomic_init(&src.calls, 0u);
+  ub_glg_set_row_source(&g, row_src_fn, &src);
+  int lazy_mismatch = 0, lazy_calls_ok = 1;
+  for (int round = 0; round < 3; round++) {
+    uint32_t first = rndu(np / 2), count = np / 3;
+    for (uint32_t q = first; q < first + count; q++)
+      (q % 2 ? physical_sh : lobe_sh)(raw + 27 * (size_t)q);
+    float at[3], cq[3], rs[3];
+    memcpy(at, m->points + 3 * (size_t)first, sizeof at);
+    ub_glg_query_cursor(&g, at, qn, &cur, cq);
+    atomic_store(&src.calls, 0u);
+    ub_glg_mark_unblended(&g, first, count);
+    /* one query: at most its 4 corners are asked for */
+    ub_glg_query(&g, at, qn, &pc, rs);
+    lazy_calls_ok &= atomic_load(&src.calls) >= 1 && atomic_load(&src.calls) <= 4;
+    ub_glg_query_cursor(&g, at, qn, &cur, cq); /* its rows are from before: not used */
+    lazy_mismatch += memcmp(cq, rs, sizeof cq) != 0;
+    ub_glg fresh;
+    ASSERT_OK(ub_glg_init(&fresh, &d, &test_log));
+    for (int i = 0; i < Q; i++) {
+      uint32_t cache = UB_GLG_NO_CACHE;
+      ub_glg_query(&fresh, qp + 3 * i, qn + 3 * i, &cache, want + 3 * i);
+    }
+    query_4_threads(&g, qp, qn, Q, got);
+    lazy_mismatch += memcmp(got, want, 3 * Q * sizeof(float)) != 0;
+    lazy_calls_ok &= atomic_load(&src.calls) <= count;
+    ub_glg_refresh(&g); /* the rest of the marked probes */
+    lazy_calls_ok &= atomic_load(&src.calls) == count;
+    ASSERT_TRUE(ub_glg_refresh(&g) == 0);
+    query_4_threads(&g, qp, qn, Q, got);
+    lazy_mismatch += memcmp(got, want, 3 * Q * sizeof(float)) != 0;
+    lazy_calls_ok &= atomic_load(&src.calls) == count;
+    /* raw and windowed rows equal the eager store's */
+    for (uint32_t q = first; q < first + count; q++) {
+      float a[27], b[27];
+      ub_glg_probe_sh(&g, q, 1, a);
+      ub_glg_probe_sh(&fresh, q, 1, b);
+      lazy_mismatch += memcmp(a, b, sizeof a) != 0;
+      ub_glg_probe_sh(&g, q, 0, a);
+      ub_glg_probe_sh(&fresh, q, 0, b);
+      lazy_mismatch += memcmp(a, b, sizeof a) != 0;
+    }
+    ub_glg_release(&fresh);
+  }
+  printf("  compact store, lazy blending: 3 rounds of %u marked probes, 4 threads: %d "
+         "mismatches, row source calls %s\n", np / 3, lazy_mismatch,
+         lazy_calls_ok ? "once per probe read" : "WRONG");
+  ASSERT_TRUE(lazy_mismatch == 0 && lazy_calls_ok);
   ub_glg_release(&g);
   ub_tetmesh_free(m);
   free(pts);

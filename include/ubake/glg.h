@@ -40,6 +40,12 @@
  *     reads a stale probe windows its raw SH (ub_sh2_window, up to a few µs when it rings)
  *     and writes it back, so an update costs no windowing and only probes something
  *     looks at are ever windowed. The same bits as windowing every probe at once.
+ *   - Lazy blending (compact store; ub_glg_set_row_source, ub_glg_mark_unblended): an
+ *     update need not even compute the changed probes' rows; it marks them, and the first
+ *     query that reads one asks the row source (the run-time: its blend engine's row
+ *     query) and stores the row and its window. ESTATE scale: a room set's toggle no
+ *     longer blends its ~8,000 GLG probes (a quarter of the toggle); a query reading a
+ *     marked probe pays ~0.25 µs more for it, once.
  *
  *   - Compact probe store (desc.compact = 1, what the run-time uses): 58 B per probe.
  *     Each probe's RAW SH is kept in IEEE half times a per-probe power of two 2^e (the
@@ -56,8 +62,10 @@
  *     coefficient than plain half SH. Windows are found lazily: ub_glg_set_probes stores new
  *     raw rows and marks them stale, the first query that reads a stale probe finds its
  *     window (a few µs when it rings) and publishes the word with one atomic
- *     compare-and-swap (rows are never written by queries, so readers never see a torn
- *     row). Probe positions are not kept: only hull faces' and badly shaped tets'
+ *     compare-and-swap (a stale probe's rows are never written by queries, so readers
+ *     never see a torn row; a marked probe's rows (lazy blending) are written by the one
+ *     query that claims its word, and its word is published after them (release): a query
+ *     reading the probe meanwhile waits for it). Probe positions are not kept: only hull faces' and badly shaped tets'
  *     corners (the walk records hold the rest).
  *
  *   - Speed: one query = the cached-tet test (or a walk), leak weights, a 4 × 27
@@ -72,8 +80,9 @@
  * with finite, windowed values); neigh is only read during init.
  * Thread safety: after init every query is read-only on the ub_glg (except that, with
  * lazy windowing, it may window a stale probe: a per-probe atomic state lets one thread
- * write it back while the others use their own copy); each thread passes its own cache.
- * ub_glg_mark_stale must not run concurrently with queries. Pure C11, part of the
+ * write it back while the others use their own copy; with lazy blending, it may fill a
+ * marked probe: one thread writes it, the others wait); each thread passes its own cache.
+ * ub_glg_mark_stale and ub_glg_mark_unblended must not run concurrently with queries. Pure C11, part of the
  * run-time library.
  */
 #ifndef UBAKE_GLG_H
@@ -117,6 +126,11 @@ typedef struct ub_glg_desc {
 typedef struct ub_glg_tet ub_glg_tet;   /* private: 64-byte per-tet walk record */
 typedef struct ub_glg_hull ub_glg_hull; /* private: one hull face */
 
+/* A probe's current raw SH (27 floats, finite) for the compact store's lazy blending
+ * (ub_glg_set_row_source): returns 1, or 0 when it has none (the probe is then zero). Called
+ * from queries, on any thread at once: it must only read. */
+typedef int (*ub_glg_row_fn)(void *user, uint32_t probe, float out[27]);
+
 typedef struct ub_glg {
   /* borrowed (see ub_glg_desc; positions are read during init only) */
   uint32_t probe_count;
@@ -157,6 +171,10 @@ typedef struct ub_glg {
    * word (private: atomic; exponent e, window code, zeroed channels, stale bit) */
   uint16_t *cp_rows;
   void *cp_word;
+  /* compact store, lazy blending (ub_glg_set_row_source): where a marked probe's raw SH
+   * comes from */
+  ub_glg_row_fn row_fn;
+  void *row_user;
 } ub_glg;
 
 /* Optional diagnostics of one locate. */
@@ -248,6 +266,18 @@ uint32_t ub_glg_refresh(const ub_glg *g);
  * a channel with a non-finite value is stored as zero); they are marked stale. Not
  * concurrently with queries; distinct ranges may be set from different threads at once. */
 void ub_glg_set_probes(ub_glg *g, uint32_t first, uint32_t count, const float *rows);
+
+/* Compact store only, lazy blending: the probes' raw SH comes from fn (see ub_glg_row_fn)
+ * for every probe marked with ub_glg_mark_unblended. Set it once, before queries. */
+void ub_glg_set_row_source(ub_glg *g, ub_glg_row_fn fn, void *user);
+/* Compact store only: probes [first, first + count) have new raw SH that the row source
+ * gives; the store's rows are not written now. The first query (or ub_glg_probe_sh,
+ * ub_glg_refresh) that reads such a probe asks the row source for its row, stores it and
+ * its window (one thread writes; a query reading the probe meanwhile waits for it, ~0.1–
+ * a few µs), so an update costs one word per probe and only probes something reads are
+ * ever blended: the same bits as ub_glg_set_probes with those rows. Not concurrently with
+ * queries; distinct ranges may be marked from different threads at once. */
+void ub_glg_mark_unblended(ub_glg *g, uint32_t first, uint32_t count);
 
 /* Probe v's SH as a query reads it: windowed = 1 the windowed row (a stale probe is
  * windowed now; compact store: (2^e·w_band)·h per coefficient), 0 the raw row (float

@@ -207,7 +207,10 @@ ub_result ub_runtime_query_llg_ex(const ub_runtime *rt, const float p[3], const 
  * lighting used everywhere is base + Σ weight_i · set_i, exact per channel because light
  * transport is linear (a tint keeps colour bleeding). ub_runtime_set_dls() only records
  * the weight; ub_runtime_update() recomputes the receivers of the changed sets (each
- * written once, batched by overlap combination) and re-encodes their AHD texels. Not
+ * written once, batched by overlap combination) and re-encodes their AHD texels; their
+ * GLG probes it only marks: the first query that reads such a probe blends it (base + Σ
+ * weight·set, the same bits) and windows it, so probes no query reads cost nothing (~0.3
+ * µs more for each one read, on the querying thread; queries stay thread safe). Not
  * thread safe against concurrent queries: update between frames. */
 uint32_t ub_runtime_dls_count(const ub_runtime *rt);
 int32_t ub_runtime_dls_find(const ub_runtime *rt, const char *name); /* -1 if absent */
@@ -252,15 +255,16 @@ int ub_runtime_triangle_shown(const ub_runtime *rt, uint32_t triangle);
 float ub_runtime_door_fraction(float hinge_angle_radians);
 
 typedef struct ub_runtime_update_stats {
-  uint64_t texels_written, texels_reencoded, probes_written; /* probes: GLG */
+  uint64_t texels_written, texels_reencoded;
+  uint64_t probes_written; /* GLG probes marked, blended when a query first reads them */
   uint64_t llg_probes_written;
   /* What the blends read (base and record rows, group tables) and write (current rows),
    * plus the AHD re-encode's normals read and AHD texels written. */
   uint64_t bytes_read, bytes_written;
   uint32_t groups;
   /* Wall-clock seconds of the update's parts (monotonic clock; for benchmarks): lightmap
-   * blend + AHD re-encode, GLG blend (the changed probes are windowed by the first query
-   * that reads them, see ubake/glg.h "Lazy windowing"), LLG blend. */
+   * blend + AHD re-encode, GLG marking (the changed probes are blended and windowed by
+   * the first query that reads them, see ubake/glg.h "Lazy blending"), LLG blend. */
   double seconds_lightmap, seconds_glg, seconds_llg;
 } ub_runtime_update_stats;
 /* UB_OK, or UB_ERR_INVALID_ARGUMENT while a job-split update (below) is begun and not
@@ -289,7 +293,7 @@ struct ub_glg;
 /* Every GLG probe's current radiance SH L2 into out (probe × 27 floats), as the GLG's
  * compact store holds it (ubake/glg.h): raw = base + Σ weight·set rounded to half with the
  * probe's exponent, or windowed (what queries interpolate; probes an update changed and no
- * query has read yet are windowed by this call). UB_ERR_NOT_BAKED without a GLG. */
+ * query has read yet are blended and windowed by this call). UB_ERR_NOT_BAKED without a GLG. */
 ub_result ub_runtime_glg_probe_sh(const ub_runtime *rt, int windowed, float *out);
 
 /* The run-time GLG (for resampling into LLG boxes, see ubake/glg.h), or NULL. */
