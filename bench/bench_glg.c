@@ -389,9 +389,10 @@ int main(int argc, char **argv)
            probes, lm, st.total_seconds);
   }
   /* Optional second argument, a .ubk with dynamic light sets (e.g. estate_small): how much
-   * of a one-set toggle (set off + update, set on + update) the re-windowing of the
-   * touched GLG probes takes, with ub_sh2_window and with the reference search (timed on
-   * the same probes' raw SH right after the update). */
+   * the re-windowing of the GLG probes a one-set toggle (set off + update, set on +
+   * update) changes would add to it (queries do it, see ubake/glg.h), with ub_sh2_window
+   * and with the reference search (timed on the same probes' raw SH right after the
+   * update). */
   if (argc > 2) {
     ub_runtime *rs = NULL;
     if (ub_runtime_load(argv[2], NULL, &rs) == UB_OK && ub_runtime_glg(rs) &&
@@ -429,9 +430,10 @@ int main(int argc, char **argv)
               sink += sh[3];
             }
           }
-      printf("  %s: %u sets toggled off/on x3: update %.3f ms per toggle, of which "
-             "re-windowing ~%.3f ms (%.0f%%; %.1f probes/toggle); the reference windowing "
-             "would take %.3f ms (%.0f%% of an update with it)\n",
+      printf("  %s: %u sets toggled off/on x3: update %.3f ms per toggle (GLG probes only "
+             "marked: blended and windowed by the queries that read them); windowing the "
+             "probes it changed ~%.3f ms (%.0f%% of the update's time; %.1f probes/toggle); "
+             "the reference windowing would take %.3f ms (%.0f%% of an update doing it)\n",
              argv[2], sets, 1e3 * t_upd / (6.0 * sets), 1e3 * t_fast / (6.0 * sets),
              100.0 * t_fast / t_upd, probes / (6.0 * sets), 1e3 * t_ref / (6.0 * sets),
              100.0 * t_ref / (t_upd - t_fast + t_ref));

@@ -88,7 +88,9 @@ extern "C" {
  * works as with half records, without the caller building a half copy first. */
 #define UB_BLEND_STORE_HALF 4u
 /* ub_blend_row() is available: the engine keeps a map from receivers to their groups'
- * units (one entry per run, one per list receiver) and the weights of the last update. */
+ * units (16 B per run, per list receiver), and when it is no smaller, 4 B per receiver
+ * giving each its unit directly (receivers mostly in lists, e.g. GLG probes), and the
+ * weights of the last update. */
 #define UB_BLEND_ROW_QUERY 8u
 /* With UB_BLEND_OWN_BASE: the engine's base rows are kept as IEEE half times a power of
  * two, base_scale (info), the smallest ≥ 1 that brings the touched rows' largest |value|
@@ -152,7 +154,8 @@ typedef struct ub_blend_info {
   float base_scale;           /* UB_BLEND_BASE_HALF: the base rows' scale, else 1 */
 } ub_blend_info;
 
-/* Reports the receivers an update just recomputed: [first, first + count), whose final
+/* Reports the receivers an update just recomputed (ub_blend_mark_part: would recompute,
+ * rows NULL): [first, first + count), whose final
  * rows are rows[0 .. count × stride) (= out_values + first × stride, or when streaming a
  * scratch or base rows valid during the call only). Called in ascending group order,
  * right after the rows are computed (cache-hot: re-encode AHD here); every recomputed
@@ -215,10 +218,11 @@ void ub_blend_update_part(const ub_blend *b, uint32_t part, uint32_t parts,
                           ub_blend_stats *out_stats);
 
 /* Part `part` of the update begun, without computing: touched(user, first, count, NULL)
- * for the receivers update_part would recompute (the same pieces of consecutive
- * receivers, ascending), so a caller can compute them later with ub_blend_row (which the
- * weights taken at begin answer: UB_BLEND_ROW_QUERY). Stats: groups and receivers as
- * update_part's, bytes_read the group tables, nothing written. */
+ * for every receiver update_part would recompute, once each (in pieces of consecutive
+ * receivers of one group, each as long as the group's units allow: not update_part's
+ * pieces; groups in ascending order), so a caller can compute them later with ub_blend_row
+ * (under the weights taken at begin: UB_BLEND_ROW_QUERY). Stats: groups and receivers as
+ * update_part's (groups_base 0), bytes_read the group tables only, nothing written. */
 void ub_blend_mark_part(const ub_blend *b, uint32_t part, uint32_t parts,
                         ub_blend_touched_fn touched, void *user, ub_blend_stats *out_stats);
 
@@ -230,12 +234,13 @@ void ub_blend_mark_part(const ub_blend *b, uint32_t part, uint32_t parts,
 uint32_t ub_blend_part_first(const ub_blend *b, uint32_t part, uint32_t parts);
 
 /* Receiver r's row as the last update (or create) left it: base + Σ ω_i·S_i under the
- * weights of that update, with the update's operations in its order (the same bits as
- * the row it wrote or streamed), into out_row (stride floats). Needs UB_BLEND_ROW_QUERY
+ * weights taken at the last ub_blend_update_begin (an update that only marked, too), with
+ * the update's operations in its order (the same bits as the row it wrote or streamed),
+ * into out_row (stride floats). Needs UB_BLEND_ROW_QUERY
  * at create. Returns 1, or 0 (out_row untouched) for a receiver no element touches when
  * the engine owns its base rows (UB_BLEND_OWN_BASE: it keeps none for those), r out of
- * range or no UB_BLEND_ROW_QUERY. Cost: a binary search over the units and one row per
- * non-zero member. Reads only: safe to call between updates from several threads. */
+ * range or no UB_BLEND_ROW_QUERY. Cost: a binary search over the units (one read with the
+ * direct map, below) and one row per non-zero member. Reads only: safe to call between updates from several threads. */
 int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row);
 
 void ub_blend_get_info(const ub_blend *b, ub_blend_info *out_info);

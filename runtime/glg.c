@@ -7,6 +7,7 @@
 #include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
+#include <threads.h>
 
 #include "runtime/cpu.h"
 #include "runtime/half.h"
@@ -1067,13 +1068,14 @@ static void cp_new_generation(ub_glg *g);
 __attribute__((noinline)) static uint32_t cp_fill(const ub_glg *g, uint32_t v, uint32_t w)
 {
   _Atomic uint32_t *pw = cp_words(g) + v;
+  uint32_t spins = 0;
   for (;;) {
     if (w == CP_UNBLENDED &&
         atomic_compare_exchange_weak_explicit(pw, &w, CP_FILLING, memory_order_acquire,
                                               memory_order_acquire)) {
       float row[28] = {0};
-      if (!g->row_fn || !g->row_fn(g->row_user, v, row))
-        memset(row, 0, sizeof row);
+      if (!g->row_fn(g->row_user, v, row))
+        memset(row, 0, sizeof row); /* (it may have written part of it) */
       uint32_t nw = cp_find_window(g, v, cp_encode_probe(g, row, v));
       atomic_store_explicit(pw, nw, memory_order_release);
       return nw;
@@ -1081,8 +1083,13 @@ __attribute__((noinline)) static uint32_t cp_fill(const ub_glg *g, uint32_t v, u
     if (w != CP_UNBLENDED && w != CP_FILLING)
       return w;
     if (w == CP_FILLING) {
+      /* the filling thread may be preempted (more query threads than cores): yield now
+       * and then instead of spinning through its time slice */
+      if ((++spins & 255u) == 0)
+        thrd_yield();
 #if defined(__x86_64__) || defined(__i386__)
-      __builtin_ia32_pause();
+      else
+        __builtin_ia32_pause();
 #endif
       w = atomic_load_explicit(pw, memory_order_acquire);
     }
@@ -1238,7 +1245,8 @@ void ub_glg_set_row_source(ub_glg *g, ub_glg_row_fn fn, void *user)
 
 void ub_glg_mark_unblended(ub_glg *g, uint32_t first, uint32_t count)
 {
-  assert(g && g->cp_rows && first <= g->probe_count && count <= g->probe_count - first);
+  assert(g && g->cp_rows && g->row_fn && first <= g->probe_count &&
+         count <= g->probe_count - first);
   for (uint32_t i = 0; i < count; i++)
     atomic_store_explicit(cp_words(g) + first + i, CP_UNBLENDED, memory_order_relaxed);
   cp_new_generation(g);

@@ -987,14 +987,6 @@ static int normals_to_half(ub_runtime *rt)
   return 1;
 }
 
-/* Blend engines for the elements' lightmap, GLG and LLG records; sets start at weight 1,
- * doors closed, objects shown. Afterwards the run-time keeps a float copy of the LLG
- * probes' current state (llg_cur; the GLG's is its compact store, into which the GLG blend
- * streams its rows; the texels' is computed on demand by the lightmap blend, whose rows
- * the AHD re-encode streams), the
- * base rows of the touched receivers inside the blends (UB_BLEND_OWN_BASE) and the
- * records in half; the bake file's float copies are freed or point into the current state
- * (runtime.h, ub_runtime_bakefile). */
 /* A GLG probe's current raw SH for the compact store (ub_glg_row_fn): read only, so
  * queries on several threads may ask at once. */
 static int glg_row_source(void *user, uint32_t probe, float out[27])
@@ -1003,6 +995,14 @@ static int glg_row_source(void *user, uint32_t probe, float out[27])
   return ub_blend_row(rt->glg_blend, probe, out);
 }
 
+/* Blend engines for the elements' lightmap, GLG and LLG records; sets start at weight 1,
+ * doors closed, objects shown. Afterwards the run-time keeps a float copy of the LLG
+ * probes' current state (llg_cur; the GLG's is its compact store, whose probes a query blends
+ * through glg_row_source when an update marked them; the texels' is computed on demand by the lightmap blend, whose rows
+ * the AHD re-encode streams), the
+ * base rows of the touched receivers inside the blends (UB_BLEND_OWN_BASE) and the
+ * records in half; the bake file's float copies are freed or point into the current state
+ * (runtime.h, ub_runtime_bakefile). */
 static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *log)
 {
   ub_bakefile *bf = rt->bf;

@@ -45,12 +45,13 @@
  *     query that reads one asks the row source (the run-time: its blend engine's row
  *     query) and stores the row and its window. ESTATE scale: a room set's toggle no
  *     longer blends its ~8,000 GLG probes (a quarter of the toggle); a query reading a
- *     marked probe pays ~0.25 µs more for it, once.
+ *     marked probe pays ~0.25–0.37 µs more for it, once.
  *
  *   - Compact probe store (desc.compact = 1, what the run-time uses): 58 B per probe.
  *     Each probe's RAW SH is kept in IEEE half times a per-probe power of two 2^e (the
  *     largest coefficient near 2^14, so dark probes next to bright ones keep 11 bits),
- *     plus one 32-bit word: e, the probe's window and a stale bit. The window of a
+ *     plus one 32-bit word: e, the probe's window and a stale bit (or one of two
+ *     reserved values while a probe is marked for lazy blending or being filled). The window of a
  *     channel is ub_sh2_window's, as one parameter τ ∈ [0, 2] (w1 = 1 − τ/2, w2 =
  *     max(0, 1 − τ): its two phases as one curve) stored in 7 bits, code = 128·τ/2
  *     rounded UP (127: w1 = w2 = 0) (for a non-negative radiance every τ between the channel's own and 1
@@ -82,7 +83,8 @@
  * lazy windowing, it may window a stale probe: a per-probe atomic state lets one thread
  * write it back while the others use their own copy; with lazy blending, it may fill a
  * marked probe: one thread writes it, the others wait); each thread passes its own cache.
- * ub_glg_mark_stale and ub_glg_mark_unblended must not run concurrently with queries. Pure C11, part of the
+ * ub_glg_mark_stale, ub_glg_mark_unblended and ub_glg_set_row_source must not run
+ * concurrently with queries. Pure C11, part of the
  * run-time library.
  */
 #ifndef UBAKE_GLG_H
@@ -215,7 +217,7 @@ void ub_glg_query(const ub_glg *g, const float p[3], const float n[3],
 /* A moving object's cursor: its tet cache and, with the compact store, the windowed rows
  * of that tet's four probes, so consecutive queries in one tet read 4 × 27 floats instead
  * of decoding and windowing the probes (the same bits as ub_glg_query). Valid for one
- * ub_glg; ub_glg_set_probes makes its rows stale (a generation count). 464 bytes.
+ * ub_glg; ub_glg_set_probes and ub_glg_mark_unblended make its rows stale (a generation count). 464 bytes.
  * Initialise with ub_glg_cursor_init. Thread safety: one cursor per thread, like a tet
  * cache. */
 typedef struct ub_glg_cursor {
@@ -280,7 +282,8 @@ void ub_glg_set_row_source(ub_glg *g, ub_glg_row_fn fn, void *user);
 void ub_glg_mark_unblended(ub_glg *g, uint32_t first, uint32_t count);
 
 /* Probe v's SH as a query reads it: windowed = 1 the windowed row (a stale probe is
- * windowed now; compact store: (2^e·w_band)·h per coefficient), 0 the raw row (float
+ * windowed now, a marked one blended (its row source asked) and windowed now, with either
+ * value of windowed; compact store: (2^e·w_band)·h per coefficient), 0 the raw row (float
  * store: desc.sh / the lazy raw rows; half stores: decoded). Thread safe like queries. */
 void ub_glg_probe_sh(const ub_glg *g, uint32_t v, int windowed, float out[27]);
 

@@ -209,8 +209,8 @@ ub_result ub_runtime_query_llg_ex(const ub_runtime *rt, const float p[3], const 
  * the weight; ub_runtime_update() recomputes the receivers of the changed sets (each
  * written once, batched by overlap combination) and re-encodes their AHD texels; their
  * GLG probes it only marks: the first query that reads such a probe blends it (base + Σ
- * weight·set, the same bits) and windows it, so probes no query reads cost nothing (~0.3
- * µs more for each one read, on the querying thread; queries stay thread safe). Not
+ * weight·set, the same bits) and windows it, so probes no query reads cost nothing (~0.25–
+ * 0.37 µs more for each one read, on the querying thread; queries stay thread safe). Not
  * thread safe against concurrent queries: update between frames. */
 uint32_t ub_runtime_dls_count(const ub_runtime *rt);
 int32_t ub_runtime_dls_find(const ub_runtime *rt, const char *name); /* -1 if absent */
@@ -259,7 +259,8 @@ typedef struct ub_runtime_update_stats {
   uint64_t probes_written; /* GLG probes marked, blended when a query first reads them */
   uint64_t llg_probes_written;
   /* What the blends read (base and record rows, group tables) and write (current rows),
-   * plus the AHD re-encode's normals read and AHD texels written. */
+   * plus the AHD re-encode's normals read and AHD texels written. GLG: its group tables
+   * only (the rows are read when a query blends a marked probe, not counted here). */
   uint64_t bytes_read, bytes_written;
   uint32_t groups;
   /* Wall-clock seconds of the update's parts (monotonic clock; for benchmarks): lightmap
