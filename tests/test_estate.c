@@ -7,6 +7,7 @@
  * - the run-time blend, after many toggles and tints of every set, returns bit for bit to
  *   the all-on and the all-off state (texels decoded from AHD, GLG probe SH), and toggling
  *   one set updates only about its own receivers. */
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -19,6 +20,7 @@
 #include "test_rt_util.h"
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
+#include "ubake/glg.h"
 #include "ubake/runtime.h"
 
 #define MIN_MAX_OVERLAP 8   /* the level's hall has 8 sets */
@@ -482,6 +484,99 @@ static void check_jobs(const char *ubk)
   ub_runtime_free(rb);
 }
 
+/* GLG queries on 4 threads right after each update (the probes the update marked are
+ * blended by whichever query reads them first; several threads read the same ones at
+ * once, each from its own point order, plain and through a cursor) against one thread
+ * querying a second run-time under the same states: the same bits. */
+typedef struct glg_q_arg {
+  const ub_runtime *rt;
+  const float *pts, *nrm;
+  uint32_t n, start;
+  float *out; /* n × 6: plain, cursor */
+} glg_q_arg;
+
+static void *glg_q_main(void *arg)
+{
+  glg_q_arg *a = arg;
+  uint32_t cache = UB_GLG_NO_CACHE;
+  ub_glg_cursor cur;
+  ub_glg_cursor_init(&cur);
+  for (uint32_t k = 0; k < a->n; k++) {
+    uint32_t i = (a->start + k * 7919u) % a->n; /* a permutation: n is not a multiple of 7919 */
+    ub_runtime_query_glg(a->rt, a->pts + 3 * (size_t)i, a->nrm + 3 * (size_t)i, &cache,
+                         a->out + 6 * (size_t)i);
+    ub_runtime_query_glg_cursor(a->rt, a->pts + 3 * (size_t)i, a->nrm + 3 * (size_t)i, &cur,
+                                a->out + 6 * (size_t)i + 3);
+  }
+  return NULL;
+}
+
+static void check_glg_threads(const char *ubk)
+{
+  ub_runtime *ra = NULL, *rb = NULL;
+  ASSERT_OK(ub_runtime_load(ubk, NULL, &ra));
+  ASSERT_OK(ub_runtime_load(ubk, NULL, &rb));
+  if (!ra || !rb)
+    return;
+  const ub_bakefile *bf = ub_runtime_bakefile(ra);
+  float lo[3] = {1e30f, 1e30f, 1e30f}, hi[3] = {-1e30f, -1e30f, -1e30f};
+  for (uint32_t v = 0; v < bf->vertex_count; v++)
+    for (int k = 0; k < 3; k++) {
+      lo[k] = fminf(lo[k], bf->positions[3 * (size_t)v + k]);
+      hi[k] = fmaxf(hi[k], bf->positions[3 * (size_t)v + k]);
+    }
+  enum { NP = 20000, NT = 4 };
+  float *pts = malloc(3 * NP * sizeof(float)), *nrm = malloc(3 * NP * sizeof(float));
+  float *want = malloc(6 * NP * sizeof(float)), *got[NT];
+  uint32_t h = 777u;
+  for (uint32_t i = 0; i < 3 * NP; i++) {
+    h = h * 1664525u + 1013904223u;
+    float u = (float)(h >> 8) / 16777216.0f;
+    pts[i] = lo[i % 3] + u * (hi[i % 3] - lo[i % 3]);
+    nrm[i] = u - 0.5f;
+  }
+  for (int t = 0; t < NT; t++)
+    got[t] = malloc(6 * NP * sizeof(float));
+  uint32_t nd = ub_runtime_dls_count(ra);
+  size_t bad = 0;
+  for (int round = 0; round < 6; round++) {
+    for (uint32_t d = 0; d < nd; d++) {
+      h = h * 1664525u + 1013904223u;
+      if (round > 0 && (h >> 28) > 5)
+        continue;
+      float w = (h >> 29) < 2 ? 0.0f : (float)((h >> 12) & 0xff) / 128.0f;
+      float rgb[3] = {w, w * 0.7f, w * 1.1f};
+      ASSERT_OK(ub_runtime_set_dls(ra, d, rgb));
+      ASSERT_OK(ub_runtime_set_dls(rb, d, rgb));
+    }
+    ASSERT_OK(ub_runtime_update(ra, NULL));
+    ASSERT_OK(ub_runtime_update(rb, NULL));
+    glg_q_arg one = {rb, pts, nrm, NP, 0, want};
+    glg_q_main(&one);
+    pthread_t th[NT];
+    glg_q_arg args[NT];
+    for (int t = 0; t < NT; t++) {
+      args[t] = (glg_q_arg){ra, pts, nrm, NP, (uint32_t)t * (NP / NT), got[t]};
+      ASSERT_TRUE(pthread_create(&th[t], NULL, glg_q_main, &args[t]) == 0);
+    }
+    for (int t = 0; t < NT; t++)
+      pthread_join(th[t], NULL);
+    for (int t = 0; t < NT; t++)
+      bad += memcmp(got[t], want, 6 * NP * sizeof(float)) != 0;
+  }
+  printf("GLG queries on %d threads right after each update (marked probes blended by the "
+         "first reader), 6 states x %d points, plain and cursor: %zu thread results differ "
+         "from one thread's (want 0)\n", NT, NP, bad);
+  ASSERT_TRUE(bad == 0);
+  for (int t = 0; t < NT; t++)
+    free(got[t]);
+  free(pts);
+  free(nrm);
+  free(want);
+  ub_runtime_free(ra);
+  ub_runtime_free(rb);
+}
+
 int main(void)
 {
   const char *b = getenv("UB_BUILD");
@@ -513,6 +608,7 @@ int main(void)
     check_records(bf);
     check_blend(st.ubk_path, bf);
     check_jobs(st.ubk_path);
+    check_glg_threads(st.ubk_path);
   }
   ub_bakefile_free(bf);
   TEST_MAIN_END();
