@@ -1945,15 +1945,39 @@ uint64_t ub_runtime_changed_texel_count(const ub_runtime *rt)
 }
 
 /* Changed texel `rank` (a touched texel's rank) into out. */
-static void changed_texel(const ub_runtime *rt, uint64_t rank, ub_runtime_texel_change *out)
+/* Changed texels [first, first + count) of rank order into out: the slot's pixel split into
+ * x, y without a division per texel (the atlas's 1/width in double, corrected to exact:
+ * pixel indices are < 2^31, so the product is off by less than one), the slots' pixels
+ * requested a few texels ahead (a random read each: ranks are group-major). */
+static void changed_texels_run(const ub_runtime *rt, uint64_t first, uint64_t count,
+                               ub_runtime_texel_change *out)
 {
-  const uint64_t s = rt->tch_slot[rank];
-  const uint32_t a = slot_atlas(rt, s);
-  const uint32_t px = rt->slot_pixel[s], w = rt->bf->atlases[a].width, y = px / w;
-  out->atlas = a;
-  out->x = px - y * w;
-  out->y = y;
-  out->ahd = rt->ahd[rank];
+  enum { AHEAD = 16 };
+  uint32_t a = UINT32_MAX, w = 0;
+  uint64_t lo = 0, hi = 0; /* slots of atlas a */
+  double inv_w = 0.0;
+  for (uint64_t k = 0; k < count; k++) {
+    if (k + AHEAD < count)
+      __builtin_prefetch(&rt->slot_pixel[rt->tch_slot[first + k + AHEAD]]);
+    const uint64_t s = rt->tch_slot[first + k];
+    if (s < lo || s >= hi) {
+      a = slot_atlas(rt, s);
+      lo = rt->slot_first[a];
+      hi = rt->slot_first[a + 1];
+      w = rt->bf->atlases[a].width;
+      inv_w = 1.0 / (double)w;
+    }
+    const uint32_t px = rt->slot_pixel[s];
+    uint32_t y = (uint32_t)((double)px * inv_w);
+    if ((uint64_t)y * w > px)
+      y--;
+    else if ((uint64_t)(y + 1) * w <= px)
+      y++;
+    out[k].atlas = a;
+    out[k].x = px - y * w;
+    out[k].y = y;
+    out[k].ahd = rt->ahd[first + k];
+  }
 }
 
 size_t ub_runtime_changed_texels(const ub_runtime *rt, uint64_t start, size_t max,
@@ -1962,8 +1986,10 @@ size_t ub_runtime_changed_texels(const ub_runtime *rt, uint64_t start, size_t ma
   assert(rt && (out || !max));
   size_t n = 0;
   if (rt->chg_all) {
-    for (uint64_t k = start; k < rt->touched && n < max; k++)
-      changed_texel(rt, k, &out[n++]);
+    if (start < rt->touched) {
+      n = rt->touched - start < max ? (size_t)(rt->touched - start) : max;
+      changed_texels_run(rt, start, n, out);
+    }
     return n;
   }
   uint64_t seen = 0; /* changed texels in the runs before */
@@ -1975,8 +2001,10 @@ size_t ub_runtime_changed_texels(const ub_runtime *rt, uint64_t start, size_t ma
         seen += count;
         continue;
       }
-      for (uint64_t k = start > seen ? start - seen : 0; k < count && n < max; k++)
-        changed_texel(rt, first + k, &out[n++]);
+      const uint64_t k0 = start > seen ? start - seen : 0;
+      const uint64_t m = count - k0 < max - n ? count - k0 : max - n;
+      changed_texels_run(rt, first + k0, m, out + n);
+      n += (size_t)m;
       seen += count;
     }
   }
