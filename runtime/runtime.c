@@ -1944,7 +1944,6 @@ uint64_t ub_runtime_changed_texel_count(const ub_runtime *rt)
   return rt->chg_texels;
 }
 
-/* Changed texel `rank` (a touched texel's rank) into out. */
 /* Changed texels [first, first + count) of rank order into out: the slot's pixel split into
  * x, y without a division per texel (the atlas's 1/width in double, corrected to exact:
  * pixel indices are < 2^31, so the product is off by less than one), the slots' pixels
