@@ -747,6 +747,13 @@ static void group_copy_base(const blend_call *c, const blend_group *g)
   }
 }
 
+/* The bytes of a group's tables an update reads: its units (a receiver per list unit,
+ * first + length per run) and its record. */
+static inline uint64_t group_table_bytes(const blend_group *g)
+{
+  return (uint64_t)g->units * ((g->k_mode & GROUP_LIST) ? 1 : 2) * sizeof(uint32_t) + sizeof *g;
+}
+
 static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
 {
   const ub_blend *b = c->b;
@@ -772,14 +779,13 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
   /* A group split between parts: the part holding its start counts the group and its
    * tables, so the parts' stats add up to a whole update's. */
   const uint64_t row = (uint64_t)b->stride * sizeof(float), n = c->qhi - c->qlo;
-  const uint64_t words = (uint64_t)g->units * ((g->k_mode & GROUP_LIST) ? 1 : 2);
   const int first = c->qlo == 0;
   st->groups += first;
   st->groups_base += first && k == 0;
   st->receivers += n;
   st->bytes_written += c->out ? n * row : 0;
   st->bytes_read += n * b->stride * b->base_size + (uint64_t)k * n * b->stride * b->value_size +
-                    (first ? words * sizeof(uint32_t) + sizeof *g : 0);
+                    (first ? group_table_bytes(g) : 0);
 }
 
 static int cmp_u32(const void *a, const void *b)
@@ -886,6 +892,31 @@ uint32_t ub_blend_part_first(const ub_blend *b, uint32_t part, uint32_t parts)
   return item;
 }
 
+/* Part `part` of `parts` of the update begun: work items [i0, end), item i0 from its
+ * receiver position q0, item i1 up to q1 (when a group is cut there). */
+typedef struct part_span {
+  uint32_t i0, q0, i1, q1, end;
+} part_span;
+
+static part_span part_span_of(const ub_blend *b, uint32_t part, uint32_t parts)
+{
+  part_span p;
+  part_bound(b, part, parts, &p.i0, &p.q0);
+  part_bound(b, part + 1, parts, &p.i1, &p.q1);
+  p.end = p.i1 + (p.q1 > 0);
+  if (p.end > b->work_count)
+    p.end = b->work_count;
+  return p;
+}
+
+/* The receiver positions [*lo, *hi) of work item i (group g) inside part p. */
+static inline void part_item(const part_span *p, uint32_t i, const blend_group *g, uint32_t *lo,
+                             uint32_t *hi)
+{
+  *lo = i == p->i0 ? p->q0 : 0;
+  *hi = i == p->i1 ? p->q1 : g->receivers;
+}
+
 void ub_blend_update_part(const ub_blend *b, uint32_t part, uint32_t parts,
                           ub_blend_touched_fn touched, void *user, float *out_values,
                           ub_blend_stats *out_stats)
@@ -894,14 +925,10 @@ void ub_blend_update_part(const ub_blend *b, uint32_t part, uint32_t parts,
   ub_blend_stats st;
   memset(&st, 0, sizeof st);
   blend_call c = {b, out_values, &b->js[part], 0, 0, touched, user};
-  uint32_t i0, q0, i1, q1;
-  part_bound(b, part, parts, &i0, &q0);
-  part_bound(b, part + 1, parts, &i1, &q1);
+  const part_span p = part_span_of(b, part, parts);
   unsigned csr = ub_fp_mode_enter();
-  for (uint32_t i = i0; i < i1 + (q1 > 0) && i < b->work_count; i++) {
-    const blend_group *g = &b->groups[b->work[i]];
-    c.qlo = i == i0 ? q0 : 0;
-    c.qhi = i == i1 ? q1 : g->receivers;
+  for (uint32_t i = p.i0; i < p.end; i++) {
+    part_item(&p, i, &b->groups[b->work[i]], &c.qlo, &c.qhi);
     if (c.qlo < c.qhi)
       process_group(&c, b->work[i], &st);
   }
@@ -918,12 +945,11 @@ void ub_blend_mark_part(const ub_blend *b, uint32_t part, uint32_t parts,
   assert(b && touched && parts >= 1 && part < parts && parts <= b->job_cap);
   ub_blend_stats st;
   memset(&st, 0, sizeof st);
-  uint32_t i0, q0, i1, q1;
-  part_bound(b, part, parts, &i0, &q0);
-  part_bound(b, part + 1, parts, &i1, &q1);
-  for (uint32_t i = i0; i < i1 + (q1 > 0) && i < b->work_count; i++) {
+  const part_span p = part_span_of(b, part, parts);
+  for (uint32_t i = p.i0; i < p.end; i++) {
     const blend_group *g = &b->groups[b->work[i]];
-    const uint32_t lo = i == i0 ? q0 : 0, hi = i == i1 ? q1 : g->receivers;
+    uint32_t lo, hi;
+    part_item(&p, i, g, &lo, &hi);
     if (lo >= hi)
       continue;
     unit_iter it;
@@ -946,9 +972,7 @@ void ub_blend_mark_part(const ub_blend *b, uint32_t part, uint32_t parts,
       touched(user, pf, pn, NULL);
     st.groups += lo == 0;
     st.receivers += hi - lo;
-    st.bytes_read += lo == 0 ? (uint64_t)g->units * ((g->k_mode & GROUP_LIST) ? 1 : 2) *
-                                   sizeof(uint32_t) + sizeof *g
-                             : 0;
+    st.bytes_read += lo == 0 ? group_table_bytes(g) : 0;
   }
   if (out_stats)
     *out_stats = st;
@@ -1669,15 +1693,21 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
    * weight only, each term ω[j mod 3]·v rounded to float, then added (C11 evaluates float
    * in float here: FLT_EVAL_METHOD 0 on x86-64, and the build does not contract to FMA),
    * with FTZ/DAZ off as during an update (the caller's mode is restored). */
-  /* the non-zero members' rows (one stream each, far apart) requested together, so
-   * their misses overlap */
-  for (uint32_t m = 0; m < gk; m++) {
+  /* the non-zero members (up to ROW_LISTED of them listed): their rows, one stream each
+   * and far apart, requested together so their misses overlap */
+  enum { ROW_LISTED = BLEND_SPECIALISED * 4 };
+  const float *wl[ROW_LISTED];
+  const char *sl[ROW_LISTED];
+  uint32_t nl = 0;
+  for (uint32_t m = 0; m < gk && gk <= ROW_LISTED; m++) {
     const float *w = b->wlast + (size_t)mem[m] * 3;
     if (w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f)
       continue;
-    const char *src = vb + member_row_off(list, gk, m, pos, rowb, block);
-    __builtin_prefetch(src);
-    __builtin_prefetch(src + rowb - 1);
+    wl[nl] = w;
+    sl[nl] = vb + member_row_off(list, gk, m, pos, rowb, block);
+    __builtin_prefetch(sl[nl]);
+    __builtin_prefetch(sl[nl] + rowb - 1);
+    nl++;
   }
   unsigned csr = ub_fp_mode_enter();
   if (b->base_size == 2)
@@ -1685,18 +1715,8 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
   else
     memcpy(out_row, bsu, S * sizeof(float));
 #if BLEND_F16C
-  if (b->avx && vs == 2 && gk <= BLEND_SPECIALISED * 4) {
-    const float *wl[BLEND_SPECIALISED * 4];
-    const char *sl[BLEND_SPECIALISED * 4];
-    uint32_t n = 0;
-    for (uint32_t m = 0; m < gk; m++) {
-      const float *w = b->wlast + (size_t)mem[m] * 3;
-      if (w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f)
-        continue;
-      wl[n] = w;
-      sl[n++] = vb + member_row_off(list, gk, m, pos, rowb, block);
-    }
-    row_sum_avx(wl, sl, n, out_row, S);
+  if (b->avx && vs == 2 && gk <= ROW_LISTED) {
+    row_sum_avx(wl, sl, nl, out_row, S);
     ub_fp_mode_leave(csr);
     return 1;
   }

@@ -1177,6 +1177,16 @@ static void lobe_sh(float out[27])
 
 /* Each of 4 threads queries every point, in its own order (concurrent first reads of
  * stale probes); thread 0's answers into got. */
+/* Q queries one by one on this thread, each walking from the start grid (a fresh cache):
+ * the reference answers. */
+static void query_each_cold(const ub_glg *g, const float *qp, const float *qn, int Q, float *out)
+{
+  for (int i = 0; i < Q; i++) {
+    uint32_t cache = UB_GLG_NO_CACHE;
+    ub_glg_query(g, qp + 3 * i, qn + 3 * i, &cache, out + 3 * i);
+  }
+}
+
 static void query_4_threads(const ub_glg *g, const float *qp, const float *qn, int Q, float *got)
 {
 #pragma omp parallel num_threads(4)
@@ -1249,10 +1259,7 @@ static void test_lazy_window(void)
       rnd_dir(qn + 3 * i);
     }
     query_4_threads(&lazy, qp, qn, Q, got);
-    for (int i = 0; i < Q; i++) {
-      uint32_t cache = UB_GLG_NO_CACHE;
-      ub_glg_query(&ref, qp + 3 * i, qn + 3 * i, &cache, want + 3 * i);
-    }
+    query_each_cold(&ref, qp, qn, Q, want);
     mismatch += memcmp(got, want, 3 * Q * sizeof(float)) != 0;
     stale_total += (int)ub_glg_refresh(&lazy);
     ASSERT_TRUE(ub_glg_refresh(&lazy) == 0);
@@ -1545,10 +1552,7 @@ static void test_compact(void)
     mismatch += memcmp(cq, rs, sizeof cq) != 0;
     ub_glg fresh;
     ASSERT_OK(ub_glg_init(&fresh, &d, &test_log));
-    for (int i = 0; i < Q; i++) {
-      uint32_t cache = UB_GLG_NO_CACHE;
-      ub_glg_query(&fresh, qp + 3 * i, qn + 3 * i, &cache, want + 3 * i);
-    }
+    query_each_cold(&fresh, qp, qn, Q, want);
     query_4_threads(&g, qp, qn, Q, got);
     mismatch += memcmp(got, want, 3 * Q * sizeof(float)) != 0;
     /* the cursor from before the change: its rows are stale, it must not use them */
@@ -1587,10 +1591,7 @@ static void test_compact(void)
     lazy_mismatch += memcmp(cq, rs, sizeof cq) != 0;
     ub_glg fresh;
     ASSERT_OK(ub_glg_init(&fresh, &d, &test_log));
-    for (int i = 0; i < Q; i++) {
-      uint32_t cache = UB_GLG_NO_CACHE;
-      ub_glg_query(&fresh, qp + 3 * i, qn + 3 * i, &cache, want + 3 * i);
-    }
+    query_each_cold(&fresh, qp, qn, Q, want);
     query_4_threads(&g, qp, qn, Q, got);
     lazy_mismatch += memcmp(got, want, 3 * Q * sizeof(float)) != 0;
     lazy_calls_ok &= atomic_load(&src.calls) <= count;
