@@ -3,11 +3,12 @@
  * its sets. Prints figures; asserts nothing.
  *
  *   bench_estate [--scale S] [--full] [--bounces N] [--texel-size M] [--no-extrapolate]
- *                [--param k=v ...] [--ubk FILE.ubk [--repeat N]] [--jobs N]
+ *                [--param k=v ...] [--ubk FILE.ubk [--repeat N]] [--jobs N] [--records8]
  *
  * --ubk FILE skips generating and baking and measures the run-time on a file already baked
  * (e.g. estate_small, or a full ESTATE bake): records, memory, toggles, all-sets update;
  * --repeat N repeats the toggle loop N times (for a profiler).
+ * --records8 loads the run-time with its records in 8 bits (UB_RUNTIME_RECORDS_8BIT).
  * --jobs N (default: the CPUs, at most 8) also measures toggles and the all-sets update
  * split into N jobs (ub_runtime_update_begin/job/end) on N OpenMP threads, against a
  * memcpy of the same bytes by N threads (each its share) in the same run; 1: not.
@@ -290,6 +291,7 @@ int main(int argc, char **argv)
   const char *build = getenv("UB_BUILD") ? getenv("UB_BUILD") : "build";
   double scale = 0.05, texel = 0.2;
   int bounces = 2, extrapolate = 1, full = 0, repeat = 1;
+  unsigned load_flags = 0;
   int jobs = omp_get_num_procs() < 8 ? omp_get_num_procs() : 8;
   const char *ubk_in = NULL;
   char **params = malloc(sizeof(char *) * (size_t)(argc + 1));
@@ -298,13 +300,14 @@ int main(int argc, char **argv)
     if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
       printf("usage: bench_estate [--scale S] [--full] [--bounces N] [--texel-size M]\n"
              "                    [--no-extrapolate] [--param k=v ...]\n"
-             "                    [--ubk FILE.ubk [--repeat N]] [--jobs N]\n"
+             "                    [--ubk FILE.ubk [--repeat N]] [--jobs N] [--records8]\n"
              "Generates the ESTATE-scale level (ubake-genlevel estate) at scale S (default 0.05;\n"
              "--full: 1), bakes it at draft (reduced: --bounces 2, --texel-size 0.2 by default;\n"
              "full: the level's settings), loads it in the run-time and toggles its sets;\n"
              "extrapolates the bake to full scale from a --plan-only of the full level.\n"
              "--ubk: the run-time figures of a file already baked; --jobs N: toggles and the\n"
              "all-sets update also split into N jobs on N threads (default: the CPUs, <= 8).\n"
+             "--records8: the run-time keeps its records in 8 bits (UB_RUNTIME_RECORDS_8BIT).\n"
              "UB_BUILD: the build folder (default build).\n");
       return 0;
     } else if (!strcmp(argv[i], "--scale") && i + 1 < argc) {
@@ -332,6 +335,8 @@ int main(int argc, char **argv)
         fprintf(stderr, "bench_estate: --jobs wants 1..64, got %s\n", argv[i]);
         return 2;
       }
+    } else if (!strcmp(argv[i], "--records8")) {
+      load_flags |= UB_RUNTIME_RECORDS_8BIT;
     } else if (!strcmp(argv[i], "--no-extrapolate")) {
       extrapolate = 0;
     } else if (!strcmp(argv[i], "--param") && i + 1 < argc) {
@@ -491,7 +496,7 @@ int main(int argc, char **argv)
   long rss0 = ub_bench_rss_kb();
   double tl = ub_bench_now();
   ub_runtime *rt = NULL;
-  if (ub_runtime_load(st.ubk_path, NULL, &rt) != UB_OK) {
+  if (ub_runtime_load_ex(st.ubk_path, NULL, load_flags, &rt) != UB_OK) {
     fprintf(stderr, "bench_estate: run-time cannot load %s\n", st.ubk_path);
     return 1;
   }
@@ -517,7 +522,8 @@ int main(int argc, char **argv)
   size_t cn = 0;
   all_sets_times(rt, 1, &ca, &cb, &cn, &tall, &tcpy, &all_bytes);
   double gbs = all_bytes / tall / 1e9, cgbs = 2.0 * (double)cn / tcpy / 1e9;
-  printf("run-time: load %.2f s, resident +%.1f MB (base + %u sets' records %.1f MB on disk)\n", tl,
+  printf("run-time%s: load %.2f s, resident +%.1f MB (base + %u sets' records %.1f MB on disk)\n",
+         load_flags & UB_RUNTIME_RECORDS_8BIT ? " (records in 8 bits)" : "", tl,
          (rss1 - rss0) / 1024.0, nd, rec_sum / 1048576.0);
   /* Counted bytes: the RSS delta above also holds freed pages malloc keeps. */
   ub_runtime_memory mu;

@@ -54,9 +54,10 @@
  * run group one block per member (ascending ids) holding that member's rows (S values
  * each) for the group's receivers in order (a run of consecutive receivers is then one
  * flat array per member); for a list group per receiver its members' rows one after the
- * other (one stream). No record position is kept. */
+ * other (one stream). No record position is kept. A row is rowb bytes: stride halves or
+ * floats, or a UB_BLEND_STORE_Q8 row (q8_encode). */
 typedef struct blend_group {
-  uint64_t val_off;    /* in values */
+  uint64_t val_off;    /* in record rows (of rowb bytes) */
   uint64_t unit_off;   /* in units (words) */
   uint32_t member_off; /* first of k element ids in b->members, ascending */
   uint32_t receivers;
@@ -72,6 +73,8 @@ typedef void (*blend_decode_fn)(const uint16_t *src, float *dst, size_t n);
 struct ub_blend {
   uint32_t receiver_count, stride, wstride, element_count, group_count;
   uint32_t value_size, kernel;
+  uint32_t q8;          /* UB_BLEND_STORE_Q8: rows of rowb bytes decoded by q8_decode */
+  size_t rowb;          /* bytes per record row */
   blend_decode_fn decode; /* half → float, NULL for float records */
   blend_decode_fn bdecode; /* half → float, UB_BLEND_BASE_HALF's base rows */
   uint32_t touched, max_overlap, run_groups;
@@ -104,6 +107,7 @@ struct ub_blend {
   uint32_t job_cap;
   /* AVX + F16C path (chosen at create): weight patterns. */
   int avx;
+  int avx2;             /* and AVX2: 8-bit rows of stride 12 decoded in registers */
   float *wpat;           /* element_count × 32 floats, 32-byte aligned: each element's
                             weight at every lane j as ω[j mod 3] (period 24 = 3 × 8 lanes,
                             8 more for unaligned tails), kept by set_weight */
@@ -127,7 +131,7 @@ typedef struct blend_scratch {
    * so parts on other threads never share its line */
   uint32_t pend_first, pend;
   float *rows;           /* BLEND_CHUNK × stride floats, streaming mode */
-  float *dec;            /* dec_floats floats, half records without F16C */
+  float *dec;            /* dec_floats floats: half records without F16C, 8-bit rows */
   float *bdec;           /* BLEND_CHUNK × stride floats: half base rows decoded */
   /* combinations above BLEND_SPECIALISED (max_overlap entries each) */
   uint32_t *act;
@@ -137,6 +141,7 @@ typedef struct blend_scratch {
   /* AVX path: the non-zero members' patterns and values (max(max_overlap, 1)) */
   const float **avx_w;
   const char **avx_src;
+  const char **avx_dec; /* UB_BLEND_STORE_Q8: the members' decoded rows in dec */
   char pad[64];
 } blend_scratch;
 
@@ -211,6 +216,123 @@ static blend_decode_fn pick_decoder(int portable)
 #else
   return decode_scalar;
 #endif
+}
+
+/* ---- UB_BLEND_STORE_Q8 rows ----------------------------------------------------------
+ * Bytes 0-5: the DC values (row positions 0-2) as halves; byte 6: e, a signed exponent;
+ * bytes 7 … 7 + S − 4: positions 3 … S − 1 as signed bytes q, the value q·2^e; then zeros
+ * to rowb. Decoding is exact (|q| ≤ 127 and 2^e normal), so every path gets the same
+ * floats. */
+#define Q8_EXP_MIN (-100) /* 2^e stays a normal float; finer values round to 0 */
+#define Q8_EXP_MAX 100
+
+size_t ub_blend_q8_row_bytes(uint32_t stride)
+{
+  return ((size_t)stride + 4 + 3) & ~(size_t)3;
+}
+
+static inline float q8_step(int e)
+{
+  union {
+    uint32_t u;
+    float f;
+  } x = {(uint32_t)(e + 127) << 23};
+  return x.f;
+}
+
+/* S finite values (the first 3 within the half range) → one row. */
+static void q8_encode(const float *v, uint32_t S, unsigned char *row, size_t rowb)
+{
+  memset(row, 0, rowb);
+  for (int c = 0; c < 3; c++) {
+    uint16_t h = ub_half_from_float(v[c]);
+    memcpy(row + 2 * c, &h, 2);
+  }
+  float mx = 0.0f;
+  for (uint32_t j = 3; j < S; j++)
+    mx = fabsf(v[j]) > mx ? fabsf(v[j]) : mx;
+  int e = 0;
+  if (mx > 0.0f) {
+    int x;
+    frexpf(mx, &x); /* mx = m·2^x, m in [0.5, 1): mx / 2^(x−7) in [64, 128) */
+    e = x - 7;
+    if (e < Q8_EXP_MIN)
+      e = Q8_EXP_MIN;
+    if (e > Q8_EXP_MAX)
+      e = Q8_EXP_MAX;
+    if (e < Q8_EXP_MAX && lrintf(mx / q8_step(e)) > 127) /* m·128 rounded up to 128 */
+      e++;
+  }
+  row[6] = (unsigned char)(signed char)e;
+  const float inv = 1.0f / q8_step(e); /* a power of two: exact */
+  for (uint32_t j = 3; j < S; j++) {
+    long q = lrintf(v[j] * inv); /* nearest, ties to even */
+    q = q > 127 ? 127 : q < -127 ? -127 : q;
+    row[7 + j - 3] = (unsigned char)(signed char)q;
+  }
+}
+
+static void q8_decode_scalar(const char *src, float *dst, size_t nrows, uint32_t S,
+                             size_t rowb)
+{
+  for (size_t i = 0; i < nrows; i++, src += rowb, dst += S) {
+    const unsigned char *row = (const unsigned char *)src;
+    for (int c = 0; c < 3; c++) {
+      uint16_t h;
+      memcpy(&h, row + 2 * c, 2);
+      dst[c] = ub_half_to_float(h);
+    }
+    const float st = q8_step((signed char)row[6]);
+    for (uint32_t j = 3; j < S; j++)
+      dst[j] = (float)(signed char)row[7 + j - 3] * st;
+  }
+}
+
+void ub_blend_q8_row(uint32_t stride, const float *in, float *out)
+{
+  assert(in && out && stride >= 3 && stride <= UB_BLEND_MAX_STRIDE && stride % 3 == 0);
+  unsigned char row[UB_BLEND_MAX_STRIDE + 8];
+  const size_t rowb = ub_blend_q8_row_bytes(stride);
+  q8_encode(in, stride, row, rowb);
+  q8_decode_scalar((const char *)row, out, 1, stride, rowb);
+}
+
+#if BLEND_F16C
+/* The same floats, 8 values per instruction: the DC's 4-lane conversion (its 4th lane,
+ * garbage, is overwritten by the next store), then 8 bytes at a time. Reads stay inside
+ * the row (S − 3 ≥ 8: its last 8 bytes end before rowb). */
+__attribute__((target("avx,f16c"))) static void q8_decode_avx(const char *src, float *dst,
+                                                               size_t nrows, uint32_t S,
+                                                               size_t rowb)
+{
+  const uint32_t nq = S - 3, nv = nq / 8;
+  for (size_t i = 0; i < nrows; i++, src += rowb, dst += S) {
+    const unsigned char *row = (const unsigned char *)src;
+    _mm_storeu_ps(dst, _mm_cvtph_ps(_mm_loadl_epi64((const __m128i *)(const void *)row)));
+    const __m256 st = _mm256_set1_ps(q8_step((signed char)row[6]));
+    for (uint32_t v = 0; v < nv; v++) {
+      const __m128i q = _mm_loadl_epi64((const __m128i *)(const void *)(row + 7 + 8 * v));
+      const __m256i x = _mm256_set_m128i(_mm_cvtepi8_epi32(_mm_srli_si128(q, 4)),
+                                         _mm_cvtepi8_epi32(q)); /* SSE4.1: no AVX2 needed */
+      _mm256_storeu_ps(dst + 3 + 8 * v, _mm256_mul_ps(_mm256_cvtepi32_ps(x), st));
+    }
+    for (uint32_t j = 3 + 8 * nv; j < S; j++)
+      dst[j] = (float)(signed char)row[7 + j - 3] * _mm256_cvtss_f32(st);
+  }
+  _mm256_zeroupper();
+}
+#endif
+
+/* n 8-bit rows → n × S floats, the fastest way the engine may use. */
+static void q8_decode(const ub_blend *b, const char *src, float *dst, size_t nrows)
+{
+#if BLEND_F16C
+  if (b->avx && b->stride >= 11) {
+    q8_decode_avx(src, dst, nrows, b->stride, b->rowb);
+    return;
+  }
+#endif
+  q8_decode_scalar(src, dst, nrows, b->stride, b->rowb);
 }
 
 /* One receiver: o = bs + Σ_m w[m]·row[m], m in element-id order, every product rounded
@@ -467,11 +589,12 @@ BLEND_AVX_INLINE __m128 avx_base4(const char *bs, size_t j, const int hb, const 
 }
 
 /* o[j] = base[j] + Σ_m wp[m][j mod 24]·src_m[j], j < nf; base: bs as floats, or (hb) as
- * halves times sc. */
+ * halves times sc; pf: prefetch the members' streams ahead (not for rows decoded into a
+ * scratch). */
 BLEND_AVX_INLINE void avx_flat(float *restrict o, const char *restrict bs,
                                const char *const *src, const float *const *wp,
                                const uint32_t k, const size_t nf, const int half,
-                               const int hb, const __m256 sc)
+                               const int hb, const __m256 sc, const int pf)
 {
   size_t j = 0;
   for (; j + 24 <= nf; j += 24) {
@@ -479,7 +602,8 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const char *restrict bs,
            a2 = avx_base8(bs, j + 16, hb, sc);
     for (uint32_t m = 0; m < k; m++) {
       const float *w = wp[m];
-      _mm_prefetch(src[m] + (j + BLEND_PF_VALUES) * (half ? 2 : 4), _MM_HINT_T0);
+      if (pf)
+        _mm_prefetch(src[m] + (j + BLEND_PF_VALUES) * (half ? 2 : 4), _MM_HINT_T0);
       a0 = _mm256_add_ps(a0, _mm256_mul_ps(_mm256_load_ps(w), avx_load8(src[m], j, half)));
       a1 = _mm256_add_ps(a1, _mm256_mul_ps(_mm256_load_ps(w + 8), avx_load8(src[m], j + 8, half)));
       a2 = _mm256_add_ps(a2, _mm256_mul_ps(_mm256_load_ps(w + 16), avx_load8(src[m], j + 16, half)));
@@ -535,7 +659,9 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const char *restrict bs,
  * block (see blend_group), so a run is blended as flat arrays; the callback gets the
  * pieces when BLEND_CHUNK receivers are waiting or the next piece does not continue them
  * (stream_slot; upper AVX state cleared first: it runs SSE code).
- * The whole loop is AVX code, so a list group costs no call per receiver. */
+ * The whole loop is AVX code, so a list group costs no call per receiver.
+ * half: 0 float records, 1 half, 2 UB_BLEND_STORE_Q8 rows (each chunk's rows decoded into
+ * the decode scratch first, their lines requested a chunk ahead, then blended as floats). */
 BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const uint32_t *act,
                                 const char **src, const float *const *wp, const uint32_t k,
                                 const int half, const int hb)
@@ -545,11 +671,16 @@ BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const
   const size_t bsz = hb ? 2 : 4;
   const uint32_t S = b->stride;
   const int list = (g->k_mode & GROUP_LIST) != 0;
-  const size_t vs = half ? 2 : 4, rowb = (size_t)S * vs, block = (size_t)g->receivers * rowb;
+  const size_t rowb = b->rowb, block = (size_t)g->receivers * rowb;
   const size_t gk = g->k_mode & ~GROUP_LIST;
-  const char *vb = (const char *)b->values + g->val_off * vs;
+  const char *vb = (const char *)b->values + g->val_off * rowb;
   float *out = c->out;
-  const uint32_t chunk = c->fn || !out ? BLEND_CHUNK : UINT32_MAX;
+  uint32_t chunk = c->fn || !out ? BLEND_CHUNK : UINT32_MAX;
+  const char **dsrc = c->s->avx_dec;
+  if (half == 2) {
+    const size_t fit = b->dec_floats / ((size_t)k * S);
+    chunk = fit < chunk ? (uint32_t)fit : chunk; /* ≥ 1: dec_floats ≥ max_overlap × S */
+  }
   unit_iter it;
   unit_iter_init(&it, b, g, c->qlo, c->qhi);
   uint32_t r, s0, s1;
@@ -561,7 +692,20 @@ BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const
     for (uint32_t i = s0; i < s1;) {
       uint32_t n = s1 - i < chunk ? s1 - i : chunk;
       float *o = out ? out + (size_t)(r + i) * S : stream_slot(c, r + i, &n);
-      avx_flat(o, bs + (size_t)(i - s0) * S * bsz, src, wp, k, (size_t)n * S, half, hb, sc);
+      if (half == 2) {
+        for (uint32_t m = 0; m < k; m++) {
+          float *d = c->s->dec + (size_t)m * n * S;
+          const size_t nb = (size_t)n * rowb;
+          for (size_t off = 0; off < nb; off += 64) /* the next chunk's lines */
+            _mm_prefetch(src[m] + nb + off, _MM_HINT_T0);
+          q8_decode_avx(src[m], d, n, S, rowb);
+          dsrc[m] = (const char *)d;
+        }
+        avx_flat(o, bs + (size_t)(i - s0) * S * bsz, dsrc, wp, k, (size_t)n * S, 0, hb, sc, 0);
+      } else {
+        avx_flat(o, bs + (size_t)(i - s0) * S * bsz, src, wp, k, (size_t)n * S, half, hb, sc,
+                 1);
+      }
       if (c->fn) {
         _mm256_zeroupper();
         if (out)
@@ -576,7 +720,7 @@ BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const
   }
 }
 
-/* The four kinds: half or float records (h/f) × half or float base rows (h/f). */
+/* The six kinds: half, float or 8-bit records (h/f/q) × half or float base rows (h/f). */
 #define BLEND_AVX_GROUP(name, half, hb)                                                  \
   BLEND_AVX static void name(const blend_call *c, const blend_group *g, const uint32_t *act, \
                              const char **src, const float *const *wp, uint32_t k)        \
@@ -588,7 +732,89 @@ BLEND_AVX_GROUP(avx_group_hf, 1, 0)
 BLEND_AVX_GROUP(avx_group_ff, 0, 0)
 BLEND_AVX_GROUP(avx_group_hh, 1, 1)
 BLEND_AVX_GROUP(avx_group_fh, 0, 1)
+BLEND_AVX_GROUP(avx_group_qf, 2, 0)
+BLEND_AVX_GROUP(avx_group_qh, 2, 1)
 #undef BLEND_AVX_GROUP
+
+/* UB_BLEND_STORE_Q8, stride 12 (lightmap texels), AVX2: each member's 16-byte row
+ * decoded in registers, one receiver at a time: lanes 0-7 = the DC halves (0-2) and bytes
+ * 7-11 (sign-extended from the 8 bytes at 4, whose first three are DC bits: replaced),
+ * lanes 8-11 = bytes 12-15; the bytes times the row's step (exact). Then as avx_flat:
+ * acc = base, acc = acc + ω·v per member in id order: the bits of every other path. */
+#define BLEND_AVX2 __attribute__((target("avx2,f16c")))
+
+BLEND_AVX2 static void avx2_group_q12(const blend_call *c, const blend_group *g,
+                                      const uint32_t *act, const char **src,
+                                      const float *const *wp, const uint32_t k, const int hb)
+{
+  const ub_blend *b = c->b;
+  enum { S = 12, ROWB = 16 };
+  const __m256 sc = _mm256_set1_ps(b->bscale);
+  const size_t bsz = hb ? 2 : 4;
+  const int list = (g->k_mode & GROUP_LIST) != 0;
+  const size_t block = (size_t)g->receivers * ROWB;
+  const size_t gk = g->k_mode & ~GROUP_LIST;
+  const char *vb = (const char *)b->values + g->val_off * ROWB;
+  float *out = c->out;
+  const uint32_t chunk = c->fn || !out ? BLEND_CHUNK : UINT32_MAX;
+  unit_iter it;
+  unit_iter_init(&it, b, g, c->qlo, c->qhi);
+  uint32_t r, s0, s1;
+  size_t i0;
+  const char *bs;
+  while (unit_next(&it, b, &r, &i0, &bs, &s0, &s1)) {
+    for (uint32_t m = 0; m < k; m++)
+      src[m] = vb + member_row_off(list, gk, act[m], i0 + s0, ROWB, block);
+    for (uint32_t i = s0; i < s1;) {
+      uint32_t n = s1 - i < chunk ? s1 - i : chunk;
+      float *o = out ? out + (size_t)(r + i) * S : stream_slot(c, r + i, &n);
+      const char *bq = bs + (size_t)(i - s0) * S * bsz;
+      for (uint32_t q = 0; q < n; q++, bq += S * bsz) {
+        __m256 a0;
+        __m128 a1;
+        if (hb) {
+          a0 = _mm256_mul_ps(_mm256_cvtph_ps(_mm_loadu_si128((const __m128i *)(const void *)bq)),
+                             sc);
+          a1 = _mm_mul_ps(_mm_cvtph_ps(_mm_loadl_epi64((const __m128i *)(const void *)(bq + 16))),
+                          _mm256_castps256_ps128(sc));
+        } else {
+          a0 = _mm256_loadu_ps((const float *)(const void *)bq);
+          a1 = _mm_loadu_ps((const float *)(const void *)bq + 8);
+        }
+        for (uint32_t m = 0; m < k; m++) {
+          const unsigned char *row = (const unsigned char *)src[m] + (size_t)q * ROWB;
+          if ((q & 3) == 0) /* a line holds 4 rows */
+            _mm_prefetch((const char *)row + BLEND_PF_VALUES * 2, _MM_HINT_T0);
+          const __m256 st = _mm256_set1_ps(q8_step((signed char)row[6]));
+          const __m128 dc = _mm_cvtph_ps(_mm_loadl_epi64((const __m128i *)(const void *)row));
+          int32_t hi4;
+          memcpy(&hi4, row + 12, 4);
+          const __m256i qlo =
+              _mm256_cvtepi8_epi32(_mm_loadl_epi64((const __m128i *)(const void *)(row + 4)));
+          const __m128i qhi = _mm_cvtepi8_epi32(_mm_cvtsi32_si128(hi4));
+          const __m256 v0 = _mm256_blend_ps(_mm256_mul_ps(_mm256_cvtepi32_ps(qlo), st),
+                                            _mm256_castps128_ps256(dc), 0x07);
+          const __m128 v1 = _mm_mul_ps(_mm_cvtepi32_ps(qhi), _mm256_castps256_ps128(st));
+          a0 = _mm256_add_ps(a0, _mm256_mul_ps(_mm256_load_ps(wp[m]), v0));
+          a1 = _mm_add_ps(a1, _mm_mul_ps(_mm_load_ps(wp[m] + 8), v1));
+        }
+        _mm256_storeu_ps(o + (size_t)q * S, a0);
+        _mm_storeu_ps(o + (size_t)q * S + 8, a1);
+      }
+      if (c->fn) {
+        _mm256_zeroupper();
+        if (out)
+          c->fn(c->user, r + i, n, o);
+        else
+          stream_done(c, n);
+      }
+      for (uint32_t m = 0; m < k; m++)
+        src[m] += (size_t)n * ROWB;
+      i += n;
+    }
+  }
+  _mm256_zeroupper();
+}
 
 static void group_blend_avx(const blend_call *c, const blend_group *g, const uint32_t *act,
                             uint32_t k)
@@ -599,7 +825,11 @@ static void group_blend_avx(const blend_call *c, const blend_group *g, const uin
   for (uint32_t m = 0; m < k; m++)
     wp[m] = b->wpat + 32 * (size_t)mem[act[m]];
   const int hb = b->base_size == 2;
-  if (b->value_size == 2)
+  if (b->q8 && b->avx2 && b->stride == 12)
+    avx2_group_q12(c, g, act, c->s->avx_src, wp, k, hb);
+  else if (b->q8)
+    (hb ? avx_group_qh : avx_group_qf)(c, g, act, c->s->avx_src, wp, k);
+  else if (b->value_size == 2)
     (hb ? avx_group_hh : avx_group_hf)(c, g, act, c->s->avx_src, wp, k);
   else
     (hb ? avx_group_fh : avx_group_ff)(c, g, act, c->s->avx_src, wp, k);
@@ -620,17 +850,17 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
   const float **w = k <= BLEND_SPECIALISED ? w_l : c->s->w;
   const int list = (g->k_mode & GROUP_LIST) != 0;
   const uint32_t *mem = b->members + g->member_off;
-  const size_t vs = b->value_size, rowb = (size_t)S * vs, block = (size_t)g->receivers * rowb;
+  const size_t rowb = b->rowb, block = (size_t)g->receivers * rowb;
   const size_t gk = g->k_mode & ~GROUP_LIST;
-  const char *vb = (const char *)b->values + g->val_off * vs;
+  const char *vb = (const char *)b->values + g->val_off * rowb;
   const blend_decode_fn decode = b->decode;
   float *out = c->out;
 
-  /* Receivers per chunk: bounded by the decode scratch (half), the streaming scratch and
-   * the base rows' decode scratch (half base). */
+  /* Receivers per chunk: bounded by the decode scratch (half or 8-bit), the streaming
+   * scratch and the base rows' decode scratch (half base). */
   const int hb = b->base_size == 2;
   uint32_t chunk = out && !hb ? UINT32_MAX : BLEND_CHUNK;
-  if (decode) {
+  if (decode || b->q8) {
     size_t fit = b->dec_floats / ((size_t)k * S);
     chunk = fit < chunk ? (uint32_t)fit : chunk; /* ≥ 1: dec_floats ≥ max_overlap × S */
   }
@@ -656,7 +886,11 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
       }
       bsu += (size_t)n * S * b->base_size;
       for (uint32_t m = 0; m < k; m++) {
-        if (decode) {
+        if (b->q8) {
+          float *dst = c->s->dec + (size_t)m * n * S;
+          q8_decode(b, src[m], dst, n);
+          rows[m] = dst;
+        } else if (decode) {
           float *dst = c->s->dec + (size_t)m * n * S;
           decode((const uint16_t *)(const void *)src[m], dst, (size_t)n * S);
           rows[m] = dst;
@@ -784,7 +1018,7 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
   st->groups_base += first && k == 0;
   st->receivers += n;
   st->bytes_written += c->out ? n * row : 0;
-  st->bytes_read += n * b->stride * b->base_size + (uint64_t)k * n * b->stride * b->value_size +
+  st->bytes_read += n * b->stride * b->base_size + (uint64_t)k * n * b->rowb +
                     (first ? group_table_bytes(g) : 0);
 }
 
@@ -1052,6 +1286,7 @@ void ub_blend_get_info(const ub_blend *b, ub_blend_info *out_info)
   in.engine_bytes = b->engine_bytes;
   in.base_scale = b->bscale;
   in.record_bytes = b->record_bytes;
+  in.row_bytes = (uint32_t)b->rowb;
   *out_info = in;
 }
 
@@ -1083,6 +1318,7 @@ static void scratch_free(blend_scratch *s)
   free((void *)s->w);
   free((void *)s->avx_w);
   free((void *)s->avx_src);
+  free((void *)s->avx_dec);
   memset(s, 0, sizeof *s);
 }
 
@@ -1099,7 +1335,7 @@ static int scratch_alloc(const ub_blend *b, blend_scratch *s, size_t *acc)
   s->rowp = alloc_n(sk, sizeof(float *), &bytes);
   s->w = alloc_n(sk, sizeof(float *), &bytes);
   int ok = s->rows && s->act && s->src && s->rowp && s->w;
-  if (b->value_size == 2) {
+  if (b->value_size == 2 || b->q8) {
     s->dec = alloc_n(b->dec_floats, sizeof(float), &bytes);
     ok = ok && s->dec;
   }
@@ -1110,7 +1346,8 @@ static int scratch_alloc(const ub_blend *b, blend_scratch *s, size_t *acc)
   if (b->avx) {
     s->avx_w = alloc_n(na, sizeof(float *), &bytes);
     s->avx_src = alloc_n(na, sizeof(char *), &bytes);
-    ok = ok && s->avx_w && s->avx_src;
+    s->avx_dec = alloc_n(na, sizeof(char *), &bytes);
+    ok = ok && s->avx_w && s->avx_src && s->avx_dec;
   }
   if (!ok) {
     scratch_free(s);
@@ -1209,9 +1446,10 @@ static ub_result validate(const ub_blend_desc *d, const ub_log *log, uint64_t *o
     return UB_ERR_INVALID_ARGUMENT;
   }
   if ((d->storage != UB_BLEND_FLOAT32 && d->storage != UB_BLEND_FLOAT16) ||
-      ((d->flags & UB_BLEND_STORE_HALF) && d->storage != UB_BLEND_FLOAT32)) {
+      ((d->flags & UB_BLEND_STORE_HALF) && d->storage != UB_BLEND_FLOAT32) ||
+      ((d->flags & UB_BLEND_STORE_HALF) && (d->flags & UB_BLEND_STORE_Q8))) {
     ub_log_printf(log, UB_LOG_ERROR, "blend %s: unknown storage %d (UB_BLEND_STORE_HALF "
-                  "takes float records)", nm, (int)d->storage);
+                  "takes float records, and not with UB_BLEND_STORE_Q8)", nm, (int)d->storage);
     return UB_ERR_INVALID_ARGUMENT;
   }
   if ((d->flags & UB_BLEND_BASE_HALF) && !(d->flags & UB_BLEND_OWN_BASE)) {
@@ -1256,12 +1494,15 @@ static ub_result validate(const ub_blend_desc *d, const ub_log *log, uint64_t *o
     }
     size_t nv = (size_t)r->count * d->stride;
     const int to_half = (d->flags & UB_BLEND_STORE_HALF) != 0;
+    const int q8 = (d->flags & UB_BLEND_STORE_Q8) != 0;
     for (size_t i = 0; i < nv; i++) {
+      /* rounded to half: the whole row (STORE_HALF), the DC (STORE_Q8) */
+      const int rh = to_half || (q8 && i % d->stride < 3);
       int ok = d->storage == UB_BLEND_FLOAT16
                    ? ub_half_is_finite(((const uint16_t *)r->values)[i])
-               : to_half ? fabsf(((const float *)r->values)[i]) < 65520.0f /* rounds to
-                                                                                finite half */
-                         : finite_f(((const float *)r->values)[i]);
+               : rh ? fabsf(((const float *)r->values)[i]) < 65520.0f /* rounds to finite
+                                                                            half */
+                    : finite_f(((const float *)r->values)[i]);
       if (!ok) {
         ub_log_printf(log, UB_LOG_ERROR,
                       "blend %s: element %u: value %zu of receiver %u (position %zu) is not "
@@ -1418,7 +1659,7 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
   if (!b->groups || !b->members)
     return UB_ERR_OUT_OF_MEMORY;
   memcpy(b->members, t->members, (size_t)nmem * sizeof(uint32_t));
-  uint64_t words = 0, vals = 0;
+  uint64_t words = 0, vals = 0; /* rows */
   for (uint32_t g = 0; g < G; g++) {
     const uint32_t *rs = t->order + t->g_start[g];
     uint32_t n = t->g_n[g], k = t->g_k[g], runs = 1;
@@ -1434,28 +1675,29 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
     bg->k_mode = k | (list ? GROUP_LIST : 0);
     bg->base_row = 0;
     words += list ? (uint64_t)n : 2 * (uint64_t)runs;
-    vals += (uint64_t)n * k * b->stride;
+    vals += (uint64_t)n * k;
     if (!list) {
       b->run_groups++;
       b->runs += runs;
     }
   }
-  assert(vals == M * b->stride);
+  assert(vals == M);
   b->unit_words = words;
   b->units = alloc_n(words, sizeof(uint32_t), acc);
-  b->values = alloc_n(vals, b->value_size, NULL); /* counted as record_bytes */
+  b->values = alloc_n(vals, b->rowb, NULL); /* counted as record_bytes */
   if (!b->units || !b->values)
     return UB_ERR_OUT_OF_MEMORY;
-  const size_t rowb = (size_t)b->stride * b->value_size;
-  /* UB_BLEND_STORE_HALF: float records kept as half. */
-  const int to_half = d->storage == UB_BLEND_FLOAT32 && b->value_size == 2;
-  const size_t srcb = (size_t)b->stride * (to_half ? sizeof(float) : b->value_size);
+  const size_t rowb = b->rowb;
+  /* UB_BLEND_STORE_HALF: float records kept as half; UB_BLEND_STORE_Q8: either kind kept
+   * as 8-bit rows. */
+  const int to_half = d->storage == UB_BLEND_FLOAT32 && b->value_size == 2 && !b->q8;
+  const size_t srcb = (size_t)b->stride * (d->storage == UB_BLEND_FLOAT16 ? 2 : 4);
   for (uint32_t g = 0; g < G; g++) {
     const blend_group *bg = &b->groups[g];
     const uint32_t *rs = t->order + t->g_start[g];
     uint32_t n = bg->receivers, k = bg->k_mode & ~GROUP_LIST;
     uint32_t *w = b->units + bg->unit_off;
-    char *v = (char *)b->values + bg->val_off * b->value_size;
+    char *v = (char *)b->values + bg->val_off * rowb;
     for (uint32_t i = 0; i < n;) {
       uint32_t len = 1;
       if (!(bg->k_mode & GROUP_LIST))
@@ -1474,7 +1716,15 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
       const uint32_t m = glist ? q % k : q / n, i = glist ? q / k : q % n;
       const uint32_t el = t->m_elem[t->off[rs[i]] + m], pos = t->m_pos[t->off[rs[i]] + m];
       const char *src = (const char *)d->elements[el].values + (size_t)pos * srcb;
-      if (to_half) {
+      if (b->q8) {
+        float f[UB_BLEND_MAX_STRIDE];
+        if (d->storage == UB_BLEND_FLOAT16)
+          for (uint32_t j = 0; j < b->stride; j++)
+            f[j] = ub_half_to_float(((const uint16_t *)(const void *)src)[j]);
+        else
+          memcpy(f, src, (size_t)b->stride * sizeof(float));
+        q8_encode(f, b->stride, (unsigned char *)v, rowb);
+      } else if (to_half) {
         const float *f = (const float *)(const void *)src;
         uint16_t *h = (uint16_t *)(void *)v;
         for (uint32_t j = 0; j < b->stride; j++)
@@ -1686,8 +1936,8 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
   const int list = (g->k_mode & GROUP_LIST) != 0;
   const char *bsu = b->obase ? b->obase + ((size_t)g->base_row + pos) * S * b->base_size
                              : (const char *)(b->base + (size_t)r * S);
-  const size_t vs = b->value_size, rowb = (size_t)S * vs, block = (size_t)g->receivers * rowb;
-  const char *vb = (const char *)b->values + g->val_off * vs;
+  const size_t vs = b->value_size, rowb = b->rowb, block = (size_t)g->receivers * rowb;
+  const char *vb = (const char *)b->values + g->val_off * rowb;
   const uint32_t *mem = b->members + g->member_off;
   /* As the kernels: the base row, then the members in id order, those with a non-zero
    * weight only, each term ω[j mod 3]·v rounded to float, then added (C11 evaluates float
@@ -1715,7 +1965,7 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
   else
     memcpy(out_row, bsu, S * sizeof(float));
 #if BLEND_F16C
-  if (b->avx && vs == 2 && gk <= ROW_LISTED) {
+  if (b->avx && vs == 2 && !b->q8 && gk <= ROW_LISTED) {
     row_sum_avx(wl, sl, nl, out_row, S);
     ub_fp_mode_leave(csr);
     return 1;
@@ -1726,6 +1976,15 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
     if (w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f)
       continue;
     const char *src = vb + member_row_off(list, gk, m, pos, rowb, block);
+    if (b->q8) {
+      float v[UB_BLEND_MAX_STRIDE];
+      q8_decode(b, src, v, 1);
+      for (uint32_t j = 0; j < S; j++) {
+        float t = w[j % 3] * v[j];
+        out_row[j] = out_row[j] + t;
+      }
+      continue;
+    }
     for (uint32_t j = 0; j < S; j++) {
       float v = vs == 2 ? ub_half_to_float(((const uint16_t *)(const void *)src)[j])
                         : ((const float *)(const void *)src)[j];
@@ -1757,17 +2016,20 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
   b->wstride = (S + 3) & ~3u;
   b->element_count = E;
   b->value_size = desc->storage == UB_BLEND_FLOAT16 || (desc->flags & UB_BLEND_STORE_HALF) ? 2 : 4;
+  b->q8 = (desc->flags & UB_BLEND_STORE_Q8) != 0;
+  b->rowb = b->q8 ? ub_blend_q8_row_bytes(S) : (size_t)S * b->value_size;
   b->kernel = S == 12 ? KERNEL_12 : S == 27 ? KERNEL_27 : KERNEL_ANY;
-  b->decode = b->value_size == 2 ? pick_decoder((desc->flags & UB_BLEND_PORTABLE) != 0) : NULL;
+  b->decode = b->value_size == 2 && !b->q8 ? pick_decoder((desc->flags & UB_BLEND_PORTABLE) != 0) : NULL;
 #if BLEND_F16C
   b->avx = !(desc->flags & UB_BLEND_PORTABLE) && cpu_has_f16c();
+  b->avx2 = b->avx && (ub_cpu_features() & UB_CPU_AVX2) != 0;
 #endif
   b->base = desc->base;
   b->base_size = (desc->flags & UB_BLEND_BASE_HALF) ? 2 : 4;
   b->bscale = 1.0f;
   b->bdecode = b->base_size == 2 ? pick_decoder((desc->flags & UB_BLEND_PORTABLE) != 0) : NULL;
   b->memberships = memberships;
-  b->record_bytes = memberships * (uint64_t)S * b->value_size;
+  b->record_bytes = memberships * (uint64_t)b->rowb;
   b->weight = calloc_n((size_t)E * 3, sizeof(float), &b->engine_bytes);
   /* 16-byte aligned weight rows (aligned_alloc wants a multiple of the alignment). */
   size_t wbytes = (size_t)E * b->wstride * sizeof(float);

@@ -101,6 +101,25 @@ extern "C" {
  * half is turned into float and multiplied by base_scale exactly. The out array given to
  * create gets the rounded rows too (touched receivers), so it always holds the state. */
 #define UB_BLEND_BASE_HALF 16u
+/* Records kept in 8 bits (lossy; float or half records): per row the first 3 values (the
+ * DC coefficient, RGB) as IEEE half, rounded to nearest even (exact for half records),
+ * and the other stride − 3 as signed 8-bit integers q times a power of two 2^e per row, e
+ * chosen so the row's largest |value| v_max gives |q| ≤ 127 with the finest step:
+ * |error| ≤ 2^(e−1) ≤ v_max / 127 per value (0 for a row of zeros). A row takes
+ * ub_blend_q8_row_bytes(stride) bytes: 16 for SH L1 × RGB (24 as half), 32 for SH L2 ×
+ * RGB (54). Why the DC apart: a texel's DC slot holds I_z, the irradiance along its
+ * normal, and under grazing light it is ~1000× smaller than its L1 terms (docs/FORMAT.md,
+ * ATLS), so one step for the whole row would erase it. The blend stays linear: results
+ * are those of a float engine whose records are ub_blend_q8_row(…) of the given rows,
+ * bit for bit, on every path. Float DC values must round to a finite half (|v| < 65520). */
+#define UB_BLEND_STORE_Q8 32u
+/* The bytes of one UB_BLEND_STORE_Q8 record row of `stride` values: 3 halves, the
+ * exponent byte, stride − 3 bytes, padded to a multiple of 4. */
+size_t ub_blend_q8_row_bytes(uint32_t stride);
+/* A row as a UB_BLEND_STORE_Q8 engine keeps it, decoded: out = the values the blend adds
+ * (weighted) for in (stride finite values, the first 3 within the half range). in and
+ * out may be the same array. */
+void ub_blend_q8_row(uint32_t stride, const float *in, float *out);
 
 typedef enum ub_blend_storage {
   UB_BLEND_FLOAT32 = 0, /* record values are float */
@@ -122,8 +141,9 @@ typedef struct ub_blend_desc {
   uint32_t element_count;
   const ub_blend_record *elements; /* element_count records; element id = index */
   uint32_t flags;            /* 0, or UB_BLEND_PORTABLE | UB_BLEND_OWN_BASE |
-                                UB_BLEND_STORE_HALF | UB_BLEND_ROW_QUERY |
-                                UB_BLEND_BASE_HALF (with UB_BLEND_OWN_BASE) */
+                                UB_BLEND_STORE_HALF or UB_BLEND_STORE_Q8 |
+                                UB_BLEND_ROW_QUERY | UB_BLEND_BASE_HALF (with
+                                UB_BLEND_OWN_BASE) */
 } ub_blend_desc;
 
 /* Counters of one update (all for that call only). */
@@ -150,7 +170,9 @@ typedef struct ub_blend_info {
   uint64_t memberships;       /* Σ record counts */
   size_t engine_bytes;        /* the engine's tables, weights, scratch, own base rows */
   size_t record_bytes;        /* the engine's copy of the record values (memberships ×
-                                 stride × 2 or 4 bytes), not in engine_bytes */
+                                 row_bytes), not in engine_bytes */
+  uint32_t row_bytes;         /* bytes per record row: stride × 2 or 4, or
+                                 ub_blend_q8_row_bytes(stride) (UB_BLEND_STORE_Q8) */
   float base_scale;           /* UB_BLEND_BASE_HALF: the base rows' scale, else 1 */
 } ub_blend_info;
 

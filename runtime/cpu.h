@@ -1,5 +1,5 @@
 /* runtime/cpu.h — which SIMD paths this CPU and OS allow, from CPUID: AVX (with the OS
- * saving the ymm registers: OSXSAVE and XCR0 bits 1–2) and F16C. One test for every
+ * saving the ymm registers: OSXSAVE and XCR0 bits 1–2), F16C and AVX2. One test for every
  * run-time kernel that picks a path at run time (blend.c's half decode, glg.c's queries,
  * lightmaps/ahd.c's 8-lane encoder); clang's __builtin_cpu_supports knows no "f16c".
  * Cheap but not free (CPUID traps in some VMs): callers cache the answer.
@@ -11,6 +11,7 @@
 
 #define UB_CPU_AVX 1u
 #define UB_CPU_F16C 2u /* only with UB_CPU_AVX (the conversions use ymm registers) */
+#define UB_CPU_AVX2 4u /* only with UB_CPU_AVX */
 
 #if defined(__x86_64__) && defined(__GNUC__)
 #include <cpuid.h>
@@ -28,7 +29,12 @@ static inline unsigned ub_cpu_features(void)
   (void)hi;
   if ((lo & 6u) != 6u)
     return 0; /* the OS does not save xmm and ymm */
-  return UB_CPU_AVX | ((c >> 29 & 1u) ? UB_CPU_F16C : 0u);
+  unsigned f = UB_CPU_AVX | ((c >> 29 & 1u) ? UB_CPU_F16C : 0u);
+  if (__get_cpuid_max(0, NULL) >= 7) {
+    __cpuid_count(7, 0, a, b, c, d);
+    f |= (b >> 5 & 1u) ? UB_CPU_AVX2 : 0u;
+  }
+  return f;
 }
 #else
 static inline unsigned ub_cpu_features(void)

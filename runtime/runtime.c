@@ -28,6 +28,7 @@ typedef struct ub_rt_fallback {
 
 struct ub_runtime {
   ub_bakefile *bf;
+  unsigned load_flags; /* ub_runtime_load_ex's: UB_RUNTIME_RECORDS_8BIT */
   /* AHD encode normals: a covered texel's own stored normal (ub_texel_normal, made when
    * needed), else the normal of the nearest texel that has one, kept here for those few
    * texels only (per atlas, pixels ascending; a zero normal: none in the atlas, the SH's
@@ -1127,7 +1128,8 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   /* Keeps only the touched receivers' base rows (in half, as lm_static) and the records
    * as half; streams its rows to the re-encode, queries ask it for a texel's row
    * (ub_blend_row). */
-  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_ROW_QUERY | UB_BLEND_BASE_HALF;
+  const uint32_t q8 = (rt->load_flags & UB_RUNTIME_RECORDS_8BIT) ? UB_BLEND_STORE_Q8 : 0;
+  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_ROW_QUERY | UB_BLEND_BASE_HALF | q8;
   r = ub_blend_create(&bd, log, NULL, &rt->lm_blend);
   if (r != UB_OK)
     return r;
@@ -1143,7 +1145,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   }
   /* Base rows in half too (UB_BLEND_BASE_HALF): the touched texels' as the untouched ones'
    * (lm_static); the probes' are the file's halves, kept exactly. */
-  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF;
+  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF | q8;
   free(rt->lm_base);
   rt->lm_base = NULL;
   free(rt->lm_tbase);
@@ -1249,7 +1251,17 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
 
 ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
 {
+  return ub_runtime_load_ex(path, log, 0, out);
+}
+
+ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags,
+                             ub_runtime **out)
+{
   assert(path && out);
+  if (flags & ~(unsigned)UB_RUNTIME_RECORDS_8BIT) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: unknown load flags 0x%x", path, flags);
+    return UB_ERR_INVALID_ARGUMENT;
+  }
   ub_bakefile *bf = NULL;
   /* records as the file's halves: the blends keep halves, no float copy on the way */
   ub_result r = ub_bakefile_read_ex(path, log, UB_BAKEFILE_RECORD_HALVES, &bf);
@@ -1262,6 +1274,7 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
     return UB_ERR_OUT_OF_MEMORY;
   }
   rt->bf = bf;
+  rt->load_flags = flags;
   rt->pixel_first = calloc((size_t)bf->atlas_count + 1, sizeof *rt->pixel_first);
   rt->jobs = calloc(1, sizeof *rt->jobs); /* a plain update's: it cannot run out of memory */
   if (!rt->pixel_first || !rt->jobs)

@@ -881,6 +881,181 @@ static void test_store_half(uint32_t S)
   free(oh);
 }
 
+/* ---- UB_BLEND_STORE_Q8: 8-bit rows ------------------------------------------------------ */
+
+/* An engine keeping 8-bit rows (AVX and portable; out array, streaming, row queries, parts)
+ * gives the bits of a float engine whose records are ub_blend_q8_row of the given rows,
+ * round after round; each kept value is within the stated bound of the given one. */
+static void test_q8(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
+{
+  /* Runs from random starts, every third element scattered (list groups), and a stretch
+   * of 40 receivers every element covers: E overlaps. */
+  uint8_t **cover = malloc(sizeof(uint8_t *) * E);
+  for (uint32_t e = 0; e < E; e++) {
+    cover[e] = calloc(R, 1);
+    if (e % 3 == 2) {
+      for (uint32_t i = 0; i < R / 20; i++)
+        cover[e][rnd_below(R)] = 1;
+    } else {
+      uint32_t start = rnd_below(R), size = 10 + rnd_below(R / 4);
+      for (uint32_t r = start; r < R && r < start + size; r++)
+        cover[e][r] = rnd() < 0.9;
+    }
+    memset(cover[e] + R / 2, 1, 40);
+  }
+  rep p;
+  rep_init(&p, R, S, E, st, cover);
+  for (uint32_t e = 0; e < E; e++)
+    free(cover[e]);
+  free(cover);
+  const size_t nf = (size_t)R * S;
+  /* The dequantized rows, and the bound: DC = the half of the value, others within
+   * v_max / 127 of the value (v_max: the row's largest non-DC |value|). */
+  float **dq = calloc(E, sizeof *dq);
+  ub_blend_record *rq = calloc(E, sizeof *rq);
+  int bad_bound = 0, nonzero_err = 0;
+  for (uint32_t e = 0; e < E; e++) {
+    dq[e] = malloc(sizeof(float) * ((size_t)p.cnt[e] * S + 1));
+    for (uint32_t i = 0; i < p.cnt[e]; i++) {
+      const float *v = p.vf[e] + (size_t)i * S;
+      float *o = dq[e] + (size_t)i * S;
+      ub_blend_q8_row(S, v, o);
+      float mx = 0.0f;
+      for (uint32_t j = 3; j < S; j++)
+        mx = fabsf(v[j]) > mx ? fabsf(v[j]) : mx;
+      for (uint32_t j = 0; j < S; j++) {
+        if (j < 3)
+          bad_bound += o[j] != ub_half_to_float(ub_half_from_float(v[j]));
+        else
+          bad_bound += !(fabsf(o[j] - v[j]) <= mx / 127.0f);
+        nonzero_err += j >= 3 && o[j] != v[j];
+      }
+    }
+    rq[e] = (ub_blend_record){p.idx[e], dq[e], p.cnt[e]};
+  }
+  ASSERT_TRUE(bad_bound == 0);
+  ASSERT_TRUE(nonzero_err > 0); /* it does quantize */
+  /* engines: 0 q8 AVX (out), 1 q8 portable (streaming), 2 q8 AVX own half base (parts,
+   * streaming), 3 float reference on the dequantized rows, 4 its own-half-base twin */
+  enum { NQ = 3, NE = 5 };
+  ub_blend *b[NE] = {0};
+  float *out[NE];
+  const uint32_t flags[NE] = {
+      UB_BLEND_STORE_Q8 | UB_BLEND_ROW_QUERY,
+      UB_BLEND_STORE_Q8 | UB_BLEND_ROW_QUERY | UB_BLEND_PORTABLE,
+      UB_BLEND_STORE_Q8 | UB_BLEND_ROW_QUERY | UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF,
+      UB_BLEND_ROW_QUERY, UB_BLEND_ROW_QUERY | UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF};
+  for (int i = 0; i < NE; i++) {
+    ub_blend_desc d = rep_desc(&p, "q8");
+    if (i >= NQ) {
+      d.storage = UB_BLEND_FLOAT32;
+      d.elements = rq;
+    }
+    d.flags = flags[i];
+    out[i] = malloc(sizeof(float) * nf);
+    ASSERT_OK(ub_blend_create(&d, NULL, out[i], &b[i]));
+    if (!b[i])
+      return;
+  }
+  ASSERT_OK(ub_blend_reserve_parts(b[2], 3));
+  ub_blend_info in;
+  ub_blend_get_info(b[0], &in);
+  ASSERT_TRUE(in.row_bytes == ub_blend_q8_row_bytes(S) &&
+              in.record_bytes == in.memberships * ub_blend_q8_row_bytes(S));
+  ASSERT_TRUE(ub_blend_q8_row_bytes(12) == 16 && ub_blend_q8_row_bytes(27) == 32);
+  uint8_t *count = calloc(R, 1);
+  int bad_bits = 0, bad_rows = 0, bad_sum = 0;
+  float row[UB_BLEND_MAX_STRIDE];
+  for (int round = 0; round < 40; round++) {
+    const int all = round % 10 == 9;
+    for (int c = 1 + (int)rnd_below(6); c > 0; c--) {
+      uint32_t e = rnd_below(E);
+      float w[3];
+      rnd_weight(w);
+      for (int i = 0; i < NE; i++)
+        ASSERT_OK(ub_blend_set_weight(b[i], e, w));
+      memcpy(p.w + (size_t)e * 3, w, sizeof w);
+    }
+    for (int i = 0; i < NE; i++) {
+      memset(count, 0, R);
+      const int stream = i == 1 || i == 2;
+      touch_log tl = {count, 0, S, stream ? NULL : out[i], stream ? out[i] : NULL, 0, 0, 0, 0};
+      if (i == 2) {
+        ub_blend_update_begin(b[i], all);
+        for (uint32_t q = 0; q < 3; q++)
+          ub_blend_update_part(b[i], q, 3, on_touched, &tl, NULL, NULL);
+      } else if (all) {
+        ub_blend_update_all(b[i], on_touched, &tl, stream ? NULL : out[i], NULL);
+      } else {
+        ub_blend_update(b[i], on_touched, &tl, stream ? NULL : out[i], NULL);
+      }
+    }
+    bad_bits += memcmp(out[0], out[3], sizeof(float) * nf) != 0;
+    bad_bits += memcmp(out[1], out[3], sizeof(float) * nf) != 0;
+    bad_bits += memcmp(out[2], out[4], sizeof(float) * nf) != 0;
+    for (uint32_t r = 0; r < R; r += 1 + rnd_below(5))
+      for (int i = 0; i < NQ; i++) {
+        if (ub_blend_row(b[i], r, row))
+          bad_rows += memcmp(row, out[i == 2 ? 4 : 3] + (size_t)r * S, sizeof(float) * S) != 0;
+        else
+          bad_rows += p.off[r + 1] > p.off[r]; /* a touched receiver has a row */
+      }
+  }
+  /* the naive sum over the dequantized rows */
+  float **vf = p.vf;
+  p.vf = dq;
+  for (uint32_t r = 0; r < R; r += 3)
+    bad_sum += !check_receiver(&p, out[0], r);
+  p.vf = vf;
+  ub_blend_get_info(b[0], &in);
+  printf("q8 R=%u S=%u %s: %d differing updates, %d differing rows, %d bad sums, max overlap "
+         "%u, %zu record bytes (%u a row)\n", R, S, st == UB_BLEND_FLOAT16 ? "half" : "float",
+         bad_bits, bad_rows, bad_sum, in.max_overlap, in.record_bytes, in.row_bytes);
+  ASSERT_TRUE(bad_bits == 0 && bad_rows == 0 && bad_sum == 0 && in.max_overlap == E);
+  free(count);
+  for (int i = 0; i < NE; i++) {
+    ub_blend_free(b[i]);
+    free(out[i]);
+  }
+  for (uint32_t e = 0; e < E; e++)
+    free(dq[e]);
+  free(dq);
+  free(rq);
+  rep_free(&p);
+}
+
+/* Q8 inputs: with STORE_HALF refused; a float DC beyond the half range is bad data, a big
+ * non-DC value is fine (its row's step grows). */
+static void test_q8_validation(void)
+{
+  const uint32_t S = 12;
+  float base[2 * 12] = {0}, v[12];
+  uint32_t idx[1] = {1};
+  for (uint32_t j = 0; j < S; j++)
+    v[j] = j == 0 ? 1e6f : 1.0f;
+  ub_blend_record rec = {idx, v, 1};
+  ub_blend_desc d = {"q8 validation", 2, S, base, UB_BLEND_FLOAT32, 1, &rec, UB_BLEND_STORE_Q8};
+  expect_create(&d, UB_ERR_INVALID_DATA);
+  v[0] = 1.0f;
+  v[5] = 1e30f;
+  float out[2 * 12];
+  ub_blend *b = NULL;
+  ASSERT_OK(ub_blend_create(&d, NULL, out, &b));
+  if (b) {
+    const float w[3] = {1, 1, 1};
+    ASSERT_OK(ub_blend_set_weight(b, 0, w));
+    ub_blend_update(b, NULL, NULL, out, NULL);
+    float dq[12];
+    ub_blend_q8_row(S, v, dq);
+    ASSERT_TRUE(memcmp(out + S, dq, sizeof dq) == 0);
+    /* the row's step follows its largest value: 1 next to 1e30 is lost (0) */
+    ASSERT_TRUE(fabsf(dq[5] - 1e30f) <= 1e30f / 127 && dq[6] == 0.0f && dq[0] == 1.0f);
+    ub_blend_free(b);
+  }
+  d.flags = UB_BLEND_STORE_Q8 | UB_BLEND_STORE_HALF;
+  expect_create(&d, UB_ERR_INVALID_ARGUMENT);
+}
+
 /* ---- parallel updates (ub_blend_update_begin / _part) ------------------------------- */
 
 typedef struct part_job {
@@ -1212,5 +1387,10 @@ int main(void)
   test_parts_one_group();
   test_base_half(20000, 12, 30, UB_BLEND_FLOAT16);
   test_base_half(5000, 27, 20, UB_BLEND_FLOAT32);
+  test_q8(20000, 12, 30, UB_BLEND_FLOAT16);
+  test_q8(5000, 27, 24, UB_BLEND_FLOAT32);
+  test_q8(3000, 9, 12, UB_BLEND_FLOAT32);
+  test_q8(3000, 48, 12, UB_BLEND_FLOAT16);
+  test_q8_validation();
   TEST_MAIN_END();
 }

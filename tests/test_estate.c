@@ -225,10 +225,10 @@ static int check_changed(const ub_runtime *rt, const ub_bakefile *bf, const ub_a
   return bad;
 }
 
-static void check_blend(const char *ubk, const ub_bakefile *bf)
+static void check_blend(const char *ubk, const ub_bakefile *bf, unsigned load_flags)
 {
   ub_runtime *rt = NULL;
-  ASSERT_OK(ub_runtime_load(ubk, NULL, &rt));
+  ASSERT_OK(ub_runtime_load_ex(ubk, NULL, load_flags, &rt));
   if (!rt)
     return;
   uint32_t nd = ub_runtime_dls_count(rt);
@@ -333,6 +333,130 @@ static void check_blend(const char *ubk, const ub_bakefile *bf)
   free(off.tex);
   free(off.glg);
   ub_runtime_free(rt);
+}
+
+/* UB_RUNTIME_RECORDS_8BIT against the file's halves, every set on with a tint: each
+ * texel's irradiance along its normal is the same (I_z is kept: float rounding of the AHD
+ * encode only), each GLG probe's raw SH is within the 8-bit bound (Σ over the sets reaching
+ * it of |weight| × its row's largest non-DC |value| / 127, DC exact) plus the store's half
+ * rounding of both; the error off the normal (45°) and the memory saved are printed. */
+static void check_records_8bit(const char *ubk, const ub_bakefile *bf)
+{
+  ub_runtime *rh = NULL, *r8 = NULL;
+  ASSERT_OK(ub_runtime_load_ex(ubk, NULL, 0, &rh));
+  ASSERT_OK(ub_runtime_load_ex(ubk, NULL, UB_RUNTIME_RECORDS_8BIT, &r8));
+  ASSERT_TRUE(ub_runtime_load_ex(ubk, NULL, 2u, &rh) == UB_ERR_INVALID_ARGUMENT);
+  if (!rh || !r8) {
+    ub_runtime_free(rh);
+    ub_runtime_free(r8);
+    return;
+  }
+  const float tint[3] = {1.0f, 0.7f, 1.3f};
+  for (uint32_t d = 0; d < ub_runtime_dls_count(rh); d++) {
+    ASSERT_OK(ub_runtime_set_dls(rh, d, tint));
+    ASSERT_OK(ub_runtime_set_dls(r8, d, tint));
+  }
+  ASSERT_OK(ub_runtime_update(rh, NULL));
+  ASSERT_OK(ub_runtime_update(r8, NULL));
+  /* texels: along the normal, and 45° off it */
+  const ub_bakefile *f = ub_runtime_bakefile(rh);
+  size_t nt = 0, bad_n = 0;
+  double max_rel_n = 0.0, sum_rel_t = 0.0, max_rel_t = 0.0, emax = 0.0;
+  for (int pass = 0; pass < 2; pass++)
+    for (uint32_t a = 0; a < f->atlas_count; a++)
+      for (uint32_t y = 0; y < f->atlases[a].height; y++)
+        for (uint32_t x = 0; x < f->atlases[a].width; x++) {
+          if (f->atlases[a].coverage[(size_t)y * f->atlases[a].width + x] != 1)
+            continue;
+          float n[3], t[3], eh[3], e8[3], th[3], t8[3];
+          ASSERT_OK(ub_runtime_texel_normal(rh, a, x, y, n));
+          ASSERT_OK(ub_runtime_texel_irradiance(rh, a, x, y, n, eh));
+          ASSERT_OK(ub_runtime_texel_irradiance(r8, a, x, y, n, e8));
+          if (pass == 0) { /* the largest irradiance: the floor of relative errors */
+            for (int c = 0; c < 3; c++)
+              emax = eh[c] > emax ? eh[c] : emax;
+            continue;
+          }
+          /* a tangent: n × (the axis least along n), then 45° toward it */
+          int ax = fabsf(n[0]) < fabsf(n[1]) ? (fabsf(n[0]) < fabsf(n[2]) ? 0 : 2)
+                                             : (fabsf(n[1]) < fabsf(n[2]) ? 1 : 2);
+          float e[3] = {ax == 0, ax == 1, ax == 2};
+          t[0] = n[1] * e[2] - n[2] * e[1];
+          t[1] = n[2] * e[0] - n[0] * e[2];
+          t[2] = n[0] * e[1] - n[1] * e[0];
+          float tl = sqrtf(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]);
+          if (!(tl > 0.0f))
+            continue; /* no normal */
+          float d45[3];
+          for (int c = 0; c < 3; c++)
+            d45[c] = n[c] + t[c] / tl;
+          ASSERT_OK(ub_runtime_texel_irradiance(rh, a, x, y, d45, th));
+          ASSERT_OK(ub_runtime_texel_irradiance(r8, a, x, y, d45, t8));
+          for (int c = 0; c < 3; c++) {
+            /* float rounding of the encode: its terms reach ~10× I_z (C_d under grazing
+             * light), a few roundings each */
+            double tol = 1e-5 * (10.0 * fabs(eh[c]) + 1e-6 * emax) + 1e-30;
+            double dn = fabs((double)e8[c] - eh[c]);
+            bad_n += !(dn <= tol);
+            double rn = dn / (fabs(eh[c]) + 1e-6 * emax + 1e-30);
+            max_rel_n = rn > max_rel_n ? rn : max_rel_n;
+            double rt = fabs((double)t8[c] - th[c]) / (fabs(th[c]) + 1e-3 * emax + 1e-30);
+            sum_rel_t += rt;
+            max_rel_t = rt > max_rel_t ? rt : max_rel_t;
+          }
+          nt++;
+        }
+  /* GLG probes */
+  size_t np = (size_t)f->glg_probe_count, bad_p = 0;
+  double max_over = 0.0;
+  if (np) {
+    float *gh = malloc(np * 27 * sizeof *gh), *g8 = malloc(np * 27 * sizeof *g8);
+    double *bound = calloc(np * 27, sizeof *bound);
+    ASSERT_OK(ub_runtime_glg_probe_sh(rh, 0, gh));
+    ASSERT_OK(ub_runtime_glg_probe_sh(r8, 0, g8));
+    for (uint32_t d = 0; d < bf->dls_count; d++) {
+      const ub_bakefile_record *r = &bf->dls[d];
+      for (uint32_t i = 0; i < r->probe_count; i++) {
+        const float *v = r->probe_sh + (size_t)i * 27;
+        double m = 0.0;
+        for (int j = 3; j < 27; j++)
+          m = fabs(v[j]) > m ? fabs(v[j]) : m;
+        for (int j = 3; j < 27; j++)
+          bound[(size_t)r->probe_index[i] * 27 + j] += tint[j % 3] * m / 127.0;
+      }
+    }
+    for (size_t p = 0; p < np; p++) {
+      double pmax = 0.0;
+      for (int j = 0; j < 27; j++)
+        pmax = fabs(gh[p * 27 + j]) > pmax ? fabs(gh[p * 27 + j]) : pmax;
+      for (int j = 0; j < 27; j++) {
+        size_t q = p * 27 + j;
+        /* the store: each value a half of value / 2^(probe exponent) */
+        double tol = bound[q] + 1.0 / 1024.0 * (fabs(gh[q]) + fabs(g8[q]) + 1e-3 * pmax) + 1e-30;
+        double dv = fabs((double)g8[q] - gh[q]);
+        bad_p += !(dv <= tol);
+        double o = dv / tol;
+        max_over = o > max_over ? o : max_over;
+      }
+    }
+    free(gh);
+    free(g8);
+    free(bound);
+  }
+  ub_runtime_memory mh, m8;
+  ub_runtime_memory_usage(rh, &mh);
+  ub_runtime_memory_usage(r8, &m8);
+  printf("8-bit records: %zu texels, along the normal max relative difference %.2g (%zu over "
+         "the float-rounding tolerance), 45° off it mean %.3g%% max %.3g%% (of the value + 0.1%% "
+         "of the largest); %zu GLG probe values, %zu over the bound (largest difference %.2f "
+         "of it); records %.2f -> %.2f MiB, run-time %.2f -> %.2f MiB\n",
+         nt, max_rel_n, bad_n, 100.0 * sum_rel_t / (3.0 * (double)(nt ? nt : 1)),
+         100.0 * max_rel_t, np * 27, bad_p, max_over, mh.records / 1048576.0,
+         m8.records / 1048576.0, mh.total / 1048576.0, m8.total / 1048576.0);
+  ASSERT_TRUE(nt > 0 && bad_n == 0 && bad_p == 0);
+  ASSERT_TRUE(m8.records < mh.records * 0.7);
+  ub_runtime_free(rh);
+  ub_runtime_free(r8);
 }
 
 /* The decoded AHD lightmap at fixed points of the lit triangles and LLG irradiance at
@@ -606,7 +730,9 @@ int main(void)
     ASSERT_TRUE(st.dls_sets == bf->dls_count);
     ASSERT_TRUE(bf->llg_count > 0);
     check_records(bf);
-    check_blend(st.ubk_path, bf);
+    check_blend(st.ubk_path, bf, 0);
+    check_blend(st.ubk_path, bf, UB_RUNTIME_RECORDS_8BIT);
+    check_records_8bit(st.ubk_path, bf);
     check_jobs(st.ubk_path);
     check_glg_threads(st.ubk_path);
   }

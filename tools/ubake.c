@@ -410,23 +410,46 @@ static const char *element_name(const ub_bakefile *bf, int32_t e)
   return "?";
 }
 
+/* "--records half|8bit": the run-time's load flags. 1 when taken (*flags set), -1 on a
+ * bad value (message printed), 0 when a is another option. */
+static int parse_records_arg(const char *cmd, const char *a, const char *v, unsigned *flags)
+{
+  if (strcmp(a, "--records") || !v)
+    return 0;
+  if (!strcmp(v, "half")) {
+    *flags = 0;
+  } else if (!strcmp(v, "8bit")) {
+    *flags = UB_RUNTIME_RECORDS_8BIT;
+  } else {
+    usage_error(cmd, "--records takes half or 8bit");
+    return -1;
+  }
+  return 1;
+}
+
+#define RECORDS_HELP                                                                     \
+  "  --records 8bit      the run-time keeps the records of sets, doors and objects in 8\n" \
+  "                      bits (UB_RUNTIME_RECORDS_8BIT: ~40% less record memory, slower\n"  \
+  "                      updates); default half, as the file stores them\n"
+
 /* ---- info -------------------------------------------------------------------------- */
 
 static const char *INFO_HELP =
-    "usage: ubake info DIR/NAME.ubk [--json] [--memory]\n"
+    "usage: ubake info DIR/NAME.ubk [--json] [--memory [--records half|8bit]]\n"
     "Prints what the bake file holds: geometry, atlases, texels, bytes.\n"
     "  --json      the same as one JSON object\n"
     "  --memory    also load it in the run-time and print what the run-time holds, by\n"
     "              part (ub_runtime_memory_usage: geometry, lightmap, GLG, LLG, records,\n"
-    "              blend engines), and the load time\n";
+    "              blend engines), and the load time\n"
+    RECORDS_HELP;
 
 /* The run-time's bytes for path (loads it): 0 on success. */
-static int info_memory(const char *path, const ub_log *log, ub_runtime_memory *out,
-                       double *out_seconds)
+static int info_memory(const char *path, const ub_log *log, unsigned flags,
+                       ub_runtime_memory *out, double *out_seconds)
 {
   double t0 = now_s();
   ub_runtime *rt = NULL;
-  if (ub_runtime_load(path, log, &rt) != UB_OK)
+  if (ub_runtime_load_ex(path, log, flags, &rt) != UB_OK)
     return 1;
   *out_seconds = now_s() - t0;
   ub_runtime_memory_usage(rt, out);
@@ -437,11 +460,17 @@ static int info_memory(const char *path, const ub_log *log, ub_runtime_memory *o
 static int cmd_info(int argc, char **argv)
 {
   const char *path = NULL;
-  int json = 0, memory = 0;
+  int json = 0, memory = 0, k;
+  unsigned load_flags = 0;
   for (int i = 0; i < argc; i++) {
     if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
       fputs(INFO_HELP, stdout);
       return 0;
+    } else if ((k = parse_records_arg("info", argv[i], i + 1 < argc ? argv[i + 1] : NULL,
+                                      &load_flags)) != 0) {
+      if (k < 0)
+        return 1;
+      i++;
     } else if (!strcmp(argv[i], "--json")) {
       json = 1;
     } else if (!strcmp(argv[i], "--memory")) {
@@ -464,7 +493,7 @@ static int cmd_info(int argc, char **argv)
   long long bytes = stat(path, &sb) == 0 ? (long long)sb.st_size : -1;
   ub_runtime_memory mem;
   double load_s = 0.0;
-  if (memory && info_memory(path, &log, &mem, &load_s)) {
+  if (memory && info_memory(path, &log, load_flags, &mem, &load_s)) {
     ub_bakefile_free(bf);
     return fail(&ls, UB_ERR_INVALID_DATA, path);
   }
@@ -591,6 +620,7 @@ static int cmd_info(int argc, char **argv)
 static const char *QUERY_HELP =
     "usage: ubake query DIR/NAME.ubk --at X,Y,Z --normal X,Y,Z [--source auto|glg|llg|lightmap]\n"
     "                   [--dls NAME=W|R,G,B ...] [--door NAME=T ...] [--object NAME=on|off ...]\n"
+    "                   [--records half|8bit]\n"
     "Prints the baked irradiance \"R G B\" (W/m², linear) the run-time uses there.\n"
     "  --dls NAME=W        weight (or RGB tint) of a dynamic light set (default 1: as baked)\n"
     "  --door NAME=T       opening fraction of a door, T in [0, 1] (default 0: closed; from\n"
@@ -602,11 +632,13 @@ static const char *QUERY_HELP =
     "  --source llg        the local light grid of the LLG model whose box holds the point\n"
     "                      (closest box otherwise), with its self-visibility within 5 cm\n"
     "                      of its surface\n"
-    "  --source auto       the default: glg (a point in space)\n";
+    "  --source auto       the default: glg (a point in space)\n"
+    RECORDS_HELP;
 
 static int cmd_query(int argc, char **argv)
 {
   const char *path = NULL, *source = "auto";
+  unsigned load_flags = 0;
   static cli_state state;
   state.count = 0;
   float at[3], nrm[3];
@@ -631,7 +663,8 @@ static int cmd_query(int argc, char **argv)
     } else if (!strcmp(a, "--source") && v) {
       source = v;
       i++;
-    } else if ((k = parse_state_arg("query", a, v, &state)) != 0) {
+    } else if ((k = parse_state_arg("query", a, v, &state)) != 0 ||
+               (k = parse_records_arg("query", a, v, &load_flags)) != 0) {
       if (k < 0)
         return 1;
       i++;
@@ -654,7 +687,7 @@ static int cmd_query(int argc, char **argv)
   cli_log_state ls = {0, 1, 0}; /* stdout is the answer: no info lines */
   ub_log log = {cli_log, &ls};
   ub_runtime *rt = NULL;
-  ub_result r = ub_runtime_load(path, &log, &rt);
+  ub_result r = ub_runtime_load_ex(path, &log, load_flags, &rt);
   if (r != UB_OK)
     return fail(&ls, r, path);
   if (apply_state(rt, &state, path)) {
@@ -871,7 +904,7 @@ static int cmd_reference(int argc, char **argv)
 static const char *RENDER_HELP =
     "usage: ubake render DIR/NAME.ubk --camera EX,EY,EZ,TX,TY,TZ,FOVY -o OUT.png\n"
     "          [--size WxH] [--exposure EV] [--samples N] [--dls NAME=W|R,G,B ...]\n"
-    "          [--door NAME=T ...] [--object NAME=on|off|V ...]\n"
+    "          [--door NAME=T ...] [--object NAME=on|off|V ...] [--records half|8bit]\n"
     "Renders the level from a camera as the run-time shows it: lightmaps on lightmapped\n"
     "geometry, the global light grid on the rest, plus the run-time direct light of the\n"
     "primary lights (with shadows), under the given state. Back faces are black.\n"
@@ -884,11 +917,13 @@ static const char *RENDER_HELP =
     "  --samples N         N×N rays per pixel (default 1)\n"
     "  --dls NAME=W        weight (or R,G,B tint) of a dynamic light set (default 1)\n"
     "  --door NAME=T       opening fraction of a door in [0, 1] (default 0: closed)\n"
-    "  --object NAME=V     on, off or a visibility in [0, 1] (default on)\n";
+    "  --object NAME=V     on, off or a visibility in [0, 1] (default on)\n"
+    RECORDS_HELP;
 
 static int cmd_render(int argc, char **argv)
 {
   const char *path = NULL, *out_png = NULL;
+  unsigned load_flags = 0;
   ub_render_params rp;
   ub_render_params_default(&rp);
   int have_camera = 0, auto_exposure = 1;
@@ -956,7 +991,8 @@ static int cmd_render(int argc, char **argv)
       }
       rp.samples = (uint32_t)n;
       i++;
-    } else if ((sk = parse_state_arg("render", a, v, &state)) != 0) {
+    } else if ((sk = parse_state_arg("render", a, v, &state)) != 0 ||
+               (sk = parse_records_arg("render", a, v, &load_flags)) != 0) {
       if (sk < 0) {
         return 1;
       }
@@ -977,7 +1013,7 @@ static int cmd_render(int argc, char **argv)
   }
   double t0 = now_s();
   ub_runtime *rt = NULL;
-  ub_result r = ub_runtime_load(path, &log, &rt);
+  ub_result r = ub_runtime_load_ex(path, &log, load_flags, &rt);
   if (r != UB_OK) {
     return fail(&ls, r, path);
   }

@@ -40,6 +40,19 @@ typedef struct ub_runtime ub_runtime;
  * UB_ERR_INVALID_DATA, UB_ERR_UNSUPPORTED_VERSION, UB_ERR_OUT_OF_MEMORY, each with one
  * message to log naming the file. */
 ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out);
+/* Load flags. UB_RUNTIME_RECORDS_8BIT: the run-time keeps the dynamic elements' records
+ * (lightmap, GLG and LLG) in 8 bits instead of the file's halves: per record row the DC
+ * values (a texel's I_z, a probe's L00, RGB) stay halves, the other coefficients become
+ * signed bytes times a power of two per row (|error| ≤ the row's largest such |value| /
+ * 127). About 40% less record memory (16 B a texel row instead of 24, 32 B a probe row
+ * instead of 54); the state is base + Σ weight · (the rounded records), still linear, still
+ * exact along each texel's normal (I_z is kept), but the blends decode the bytes, so
+ * updates and the first query of a changed GLG probe cost more (README, "8-bit records",
+ * gives the measured price). */
+#define UB_RUNTIME_RECORDS_8BIT 1u
+/* ub_runtime_load() with flags (0 or the flags above; UB_ERR_INVALID_ARGUMENT for others). */
+ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags,
+                             ub_runtime **out);
 void ub_runtime_free(ub_runtime *rt);
 
 /* The loaded bake file, read-only, owned by rt. It differs from one read with
@@ -69,7 +82,7 @@ typedef struct ub_runtime_memory {
                        normals */
   size_t glg;       /* the GLG's compact probe store (58 B/probe) and its walk data */
   size_t llg;       /* LLG probe SH (current state) */
-  size_t records;   /* element records: their values (half), held by the blends */
+  size_t records;   /* element records: their values (half, or 8-bit rows), held by the blends */
   size_t blend;     /* the blend engines: tables, weights, touched receivers' base rows */
   size_t total;     /* the sum */
 } ub_runtime_memory;
