@@ -240,12 +240,23 @@ static inline float q8_step(int e)
   return x.f;
 }
 
-/* S finite values (the first 3 within the half range) → one row. */
-static void q8_encode(const float *v, uint32_t S, unsigned char *row, size_t rowb)
+/* |y| ≤ 2^22 rounded to the nearest integer, ties to even (in the default rounding
+ * mode, as lrintf; no libm call: the adds round, FLT_EVAL_METHOD 0 on x86-64). */
+static inline float q8_round(float y)
+{
+  const float big = 12582912.0f; /* 1.5·2^23 */
+  volatile float t = y + big; /* volatile: the compiler must not fold the pair away */
+  return t - big;
+}
+
+/* S finite values (the first 3 within the half range) → one row; dc: the DC as halves
+ * already (the first 3 values' own halves), or NULL to round them. */
+static void q8_encode(const float *v, const uint16_t *dc, uint32_t S, unsigned char *row,
+                      size_t rowb)
 {
   memset(row, 0, rowb);
   for (int c = 0; c < 3; c++) {
-    uint16_t h = ub_half_from_float(v[c]);
+    uint16_t h = dc ? dc[c] : ub_half_from_float(v[c]);
     memcpy(row + 2 * c, &h, 2);
   }
   float mx = 0.0f;
@@ -253,22 +264,26 @@ static void q8_encode(const float *v, uint32_t S, unsigned char *row, size_t row
     mx = fabsf(v[j]) > mx ? fabsf(v[j]) : mx;
   int e = 0;
   if (mx > 0.0f) {
-    int x;
-    frexpf(mx, &x); /* mx = m·2^x, m in [0.5, 1): mx / 2^(x−7) in [64, 128) */
+    /* mx = m·2^x, m in [0.5, 1): mx / 2^(x−7) in [64, 128) */
+    uint32_t bits;
+    memcpy(&bits, &mx, 4);
+    int x = (int)(bits >> 23 & 0xffu) - 126;
+    if ((bits >> 23 & 0xffu) == 0) /* a float denormal */
+      frexpf(mx, &x);
     e = x - 7;
     if (e < Q8_EXP_MIN)
       e = Q8_EXP_MIN;
     if (e > Q8_EXP_MAX)
       e = Q8_EXP_MAX;
-    if (e < Q8_EXP_MAX && lrintf(mx / q8_step(e)) > 127) /* m·128 rounded up to 128 */
+    if (e < Q8_EXP_MAX && q8_round(mx / q8_step(e)) > 127.0f) /* m·128 rounded up to 128 */
       e++;
   }
   row[6] = (unsigned char)(signed char)e;
   const float inv = 1.0f / q8_step(e); /* a power of two: exact */
   for (uint32_t j = 3; j < S; j++) {
-    long q = lrintf(v[j] * inv); /* nearest, ties to even */
-    q = q > 127 ? 127 : q < -127 ? -127 : q;
-    row[7 + j - 3] = (unsigned char)(signed char)q;
+    float y = v[j] * inv; /* exact unless below the float range: then tiny */
+    y = y > 127.0f ? 127.0f : y < -127.0f ? -127.0f : y;
+    row[7 + j - 3] = (unsigned char)(signed char)(int)q8_round(y);
   }
 }
 
@@ -293,7 +308,7 @@ void ub_blend_q8_row(uint32_t stride, const float *in, float *out)
   assert(in && out && stride >= 3 && stride <= UB_BLEND_MAX_STRIDE && stride % 3 == 0);
   unsigned char row[UB_BLEND_MAX_STRIDE + 8];
   const size_t rowb = ub_blend_q8_row_bytes(stride);
-  q8_encode(in, stride, row, rowb);
+  q8_encode(in, NULL, stride, row, rowb);
   q8_decode_scalar((const char *)row, out, 1, stride, rowb);
 }
 
@@ -736,25 +751,83 @@ BLEND_AVX_GROUP(avx_group_qf, 2, 0)
 BLEND_AVX_GROUP(avx_group_qh, 2, 1)
 #undef BLEND_AVX_GROUP
 
-/* UB_BLEND_STORE_Q8, stride 12 (lightmap texels), AVX2: each member's 16-byte row
- * decoded in registers, one receiver at a time: lanes 0-7 = the DC halves (0-2) and bytes
- * 7-11 (sign-extended from the 8 bytes at 4, whose first three are DC bits: replaced),
- * lanes 8-11 = bytes 12-15; the bytes times the row's step (exact). Then as avx_flat:
- * acc = base, acc = acc + ω·v per member in id order: the bits of every other path. */
+/* UB_BLEND_STORE_Q8 rows of stride 12 (lightmap texels) or 27 (probes), AVX2: each
+ * member's row decoded in registers, one receiver at a time. Value j ≥ 3 is byte j + 4:
+ * lanes 0-7 = the DC halves (0-2) and bytes 7-11 (sign-extended from the 8 bytes at 4,
+ * whose first three are DC bits: replaced), then 8 lanes from bytes 12, 20 (27: and the
+ * last 4 values, 23-26, from bytes 27-30: lane 23 twice, the same bits both times), each
+ * byte times the row's step (exact). Then as avx_flat: acc = base, acc = acc + ω·v per
+ * member in id order: the bits of every other path. */
 #define BLEND_AVX2 __attribute__((target("avx2,f16c")))
+#define BLEND_AVX2_INLINE static inline __attribute__((always_inline, target("avx2,f16c")))
 
-BLEND_AVX2 static void avx2_group_q12(const blend_call *c, const blend_group *g,
-                                      const uint32_t *act, const char **src,
-                                      const float *const *wp, const uint32_t k, const int hb)
+BLEND_AVX2_INLINE __m256 q8_lanes0(const unsigned char *row, const __m256 st)
+{
+  const __m128 dc = _mm_cvtph_ps(_mm_loadl_epi64((const __m128i *)(const void *)row));
+  const __m256i q = _mm256_cvtepi8_epi32(_mm_loadl_epi64((const __m128i *)(const void *)(row + 4)));
+  return _mm256_blend_ps(_mm256_mul_ps(_mm256_cvtepi32_ps(q), st), _mm256_castps128_ps256(dc),
+                         0x07);
+}
+
+BLEND_AVX2_INLINE __m256 q8_lanes8(const unsigned char *row, size_t j, const __m256 st)
+{
+  const __m256i q = _mm256_cvtepi8_epi32(_mm_loadl_epi64((const __m128i *)(const void *)(row + j + 4)));
+  return _mm256_mul_ps(_mm256_cvtepi32_ps(q), st);
+}
+
+BLEND_AVX2_INLINE __m128 q8_lanes4(const unsigned char *row, size_t j, const __m256 st)
+{
+  int32_t x;
+  memcpy(&x, row + j + 4, 4);
+  return _mm_mul_ps(_mm_cvtepi32_ps(_mm_cvtepi8_epi32(_mm_cvtsi32_si128(x))),
+                    _mm256_castps256_ps128(st));
+}
+
+/* The row's values at lanes 0-7, 8-15, 16-23 (v[0..nv)) and the last 4 (t): S = 12: v[0],
+ * t = 8-11; S = 27: v[0..3), t = 23-26. */
+BLEND_AVX2_INLINE void q8_row_regs(const unsigned char *row, const uint32_t S, __m256 *v,
+                                   __m128 *t)
+{
+  const __m256 st = _mm256_set1_ps(q8_step((signed char)row[6]));
+  v[0] = q8_lanes0(row, st);
+  if (S == 27) {
+    v[1] = q8_lanes8(row, 8, st);
+    v[2] = q8_lanes8(row, 16, st);
+  }
+  *t = q8_lanes4(row, S - 4, st);
+}
+
+/* Base values j.. (8 or 4) as float. */
+BLEND_AVX2_INLINE __m256 base8(const char *bq, size_t j, const int hb, const __m256 sc)
+{
+  if (hb)
+    return _mm256_mul_ps(
+        _mm256_cvtph_ps(_mm_loadu_si128((const __m128i *)(const void *)(bq + 2 * j))), sc);
+  return _mm256_loadu_ps((const float *)(const void *)bq + j);
+}
+
+BLEND_AVX2_INLINE __m128 base4(const char *bq, size_t j, const int hb, const __m256 sc)
+{
+  if (hb)
+    return _mm_mul_ps(_mm_cvtph_ps(_mm_loadl_epi64((const __m128i *)(const void *)(bq + 2 * j))),
+                      _mm256_castps256_ps128(sc));
+  return _mm_loadu_ps((const float *)(const void *)bq + j);
+}
+
+BLEND_AVX2_INLINE void avx2_group_q(const blend_call *c, const blend_group *g,
+                                    const uint32_t *act, const char **src,
+                                    const float *const *wp, const uint32_t k, const int hb,
+                                    const uint32_t S)
 {
   const ub_blend *b = c->b;
-  enum { S = 12, ROWB = 16 };
+  const size_t rowb = b->rowb; /* 16 or 32 */
+  const uint32_t nv = S == 27 ? 3 : 1;
   const __m256 sc = _mm256_set1_ps(b->bscale);
   const size_t bsz = hb ? 2 : 4;
   const int list = (g->k_mode & GROUP_LIST) != 0;
-  const size_t block = (size_t)g->receivers * ROWB;
+  const size_t block = (size_t)g->receivers * rowb;
   const size_t gk = g->k_mode & ~GROUP_LIST;
-  const char *vb = (const char *)b->values + g->val_off * ROWB;
+  const char *vb = (const char *)b->values + g->val_off * rowb;
   float *out = c->out;
   const uint32_t chunk = c->fn || !out ? BLEND_CHUNK : UINT32_MAX;
   unit_iter it;
@@ -764,42 +837,31 @@ BLEND_AVX2 static void avx2_group_q12(const blend_call *c, const blend_group *g,
   const char *bs;
   while (unit_next(&it, b, &r, &i0, &bs, &s0, &s1)) {
     for (uint32_t m = 0; m < k; m++)
-      src[m] = vb + member_row_off(list, gk, act[m], i0 + s0, ROWB, block);
+      src[m] = vb + member_row_off(list, gk, act[m], i0 + s0, rowb, block);
     for (uint32_t i = s0; i < s1;) {
       uint32_t n = s1 - i < chunk ? s1 - i : chunk;
       float *o = out ? out + (size_t)(r + i) * S : stream_slot(c, r + i, &n);
       const char *bq = bs + (size_t)(i - s0) * S * bsz;
       for (uint32_t q = 0; q < n; q++, bq += S * bsz) {
-        __m256 a0;
-        __m128 a1;
-        if (hb) {
-          a0 = _mm256_mul_ps(_mm256_cvtph_ps(_mm_loadu_si128((const __m128i *)(const void *)bq)),
-                             sc);
-          a1 = _mm_mul_ps(_mm_cvtph_ps(_mm_loadl_epi64((const __m128i *)(const void *)(bq + 16))),
-                          _mm256_castps256_ps128(sc));
-        } else {
-          a0 = _mm256_loadu_ps((const float *)(const void *)bq);
-          a1 = _mm_loadu_ps((const float *)(const void *)bq + 8);
-        }
+        __m256 a[3];
+        for (uint32_t x = 0; x < nv; x++)
+          a[x] = base8(bq, 8 * x, hb, sc);
+        __m128 at = base4(bq, S - 4, hb, sc);
         for (uint32_t m = 0; m < k; m++) {
-          const unsigned char *row = (const unsigned char *)src[m] + (size_t)q * ROWB;
-          if ((q & 3) == 0) /* a line holds 4 rows */
+          const unsigned char *row = (const unsigned char *)src[m] + (size_t)q * rowb;
+          if ((q & (S == 27 ? 1 : 3)) == 0) /* a line holds 64 / rowb rows */
             _mm_prefetch((const char *)row + BLEND_PF_VALUES * 2, _MM_HINT_T0);
-          const __m256 st = _mm256_set1_ps(q8_step((signed char)row[6]));
-          const __m128 dc = _mm_cvtph_ps(_mm_loadl_epi64((const __m128i *)(const void *)row));
-          int32_t hi4;
-          memcpy(&hi4, row + 12, 4);
-          const __m256i qlo =
-              _mm256_cvtepi8_epi32(_mm_loadl_epi64((const __m128i *)(const void *)(row + 4)));
-          const __m128i qhi = _mm_cvtepi8_epi32(_mm_cvtsi32_si128(hi4));
-          const __m256 v0 = _mm256_blend_ps(_mm256_mul_ps(_mm256_cvtepi32_ps(qlo), st),
-                                            _mm256_castps128_ps256(dc), 0x07);
-          const __m128 v1 = _mm_mul_ps(_mm_cvtepi32_ps(qhi), _mm256_castps256_ps128(st));
-          a0 = _mm256_add_ps(a0, _mm256_mul_ps(_mm256_load_ps(wp[m]), v0));
-          a1 = _mm_add_ps(a1, _mm_mul_ps(_mm_load_ps(wp[m] + 8), v1));
+          __m256 v[3];
+          __m128 t;
+          q8_row_regs(row, S, v, &t);
+          for (uint32_t x = 0; x < nv; x++)
+            a[x] = _mm256_add_ps(a[x], _mm256_mul_ps(_mm256_load_ps(wp[m] + 8 * x), v[x]));
+          at = _mm_add_ps(at, _mm_mul_ps(_mm_loadu_ps(wp[m] + S - 4), t));
         }
-        _mm256_storeu_ps(o + (size_t)q * S, a0);
-        _mm_storeu_ps(o + (size_t)q * S + 8, a1);
+        float *oq = o + (size_t)q * S;
+        for (uint32_t x = 0; x < nv; x++)
+          _mm256_storeu_ps(oq + 8 * x, a[x]);
+        _mm_storeu_ps(oq + S - 4, at);
       }
       if (c->fn) {
         _mm256_zeroupper();
@@ -809,10 +871,64 @@ BLEND_AVX2 static void avx2_group_q12(const blend_call *c, const blend_group *g,
           stream_done(c, n);
       }
       for (uint32_t m = 0; m < k; m++)
-        src[m] += (size_t)n * ROWB;
+        src[m] += (size_t)n * rowb;
       i += n;
     }
   }
+}
+
+BLEND_AVX2 static void avx2_group_q12(const blend_call *c, const blend_group *g,
+                                      const uint32_t *act, const char **src,
+                                      const float *const *wp, uint32_t k, int hb)
+{
+  if (hb)
+    avx2_group_q(c, g, act, src, wp, k, 1, 12);
+  else
+    avx2_group_q(c, g, act, src, wp, k, 0, 12);
+  _mm256_zeroupper();
+}
+
+BLEND_AVX2 static void avx2_group_q27(const blend_call *c, const blend_group *g,
+                                      const uint32_t *act, const char **src,
+                                      const float *const *wp, uint32_t k, int hb)
+{
+  if (hb)
+    avx2_group_q(c, g, act, src, wp, k, 1, 27);
+  else
+    avx2_group_q(c, g, act, src, wp, k, 0, 27);
+  _mm256_zeroupper();
+}
+
+/* ub_blend_row's sum for 8-bit rows of stride 12 or 27: out (holding the base row) +=
+ * w_m·v_m over the n listed members in order, per value as the kernels. */
+BLEND_AVX2 static void row_sum_q8_avx2(const float *const *w, const char *const *src,
+                                       uint32_t n, float *out, uint32_t S)
+{
+  const uint32_t nv = S == 27 ? 3 : 1;
+  __m256 a[3];
+  for (uint32_t x = 0; x < nv; x++)
+    a[x] = _mm256_loadu_ps(out + 8 * x);
+  __m128 at = _mm_loadu_ps(out + S - 4);
+  for (uint32_t m = 0; m < n; m++) {
+    const float *wm = w[m]; /* ω, 3 floats */
+    const __m256 w8 = _mm256_setr_ps(wm[0], wm[1], wm[2], wm[0], wm[1], wm[2], wm[0], wm[1]);
+    /* lanes 8x.. start at phase 8x mod 3 = 0, 2, 1; the tail at S − 4 (8 or 23): 2 */
+    const __m256 w8b = _mm256_setr_ps(wm[2], wm[0], wm[1], wm[2], wm[0], wm[1], wm[2], wm[0]);
+    const __m256 w8c = _mm256_setr_ps(wm[1], wm[2], wm[0], wm[1], wm[2], wm[0], wm[1], wm[2]);
+    const __m128 w4 = _mm_setr_ps(wm[2], wm[0], wm[1], wm[2]);
+    __m256 v[3];
+    __m128 t;
+    q8_row_regs((const unsigned char *)src[m], S, v, &t);
+    a[0] = _mm256_add_ps(a[0], _mm256_mul_ps(w8, v[0]));
+    if (S == 27) {
+      a[1] = _mm256_add_ps(a[1], _mm256_mul_ps(w8b, v[1]));
+      a[2] = _mm256_add_ps(a[2], _mm256_mul_ps(w8c, v[2]));
+    }
+    at = _mm_add_ps(at, _mm_mul_ps(w4, t));
+  }
+  for (uint32_t x = 0; x < nv; x++)
+    _mm256_storeu_ps(out + 8 * x, a[x]);
+  _mm_storeu_ps(out + S - 4, at);
   _mm256_zeroupper();
 }
 
@@ -827,6 +943,8 @@ static void group_blend_avx(const blend_call *c, const blend_group *g, const uin
   const int hb = b->base_size == 2;
   if (b->q8 && b->avx2 && b->stride == 12)
     avx2_group_q12(c, g, act, c->s->avx_src, wp, k, hb);
+  else if (b->q8 && b->avx2 && b->stride == 27)
+    avx2_group_q27(c, g, act, c->s->avx_src, wp, k, hb);
   else if (b->q8)
     (hb ? avx_group_qh : avx_group_qf)(c, g, act, c->s->avx_src, wp, k);
   else if (b->value_size == 2)
@@ -1718,12 +1836,14 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
       const char *src = (const char *)d->elements[el].values + (size_t)pos * srcb;
       if (b->q8) {
         float f[UB_BLEND_MAX_STRIDE];
-        if (d->storage == UB_BLEND_FLOAT16)
+        const uint16_t *h = d->storage == UB_BLEND_FLOAT16 ? (const uint16_t *)(const void *)src
+                                                           : NULL;
+        if (h)
           for (uint32_t j = 0; j < b->stride; j++)
-            f[j] = ub_half_to_float(((const uint16_t *)(const void *)src)[j]);
+            f[j] = ub_half_to_float(h[j]);
         else
           memcpy(f, src, (size_t)b->stride * sizeof(float));
-        q8_encode(f, b->stride, (unsigned char *)v, rowb);
+        q8_encode(f, h, b->stride, (unsigned char *)v, rowb);
       } else if (to_half) {
         const float *f = (const float *)(const void *)src;
         uint16_t *h = (uint16_t *)(void *)v;
@@ -1965,6 +2085,11 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
   else
     memcpy(out_row, bsu, S * sizeof(float));
 #if BLEND_F16C
+  if (b->avx2 && b->q8 && (S == 12 || S == 27) && gk <= ROW_LISTED) {
+    row_sum_q8_avx2(wl, sl, nl, out_row, S);
+    ub_fp_mode_leave(csr);
+    return 1;
+  }
   if (b->avx && vs == 2 && !b->q8 && gk <= ROW_LISTED) {
     row_sum_avx(wl, sl, nl, out_row, S);
     ub_fp_mode_leave(csr);
@@ -2022,7 +2147,7 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
   b->decode = b->value_size == 2 && !b->q8 ? pick_decoder((desc->flags & UB_BLEND_PORTABLE) != 0) : NULL;
 #if BLEND_F16C
   b->avx = !(desc->flags & UB_BLEND_PORTABLE) && cpu_has_f16c();
-  b->avx2 = b->avx && (ub_cpu_features() & UB_CPU_AVX2) != 0;
+  b->avx2 = b->avx && !(desc->flags & UB_BLEND_NO_AVX2) && (ub_cpu_features() & UB_CPU_AVX2) != 0;
 #endif
   b->base = desc->base;
   b->base_size = (desc->flags & UB_BLEND_BASE_HALF) ? 2 : 4;

@@ -32,6 +32,8 @@
  * run of consecutive receivers is blended as one flat array, 8 lanes at a time,
  * converting half records in registers; otherwise half rows are decoded exactly to float
  * (SSE2 bit operations) a chunk at a time into an L1 scratch, then blended in float.
+ * 8-bit rows (UB_BLEND_STORE_Q8) are decoded exactly too: in registers a receiver at a
+ * time with AVX2 (strides 12 and 27), else a chunk at a time into the L1 scratch.
  * Every path does the same float operations per value, so they give the same bits. A group
  * whose weights are all 0 copies base rows (the "light off" fast path). Elements with
  * weight 0 are skipped, so a receiver's value depends only on the current weights, never
@@ -113,6 +115,8 @@ extern "C" {
  * are those of a float engine whose records are ub_blend_q8_row(…) of the given rows,
  * bit for bit, on every path. Float DC values must round to a finite half (|v| < 65520). */
 #define UB_BLEND_STORE_Q8 32u
+/* The AVX + F16C kernels only, not the AVX2 ones (8-bit rows): for tests on AVX2 CPUs. */
+#define UB_BLEND_NO_AVX2 64u
 /* The bytes of one UB_BLEND_STORE_Q8 record row of `stride` values: 3 halves, the
  * exponent byte, stride − 3 bytes, padded to a multiple of 4. */
 size_t ub_blend_q8_row_bytes(uint32_t stride);

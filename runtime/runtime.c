@@ -1002,7 +1002,7 @@ static int glg_row_source(void *user, uint32_t probe, float out[27])
  * through glg_row_source when an update marked them; the texels' is computed on demand by the lightmap blend, whose rows
  * the AHD re-encode streams), the
  * base rows of the touched receivers inside the blends (UB_BLEND_OWN_BASE) and the
- * records in half; the bake file's float copies are freed or point into the current state
+ * records in half (8-bit rows with UB_RUNTIME_RECORDS_8BIT: UB_BLEND_STORE_Q8); the bake file's float copies are freed or point into the current state
  * (runtime.h, ub_runtime_bakefile). */
 static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *log)
 {

@@ -935,16 +935,19 @@ static void test_q8(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
   }
   ASSERT_TRUE(bad_bound == 0);
   ASSERT_TRUE(nonzero_err > 0); /* it does quantize */
-  /* engines: 0 q8 AVX (out), 1 q8 portable (streaming), 2 q8 AVX own half base (parts,
-   * streaming), 3 float reference on the dequantized rows, 4 its own-half-base twin */
-  enum { NQ = 3, NE = 5 };
+  /* engines: 0 q8 AVX(2) (out), 1 q8 portable (streaming), 2 q8 AVX(2) own half base
+   * (parts, streaming), 3 q8 AVX without AVX2, own half base (streaming); 4 float
+   * reference on the dequantized rows, 5 its own-half-base twin */
+  enum { NQ = 4, NE = 6 };
   ub_blend *b[NE] = {0};
   float *out[NE];
-  const uint32_t flags[NE] = {
-      UB_BLEND_STORE_Q8 | UB_BLEND_ROW_QUERY,
-      UB_BLEND_STORE_Q8 | UB_BLEND_ROW_QUERY | UB_BLEND_PORTABLE,
-      UB_BLEND_STORE_Q8 | UB_BLEND_ROW_QUERY | UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF,
-      UB_BLEND_ROW_QUERY, UB_BLEND_ROW_QUERY | UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF};
+  const uint32_t hbase = UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF;
+  const uint32_t flags[NE] = {UB_BLEND_STORE_Q8 | UB_BLEND_ROW_QUERY,
+                              UB_BLEND_STORE_Q8 | UB_BLEND_ROW_QUERY | UB_BLEND_PORTABLE,
+                              UB_BLEND_STORE_Q8 | UB_BLEND_ROW_QUERY | hbase,
+                              UB_BLEND_STORE_Q8 | UB_BLEND_ROW_QUERY | hbase | UB_BLEND_NO_AVX2,
+                              UB_BLEND_ROW_QUERY, UB_BLEND_ROW_QUERY | hbase};
+  const int ref_of[NQ] = {4, 4, 5, 5};
   for (int i = 0; i < NE; i++) {
     ub_blend_desc d = rep_desc(&p, "q8");
     if (i >= NQ) {
@@ -978,7 +981,7 @@ static void test_q8(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
     }
     for (int i = 0; i < NE; i++) {
       memset(count, 0, R);
-      const int stream = i == 1 || i == 2;
+      const int stream = i == 1 || i == 2 || i == 3;
       touch_log tl = {count, 0, S, stream ? NULL : out[i], stream ? out[i] : NULL, 0, 0, 0, 0};
       if (i == 2) {
         ub_blend_update_begin(b[i], all);
@@ -990,13 +993,12 @@ static void test_q8(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
         ub_blend_update(b[i], on_touched, &tl, stream ? NULL : out[i], NULL);
       }
     }
-    bad_bits += memcmp(out[0], out[3], sizeof(float) * nf) != 0;
-    bad_bits += memcmp(out[1], out[3], sizeof(float) * nf) != 0;
-    bad_bits += memcmp(out[2], out[4], sizeof(float) * nf) != 0;
+    for (int i = 0; i < NQ; i++)
+      bad_bits += memcmp(out[i], out[ref_of[i]], sizeof(float) * nf) != 0;
     for (uint32_t r = 0; r < R; r += 1 + rnd_below(5))
       for (int i = 0; i < NQ; i++) {
         if (ub_blend_row(b[i], r, row))
-          bad_rows += memcmp(row, out[i == 2 ? 4 : 3] + (size_t)r * S, sizeof(float) * S) != 0;
+          bad_rows += memcmp(row, out[ref_of[i]] + (size_t)r * S, sizeof(float) * S) != 0;
         else
           bad_rows += p.off[r + 1] > p.off[r]; /* a touched receiver has a row */
       }

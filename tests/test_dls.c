@@ -266,10 +266,11 @@ static void test_states_vs_reference(ub_runtime *rt)
 /* `ubake info --json --memory`: each set with its lights and receivers as the bake file
  * holds them and its bytes (28 per texel pixel: index + 12 halves; 58 per probe: index
  * + 27 halves), and the run-time's bytes by part = ub_runtime_memory_usage of rt. */
-static void test_info(const char *ubk, const ub_runtime *rt)
+static void test_info(const char *ubk, const ub_runtime *rt, int records8)
 {
   char cmd[2300];
-  snprintf(cmd, sizeof cmd, "'%s/ubake' info '%s' --json --memory", g_build, ubk);
+  snprintf(cmd, sizeof cmd, "'%s/ubake' info '%s' --json --memory%s", g_build, ubk,
+           records8 ? " --records 8bit" : "");
   FILE *p = popen(cmd, "r");
   ASSERT_TRUE(p != NULL);
   if (!p)
@@ -311,8 +312,8 @@ static void test_info(const char *ubk, const ub_runtime *rt)
   int nm = mj ? sscanf(mj, "\"runtime_memory\": {\"geometry\": %llu, \"lightmap\": %llu, "
                        "\"glg\": %llu, \"llg\": %llu, \"records\": %llu, \"blend\": %llu, "
                        "\"total\": %llu", &g, &l, &gl, &ll, &rec, &bl, &tot) : 0;
-  printf("ubake info --json --memory: %d of 2 sets wrong; run-time %llu bytes (here %zu)\n",
-         bad, tot, m.total);
+  printf("ubake info --json --memory%s: %d of 2 sets wrong; run-time %llu bytes (here %zu), "
+         "records %llu\n", records8 ? " --records 8bit" : "", bad, tot, m.total, rec);
   ASSERT_TRUE(bad == 0 && nm == 7);
   ASSERT_TRUE(tot == m.total && g == m.geometry && l == m.lightmap && gl == m.glg &&
               ll == m.llg && rec == m.records && bl == m.blend && rec > 0 &&
@@ -345,9 +346,19 @@ int main(void)
     ASSERT_TRUE(ub_runtime_dls_find(rt, "nope") == -1);
     const float bad[3] = {NAN, 0, 0};
     ASSERT_TRUE(ub_runtime_set_dls(rt, 0, bad) == UB_ERR_INVALID_ARGUMENT);
-    test_info(st.ubk_path, rt);
+    test_info(st.ubk_path, rt, 0);
     test_linearity(rt);
     test_toggle(rt);
+    test_states_vs_reference(rt);
+    ub_runtime_free(rt);
+  }
+  /* The same with the records in 8 bits: still linear, still within the reference. */
+  rt = NULL;
+  ASSERT_OK(ub_runtime_load_ex(st.ubk_path, NULL, UB_RUNTIME_RECORDS_8BIT, &rt));
+  if (rt) {
+    printf("-- records in 8 bits --\n");
+    test_info(st.ubk_path, rt, 1);
+    test_linearity(rt);
     test_states_vs_reference(rt);
     ub_runtime_free(rt);
   }

@@ -47,8 +47,7 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
  * 127). About 40% less record memory (16 B a texel row instead of 24, 32 B a probe row
  * instead of 54); the state is base + Σ weight · (the rounded records), still linear, still
  * exact along each texel's normal (I_z is kept), but the blends decode the bytes, so
- * updates and the first query of a changed GLG probe cost more (README, "8-bit records",
- * gives the measured price). */
+ * updates cost more (README, "8-bit records", gives the measured price). */
 #define UB_RUNTIME_RECORDS_8BIT 1u
 /* ub_runtime_load() with flags (0 or the flags above; UB_ERR_INVALID_ARGUMENT for others). */
 ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags,
@@ -63,7 +62,8 @@ void ub_runtime_free(ub_runtime *rt);
  * the records: read the lightmap through the queries) and so are atlases[a].normal (kept
  * as the file's halves: ub_runtime_texel_normal). When the file
  * has dynamic elements (sets, doors, objects), the run-time keeps one float copy of the
- * LLG probes' current state and the records in half precision (as the file stores them),
+ * LLG probes' current state and the records in half precision (as the file stores them;
+ * 8 bits with UB_RUNTIME_RECORDS_8BIT),
  * so also: every record's texel_sh, probe_sh and llg_probe_sh and its receiver indices
  * (texel_index, probe_index, llg_probe_index) are NULL (the blends keep what they need;
  * counts, names and kinds are kept; read the file with ub_bakefile_read() for the records
