@@ -64,7 +64,15 @@ typedef struct blend_group {
   uint32_t units;      /* runs or receivers */
   uint32_t k_mode;     /* k | GROUP_LIST */
   uint32_t base_row;   /* UB_BLEND_OWN_BASE: the group's first row in obase */
+  uint32_t ones_row;   /* UB_BLEND_ONES_SUM: its first row in ones, ONES_NONE: none */
 } blend_group;
+
+#define ONES_NONE 0xFFFFFFFFu
+/* UB_BLEND_ONES_SUM keeps the all-ones sums of the groups of at least this many members:
+ * full ESTATE, toggles with the others on (best of 3, one noisy afternoon): none 0.65-0.86
+ * ms a room set, 8.5-9.9 a hall set; 4: 0.49-0.56 / 3.7, +43.4 MiB; 6: 0.49-0.51 / 2.9-3.3,
+ * +22.5 MiB; 12: 0.58 / 3.3, +11.0 MiB. */
+#define BLEND_ONES_MIN_K 6
 
 enum { KERNEL_12, KERNEL_27, KERNEL_ANY };
 
@@ -120,6 +128,13 @@ struct ub_blend {
    * of a binary search's chain of misses */
   uint32_t *rdir;
   float *wlast;         /* element_count × 3 */
+  /* UB_BLEND_ONES_SUM: per receiver of a group with ones_row, base + Σ of its members'
+   * rows (weights all 1), float, group order; per element ω ≠ (1, 1, 1), and ω − 1 as
+   * wexp and wpat hold ω */
+  float *ones;
+  uint64_t ones_rows;
+  uint8_t *notone;
+  float *dwexp, *dwpat;
   size_t engine_bytes, record_bytes;
 };
 
@@ -223,8 +238,9 @@ static blend_decode_fn pick_decoder(int portable)
  * bytes 7 … 7 + S − 4: positions 3 … S − 1 as signed bytes q, the value q·2^e; then zeros
  * to rowb. Decoding is exact (|q| ≤ 127 and 2^e normal), so every path gets the same
  * floats. */
-#define Q8_EXP_MIN (-100) /* 2^e stays a normal float; finer values round to 0 */
-#define Q8_EXP_MAX 100
+#define Q8_EXP_MIN (-126) /* 2^e and 2^-e stay normal floats (a row whose largest value is
+                            below 2^-119 gets steps coarser than its largest / 127) */
+#define Q8_EXP_MAX 121    /* 127·2^121 < FLT_MAX: any finite row fits */
 
 size_t ub_blend_q8_row_bytes(uint32_t stride)
 {
@@ -442,6 +458,8 @@ typedef struct blend_call {
   uint32_t qlo, qhi; /* the current group's receivers to compute: positions [qlo, qhi) */
   ub_blend_touched_fn fn;
   void *user;
+  int ones; /* this group from its all-ones sums: base = its ones rows (float), members those
+               with ω ≠ 1, weighted by ω − 1 */
 } blend_call;
 
 /* Streaming: hands the pending rows to the callback. */
@@ -481,11 +499,11 @@ static void stream_done(const blend_call *c, uint32_t n)
 /* Base rows of a group's next unit (len receivers from r): the engine's own copy (stored
  * in group order, so consecutive units are consecutive rows) or the caller's array. */
 BLEND_INLINE const char *unit_base(const ub_blend *b, const char **gb, uint32_t r,
-                                   uint32_t len)
+                                   uint32_t len, size_t rowb)
 {
-  if (b->obase) {
+  if (*gb) { /* own base rows or all-ones sums, group order */
     const char *p = *gb;
-    *gb += (size_t)len * b->stride * b->base_size;
+    *gb += (size_t)len * rowb;
     return p;
   }
   return (const char *)(b->base + (size_t)r * b->stride);
@@ -512,17 +530,19 @@ static void decode_base(const ub_blend *b, const char *src, float *dst, size_t n
 typedef struct unit_iter {
   const uint32_t *u;
   const char *gb;
+  size_t rowb;   /* bytes per base row in gb */
   uint32_t un, units, lo, hi;
   size_t i0;
   int list;
 } unit_iter;
 
 BLEND_INLINE void unit_iter_init(unit_iter *it, const ub_blend *b, const blend_group *g,
-                                 uint32_t lo, uint32_t hi)
+                                 uint32_t lo, uint32_t hi, const int ones)
 {
   it->list = (g->k_mode & GROUP_LIST) != 0;
   it->u = b->units + g->unit_off;
-  it->gb = group_base(b, g);
+  it->gb = ones ? (const char *)(b->ones + (size_t)g->ones_row * b->stride) : group_base(b, g);
+  it->rowb = (size_t)b->stride * (ones ? sizeof(float) : b->base_size);
   it->un = 0;
   it->units = g->units;
   it->lo = lo;
@@ -533,7 +553,7 @@ BLEND_INLINE void unit_iter_init(unit_iter *it, const ub_blend *b, const blend_g
     it->un = lo;
     it->i0 = lo;
     if (it->gb)
-      it->gb += (size_t)lo * b->stride * b->base_size;
+      it->gb += (size_t)lo * it->rowb;
   }
 }
 
@@ -544,7 +564,7 @@ BLEND_INLINE int unit_next(unit_iter *it, const ub_blend *b, uint32_t *r, size_t
     const uint32_t rr = it->u[0], len = it->list ? 1 : it->u[1];
     it->u += it->list ? 1 : 2;
     it->un++;
-    const char *base = unit_base(b, &it->gb, rr, len);
+    const char *base = unit_base(b, &it->gb, rr, len, it->rowb);
     const size_t at = it->i0;
     it->i0 += len;
     if (at + len <= it->lo)
@@ -553,7 +573,7 @@ BLEND_INLINE int unit_next(unit_iter *it, const ub_blend *b, uint32_t *r, size_t
     *i0 = at;
     *s0 = it->lo > at ? (uint32_t)(it->lo - at) : 0;
     *s1 = it->hi - at < len ? (uint32_t)(it->hi - at) : len;
-    *bs = base + (size_t)*s0 * b->stride * b->base_size;
+    *bs = base + (size_t)*s0 * it->rowb;
     return 1;
   }
   return 0;
@@ -697,7 +717,7 @@ BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const
     chunk = fit < chunk ? (uint32_t)fit : chunk; /* ≥ 1: dec_floats ≥ max_overlap × S */
   }
   unit_iter it;
-  unit_iter_init(&it, b, g, c->qlo, c->qhi);
+  unit_iter_init(&it, b, g, c->qlo, c->qhi, c->ones);
   uint32_t r, s0, s1;
   size_t i0; /* receivers of the group before this unit */
   const char *bs;
@@ -713,7 +733,7 @@ BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const
           const size_t nb = (size_t)n * rowb;
           for (size_t off = 0; off < nb; off += 64) /* the next chunk's lines */
             _mm_prefetch(src[m] + nb + off, _MM_HINT_T0);
-          q8_decode_avx(src[m], d, n, S, rowb);
+          q8_decode(b, src[m], d, n); /* S < 11: scalar (the AVX one writes 4 DC lanes) */
           dsrc[m] = (const char *)d;
         }
         avx_flat(o, bs + (size_t)(i - s0) * S * bsz, dsrc, wp, k, (size_t)n * S, 0, hb, sc, 0);
@@ -831,7 +851,7 @@ BLEND_AVX2_INLINE void avx2_group_q(const blend_call *c, const blend_group *g,
   float *out = c->out;
   const uint32_t chunk = c->fn || !out ? BLEND_CHUNK : UINT32_MAX;
   unit_iter it;
-  unit_iter_init(&it, b, g, c->qlo, c->qhi);
+  unit_iter_init(&it, b, g, c->qlo, c->qhi, c->ones);
   uint32_t r, s0, s1;
   size_t i0;
   const char *bs;
@@ -938,9 +958,10 @@ static void group_blend_avx(const blend_call *c, const blend_group *g, const uin
   const ub_blend *b = c->b;
   const uint32_t *mem = b->members + g->member_off;
   const float **wp = c->s->avx_w;
+  const float *pat = c->ones ? b->dwpat : b->wpat;
   for (uint32_t m = 0; m < k; m++)
-    wp[m] = b->wpat + 32 * (size_t)mem[act[m]];
-  const int hb = b->base_size == 2;
+    wp[m] = pat + 32 * (size_t)mem[act[m]];
+  const int hb = !c->ones && b->base_size == 2; /* all-ones sums are float */
   if (b->q8 && b->avx2 && b->stride == 12)
     avx2_group_q12(c, g, act, c->s->avx_src, wp, k, hb);
   else if (b->q8 && b->avx2 && b->stride == 27)
@@ -976,16 +997,17 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
 
   /* Receivers per chunk: bounded by the decode scratch (half or 8-bit), the streaming
    * scratch and the base rows' decode scratch (half base). */
-  const int hb = b->base_size == 2;
+  const int hb = !c->ones && b->base_size == 2;
   uint32_t chunk = out && !hb ? UINT32_MAX : BLEND_CHUNK;
   if (decode || b->q8) {
     size_t fit = b->dec_floats / ((size_t)k * S);
     chunk = fit < chunk ? (uint32_t)fit : chunk; /* ≥ 1: dec_floats ≥ max_overlap × S */
   }
+  const float *wx = c->ones ? b->dwexp : b->wexp;
   for (uint32_t m = 0; m < k; m++)
-    w[m] = b->wexp + (size_t)mem[act[m]] * b->wstride;
+    w[m] = wx + (size_t)mem[act[m]] * b->wstride;
   unit_iter it;
-  unit_iter_init(&it, b, g, c->qlo, c->qhi);
+  unit_iter_init(&it, b, g, c->qlo, c->qhi, c->ones);
   uint32_t r, s0, s1;
   size_t i0;
   const char *bsu;
@@ -1063,26 +1085,28 @@ static void group_blend(const blend_call *c, const blend_group *g, const uint32_
   }
 }
 
-/* All weights 0: out = base, row copies (still one write per receiver, no read of out). */
+/* All weights 0: out = base, row copies (still one write per receiver, no read of out);
+ * from the all-ones sums (c->ones), all weights 1: out = those sums. */
 static void group_copy_base(const blend_call *c, const blend_group *g)
 {
   const ub_blend *b = c->b;
   const uint32_t S = b->stride;
+  const size_t bsz = c->ones ? sizeof(float) : b->base_size;
   unit_iter it;
-  unit_iter_init(&it, b, g, c->qlo, c->qhi);
+  unit_iter_init(&it, b, g, c->qlo, c->qhi, c->ones);
   uint32_t r, s0, s1;
   size_t i0;
   const char *bsu;
   while (unit_next(&it, b, &r, &i0, &bsu, &s0, &s1)) {
     for (uint32_t f = r + s0, n; f < r + s1; f += n) {
       /* float base: the whole unit at once; half base: decoded a chunk at a time */
-      n = b->base_size == 4 ? r + s1 - f : r + s1 - f < BLEND_CHUNK ? r + s1 - f : BLEND_CHUNK;
+      n = bsz == 4 ? r + s1 - f : r + s1 - f < BLEND_CHUNK ? r + s1 - f : BLEND_CHUNK;
       const float *bs = (const float *)(const void *)bsu;
-      if (b->base_size == 2) {
+      if (bsz == 2) {
         decode_base(b, bsu, c->s->bdec, (size_t)n * S);
         bs = c->s->bdec;
       }
-      bsu += (size_t)n * S * b->base_size;
+      bsu += (size_t)n * S * bsz;
       if (c->out) {
         memcpy(c->out + (size_t)f * S, bs, (size_t)n * S * sizeof(float));
         if (c->fn)
@@ -1106,6 +1130,16 @@ static inline uint64_t group_table_bytes(const blend_group *g)
   return (uint64_t)g->units * ((g->k_mode & GROUP_LIST) ? 1 : 2) * sizeof(uint32_t) + sizeof *g;
 }
 
+/* Whether a group with all-ones sums is cheaper from them, n1 of its members having
+ * ω ≠ (1, 1, 1), nz ω ≠ 0: the bytes read, its float sum row and n1 record rows against
+ * its base row and nz record rows (ties: the base). A function of the weights only, so
+ * a receiver's value still depends on the current weights alone. */
+static inline int ones_cheaper(const ub_blend *b, uint32_t n1, uint32_t nz)
+{
+  const uint64_t S = b->stride;
+  return S * sizeof(float) + n1 * (uint64_t)b->rowb < S * b->base_size + nz * (uint64_t)b->rowb;
+}
+
 static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
 {
   const ub_blend *b = c->b;
@@ -1119,24 +1153,40 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
     act[k] = m;
     k += b->nonzero[mem[m]];
   }
+  blend_call cc = *c;
+  cc.ones = 0;
+  if (g->ones_row != ONES_NONE) {
+    uint32_t n1 = 0;
+    for (uint32_t m = 0; m < gk; m++)
+      n1 += b->notone[mem[m]];
+    if (ones_cheaper(b, n1, k)) { /* from the all-ones sums: the members with ω ≠ 1 */
+      cc.ones = 1;
+      k = 0;
+      for (uint32_t m = 0; m < gk; m++) {
+        act[k] = m;
+        k += b->notone[mem[m]];
+      }
+    }
+  }
   if (k == 0)
-    group_copy_base(c, g);
+    group_copy_base(&cc, g);
 #if BLEND_F16C
   else if (b->avx)
-    group_blend_avx(c, g, act, k);
+    group_blend_avx(&cc, g, act, k);
 #endif
   else
-    group_blend(c, g, act, k);
+    group_blend(&cc, g, act, k);
 
   /* A group split between parts: the part holding its start counts the group and its
    * tables, so the parts' stats add up to a whole update's. */
   const uint64_t row = (uint64_t)b->stride * sizeof(float), n = c->qhi - c->qlo;
   const int first = c->qlo == 0;
   st->groups += first;
-  st->groups_base += first && k == 0;
+  st->groups_base += first && k == 0 && !cc.ones;
   st->receivers += n;
   st->bytes_written += c->out ? n * row : 0;
-  st->bytes_read += n * b->stride * b->base_size + (uint64_t)k * n * b->rowb +
+  st->bytes_read += n * b->stride * (cc.ones ? sizeof(float) : b->base_size) +
+                    (uint64_t)k * n * b->rowb +
                     (first ? group_table_bytes(g) : 0);
 }
 
@@ -1276,7 +1326,7 @@ void ub_blend_update_part(const ub_blend *b, uint32_t part, uint32_t parts,
   assert(b && (out_values || touched) && parts >= 1 && part < parts && parts <= b->job_cap);
   ub_blend_stats st;
   memset(&st, 0, sizeof st);
-  blend_call c = {b, out_values, &b->js[part], 0, 0, touched, user};
+  blend_call c = {b, out_values, &b->js[part], 0, 0, touched, user, 0};
   const part_span p = part_span_of(b, part, parts);
   unsigned csr = ub_fp_mode_enter();
   for (uint32_t i = p.i0; i < p.end; i++) {
@@ -1305,7 +1355,7 @@ void ub_blend_mark_part(const ub_blend *b, uint32_t part, uint32_t parts,
     if (lo >= hi)
       continue;
     unit_iter it;
-    unit_iter_init(&it, b, g, lo, hi);
+    unit_iter_init(&it, b, g, lo, hi, 0);
     uint32_t r, s0, s1;
     size_t at;
     const char *bs;
@@ -1371,6 +1421,16 @@ ub_result ub_blend_set_weight(ub_blend *b, uint32_t element, const float rgb[3])
     for (int j = 0; j < 32; j++)
       b->wpat[32 * (size_t)element + j] = w[j % 3];
   b->nonzero[element] = w[0] != 0.0f || w[1] != 0.0f || w[2] != 0.0f;
+  if (b->ones) { /* ω − 1, rounded once per channel, as ub_blend_row computes it */
+    b->notone[element] = w[0] != 1.0f || w[1] != 1.0f || w[2] != 1.0f;
+    const float dw[3] = {w[0] - 1.0f, w[1] - 1.0f, w[2] - 1.0f};
+    float *de = b->dwexp + (size_t)element * b->wstride;
+    for (uint32_t j = 0; j < b->wstride; j++)
+      de[j] = dw[j % 3];
+    if (b->dwpat)
+      for (int j = 0; j < 32; j++)
+        b->dwpat[32 * (size_t)element + j] = dw[j % 3];
+  }
   if (!b->dirty[element]) {
     b->dirty[element] = 1;
     b->dirty_list[b->dirty_count++] = element;
@@ -1519,6 +1579,10 @@ void ub_blend_free(ub_blend *b)
     scratch_free(&b->js[j]);
   free(b->js);
   free(b->wpat);
+  free(b->ones);
+  free(b->notone);
+  free(b->dwexp);
+  free(b->dwpat);
   free(b->rmap);
   free(b->rdir);
   free(b->wlast);
@@ -1570,9 +1634,9 @@ static ub_result validate(const ub_blend_desc *d, const ub_log *log, uint64_t *o
                   "takes float records, and not with UB_BLEND_STORE_Q8)", nm, (int)d->storage);
     return UB_ERR_INVALID_ARGUMENT;
   }
-  if ((d->flags & UB_BLEND_BASE_HALF) && !(d->flags & UB_BLEND_OWN_BASE)) {
-    ub_log_printf(log, UB_LOG_ERROR, "blend %s: UB_BLEND_BASE_HALF needs UB_BLEND_OWN_BASE",
-                  nm);
+  if ((d->flags & (UB_BLEND_BASE_HALF | UB_BLEND_ONES_SUM)) && !(d->flags & UB_BLEND_OWN_BASE)) {
+    ub_log_printf(log, UB_LOG_ERROR, "blend %s: UB_BLEND_BASE_HALF and UB_BLEND_ONES_SUM need "
+                  "UB_BLEND_OWN_BASE", nm);
     return UB_ERR_INVALID_ARGUMENT;
   }
   if ((uint64_t)d->receiver_count * d->stride > SIZE_MAX / sizeof(float)) {
@@ -1792,6 +1856,7 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
     bg->units = list ? n : runs;
     bg->k_mode = k | (list ? GROUP_LIST : 0);
     bg->base_row = 0;
+    bg->ones_row = ONES_NONE;
     words += list ? (uint64_t)n : 2 * (uint64_t)runs;
     vals += (uint64_t)n * k;
     if (!list) {
@@ -2065,14 +2130,33 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
    * with FTZ/DAZ off as during an update (the caller's mode is restored). */
   /* the non-zero members (up to ROW_LISTED of them listed): their rows, one stream each
    * and far apart, requested together so their misses overlap */
+  /* UB_BLEND_ONES_SUM: the update's choice for this group under these weights
+   * (process_group): from its all-ones sums, the members with ω ≠ 1 weighted by ω − 1 */
+  int ones = 0;
+  if (g->ones_row != ONES_NONE) {
+    uint32_t n1 = 0, nz = 0;
+    for (uint32_t m = 0; m < gk; m++) {
+      const float *w = b->wlast + (size_t)mem[m] * 3;
+      nz += w[0] != 0.0f || w[1] != 0.0f || w[2] != 0.0f;
+      n1 += w[0] != 1.0f || w[1] != 1.0f || w[2] != 1.0f;
+    }
+    ones = ones_cheaper(b, n1, nz);
+  }
   enum { ROW_LISTED = BLEND_SPECIALISED * 4 };
   const float *wl[ROW_LISTED];
   const char *sl[ROW_LISTED];
+  float dwl[ROW_LISTED][3];
   uint32_t nl = 0;
   for (uint32_t m = 0; m < gk && gk <= ROW_LISTED; m++) {
     const float *w = b->wlast + (size_t)mem[m] * 3;
-    if (w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f)
+    if (ones ? w[0] == 1.0f && w[1] == 1.0f && w[2] == 1.0f
+             : w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f)
       continue;
+    if (ones) {
+      for (int c = 0; c < 3; c++)
+        dwl[nl][c] = w[c] - 1.0f; /* as set_weight's patterns */
+      w = dwl[nl];
+    }
     wl[nl] = w;
     sl[nl] = vb + member_row_off(list, gk, m, pos, rowb, block);
     __builtin_prefetch(sl[nl]);
@@ -2080,7 +2164,9 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
     nl++;
   }
   unsigned csr = ub_fp_mode_enter();
-  if (b->base_size == 2)
+  if (ones)
+    memcpy(out_row, b->ones + ((size_t)g->ones_row + pos) * S, S * sizeof(float));
+  else if (b->base_size == 2)
     decode_base(b, bsu, out_row, S);
   else
     memcpy(out_row, bsu, S * sizeof(float));
@@ -2098,8 +2184,15 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
 #endif
   for (uint32_t m = 0; m < gk; m++) {
     const float *w = b->wlast + (size_t)mem[m] * 3;
-    if (w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f)
+    if (ones ? w[0] == 1.0f && w[1] == 1.0f && w[2] == 1.0f
+             : w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f)
       continue;
+    float dw[3];
+    if (ones) {
+      for (int c = 0; c < 3; c++)
+        dw[c] = w[c] - 1.0f;
+      w = dw;
+    }
     const char *src = vb + member_row_off(list, gk, m, pos, rowb, block);
     if (b->q8) {
       float v[UB_BLEND_MAX_STRIDE];
@@ -2119,6 +2212,80 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
   }
   ub_fp_mode_leave(csr);
   return 1;
+}
+
+/* UB_BLEND_ONES_SUM: the all-ones sums of the groups of BLEND_ONES_MIN_K or more members,
+ * base + Σ rows as the engine holds them (decoded exactly), summed in double and rounded
+ * once; every element's ω − 1 patterns at ω = 0. */
+static ub_result build_ones(ub_blend *b)
+{
+  const uint32_t S = b->stride, E = b->element_count;
+  uint64_t rows = 0;
+  for (uint32_t g = 0; g < b->group_count; g++) {
+    blend_group *bg = &b->groups[g];
+    bg->ones_row = ONES_NONE;
+    if ((bg->k_mode & ~GROUP_LIST) >= BLEND_ONES_MIN_K) {
+      bg->ones_row = (uint32_t)rows; /* rows ≤ touched receivers < 2^32 */
+      rows += bg->receivers;
+    }
+  }
+  b->ones_rows = rows;
+  size_t *acc = &b->engine_bytes;
+  b->ones = alloc_n((size_t)(rows ? rows : 1) * S, sizeof(float), acc);
+  b->notone = alloc_n(E ? E : 1, 1, acc);
+  size_t wbytes = (size_t)(E ? E : 1) * b->wstride * sizeof(float);
+  b->dwexp = aligned_alloc(16, wbytes);
+  if (!b->ones || !b->notone || !b->dwexp)
+    return UB_ERR_OUT_OF_MEMORY;
+  *acc += wbytes;
+  memset(b->notone, 1, E ? E : 1); /* every weight starts at 0: ω − 1 = −1 */
+  for (size_t j = 0; j < wbytes / sizeof(float); j++)
+    b->dwexp[j] = -1.0f;
+  if (b->wpat) {
+    const size_t pb = (size_t)(E ? E : 1) * 32 * sizeof(float);
+    b->dwpat = aligned_alloc(32, pb);
+    if (!b->dwpat)
+      return UB_ERR_OUT_OF_MEMORY;
+    *acc += pb;
+    for (size_t j = 0; j < pb / sizeof(float); j++)
+      b->dwpat[j] = -1.0f;
+  }
+  unsigned csr = ub_fp_mode_enter(); /* exact decoding needs DAZ off */
+  float v[UB_BLEND_MAX_STRIDE];
+  double sum[UB_BLEND_MAX_STRIDE];
+  for (uint32_t g = 0; g < b->group_count; g++) {
+    const blend_group *bg = &b->groups[g];
+    if (bg->ones_row == ONES_NONE)
+      continue;
+    const size_t gk = bg->k_mode & ~GROUP_LIST, block = (size_t)bg->receivers * b->rowb;
+    const int list = (bg->k_mode & GROUP_LIST) != 0;
+    const char *vb = (const char *)b->values + bg->val_off * b->rowb;
+    for (uint32_t i = 0; i < bg->receivers; i++) {
+      const char *bs = b->obase + ((size_t)bg->base_row + i) * S * b->base_size;
+      if (b->base_size == 2)
+        decode_base(b, bs, v, S);
+      else
+        memcpy(v, bs, (size_t)S * sizeof(float));
+      for (uint32_t j = 0; j < S; j++)
+        sum[j] = v[j];
+      for (size_t m = 0; m < gk; m++) {
+        const char *src = vb + member_row_off(list, gk, m, i, b->rowb, block);
+        if (b->q8)
+          q8_decode_scalar(src, v, 1, S, b->rowb);
+        else if (b->value_size == 2)
+          decode_scalar((const uint16_t *)(const void *)src, v, S);
+        else
+          memcpy(v, src, (size_t)S * sizeof(float));
+        for (uint32_t j = 0; j < S; j++)
+          sum[j] += v[j];
+      }
+      float *o = b->ones + ((size_t)bg->ones_row + i) * S;
+      for (uint32_t j = 0; j < S; j++)
+        o[j] = (float)sum[j];
+    }
+  }
+  ub_fp_mode_leave(csr);
+  return UB_OK;
 }
 
 ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *out_values,
@@ -2178,10 +2345,17 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
 
   if ((desc->flags & UB_BLEND_ROW_QUERY) && build_rmap(b) != UB_OK)
     goto oom;
+  if (desc->flags & UB_BLEND_ONES_SUM) {
+    if (build_ones(b) != UB_OK)
+      goto oom;
+  } else {
+    for (uint32_t g = 0; g < b->group_count; g++)
+      b->groups[g].ones_row = ONES_NONE;
+  }
   if (out_values && desc->receiver_count)
     memcpy(out_values, desc->base, (size_t)desc->receiver_count * S * sizeof(float));
   if (out_values && b->base_size == 2) { /* the touched rows as the engine holds them */
-    blend_call c = {b, out_values, &b->js[0], 0, 0, NULL, NULL};
+    blend_call c = {b, out_values, &b->js[0], 0, 0, NULL, NULL, 0};
     unsigned csr = ub_fp_mode_enter(); /* exact decoding needs DAZ off */
     for (uint32_t g = 0; g < b->group_count; g++) {
       c.qhi = b->groups[g].receivers;

@@ -107,7 +107,8 @@ extern "C" {
  * DC coefficient, RGB) as IEEE half, rounded to nearest even (exact for half records),
  * and the other stride − 3 as signed 8-bit integers q times a power of two 2^e per row, e
  * chosen so the row's largest |value| v_max gives |q| ≤ 127 with the finest step:
- * |error| ≤ 2^(e−1) ≤ v_max / 127 per value (0 for a row of zeros). A row takes
+ * |error| ≤ 2^(e−1) ≤ v_max / 127 per value (0 for a row of zeros; rows whose v_max is
+ * below 2^-119 keep the step 2^-126 instead, finer values then round to 0). A row takes
  * ub_blend_q8_row_bytes(stride) bytes: 16 for SH L1 × RGB (24 as half), 32 for SH L2 ×
  * RGB (54). Why the DC apart: a texel's DC slot holds I_z, the irradiance along its
  * normal, and under grazing light it is ~1000× smaller than its L1 terms (docs/FORMAT.md,
@@ -117,6 +118,19 @@ extern "C" {
 #define UB_BLEND_STORE_Q8 32u
 /* The AVX + F16C kernels only, not the AVX2 ones (8-bit rows): for tests on AVX2 CPUs. */
 #define UB_BLEND_NO_AVX2 64u
+/* With UB_BLEND_OWN_BASE: the engine also keeps, for every receiver of a group of 6 or
+ * more members, its all-ones sum A = base + Σ its members' rows (as the engine holds them,
+ * summed in double, rounded once to float; 4 × stride bytes a receiver). An update then
+ * computes a group as A + Σ_{ω_i ≠ 1} (ω_i − 1)·S_i (each ω − 1 rounded once per channel,
+ * then as the plain kernels: a product rounded, added in member order) whenever that
+ * reads fewer bytes than base + Σ_{ω_i ≠ 0} ω_i·S_i: with most sets on, toggling one reads
+ * A and one record row instead of the base and every other set's. Still one write per
+ * receiver and no read of the output; the choice is a function of the weights, so a
+ * receiver's value depends on the current weights alone (no drift), and every path
+ * (AVX, portable, streaming, parts, ub_blend_row) gives the same bits. The two forms
+ * differ by float rounding: |difference| ≤ γ_{k+2}·(|A| + |base| + Σ (|ω_i| + |ω_i − 1|
+ * + 1)·|S_i|) per value, γ_n = n·2^-24/(1 − n·2^-24). */
+#define UB_BLEND_ONES_SUM 128u
 /* The bytes of one UB_BLEND_STORE_Q8 record row of `stride` values: 3 halves, the
  * exponent byte, stride − 3 bytes, padded to a multiple of 4. */
 size_t ub_blend_q8_row_bytes(uint32_t stride);

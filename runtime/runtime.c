@@ -1128,7 +1128,9 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   /* Keeps only the touched receivers' base rows (in half, as lm_static) and the records
    * as half; streams its rows to the re-encode, queries ask it for a texel's row
    * (ub_blend_row). */
-  const uint32_t q8 = (rt->load_flags & UB_RUNTIME_RECORDS_8BIT) ? UB_BLEND_STORE_Q8 : 0;
+  /* the records' form and (unless UB_RUNTIME_PLAIN_SUMS) the all-ones sums */
+  const uint32_t q8 = ((rt->load_flags & UB_RUNTIME_RECORDS_8BIT) ? UB_BLEND_STORE_Q8 : 0) |
+                      ((rt->load_flags & UB_RUNTIME_PLAIN_SUMS) ? 0 : UB_BLEND_ONES_SUM);
   bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_ROW_QUERY | UB_BLEND_BASE_HALF | q8;
   r = ub_blend_create(&bd, log, NULL, &rt->lm_blend);
   if (r != UB_OK)
@@ -1258,7 +1260,7 @@ ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags
                              ub_runtime **out)
 {
   assert(path && out);
-  if (flags & ~(unsigned)UB_RUNTIME_RECORDS_8BIT) {
+  if (flags & ~(unsigned)(UB_RUNTIME_RECORDS_8BIT | UB_RUNTIME_PLAIN_SUMS)) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: unknown load flags 0x%x", path, flags);
     return UB_ERR_INVALID_ARGUMENT;
   }

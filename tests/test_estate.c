@@ -345,7 +345,9 @@ static void check_records_8bit(const char *ubk, const ub_bakefile *bf)
   ub_runtime *rh = NULL, *r8 = NULL;
   ASSERT_OK(ub_runtime_load_ex(ubk, NULL, 0, &rh));
   ASSERT_OK(ub_runtime_load_ex(ubk, NULL, UB_RUNTIME_RECORDS_8BIT, &r8));
-  ASSERT_TRUE(ub_runtime_load_ex(ubk, NULL, 2u, &rh) == UB_ERR_INVALID_ARGUMENT);
+  ub_runtime *rbad = NULL;
+  ASSERT_TRUE(ub_runtime_load_ex(ubk, NULL, 0x80u, &rbad) == UB_ERR_INVALID_ARGUMENT &&
+              rbad == NULL);
   if (!rh || !r8) {
     ub_runtime_free(rh);
     ub_runtime_free(r8);
@@ -457,6 +459,60 @@ static void check_records_8bit(const char *ubk, const ub_bakefile *bf)
   ASSERT_TRUE(m8.records < mh.records * 0.7);
   ub_runtime_free(rh);
   ub_runtime_free(r8);
+}
+
+/* The all-ones sums (default) against UB_RUNTIME_PLAIN_SUMS, most sets on, some off or
+ * tinted: texels along their normals and GLG raw probes agree to float rounding (the two
+ * sum the same rows in another order), and the sums cost what ub_runtime_memory says. */
+static void check_plain_sums(const char *ubk)
+{
+  ub_runtime *ro = NULL, *rp = NULL;
+  ASSERT_OK(ub_runtime_load_ex(ubk, NULL, 0, &ro));
+  ASSERT_OK(ub_runtime_load_ex(ubk, NULL, UB_RUNTIME_PLAIN_SUMS, &rp));
+  if (!ro || !rp) {
+    ub_runtime_free(ro);
+    ub_runtime_free(rp);
+    return;
+  }
+  for (uint32_t d = 0; d < ub_runtime_dls_count(ro); d++) {
+    const float w[3] = {d % 3 == 1 ? 0.0f : 1.0f, 1.0f, d % 5 == 2 ? 0.6f : 1.0f};
+    ASSERT_OK(ub_runtime_set_dls(ro, d, w));
+    ASSERT_OK(ub_runtime_set_dls(rp, d, w));
+  }
+  ASSERT_OK(ub_runtime_update(ro, NULL));
+  ASSERT_OK(ub_runtime_update(rp, NULL));
+  snap so, sp;
+  take(ro, &so);
+  take(rp, &sp);
+  double emax = 0.0, worst = 0.0;
+  size_t differ = diff(&so, &sp), bad = 0;
+  for (size_t i = 0; i < 3 * so.ntex; i++)
+    emax = fabs(sp.tex[i]) > emax ? fabs(sp.tex[i]) : emax;
+  for (size_t i = 0; i < 3 * so.ntex; i++) {
+    /* float rounding of ~k + 2 sums of terms up to the texel's all-on value, then the AHD
+     * encode's (terms ~10× I_z): 1e-5 of the value and 1e-6 of the largest */
+    double d = fabs((double)so.tex[i] - sp.tex[i]), tol = 1e-5 * fabs(sp.tex[i]) + 1e-6 * emax;
+    bad += !(d <= tol);
+    worst = d / tol > worst ? d / tol : worst;
+  }
+  for (size_t i = 0; i < so.nglg; i++) {
+    double d = fabs((double)so.glg[i] - sp.glg[i]);
+    double tol = 1.0 / 1024.0 * (fabs(so.glg[i]) + fabs(sp.glg[i])) + 1e-6 * emax;
+    bad += !(d <= tol);
+  }
+  ub_runtime_memory mo, mp;
+  ub_runtime_memory_usage(ro, &mo);
+  ub_runtime_memory_usage(rp, &mp);
+  printf("all-ones sums vs plain: %zu of %zu values differ in bits, %zu over the rounding "
+         "tolerance (texels: worst %.2f of it); blend engines %.2f vs %.2f MiB\n", differ,
+         3 * so.ntex + so.nglg, bad, worst, mo.blend / 1048576.0, mp.blend / 1048576.0);
+  ASSERT_TRUE(bad == 0 && differ > 0 && mo.blend > mp.blend);
+  free(so.tex);
+  free(so.glg);
+  free(sp.tex);
+  free(sp.glg);
+  ub_runtime_free(ro);
+  ub_runtime_free(rp);
 }
 
 /* The decoded AHD lightmap at fixed points of the lit triangles and LLG irradiance at
@@ -733,6 +789,7 @@ int main(void)
     check_blend(st.ubk_path, bf, 0);
     check_blend(st.ubk_path, bf, UB_RUNTIME_RECORDS_8BIT);
     check_records_8bit(st.ubk_path, bf);
+    check_plain_sums(st.ubk_path);
     check_jobs(st.ubk_path);
     check_glg_threads(st.ubk_path);
   }

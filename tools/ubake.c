@@ -483,6 +483,8 @@ static int cmd_info(int argc, char **argv)
   }
   if (!path)
     return usage_error("info", "no .ubk given");
+  if (load_flags && !memory)
+    return usage_error("info", "--records goes with --memory (the run-time's bytes)");
   cli_log_state ls = {0, 0, 0};
   ub_log log = {cli_log, &ls};
   ub_bakefile *bf = NULL;

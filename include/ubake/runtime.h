@@ -49,6 +49,15 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
  * exact along each texel's normal (I_z is kept), but the blends decode the bytes, so
  * updates cost more (README, "8-bit records", gives the measured price). */
 #define UB_RUNTIME_RECORDS_8BIT 1u
+/* By default the blends also keep, for every receiver where 6 or more elements overlap,
+ * base + the sum of those elements' records (float, 4 B a value: 48 B a texel, 108 B a
+ * probe), and compute such a receiver as that sum + Σ (weight − 1)·record over the
+ * elements whose weight is not 1 whenever that reads fewer bytes (UB_BLEND_ONES_SUM,
+ * runtime/blend.h): with most sets on, a toggle there reads one record instead of every
+ * overlapping set's. Equal to the plain sum to float rounding; the state still depends on
+ * the weights alone. UB_RUNTIME_PLAIN_SUMS keeps no such sums: less memory (full ESTATE
+ * −22.5 MiB), slower toggles where many sets overlap (README, "All-ones sums"). */
+#define UB_RUNTIME_PLAIN_SUMS 2u
 /* ub_runtime_load() with flags (0 or the flags above; UB_ERR_INVALID_ARGUMENT for others). */
 ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags,
                              ub_runtime **out);
