@@ -327,7 +327,7 @@ int main(void)
     /* Half records, the engine keeps the touched receivers' base rows (the run-time's
      * configuration); float records borrow the caller's base. */
     ub_blend_desc d = {rep_name[ri], reps[ri].n, reps[ri].stride, reps[ri].base,
-                       UB_BLEND_FLOAT16, NSETS, reps[ri].rh, UB_BLEND_OWN_BASE};
+                       UB_BLEND_FLOAT16, NSETS, reps[ri].rh, UB_BLEND_OWN_BASE, 0};
     double tc = ub_bench_now();
     if (ub_blend_create(&d, &log, reps[ri].out, &reps[ri].bh) != UB_OK)
       return 1;

@@ -135,6 +135,7 @@ struct ub_blend {
   uint64_t ones_rows;
   uint8_t *notone;
   float *dwexp, *dwpat;
+  float ones_w;         /* the weight the sums are kept at (desc ones_weight, 0 → 1) */
   size_t engine_bytes, record_bytes;
 };
 
@@ -1024,7 +1025,7 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
       } else {
         bs = (const float *)(const void *)bsu;
       }
-      bsu += (size_t)n * S * b->base_size;
+      bsu += (size_t)n * S * (hb ? 2 : 4); /* own base rows, or float all-ones sums */
       for (uint32_t m = 0; m < k; m++) {
         if (b->q8) {
           float *dst = c->s->dec + (size_t)m * n * S;
@@ -1421,9 +1422,10 @@ ub_result ub_blend_set_weight(ub_blend *b, uint32_t element, const float rgb[3])
     for (int j = 0; j < 32; j++)
       b->wpat[32 * (size_t)element + j] = w[j % 3];
   b->nonzero[element] = w[0] != 0.0f || w[1] != 0.0f || w[2] != 0.0f;
-  if (b->ones) { /* ω − 1, rounded once per channel, as ub_blend_row computes it */
-    b->notone[element] = w[0] != 1.0f || w[1] != 1.0f || w[2] != 1.0f;
-    const float dw[3] = {w[0] - 1.0f, w[1] - 1.0f, w[2] - 1.0f};
+  if (b->ones) { /* ω − ω1, rounded once per channel, as ub_blend_row computes it */
+    const float o = b->ones_w;
+    b->notone[element] = w[0] != o || w[1] != o || w[2] != o;
+    const float dw[3] = {w[0] - o, w[1] - o, w[2] - o};
     float *de = b->dwexp + (size_t)element * b->wstride;
     for (uint32_t j = 0; j < b->wstride; j++)
       de[j] = dw[j % 3];
@@ -1637,6 +1639,10 @@ static ub_result validate(const ub_blend_desc *d, const ub_log *log, uint64_t *o
   if ((d->flags & (UB_BLEND_BASE_HALF | UB_BLEND_ONES_SUM)) && !(d->flags & UB_BLEND_OWN_BASE)) {
     ub_log_printf(log, UB_LOG_ERROR, "blend %s: UB_BLEND_BASE_HALF and UB_BLEND_ONES_SUM need "
                   "UB_BLEND_OWN_BASE", nm);
+    return UB_ERR_INVALID_ARGUMENT;
+  }
+  if (!finite_f(d->ones_weight)) {
+    ub_log_printf(log, UB_LOG_ERROR, "blend %s: ones_weight is not finite", nm);
     return UB_ERR_INVALID_ARGUMENT;
   }
   if ((uint64_t)d->receiver_count * d->stride > SIZE_MAX / sizeof(float)) {
@@ -2131,14 +2137,16 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
   /* the non-zero members (up to ROW_LISTED of them listed): their rows, one stream each
    * and far apart, requested together so their misses overlap */
   /* UB_BLEND_ONES_SUM: the update's choice for this group under these weights
-   * (process_group): from its all-ones sums, the members with ω ≠ 1 weighted by ω − 1 */
+   * (process_group): from its all-ones sums, the members with ω ≠ ω1 weighted by ω − ω1
+   * (ω1 = ones_w, 1 unless the desc said otherwise) */
   int ones = 0;
+  const float o1 = b->ones_w;
   if (g->ones_row != ONES_NONE) {
     uint32_t n1 = 0, nz = 0;
     for (uint32_t m = 0; m < gk; m++) {
       const float *w = b->wlast + (size_t)mem[m] * 3;
       nz += w[0] != 0.0f || w[1] != 0.0f || w[2] != 0.0f;
-      n1 += w[0] != 1.0f || w[1] != 1.0f || w[2] != 1.0f;
+      n1 += w[0] != o1 || w[1] != o1 || w[2] != o1;
     }
     ones = ones_cheaper(b, n1, nz);
   }
@@ -2149,12 +2157,12 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
   uint32_t nl = 0;
   for (uint32_t m = 0; m < gk && gk <= ROW_LISTED; m++) {
     const float *w = b->wlast + (size_t)mem[m] * 3;
-    if (ones ? w[0] == 1.0f && w[1] == 1.0f && w[2] == 1.0f
+    if (ones ? w[0] == o1 && w[1] == o1 && w[2] == o1
              : w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f)
       continue;
     if (ones) {
       for (int c = 0; c < 3; c++)
-        dwl[nl][c] = w[c] - 1.0f; /* as set_weight's patterns */
+        dwl[nl][c] = w[c] - o1; /* as set_weight's patterns */
       w = dwl[nl];
     }
     wl[nl] = w;
@@ -2184,13 +2192,13 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
 #endif
   for (uint32_t m = 0; m < gk; m++) {
     const float *w = b->wlast + (size_t)mem[m] * 3;
-    if (ones ? w[0] == 1.0f && w[1] == 1.0f && w[2] == 1.0f
+    if (ones ? w[0] == o1 && w[1] == o1 && w[2] == o1
              : w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f)
       continue;
     float dw[3];
     if (ones) {
       for (int c = 0; c < 3; c++)
-        dw[c] = w[c] - 1.0f;
+        dw[c] = w[c] - o1;
       w = dw;
     }
     const char *src = vb + member_row_off(list, gk, m, pos, rowb, block);
@@ -2238,9 +2246,9 @@ static ub_result build_ones(ub_blend *b)
   if (!b->ones || !b->notone || !b->dwexp)
     return UB_ERR_OUT_OF_MEMORY;
   *acc += wbytes;
-  memset(b->notone, 1, E ? E : 1); /* every weight starts at 0: ω − 1 = −1 */
+  memset(b->notone, 1, E ? E : 1); /* every weight starts at 0: ω − ω1 = −ω1 */
   for (size_t j = 0; j < wbytes / sizeof(float); j++)
-    b->dwexp[j] = -1.0f;
+    b->dwexp[j] = 0.0f - b->ones_w;
   if (b->wpat) {
     const size_t pb = (size_t)(E ? E : 1) * 32 * sizeof(float);
     b->dwpat = aligned_alloc(32, pb);
@@ -2248,7 +2256,7 @@ static ub_result build_ones(ub_blend *b)
       return UB_ERR_OUT_OF_MEMORY;
     *acc += pb;
     for (size_t j = 0; j < pb / sizeof(float); j++)
-      b->dwpat[j] = -1.0f;
+      b->dwpat[j] = 0.0f - b->ones_w;
   }
   unsigned csr = ub_fp_mode_enter(); /* exact decoding needs DAZ off */
   float v[UB_BLEND_MAX_STRIDE];
@@ -2277,7 +2285,7 @@ static ub_result build_ones(ub_blend *b)
         else
           memcpy(v, src, (size_t)S * sizeof(float));
         for (uint32_t j = 0; j < S; j++)
-          sum[j] += v[j];
+          sum[j] += (double)b->ones_w * v[j];
       }
       float *o = b->ones + ((size_t)bg->ones_row + i) * S;
       for (uint32_t j = 0; j < S; j++)
@@ -2346,6 +2354,7 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
   if ((desc->flags & UB_BLEND_ROW_QUERY) && build_rmap(b) != UB_OK)
     goto oom;
   if (desc->flags & UB_BLEND_ONES_SUM) {
+    b->ones_w = desc->ones_weight == 0.0f ? 1.0f : desc->ones_weight;
     if (build_ones(b) != UB_OK)
       goto oom;
   } else {

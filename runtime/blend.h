@@ -123,7 +123,8 @@ extern "C" {
  * summed in double, rounded once to float; 4 × stride bytes a receiver). An update then
  * computes a group as A + Σ_{ω_i ≠ 1} (ω_i − 1)·S_i (each ω − 1 rounded once per channel,
  * then as the plain kernels: a product rounded, added in member order) whenever that
- * reads fewer bytes than base + Σ_{ω_i ≠ 0} ω_i·S_i: with most sets on, toggling one reads
+ * reads fewer bytes than base + Σ_{ω_i ≠ 0} ω_i·S_i (with desc->ones_weight ω1 ≠ 1: A =
+ * base + ω1·Σ S, the members with ω ≠ ω1 weighted by ω − ω1): with most sets on, toggling one reads
  * A and one record row instead of the base and every other set's. Still one write per
  * receiver and no read of the output; the choice is a function of the weights, so a
  * receiver's value depends on the current weights alone (no drift), and every path
@@ -160,8 +161,12 @@ typedef struct ub_blend_desc {
   const ub_blend_record *elements; /* element_count records; element id = index */
   uint32_t flags;            /* 0, or UB_BLEND_PORTABLE | UB_BLEND_OWN_BASE |
                                 UB_BLEND_STORE_HALF or UB_BLEND_STORE_Q8 |
-                                UB_BLEND_ROW_QUERY | UB_BLEND_BASE_HALF (with
-                                UB_BLEND_OWN_BASE) */
+                                UB_BLEND_ROW_QUERY | UB_BLEND_BASE_HALF and
+                                UB_BLEND_ONES_SUM (with UB_BLEND_OWN_BASE) |
+                                UB_BLEND_NO_AVX2 */
+  float ones_weight;         /* UB_BLEND_ONES_SUM: the weight ω1 (all three channels) the
+                                sums are kept at, finite, non-zero; 0 means 1 (a caller
+                                whose records are stored ÷ a scale s passes s) */
 } ub_blend_desc;
 
 /* Counters of one update (all for that call only). */
@@ -170,7 +175,9 @@ typedef struct ub_blend_stats {
   uint32_t groups_base;     /* of which all weights were 0: base rows copied */
   uint64_t receivers;       /* receivers written, each exactly once */
   uint64_t bytes_read;      /* base rows (as kept: 2 or 4 bytes a value) + record rows of
-                             * non-zero members + group tables */
+                             * non-zero members + group tables; a group from its all-ones
+                             * sums: those (4 bytes a value) + the rows of the members
+                             * whose weight is not ω1 */
   uint64_t bytes_written;   /* rows stored to out_values: receivers × stride × 4 (0 when
                              * streaming) */
 } ub_blend_stats;

@@ -1132,6 +1132,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   const uint32_t q8 = ((rt->load_flags & UB_RUNTIME_RECORDS_8BIT) ? UB_BLEND_STORE_Q8 : 0) |
                       ((rt->load_flags & UB_RUNTIME_PLAIN_SUMS) ? 0 : UB_BLEND_ONES_SUM);
   bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_ROW_QUERY | UB_BLEND_BASE_HALF | q8;
+  bd.ones_weight = rt->lm_scale; /* a set on has blend weight 1 × its pool's scale */
   r = ub_blend_create(&bd, log, NULL, &rt->lm_blend);
   if (r != UB_OK)
     return r;
@@ -1162,6 +1163,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
      * (glg_marked); the first query that reads one asks the blend for its row
      * (glg_row_source, ub_blend_row: the bits an eager update streams). */
     bd.flags |= UB_BLEND_ROW_QUERY;
+    bd.ones_weight = rt->glg_scale;
     r = ub_blend_create(&bd, log, NULL, &rt->glg_blend);
     bd.flags &= ~UB_BLEND_ROW_QUERY;
     if (r != UB_OK)
@@ -1190,6 +1192,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     bd.stride = 27;
     bd.base = rt->llg_base;
     bd.elements = rt->llg_rec;
+    bd.ones_weight = rt->llg_scale;
     r = ub_blend_create(&bd, log, rt->llg_cur, &rt->llg_blend);
     if (r != UB_OK)
       return r;

@@ -91,7 +91,7 @@ static int glg_equals_float_blend(const ub_runtime *rt, const ub_bakefile *bf,
     recs[e].count = r->probe_count;
   }
   ub_blend_desc d = {"GLG float records", (uint32_t)np, 27, bf->glg_sh, UB_BLEND_FLOAT32, n,
-                     recs, 0};
+                     recs, 0, 0};
   ub_blend *b = NULL;
   int same = 0;
   if (ub_blend_create(&d, NULL, out, &b) == UB_OK) {
