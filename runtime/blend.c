@@ -2279,9 +2279,9 @@ static ub_result build_ones(ub_blend *b)
       for (size_t m = 0; m < gk; m++) {
         const char *src = vb + member_row_off(list, gk, m, i, b->rowb, block);
         if (b->q8)
-          q8_decode_scalar(src, v, 1, S, b->rowb);
+          q8_decode(b, src, v, 1);
         else if (b->value_size == 2)
-          decode_scalar((const uint16_t *)(const void *)src, v, S);
+          b->decode((const uint16_t *)(const void *)src, v, S); /* exact: any decoder */
         else
           memcpy(v, src, (size_t)S * sizeof(float));
         for (uint32_t j = 0; j < S; j++)
