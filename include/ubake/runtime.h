@@ -92,7 +92,8 @@ typedef struct ub_runtime_memory {
   size_t glg;       /* the GLG's compact probe store (58 B/probe) and its walk data */
   size_t llg;       /* LLG probe SH (current state) */
   size_t records;   /* element records: their values (half, or 8-bit rows), held by the blends */
-  size_t blend;     /* the blend engines: tables, weights, touched receivers' base rows */
+  size_t blend;     /* the blend engines: tables, weights, touched receivers' base rows,
+                       all-ones sums (unless UB_RUNTIME_PLAIN_SUMS) */
   size_t total;     /* the sum */
 } ub_runtime_memory;
 void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out_memory);
