@@ -1280,6 +1280,63 @@ static void test_ones(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, u
   rep_free(&p);
 }
 
+/* One group of 40 members (more than ub_blend_row lists: its scalar loop) from its
+ * all-ones sums: row queries give the update's rows, AVX and portable the same bits, with
+ * half and 8-bit records. */
+static void test_ones_many(uint32_t S, uint32_t q8)
+{
+  enum { E = 40, R = 100 };
+  float *base = malloc(sizeof(float) * R * S);
+  float *vals = malloc(sizeof(float) * E * R * S);
+  uint32_t idx[R];
+  ub_blend_record rec[E];
+  for (uint32_t r = 0; r < R; r++)
+    idx[r] = r;
+  for (size_t i = 0; i < (size_t)R * S; i++)
+    base[i] = (float)(rnd() * 2.0);
+  for (uint32_t e = 0; e < E; e++) {
+    for (size_t i = 0; i < (size_t)R * S; i++)
+      vals[(size_t)e * R * S + i] = rnd_value();
+    rec[e] = (ub_blend_record){idx, vals + (size_t)e * R * S, R};
+  }
+  const uint32_t fl = UB_BLEND_OWN_BASE | UB_BLEND_ROW_QUERY | UB_BLEND_ONES_SUM | q8;
+  float *out[2];
+  ub_blend *b[2] = {0};
+  for (int i = 0; i < 2; i++) {
+    ub_blend_desc d = {"ones many", R, S, base, UB_BLEND_FLOAT32, E, rec,
+                       fl | (i ? UB_BLEND_PORTABLE : 0u), 0};
+    out[i] = malloc(sizeof(float) * R * S);
+    ASSERT_OK(ub_blend_create(&d, NULL, out[i], &b[i]));
+  }
+  int bad = 0;
+  float row[UB_BLEND_MAX_STRIDE];
+  for (int round = 0; round < 4 && b[0] && b[1]; round++) {
+    for (uint32_t e = 0; e < E; e++) {
+      float w[3] = {1, 1, 1};
+      if ((e + round) % 13 == 0)
+        w[0] = w[1] = w[2] = 0.0f; /* a few off: from the sums */
+      if (round == 3)
+        rnd_weight(w); /* any: the plain form */
+      for (int i = 0; i < 2; i++)
+        ASSERT_OK(ub_blend_set_weight(b[i], e, w));
+    }
+    ub_blend_update(b[0], NULL, NULL, out[0], NULL);
+    ub_blend_update(b[1], NULL, NULL, out[1], NULL);
+    bad += memcmp(out[0], out[1], sizeof(float) * R * S) != 0;
+    for (uint32_t r = 0; r < R; r++)
+      for (int i = 0; i < 2; i++)
+        bad += !ub_blend_row(b[i], r, row) || memcmp(row, out[0] + (size_t)r * S,
+                                                     sizeof(float) * S) != 0;
+  }
+  ASSERT_TRUE(bad == 0);
+  for (int i = 0; i < 2; i++) {
+    ub_blend_free(b[i]);
+    free(out[i]);
+  }
+  free(base);
+  free(vals);
+}
+
 /* ---- parallel updates (ub_blend_update_begin / _part) ------------------------------- */
 
 typedef struct part_job {
@@ -1624,6 +1681,9 @@ int main(void)
   test_ones(20000, 12, 40, UB_BLEND_FLOAT16, UB_BLEND_BASE_HALF | UB_BLEND_STORE_Q8, 1.0f);
   test_ones(4000, 9, 20, UB_BLEND_FLOAT32, UB_BLEND_STORE_Q8, 1.0f);
   test_ones(6000, 27, 24, UB_BLEND_FLOAT16, UB_BLEND_BASE_HALF | UB_BLEND_STORE_Q8, 4.0f);
+  test_ones_many(12, 0);
+  test_ones_many(27, UB_BLEND_STORE_Q8);
+  test_ones_many(12, UB_BLEND_STORE_Q8);
   test_q8_validation();
   TEST_MAIN_END();
 }
