@@ -2321,8 +2321,11 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
   b->kernel = S == 12 ? KERNEL_12 : S == 27 ? KERNEL_27 : KERNEL_ANY;
   b->decode = b->value_size == 2 && !b->q8 ? pick_decoder((desc->flags & UB_BLEND_PORTABLE) != 0) : NULL;
 #if BLEND_F16C
-  b->avx = !(desc->flags & UB_BLEND_PORTABLE) && cpu_has_f16c();
-  b->avx2 = b->avx && !(desc->flags & UB_BLEND_NO_AVX2) && (ub_cpu_features() & UB_CPU_AVX2) != 0;
+  {
+    const unsigned cpu = ub_cpu_features(); /* one CPUID for both */
+    b->avx = !(desc->flags & UB_BLEND_PORTABLE) && (cpu & UB_CPU_F16C) != 0;
+    b->avx2 = b->avx && !(desc->flags & UB_BLEND_NO_AVX2) && (cpu & UB_CPU_AVX2) != 0;
+  }
 #endif
   b->base = desc->base;
   b->base_size = (desc->flags & UB_BLEND_BASE_HALF) ? 2 : 4;

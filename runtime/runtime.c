@@ -28,7 +28,7 @@ typedef struct ub_rt_fallback {
 
 struct ub_runtime {
   ub_bakefile *bf;
-  unsigned load_flags; /* ub_runtime_load_ex's: UB_RUNTIME_RECORDS_8BIT */
+  unsigned load_flags; /* ub_runtime_load_ex's: UB_RUNTIME_RECORDS_8BIT, _PLAIN_SUMS */
   /* AHD encode normals: a covered texel's own stored normal (ub_texel_normal, made when
    * needed), else the normal of the nearest texel that has one, kept here for those few
    * texels only (per atlas, pixels ascending; a zero normal: none in the atlas, the SH's
@@ -1002,8 +1002,9 @@ static int glg_row_source(void *user, uint32_t probe, float out[27])
  * through glg_row_source when an update marked them; the texels' is computed on demand by the lightmap blend, whose rows
  * the AHD re-encode streams), the
  * base rows of the touched receivers inside the blends (UB_BLEND_OWN_BASE) and the
- * records in half (8-bit rows with UB_RUNTIME_RECORDS_8BIT: UB_BLEND_STORE_Q8); the bake file's float copies are freed or point into the current state
- * (runtime.h, ub_runtime_bakefile). */
+ * records in half (8-bit rows with UB_RUNTIME_RECORDS_8BIT: UB_BLEND_STORE_Q8) and, unless
+ * UB_RUNTIME_PLAIN_SUMS, the all-ones sums (UB_BLEND_ONES_SUM); the bake file's float
+ * copies are freed or point into the current state (runtime.h, ub_runtime_bakefile). */
 static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *log)
 {
   ub_bakefile *bf = rt->bf;
@@ -1129,9 +1130,10 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
    * as half; streams its rows to the re-encode, queries ask it for a texel's row
    * (ub_blend_row). */
   /* the records' form and (unless UB_RUNTIME_PLAIN_SUMS) the all-ones sums */
-  const uint32_t q8 = ((rt->load_flags & UB_RUNTIME_RECORDS_8BIT) ? UB_BLEND_STORE_Q8 : 0) |
-                      ((rt->load_flags & UB_RUNTIME_PLAIN_SUMS) ? 0 : UB_BLEND_ONES_SUM);
-  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_ROW_QUERY | UB_BLEND_BASE_HALF | q8;
+  const uint32_t rec_flags =
+      ((rt->load_flags & UB_RUNTIME_RECORDS_8BIT) ? UB_BLEND_STORE_Q8 : 0) |
+      ((rt->load_flags & UB_RUNTIME_PLAIN_SUMS) ? 0 : UB_BLEND_ONES_SUM);
+  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_ROW_QUERY | UB_BLEND_BASE_HALF | rec_flags;
   bd.ones_weight = rt->lm_scale; /* a set on has blend weight 1 × its pool's scale */
   r = ub_blend_create(&bd, log, NULL, &rt->lm_blend);
   if (r != UB_OK)
@@ -1148,7 +1150,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   }
   /* Base rows in half too (UB_BLEND_BASE_HALF): the touched texels' as the untouched ones'
    * (lm_static); the probes' are the file's halves, kept exactly. */
-  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF | q8;
+  bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF | rec_flags;
   free(rt->lm_base);
   rt->lm_base = NULL;
   free(rt->lm_tbase);

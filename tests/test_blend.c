@@ -271,6 +271,25 @@ static void on_marked(void *user, uint32_t first, uint32_t count, const float *r
   t->total += count;
 }
 
+/* One update of b, its reports counted into count (R receivers): rows into out, or (stream)
+ * streamed and copied into out; as `parts` parts on this thread (ub_blend_update_begin /
+ * _part), else ub_blend_update (all: _all) with its stats into st (may be NULL). */
+static void update_as(ub_blend *b, float *out, uint8_t *count, uint32_t R, uint32_t S,
+                      int stream, uint32_t parts, int all, ub_blend_stats *st)
+{
+  memset(count, 0, R);
+  touch_log tl = {count, 0, S, stream ? NULL : out, stream ? out : NULL, 0, 0, 0, 0};
+  if (parts > 1) {
+    ub_blend_update_begin(b, all);
+    for (uint32_t q = 0; q < parts; q++)
+      ub_blend_update_part(b, q, parts, on_touched, &tl, stream ? NULL : out, NULL);
+  } else if (all) {
+    ub_blend_update_all(b, on_touched, &tl, stream ? NULL : out, st);
+  } else {
+    ub_blend_update(b, on_touched, &tl, stream ? NULL : out, st);
+  }
+}
+
 /* ---- 1. every overlap count 0…20 ------------------------------------------------------- */
 
 static void test_overlaps(uint32_t S, ub_blend_storage st)
@@ -979,20 +998,9 @@ static void test_q8(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st)
         ASSERT_OK(ub_blend_set_weight(b[i], e, w));
       memcpy(p.w + (size_t)e * 3, w, sizeof w);
     }
-    for (int i = 0; i < NE; i++) {
-      memset(count, 0, R);
-      const int stream = i == 1 || i == 2 || i == 3;
-      touch_log tl = {count, 0, S, stream ? NULL : out[i], stream ? out[i] : NULL, 0, 0, 0, 0};
-      if (i == 2) {
-        ub_blend_update_begin(b[i], all);
-        for (uint32_t q = 0; q < 3; q++)
-          ub_blend_update_part(b[i], q, 3, on_touched, &tl, NULL, NULL);
-      } else if (all) {
-        ub_blend_update_all(b[i], on_touched, &tl, stream ? NULL : out[i], NULL);
-      } else {
-        ub_blend_update(b[i], on_touched, &tl, stream ? NULL : out[i], NULL);
-      }
-    }
+    for (int i = 0; i < NE; i++) /* 1-3 streamed, 2 in 3 parts */
+      update_as(b[i], out[i], count, R, S, i == 1 || i == 2 || i == 3, i == 2 ? 3 : 1, all,
+                NULL);
     for (int i = 0; i < NQ; i++)
       bad_bits += memcmp(out[i], out[ref_of[i]], sizeof(float) * nf) != 0;
     for (uint32_t r = 0; r < R; r += 1 + rnd_below(5))
@@ -1206,19 +1214,9 @@ static void test_ones(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, u
         ASSERT_OK(ub_blend_set_weight(b[i], e, w));
     }
     ub_blend_stats sto, stp;
-    for (int i = 0; i < NE; i++) {
-      memset(count, 0, R);
-      const int stream = i == 1 || i == 2;
-      touch_log tl = {count, 0, S, stream ? NULL : out[i], stream ? out[i] : NULL, 0, 0, 0, 0};
-      if (i == 2) {
-        ub_blend_update_begin(b[i], 1);
-        for (uint32_t q = 0; q < 3; q++)
-          ub_blend_update_part(b[i], q, 3, on_touched, &tl, NULL, NULL);
-      } else {
-        ub_blend_update_all(b[i], on_touched, &tl, stream ? NULL : out[i],
-                            i == 0 ? &sto : i == 3 ? &stp : NULL);
-      }
-    }
+    for (int i = 0; i < NE; i++) /* 1-2 streamed, 2 in 3 parts */
+      update_as(b[i], out[i], count, R, S, i == 1 || i == 2, i == 2 ? 3 : 1, 1,
+                i == 0 ? &sto : i == 3 ? &stp : NULL);
     bad_bits += memcmp(out[0], out[1], sizeof(float) * nf) != 0;
     bad_bits += memcmp(out[0], out[2], sizeof(float) * nf) != 0;
     fewer += sto.bytes_read < stp.bytes_read;
