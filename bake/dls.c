@@ -435,6 +435,16 @@ static int step_free(const ub_atlas *at, uint32_t xa, uint32_t ya, uint32_t xb, 
  * within 2 texels, and no geometry between them in the atlas (edge neighbours: no link
  * bit; diagonal ones: a covered pixel at one of the two corners between them reached
  * through no link bit both ways). */
+/* A kept receiver's ray shift in a full pass with scaled rays: the smallest k with
+ * 2^-k >= est / ref, at most UB_DLS_RAY_SHIFT_MAX (0 when est >= ref / 2). */
+static uint8_t dls_ray_shift(double est, double ref)
+{
+  uint8_t k = 0;
+  while (k < UB_DLS_RAY_SHIFT_MAX && est * (double)(2u << k) <= ref)
+    k++;
+  return k;
+}
+
 static int donor_ok(const ub_scene *s, const ub_lightmap *lm, uint32_t u, uint32_t g)
 {
   const float *nu = lm->texel_normal + 3 * (size_t)u, *ng = lm->texel_normal + 3 * (size_t)g;
@@ -705,9 +715,18 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
   uint32_t *ldonor = llg_sparse ? malloc(((size_t)nlp + 1) * sizeof *ldonor) : NULL;
   uint32_t *lgat = llg_sparse ? malloc(((size_t)nlp + 1) * sizeof *lgat) : NULL;
   uint8_t *lcand = llg_sparse ? calloc((size_t)nlp + 1, 1) : NULL;
+  /* full passes' ray shifts (dls_ray_shift), zero outside the set being baked */
+  int scaled = plan->dls_scaled_rays && plan->influence_culling;
+  uint8_t *tsh = scaled ? calloc((size_t)lm->texel_count + 1, 1) : NULL;
+  uint8_t *psh = scaled ? calloc((size_t)base->probe_count + 1, 1) : NULL;
+  uint8_t *lsh = scaled ? calloc((size_t)nlp + 1, 1) : NULL;
   if (!recs || !enabled || !kt || !kp || !kl || !ct || !cp || !cl ||
+      (scaled && (!tsh || !psh || !lsh)) ||
       (plan->influence_sparse && (!donor || !gat || !is_cand)) ||
       (llg_sparse && (!ldonor || !lgat || !lcand))) {
+    free(tsh);
+    free(psh);
+    free(lsh);
     free(ldonor);
     free(lgat);
     free(lcand);
@@ -946,7 +965,6 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     for (uint32_t t = 0; t < lm->texel_count; t++)
       if (!plan->influence_culling || inf.texel_direct[t] > 0.0f || est[t] > thr)
         kt[nkt++] = t;
-    free(est);
     for (uint32_t q = 0; q < base->probe_count; q++)
       if (!plan->influence_culling || inf.probe_direct[q] > 0.0f ||
           inf.probe_indirect[q] * ptail > thr)
@@ -956,6 +974,33 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
       if (!plan->influence_culling || inf.llg_direct[q] > 0.0f ||
           inf.llg_indirect[q] * ptail > thr)
         kl[nkl++] = q;
+    /* Scaled rays: a kept receiver whose estimated indirect is a fraction f of the set's
+     * reference (the mean over its directly lit texels, thr / UB_DLS_INFLUENCE_FRACTION)
+     * gathers with the rays scaled to the power of two at or above f (at least
+     * 2^-UB_DLS_RAY_SHIFT_MAX). Its absolute standard error then stays at or below a
+     * reference texel's at full rays: σ ∝ I/√(N·f) = √(I·ref/N). */
+    uint64_t units = 0;
+    if (scaled && thr > 0.0) {
+      double ref = thr / UB_DLS_INFLUENCE_FRACTION;
+      for (uint32_t i = 0; i < nkt; i++) {
+        tsh[kt[i]] = dls_ray_shift(est[kt[i]], ref);
+        units += (uint64_t)plan->gather_rays >> tsh[kt[i]];
+      }
+      for (uint32_t i = 0; i < nkp; i++) {
+        psh[kp[i]] = dls_ray_shift(inf.probe_indirect[kp[i]] * ptail, ref);
+        units += (uint64_t)plan->probe_rays >> psh[kp[i]];
+      }
+      for (uint32_t i = 0; i < nkl; i++) {
+        lsh[kl[i]] = dls_ray_shift(inf.llg_indirect[kl[i]] * ptail, ref);
+        units += (uint64_t)plan->probe_rays >> lsh[kl[i]];
+      }
+    } else {
+      units = (uint64_t)nkt * plan->gather_rays + (uint64_t)(nkp + nkl) * plan->probe_rays;
+    }
+    out_stats->gather_units_full +=
+        (uint64_t)nkt * plan->gather_rays + (uint64_t)(nkp + nkl) * plan->probe_rays;
+    out_stats->gather_units += units;
+    free(est);
     if (nkt == 0 && nkp == 0 && nkl == 0) {
       ub_pass_result_free(&inf);
       out_stats->sets_empty++;
@@ -981,6 +1026,11 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
      * kept texels of estate_small's sets missed 0.5-1.5% of their light at full bounces. */
     pd.outside_bounce_iz = plan->influence_culling ? inf.texel_bounce_iz : NULL;
     pd.outside_bounces = inf.texel_bounce_iz ? UB_DLS_INFLUENCE_BOUNCES : 0;
+    if (scaled) {
+      pd.texel_ray_shift = tsh;
+      pd.probe_ray_shift = psh;
+      pd.llg_ray_shift = lsh;
+    }
     pd.progress = NULL;
     t0 = now_s();
     ub_pass_result full;
@@ -1020,6 +1070,14 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
       }
     }
     ub_pass_result_free(&full);
+    if (scaled) { /* back to zero for the next set */
+      for (uint32_t i = 0; i < nkt; i++)
+        tsh[kt[i]] = 0;
+      for (uint32_t i = 0; i < nkp; i++)
+        psh[kp[i]] = 0;
+      for (uint32_t i = 0; i < nkl; i++)
+        lsh[kl[i]] = 0;
+    }
     if (r != UB_OK)
       break;
     out_stats->sets_baked++;
@@ -1051,6 +1109,9 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
                   100.0 * out_stats->texels_candidate / ((double)s->dls_count * (lm->texel_count + 1)),
                   100.0 * out_stats->probes_candidate / ((double)s->dls_count * (base->probe_count + 1)),
                   100.0 * out_stats->llg_probes_candidate / ((double)s->dls_count * (nlp + 1)));
+  free(tsh);
+  free(psh);
+  free(lsh);
   free(ldonor);
   free(lgat);
   free(lcand);

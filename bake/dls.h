@@ -19,6 +19,11 @@
 #include "ubake/bakefile.h"
 
 #define UB_DLS_INFLUENCE_FRACTION 0.01 /* of the mean indirect of directly lit texels */
+/* Full passes with scaled rays (ub_plan.dls_scaled_rays): a receiver gathers with at
+ * least 2^-UB_DLS_RAY_SHIFT_MAX of the rays. */
+#ifndef UB_DLS_RAY_SHIFT_MAX
+#define UB_DLS_RAY_SHIFT_MAX 3u
+#endif
 /* Bounces of the influence pass (paper §3.2: 2). */
 #ifndef UB_DLS_INFLUENCE_BOUNCES
 #define UB_DLS_INFLUENCE_BOUNCES 4u
@@ -83,6 +88,9 @@ typedef struct ub_dls_stats {
   uint64_t llg_probes_gathering; /* LLG probes likewise */
   uint64_t rays_reach;
   double seconds_reach;
+  /* Full passes' gather rays per bounce summed over kept receivers: as traced (scaled
+   * rays), and with every receiver at the full count. */
+  uint64_t gather_units, gather_units_full;
 } ub_dls_stats;
 
 /* base: the base pass's settings (scene, rays, lightmap, probes, sample budgets); the

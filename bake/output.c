@@ -246,12 +246,16 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
           (unsigned long long)st->emitter_hits, st->dls_sets, st->door_passes);
   fprintf(f, "    \"dls\": {\"sets\": %u, \"baked\": %u, \"reach_nothing\": %u, "
              "\"influence_rays\": %llu, \"influence_seconds\": %.4f, \"full_rays\": %llu, "
-             "\"full_seconds\": %.4f, \"records\": [",
+             "\"full_seconds\": %.4f, \"scaled_rays\": %s, \"gather_share\": %.4f, "
+             "\"records\": [",
           scene->dls_count, dstats ? dstats->sets_baked : 0, dstats ? dstats->sets_empty : 0,
           dstats ? (unsigned long long)dstats->rays_influence : 0ULL,
           dstats ? dstats->seconds_influence : 0.0,
           dstats ? (unsigned long long)dstats->rays_full : 0ULL,
-          dstats ? dstats->seconds_full : 0.0);
+          dstats ? dstats->seconds_full : 0.0, plan->dls_scaled_rays ? "true" : "false",
+          dstats && dstats->gather_units_full
+              ? (double)dstats->gather_units / dstats->gather_units_full
+              : 1.0);
   for (uint32_t d = 0; d < bf->dls_count; d++) {
     fprintf(f, "%s{\"name\": ", d ? ", " : "");
     json_str(f, bf->dls[d].name);

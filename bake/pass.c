@@ -48,6 +48,8 @@ typedef struct recv_set {
   uint32_t spr;          /* sample points per receiver */
   uint32_t nsh;          /* SH coefficients per channel: 4 (L1) or 9 (L2) */
   uint32_t rays;         /* gather rays per receiver per bounce */
+  const uint8_t *ray_shift; /* count entries, or NULL: receiver r's gathers of bounces >= 1
+                               trace rays >> ray_shift[r] (recv_rays) */
   uint32_t id_base;
   const ub_rt *rt;       /* the geometry its rays see (LLG probes: the level without LLGs) */
   double *acc_sh_np;     /* bounce 0 only (LLG probes): its non-punctual part, or NULL */
@@ -61,6 +63,17 @@ typedef struct recv_set {
   double *acc_pvar;      /* count, this bounce: the part inherited from the noise of the
                             lightmap it reads (prop_var); rounds do not reduce it */
 } recv_set;
+
+/* The gather rays receiver r traces this bounce: rs->rays, or fewer where the pass asks
+ * for them (ub_pass_desc.texel_ray_shift: bounces >= 1 only; at least min(rays, 4)). */
+static inline uint32_t recv_rays(uint32_t bounce, const recv_set *rs, uint32_t r)
+{
+  uint32_t n = rs->rays;
+  if (!rs->ray_shift || bounce < 1 || !rs->ray_shift[r])
+    return n;
+  uint32_t m = rs->ray_shift[r] < 32 ? n >> rs->ray_shift[r] : 0, lo = n < 4 ? n : 4;
+  return m < lo ? lo : m;
+}
 
 typedef struct pass_ctx {
   const ub_pass_desc *d;
@@ -688,7 +701,7 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
 {
   const ub_pass_desc *d = c->d;
   const ub_lightmap *lm = c->lm;
-  uint32_t M = c->tl_samples, N = rs->rays, K = c->tl_K;
+  uint32_t M = c->tl_samples, K = c->tl_K;
   size_t cap = (size_t)M * nr;
   ub_ray *rays;
   shadow_rec *rec;
@@ -702,6 +715,7 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
     const float *cdf = tl[tl_group(nrm)];
+    uint32_t N = recv_rays(c->bounce, rs, r); /* the gather's rays, for the MIS weight */
     int first = 1;
     uint32_t hr = ub_hash_mix(hk, rs->id_base + r); /* ub_hash4(seed, key, id, k) below */
     for (uint32_t k = 0; cdf && k < M; k++) {
@@ -1247,20 +1261,18 @@ static inline int tl_readable(const pass_ctx *c, const ub_hit *h, const float di
  * no memory: every ray gets its NEE, as before). */
 static uint8_t *nee_skip_mask(const pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr,
                               const ub_ray *rays, const ub_hit *hits, const uint32_t *sorted_of,
-                              const hit_texel *hx, const float *const *tl)
+                              const hit_texel *hx, const float *const *tl, const size_t *off)
 {
-  uint32_t N = rs->rays;
   if (!c->tl_full || !tl)
     return NULL;
-  uint8_t *skip = calloc((size_t)nr * N, 1);
+  uint8_t *skip = calloc(off[nr] ? off[nr] : 1, 1);
   if (!skip)
     return NULL;
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
     const float *tl_cdf = tl[tl_group(nrm)];
-    for (uint32_t j = 0; j < N; j++) {
-      size_t q = (size_t)i * N + j;
+    for (size_t q = off[i]; q < off[i + 1]; q++) {
       const ub_ray *ray = &rays[q];
       const ub_hit *h = &hits[sorted_of[q]];
       float cs = nrm ? dot3(nrm, ray->dir) : 1.0f;
@@ -1325,8 +1337,12 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
 {
   const ub_pass_desc *d = c->d;
   const ub_scene *s = c->s;
-  uint32_t N = rs->rays;
-  size_t n = (size_t)nr * N;
+  /* Receiver i's rays are off[i] .. off[i+1]-1 of the block (recv_rays each; nr <= 256) */
+  size_t off[257];
+  off[0] = 0;
+  for (uint32_t i = 0; i < nr; i++)
+    off[i + 1] = off[i] + recv_rays(c->bounce, rs, rs->index ? rs->index[r0 + i] : r0 + i);
+  size_t n = off[nr];
   if (!gather_scratch_reserve(gs, n)) {
     atomic_store(&c->cancelled, 2);
     return;
@@ -1336,16 +1352,17 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   uint32_t *order = gs->order, *bucket = gs->bucket;
   hit_texel *hx = c->bounce >= 1 ? gs->hx : NULL;
   /* Stratified directions: the first kx·ky rays on a jittered kx × ky grid (kx = ⌊√N⌋),
-   * the few left over (N not a multiple of kx) uniformly random. */
-  uint32_t kx = (uint32_t)sqrtf((float)N);
-  if (kx < 1)
-    kx = 1;
-  uint32_t ky = N / kx;
+   * the few left over (N not a multiple of kx) uniformly random. N: the receiver's rays. */
   uint32_t hk = ub_hash_mix(ub_hash_mix(UB_HASH_SEED, c->seed), d->pass_id * 0x10000u + c->bounce);
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
     uint32_t hr = ub_hash_mix(hk, rs->id_base + r); /* ub_hash4(seed, key, id, j) below */
+    uint32_t N = (uint32_t)(off[i + 1] - off[i]);
+    uint32_t kx = (uint32_t)sqrtf((float)N);
+    if (kx < 1)
+      kx = 1;
+    uint32_t ky = N / kx;
     for (uint32_t j = 0; j < N; j++) {
       uint32_t h = ub_hash_mix(hr, j);
       float u1 = ub_u01(h), u2 = ub_u01(ub_hash4(h, 7, 0, 0));
@@ -1353,7 +1370,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
         u1 = ((float)(j % kx) + u1) / (float)kx;
         u2 = ((float)(j / kx) + u2) / (float)ky;
       }
-      ub_ray *ray = &rays[(size_t)i * N + j];
+      ub_ray *ray = &rays[off[i] + j];
       const float *p = rs->samples + ((size_t)r * rs->spr + j % rs->spr) * 3;
       memcpy(ray->org, p, sizeof ray->org);
       if (nrm) {
@@ -1392,7 +1409,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     hit_texels(c, hits, order, n, hx);
   float *nee = NULL;
   if (c->bounce == 1 && c->nee) {
-    uint8_t *skip = nee_skip_mask(c, rs, r0, nr, rays, hits, bucket, hx, tl);
+    uint8_t *skip = nee_skip_mask(c, rs, r0, nr, rays, hits, bucket, hx, tl, off);
     nee = nee_block(c, d->rt, rays, hits, bucket, skip, n, rs->id_base + r0);
     free(skip);
   }
@@ -1402,8 +1419,8 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   uint64_t backface = 0, unlit = 0, clamped = 0, misses = 0, sky_hits = 0, emitter_hits = 0;
   uint32_t ne = (d->emissive && d->emitters) ? d->emitters->count : 0;
   /* Per-ray luminance contributions of one receiver, for its variance (stratified_var). */
-  double *contrib = rs->acc_var ? malloc(N * sizeof *contrib) : NULL;
-  prop_read *prop = rs->acc_pvar && c->prev_rel2 ? malloc(N * sizeof *prop) : NULL;
+  double *contrib = rs->acc_var ? malloc((rs->rays + 1) * sizeof *contrib) : NULL;
+  prop_read *prop = rs->acc_pvar && c->prev_rel2 ? malloc((rs->rays + 1) * sizeof *prop) : NULL;
   uint32_t np = 0;
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
@@ -1413,12 +1430,14 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     double *src = rs->acc_src ? rs->acc_src + 3 * (size_t)r : NULL;
     double *src_np = rs->acc_src_np ? rs->acc_src_np + 3 * (size_t)r : NULL;
     double *sh_np = rs->acc_sh_np ? rs->acc_sh_np + (size_t)rs->nsh * 3 * r : NULL;
+    uint32_t N = (uint32_t)(off[i + 1] - off[i]);
     if (contrib)
       memset(contrib, 0, N * sizeof *contrib);
     np = 0;
     for (uint32_t j = 0; j < N; j++) {
-      const ub_ray *ray = &rays[(size_t)i * N + j];
-      const ub_hit *h = &hits[bucket[(size_t)i * N + j]];
+      size_t q = off[i] + j; /* the ray's index in the block */
+      const ub_ray *ray = &rays[q];
+      const ub_hit *h = &hits[bucket[q]];
       float L[3] = {0, 0, 0};
       float cs = nrm ? dot3(nrm, ray->dir) : 1.0f;
       double pdf = gather_pdf(nrm, ray->dir);
@@ -1457,7 +1476,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
             backface++;
             continue;
           }
-          const hit_texel *hq = &hx[(size_t)i * N + j];
+          const hit_texel *hq = &hx[q];
           int32_t a = hq->a;
           float e[3] = {0.0f, 0.0f, 0.0f};
           int llg_lit = 0;
@@ -1467,9 +1486,8 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
             llg_lit = ub_llg_hit_irradiance(c->llg, s, c->llg_prev, h->tri, h->u, h->v, hp,
                                             ray->dir, e);
           }
-          if (a < 0 && !llg_lit && !(nee && (nee[3 * ((size_t)i * N + j)] > 0.0f ||
-                                             nee[3 * ((size_t)i * N + j) + 1] > 0.0f ||
-                                             nee[3 * ((size_t)i * N + j) + 2] > 0.0f))) {
+          if (a < 0 && !llg_lit &&
+              !(nee && (nee[3 * q] > 0.0f || nee[3 * q + 1] > 0.0f || nee[3 * q + 2] > 0.0f))) {
             unlit++;
             continue;
           }
@@ -1519,7 +1537,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
            * texel light read holds it already). */
           double wn = 1.0 / (N * pdf) / wt;
           for (int ch = 0; ch < 3; ch++)
-            L[ch] += (float)(nee[3 * ((size_t)i * N + j) + ch] * wn);
+            L[ch] += (float)(nee[3 * q + ch] * wn);
         }
       }
       if (!finite3(L)) {
@@ -1543,8 +1561,11 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
         contrib[j] = nrm ? l * cs * wt : 0.25 * l * wt;
       }
     }
-    if (contrib)
-      rs->acc_var[r] += stratified_var(contrib, N, kx, ky);
+    if (contrib) {
+      uint32_t kx = (uint32_t)sqrtf((float)N);
+      kx = kx < 1 ? 1 : kx;
+      rs->acc_var[r] += stratified_var(contrib, N, kx, N / kx);
+    }
     if (prop)
       rs->acc_pvar[r] += prop_var(prop, np, c->prev_rel2);
   }
@@ -2056,6 +2077,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   tx->spr = UB_TEXEL_SAMPLES;
   tx->nsh = 4;
   tx->rays = N;
+  tx->ray_shift = d->texel_ray_shift;
   tx->id_base = 0;
   tx->rt = d->rt;
   tx->acc_sh = scr_take(scache, SCR_ACC_SH, B_SH);
@@ -2097,6 +2119,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   pr->spr = 1;
   pr->nsh = 9;
   pr->rays = d->probe_rays ? d->probe_rays : N;
+  pr->ray_shift = d->probe_ray_shift;
   pr->id_base = UB_PROBE_ID_BASE;
   pr->rt = d->rt;
   lg->count = LP;
@@ -2106,6 +2129,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   lg->spr = 1;
   lg->nsh = 9;
   lg->rays = pr->rays;
+  lg->ray_shift = d->llg_ray_shift;
   lg->id_base = UB_LLG_ID_BASE;
   lg->rt = llg ? llg->rt_env : d->rt;
   lg->acc_sh = calloc((size_t)LP * 27 + 1, sizeof(double));

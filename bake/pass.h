@@ -75,6 +75,14 @@ typedef struct ub_pass_desc {
   const uint32_t *llg_gather_donor;
   const uint32_t *llg_gather_subset;
   uint32_t llg_gather_subset_count;
+  /* Fewer gather rays where a receiver's light is faint (a DLS full pass: its influence
+   * pass's estimate), or NULL: receiver r's gathers of bounces >= 1 trace
+   * (texel_count / probe_count / llg->probe_count entries) gather_rays >> shift[r] rays
+   * (probes: probe_rays >> shift[r]), at least min(rays, 4). Bounce 0 and the texel-light
+   * samples keep theirs; the MIS weights use each receiver's own count. */
+  const uint8_t *texel_ray_shift;
+  const uint8_t *probe_ray_shift;
+  const uint8_t *llg_ray_shift;
   /* Bounce light of the texels outside texel_subset (a cheaper pass's estimate, e.g. the
    * influence pass's keep_bounce_iz): they are not simulated, but their light still
    * bounces: bounce k's image (what bounce k+1 gathers) holds outside_bounce_iz's bounce k

@@ -47,6 +47,8 @@ typedef struct ub_plan {
   int sky, emissive;
   int influence_culling;       /* DLS full passes only over their influence region */
   int influence_sparse;        /* influence passes gather at one texel per 2×2 of a surface */
+  int dls_scaled_rays;         /* DLS full passes: fewer gather rays where a set's light is
+                                  faint (bake/dls.h UB_DLS_RAY_SHIFT_MAX) */
   double stop_fraction;        /* a pass stops when a bounce adds less than this share */
   uint32_t gather_rays, emissive_samples, shadow_samples;
   uint32_t near_samples; /* footprint samples of a lamp near a texel (ub_pass_desc) */

@@ -248,6 +248,9 @@ static const char *BAKE_HELP =
     "  --door-no-guiding       door passes gather with cosine rays only (comparison)\n"
     "  --influence-dense       DLS influence passes gather at every candidate texel\n"
     "                          (default: one per 2x2 texels of a surface; comparison)\n"
+    "  --dls-full-rays         DLS full passes give every kept receiver the full gather\n"
+    "                          rays (default: fewer, down to 1/8, where the set's\n"
+    "                          estimated light is faint; comparison)\n"
     "  --texel-size M          override metres per lightmap texel\n"
     "  --glg-spacing M         override metres between coarse GLG probes\n"
     "  --json FILE             write the report here instead of DIR/NAME.report.json\n"
@@ -340,6 +343,8 @@ static int cmd_bake(int argc, char **argv)
       opt.plan_only = 1;
     } else if (!strcmp(a, "--influence-dense")) {
       opt.influence_dense = 1;
+    } else if (!strcmp(a, "--dls-full-rays")) {
+      opt.dls_full_rays = 1;
     } else if (!strcmp(a, "--plan") && v) {
       if (!strcmp(v, "all"))
         opt.plan_all = 1;

@@ -49,6 +49,10 @@ typedef struct ub_bake_options {
   int influence_dense;    /* 1: DLS influence passes gather at every candidate texel
                              (default 0: one gather per 2×2 texels of a surface; for
                              comparison) */
+  int dls_full_rays;      /* 1: DLS full passes give every kept receiver the full gather
+                             rays (default 0: rays scaled down where the set's estimated
+                             light is under half its mean on directly lit texels, to 1/8
+                             at most; for comparison) */
   uint32_t door_rays;     /* 0 = from quality: guided gather rays per texel of a door pass */
   ub_progress_fn progress;
   void *progress_user;
