@@ -435,8 +435,8 @@ static int step_free(const ub_atlas *at, uint32_t xa, uint32_t ya, uint32_t xb, 
  * within 2 texels, and no geometry between them in the atlas (edge neighbours: no link
  * bit; diagonal ones: a covered pixel at one of the two corners between them reached
  * through no link bit both ways). */
-/* A kept receiver's ray shift in a full pass with scaled rays: the smallest k with
- * 2^-k >= est / ref, at most UB_DLS_RAY_SHIFT_MAX (0 when est >= ref / 2). */
+/* A kept receiver's ray shift in a full pass with scaled rays: the largest k with
+ * 2^-k >= est / ref, at most UB_DLS_RAY_SHIFT_MAX (0 when est > ref / 2). */
 static uint8_t dls_ray_shift(double est, double ref)
 {
   uint8_t k = 0;
@@ -984,15 +984,15 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
       double ref = thr / UB_DLS_INFLUENCE_FRACTION;
       for (uint32_t i = 0; i < nkt; i++) {
         tsh[kt[i]] = dls_ray_shift(est[kt[i]], ref);
-        units += (uint64_t)plan->gather_rays >> tsh[kt[i]];
+        units += ub_pass_shifted_rays(plan->gather_rays, tsh[kt[i]]);
       }
       for (uint32_t i = 0; i < nkp; i++) {
         psh[kp[i]] = dls_ray_shift(inf.probe_indirect[kp[i]] * ptail, ref);
-        units += (uint64_t)plan->probe_rays >> psh[kp[i]];
+        units += ub_pass_shifted_rays(plan->probe_rays, psh[kp[i]]);
       }
       for (uint32_t i = 0; i < nkl; i++) {
         lsh[kl[i]] = dls_ray_shift(inf.llg_indirect[kl[i]] * ptail, ref);
-        units += (uint64_t)plan->probe_rays >> lsh[kl[i]];
+        units += ub_pass_shifted_rays(plan->probe_rays, lsh[kl[i]]);
       }
     } else {
       units = (uint64_t)nkt * plan->gather_rays + (uint64_t)(nkp + nkl) * plan->probe_rays;

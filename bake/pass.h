@@ -123,6 +123,14 @@ typedef struct ub_pass_desc {
   struct ub_pass_cache *cache;
 } ub_pass_desc;
 
+/* The gather rays of a receiver with ray shift k (ub_pass_desc.texel_ray_shift):
+ * rays >> k, at least min(rays, 4). */
+static inline uint32_t ub_pass_shifted_rays(uint32_t rays, uint32_t k)
+{
+  uint32_t m = k < 32 ? rays >> k : 0, lo = rays < 4 ? rays : 4;
+  return m < lo ? lo : m;
+}
+
 typedef struct ub_pass_cache ub_pass_cache;
 ub_pass_cache *ub_pass_cache_create(void); /* NULL when out of memory (passes then build) */
 void ub_pass_cache_free(ub_pass_cache *cache); /* NULL-safe */

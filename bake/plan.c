@@ -308,7 +308,8 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
     out->gather_rays = opt->gather_rays;
   /* A probe sees the whole sphere: twice the rays of a texel's hemisphere. */
   out->probe_rays = 2 * out->gather_rays;
-  /* Influence passes only decide who is reached: an eighth of the rays, at least 16. */
+  /* Influence passes only decide who is reached: an eighth of the rays, at least 8 (16
+   * before 2026-11-27: draft's sets then took a quarter). */
   out->influence_rays = out->gather_rays / 8 < 8 ? 8 : out->gather_rays / 8;
 
   for (uint32_t l = 0; l < scene->light_count; l++) {
@@ -355,7 +356,9 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
   for (uint32_t d = 0; d < scene->door_count; d++)
     out->door_passes += ub_geom_door_triangles(scene, d, 0) > 0;
   out->door_rays = opt->door_rays ? opt->door_rays : out->gather_rays;
-  out->door_influence_rays = out->influence_culling ? out->influence_rays : 0;
+  /* door influence passes keep at least 16 (their culling was measured with 16 at draft) */
+  out->door_influence_rays =
+      out->influence_culling ? (out->influence_rays < 16 ? 16 : out->influence_rays) : 0;
   out->door_photons = 8192;
   if (plan_combos(scene, set_reaches, out) != UB_OK) {
     free(set_reaches);
