@@ -23,6 +23,9 @@
 /* Texel lights are used for a block of receivers when the brightest texel it can see
  * carries this many times the mean power of the texels it can see. */
 #define UB_TL_PEAK 30.0
+/* Texel lights closer than 2 texel widths are left to the gathers (squared: 4 texel
+ * areas): there a texel is no small light, and its sample point stands for it badly. */
+#define UB_TL_NEAR2 4.0f
 /* Texel-light clusters: cells on the level's longest axis (× 6 normal directions). */
 #define UB_TL_CELLS 16
 #define UB_LLG_ID_BASE 0x60000000u
@@ -739,8 +742,8 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
       const float *p = rs->samples + ((size_t)r * rs->spr + (k + po) % rs->spr) * 3;
       float w[3] = {qo[0] - p[0], qo[1] - p[1], qo[2] - p[2]};
       float d2 = dot3(w, w);
-      if (!(d2 > 0.0f))
-        continue;
+      if (!(d2 >= UB_TL_NEAR2 * c->tl_area[t]) || !(d2 > 0.0f))
+        continue; /* near field: gathers read it (tl_readable) */
       float dist = sqrtf(d2);
       for (int ch = 0; ch < 3; ch++)
         w[ch] /= dist;
@@ -1252,7 +1255,8 @@ static inline int tl_readable(const pass_ctx *c, const ub_hit *h, const float di
 {
   float gl = sqrtf(dot3(h->ng, h->ng));
   *ce = gl > 0.0f ? -dot3(h->ng, dir) / gl : 0.0f;
-  return t >= 0 && *ce > 0.0f && c->tl_area[t] > 0.0f;
+  return t >= 0 && *ce > 0.0f && c->tl_area[t] > 0.0f &&
+         h->t * h->t >= UB_TL_NEAR2 * c->tl_area[t];
 }
 
 /* The gather rays whose bounce-1 NEE the shading would drop (gather_block: a ray at
