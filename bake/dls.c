@@ -430,11 +430,6 @@ static int step_free(const ub_atlas *at, uint32_t xa, uint32_t ya, uint32_t xb, 
   return !(at->link[(size_t)y0 * at->width + x0] & bit);
 }
 
-/* Whether texel u may take texel g's bounce light in a sparse influence pass: atlas
- * neighbours (one of the 8 around it) on the same surface: normals within ~18°, centres
- * within 2 texels, and no geometry between them in the atlas (edge neighbours: no link
- * bit; diagonal ones: a covered pixel at one of the two corners between them reached
- * through no link bit both ways). */
 /* A kept receiver's ray shift in a full pass with scaled rays: the largest k with
  * 2^-k >= est / ref, at most UB_DLS_RAY_SHIFT_MAX (0 when est > ref / 2). */
 static uint8_t dls_ray_shift(double est, double ref)
@@ -445,6 +440,11 @@ static uint8_t dls_ray_shift(double est, double ref)
   return k;
 }
 
+/* Whether texel u may take texel g's bounce light in a sparse influence pass: atlas
+ * neighbours (one of the 8 around it) on the same surface: normals within ~18°, centres
+ * within 2 texels, and no geometry between them in the atlas (edge neighbours: no link
+ * bit; diagonal ones: a covered pixel at one of the two corners between them reached
+ * through no link bit both ways). */
 static int donor_ok(const ub_scene *s, const ub_lightmap *lm, uint32_t u, uint32_t g)
 {
   const float *nu = lm->texel_normal + 3 * (size_t)u, *ng = lm->texel_normal + 3 * (size_t)g;
@@ -716,7 +716,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
   uint32_t *lgat = llg_sparse ? malloc(((size_t)nlp + 1) * sizeof *lgat) : NULL;
   uint8_t *lcand = llg_sparse ? calloc((size_t)nlp + 1, 1) : NULL;
   /* full passes' ray shifts (dls_ray_shift), zero outside the set being baked */
-  int scaled = plan->dls_scaled_rays && plan->influence_culling;
+  int scaled = plan->dls_scaled_rays; /* only with influence culling (ub_plan_build) */
   uint8_t *tsh = scaled ? calloc((size_t)lm->texel_count + 1, 1) : NULL;
   uint8_t *psh = scaled ? calloc((size_t)base->probe_count + 1, 1) : NULL;
   uint8_t *lsh = scaled ? calloc((size_t)nlp + 1, 1) : NULL;
@@ -979,9 +979,12 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
      * gathers with the rays scaled to the power of two at or above f (at least
      * 2^-UB_DLS_RAY_SHIFT_MAX). Its absolute standard error then stays at or below a
      * reference texel's at full rays: σ ∝ I/√(N·f) = √(I·ref/N). */
-    uint64_t units = 0;
+    const uint64_t full_units =
+        (uint64_t)nkt * plan->gather_rays + (uint64_t)(nkp + nkl) * plan->probe_rays;
+    uint64_t units = full_units;
     if (scaled && thr > 0.0) {
       double ref = thr / UB_DLS_INFLUENCE_FRACTION;
+      units = 0;
       for (uint32_t i = 0; i < nkt; i++) {
         tsh[kt[i]] = dls_ray_shift(est[kt[i]], ref);
         units += ub_pass_shifted_rays(plan->gather_rays, tsh[kt[i]]);
@@ -994,11 +997,8 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
         lsh[kl[i]] = dls_ray_shift(inf.llg_indirect[kl[i]] * ptail, ref);
         units += ub_pass_shifted_rays(plan->probe_rays, lsh[kl[i]]);
       }
-    } else {
-      units = (uint64_t)nkt * plan->gather_rays + (uint64_t)(nkp + nkl) * plan->probe_rays;
     }
-    out_stats->gather_units_full +=
-        (uint64_t)nkt * plan->gather_rays + (uint64_t)(nkp + nkl) * plan->probe_rays;
+    out_stats->gather_units_full += full_units;
     out_stats->gather_units += units;
     free(est);
     if (nkt == 0 && nkp == 0 && nkl == 0) {

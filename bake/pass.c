@@ -1336,6 +1336,14 @@ static int gather_scratch_reserve(gather_scratch *g, size_t n)
   return 1;
 }
 
+/* Columns of the stratified grid of n gather rays (kx = ⌊√n⌋, at least 1; kx × ⌊n/kx⌋
+ * cells): what the directions are drawn on and what stratified_var reads them back by. */
+static inline uint32_t strat_cols(uint32_t n)
+{
+  uint32_t kx = (uint32_t)sqrtf((float)n);
+  return kx < 1 ? 1 : kx;
+}
+
 /* Gather rays: bounce 0 sees the sky and emitters (MIS), bounce k reads bounce k-1. */
 static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr,
                          const float *const *tl, gather_scratch *gs)
@@ -1364,10 +1372,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
     uint32_t hr = ub_hash_mix(hk, rs->id_base + r); /* ub_hash4(seed, key, id, j) below */
     uint32_t N = (uint32_t)(off[i + 1] - off[i]);
-    uint32_t kx = (uint32_t)sqrtf((float)N);
-    if (kx < 1)
-      kx = 1;
-    uint32_t ky = N / kx;
+    uint32_t kx = strat_cols(N), ky = N / kx;
     /* The ray's sample point: (column + row + o) mod spr on the grid, o random per
      * receiver. Each point shoots into every column and row of the grid in turn and, over
      * o, every cell equally often, so where a point stands and where it looks are
@@ -1577,8 +1582,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
       }
     }
     if (contrib) {
-      uint32_t kx = (uint32_t)sqrtf((float)N);
-      kx = kx < 1 ? 1 : kx;
+      uint32_t kx = strat_cols(N);
       rs->acc_var[r] += stratified_var(contrib, N, kx, N / kx);
     }
     if (prop)

@@ -19,6 +19,7 @@
 #include <string.h>
 
 #include "bench/bench_util.h"
+#include "tests/report_util.h"
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
 
@@ -29,26 +30,6 @@ static double stage_s(const ub_bake_stats *st, const char *name)
     if (!strcmp(st->stage_name[i], name))
       return st->stage_seconds[i];
   return 0.0;
-}
-
-/* A number after "key": in the report.json next to a .ubk (NaN when absent). */
-static double report_number(const char *ubk, const char *key)
-{
-  char path[1100], needle[96];
-  snprintf(path, sizeof path, "%s", ubk);
-  char *dot = strrchr(path, '.');
-  if (dot)
-    snprintf(dot, sizeof path - (size_t)(dot - path), ".report.json");
-  FILE *f = fopen(path, "rb");
-  if (!f)
-    return NAN;
-  static char buf[1 << 20];
-  size_t n = fread(buf, 1, sizeof buf - 1, f);
-  fclose(f);
-  buf[n] = 0;
-  snprintf(needle, sizeof needle, "\"%s\": ", key);
-  const char *p = strstr(buf, needle);
-  return p ? strtod(p + strlen(needle), NULL) : NAN;
 }
 
 /* Errors of record a (sorted receivers ia, values va of stride floats) against ref (ib,
@@ -227,7 +208,7 @@ int main(int argc, char **argv)
   double b0 = st[0].total_seconds - stage_s(&st[0], "dls");
   double b1 = st[1].total_seconds - stage_s(&st[1], "dls");
   printf("  full passes' gathers: scaled %.1f%% of the full rays\n",
-         100 * report_number(st[0].ubk_path, "gather_share"));
+         100 * ub_report_number(st[0].ubk_path, "gather_share"));
   printf("  dls stage: scaled %.2f s, full rays %.2f s (%.2fx); the bake without it %.2f / "
          "%.2f s; bake / bake without the sets' stage: scaled %.2fx, full %.2fx; reference "
          "%.2f s\n",

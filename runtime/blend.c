@@ -1404,6 +1404,20 @@ static int finite_f(float x)
   return (u & 0x7f800000u) != 0x7f800000u;
 }
 
+/* An element's weight v (RGB) spread over its rows of ex (wstride floats, v[j mod 3]) and,
+ * when there is one, pat (32 floats): the forms the kernels read ω (wexp, wpat) and
+ * ω − ω1 (dwexp, dwpat) in. */
+static void weight_expand(const ub_blend *b, uint32_t element, const float v[3], float *ex,
+                          float *pat)
+{
+  float *we = ex + (size_t)element * b->wstride;
+  for (uint32_t j = 0; j < b->wstride; j++)
+    we[j] = v[j % 3];
+  if (pat)
+    for (int j = 0; j < 32; j++)
+      pat[32 * (size_t)element + j] = v[j % 3];
+}
+
 ub_result ub_blend_set_weight(ub_blend *b, uint32_t element, const float rgb[3])
 {
   assert(b && rgb);
@@ -1415,23 +1429,13 @@ ub_result ub_blend_set_weight(ub_blend *b, uint32_t element, const float rgb[3])
     return UB_OK;
   for (int c = 0; c < 3; c++)
     w[c] = rgb[c] == 0.0f ? 0.0f : rgb[c]; /* -0 → +0: the same state, the same bits */
-  float *we = b->wexp + (size_t)element * b->wstride;
-  for (uint32_t j = 0; j < b->wstride; j++)
-    we[j] = w[j % 3];
-  if (b->wpat)
-    for (int j = 0; j < 32; j++)
-      b->wpat[32 * (size_t)element + j] = w[j % 3];
+  weight_expand(b, element, w, b->wexp, b->wpat);
   b->nonzero[element] = w[0] != 0.0f || w[1] != 0.0f || w[2] != 0.0f;
   if (b->ones) { /* ω − ω1, rounded once per channel, as ub_blend_row computes it */
     const float o = b->ones_w;
     b->notone[element] = w[0] != o || w[1] != o || w[2] != o;
     const float dw[3] = {w[0] - o, w[1] - o, w[2] - o};
-    float *de = b->dwexp + (size_t)element * b->wstride;
-    for (uint32_t j = 0; j < b->wstride; j++)
-      de[j] = dw[j % 3];
-    if (b->dwpat)
-      for (int j = 0; j < 32; j++)
-        b->dwpat[32 * (size_t)element + j] = dw[j % 3];
+    weight_expand(b, element, dw, b->dwexp, b->dwpat);
   }
   if (!b->dirty[element]) {
     b->dirty[element] = 1;

@@ -9,6 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "report_util.h"
 #include "test_util.h"
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
@@ -251,26 +252,6 @@ static void test_dls_culling(void)
   dls_culling("estate_small", "estate_small", 2, 0.4f, 14);
 }
 
-/* A number after "key": in a report.json (NaN when absent). */
-static double report_number(const char *ubk_path, const char *key)
-{
-  char path[1100], needle[128];
-  snprintf(path, sizeof path, "%s", ubk_path);
-  char *dot = strrchr(path, '.');
-  if (dot)
-    snprintf(dot, sizeof path - (size_t)(dot - path), ".report.json");
-  FILE *f = fopen(path, "rb");
-  if (!f)
-    return NAN;
-  static char buf[1 << 20];
-  size_t n = fread(buf, 1, sizeof buf - 1, f);
-  fclose(f);
-  buf[n] = 0;
-  snprintf(needle, sizeof needle, "\"%s\": ", key);
-  const char *at = strstr(buf, needle);
-  return at ? strtod(at + strlen(needle), NULL) : NAN;
-}
-
 /* The plan's cost estimate: the bounce count of an auto-stop pass from the level's bounce
  * ratio. Closed form: with ratio r each bounce carries r times the last, and the pass stops
  * at the first k with r^(k-1) <= stop·(1 + r + … + r^(k-1)). In the furnace (a closed box,
@@ -287,8 +268,8 @@ static void test_estimate(void)
   ub_bake_stats st;
   if (!bake(path, "estimate", UB_QUALITY_DRAFT, 0, &st))
     return;
-  double ratio = report_number(st.ubk_path, "bounce_ratio");
-  double est = report_number(st.ubk_path, "estimated_bounces");
+  double ratio = ub_report_number(st.ubk_path, "bounce_ratio");
+  double est = ub_report_number(st.ubk_path, "estimated_bounces");
   printf("furnace: bounce ratio %.4f (albedo 0.5), bounces estimated %.0f, run %u\n", ratio, est,
          st.bounces);
   ASSERT_NEAR(ratio, 0.5, 0.01, 0);

@@ -36,6 +36,16 @@ typedef struct level {
   ub_emitters *em;
 } level;
 
+static void level_close(level *L)
+{
+  ub_emitters_free(L->em);
+  ub_lightmap_free(L->lm);
+  ub_rt_free(L->rt);
+  free(L->mask);
+  ub_scene_free(L->s);
+}
+
+/* 0 (and nothing held) when the level cannot be opened. */
 static int level_open(const char *name, level *L)
 {
   char path[1024];
@@ -50,16 +60,10 @@ static int level_open(const char *name, level *L)
     ASSERT_OK(ub_lightmap_build(L->s, L->rt, L->s->texel_size, NULL, &L->lm));
   if (L->rt)
     ASSERT_OK(ub_emitters_build(L->s, &L->em));
-  return L->rt && L->lm;
-}
-
-static void level_close(level *L)
-{
-  ub_emitters_free(L->em);
-  ub_lightmap_free(L->lm);
-  ub_rt_free(L->rt);
-  free(L->mask);
-  ub_scene_free(L->s);
+  if (L->rt && L->lm)
+    return 1;
+  level_close(L);
+  return 0;
 }
 
 static void desc_init(const level *L, const uint8_t *en, ub_pass_desc *pd)
@@ -81,10 +85,8 @@ static void desc_init(const level *L, const uint8_t *en, ub_pass_desc *pd)
 static void test_furnace(void)
 {
   level L;
-  if (!level_open("furnace", &L)) {
-    level_close(&L);
+  if (!level_open("furnace", &L))
     return;
-  }
   uint32_t T = L.lm->texel_count;
   uint8_t *en = calloc(L.s->light_count + 1, 1);
   uint8_t *sh = calloc((size_t)T + 1, 1);
@@ -164,10 +166,8 @@ static void compare(const char *what, const float *a, const float *sa, const flo
 static void test_cornell(void)
 {
   level L;
-  if (!level_open("cornell", &L)) {
-    level_close(&L);
+  if (!level_open("cornell", &L))
     return;
-  }
   uint32_t T = L.lm->texel_count;
   ASSERT_TRUE(L.s->light_count > 0);
   uint8_t *en = calloc(L.s->light_count + 1, 1);
@@ -234,10 +234,8 @@ static void test_cornell(void)
 static void test_expectation(void)
 {
   level L;
-  if (!level_open("cornell", &L)) {
-    level_close(&L);
+  if (!level_open("cornell", &L))
     return;
-  }
   enum { S = 96, P = 27 };
   uint32_t T = L.lm->texel_count;
   uint8_t *en = calloc(L.s->light_count + 1, 1);

@@ -16,6 +16,7 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include "report_util.h"
 #include "test_util.h"
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
@@ -176,21 +177,8 @@ static inline uint64_t hard_nonfinite(const ub_bakefile *bf)
 /* "clamped_values" of DIR/NAME.report.json next to the .ubk; -1 if absent. */
 static inline long long hard_report_clamped(const char *ubk_path)
 {
-  char path[1100];
-  snprintf(path, sizeof path, "%s", ubk_path);
-  char *dot = strrchr(path, '.');
-  if (!dot)
-    return -1;
-  snprintf(dot, sizeof path - (size_t)(dot - path), ".report.json");
-  FILE *f = fopen(path, "rb");
-  if (!f)
-    return -1;
-  static char buf[1 << 16];
-  size_t n = fread(buf, 1, sizeof buf - 1, f);
-  fclose(f);
-  buf[n] = '\0';
-  const char *k = strstr(buf, "\"clamped_values\":");
-  return k ? strtoll(k + strlen("\"clamped_values\":"), NULL, 10) : -1;
+  double v = ub_report_number(ubk_path, "clamped_values");
+  return isnan(v) ? -1 : (long long)v;
 }
 
 /* Per-texel data of one atlas: irradiance along the stored normal (green channel and rgb),
