@@ -436,6 +436,35 @@ static void shadow_flush(pass_ctx *c, const recv_set *rs, uint32_t r0, ub_ray *r
   free(occ);
 }
 
+static inline size_t hit_pixel(const ub_lightmap *lm, const ub_atlas *at, const ub_hit *h,
+                               float out_uv[2]);
+
+/* Whether point q on the plane of texel t's owning triangle, past that triangle's edges,
+ * still lies on a surface that the lightmap maps to texel t (a coplanar neighbour of its
+ * chart), not past the chart's edge in the open or inside a wall: a short ray along the
+ * triangle's normal through q must hit such a surface there. */
+static int on_texel(const pass_ctx *c, uint32_t t, const float q[3])
+{
+  const ub_lightmap *lm = c->lm;
+  float ng[3];
+  tri_normal(c->s, lm->texel_tri[t], ng);
+  float e = 4.0f * ub_rt_epsilon(c->d->rt, q);
+  ub_ray ray;
+  for (int k = 0; k < 3; k++) {
+    ray.org[k] = q[k] + e * ng[k];
+    ray.dir[k] = -ng[k];
+  }
+  ray.tnear = 0.0f;
+  ray.tfar = 2.0f * e;
+  ub_hit h;
+  ub_rt_intersect(c->d->rt, &ray, 1, &h);
+  if (h.tri == UB_RT_MISS || lm->tri_atlas[h.tri] != (int32_t)lm->texel_atlas[t])
+    return 0;
+  float uv[2];
+  const ub_atlas *at = &lm->atlases[lm->texel_atlas[t]];
+  return at->texel_of[hit_pixel(lm, at, &h, uv)] == (int32_t)t;
+}
+
 /* Bounce 0: punctual lights and emissive area samples with shadow rays. */
 static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr)
 {
@@ -459,6 +488,8 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   size_t n = 0;
   uint32_t N = rs->rays;
   int mis_gather = d->sky || ne; /* gather rays also see emitters in bounce 0 */
+  /* a near texel's footprint points kept; without memory the sample points stand in */
+  float *fp = rs->texels ? malloc((size_t)nnear * 3 * sizeof *fp) : NULL;
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
@@ -481,23 +512,35 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
           nk = nnear;
         }
       }
-      int first = 1; /* the next record starts this light's variance group */
-      for (uint32_t k = 0; k < nk; k++) {
-        const float *p = rs->samples + ((size_t)r * rs->spr + k % rs->spr) * 3;
-        float pn[3];
-        if (near) {
-          /* Stratified nside × nside jittered positions over the whole texel, on its
-           * plane. */
+      /* Near: stratified nside × nside jittered positions over the texel, on its plane;
+       * those off its surface are dropped and the rest averaged. At a chart's edge part of
+       * the square lies past the surface (a wall's top texels above the ceiling, a door
+       * leaf's edge inside the jamb), where a point on the plane is in the dark: the edge
+       * texels of a wall under a lamp read half its light. When none is on it (a
+       * degenerate UV), the texel's sample points, as for a far light. */
+      uint32_t nacc = nk;
+      if (near && fp) {
+        nacc = 0;
+        for (uint32_t k = 0; k < nk; k++) {
           uint32_t h = ub_hash4(c->seed, d->pass_id * 0x10000u + 0x4000u + l, r, k);
           float inv = 1.0f / (float)nside;
           float fx = ((float)(k % nside) + ub_u01(h)) * inv;
           float fy = ((float)(k / nside) + ub_u01(ub_hash4(h, 3, 0, 0))) * inv;
           float q[3];
-          if (ub_lightmap_texel_point(c->s, c->lm, r, fx, fy, q)) {
-            ub_rt_offset_point(d->rt, q, nrm, pn);
-            p = pn;
+          int on = ub_lightmap_texel_point(c->s, c->lm, r, fx, fy, q);
+          if (on == 1 || (on == 2 && on_texel(c, r, q))) {
+            ub_rt_offset_point(d->rt, q, nrm, fp + 3 * (size_t)nacc++);
           }
         }
+        if (!nacc) {
+          near = 0;
+          nk = nacc = ns;
+        }
+      }
+      int first = 1; /* the next record starts this light's variance group */
+      for (uint32_t k = 0; k < nacc; k++) {
+        const float *p = near && fp ? fp + 3 * (size_t)k
+                                    : rs->samples + ((size_t)r * rs->spr + k % rs->spr) * 3;
         float dir[3], dist, e[3];
         if (!ub_light_incident(L, p, dir, &dist, e))
           continue;
@@ -510,13 +553,15 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
         sr->emissive = 0;
         memcpy(sr->dir, dir, sizeof dir);
         for (int ch = 0; ch < 3; ch++)
-          sr->e[ch] = e[ch] / (float)nk;
+          sr->e[ch] = e[ch] / (float)nacc;
         sr->cos = cs;
-        /* Random only near the light (jittered 4×4 footprint samples); elsewhere the
-         * texel's fixed sample points: a quadrature, the same for every seed. */
-        sr->grp_n = near && !sr->primary ? nk : 0;
+        /* Random only near the light (jittered footprint samples); elsewhere the texel's
+         * fixed sample points: a quadrature, the same for every seed. The strata stand
+         * only when every one kept its sample. */
+        int all = nacc == nk;
+        sr->grp_n = near && !sr->primary ? nacc : 0;
         sr->grp_k = k;
-        sr->grp_kx = (uint8_t)nside;
+        sr->grp_kx = (uint8_t)(all ? nside : 0);
         sr->grp_first = (uint8_t)first;
         sr->src_texel = -1;
         first = 0;
@@ -574,6 +619,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
       n++;
     }
   }
+  free(fp);
   shadow_flush(c, rs, r0, rays, rec, occ, n);
 }
 
@@ -2116,10 +2162,9 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     c.tl_area = malloc(((size_t)T + 1) * sizeof(float));
     tl_ok = c.tl_area != NULL;
     if (c.tl_area) {
-      for (uint32_t t = 0; t < T; t++) {
-        float w = texel_world_size(&c, t);
-        c.tl_area[t] = w * w;
-      }
+      /* the area a gather hit reads as the texel (ub_lightmap.texel_area), not the
+       * square's: the strategy's density must be per unit of what the gathers see */
+      memcpy(c.tl_area, lm->texel_area, (size_t)T * sizeof(float));
       tl_ok = texel_clusters_build(&c);
     }
     if (tl_ok && cache && !cache->ok)

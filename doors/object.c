@@ -251,9 +251,11 @@ static void hidden_first_order(job *j, uint32_t t, uint32_t nrays, ub_ray *rays,
   float pts[4][3];
   for (int k = 0; k < 4; k++) {
     float q[3];
-    if (!ub_lightmap_texel_point(s, lm, t, 0.25f + 0.5f * (float)(k & 1),
-                                 0.25f + 0.5f * (float)(k >> 1), q))
-      memcpy(q, lm->texel_pos + 3 * (size_t)t, sizeof q);
+    /* past the owning triangle (a chart's edge: maybe past any surface, in a wall),
+     * the texel's own sample point of that quadrant, which lies on one */
+    if (ub_lightmap_texel_point(s, lm, t, 0.25f + 0.5f * (float)(k & 1),
+                                0.25f + 0.5f * (float)(k >> 1), q) != 1)
+      memcpy(q, lm->sample_pos + ((size_t)t * UB_TEXEL_SAMPLES + (size_t)k) * 3, sizeof q);
     ub_rt_offset_point(j->rt_h, q, nrm, pts[k]);
   }
   for (uint32_t l = 0; l < s->light_count; l++) {

@@ -619,6 +619,69 @@ static int fix_chunk(int *oom, int64_t chunk, uint32_t count, uint32_t *t0, uint
   return 1;
 }
 
+/* Clips the convex polygon in[0..n) (x, y pairs) to the half plane where coordinate
+ * `axis` is ≥ v (keep_ge) or ≤ v; returns the vertex count written to out (≤ n + 1). */
+static int clip_half(const double *in, int n, double *out, int axis, double v, int keep_ge)
+{
+  int m = 0;
+  for (int i = 0; i < n; i++) {
+    const double *a = in + 2 * i, *b = in + 2 * ((i + 1) % n);
+    int ia = keep_ge ? a[axis] >= v : a[axis] <= v, ib = keep_ge ? b[axis] >= v : b[axis] <= v;
+    if (ia) {
+      out[2 * m] = a[0];
+      out[2 * m + 1] = a[1];
+      m++;
+    }
+    if (ia != ib) {
+      double f = (v - a[axis]) / (b[axis] - a[axis]);
+      out[2 * m] = a[0] + f * (b[0] - a[0]);
+      out[2 * m + 1] = a[1] + f * (b[1] - a[1]);
+      m++;
+    }
+  }
+  return m;
+}
+
+/* texel_area: the world area of the surface whose lightmap UV falls in each texel's
+ * pixel, i.e. what a gather ray hitting the surface reads as that texel (hit_pixel). At a
+ * chart's edge a conservatively rasterised texel covers part of its square only; the
+ * texel-light strategy's density is per unit of this area, and with the square's area it
+ * read an edge texel up to twice as bright as the gathers do. Each triangle is clipped to
+ * every pixel of its box; its world/UV area ratio turns the clipped UV area into metres. */
+static void texel_areas(const lm_ctx *c, const lm_rtri *rtri, ub_lightmap *lm)
+{
+  memset(lm->texel_area, 0, (size_t)lm->texel_count * sizeof *lm->texel_area);
+  const ub_scene *s = c->scene;
+  for (uint32_t t = 0; t < s->triangle_count; t++) {
+    int32_t a = lm->tri_atlas[t];
+    const lm_rtri *r = &rtri[t];
+    if (a < 0 || r->inv_det == 0.0 || !(c->tri_area[t] > 0.0))
+      continue;
+    const ub_atlas *at = &lm->atlases[a];
+    double ratio = c->tri_area[t] * fabs(r->inv_det) * 2.0; /* m² per texel² */
+    int64_t x0, x1, y0, y1;
+    tri_texel_bbox(r, at->width, at->height, &x0, &x1, &y0, &y1);
+    for (int64_t y = y0; y <= y1; y++)
+      for (int64_t x = x0; x <= x1; x++) {
+        int32_t ti = at->texel_of[(size_t)y * at->width + (size_t)x];
+        if (ti < 0)
+          continue;
+        double p[14], q[14]; /* a triangle clipped by 4 half planes: ≤ 7 vertices */
+        memcpy(p, r->tx, sizeof r->tx);
+        int n = clip_half(p, 3, q, 0, (double)x, 1);
+        n = clip_half(q, n, p, 0, (double)x + 1.0, 0);
+        n = clip_half(p, n, q, 1, (double)y, 1);
+        n = clip_half(q, n, p, 1, (double)y + 1.0, 0);
+        double a2 = 0.0;
+        for (int i = 0; i < n; i++) {
+          const double *u = p + 2 * i, *v = p + 2 * ((i + 1) % n);
+          a2 += u[0] * v[1] - v[0] * u[1];
+        }
+        lm->texel_area[ti] += (float)(0.5 * fabs(a2) * ratio);
+      }
+  }
+}
+
 static uint64_t fix_samples(const lm_ctx *c, const lm_rtri *rtri, lm_out *o)
 {
   ub_lightmap *lm = o->lm;
@@ -977,6 +1040,7 @@ void ub_lightmap_free(ub_lightmap *lm)
   free(lm->texel_pos);
   free(lm->texel_normal);
   free(lm->sample_pos);
+  free(lm->texel_area);
   free(lm);
 }
 
@@ -989,8 +1053,9 @@ static int alloc_texels(ub_lightmap *lm)
   lm->texel_pos = malloc(n * 3 * sizeof *lm->texel_pos);
   lm->texel_normal = malloc(n * 3 * sizeof *lm->texel_normal);
   lm->sample_pos = malloc(n * UB_TEXEL_SAMPLES * 3 * sizeof *lm->sample_pos);
+  lm->texel_area = malloc(n * sizeof *lm->texel_area);
   return lm->texel_atlas && lm->texel_xy && lm->texel_tri && lm->texel_pos &&
-         lm->texel_normal && lm->sample_pos;
+         lm->texel_normal && lm->sample_pos && lm->texel_area;
 }
 
 ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float default_texel_size,
@@ -1299,6 +1364,7 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
     for (int64_t tile = 0; tile < ntiles; tile++)
       texel_tile(&c, &aw[a], rtri, a, &lm->atlases[a], (uint32_t)tile, &out);
   }
+  texel_areas(&c, rtri, lm);
   double t_raster = now_seconds();
 
   /* 5. back-face fix and normal offsets */

@@ -46,6 +46,9 @@ typedef struct ub_lightmap {
   float *texel_normal;      /* texel_count × 3: unit shading normal */
   float *sample_pos;        /* texel_count × UB_TEXEL_SAMPLES × 3: sample points, world,
                                already off back faces; unused slots repeat earlier ones */
+  float *texel_area;        /* texel_count: world area (m²) of the surface whose lightmap UV
+                               falls in the texel's pixel, what a ray hitting it reads as this
+                               texel; less than the square's at a chart's edge */
   uint32_t backface_fixes;  /* sample points moved off a back face */
   uint32_t overlap_texels;  /* texels claimed by triangles of different planes (warned) */
   uint32_t separated_links; /* neighbour pairs separated by geometry (atlas link bits set) */
@@ -120,7 +123,9 @@ void ub_lightmap_sparse_free(ub_lightmap_sparse *sp);
 
 /* World point of texel t at (fx, fy) ∈ [0,1]² of its footprint, on its owning triangle's
  * plane (affine UV → world map; points past the triangle's edges stay in its plane).
- * 0 (out unspecified) for a degenerate UV triangle or a non-finite result. */
+ * Returns 1 for a point on the triangle, 2 for one past its edges (maybe past the
+ * chart's, off any surface: at a chart's edge part of the square lies beyond it), 0 (out
+ * unspecified) for a degenerate UV triangle or a non-finite result. */
 int ub_lightmap_texel_point(const ub_scene *s, const ub_lightmap *lm, uint32_t t, float fx,
                             float fy, float out[3]);
 

@@ -55,7 +55,10 @@ int ub_lightmap_texel_point(const ub_scene *s, const ub_lightmap *lm, uint32_t t
   const float *p2 = s->positions + 3 * s->indices[3 * tri + 2];
   for (int k = 0; k < 3; k++)
     out[k] = p0[k] + b1 * (p1[k] - p0[k]) + b2 * (p2[k] - p0[k]);
-  return isfinite(out[0]) && isfinite(out[1]) && isfinite(out[2]);
+  if (!(isfinite(out[0]) && isfinite(out[1]) && isfinite(out[2])))
+    return 0;
+  const float tol = -1e-5f;
+  return b1 >= tol && b2 >= tol && 1.0f - b1 - b2 >= tol ? 1 : 2;
 }
 
 int ub_lightmap_image_fill(const ub_lightmap *lm, uint32_t atlas, const float *izf,

@@ -16,7 +16,9 @@
  *    `ubake_receiver: none` (the black leaf of UberBake §4.1, the bake before S_C).
  *    Closed and open vs reference (leaf closed / open pose): the new bake within tolerance
  *    everywhere; the black leaf's closed error summed over room A ≥ 2× the new one and
- *    outside tolerance next to the leaf. Both printed.
+ *    outside tolerance next to the leaf. Both printed. Door open: room A's summed error
+ *    also within 3 s.e. + 2% of the reference per point (the door pass's light that goes
+ *    into room B and comes back).
  * 2. Combination: DLS lamp_b in room B, the door tagged `ubake_combine: lamp_b`. The file
  *    has one COMBO record (parents lamp_b, the door), the report lists the combination as
  *    baked; door open + lamp_b on within tolerance, and the same file without the COMBO
@@ -198,7 +200,7 @@ static void test_leaf_bounce(void)
     double leak = refs(s, open, 1.0f, e, se);
     set_state(rn, (float)open, 1.0f);
     set_state(ro, (float)open, 1.0f);
-    double sum_new = 0.0, sum_old = 0.0;
+    double sum_new = 0.0, sum_old = 0.0, sum_ref = 0.0, sum_se = 0.0;
     int near_old_out = 0;
     printf("S_C, door %s (leak floor %.4f W/m²):\n", open ? "open" : "closed", leak);
     for (int i = 0; i < NPTS; i++) {
@@ -212,11 +214,22 @@ static void test_leaf_bounce(void)
       if (g_pts[i].p[0] < 0) {
         sum_new += fabs(qn - e[i]);
         sum_old += fabs(qo - e[i]);
+        sum_ref += e[i];
+        sum_se += se[i];
       }
       if (i == 0)
         near_old_out = !oko;
     }
     printf("  room A summed |error|: new %.4f, black leaf %.4f W/m²\n", sum_new, sum_old);
+    /* Door open: room A as a whole within 3 s.e. + 2% per point on average. The door pass
+     * once left out the light that crosses the doorway into room B and comes back (0.0 for
+     * rays through the doorway at every bounce) and the open leaf's own direct light:
+     * 2.78 W/m² here, against 1.98 since (bound 2.47). */
+    if (open) {
+      printf("  room A door open: summed |error| %.4f W/m², bound %.4f\n", sum_new,
+             3.0 * sum_se + 0.02 * sum_ref);
+      ASSERT_TRUE(sum_new <= 3.0 * sum_se + 0.02 * sum_ref);
+    }
     if (!open) {
       ASSERT_TRUE(sum_old >= 2.0 * sum_new);
       ASSERT_TRUE(near_old_out);
