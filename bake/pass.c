@@ -99,7 +99,8 @@ typedef struct pass_ctx {
    * block, zero when it faces away from every point of the block (the sunlit roof above a
    * room) — then a texel of it in proportion to power. */
   float *tl_rad;              /* texel × 3: outgoing radiance albedo/π·E of the previous bounce */
-  float *tl_area;             /* texel: world area (m²) */
+  float *tl_area;             /* texel: its square's world area (m²): its power, the near
+                                 field; the strategy's density is per lm->texel_area */
   float *tl_pc;               /* texel: probability of the texel within its cluster */
   uint32_t *tl_of;            /* texel → cluster, UINT32_MAX: none (no area) */
   uint32_t *tl_start;         /* cluster → first entry of tl_list; tl_K + 1 entries */
@@ -559,7 +560,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
          * fixed sample points: a quadrature, the same for every seed. The strata stand
          * only when every one kept its sample. */
         int all = nacc == nk;
-        sr->grp_n = near && !sr->primary ? nacc : 0;
+        sr->grp_n = near && fp && !sr->primary ? nacc : 0;
         sr->grp_k = k;
         sr->grp_kx = (uint8_t)(all ? nside : 0);
         sr->grp_first = (uint8_t)first;
@@ -797,7 +798,7 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
       if (cs <= 1e-4f || ce <= 0.0f)
         continue;
       double p_t = (double)(cdf[cl] - (cl ? cdf[cl - 1] : 0.0f)) * c->tl_pc[t];
-      double pdf_sa = p_t / c->tl_area[t] * d2 / ce;
+      double pdf_sa = p_t / lm->texel_area[t] * d2 / ce;
       double denom = M * pdf_sa + N * gather_pdf(nrm, w);
       shadow_rec *sr = &rec[n];
       sr->recv = i;
@@ -915,7 +916,7 @@ static int texel_clusters_build(pass_ctx *c)
     /* the texel's square in its plane (a texel size, with a margin), cut to its
      * triangle's box. The boxes only steer sampling: a texel left out of a block's table
      * is still found by the gather rays, at full weight (its pdf there is 0). */
-    float r = 0.75f * sqrtf(c->tl_area[t]);
+    float r = 0.75f * texel_world_size(c, t);
     const ub_scene *s = c->s;
     const float *v0 = s->positions + 3 * (size_t)s->indices[3 * (size_t)lm->texel_tri[t]];
     const float *v1 = s->positions + 3 * (size_t)s->indices[3 * (size_t)lm->texel_tri[t] + 1];
@@ -1573,7 +1574,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
                 double p_t = k == UINT32_MAX ? 0.0
                                              : (double)(tl_cdf[k] - (k ? tl_cdf[k - 1] : 0.0f)) *
                                                    c->tl_pc[t];
-                double pdf_sa = p_t / c->tl_area[t] * h->t * h->t / ce;
+                double pdf_sa = p_t / c->lm->texel_area[t] * h->t * h->t / ce;
                 wt = 1.0 / (c->tl_samples * pdf_sa + N * pdf);
                 memcpy(L, c->tl_rad + 3 * (size_t)t, sizeof L);
                 tl_hit = 1;
@@ -2162,9 +2163,10 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     c.tl_area = malloc(((size_t)T + 1) * sizeof(float));
     tl_ok = c.tl_area != NULL;
     if (c.tl_area) {
-      /* the area a gather hit reads as the texel (ub_lightmap.texel_area), not the
-       * square's: the strategy's density must be per unit of what the gathers see */
-      memcpy(c.tl_area, lm->texel_area, (size_t)T * sizeof(float));
+      for (uint32_t t = 0; t < T; t++) {
+        float w = texel_world_size(&c, t);
+        c.tl_area[t] = w * w;
+      }
       tl_ok = texel_clusters_build(&c);
     }
     if (tl_ok && cache && !cache->ok)

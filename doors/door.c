@@ -47,7 +47,7 @@ typedef struct door_ctx {
   float **img;               /* per atlas: w×h×4, base stored irradiance + coverage */
   ub_obb portal;
   ub_guide guide;
-  ub_guide cosine;           /* cosine/sphere only: further bounces (crossing rays add 0) */
+  ub_guide cosine;           /* cosine/sphere only: further bounces */
   uint32_t nbox;
   ub_obb box[UB_DOOR_MAX_BOXES]; /* photon boxes inflated by UB_DOOR_BOX_MARGIN */
   uint8_t *box_lights;       /* nbox × light_count */
@@ -127,6 +127,14 @@ static int light_through(const door_ctx *c, const ub_light *L, const float p[3],
   return 1;
 }
 
+/* Whether beyond_radiance already takes light l's direct light at a hit (stored: the hit
+ * has a lightmap): primary lights everywhere, every portal light where nothing is stored.
+ * The door's light at such a hit must then leave it out. */
+static int beyond_counts(const door_ctx *c, uint32_t l, int stored)
+{
+  return c->portal_lights[l] && (!stored || c->s->lights[l].cls == UB_LIGHT_PRIMARY);
+}
+
 /* Outgoing radiance toward the ray at an open-geometry hit beyond the door (or the sky on a
  * miss): the base's stored lighting + primary direct light + emission. A surface without a
  * lightmap (the open leaf itself, a prop) has no stored lighting: it takes the direct light
@@ -158,7 +166,7 @@ static void beyond_radiance(const door_ctx *c, const float x[3], const float w[3
   float p[3] = {x[0] + w[0] * h->t, x[1] + w[1] * h->t, x[2] + w[2] * h->t}, po[3];
   ub_rt_offset_point(c->rt_open, p, n, po);
   for (uint32_t l = 0; l < s->light_count; l++) {
-    if (!c->portal_lights[l] || (stored && s->lights[l].cls != UB_LIGHT_PRIMARY))
+    if (!beyond_counts(c, l, stored))
       continue;
     float e[3], dir[3];
     if (light_through(c, &s->lights[l], po, n, 0, e, dir))
@@ -230,9 +238,11 @@ static int crossing_delta(const door_ctx *c, const float x[3], const float w[3],
 
 /* E_P(D): irradiance at surface point p (normal n, facing the arriving ray) from light that
  * crosses the door: punctual lights of the box p is in (else of the portal list) and one
- * portal sample of what lies beyond. */
+ * portal sample of what lies beyond. beyond ≥ 0: p is a crossing ray's hit beyond the door
+ * (1: with a lightmap), whose direct light beyond_radiance took: those lights are left
+ * out here; -1: all count. */
 static void door_irradiance(const door_ctx *c, const float p[3], const float n[3],
-                            uint32_t rid, uint32_t smp, float out[3])
+                            uint32_t rid, uint32_t smp, int beyond, float out[3])
 {
   const ub_scene *s = c->s;
   float po[3];
@@ -252,7 +262,7 @@ static void door_irradiance(const door_ctx *c, const float p[3], const float n[3
       for (uint32_t j = 0; j < c->nbox && !on; j++)
         on = c->box_lights[(size_t)j * s->light_count + l] && ub_obb_contains(&c->box[j], p);
     }
-    if (!on)
+    if (!on || (beyond >= 0 && beyond_counts(c, l, beyond)))
       continue;
     float e[3], dir[3];
     if (light_through(c, &s->lights[l], po, n, 1, e, dir))
@@ -305,11 +315,12 @@ static void receiver_estimate(const door_ctx *c, const float *origins, uint32_t 
     float L[3] = {0, 0, 0}, Lb[3] = {0, 0, 0};
     int bounced = 0;
     /* (a) through the door, minus the closed leaf's bounce S_C */
-    crossing_delta(c, x, w, &h, L);
+    int crossing = crossing_delta(c, x, w, &h, L);
     if (h.tri != UB_RT_MISS) {
       /* (b) one bounce of the door's light at the hit: on this side, or beyond the door
        * (the open door lets the light that crossed it out again: lamp A → through the door
-       * → a wall of room B → back through the door to room A) */
+       * → a wall of room B → back through the door to room A), there without the direct
+       * light (a) took already (beyond_counts) */
       const float *alb = s->materials[s->tri_material[h.tri]].albedo;
       if (alb[0] + alb[1] + alb[2] > 0.0f) {
         float nd[3], p[3], E[3];
@@ -317,7 +328,8 @@ static void receiver_estimate(const door_ctx *c, const float *origins, uint32_t 
         hit_normal(&h, w, nd, &front);
         for (int k = 0; k < 3; k++)
           p[k] = x[k] + w[k] * h.t;
-        door_irradiance(c, p, nd, rid, smp, E);
+        door_irradiance(c, p, nd, rid, smp,
+                        crossing ? c->lm->tri_atlas[h.tri] >= 0 : -1, E);
         bounced = 1;
         for (int k = 0; k < 3; k++) {
           Lb[k] = alb[k] / (float)M_PI * E[k];
@@ -561,8 +573,7 @@ static void run_probes(const door_ctx *c, const float *pos, uint32_t id_base,
  * prev, the images of the kept texels' previous bounce; other texels count as 0), rays
  * through the doorway too: with the door open they reach the far room's surfaces, which
  * hold door light of their own (before, they added 0 and a lit room read low with its
- * door open: door_rooms' summed error at high quality 0.93 → 0.58 W/m² with the first
- * bounce's crossing rays below). Adds to sh (nsh × 3) and iz. */
+ * door open). Adds to sh (nsh × 3) and iz. */
 static void bounce_estimate(const door_ctx *c, float *const *prev, const float *origins,
                             uint32_t norg, const float *n, uint32_t rid, uint32_t N,
                             uint32_t nsh, double *sh, double iz[3])

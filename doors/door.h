@@ -15,9 +15,11 @@
  *   emission at the leaf hit].
  * At each receiver x:
  *  (a) through the door, L_x D* P R (and −S_C's first bounce): gather rays that cross;
- *  (b) one bounce inside, L_x P D R: gather rays that do not cross and hit D take albedo/π
- *      × E(D), E = light at D that crosses the door: punctual lights (shadow ray crosses
- *      the leaf, open geometry clear) + one portal sample of beyond − leaf;
+ *  (b) one bounce, L_x P D R: gather rays that hit D take albedo/π × E(D), E = light at D
+ *      that crosses the door: punctual lights (shadow ray crosses the leaf, open geometry
+ *      clear) + one portal sample of beyond − leaf. D beyond the door (a crossing ray,
+ *      with (a) as well) is light that crossed and comes back; its punctual lights that
+ *      (a) took already are left out;
  *  (c) static punctual lights at x whose shadow ray crosses the door (primary lights'
  *      direct light is the game's);
  *  then further receiver-side bounces (series expansion over the kept texels).
@@ -27,10 +29,12 @@
  * through the door), one-sample MIS with the balance heuristic. Records are signed.
  * Receivers: texels (not the door's own leaf: it keeps its closed lighting), GLG probes
  * and LLG probes (rays against the level without LLG models, door open, as the LLG pass).
- * Not simulated: the shadow the open leaf casts on paths that never cross the doorway,
- * light the receiver side sends back out through the door, the leaf's far-side bounce in
- * the stored light beyond (gone when open), stored base light on geometry without a
- * lightmap (LLG models, the open leaf): there only primary direct light and emission.
+ * Not simulated: the shadow the open leaf casts on paths that never cross the doorway, the
+ * leaf's far-side bounce in the stored light beyond (gone when open), stored base light on
+ * geometry without a lightmap (LLG models, the open leaf): there only the direct light of
+ * the lights that reach the portal, and emission. Since 2026-11-27 further bounces read
+ * rays through the doorway too (they added 0: light that crosses into the far room and
+ * comes back was missing).
  *
  * Influence region: a cheap version of the pass (influence_rays, one shadow sample) over
  * every receiver; one is kept when |luminance| exceeds UB_DOOR_INFLUENCE_FRACTION × the

@@ -94,7 +94,9 @@ static void closest_bary(const lm_rtri *r, double qx, double qy, double l[3])
 /* Area of the triangle ∩ the unit texel square at (x, y), Sutherland–Hodgman. */
 static double clip_area(const double *tx, double x0, double y0)
 {
-  double a[16], b[16];
+  /* a triangle cut by 4 lines has ≤ 7 corners; rounding can add a near-duplicate per cut
+   * (a review built 8 from corners an ulp off the pixel's lines), so room for 16 */
+  double a[32], b[32];
   int n = 3;
   memcpy(a, tx, 6 * sizeof *a);
   const double bounds[4] = {x0, x0 + 1.0, y0, y0 + 1.0};
@@ -107,12 +109,12 @@ static double clip_area(const double *tx, double x0, double y0)
       const double *p = a + 2 * i, *q = a + 2 * ((i + 1) % n);
       double dp = keep_greater ? p[axis] - lim : lim - p[axis];
       double dq = keep_greater ? q[axis] - lim : lim - q[axis];
-      if (dp >= 0.0) {
+      if (dp >= 0.0 && m < 16) {
         b[2 * m] = p[0];
         b[2 * m + 1] = p[1];
         m++;
       }
-      if ((dp >= 0.0) != (dq >= 0.0)) {
+      if ((dp >= 0.0) != (dq >= 0.0) && m < 16) {
         double t = dp / (dp - dq);
         b[2 * m] = p[0] + t * (q[0] - p[0]);
         b[2 * m + 1] = p[1] + t * (q[1] - p[1]);
@@ -619,35 +621,12 @@ static int fix_chunk(int *oom, int64_t chunk, uint32_t count, uint32_t *t0, uint
   return 1;
 }
 
-/* Clips the convex polygon in[0..n) (x, y pairs) to the half plane where coordinate
- * `axis` is ≥ v (keep_ge) or ≤ v; returns the vertex count written to out (≤ n + 1). */
-static int clip_half(const double *in, int n, double *out, int axis, double v, int keep_ge)
-{
-  int m = 0;
-  for (int i = 0; i < n; i++) {
-    const double *a = in + 2 * i, *b = in + 2 * ((i + 1) % n);
-    int ia = keep_ge ? a[axis] >= v : a[axis] <= v, ib = keep_ge ? b[axis] >= v : b[axis] <= v;
-    if (ia) {
-      out[2 * m] = a[0];
-      out[2 * m + 1] = a[1];
-      m++;
-    }
-    if (ia != ib) {
-      double f = (v - a[axis]) / (b[axis] - a[axis]);
-      out[2 * m] = a[0] + f * (b[0] - a[0]);
-      out[2 * m + 1] = a[1] + f * (b[1] - a[1]);
-      m++;
-    }
-  }
-  return m;
-}
-
 /* texel_area: the world area of the surface whose lightmap UV falls in each texel's
  * pixel, i.e. what a gather ray hitting the surface reads as that texel (hit_pixel). At a
  * chart's edge a conservatively rasterised texel covers part of its square only; the
  * texel-light strategy's density is per unit of this area, and with the square's area it
  * read an edge texel up to twice as bright as the gathers do. Each triangle is clipped to
- * every pixel of its box; its world/UV area ratio turns the clipped UV area into metres. */
+ * every pixel of its box (clip_area); its world/UV area ratio turns that into metres. */
 static void texel_areas(const lm_ctx *c, const lm_rtri *rtri, ub_lightmap *lm)
 {
   memset(lm->texel_area, 0, (size_t)lm->texel_count * sizeof *lm->texel_area);
@@ -666,18 +645,7 @@ static void texel_areas(const lm_ctx *c, const lm_rtri *rtri, ub_lightmap *lm)
         int32_t ti = at->texel_of[(size_t)y * at->width + (size_t)x];
         if (ti < 0)
           continue;
-        double p[14], q[14]; /* a triangle clipped by 4 half planes: ≤ 7 vertices */
-        memcpy(p, r->tx, sizeof r->tx);
-        int n = clip_half(p, 3, q, 0, (double)x, 1);
-        n = clip_half(q, n, p, 0, (double)x + 1.0, 0);
-        n = clip_half(p, n, q, 1, (double)y, 1);
-        n = clip_half(q, n, p, 1, (double)y + 1.0, 0);
-        double a2 = 0.0;
-        for (int i = 0; i < n; i++) {
-          const double *u = p + 2 * i, *v = p + 2 * ((i + 1) % n);
-          a2 += u[0] * v[1] - v[0] * u[1];
-        }
-        lm->texel_area[ti] += (float)(0.5 * fabs(a2) * ratio);
+        lm->texel_area[ti] += (float)(clip_area(r->tx, (double)x, (double)y) * ratio);
       }
   }
 }

@@ -224,7 +224,7 @@ static void test_leaf_bounce(void)
     /* Door open: room A as a whole within 3 s.e. + 2% per point on average. The door pass
      * once left out the light that crosses the doorway into room B and comes back (0.0 for
      * rays through the doorway at every bounce) and the open leaf's own direct light:
-     * 2.78 W/m² here, against 1.98 since (bound 2.47). */
+     * 2.78 W/m² here, against 1.73 since (bound 2.47). */
     if (open) {
       printf("  room A door open: summed |error| %.4f W/m², bound %.4f\n", sum_new,
              3.0 * sum_se + 0.02 * sum_ref);
