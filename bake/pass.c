@@ -742,6 +742,55 @@ static inline double dot_bound(const float nlo[3], const float nhi[3], const dou
   return m;
 }
 
+/* Receivers per round of tl_pick_round: their texel-light picks' lines (~6 each, M picks a
+ * receiver) stay in L1/L2 until texel_light_block reads them. */
+#define UB_TL_PICK_RECV 16
+
+/* A texel-light sample's texel and cluster (t = UINT32_MAX: an empty cluster) and which of
+ * the texel's sample points it starts from. */
+typedef struct tl_pick {
+  uint32_t cl, t, sp;
+} tl_pick;
+
+/* The picks of receivers i0 .. i1-1 of a block (out[(i - i0) · M + k]), with the draws
+ * texel_light_block made inline before (same hashes, same order), and their texels' data
+ * asked of the memory system: each pick is a chain of random reads (cluster table, texel
+ * list, then the texel's sample point, area, normal, radiance) that stalled the sample
+ * loop on every sample (es25 DLS: the sample point's load was the hottest instruction of
+ * the bounce kernels after the gather's); a round of independent picks overlaps them. */
+static void tl_pick_round(const pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t i0,
+                          uint32_t i1, const float *const *tl, uint32_t hk, tl_pick *out)
+{
+  const ub_lightmap *lm = c->lm;
+  uint32_t M = c->tl_samples, K = c->tl_K;
+  for (uint32_t i = i0; i < i1; i++) {
+    uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
+    const float *cdf = tl[tl_group(rs->normal ? rs->normal + 3 * (size_t)r : NULL)];
+    uint32_t hr = ub_hash_mix(hk, rs->id_base + r);
+    for (uint32_t k = 0; cdf && k < M; k++) {
+      tl_pick *o = &out[(size_t)(i - i0) * M + k];
+      uint32_t h = ub_hash_mix(hr, k);
+      uint32_t cl = ub_cdf_pick(cdf, K, ub_u01(h));
+      uint32_t b0 = c->tl_start[cl], b1 = c->tl_start[cl + 1];
+      o->cl = cl;
+      o->t = UINT32_MAX;
+      if (b1 <= b0)
+        continue;
+      uint32_t t = c->tl_list[b0 + ub_cdf_pick(c->tl_ccdf + b0, b1 - b0,
+                                               ub_u01(ub_hash4(h, 3, 0, 0)))];
+      o->t = t;
+      o->sp = ub_hash4(h, 1, 0, 0) % UB_TEXEL_SAMPLES;
+      const float *qo = lm->sample_pos + ((size_t)t * UB_TEXEL_SAMPLES + o->sp) * 3;
+      __builtin_prefetch(qo);
+      __builtin_prefetch(qo + 2); /* the point may straddle two lines */
+      __builtin_prefetch(&c->tl_area[t]);
+      __builtin_prefetch(lm->texel_normal + 3 * (size_t)t);
+      __builtin_prefetch(&c->tl_pc[t]);
+      __builtin_prefetch(c->tl_rad + 3 * (size_t)t);
+    }
+  }
+}
+
 /* Bounces ≥ 1: samples toward the previous bounce's texels as area lights (see tl_*);
  * tl: the block's cluster tables per receiver group (tl_block_table), NULL where off. */
 static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr,
@@ -749,7 +798,7 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
 {
   const ub_pass_desc *d = c->d;
   const ub_lightmap *lm = c->lm;
-  uint32_t M = c->tl_samples, K = c->tl_K;
+  uint32_t M = c->tl_samples;
   size_t cap = (size_t)M * nr;
   ub_ray *rays;
   shadow_rec *rec;
@@ -759,22 +808,30 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
   size_t n = 0;
   uint32_t hk = ub_hash_mix(ub_hash_mix(UB_HASH_SEED, c->seed),
                             d->pass_id * 0x10000u + 0x1000u + c->bounce);
+  tl_pick *pk = malloc((size_t)UB_TL_PICK_RECV * M * sizeof *pk);
+  if (!pk) {
+    atomic_store(&c->cancelled, 2);
+    free(rays);
+    free(rec);
+    free(occ);
+    return;
+  }
   for (uint32_t i = 0; i < nr; i++) {
+    if (i % UB_TL_PICK_RECV == 0)
+      tl_pick_round(c, rs, r0, i, nr - i < UB_TL_PICK_RECV ? nr : i + UB_TL_PICK_RECV, tl, hk,
+                    pk);
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
     const float *cdf = tl[tl_group(nrm)];
     uint32_t N = recv_rays(c->bounce, rs, r); /* the gather's rays, for the MIS weight */
     int first = 1;
-    uint32_t hr = ub_hash_mix(hk, rs->id_base + r); /* ub_hash4(seed, key, id, k) below */
+    uint32_t hr = ub_hash_mix(hk, rs->id_base + r); /* the picks' too (tl_pick_round) */
     uint32_t po = rs->spr > 1 ? ub_hash4(hr, 13, 0, 0) % rs->spr : 0;
     for (uint32_t k = 0; cdf && k < M; k++) {
-      uint32_t h = ub_hash_mix(hr, k);
-      uint32_t cl = ub_cdf_pick(cdf, K, ub_u01(h));
-      uint32_t b0 = c->tl_start[cl], b1 = c->tl_start[cl + 1];
-      if (b1 <= b0)
+      const tl_pick *pq = &pk[(size_t)(i % UB_TL_PICK_RECV) * M + k];
+      uint32_t cl = pq->cl, t = pq->t;
+      if (t == UINT32_MAX)
         continue;
-      uint32_t t = c->tl_list[b0 + ub_cdf_pick(c->tl_ccdf + b0, b1 - b0,
-                                               ub_u01(ub_hash4(h, 3, 0, 0)))];
       if (!(c->tl_area[t] > 0.0f))
         continue;
       /* One of the texel's sample points (already off the surface): the points its value
@@ -782,8 +839,7 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
        * could lie past a wall standing on it (a sunlit floor texel under a closed door
        * leaf would light the dark room behind it). */
       const float *tn = lm->texel_normal + 3 * (size_t)t;
-      const float *qo = lm->sample_pos +
-                        ((size_t)t * UB_TEXEL_SAMPLES + ub_hash4(h, 1, 0, 0) % UB_TEXEL_SAMPLES) * 3;
+      const float *qo = lm->sample_pos + ((size_t)t * UB_TEXEL_SAMPLES + pq->sp) * 3;
       /* the receiver's sample points in turn from a random one: with fewer samples than
        * points (ray shifts) k mod spr would use the first points only */
       const float *p = rs->samples + ((size_t)r * rs->spr + (k + po) % rs->spr) * 3;
@@ -824,6 +880,7 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
       n++;
     }
   }
+  free(pk);
   shadow_flush(c, rs, r0, rays, rec, occ, n);
 }
 
@@ -1241,45 +1298,64 @@ typedef struct hit_texel {
   int32_t t;   /* the texel at px, -1: none */
 } hit_texel;
 
+/* Hits per round of hit_texels: enough texel_of misses in flight to hide their latency,
+ * few enough that the prefetched lines are still in L1 when read. */
+#define UB_HX_CHUNK 64
+
 /* Fills out[q] for each ray q of a block, in the hits' order (hits[j] is ray order[j]'s):
- * reading the hits in ray order was a cache miss per hit. */
+ * reading the hits in ray order was a cache miss per hit. The texel under a hit is a read
+ * at a random atlas pixel, a cache miss per hit that stalled each iteration (perf of the
+ * es25 DLS stage: the hottest instruction of gather_block); a round of hits first works
+ * out the pixels and asks for them, then reads them. */
 static void hit_texels(const pass_ctx *c, const ub_hit *hits, const uint32_t *order, size_t n,
                        hit_texel *out)
 {
   const ub_lightmap *lm = c->lm;
-  for (size_t j = 0; j < n; j++) {
-    const ub_hit *h = &hits[j];
-    hit_texel *o = &out[order[j]];
-    o->a = o->t = -1;
-    if (h->tri == UB_RT_MISS)
-      continue;
-    int32_t a = lm->tri_atlas[h->tri];
-    if (a < 0)
-      continue;
-    const ub_atlas *at = &lm->atlases[a];
-    float uv[2];
-    size_t px = hit_pixel(lm, at, h, uv);
-    o->u = uv[0];
-    o->v = uv[1];
-    o->px = (uint32_t)px; /* atlases are at most UB_ATLAS_MAX_SIZE² pixels */
-    o->a = a;
-    o->t = at->texel_of[px];
+  for (size_t j0 = 0; j0 < n; j0 += UB_HX_CHUNK) {
+    size_t j1 = n - j0 < UB_HX_CHUNK ? n : j0 + UB_HX_CHUNK, m = 0;
+    const int32_t *from[UB_HX_CHUNK];
+    hit_texel *to[UB_HX_CHUNK];
+    for (size_t j = j0; j < j1; j++) {
+      const ub_hit *h = &hits[j];
+      hit_texel *o = &out[order[j]];
+      o->a = o->t = -1;
+      if (h->tri == UB_RT_MISS)
+        continue;
+      int32_t a = lm->tri_atlas[h->tri];
+      if (a < 0)
+        continue;
+      const ub_atlas *at = &lm->atlases[a];
+      float uv[2];
+      size_t px = hit_pixel(lm, at, h, uv);
+      o->u = uv[0];
+      o->v = uv[1];
+      o->px = (uint32_t)px; /* atlases are at most UB_ATLAS_MAX_SIZE² pixels */
+      o->a = a;
+      from[m] = &at->texel_of[px];
+      __builtin_prefetch(from[m]);
+      to[m++] = o;
+    }
+    for (size_t k = 0; k < m; k++)
+      to[k]->t = *from[k];
   }
 }
 
-/* What the shading of a block's gather hits will read at random in level-sized arrays
- * (the lightmap image around the hit; with texel lights, the texel under it and its
- * tables), asked of the memory system for all hits first: the loop below then finds them
- * in cache instead of waiting out one dependent miss after another per hit (perf of the
- * full ESTATE bake: a third of the pass kernels' time). Reads nothing the results depend
- * on. */
-static void prefetch_hits(const pass_ctx *c, const hit_texel *hx, size_t n,
-                          const float *const *tl)
+/* What the shading of gather rays q0 .. q0+n-1 of a block will read at random (the hit;
+ * in level-sized arrays, the lightmap image around it and, with texel lights, the texel
+ * under it and its tables), asked of the memory system a round of rays ahead of the
+ * shading: it then finds them in cache instead of waiting out one dependent miss after
+ * another per hit (perf of the full ESTATE bake: a third of the pass kernels' time). All
+ * of a block's hits asked at once (~5 lines each, 16384 rays) no longer fit in L2 by the
+ * time the shading reached them (es25 DLS: tl_area and tl_of were still its hottest
+ * loads). Reads nothing the results depend on. */
+static void prefetch_hits(const pass_ctx *c, const ub_hit *hits, const uint32_t *sorted_of,
+                          const hit_texel *hx, size_t q0, size_t n, const float *const *tl)
 {
   int tl_any = 0;
   for (int g = 0; tl && g < UB_TL_GROUPS; g++)
     tl_any |= tl[g] != NULL;
-  for (size_t j = 0; j < n; j++) {
+  for (size_t j = q0; j < q0 + n; j++) {
+    __builtin_prefetch(&hits[sorted_of[j]]);
     if (hx[j].a < 0)
       continue;
     __builtin_prefetch(c->img[hx[j].a] + 4 * (size_t)hx[j].px);
@@ -1481,7 +1557,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     free(skip);
   }
   if (hx)
-    prefetch_hits(c, hx, n, tl);
+    prefetch_hits(c, hits, bucket, hx, 0, n < UB_HX_CHUNK ? n : UB_HX_CHUNK, tl);
 
   uint64_t backface = 0, unlit = 0, clamped = 0, misses = 0, sky_hits = 0, emitter_hits = 0;
   uint32_t ne = (d->emissive && d->emitters) ? d->emitters->count : 0;
@@ -1503,6 +1579,9 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     np = 0;
     for (uint32_t j = 0; j < N; j++) {
       size_t q = off[i] + j; /* the ray's index in the block */
+      if (hx && q % UB_HX_CHUNK == 0 && n - q > UB_HX_CHUNK)
+        prefetch_hits(c, hits, bucket, hx, q + UB_HX_CHUNK,
+                      n - q - UB_HX_CHUNK < UB_HX_CHUNK ? n - q - UB_HX_CHUNK : UB_HX_CHUNK, tl);
       const ub_ray *ray = &rays[q];
       const ub_hit *h = &hits[bucket[q]];
       float L[3] = {0, 0, 0};
