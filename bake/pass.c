@@ -784,6 +784,7 @@ static void tl_pick_round(const pass_ctx *c, const recv_set *rs, uint32_t r0, ui
       __builtin_prefetch(qo);
       __builtin_prefetch(qo + 2); /* the point may straddle two lines */
       __builtin_prefetch(&c->tl_area[t]);
+      __builtin_prefetch(&c->lm->texel_area[t]);
       __builtin_prefetch(lm->texel_normal + 3 * (size_t)t);
       __builtin_prefetch(&c->tl_pc[t]);
       __builtin_prefetch(c->tl_rad + 3 * (size_t)t);
@@ -1363,6 +1364,7 @@ static void prefetch_hits(const pass_ctx *c, const ub_hit *hits, const uint32_t 
       continue;
     size_t t = (size_t)hx[j].t;
     __builtin_prefetch(&c->tl_area[t]);
+    __builtin_prefetch(&c->lm->texel_area[t]);
     __builtin_prefetch(&c->tl_of[t]);
     if (c->tl_pc)
       __builtin_prefetch(&c->tl_pc[t]);
