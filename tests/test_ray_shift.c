@@ -19,52 +19,12 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "bake/geomstate.h"
-#include "bake/lights.h"
-#include "bake/pass.h"
+#include "pass_level.h"
 #include "test_util.h"
 #include "ubake/bake.h"
 #include "ubake/scene.h"
 
 static char g_build[512];
-
-typedef struct level {
-  ub_scene *s;
-  uint8_t *mask;
-  ub_rt *rt;
-  ub_lightmap *lm;
-  ub_emitters *em;
-} level;
-
-static void level_close(level *L)
-{
-  ub_emitters_free(L->em);
-  ub_lightmap_free(L->lm);
-  ub_rt_free(L->rt);
-  free(L->mask);
-  ub_scene_free(L->s);
-}
-
-/* 0 (and nothing held) when the level cannot be opened. */
-static int level_open(const char *name, level *L)
-{
-  char path[1024];
-  memset(L, 0, sizeof *L);
-  snprintf(path, sizeof path, "%s/levels/%s.gltf", g_build, name);
-  ASSERT_OK(ub_scene_load(path, NULL, &L->s));
-  if (!L->s)
-    return 0;
-  L->mask = ub_geom_mask(L->s, NULL);
-  ASSERT_OK(ub_rt_create(L->s, L->mask, NULL, &L->rt));
-  if (L->rt)
-    ASSERT_OK(ub_lightmap_build(L->s, L->rt, L->s->texel_size, NULL, &L->lm));
-  if (L->rt)
-    ASSERT_OK(ub_emitters_build(L->s, &L->em));
-  if (L->rt && L->lm)
-    return 1;
-  level_close(L);
-  return 0;
-}
 
 static void desc_init(const level *L, const uint8_t *en, ub_pass_desc *pd)
 {
@@ -85,7 +45,7 @@ static void desc_init(const level *L, const uint8_t *en, ub_pass_desc *pd)
 static void test_furnace(void)
 {
   level L;
-  if (!level_open("furnace", &L))
+  if (!level_open(g_build, "furnace", &L))
     return;
   uint32_t T = L.lm->texel_count;
   uint8_t *en = calloc(L.s->light_count + 1, 1);
@@ -166,7 +126,7 @@ static void compare(const char *what, const float *a, const float *sa, const flo
 static void test_cornell(void)
 {
   level L;
-  if (!level_open("cornell", &L))
+  if (!level_open(g_build, "cornell", &L))
     return;
   uint32_t T = L.lm->texel_count;
   ASSERT_TRUE(L.s->light_count > 0);
@@ -234,7 +194,7 @@ static void test_cornell(void)
 static void test_expectation(void)
 {
   level L;
-  if (!level_open("cornell", &L))
+  if (!level_open(g_build, "cornell", &L))
     return;
   enum { S = 96, P = 27 };
   uint32_t T = L.lm->texel_count;

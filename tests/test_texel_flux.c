@@ -20,53 +20,12 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "bake/geomstate.h"
-#include "bake/lights.h"
-#include "bake/pass.h"
+#include "pass_level.h"
 #include "test_util.h"
 #include "ubake/bake.h"
 #include "ubake/scene.h"
 
 static char g_build[512];
-
-typedef struct level {
-  ub_scene *s;
-  uint8_t *mask;
-  ub_rt *rt;
-  ub_lightmap *lm;
-  ub_emitters *em;
-} level;
-
-static void level_close(level *L)
-{
-  ub_emitters_free(L->em);
-  ub_lightmap_free(L->lm);
-  ub_rt_free(L->rt);
-  free(L->mask);
-  ub_scene_free(L->s);
-}
-
-/* 0 (and nothing held) when the level cannot be opened. */
-static int level_open(const char *name, level *L)
-{
-  char path[1024];
-  memset(L, 0, sizeof *L);
-  snprintf(path, sizeof path, "%s/levels/%s.gltf", g_build, name);
-  ASSERT_OK(ub_scene_load(path, NULL, &L->s));
-  if (!L->s)
-    return 0;
-  ASSERT_OK(ub_geom_prepare(L->s, NULL, NULL));
-  L->mask = ub_geom_mask(L->s, NULL);
-  ASSERT_OK(ub_rt_create(L->s, L->mask, NULL, &L->rt));
-  if (L->rt)
-    ASSERT_OK(ub_lightmap_build(L->s, L->rt, L->s->texel_size, NULL, &L->lm));
-  if (L->rt)
-    ASSERT_OK(ub_emitters_build(L->s, &L->em));
-  if (L->rt && L->lm && L->em)
-    return 1;
-  level_close(L);
-  return 0;
-}
 
 static double tri_area(const ub_scene *s, uint32_t t)
 {
@@ -86,7 +45,7 @@ static double tri_area(const ub_scene *s, uint32_t t)
 static void test_area(const char *name)
 {
   level L;
-  if (!level_open(name, &L))
+  if (!level_open(g_build, name, &L))
     return;
   const ub_scene *s = L.s;
   const ub_lightmap *lm = L.lm;
@@ -126,7 +85,7 @@ static void test_area(const char *name)
 static void test_flux(void)
 {
   level L;
-  if (!level_open("cornell", &L))
+  if (!level_open(g_build, "cornell", &L))
     return;
   const ub_scene *s = L.s;
   const ub_lightmap *lm = L.lm;
