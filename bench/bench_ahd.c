@@ -5,7 +5,8 @@
  * again and again) and streaming (1.6 M texels, the ESTATE-scale level's touched texels:
  * the rows, normals and AHD from and to memory), the latter against memcpy of the same bytes
  * in the same run; and the run-time's form, eight contiguous texels packed (ub_ahd_packed,
- * 16 B a texel). Prints figures, asserts nothing.
+ * 16 B a texel), eight at a time and sixteen (two groups interleaved,
+ * ub_ahd_encode_iz_packed_n). Prints figures, asserts nothing.
  *
  * usage: bench_ahd [--texels N] [--rounds R] */
 #include <stdint.h>
@@ -39,7 +40,7 @@ static void make_texels(size_t n, float *rows, float *nrm)
   }
 }
 
-typedef enum { MODE_SCALAR, MODE_IZ8, MODE_ROWS, MODE_PACKED, MODE_COUNT } mode;
+typedef enum { MODE_SCALAR, MODE_IZ8, MODE_ROWS, MODE_PACKED, MODE_PACKED_N, MODE_COUNT } mode;
 
 static ub_ahd_packed *g_packed; /* MODE_PACKED's output, as many texels as out */
 
@@ -49,6 +50,10 @@ static void encode_all(mode md, const float *rows, const float *nrm, ub_ahd *out
   if (md == MODE_SCALAR) {
     for (; i < n; i++)
       ub_ahd_encode_iz(rows + 12 * i, nrm + 3 * i, out + i);
+    return;
+  }
+  if (md == MODE_PACKED_N) { /* the run-time's call: 16 at a time, two groups side by side */
+    ub_ahd_encode_iz_packed_n(rows, nrm, 1.0f, g_packed, n);
     return;
   }
   for (; i + 8 <= n; i += 8) {
@@ -123,9 +128,10 @@ int main(int argc, char **argv)
   const char *names[MODE_COUNT] = {"scalar (ub_ahd_encode_iz)",
                                    "8 contiguous (ub_ahd_encode_iz8)",
                                    "8 scattered (ub_ahd_encode_iz8_rows)",
-                                   "8 contiguous packed (ub_ahd_encode_iz8_packed)"};
+                                   "8 contiguous packed (ub_ahd_encode_iz8_packed)",
+                                   "16 contiguous packed (ub_ahd_encode_iz_packed_n)"};
   /* bytes a texel moves: rows 48 + normal 12 read, AHD written (36 B, packed 16 B) */
-  const double tbytes[MODE_COUNT] = {96.0, 96.0, 96.0, 76.0};
+  const double tbytes[MODE_COUNT] = {96.0, 96.0, 96.0, 76.0, 76.0};
   const size_t small = 4096;
   double tsmall[MODE_COUNT], tbig[MODE_COUNT];
   for (int m = 0; m < MODE_COUNT; m++)
@@ -154,8 +160,9 @@ int main(int argc, char **argv)
     printf("%s%s %.2f ns/texel (%.2f GB/s)", m ? "; " : "", names[m], tbig[m] * 1e9,
            tbytes[m] / tbig[m] / 1e9);
   printf("\n  memcpy of the same bytes %.2f GB/s; 8 contiguous at %.0f%% of it, packed at "
-         "%.0f%%\n", cgbs, 100.0 * (96.0 / tbig[MODE_IZ8] / 1e9) / cgbs,
-         100.0 * (76.0 / tbig[MODE_PACKED] / 1e9) / cgbs);
+         "%.0f%%, 16 packed at %.0f%%\n", cgbs, 100.0 * (96.0 / tbig[MODE_IZ8] / 1e9) / cgbs,
+         100.0 * (76.0 / tbig[MODE_PACKED] / 1e9) / cgbs,
+         100.0 * (76.0 / tbig[MODE_PACKED_N] / 1e9) / cgbs);
   free(rows);
   free(nrm);
   free(out);

@@ -287,64 +287,80 @@ __attribute__((target("avx"))) static inline void transpose8_avx(__m256 r[8])
   }
 }
 
-/* ub_ahd_encode_iz on 8 texels in the lanes of AVX registers: every operation, its
- * operands and their order as in the scalar code (IEEE single, no FMA), branches as
- * blends, so each lane gives the scalar bits. rows[j]: texel j's 12 floats; nrm: 8 × 3
- * unit normals; out[j]: where texel j's AHD goes. Texels move into and out of the lanes
- * by register transposes (8 × 8 and 8 × 4), not through memory element by element. */
-__attribute__((target("avx"))) static inline int encode_iz8_lanes(const float *const rows[8],
-                                                                  const float *nrm, __m256 o[9])
+/* ub_ahd_encode_iz on K groups of 8 texels in the lanes of AVX registers: every operation,
+ * its operands and their order as in the scalar code (IEEE single, no FMA), branches as
+ * blends, so each lane gives the scalar bits. rows[8g + j]: texel j of group g, 12 floats;
+ * nrm: 8K × 3 unit normals; o[g]: group g's AHD in lanes. Texels move into and out of the
+ * lanes by register transposes (8 × 8 and 8 × 4), not through memory element by element.
+ * The groups go through each step in lockstep: one group's work is a chain of dependent
+ * long-latency operations (a sqrt, then divisions), ~170 cycles for 8 texels on the
+ * bench machine when run alone, and too long for the out-of-order window to overlap the
+ * next group's; side by side, one group's work fills the other's waits.
+ * Returns a bit per group whose input is not all finite (its o is then garbage: the
+ * caller encodes those texels one by one, as the scalar code's finite_or_zero wants). */
+#define AHD_MAX_K 2
+#define AHD_FOR_G _Pragma("GCC unroll 4") for (int g = 0; g < K; g++)
+__attribute__((target("avx"), always_inline)) static inline unsigned
+encode_lanes_k(const int K, const float *const *rows, const float *nrm, __m256 o[][9])
 {
-  __m256 t[12];
-  {
+  __m256 t[AHD_MAX_K][12];
+  AHD_FOR_G {
+    const float *const *rw = rows + 8 * g;
+    __m256 *tg = t[g];
     __m256 hi[4];
     #pragma GCC unroll 8
     for (int j = 0; j < 8; j++)
-      t[j] = _mm256_loadu_ps(rows[j]);
-    transpose8_avx(t);
+      tg[j] = _mm256_loadu_ps(rw[j]);
+    transpose8_avx(tg);
     #pragma GCC unroll 8
     for (int j = 0; j < 4; j++)
-      hi[j] = _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(rows[j] + 8)),
-                                   _mm_loadu_ps(rows[j + 4] + 8), 1);
+      hi[j] = _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(rw[j] + 8)),
+                                   _mm_loadu_ps(rw[j + 4] + 8), 1);
     __m256 a0 = _mm256_unpacklo_ps(hi[0], hi[1]), a1 = _mm256_unpackhi_ps(hi[0], hi[1]);
     __m256 a2 = _mm256_unpacklo_ps(hi[2], hi[3]), a3 = _mm256_unpackhi_ps(hi[2], hi[3]);
-    __m256 x8 = _mm256_shuffle_ps(a0, a2, 0x44), x9 = _mm256_shuffle_ps(a0, a2, 0xEE);
-    __m256 x10 = _mm256_shuffle_ps(a1, a3, 0x44), x11 = _mm256_shuffle_ps(a1, a3, 0xEE);
     /* lanes 0-3 hold texels 0-3 and lanes 4-7 texels 4-7 in that order already */
-    t[8] = x8;
-    t[9] = x9;
-    t[10] = x10;
-    t[11] = x11;
+    tg[8] = _mm256_shuffle_ps(a0, a2, 0x44);
+    tg[9] = _mm256_shuffle_ps(a0, a2, 0xEE);
+    tg[10] = _mm256_shuffle_ps(a1, a3, 0x44);
+    tg[11] = _mm256_shuffle_ps(a1, a3, 0xEE);
   }
-  /* the normals (8 × 3 contiguous floats) into x, y, z lanes by shuffles */
-  __m256 n0, n1, n2;
-  {
-    __m256 m03 = _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(nrm)),
-                                      _mm_loadu_ps(nrm + 12), 1); /* x0y0z0x1 x4y4z4x5 */
-    __m256 m14 = _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(nrm + 4)),
-                                      _mm_loadu_ps(nrm + 16), 1); /* y1z1x2y2 y5z5x6y6 */
-    __m256 m25 = _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(nrm + 8)),
-                                      _mm_loadu_ps(nrm + 20), 1); /* z2x3y3z3 z6x7y7z7 */
+  /* the normals (8 × 3 contiguous floats a group) into x, y, z lanes by shuffles */
+  __m256 n0[AHD_MAX_K], n1[AHD_MAX_K], n2[AHD_MAX_K];
+  AHD_FOR_G {
+    const float *ng = nrm + 24 * g;
+    __m256 m03 = _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(ng)),
+                                      _mm_loadu_ps(ng + 12), 1); /* x0y0z0x1 x4y4z4x5 */
+    __m256 m14 = _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(ng + 4)),
+                                      _mm_loadu_ps(ng + 16), 1); /* y1z1x2y2 y5z5x6y6 */
+    __m256 m25 = _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(ng + 8)),
+                                      _mm_loadu_ps(ng + 20), 1); /* z2x3y3z3 z6x7y7z7 */
     __m256 xy = _mm256_shuffle_ps(m14, m25, _MM_SHUFFLE(2, 1, 3, 2)); /* x2y2x3y3 */
     __m256 yz = _mm256_shuffle_ps(m03, m14, _MM_SHUFFLE(1, 0, 2, 1)); /* y0z0y1z1 */
-    n0 = _mm256_shuffle_ps(m03, xy, _MM_SHUFFLE(2, 0, 3, 0));
-    n1 = _mm256_shuffle_ps(yz, xy, _MM_SHUFFLE(3, 1, 2, 0));
-    n2 = _mm256_shuffle_ps(yz, m25, _MM_SHUFFLE(3, 0, 3, 1));
+    n0[g] = _mm256_shuffle_ps(m03, xy, _MM_SHUFFLE(2, 0, 3, 0));
+    n1[g] = _mm256_shuffle_ps(yz, xy, _MM_SHUFFLE(3, 1, 2, 0));
+    n2[g] = _mm256_shuffle_ps(yz, m25, _MM_SHUFFLE(3, 0, 3, 1));
   }
   const __m256 zero = _mm256_setzero_ps();
   const __m256 absm = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
-  {
+  unsigned bad = 0;
+  AHD_FOR_G {
     /* x·0 is ±0 for a finite x, NaN for ±Inf and NaN: with every input finite (the rule)
-     * the scalar code's finite_or_zero changes nothing, else the eight go to it */
+     * the scalar code's finite_or_zero changes nothing, else the eight go to it. The sum
+     * of a lane's 12 values times 0 is NaN when one of them is not finite, and also when
+     * finite values near FLT_MAX sum to ±Inf: those eight then go to the scalar code as
+     * well, which gives the same bits, only slower. */
     __m256 s[6];
     #pragma GCC unroll 8
     for (int j = 0; j < 6; j++)
-      s[j] = _mm256_add_ps(_mm256_mul_ps(t[2 * j], zero), _mm256_mul_ps(t[2 * j + 1], zero));
+      s[j] = _mm256_add_ps(t[g][2 * j], t[g][2 * j + 1]);
     __m256 all = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(s[0], s[1]), _mm256_add_ps(s[2], s[3])),
                                _mm256_add_ps(s[4], s[5]));
+    all = _mm256_mul_ps(all, zero);
     if (_mm256_movemask_ps(_mm256_cmp_ps(all, all, _CMP_UNORD_Q)))
-      return 0;
+      bad |= 1u << g;
   }
+  if (bad == (1u << K) - 1)
+    return bad;
 #define AHD_ABS(x) _mm256_and_ps((x), absm)
 /* m ? b : a for whole-lane compare masks m. Not _mm256_blendv_ps: GCC folds that into a
  * sign-bit select, which without AVX2 it lowers lane by lane through integer registers
@@ -358,65 +374,96 @@ __attribute__((target("avx"))) static inline int encode_iz8_lanes(const float *c
   _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(a0, b0), _mm256_mul_ps(a1, b1)),            \
                 _mm256_mul_ps(a2, b2))
   const __m256 kb = _mm256_set1_ps((2.0f * UB_PI / 3.0f) * UB_SH_Y1);
-  __m256 a[3], b[3][3], iz[3];
-  #pragma GCC unroll 8
-  for (int c = 0; c < 3; c++) {
-    b[c][0] = _mm256_mul_ps(kb, t[9 + c]);
-    b[c][1] = _mm256_mul_ps(kb, t[3 + c]);
-    b[c][2] = _mm256_mul_ps(kb, t[6 + c]);
-    iz[c] = t[c];
-    a[c] = _mm256_sub_ps(iz[c], AHD_DOT(b[c][0], b[c][1], b[c][2], n0, n1, n2));
-  }
-  __m256 al = zero, bl[3] = {zero, zero, zero};
-  #pragma GCC unroll 8
-  for (int c = 0; c < 3; c++) {
-    __m256 k = _mm256_set1_ps(k_lum[c]);
-    al = _mm256_add_ps(al, _mm256_mul_ps(k, AHD_ABS(a[c])));
+  __m256 b[AHD_MAX_K][3][3], iz[AHD_MAX_K][3], al[AHD_MAX_K], bl[AHD_MAX_K][3];
+  AHD_FOR_G {
+    __m256 a[3];
     #pragma GCC unroll 8
-    for (int i = 0; i < 3; i++)
-      bl[i] = _mm256_add_ps(bl[i], _mm256_mul_ps(k, b[c][i]));
+    for (int c = 0; c < 3; c++) {
+      b[g][c][0] = _mm256_mul_ps(kb, t[g][9 + c]);
+      b[g][c][1] = _mm256_mul_ps(kb, t[g][3 + c]);
+      b[g][c][2] = _mm256_mul_ps(kb, t[g][6 + c]);
+      iz[g][c] = t[g][c];
+      a[c] = _mm256_sub_ps(iz[g][c],
+                           AHD_DOT(b[g][c][0], b[g][c][1], b[g][c][2], n0[g], n1[g], n2[g]));
+    }
+    al[g] = zero;
+    bl[g][0] = bl[g][1] = bl[g][2] = zero;
+    #pragma GCC unroll 8
+    for (int c = 0; c < 3; c++) {
+      __m256 k = _mm256_set1_ps(k_lum[c]);
+      al[g] = _mm256_add_ps(al[g], _mm256_mul_ps(k, AHD_ABS(a[c])));
+      #pragma GCC unroll 8
+      for (int i = 0; i < 3; i++)
+        bl[g][i] = _mm256_add_ps(bl[g][i], _mm256_mul_ps(k, b[g][c][i]));
+    }
   }
-  __m256 blen = _mm256_sqrt_ps(AHD_DOT(bl[0], bl[1], bl[2], bl[0], bl[1], bl[2]));
-  __m256 use_b = _mm256_and_ps(
-      _mm256_cmp_ps(blen, _mm256_mul_ps(_mm256_set1_ps(UB_AHD_DIR_REL_EPS), al), _CMP_GT_OQ),
-      _mm256_cmp_ps(blen, _mm256_set1_ps(1e-30f), _CMP_GT_OQ));
-  __m256 inv_blen = _mm256_div_ps(_mm256_set1_ps(1.0f), blen);
-  __m256 d0 = AHD_SEL(n0, _mm256_mul_ps(bl[0], inv_blen), use_b);
-  __m256 d1 = AHD_SEL(n1, _mm256_mul_ps(bl[1], inv_blen), use_b);
-  __m256 d2 = AHD_SEL(n2, _mm256_mul_ps(bl[2], inv_blen), use_b);
-  __m256 dz = AHD_DOT(d0, d1, d2, n0, n1, n2);
-  __m256 dir = _mm256_cmp_ps(dz, _mm256_set1_ps(UB_AHD_DZ_GUARD), _CMP_GT_OQ);
-  d0 = AHD_SEL(n0, d0, dir);
-  d1 = AHD_SEL(n1, d1, dir);
-  d2 = AHD_SEL(n2, d2, dir);
+  __m256 blen[AHD_MAX_K];
+  AHD_FOR_G
+    blen[g] = _mm256_sqrt_ps(AHD_DOT(bl[g][0], bl[g][1], bl[g][2], bl[g][0], bl[g][1], bl[g][2]));
+  __m256 d0[AHD_MAX_K], d1[AHD_MAX_K], d2[AHD_MAX_K], dz[AHD_MAX_K], dir[AHD_MAX_K];
+  AHD_FOR_G {
+    __m256 use_b = _mm256_and_ps(
+        _mm256_cmp_ps(blen[g], _mm256_mul_ps(_mm256_set1_ps(UB_AHD_DIR_REL_EPS), al[g]),
+                      _CMP_GT_OQ),
+        _mm256_cmp_ps(blen[g], _mm256_set1_ps(1e-30f), _CMP_GT_OQ));
+    __m256 inv_blen = _mm256_div_ps(_mm256_set1_ps(1.0f), blen[g]);
+    d0[g] = AHD_SEL(n0[g], _mm256_mul_ps(bl[g][0], inv_blen), use_b);
+    d1[g] = AHD_SEL(n1[g], _mm256_mul_ps(bl[g][1], inv_blen), use_b);
+    d2[g] = AHD_SEL(n2[g], _mm256_mul_ps(bl[g][2], inv_blen), use_b);
+  }
+  AHD_FOR_G {
+    dz[g] = AHD_DOT(d0[g], d1[g], d2[g], n0[g], n1[g], n2[g]);
+    dir[g] = _mm256_cmp_ps(dz[g], _mm256_set1_ps(UB_AHD_DZ_GUARD), _CMP_GT_OQ);
+    d0[g] = AHD_SEL(n0[g], d0[g], dir[g]);
+    d1[g] = AHD_SEL(n1[g], d1[g], dir[g]);
+    d2[g] = AHD_SEL(n2[g], d2[g], dir[g]);
+  }
   const __m256 one = _mm256_set1_ps(1.0f), sixth = _mm256_set1_ps(1.0f / 6.0f);
-  __m256 den = _mm256_add_ps(_mm256_sub_ps(sixth, _mm256_mul_ps(_mm256_set1_ps(0.5f), dz)),
-                             _mm256_mul_ps(dz, dz));
-  __m256 inv_den = _mm256_and_ps(_mm256_div_ps(one, den), dir);
-  __m256 inv_dz = _mm256_and_ps(_mm256_div_ps(one, dz), dir);
-  __m256 q = _mm256_sub_ps(_mm256_set1_ps(0.25f), dz);
-  /* o: the struct's 9 floats per texel in lanes (ambient, direction, directional) */
-  o[3] = d0;
-  o[4] = d1;
-  o[5] = d2;
-  #pragma GCC unroll 8
-  for (int c = 0; c < 3; c++) {
-    __m256 z = AHD_POS(iz[c]);
-    __m256 beta = AHD_DOT(b[c][0], b[c][1], b[c][2], d0, d1, d2);
-    __m256 bn = AHD_DOT(b[c][0], b[c][1], b[c][2], n0, n1, n2);
-    __m256 cd0 = _mm256_mul_ps(_mm256_sub_ps(_mm256_mul_ps(beta, sixth), _mm256_mul_ps(bn, q)),
-                               inv_den);
-    cd0 = AHD_POS(cd0);
-    __m256 ca = AHD_NONNEG(_mm256_sub_ps(z, _mm256_mul_ps(cd0, dz)));
-    __m256 cd = AHD_POS(_mm256_mul_ps(_mm256_sub_ps(z, ca), inv_dz));
-    o[c] = AHD_SEL(z, ca, dir);
-    o[6 + c] = _mm256_and_ps(cd, dir);
+  __m256 inv_den[AHD_MAX_K], inv_dz[AHD_MAX_K];
+  AHD_FOR_G {
+    __m256 den = _mm256_add_ps(_mm256_sub_ps(sixth, _mm256_mul_ps(_mm256_set1_ps(0.5f), dz[g])),
+                               _mm256_mul_ps(dz[g], dz[g]));
+    inv_den[g] = _mm256_and_ps(_mm256_div_ps(one, den), dir[g]);
+    inv_dz[g] = _mm256_and_ps(_mm256_div_ps(one, dz[g]), dir[g]);
+  }
+  AHD_FOR_G {
+    __m256 q = _mm256_sub_ps(_mm256_set1_ps(0.25f), dz[g]);
+    /* o: the struct's 9 floats per texel in lanes (ambient, direction, directional) */
+    o[g][3] = d0[g];
+    o[g][4] = d1[g];
+    o[g][5] = d2[g];
+    #pragma GCC unroll 8
+    for (int c = 0; c < 3; c++) {
+      __m256 z = AHD_POS(iz[g][c]);
+      __m256 beta = AHD_DOT(b[g][c][0], b[g][c][1], b[g][c][2], d0[g], d1[g], d2[g]);
+      __m256 bn = AHD_DOT(b[g][c][0], b[g][c][1], b[g][c][2], n0[g], n1[g], n2[g]);
+      __m256 cd0 = _mm256_mul_ps(
+          _mm256_sub_ps(_mm256_mul_ps(beta, sixth), _mm256_mul_ps(bn, q)), inv_den[g]);
+      cd0 = AHD_POS(cd0);
+      __m256 ca = AHD_NONNEG(_mm256_sub_ps(z, _mm256_mul_ps(cd0, dz[g])));
+      __m256 cd = AHD_POS(_mm256_mul_ps(_mm256_sub_ps(z, ca), inv_dz[g]));
+      o[g][c] = AHD_SEL(z, ca, dir[g]);
+      o[g][6 + c] = _mm256_and_ps(cd, dir[g]);
+    }
   }
 #undef AHD_ABS
 #undef AHD_POS
 #undef AHD_NONNEG
 #undef AHD_SEL
 #undef AHD_DOT
+  return bad;
+}
+
+/* One group (the callers that have eight texels): 1 when its input is all finite. */
+__attribute__((target("avx"))) static inline int encode_iz8_lanes(const float *const rows[8],
+                                                                  const float *nrm, __m256 o[9])
+{
+  __m256 og[1][9];
+  if (encode_lanes_k(1, rows, nrm, og))
+    return 0;
+  #pragma GCC unroll 9
+  for (int k = 0; k < 9; k++)
+    o[k] = og[0][k];
   return 1;
 }
 
@@ -444,41 +491,37 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *const row
   }
 }
 
-/* encode_iz8_lanes, then packed (ub_ahd_pack's bits): the six colours through F16C, the
- * direction octahedral as in pack_direction, and the eight 16-byte texels out of the
- * lanes by a transpose of 16-bit words. */
-__attribute__((target("avx,f16c"))) static void encode_iz8_packed_avx(const float *const rows[8],
-                                                                    const float *nrm,
-                                                                    float inv_scale,
-                                                                    ub_ahd_packed *const out[8])
+/* K groups' lanes (encode_lanes_k) packed (ub_ahd_pack's bits): the six colours through
+ * F16C, the direction octahedral as in pack_direction, and each group's eight 16-byte
+ * texels out of the lanes by a transpose of 16-bit words; out[8g + j]: texel j of group
+ * g. Groups in skip (bits) are left alone. In lockstep like encode_lanes_k. */
+__attribute__((target("avx,f16c"), always_inline)) static inline void
+pack_lanes_k(const int K, __m256 o[][9], unsigned skip, float inv_scale,
+             ub_ahd_packed *const *out)
 {
   _Static_assert(sizeof(ub_ahd_packed) == 16, "ub_ahd_packed is 16 bytes");
-  __m256 o[9];
-  if (!encode_iz8_lanes(rows, nrm, o)) {
-    for (int j = 0; j < 8; j++) {
-      ub_ahd a;
-      ub_ahd_encode_iz(rows[j], nrm + 3 * j, &a);
-      ub_ahd_pack(&a, inv_scale, out[j]);
-    }
-    return;
-  }
   const __m256 invs = _mm256_set1_ps(inv_scale), hmax = _mm256_set1_ps(UB_HALF_MAX);
   const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f);
   const __m256 absm = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
-  __m128i w[8];
+  __m128i w[AHD_MAX_K][8];
   static const int col[6] = {0, 1, 2, 6, 7, 8}; /* ambient, directional */
-  #pragma GCC unroll 6
-  for (int k = 0; k < 6; k++) /* minps: NaN → the second operand, as pack_colour */
-    w[k] = _mm256_cvtps_ph(_mm256_min_ps(_mm256_mul_ps(o[col[k]], invs), hmax),
-                           _MM_FROUND_TO_NEAREST_INT);
-  {
-    __m256 ax = _mm256_and_ps(o[3], absm), ay = _mm256_and_ps(o[4], absm);
-    __m256 s = _mm256_add_ps(_mm256_add_ps(ax, ay), _mm256_and_ps(o[5], absm));
-    __m256 ok = _mm256_cmp_ps(s, zero, _CMP_GT_OQ);
-    __m256 inv = _mm256_div_ps(one, s);
-    __m256 u = _mm256_and_ps(_mm256_mul_ps(o[3], inv), ok);
-    __m256 v = _mm256_and_ps(_mm256_mul_ps(o[4], inv), ok);
-    __m256 low = _mm256_cmp_ps(o[5], zero, _CMP_LT_OQ);
+  AHD_FOR_G {
+    #pragma GCC unroll 6
+    for (int k = 0; k < 6; k++) /* minps: NaN → the second operand, as pack_colour */
+      w[g][k] = _mm256_cvtps_ph(_mm256_min_ps(_mm256_mul_ps(o[g][col[k]], invs), hmax),
+                                _MM_FROUND_TO_NEAREST_INT);
+  }
+  __m256 s[AHD_MAX_K], ok[AHD_MAX_K], inv[AHD_MAX_K];
+  AHD_FOR_G {
+    __m256 ax = _mm256_and_ps(o[g][3], absm), ay = _mm256_and_ps(o[g][4], absm);
+    s[g] = _mm256_add_ps(_mm256_add_ps(ax, ay), _mm256_and_ps(o[g][5], absm));
+    ok[g] = _mm256_cmp_ps(s[g], zero, _CMP_GT_OQ);
+    inv[g] = _mm256_div_ps(one, s[g]);
+  }
+  AHD_FOR_G {
+    __m256 u = _mm256_and_ps(_mm256_mul_ps(o[g][3], inv[g]), ok[g]);
+    __m256 v = _mm256_and_ps(_mm256_mul_ps(o[g][4], inv[g]), ok[g]);
+    __m256 low = _mm256_cmp_ps(o[g][5], zero, _CMP_LT_OQ);
     const __m256 m1 = _mm256_set1_ps(-1.0f);
     __m256 geu = _mm256_cmp_ps(u, zero, _CMP_GE_OQ), gev = _mm256_cmp_ps(v, zero, _CMP_GE_OQ);
     __m256 su = _mm256_or_ps(_mm256_and_ps(geu, one), _mm256_andnot_ps(geu, m1));
@@ -490,26 +533,72 @@ __attribute__((target("avx,f16c"))) static void encode_iz8_packed_avx(const floa
     const __m256 k = _mm256_set1_ps(32767.0f);
     __m256i iu = _mm256_cvtps_epi32(_mm256_mul_ps(u, k));
     __m256i iv = _mm256_cvtps_epi32(_mm256_mul_ps(v, k));
-    w[6] = _mm_packs_epi32(_mm256_castsi256_si128(iu), _mm256_extractf128_si256(iu, 1));
-    w[7] = _mm_packs_epi32(_mm256_castsi256_si128(iv), _mm256_extractf128_si256(iv, 1));
+    w[g][6] = _mm_packs_epi32(_mm256_castsi256_si128(iu), _mm256_extractf128_si256(iu, 1));
+    w[g][7] = _mm_packs_epi32(_mm256_castsi256_si128(iv), _mm256_extractf128_si256(iv, 1));
   }
-  /* 8 × 8 transpose of 16-bit words: w[k] lane j → texel j word k */
-  __m128i a0 = _mm_unpacklo_epi16(w[0], w[1]), a1 = _mm_unpackhi_epi16(w[0], w[1]);
-  __m128i a2 = _mm_unpacklo_epi16(w[2], w[3]), a3 = _mm_unpackhi_epi16(w[2], w[3]);
-  __m128i a4 = _mm_unpacklo_epi16(w[4], w[5]), a5 = _mm_unpackhi_epi16(w[4], w[5]);
-  __m128i a6 = _mm_unpacklo_epi16(w[6], w[7]), a7 = _mm_unpackhi_epi16(w[6], w[7]);
-  __m128i b0 = _mm_unpacklo_epi32(a0, a2), b1 = _mm_unpackhi_epi32(a0, a2);
-  __m128i b2 = _mm_unpacklo_epi32(a1, a3), b3 = _mm_unpackhi_epi32(a1, a3);
-  __m128i b4 = _mm_unpacklo_epi32(a4, a6), b5 = _mm_unpackhi_epi32(a4, a6);
-  __m128i b6 = _mm_unpacklo_epi32(a5, a7), b7 = _mm_unpackhi_epi32(a5, a7);
-  _mm_storeu_si128((__m128i *)(void *)out[0], _mm_unpacklo_epi64(b0, b4));
-  _mm_storeu_si128((__m128i *)(void *)out[1], _mm_unpackhi_epi64(b0, b4));
-  _mm_storeu_si128((__m128i *)(void *)out[2], _mm_unpacklo_epi64(b1, b5));
-  _mm_storeu_si128((__m128i *)(void *)out[3], _mm_unpackhi_epi64(b1, b5));
-  _mm_storeu_si128((__m128i *)(void *)out[4], _mm_unpacklo_epi64(b2, b6));
-  _mm_storeu_si128((__m128i *)(void *)out[5], _mm_unpackhi_epi64(b2, b6));
-  _mm_storeu_si128((__m128i *)(void *)out[6], _mm_unpacklo_epi64(b3, b7));
-  _mm_storeu_si128((__m128i *)(void *)out[7], _mm_unpackhi_epi64(b3, b7));
+  AHD_FOR_G {
+    if (skip & (1u << g))
+      continue;
+    const __m128i *wg = w[g];
+    ub_ahd_packed *const *og = out + 8 * g;
+    /* 8 × 8 transpose of 16-bit words: w[k] lane j → texel j word k */
+    __m128i a0 = _mm_unpacklo_epi16(wg[0], wg[1]), a1 = _mm_unpackhi_epi16(wg[0], wg[1]);
+    __m128i a2 = _mm_unpacklo_epi16(wg[2], wg[3]), a3 = _mm_unpackhi_epi16(wg[2], wg[3]);
+    __m128i a4 = _mm_unpacklo_epi16(wg[4], wg[5]), a5 = _mm_unpackhi_epi16(wg[4], wg[5]);
+    __m128i a6 = _mm_unpacklo_epi16(wg[6], wg[7]), a7 = _mm_unpackhi_epi16(wg[6], wg[7]);
+    __m128i b0 = _mm_unpacklo_epi32(a0, a2), b1 = _mm_unpackhi_epi32(a0, a2);
+    __m128i b2 = _mm_unpacklo_epi32(a1, a3), b3 = _mm_unpackhi_epi32(a1, a3);
+    __m128i b4 = _mm_unpacklo_epi32(a4, a6), b5 = _mm_unpackhi_epi32(a4, a6);
+    __m128i b6 = _mm_unpacklo_epi32(a5, a7), b7 = _mm_unpackhi_epi32(a5, a7);
+    _mm_storeu_si128((__m128i *)(void *)og[0], _mm_unpacklo_epi64(b0, b4));
+    _mm_storeu_si128((__m128i *)(void *)og[1], _mm_unpackhi_epi64(b0, b4));
+    _mm_storeu_si128((__m128i *)(void *)og[2], _mm_unpacklo_epi64(b1, b5));
+    _mm_storeu_si128((__m128i *)(void *)og[3], _mm_unpackhi_epi64(b1, b5));
+    _mm_storeu_si128((__m128i *)(void *)og[4], _mm_unpacklo_epi64(b2, b6));
+    _mm_storeu_si128((__m128i *)(void *)og[5], _mm_unpackhi_epi64(b2, b6));
+    _mm_storeu_si128((__m128i *)(void *)og[6], _mm_unpacklo_epi64(b3, b7));
+    _mm_storeu_si128((__m128i *)(void *)og[7], _mm_unpackhi_epi64(b3, b7));
+  }
+}
+
+/* The scalar encode + pack of the eight texels of a group with a non-finite input. */
+static void encode8_packed_scalar(const float *const rows[8], const float *nrm, float inv_scale,
+                                  ub_ahd_packed *const out[8])
+{
+  for (int j = 0; j < 8; j++) {
+    ub_ahd a;
+    ub_ahd_encode_iz(rows[j], nrm + 3 * j, &a);
+    ub_ahd_pack(&a, inv_scale, out[j]);
+  }
+}
+
+/* encode_lanes_k then pack_lanes_k for one group. */
+__attribute__((target("avx,f16c"))) static void encode_iz8_packed_avx(const float *const rows[8],
+                                                                    const float *nrm,
+                                                                    float inv_scale,
+                                                                    ub_ahd_packed *const out[8])
+{
+  __m256 o[1][9];
+  if (encode_lanes_k(1, rows, nrm, o)) {
+    encode8_packed_scalar(rows, nrm, inv_scale, out);
+    return;
+  }
+  pack_lanes_k(1, o, 0, inv_scale, out);
+}
+
+/* The same for two groups side by side (rows, out: 16; nrm: 48 floats). */
+__attribute__((target("avx,f16c"))) static void encode_iz16_packed_avx(const float *const rows[16],
+                                                                     const float *nrm,
+                                                                     float inv_scale,
+                                                                     ub_ahd_packed *const out[16])
+{
+  __m256 o[2][9];
+  unsigned bad = encode_lanes_k(2, rows, nrm, o);
+  if (bad != 3u)
+    pack_lanes_k(2, o, bad, inv_scale, out);
+  for (int g = 0; g < 2; g++)
+    if (bad & (1u << g))
+      encode8_packed_scalar(rows + 8 * g, nrm + 24 * g, inv_scale, out + 8 * g);
 }
 #endif
 
@@ -577,4 +666,30 @@ void ub_ahd_encode_iz8_packed(const float *sh_iz, const float *unit_normals, flo
     out[j] = out_packed + j;
   }
   ub_ahd_encode_iz8_rows_packed(rows, unit_normals, inv_scale, out);
+}
+
+void ub_ahd_encode_iz_packed_n(const float *sh_iz, const float *unit_normals, float inv_scale,
+                               ub_ahd_packed *out_packed, size_t count)
+{
+  size_t i = 0;
+#if defined(AHD_HAVE_AVX)
+  const unsigned need = UB_CPU_AVX | UB_CPU_F16C;
+  if ((ub_cpu_features_cached() & need) == need)
+    for (; i + 16 <= count; i += 16) {
+      const float *rows[16];
+      ub_ahd_packed *out[16];
+      for (int j = 0; j < 16; j++) {
+        rows[j] = sh_iz + 12 * (i + j);
+        out[j] = out_packed + i + j;
+      }
+      encode_iz16_packed_avx(rows, unit_normals + 3 * i, inv_scale, out);
+    }
+#endif
+  for (; i + 8 <= count; i += 8)
+    ub_ahd_encode_iz8_packed(sh_iz + 12 * i, unit_normals + 3 * i, inv_scale, out_packed + i);
+  for (; i < count; i++) {
+    ub_ahd a;
+    ub_ahd_encode_iz(sh_iz + 12 * i, unit_normals + 3 * i, &a);
+    ub_ahd_pack(&a, inv_scale, out_packed + i);
+  }
 }

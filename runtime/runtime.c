@@ -1534,9 +1534,14 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
   ub_ahd_packed *out = rt->ahd + first;
   const float inv_scale = rt->ahd_inv_scale;
   uint32_t i = 0;
-  if (rt->lm_un_all && !tc->np) /* no texel without a normal: no checks */
-    for (; i + 8 <= count; i += 8, rows += 8 * UB_SH1_FLOATS, un += 24, out += 8)
-      ub_ahd_encode_iz8_packed(rows, un, inv_scale, out);
+  if (rt->lm_un_all && !tc->np) { /* no texel without a normal: no checks */
+    uint32_t m = count & ~7u; /* sixteen at a time where it can */
+    ub_ahd_encode_iz_packed_n(rows, un, inv_scale, out, m);
+    i = m;
+    rows += (size_t)m * UB_SH1_FLOATS;
+    un += (size_t)m * 3;
+    out += m;
+  }
   for (; i < count; i++, rows += UB_SH1_FLOATS, un += 3, out++) {
     /* eight texels in a row with their own normals: encoded where they are */
     if (!tc->np && count - i >= 8 && !isnan(un[0]) && !isnan(un[3]) && !isnan(un[6]) &&

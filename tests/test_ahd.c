@@ -322,13 +322,17 @@ static void test_encode_iz8_bits(void)
   static const float special[] = {0.0f, -0.0f, 1e-40f, -1e-40f, 1e-30f, 1e30f, -1.0f,
                                   INFINITY, -INFINITY, NAN};
   const int ns = (int)(sizeof special / sizeof special[0]);
-  int mismatches = 0, total = 0, pmismatch = 0, saturated = 0;
+  int mismatches = 0, total = 0, pmismatch = 0, saturated = 0, nmismatch = 0, ntotal = 0;
+  int paired = 0;
   for (int round = 0; round < 4000; round++) {
-    float sh[96], n[24];
+    /* 8..24 texels: the first 8 for the eight-texel calls, all for
+     * ub_ahd_encode_iz_packed_n (two groups side by side, then eight, then one by one) */
+    const int count = 8 + round % 17;
+    float sh[12 * 24], n[3 * 24];
     ub_ahd got[8], want[8];
-    ub_ahd_packed gotp[8], wantp;
+    ub_ahd_packed gotp[8], wantp, gotn[24];
     const float inv_scale = (round & 1) ? 0.125f : 1.0f;
-    for (int j = 0; j < 8; j++) {
+    for (int j = 0; j < count; j++) {
       rnd_dir(n + 3 * j);
       double m;
       random_sh(sh + 12 * j, &m);
@@ -356,6 +360,15 @@ static void test_encode_iz8_bits(void)
     }
     ub_ahd_encode_iz8(sh, n, got);
     ub_ahd_encode_iz8_packed(sh, n, inv_scale, gotp);
+    ub_ahd_encode_iz_packed_n(sh, n, inv_scale, gotn, (size_t)count);
+    paired += count >= 16;
+    for (int j = 0; j < count; j++) {
+      ub_ahd a;
+      ub_ahd_encode_iz(sh + 12 * j, n + 3 * j, &a);
+      ub_ahd_pack(&a, inv_scale, &wantp);
+      ntotal++;
+      nmismatch += memcmp(&gotn[j], &wantp, sizeof wantp) != 0;
+    }
     for (int j = 0; j < 8; j++) {
       ub_ahd_encode_iz(sh + 12 * j, n + 3 * j, &want[j]);
       total++;
@@ -378,8 +391,13 @@ static void test_encode_iz8_bits(void)
              ? "AVX + F16C path"
              : "scalar path: this CPU has no AVX + F16C",
          pmismatch, total, saturated);
+  printf("ub_ahd_encode_iz_packed_n (8..24 texels, %d calls with a pair of groups): %d of %d "
+         "texels differ from ub_ahd_encode_iz + ub_ahd_pack\n",
+         paired, nmismatch, ntotal);
   ASSERT_TRUE(mismatches == 0);
   ASSERT_TRUE(pmismatch == 0);
+  ASSERT_TRUE(nmismatch == 0);
+  ASSERT_TRUE(paired > 0);
   ASSERT_TRUE(saturated > 0);
 }
 

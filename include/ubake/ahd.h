@@ -11,6 +11,7 @@
 #ifndef UBAKE_AHD_H
 #define UBAKE_AHD_H
 
+#include <stddef.h>
 #include <stdint.h>
 
 #ifdef __cplusplus
@@ -62,6 +63,11 @@ void ub_ahd_encode_iz8_packed(const float *sh_iz, const float *unit_normals, flo
                               ub_ahd_packed *out_packed);
 void ub_ahd_encode_iz8_rows_packed(const float *const rows[8], const float *unit_normals,
                                    float inv_scale, ub_ahd_packed *const out[8]);
+/* count contiguous texels (sh_iz: count × 12, unit_normals: count × 3), packed: the bits
+ * of ub_ahd_encode_iz then ub_ahd_pack for each. With AVX + F16C, sixteen at a time in two
+ * interleaved groups of eight (the encode's latency hidden), then eight, then one by one. */
+void ub_ahd_encode_iz_packed_n(const float *sh_iz, const float *unit_normals, float inv_scale,
+                               ub_ahd_packed *out_packed, size_t count);
 /* Irradiance (W/m²) for any unit normal n'. */
 void ub_ahd_irradiance(const ub_ahd *ahd, const float n[3], float out_rgb[3]);
 /* Irradiance from the SH L1 directly (cosine convolution), W/m², never negative. */
