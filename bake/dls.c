@@ -199,9 +199,13 @@ void ub_dls_bounds_add(const float p[3], float lo[3], float hi[3])
 
 ub_result ub_dls_reach_build(const ub_scene *scene, const ub_rt *rt, const uint8_t *enabled,
                              const float lo[3], const float hi[3], uint32_t seed,
-                             uint32_t set, ub_dls_reach *out)
+                             uint32_t set, uint32_t segments, ub_dls_reach *out)
 {
   memset(out, 0, sizeof *out);
+  if (segments < 1)
+    segments = 1;
+  if (segments > UB_DLS_REACH_SEGMENTS)
+    segments = UB_DLS_REACH_SEGMENTS;
   uint32_t nlight = 0;
   for (uint32_t l = 0; l < scene->light_count; l++)
     if (enabled[l]) {
@@ -269,7 +273,7 @@ ub_result ub_dls_reach_build(const ub_scene *scene, const ub_rt *rt, const uint8
         ray[i].tfar = L->range > 0.0f ? L->range : INFINITY;
         alive[i] = ph < per;
       }
-      for (uint32_t seg = 0; seg < UB_DLS_REACH_SEGMENTS; seg++) {
+      for (uint32_t seg = 0; seg < segments; seg++) {
         uint32_t n = 0; /* compact the live photons to the front */
         for (uint32_t i = 0; i < chunk; i++)
           if (alive[i])
@@ -717,6 +721,10 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
   uint8_t *lcand = llg_sparse ? calloc((size_t)nlp + 1, 1) : NULL;
   /* full passes' ray shifts (dls_ray_shift), zero outside the set being baked */
   int scaled = plan->dls_scaled_rays; /* only with influence culling (ub_plan_build) */
+  /* The influence pass's bounces (no more than the full passes run) and whether the full
+   * passes run beyond them (then each estimate gets its geometric tail). */
+  const uint32_t NB = ub_dls_influence_bounces(base->bounces);
+  const int full_tail = base->bounces < 0 || (uint32_t)base->bounces > NB;
   uint8_t *tsh = scaled ? calloc((size_t)lm->texel_count + 1, 1) : NULL;
   uint8_t *psh = scaled ? calloc((size_t)base->probe_count + 1, 1) : NULL;
   uint8_t *lsh = scaled ? calloc((size_t)nlp + 1, 1) : NULL;
@@ -818,7 +826,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     if (plan->influence_culling) {
       double tr = now_s();
       if (own) {
-        r = ub_dls_reach_build(s, base->rt, enabled, lo, hi, base->seed, d, &reach);
+        r = ub_dls_reach_build(s, base->rt, enabled, lo, hi, base->seed, d, NB + 1u, &reach);
         if (r != UB_OK)
           break;
         out_stats->rays_influence += reach.rays;
@@ -860,8 +868,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     out_stats->texels_candidate += nct;
     out_stats->probes_candidate += ncp;
     out_stats->llg_probes_candidate += ncl;
-    /* 1. Influence: direct + UB_DLS_INFLUENCE_BOUNCES bounces at a low sample count over
-     * the candidates. */
+    /* 1. Influence: direct + NB bounces at a low sample count over the candidates. */
     ub_pass_desc pd = *base;
     pd.light_enabled = enabled;
     pd.emissive = 0;
@@ -870,7 +877,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     pd.probe_rays = 2 * plan->influence_rays;
     pd.shadow_samples = 1;
     pd.near_samples = UB_NEAR_SAMPLES_DEFAULT;
-    pd.bounces = UB_DLS_INFLUENCE_BOUNCES;
+    pd.bounces = (int)NB;
     pd.pass_id = 2 + 2 * d;
     int sub = plan->influence_culling && !reach.unbounded;
     pd.texel_subset = sub ? ct : NULL;
@@ -879,7 +886,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     pd.probe_subset_count = ncp;
     pd.llg_subset = sub ? cl : NULL;
     pd.llg_subset_count = ncl;
-    pd.keep_bounce_iz = UB_DLS_INFLUENCE_BOUNCES;
+    pd.keep_bounce_iz = NB;
     pd.no_error_estimate = 1; /* neither pass's texel_se / probe_se is read */
     if (plan->influence_sparse) {
       if (!sub) /* no reach bound: every texel is a candidate */
@@ -922,17 +929,21 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
                         npg, inf.probe_indirect);
     out_stats->rays_influence += inf.rays_gather + inf.rays_shadow;
     out_stats->seconds_influence += now_s() - t0;
-    /* The rule sees direct + NB bounces; the full pass runs until converged, and a texel
-     * far from the lights gets most of its light from the later bounces. Its indirect is
-     * extrapolated by the geometric tail of its own last bounce (ratio r = e_NB/e_(NB−1)
-     * of the influence pass): est = I + B_NB·r/(1−r). (Without it, at full bounces estate_small's
-     * hall sets lost 1.3-1.5% of their light to culling, above the 1% the rule means.) */
-    const uint32_t NB = UB_DLS_INFLUENCE_BOUNCES;
-    double r2 = inf.bounce_energy[NB - 1] > 0.0 ? inf.bounce_energy[NB] / inf.bounce_energy[NB - 1]
-                                                : 0.0;
-    r2 = r2 < 0.0 ? 0.0 : (r2 > 0.95 ? 0.95 : r2);
-    double tail = r2 / (1.0 - r2);
-    const float *b2 = inf.texel_bounce_iz
+    /* The rule sees direct + NB bounces; when the full pass runs more (until converged),
+     * a texel far from the lights gets most of its light from the later bounces. Its
+     * indirect is then extrapolated by the geometric tail of its own last bounce (ratio
+     * r = e_NB/e_(NB−1) of the influence pass): est = I + B_NB·r/(1−r). (Without it, at full
+     * bounces estate_small's hall sets lost 1.3-1.5% of their light to culling, above the
+     * 1% the rule means.) A full pass of at most NB bounces has no tail. */
+    double tail = 0.0;
+    if (full_tail && NB >= 1) {
+      double r2 = inf.bounce_energy[NB - 1] > 0.0
+                      ? inf.bounce_energy[NB] / inf.bounce_energy[NB - 1]
+                      : 0.0;
+      r2 = r2 < 0.0 ? 0.0 : (r2 > 0.95 ? 0.95 : r2);
+      tail = r2 / (1.0 - r2);
+    }
+    const float *b2 = inf.texel_bounce_iz && NB >= 1
                           ? inf.texel_bounce_iz + (size_t)(NB - 1) * lm->texel_count * 3
                           : NULL;
     float *est = malloc(((size_t)lm->texel_count + 1) * sizeof *est);
@@ -953,7 +964,8 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
         lit++;
       }
     }
-    double thr = lit ? UB_DLS_INFLUENCE_FRACTION * ind_sum / lit : 0.0;
+    const double frac = full_tail ? UB_DLS_INFLUENCE_FRACTION : UB_DLS_INFLUENCE_FRACTION_EXACT;
+    double thr = lit ? frac * ind_sum / lit : 0.0;
     /* Probes: the same tail on their (DC) indirect, no per-probe bounce split: the
      * level's share of bounce 2 in the first two. */
     double ind_e = 0.0;
@@ -975,7 +987,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
           inf.llg_indirect[q] * ptail > thr)
         kl[nkl++] = q;
     /* Scaled rays: a kept receiver whose estimated indirect is a fraction f of the set's
-     * reference (the mean over its directly lit texels, thr / UB_DLS_INFLUENCE_FRACTION)
+     * reference (the mean over its directly lit texels, thr / frac)
      * gathers with the rays scaled to the power of two at or above f (at least
      * 2^-UB_DLS_RAY_SHIFT_MAX). Its absolute standard error then stays at or below a
      * reference texel's at full rays: σ ∝ I/√(N·f) = √(I·ref/N). */
@@ -983,7 +995,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
         (uint64_t)nkt * plan->gather_rays + (uint64_t)(nkp + nkl) * plan->probe_rays;
     uint64_t units = full_units;
     if (scaled && thr > 0.0) {
-      double ref = thr / UB_DLS_INFLUENCE_FRACTION;
+      double ref = thr / frac;
       units = 0;
       for (uint32_t i = 0; i < nkt; i++) {
         tsh[kt[i]] = dls_ray_shift(est[kt[i]], ref);
@@ -1025,7 +1037,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
      * bounces 1-2 (and its geometric tail) still lights the kept ones: without it, the
      * kept texels of estate_small's sets missed 0.5-1.5% of their light at full bounces. */
     pd.outside_bounce_iz = plan->influence_culling ? inf.texel_bounce_iz : NULL;
-    pd.outside_bounces = inf.texel_bounce_iz ? UB_DLS_INFLUENCE_BOUNCES : 0;
+    pd.outside_bounces = inf.texel_bounce_iz ? NB : 0;
     if (scaled) {
       pd.texel_ray_shift = tsh;
       pd.probe_ray_shift = psh;

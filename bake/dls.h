@@ -19,23 +19,41 @@
 #include "ubake/bakefile.h"
 
 #define UB_DLS_INFLUENCE_FRACTION 0.01 /* of the mean indirect of directly lit texels */
+/* The same when the influence pass simulates exactly the full passes' bounces (fixed, fewer
+ * than UB_DLS_INFLUENCE_BOUNCES: ub_dls_influence_bounces) and no tail. Its estimate is then
+ * what the full pass computes, no longer inflated by later bounces, and culling at 1%
+ * dropped 0.3-1.4% of a set's light on estate_small at 2 bounces (tests/test_plan.c
+ * dls_culling, which wants < 1%); at 0.5%, 0.16-0.89%. */
+#define UB_DLS_INFLUENCE_FRACTION_EXACT 0.005
 /* Full passes with scaled rays (ub_plan.dls_scaled_rays): a receiver gathers with at
  * least 2^-UB_DLS_RAY_SHIFT_MAX of the rays. */
 #ifndef UB_DLS_RAY_SHIFT_MAX
 #define UB_DLS_RAY_SHIFT_MAX 3u
 #endif
-/* Bounces of the influence pass (paper §3.2: 2). */
+/* Bounces of the influence pass (paper §3.2: 2) when the full passes run more bounces
+ * than that or until converged (ub_dls_influence_bounces). */
 #ifndef UB_DLS_INFLUENCE_BOUNCES
 #define UB_DLS_INFLUENCE_BOUNCES 4u
 #endif
 
+/* Bounces the influence pass simulates before full passes of `bounces` bounces (-1: until
+ * converged; ub_pass_desc.bounces): UB_DLS_INFLUENCE_BOUNCES, or the full passes' own count
+ * when it is lower. Light that only arrives after more bounces than the full pass traces
+ * is never in its record, so the influence pass has no reason to follow it: with
+ * --bounces 2 it runs 2 bounces, not 4, and its photons 3 segments, not 5. */
+static inline uint32_t ub_dls_influence_bounces(int bounces)
+{
+  return bounces >= 0 && (uint32_t)bounces < UB_DLS_INFLUENCE_BOUNCES ? (uint32_t)bounces
+                                                                       : UB_DLS_INFLUENCE_BOUNCES;
+}
+
 /* Reach bound (before the influence pass): a set's light can only arrive where its
  * photons can go. From each light of the set, UB_DLS_REACH_PHOTONS photons (point: the
  * sphere, spot: its outer cone, the first segment clipped at the glTF range) are traced
- * for up to UB_DLS_REACH_SEGMENTS segments (direct, then cosine bounces, each surviving with
+ * for up to `segments` segments (direct, then cosine bounces, each surviving with
  * the probability of the surface's largest albedo channel, so every photon carries the same
  * share of the set's power; as many segments as the influence pass has light transport
- * steps: direct + UB_DLS_INFLUENCE_BOUNCES bounces), marking the coarse voxels their segments cross
+ * steps: direct + ub_dls_influence_bounces bounces), marking the coarse voxels their segments cross
  * and, per voxel, the facing of the surfaces they hit. A texel (looked up a quarter cell
  * out along its normal) or a probe is a candidate when a voxel within one cell of it was
  * crossed or hit (so light may leak past walls thinner than a cell: conservative). Everything else is left out of the influence
@@ -46,7 +64,7 @@
  * max_p p·e^(−Np) = 1/(e·N) of the set's power per region (tests/test_plan.c measures the
  * bound against --plan all). A set with a directional light has no bound. */
 #define UB_DLS_REACH_PHOTONS 16384u /* per light */
-#define UB_DLS_REACH_SEGMENTS (UB_DLS_INFLUENCE_BOUNCES + 1u)
+#define UB_DLS_REACH_SEGMENTS (UB_DLS_INFLUENCE_BOUNCES + 1u) /* the most segments */
 #define UB_DLS_REACH_CELLS 96u      /* voxels along the level's longest side */
 
 typedef struct ub_dls_reach {
@@ -60,11 +78,12 @@ typedef struct ub_dls_reach {
 } ub_dls_reach;
 
 /* Grid over [lo, hi] (the receivers' bounds; points outside are always candidates);
- * photons of the lights with enabled[l] != 0. Random numbers hash(seed, set, photon,
- * segment): the same bound for any thread count. Free with ub_dls_reach_free. */
+ * photons of the lights with enabled[l] != 0, for 1..UB_DLS_REACH_SEGMENTS segments
+ * (ub_dls_influence_bounces + 1). Random numbers hash(seed, set, photon, segment): the
+ * same bound for any thread count. Free with ub_dls_reach_free. */
 ub_result ub_dls_reach_build(const ub_scene *scene, const ub_rt *rt, const uint8_t *enabled,
                              const float lo[3], const float hi[3], uint32_t seed,
-                             uint32_t set, ub_dls_reach *out);
+                             uint32_t set, uint32_t segments, ub_dls_reach *out);
 void ub_dls_reach_free(ub_dls_reach *r);
 /* Grows the box [lo, hi] to hold p (non-finite coordinates ignored). */
 void ub_dls_bounds_add(const float p[3], float lo[3], float hi[3]);

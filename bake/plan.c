@@ -422,7 +422,8 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
     double cand = 1.0, photon_rays = 0.0;
     if (out->influence_culling && out->dls_reach) {
       ub_dls_reach *rbp = &out->dls_reach[d], rb;
-      ub_result rr = ub_dls_reach_build(scene, rt, en, lo, hi, opt->seed, d, &rb);
+      ub_result rr = ub_dls_reach_build(scene, rt, en, lo, hi, opt->seed, d,
+                                        ub_dls_influence_bounces(opt->bounces) + 1u, &rb);
       if (rr != UB_OK) {
         free(en);
         free(set_reaches);
@@ -440,13 +441,13 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
     }
     out->dls_candidates[d] = cand;
     double Tc = cand * T, Pc = cand * P;
-    /* influence: direct + UB_DLS_INFLUENCE_BOUNCES bounces on the candidates; full: the
+    /* influence: direct + ub_dls_influence_bounces bounces on the candidates; full: the
      * reachable share. */
     /* sparse gathers (dls.c): under a third of the candidate texels and a fifth of the
      * candidate probes gather (estate_small draft: 29% and 19%) */
     double gt = out->influence_sparse ? 0.3 : 1.0, gp = out->influence_sparse ? 0.2 : 1.0;
     double inf = photon_rays + (Tc + Pc) * nlight +
-                 (double)UB_DLS_INFLUENCE_BOUNCES *
+                 (double)ub_dls_influence_bounces(opt->bounces) *
                      (gt * Tc * out->influence_rays + gp * Pc * 2 * out->influence_rays);
     double frac = out->influence_culling ? fmin(cand, 1.2 * reach) : 1.0;
     /* scaled rays (dls.c): the full passes' gathers at about half the rays (estate_small

@@ -81,7 +81,8 @@ static void check_level(const char *path, const char *name)
     for (uint32_t l = 0; l < s->light_count; l++)
       en[l] = s->lights[l].dls == (int32_t)d;
     ub_dls_reach rb;
-    ASSERT_OK(ub_dls_reach_build(s, rt, en, lo, hi, o.seed, d, &rb));
+    ASSERT_OK(ub_dls_reach_build(s, rt, en, lo, hi, o.seed, d,
+                                 ub_dls_influence_bounces(o.bounces) + 1u, &rb));
     uint32_t nc = 0;
     for (uint32_t t = 0; t < T; t++)
       if (ub_dls_reach_texel(&rb, lm, t))
