@@ -248,9 +248,12 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   r = ub_plan_build(scene, rt, em, lm, tm->point_count, opt, log, &plan);
   if (r != UB_OK)
     goto fail;
-  stage_end(&sc, "%u pass(es), %u of %u lights in the base pass, sky %s, emissive %s",
+  char reach_s[64] = "";
+  if (scene->dls_count) /* DLS work done here, reused by the sets' stage */
+    snprintf(reach_s, sizeof reach_s, " (the sets' reach %.2f s)", plan.dls_reach_seconds);
+  stage_end(&sc, "%u pass(es), %u of %u lights in the base pass, sky %s, emissive %s%s",
             plan.pass_count, plan.base_lights, scene->light_count, plan.sky ? "yes" : "no",
-            plan.emissive ? "yes" : "no");
+            plan.emissive ? "yes" : "no", reach_s);
   ub_plan_print(&plan, scene, log);
   if (opt->plan_only) {
     stats.total_seconds = now_seconds() - t_start;

@@ -402,6 +402,76 @@ int ub_dls_reach_texel(const ub_dls_reach *r, const ub_lightmap *lm, uint32_t t)
   return 0;
 }
 
+/* The grid index of the cell a quarter cell out along n from p, or UB_DLS_CELL_OUTSIDE
+ * (reach_near_open's lookup). */
+static uint32_t open_cell(const ub_dls_reach *r, const float p[3], const float n[3])
+{
+  float q[3] = {p[0] + 0.25f * r->cell * n[0], p[1] + 0.25f * r->cell * n[1],
+                p[2] + 0.25f * r->cell * n[2]};
+  int32_t c[3];
+  if (!reach_cell(r, q, c))
+    return UB_DLS_CELL_OUTSIDE;
+  return (uint32_t)grid_index(r->dim, c);
+}
+
+int ub_dls_texel_cells_build(const ub_dls_reach *r, const ub_lightmap *lm,
+                             ub_dls_texel_cells *out)
+{
+  memset(out, 0, sizeof *out);
+  if (r->unbounded || !r->near ||
+      (size_t)r->dim[0] * r->dim[1] * r->dim[2] >= (size_t)UB_DLS_CELL_OUTSIDE)
+    return 0;
+  uint32_t per = lm->sample_pos ? 1u + UB_TEXEL_SAMPLES : 1u;
+  uint32_t *idx = malloc(((size_t)lm->texel_count * per + 1) * sizeof *idx);
+  if (!idx)
+    return 0;
+  for (uint32_t t = 0; t < lm->texel_count; t++) {
+    const float *n = lm->texel_normal + 3 * (size_t)t;
+    uint32_t *o = idx + (size_t)t * per;
+    o[0] = open_cell(r, lm->texel_pos + 3 * (size_t)t, n);
+    for (uint32_t j = 1; j < per; j++)
+      o[j] = open_cell(r, lm->sample_pos + ((size_t)t * UB_TEXEL_SAMPLES + j - 1) * 3, n);
+  }
+  memcpy(out->org, r->org, sizeof out->org);
+  out->cell = r->cell;
+  memcpy(out->dim, r->dim, sizeof out->dim);
+  out->per = per;
+  out->idx = idx;
+  return 1;
+}
+
+void ub_dls_texel_cells_free(ub_dls_texel_cells *tc)
+{
+  if (tc) {
+    free(tc->idx);
+    memset(tc, 0, sizeof *tc);
+  }
+}
+
+uint32_t ub_dls_reach_texels(const ub_dls_reach *r, const ub_dls_texel_cells *tc,
+                             const ub_lightmap *lm, uint32_t *out)
+{
+  uint32_t n = 0;
+  int fast = !r->unbounded && tc && tc->idx && r->near && tc->cell == r->cell &&
+             memcmp(tc->org, r->org, sizeof tc->org) == 0 &&
+             memcmp(tc->dim, r->dim, sizeof tc->dim) == 0;
+  for (uint32_t t = 0; t < lm->texel_count; t++) {
+    int in;
+    if (fast) {
+      const uint32_t *o = tc->idx + (size_t)t * tc->per;
+      in = 0;
+      for (uint32_t j = 0; j < tc->per && !in; j++)
+        in = o[j] == UB_DLS_CELL_OUTSIDE || r->near[o[j]] != 0;
+    } else {
+      in = ub_dls_reach_texel(r, lm, t);
+    }
+    if (in && out)
+      out[n] = t;
+    n += (uint32_t)in;
+  }
+  return n;
+}
+
 int ub_dls_reach_point(const ub_dls_reach *r, const float p[3])
 {
   return r->unbounded || reach_near(r, p) != 0;
@@ -726,6 +796,8 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
   const uint32_t NB = ub_dls_influence_bounces(base->bounces);
   const int full_tail = base->bounces < 0 || (uint32_t)base->bounces > NB;
   uint8_t *tsh = scaled ? calloc((size_t)lm->texel_count + 1, 1) : NULL;
+  ub_dls_texel_cells cells; /* built from the first bounded reach (ub_dls_reach_texels) */
+  memset(&cells, 0, sizeof cells);
   uint8_t *psh = scaled ? calloc((size_t)base->probe_count + 1, 1) : NULL;
   uint8_t *lsh = scaled ? calloc((size_t)nlp + 1, 1) : NULL;
   if (!recs || !enabled || !kt || !kp || !kl || !ct || !cp || !cl ||
@@ -835,10 +907,10 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
       }
       out_stats->rays_reach += reach.rays;
       if (!reach.unbounded) {
-        nct = ncp = ncl = 0;
-        for (uint32_t t = 0; t < lm->texel_count; t++)
-          if (ub_dls_reach_texel(&reach, lm, t))
-            ct[nct++] = t;
+        ncp = ncl = 0;
+        if (!cells.idx) /* every set's bound is on this grid (failing: point by point) */
+          ub_dls_texel_cells_build(&reach, lm, &cells);
+        nct = ub_dls_reach_texels(&reach, &cells, lm, ct);
         for (uint32_t q = 0; q < base->probe_count; q++)
           if (ub_dls_reach_point(&reach, base->probe_pos + 3 * (size_t)q))
             cp[ncp++] = q;
@@ -967,7 +1039,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     const double frac = full_tail ? UB_DLS_INFLUENCE_FRACTION : UB_DLS_INFLUENCE_FRACTION_EXACT;
     double thr = lit ? frac * ind_sum / lit : 0.0;
     /* Probes: the same tail on their (DC) indirect, no per-probe bounce split: the
-     * level's share of bounce 2 in the first two. */
+     * level's share of bounce NB in the first NB (no tail: factor 1). */
     double ind_e = 0.0;
     for (uint32_t k = 1; k <= NB; k++)
       ind_e += inf.bounce_energy[k];
@@ -1034,7 +1106,8 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     pd.llg_subset = kl;
     pd.llg_subset_count = nkl;
     /* The culled texels are not simulated, but the influence pass's estimate of their
-     * bounces 1-2 (and its geometric tail) still lights the kept ones: without it, the
+     * bounces 1..NB (beyond NB, scaled by the full pass's bounce energies) still lights
+     * the kept ones: without it, the
      * kept texels of estate_small's sets missed 0.5-1.5% of their light at full bounces. */
     pd.outside_bounce_iz = plan->influence_culling ? inf.texel_bounce_iz : NULL;
     pd.outside_bounces = inf.texel_bounce_iz ? NB : 0;
@@ -1121,6 +1194,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
                   100.0 * out_stats->texels_candidate / ((double)s->dls_count * (lm->texel_count + 1)),
                   100.0 * out_stats->probes_candidate / ((double)s->dls_count * (base->probe_count + 1)),
                   100.0 * out_stats->llg_probes_candidate / ((double)s->dls_count * (nlp + 1)));
+  ub_dls_texel_cells_free(&cells);
   free(tsh);
   free(psh);
   free(lsh);

@@ -4,7 +4,9 @@
  * set first runs a cheap influence pass (direct light + UB_DLS_INFLUENCE_BOUNCES bounces,
  * few rays; the paper has 2); the receivers it keeps are those lit directly, or whose
  * indirect light (extrapolated past the last bounce by its geometric tail) exceeds 1% of
- * the mean indirect light of the directly lit texels (GLG and LLG probes likewise: the record
+ * the mean indirect light of the directly lit texels. Before full passes of a fixed B ≤
+ * UB_DLS_INFLUENCE_BOUNCES bounces: B influence bounces, no tail, 0.5%
+ * (ub_dls_influence_bounces). GLG and LLG probes likewise: the record
  * carries the LLG probes it keeps, llg_probe_index/llg_probe_sh). The full-quality
  * pass then simulates only those receivers (the culled texels' influence-pass bounces
  * still light them: ub_pass_desc.outside_bounce_iz), and its result is stored as a sparse, linear
@@ -19,11 +21,11 @@
 #include "ubake/bakefile.h"
 
 #define UB_DLS_INFLUENCE_FRACTION 0.01 /* of the mean indirect of directly lit texels */
-/* The same when the influence pass simulates exactly the full passes' bounces (fixed, fewer
- * than UB_DLS_INFLUENCE_BOUNCES: ub_dls_influence_bounces) and no tail. Its estimate is then
- * what the full pass computes, no longer inflated by later bounces, and culling at 1%
- * dropped 0.3-1.4% of a set's light on estate_small at 2 bounces (tests/test_plan.c
- * dls_culling, which wants < 1%); at 0.5%, 0.16-0.89%. */
+/* The same when the influence pass simulates exactly the full passes' bounces (a fixed
+ * count of at most UB_DLS_INFLUENCE_BOUNCES: ub_dls_influence_bounces) and no tail. Its
+ * estimate is then what the full pass computes, no longer inflated by later bounces, and
+ * culling at 1% dropped 0.3-1.4% of a set's light on estate_small at 2 bounces
+ * (tests/test_plan.c dls_culling, which wants < 1%); at 0.5%, 0.16-0.89%. */
 #define UB_DLS_INFLUENCE_FRACTION_EXACT 0.005
 /* Full passes with scaled rays (ub_plan.dls_scaled_rays): a receiver gathers with at
  * least 2^-UB_DLS_RAY_SHIFT_MAX of the rays. */
@@ -38,8 +40,10 @@
 
 /* Bounces the influence pass simulates before full passes of `bounces` bounces (-1: until
  * converged; ub_pass_desc.bounces): UB_DLS_INFLUENCE_BOUNCES, or the full passes' own count
- * when it is lower. Light that only arrives after more bounces than the full pass traces
- * is never in its record, so the influence pass has no reason to follow it: with
+ * when it is lower. With a fixed count of at most UB_DLS_INFLUENCE_BOUNCES (4 included)
+ * the estimate has no tail and the threshold is UB_DLS_INFLUENCE_FRACTION_EXACT. Light
+ * that only arrives after more bounces than the full pass traces is never in its
+ * record, so the influence pass has no reason to follow it: with
  * --bounces 2 it runs 2 bounces, not 4, and its photons 3 segments, not 5. */
 static inline uint32_t ub_dls_influence_bounces(int bounces)
 {
@@ -91,6 +95,28 @@ void ub_dls_bounds_add(const float p[3], float lo[3], float hi[3]);
  * junction stays where it is while the back-face fix moves its samples into the room
  * that lights them, lightmaps/layout.c); a probe (point in free space) at p. */
 int ub_dls_reach_texel(const ub_dls_reach *r, const ub_lightmap *lm, uint32_t t);
+/* The grid cells ub_dls_reach_texel reads for every texel (its centre and its sample
+ * points, each a quarter cell out along the normal), for the reach bounds of one grid:
+ * every set's bound is on the same grid (the receivers' bounds), so with this table a
+ * set's candidate test is a byte read per point instead of the point's cell arithmetic
+ * (at ESTATE full scale, 132 sets × 1.57 M texels: ~11 s in the plan and as much again
+ * in the sets' stage). */
+#define UB_DLS_CELL_OUTSIDE 0xFFFFFFFFu /* a point outside the grid: always a candidate */
+typedef struct ub_dls_texel_cells {
+  float org[3], cell;
+  uint32_t dim[3];
+  uint32_t per;  /* cells per texel: 1 + UB_TEXEL_SAMPLES, or 1 without sample points */
+  uint32_t *idx; /* texel_count × per grid indices (or UB_DLS_CELL_OUTSIDE) */
+} ub_dls_texel_cells;
+/* Builds the table on r's grid; 0 (out zeroed) when r is unbounded or out of memory. */
+int ub_dls_texel_cells_build(const ub_dls_reach *r, const ub_lightmap *lm,
+                             ub_dls_texel_cells *out);
+void ub_dls_texel_cells_free(ub_dls_texel_cells *tc);
+/* The texels ub_dls_reach_texel finds in r (the same answers), through tc when it was
+ * built on r's grid (else, or tc NULL, point by point): their count, and with out, the
+ * texels themselves ascending. */
+uint32_t ub_dls_reach_texels(const ub_dls_reach *r, const ub_dls_texel_cells *tc,
+                             const ub_lightmap *lm, uint32_t *out);
 int ub_dls_reach_point(const ub_dls_reach *r, const float p[3]);
 
 typedef struct ub_dls_stats {

@@ -22,21 +22,22 @@ const char *ub_light_skip_reason(ub_light_skip s)
 }
 
 /* Fraction of receivers where the light can shine (range sphere, spot cone, front side),
- * ignoring occlusion: an upper bound of what the light reaches. */
-static double light_reach_fraction(const ub_light *L, const ub_lightmap *lm, int any)
+ * ignoring occlusion: an upper bound of what the light reaches. Over the texels in
+ * parallel (an integer count: the same for any thread count; at ESTATE full scale 297
+ * lights × 1.57 M texels took 7.2 s on one thread). */
+static double light_reach_fraction(const ub_light *L, const ub_lightmap *lm)
 {
   uint64_t n = 0;
-  for (uint32_t t = 0; t < lm->texel_count; t++) {
+  const int64_t T = lm->texel_count;
+#pragma omp parallel for schedule(static, 16384) reduction(+ : n)
+  for (int64_t t = 0; t < T; t++) {
     const float *p = lm->texel_pos + 3 * (size_t)t;
     const float *nn = lm->texel_normal + 3 * (size_t)t;
     float dir[3], dist, e[3];
     if (!ub_light_incident(L, p, dir, &dist, e))
       continue;
-    if (dir[0] * nn[0] + dir[1] * nn[1] + dir[2] * nn[2] > 0.0f) {
+    if (dir[0] * nn[0] + dir[1] * nn[1] + dir[2] * nn[2] > 0.0f)
       n++;
-      if (any)
-        break;
-    }
   }
   return lm->texel_count ? (double)n / lm->texel_count : 0.0;
 }
@@ -316,7 +317,10 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
     const ub_light *L = &scene->lights[l];
     ub_light_skip skip = UB_SKIP_NONE;
     int dark = !(L->intensity[0] > 0.0f || L->intensity[1] > 0.0f || L->intensity[2] > 0.0f);
-    out->light_reach[l] = dark ? 0.0f : (float)light_reach_fraction(L, lm, 0);
+    double tl0 = now_s();
+    out->light_reach[l] = dark ? 0.0f : (float)light_reach_fraction(L, lm);
+    if (L->dls >= 0) /* a set's work, done here */
+      out->dls_reach_seconds += now_s() - tl0;
     if (!all && dark)
       skip = UB_SKIP_DARK;
     else if (!all && out->light_reach[l] <= 0.0f)
@@ -407,6 +411,9 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
   for (uint32_t l = 0; l < scene->light_count; l++)
     if (scene->lights[l].dls >= 0 && scene->lights[l].type != UB_LIGHT_DIRECTIONAL)
       ub_dls_bounds_add(scene->lights[l].position, lo, hi);
+  ub_dls_texel_cells cells;
+  memset(&cells, 0, sizeof cells);
+  double t_reach = now_s();
   for (uint32_t d = 0; d < scene->dls_count; d++) {
     if (!set_reaches[d])
       continue;
@@ -425,15 +432,16 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
       ub_result rr = ub_dls_reach_build(scene, rt, en, lo, hi, opt->seed, d,
                                         ub_dls_influence_bounces(opt->bounces) + 1u, &rb);
       if (rr != UB_OK) {
+        ub_dls_texel_cells_free(&cells);
         free(en);
         free(set_reaches);
         ub_plan_free(out);
         return rr;
       }
       if (!rb.unbounded && lm->texel_count) {
-        uint64_t n = 0;
-        for (uint32_t t = 0; t < lm->texel_count; t++)
-          n += ub_dls_reach_texel(&rb, lm, t);
+        if (!cells.idx) /* every set's bound is on this grid (failing: point by point) */
+          ub_dls_texel_cells_build(&rb, lm, &cells);
+        uint64_t n = ub_dls_reach_texels(&rb, &cells, lm, NULL);
         cand = (double)n / lm->texel_count;
       }
       photon_rays = (double)rb.rays;
@@ -457,6 +465,9 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
                           gs * (T * out->gather_rays + P * out->probe_rays) * b);
     out->dls_est_rays[d] = (out->influence_culling ? inf : 0.0) + full;
   }
+  ub_dls_texel_cells_free(&cells);
+  if (out->dls_reach)
+    out->dls_reach_seconds += now_s() - t_reach;
   free(en);
   free(set_reaches);
   return UB_OK;

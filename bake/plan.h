@@ -65,6 +65,8 @@ typedef struct ub_plan {
    * (NULL without culling); dls_reach_count entries, freed by ub_plan_free. */
   struct ub_dls_reach *dls_reach;
   uint32_t dls_reach_count;
+  double dls_reach_seconds;    /* the sets' lights' light_reach and tracing the bounds and
+                                  counting their candidates: the sets' work, done here */
   double ray_rate;             /* measured rays/s on this level, all threads */
   double bounce_ratio;         /* mean albedo a cosine gather ray finds (misses count 0) */
   uint32_t est_bounces;        /* bounces the estimates assume (ub_plan_bounces when auto) */

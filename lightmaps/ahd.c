@@ -293,11 +293,12 @@ __attribute__((target("avx"))) static inline void transpose8_avx(__m256 r[8])
  * nrm: 8K × 3 unit normals; o[g]: group g's AHD in lanes. Texels move into and out of the
  * lanes by register transposes (8 × 8 and 8 × 4), not through memory element by element.
  * The groups go through each step in lockstep: one group's work is a chain of dependent
- * long-latency operations (a sqrt, then divisions), ~170 cycles for 8 texels on the
- * bench machine when run alone, and too long for the out-of-order window to overlap the
- * next group's; side by side, one group's work fills the other's waits.
- * Returns a bit per group whose input is not all finite (its o is then garbage: the
- * caller encodes those texels one by one, as the scalar code's finite_or_zero wants). */
+ * long-latency operations (a sqrt, then divisions); side by side, one group's work can
+ * fill the other's waits. On the bench machine (Zen 3) that gained only 7–8% in cache
+ * (bench_ahd): the encode is mostly bound by its ~470 instructions per 8 texels.
+ * Returns a bit per group whose input is not all finite, or whose finite values sum to
+ * ±Inf (its o is then garbage: the caller encodes those texels one by one, which gives
+ * the bits as the scalar code's finite_or_zero wants). */
 #define AHD_MAX_K 2
 #define AHD_FOR_G _Pragma("GCC unroll 4") for (int g = 0; g < K; g++)
 __attribute__((target("avx"), always_inline)) static inline unsigned
@@ -454,7 +455,8 @@ encode_lanes_k(const int K, const float *const *rows, const float *nrm, __m256 o
   return bad;
 }
 
-/* One group (the callers that have eight texels): 1 when its input is all finite. */
+/* One group (the callers that have eight texels): 1 when encode_lanes_k took it (its
+ * input finite and not summing to ±Inf), else 0 (the caller goes scalar). */
 __attribute__((target("avx"))) static inline int encode_iz8_lanes(const float *const rows[8],
                                                                   const float *nrm, __m256 o[9])
 {

@@ -1,13 +1,17 @@
 /* The reach bound of dynamic light sets (bake/dls.h) drops nothing that matters: per set,
  * the influence pass run over every texel (what ub_dls_bake did before the bound) and the
  * same pass over the bound's candidate texels only, with the kept-receiver rule of
- * ub_dls_bake (lit directly, or indirect above 1% of the mean indirect of the directly
- * lit texels) applied to each. Checked, per set:
+ * ub_dls_bake before full passes of INF_BOUNCES fixed bounces (influence pass and photons
+ * of that many bounces, no tail: lit directly, or indirect above
+ * UB_DLS_INFLUENCE_FRACTION_EXACT of the mean indirect of the directly lit texels)
+ * applied to each. Checked, per set:
  * - the texels kept without the bound that lie outside it carry < 1% of the light
  *   (direct + indirect of the unbounded influence pass) of the texels kept without it;
  * - the texels kept without the bound but not with it (outside it, or inside it but now
  *   below the threshold, e.g. missing bounce light from outside) carry < 1% more than
  *   the rule's own noise: the same unbounded pass with other random numbers;
+ * - the candidate list through the per-texel cell table (ub_dls_texel_cells) is the
+ *   point-by-point one;
  * - and the bound is reported: candidates and kept texels vs the level.
  * Levels: hallway and estate_small (sets of their own), inn and two_rooms with every
  * light in one set (genlevel's common parameter lights_dls=1). Texels only: probes follow
@@ -26,6 +30,7 @@
 #include "ubake/scene.h"
 
 #define MAX_DROPPED 0.01 /* of the light of the receivers the unbounded pass keeps */
+#define INF_BOUNCES 2     /* ub_dls_bake's influence pass at --bounces 2 */
 
 static char g_build[512];
 
@@ -38,7 +43,7 @@ static void keep_rule(const ub_pass_result *inf, uint32_t T, uint8_t *out_kept)
       ind += inf->texel_indirect[t];
       lit++;
     }
-  double thr = lit ? UB_DLS_INFLUENCE_FRACTION * ind / lit : 0.0;
+  double thr = lit ? UB_DLS_INFLUENCE_FRACTION_EXACT * ind / lit : 0.0;
   for (uint32_t t = 0; t < T; t++)
     out_kept[t] = inf->texel_direct[t] > 0.0f || inf->texel_indirect[t] > thr;
 }
@@ -82,13 +87,24 @@ static void check_level(const char *path, const char *name)
       en[l] = s->lights[l].dls == (int32_t)d;
     ub_dls_reach rb;
     ASSERT_OK(ub_dls_reach_build(s, rt, en, lo, hi, o.seed, d,
-                                 ub_dls_influence_bounces(o.bounces) + 1u, &rb));
+                                 ub_dls_influence_bounces(INF_BOUNCES) + 1u, &rb));
     uint32_t nc = 0;
     for (uint32_t t = 0; t < T; t++)
       if (ub_dls_reach_texel(&rb, lm, t))
         cand[nc++] = t;
+    {
+      ub_dls_texel_cells tc;
+      uint32_t *c2 = malloc(((size_t)T + 1) * sizeof *c2);
+      int built = ub_dls_texel_cells_build(&rb, lm, &tc);
+      ASSERT_TRUE(built || rb.unbounded);
+      uint32_t n2 = c2 ? ub_dls_reach_texels(&rb, &tc, lm, c2) : 0;
+      ASSERT_TRUE(c2 && n2 == nc && memcmp(c2, cand, (size_t)nc * sizeof *c2) == 0);
+      ASSERT_TRUE(ub_dls_reach_texels(&rb, NULL, lm, NULL) == nc);
+      ub_dls_texel_cells_free(&tc);
+      free(c2);
+    }
     ub_dls_reach_free(&rb);
-    /* The influence pass of ub_dls_bake at draft (64 gather rays → 16 influence rays). */
+    /* An influence pass of ub_dls_bake at --bounces INF_BOUNCES (16 gather rays). */
     ub_pass_desc pd;
     memset(&pd, 0, sizeof pd);
     pd.scene = s;
@@ -97,7 +113,7 @@ static void check_level(const char *path, const char *name)
     pd.light_enabled = en;
     pd.gather_rays = 16;
     pd.shadow_samples = 1;
-    pd.bounces = 2;
+    pd.bounces = INF_BOUNCES;
     pd.seed = o.seed;
     pd.pass_id = 2 + 2 * d;
     ub_pass_result all, sub, again;
