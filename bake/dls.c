@@ -1107,8 +1107,8 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     pd.llg_subset_count = nkl;
     /* The culled texels are not simulated, but the influence pass's estimate of their
      * bounces 1..NB (beyond NB, scaled by the full pass's bounce energies) still lights
-     * the kept ones: without it, the
-     * kept texels of estate_small's sets missed 0.5-1.5% of their light at full bounces. */
+     * the kept ones: without it, the kept texels of estate_small's sets missed 0.5-1.5% of
+     * their light at full bounces. */
     pd.outside_bounce_iz = plan->influence_culling ? inf.texel_bounce_iz : NULL;
     pd.outside_bounces = inf.texel_bounce_iz ? NB : 0;
     if (scaled) {
