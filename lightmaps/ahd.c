@@ -262,6 +262,23 @@ void ub_ahd_unpack(const ub_ahd_packed *in, float scale, ub_ahd *out)
   out->direction[2] = z / l;
 }
 
+/* ub_ahd_encode_iz then ub_ahd_pack: the bits every packed encoder gives. */
+static void encode_packed(const float sh_iz[12], const float unit_normal[3], float inv_scale,
+                          ub_ahd_packed *out)
+{
+  ub_ahd a;
+  ub_ahd_encode_iz(sh_iz, unit_normal, &a);
+  ub_ahd_pack(&a, inv_scale, out);
+}
+
+/* encode_packed on eight texels (rows[j], normal j of nrm, out[j]). */
+static void encode8_packed_scalar(const float *const rows[8], const float *nrm, float inv_scale,
+                                  ub_ahd_packed *const out[8])
+{
+  for (int j = 0; j < 8; j++)
+    encode_packed(rows[j], nrm + 3 * j, inv_scale, out[j]);
+}
+
 #if defined(AHD_HAVE_AVX)
 /* In-register 8 × 8 transpose: r[j] holds 8 floats of row j; afterwards r[k] holds element
  * k of every row (its own inverse). */
@@ -455,26 +472,13 @@ encode_lanes_k(const int K, const float *const *rows, const float *nrm, __m256 o
   return bad;
 }
 
-/* One group (the callers that have eight texels): 1 when encode_lanes_k took it (its
- * input finite and not summing to ±Inf), else 0 (the caller goes scalar). */
-__attribute__((target("avx"))) static inline int encode_iz8_lanes(const float *const rows[8],
-                                                                  const float *nrm, __m256 o[9])
-{
-  __m256 og[1][9];
-  if (encode_lanes_k(1, rows, nrm, og))
-    return 0;
-  #pragma GCC unroll 9
-  for (int k = 0; k < 9; k++)
-    o[k] = og[0][k];
-  return 1;
-}
-
-/* encode_iz8_lanes, then the eight AHD out of the lanes by a register transpose. */
+/* encode_lanes_k for one group, then the eight AHD out of the lanes by a register
+ * transpose. */
 __attribute__((target("avx"))) static void encode_iz8_avx(const float *const rows[8],
                                                           const float *nrm, ub_ahd *const out[8])
 {
-  __m256 o[9];
-  if (!encode_iz8_lanes(rows, nrm, o)) {
+  __m256 og[1][9], *o = og[0];
+  if (encode_lanes_k(1, rows, nrm, og)) {
     for (int j = 0; j < 8; j++)
       ub_ahd_encode_iz(rows[j], nrm + 3 * j, out[j]);
     return;
@@ -563,17 +567,6 @@ pack_lanes_k(const int K, __m256 o[][9], unsigned skip, float inv_scale,
   }
 }
 
-/* The scalar encode + pack of the eight texels of a group with a non-finite input. */
-static void encode8_packed_scalar(const float *const rows[8], const float *nrm, float inv_scale,
-                                  ub_ahd_packed *const out[8])
-{
-  for (int j = 0; j < 8; j++) {
-    ub_ahd a;
-    ub_ahd_encode_iz(rows[j], nrm + 3 * j, &a);
-    ub_ahd_pack(&a, inv_scale, out[j]);
-  }
-}
-
 /* encode_lanes_k then pack_lanes_k for one group. */
 __attribute__((target("avx,f16c"))) static void encode_iz8_packed_avx(const float *const rows[8],
                                                                     const float *nrm,
@@ -651,11 +644,7 @@ void ub_ahd_encode_iz8_rows_packed(const float *const rows[8], const float *unit
     return;
   }
 #endif
-  for (int j = 0; j < 8; j++) {
-    ub_ahd a;
-    ub_ahd_encode_iz(rows[j], unit_normals + 3 * j, &a);
-    ub_ahd_pack(&a, inv_scale, out[j]);
-  }
+  encode8_packed_scalar(rows, unit_normals, inv_scale, out);
 }
 
 void ub_ahd_encode_iz8_packed(const float *sh_iz, const float *unit_normals, float inv_scale,
@@ -689,9 +678,6 @@ void ub_ahd_encode_iz_packed_n(const float *sh_iz, const float *unit_normals, fl
 #endif
   for (; i + 8 <= count; i += 8)
     ub_ahd_encode_iz8_packed(sh_iz + 12 * i, unit_normals + 3 * i, inv_scale, out_packed + i);
-  for (; i < count; i++) {
-    ub_ahd a;
-    ub_ahd_encode_iz(sh_iz + 12 * i, unit_normals + 3 * i, &a);
-    ub_ahd_pack(&a, inv_scale, out_packed + i);
-  }
+  for (; i < count; i++)
+    encode_packed(sh_iz + 12 * i, unit_normals + 3 * i, inv_scale, out_packed + i);
 }
