@@ -2536,8 +2536,6 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     }
     total_energy += e;
     src_energy = outgoing_energy(&c, tx->acc_iz, act, nact);
-    ub_log_printf(log, UB_LOG_INFO, "  bounce %u: +%.3f%% energy", b,
-                  total_energy > 0 ? 100.0 * e / total_energy : 0.0);
     /* Stop when the bounce adds < stop_fraction of the light so far, both over the level
      * and at (almost) every texel: a bright directly lit area (a sun patch) must not end
      * the bounces while a dark corner still gains a good part of its light per bounce. */
@@ -2557,6 +2555,12 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       }
     }
     int local_done = gaining <= (uint64_t)(UB_STOP_TEXEL_SHARE * (double)lit);
+    /* Both halves of the stop rule, so a log shows which one holds the bounces. */
+    ub_log_printf(log, UB_LOG_INFO,
+                  "  bounce %u: +%.3f%% energy; %.2f%% of lit texels gained > %.2g%% of "
+                  "their own light",
+                  b, total_energy > 0 ? 100.0 * e / total_energy : 0.0,
+                  lit ? 100.0 * (double)gaining / (double)lit : 0.0, 100.0 * d->stop_fraction);
     if (d->bounces < 0 && local_done &&
         e <= d->stop_fraction * (total_energy - out->bounce_energy[0])) {
       converged = 1;
