@@ -281,6 +281,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   pd.probe_rays = plan.probe_rays;
   pd.llg = llg.model_count ? &llg : NULL;
   pd.bounces = opt->bounces;
+  pd.bounce_full_rays = opt->bounce_full_rays;
   pd.stop_fraction = plan.stop_fraction;
   pd.seed = opt->seed;
   pd.pass_id = 0;
@@ -340,7 +341,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
     stats.dls_sets = dstats.sets_baked;
     stats.rays_total = ub_rt_rays_traced(rt);
     stage_end(&sc, "%u set(s) baked, %u reach nothing; influence %.1f M rays %.2f s, full %.1f "
-              "M rays %.2f s (gathers at %.1f%% of the full rays%s)",
+              "M rays %.2f s (bounce-1 gathers at %.1f%% of the full rays%s)",
               dstats.sets_baked, dstats.sets_empty, dstats.rays_influence * 1e-6,
               dstats.seconds_influence, dstats.rays_full * 1e-6, dstats.seconds_full,
               dstats.gather_units_full ? 100.0 * dstats.gather_units / dstats.gather_units_full

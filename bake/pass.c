@@ -53,6 +53,10 @@ typedef struct recv_set {
   uint32_t rays;         /* gather rays per receiver per bounce */
   const uint8_t *ray_shift; /* count entries, or NULL: receiver r's gathers of bounces >= 1
                                trace rays >> ray_shift[r] (recv_rays) */
+  const uint8_t *pass_shift; /* the pass's own (ub_pass_desc.*_ray_shift), or NULL */
+  uint8_t *bshift;       /* count entries or NULL: ray_shift once later bounces have faded
+                            (bounce_shifts) */
+  float *peak;           /* count entries: each receiver's brightest bounce so far */
   uint32_t id_base;
   const ub_rt *rt;       /* the geometry its rays see (LLG probes: the level without LLGs) */
   double *acc_sh_np;     /* bounce 0 only (LLG probes): its non-punctual part, or NULL */
@@ -1782,6 +1786,38 @@ static double lum3d(const double *rgb)
   return 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2];
 }
 
+/* Later bounces with fewer rays (ub_pass_desc.bounce_full_rays = 0). Called after bounce b
+ * (≥ 1) with receiver r's bounce-b light in light(r) (texels: I_z, probes: DC, luminance):
+ * its gathers of bounce b + 1 trace rays >> k more, 2^k ≤ its brightest bounce so far /
+ * this one (k ≤ UB_BOUNCE_RAY_SHIFT_MAX with its pass shift). A bounce's share of a
+ * receiver's noise goes as its light over √rays, so the rays follow the light (N_b ∝ the
+ * bounce's light is what minimises the summed variance at a given ray count): where
+ * light still arrives late (a room lit through a doorway) the peak comes late and the
+ * rays stay. A receiver that has seen no light keeps its rays. The choice depends on the
+ * bounce's results only (no thread count), and each bounce's estimate stays unbiased. */
+static void bounce_shifts(recv_set *rs, const double *acc, size_t stride)
+{
+  if (!rs->bshift)
+    return;
+  for (uint32_t i = 0; i < rs->active; i++) {
+    uint32_t r = rs->index ? rs->index[i] : i;
+    double v = lum3d(acc + stride * (size_t)r);
+    float pk = rs->peak[r];
+    if (v > (double)pk)
+      rs->peak[r] = pk = (float)v;
+    uint32_t k = rs->pass_shift ? rs->pass_shift[r] : 0u;
+    if (pk > 0.0f) {
+      double x = v > 0.0 ? v : 0.0;
+      while (k < UB_BOUNCE_RAY_SHIFT_MAX && 2.0 * x <= (double)pk) {
+        x *= 2.0;
+        k++;
+      }
+    }
+    rs->bshift[r] = (uint8_t)k;
+  }
+  rs->ray_shift = rs->bshift;
+}
+
 /* Σ luminance of iz over the texels act[0..n) (ascending), or the first n without act. */
 static double energy_of(const double *iz, const uint32_t *act, uint32_t n)
 {
@@ -2281,6 +2317,23 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   lg->rt = llg ? llg->rt_env : d->rt;
   lg->acc_sh = calloc((size_t)LP * 27 + 1, sizeof(double));
   lg->acc_sh_np = calloc((size_t)LP * 27 + 1, sizeof(double));
+  tx->pass_shift = tx->ray_shift;
+  pr->pass_shift = pr->ray_shift;
+  lg->pass_shift = lg->ray_shift;
+  if (!d->bounce_full_rays && (d->bounces < 0 || d->bounces >= 3)) {
+    /* without memory every bounce keeps the full rays (same estimator, more work) */
+    recv_set *sets3[3] = {tx, pr, lg};
+    for (int k = 0; k < 3; k++) {
+      sets3[k]->bshift = calloc((size_t)sets3[k]->count + 1, 1);
+      sets3[k]->peak = calloc((size_t)sets3[k]->count + 1, sizeof(float));
+      if (!sets3[k]->bshift || !sets3[k]->peak) {
+        free(sets3[k]->bshift);
+        free(sets3[k]->peak);
+        sets3[k]->bshift = NULL;
+        sets3[k]->peak = NULL;
+      }
+    }
+  }
   double *llg_total = calloc((size_t)LP * 27 + 1, sizeof(double));
   out->llg_direct = calloc((size_t)LP + 1, sizeof(float));
   out->llg_indirect = calloc((size_t)LP + 1, sizeof(float));
@@ -2534,6 +2587,9 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
         llg_total[j] += lg->acc_sh[j];
       out->llg_indirect[q] += (float)(M_PI * UB_Y0 * lum3d(lg->acc_sh + 27 * q));
     }
+    bounce_shifts(tx, tx->acc_iz, 3);
+    bounce_shifts(pr, pr->acc_sh, 27);
+    bounce_shifts(lg, lg->acc_sh, 27);
     total_energy += e;
     src_energy = outgoing_energy(&c, tx->acc_iz, act, nact);
     /* Stop when the bounce adds < stop_fraction of the light so far, both over the level
@@ -2731,6 +2787,10 @@ done:
   free(c.tl_hot);
   free(lg->acc_sh);
   free(lg->acc_sh_np);
+  for (int k = 0; k < 3; k++) {
+    free(c.sets[k].bshift);
+    free(c.sets[k].peak);
+  }
   free(llg_total);
   free(c.llg_prev);
   if (c.sparse)

@@ -191,6 +191,19 @@ uint32_t ub_plan_bounces(double ratio, double stop_fraction, uint32_t cap)
   return cap;
 }
 
+double ub_plan_gather_bounces(double ratio, uint32_t bounces, int full_rays)
+{
+  if (full_rays)
+    return (double)bounces;
+  double step = ratio > 0.0 && ratio < 1.0 ? 0.5 * log2(1.0 / ratio) : (ratio >= 1.0 ? 0.0 : 1.5);
+  double sum = 0.0;
+  for (uint32_t k = 1; k <= bounces; k++) {
+    double s = k < 3 ? 0.0 : floor((double)(k - 2) * step);
+    sum += ldexp(1.0, -(int)(s < UB_BOUNCE_RAY_SHIFT_MAX ? s : UB_BOUNCE_RAY_SHIFT_MAX));
+  }
+  return sum;
+}
+
 /* Combinations the level tags: `ubake_combine: "A,B"` on a door's closed leaf names sets
  * (or doors) combined with it. A name that is a set becomes a candidate (the door pass
  * stage bakes it when the influence regions overlap); any other name is listed as
@@ -377,7 +390,7 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
   out->est_bounces = opt->bounces < 0 ? ub_plan_bounces(out->bounce_ratio, out->stop_fraction,
                                                          UB_BAKE_MAX_BOUNCES)
                                       : (uint32_t)opt->bounces;
-  double b = out->est_bounces;
+  double b = ub_plan_gather_bounces(out->bounce_ratio, out->est_bounces, opt->bounce_full_rays);
   double direct = T * ((double)out->base_lights * out->shadow_samples + out->emissive_samples +
                        ((out->sky || out->emissive) ? out->gather_rays : 0)) +
                   P * ((double)out->base_lights + out->emissive_samples +
@@ -455,7 +468,8 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
      * candidate probes gather (estate_small draft: 29% and 19%) */
     double gt = out->influence_sparse ? 0.3 : 1.0, gp = out->influence_sparse ? 0.2 : 1.0;
     double inf = photon_rays + (Tc + Pc) * nlight +
-                 (double)ub_dls_influence_bounces(opt->bounces) *
+                 ub_plan_gather_bounces(out->bounce_ratio, ub_dls_influence_bounces(opt->bounces),
+                                        opt->bounce_full_rays) *
                      (gt * Tc * out->influence_rays + gp * Pc * 2 * out->influence_rays);
     double frac = out->influence_culling ? fmin(cand, 1.2 * reach) : 1.0;
     /* scaled rays (dls.c): the full passes' gathers at about half the rays (estate_small

@@ -35,6 +35,8 @@ static void level_path(const char *name, char *out, size_t cap)
 }
 
 static float g_glg_spacing = 0.0f; /* override for the next bake (0 = level default) */
+static int g_bounce_full_rays = 0;  /* ub_bake_options.bounce_full_rays for the next bake */
+static ub_bake_stats g_last;        /* the last bake's stats */
 
 static ub_runtime *bake(const char *level, const char *tag, ub_quality q, int bounces,
                         int threads, float texel, char *out_ubk, size_t cap)
@@ -50,8 +52,10 @@ static ub_runtime *bake(const char *level, const char *tag, ub_quality q, int bo
   o.out_dir = dir;
   o.texel_size = texel;
   o.glg_spacing = g_glg_spacing;
+  o.bounce_full_rays = g_bounce_full_rays;
   ub_bake_stats st;
   ub_result r = ub_bake_level(path, &o, &g_log, &st);
+  g_last = st;
   if (r != UB_OK) {
     fprintf(stderr, "bake %s failed: %s\n", path, ub_result_string(r));
     return NULL;
@@ -133,6 +137,42 @@ static void test_furnace(void)
     ASSERT_TRUE(p95 < 0.05);
     ub_runtime_free(rt);
   }
+  /* Later bounces with fewer rays (bake/pass.c bounce_shifts): every bounce brings half the
+   * last, so bounce 3 gathers with 1/2 of the rays, bounces 4..8 with 1/4 (the most,
+   * UB_BOUNCE_RAY_SHIFT_MAX). With bounce 0's gathers (they see the emitting walls, full
+   * rays) that is (1 + 2 + 1/2 + 5/4) / 9 = 53% of the gathers, 61% if rounding puts a
+   * bounce a hair above half the last (one step less shift); 100% with full rays. The furnace's radiance is the same
+   * in every direction, so any ray count gives the exact bounce: a mean off by a power of
+   * two would be a receiver weighed with the wrong count. */
+  const int N = 8;
+  double expect = 0.0;
+  for (int k = 0; k <= N; k++)
+    expect += M_PI * Le * pow(rho, k);
+  uint64_t gathers[2] = {0, 0};
+  for (int full = 0; full < 2; full++) {
+    char tag[32];
+    snprintf(tag, sizeof tag, "furnace_b%d%s", N, full ? "_full" : "");
+    g_bounce_full_rays = full;
+    ub_runtime *rt = bake("furnace", tag, UB_QUALITY_FAST, N, 0, 0.0f, NULL, 0);
+    g_bounce_full_rays = 0;
+    ASSERT_TRUE(rt != NULL);
+    if (!rt)
+      continue;
+    gathers[full] = g_last.rays_gather;
+    double mean, p95;
+    texel_stats(rt, &mean, &p95, expect);
+    printf("furnace N=%d%s: mean E = %.5f, closed form %.5f (%.3f%%), p95 texel deviation "
+           "%.2f%%, %.1f M gather rays\n",
+           N, full ? " (every bounce at full rays)" : "", mean, expect,
+           100 * (mean - expect) / expect, 100 * p95, 1e-6 * (double)g_last.rays_gather);
+    ASSERT_NEAR(mean, expect, 0.0, 0.01);
+    ASSERT_TRUE(p95 < 0.05);
+    ub_runtime_free(rt);
+  }
+  printf("furnace N=%d: later bounces' fewer rays trace %.1f%% of the gathers\n", N,
+         gathers[1] ? 100.0 * (double)gathers[0] / (double)gathers[1] : 0.0);
+  ASSERT_TRUE(gathers[1] > 0 && (double)gathers[0] < 0.7 * (double)gathers[1] &&
+              (double)gathers[0] > 0.45 * (double)gathers[1]);
 }
 
 static void test_plane_point(void)

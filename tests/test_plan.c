@@ -263,6 +263,12 @@ static void test_estimate(void)
   ASSERT_TRUE(ub_plan_bounces(0.0, 0.005, 64) == 1);
   ASSERT_TRUE(ub_plan_bounces(0.999, 0.005, 64) == 64);
   ASSERT_TRUE(ub_plan_bounces(0.9, 0.005, 64) == 30); /* 0.9^29 = 0.0471 <= 0.005·9.53 */
+  /* later bounces' fewer rays at ratio 0.5: half of bounce k's shift ⌊k − 2⌋, at most 2:
+   * 1 + 1 + 1 + 1/2 + 1/2 + 1/4 + 1/4 + 1/4 */
+  ASSERT_NEAR(ub_plan_gather_bounces(0.5, 8, 0), 4.75, 1e-12, 0.0);
+  ASSERT_NEAR(ub_plan_gather_bounces(0.5, 8, 1), 8.0, 1e-12, 0.0);
+  ASSERT_NEAR(ub_plan_gather_bounces(0.5, 2, 0), 2.0, 1e-12, 0.0);
+  ASSERT_NEAR(ub_plan_gather_bounces(0.5, 64, 0), 4.75 + 56 * 0.25, 1e-12, 0.0);
   char path[1024];
   snprintf(path, sizeof path, "%s/levels/furnace.gltf", g_build);
   ub_bake_stats st;

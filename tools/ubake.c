@@ -251,6 +251,10 @@ static const char *BAKE_HELP =
     "  --dls-full-rays         DLS full passes give every kept receiver the full gather\n"
     "                          rays (default: fewer, down to 1/8, where the set's\n"
     "                          estimated light is faint; comparison)\n"
+    "  --bounce-full-rays      every bounce gathers with the full rays (default: from\n"
+    "                          bounce 3 on, a receiver whose last bounce brought 2^k x\n"
+    "                          less light than its brightest gathers with rays / 2^k,\n"
+    "                          down to 1/8; comparison)\n"
     "  --texel-size M          override metres per lightmap texel\n"
     "  --glg-spacing M         override metres between coarse GLG probes\n"
     "  --json FILE             write the report here instead of DIR/NAME.report.json\n"
@@ -345,6 +349,8 @@ static int cmd_bake(int argc, char **argv)
       opt.influence_dense = 1;
     } else if (!strcmp(a, "--dls-full-rays")) {
       opt.dls_full_rays = 1;
+    } else if (!strcmp(a, "--bounce-full-rays")) {
+      opt.bounce_full_rays = 1;
     } else if (!strcmp(a, "--plan") && v) {
       if (!strcmp(v, "all"))
         opt.plan_all = 1;
