@@ -950,6 +950,9 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     pd.shadow_samples = 1;
     pd.near_samples = UB_NEAR_SAMPLES_DEFAULT;
     pd.bounces = (int)NB;
+    /* Every bounce at the influence rays: its last bounce's per-texel value is the
+     * culling estimate's tail, and light culled on a noisy estimate is lost for good. */
+    pd.bounce_full_rays = 1;
     pd.pass_id = 2 + 2 * d;
     int sub = plan->influence_culling && !reach.unbounded;
     pd.texel_subset = sub ? ct : NULL;

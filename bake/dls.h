@@ -137,8 +137,9 @@ typedef struct ub_dls_stats {
   uint64_t llg_probes_gathering; /* LLG probes likewise */
   uint64_t rays_reach;
   double seconds_reach;
-  /* Full passes' gather rays per bounce summed over kept receivers: as traced (scaled
-   * rays), and with every receiver at the full count. */
+  /* Full passes' gather rays per bounce summed over kept receivers: with the scaled rays
+   * (as traced at bounces 1 and 2; later bounces trace fewer, ub_pass_desc
+   * bounce_full_rays), and with every receiver at the full count. */
   uint64_t gather_units, gather_units_full;
 } ub_dls_stats;
 

@@ -208,9 +208,10 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
           scene->has_sky ? "true" : "false");
   fprintf(f, "  \"plan\": {\n    \"forced_all\": %s, \"ray_rate\": %.0f, \"doors\": %u, "
              "\"door_passes\": %u, \"bounce_ratio\": %.4f, \"estimated_bounces\": %u, "
-             "\"actual_bounces\": %u,\n",
+             "\"actual_bounces\": %u, \"bounce_full_rays\": %s,\n",
           plan->forced ? "true" : "false", plan->ray_rate, plan->doors, plan->door_passes,
-          plan->bounce_ratio, plan->est_bounces, base->bounces);
+          plan->bounce_ratio, plan->est_bounces, base->bounces,
+          opt && opt->bounce_full_rays ? "true" : "false");
   fprintf(f, "    \"passes\": [{\"name\": \"base\", \"lights\": %u, "
              "\"static_lights\": %u, \"primary_lights\": %u, \"sky\": %s, \"emissive\": %s, "
              "\"gather_rays\": %u, \"emissive_samples\": %u, \"shadow_samples\": %u, "

@@ -72,7 +72,8 @@ typedef struct recv_set {
 } recv_set;
 
 /* The gather rays receiver r traces this bounce: rs->rays, or fewer where the pass asks
- * for them (ub_pass_desc.texel_ray_shift: bounces >= 1 only; at least min(rays, 4)). */
+ * for them (ub_pass_desc.*_ray_shift, and from bounce 2 on bounce_shifts' per-receiver
+ * shift: bounces >= 1 only; at least min(rays, 4)). */
 static inline uint32_t recv_rays(uint32_t bounce, const recv_set *rs, uint32_t r)
 {
   if (!rs->ray_shift || bounce < 1 || !rs->ray_shift[r])

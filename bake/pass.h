@@ -87,8 +87,9 @@ typedef struct ub_pass_desc {
    * faded. After bounce b ≥ 1, a receiver whose bounce-b light (texels: I_z luminance;
    * probes: DC luminance) is below its brightest bounce so far by 2^k gathers bounce b + 1
    * with rays >> k more (k ≤ UB_BOUNCE_RAY_SHIFT_MAX with its *_ray_shift; a larger
-   * *_ray_shift stays; at least min(rays, 4)): rays go where a bounce still brings light (pass.c, bounce_shifts).
-   * 1: every bounce at the full rays (for comparison). */
+   * *_ray_shift stays; at least min(rays, 4)): rays go where a bounce still brings light
+   * (pass.c, bounce_shifts). 1: every bounce at the full rays (for comparison; the DLS
+   * influence passes, whose last bounce is the culling estimate's tail). */
   int bounce_full_rays;
   /* Bounce light of the texels outside texel_subset (a cheaper pass's estimate, e.g. the
    * influence pass's keep_bounce_iz): they are not simulated, but their light still

@@ -468,8 +468,7 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
      * candidate probes gather (estate_small draft: 29% and 19%) */
     double gt = out->influence_sparse ? 0.3 : 1.0, gp = out->influence_sparse ? 0.2 : 1.0;
     double inf = photon_rays + (Tc + Pc) * nlight +
-                 ub_plan_gather_bounces(out->bounce_ratio, ub_dls_influence_bounces(opt->bounces),
-                                        opt->bounce_full_rays) *
+                 (double)ub_dls_influence_bounces(opt->bounces) *
                      (gt * Tc * out->influence_rays + gp * Pc * 2 * out->influence_rays);
     double frac = out->influence_culling ? fmin(cand, 1.2 * reach) : 1.0;
     /* scaled rays (dls.c): the full passes' gathers at about half the rays (estate_small

@@ -141,9 +141,9 @@ static void test_furnace(void)
    * last, so bounce 3 gathers with 1/2 of the rays, bounces 4..8 with 1/4 (the most,
    * UB_BOUNCE_RAY_SHIFT_MAX). With bounce 0's gathers (they see the emitting walls, full
    * rays) that is (1 + 2 + 1/2 + 5/4) / 9 = 53% of the gathers, 61% if rounding puts a
-   * bounce a hair above half the last (one step less shift); 100% with full rays. The furnace's radiance is the same
-   * in every direction, so any ray count gives the exact bounce: a mean off by a power of
-   * two would be a receiver weighed with the wrong count. */
+   * bounce a hair above half the last (one step less shift); 100% with full rays. The
+   * furnace's radiance is the same in every direction, so any ray count gives the exact
+   * bounce: a mean off by a power of two would be a receiver weighed with the wrong count. */
   const int N = 8;
   double expect = 0.0;
   for (int k = 0; k <= N; k++)

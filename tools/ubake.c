@@ -254,7 +254,7 @@ static const char *BAKE_HELP =
     "  --bounce-full-rays      every bounce gathers with the full rays (default: from\n"
     "                          bounce 3 on, a receiver whose last bounce brought 2^k x\n"
     "                          less light than its brightest gathers with rays / 2^k,\n"
-    "                          down to 1/8; comparison)\n"
+    "                          down to 1/4; comparison)\n"
     "  --texel-size M          override metres per lightmap texel\n"
     "  --glg-spacing M         override metres between coarse GLG probes\n"
     "  --json FILE             write the report here instead of DIR/NAME.report.json\n"

@@ -55,7 +55,7 @@ typedef struct ub_bake_options {
                              at most; for comparison) */
   int bounce_full_rays;   /* 1: every bounce gathers with the full rays (default 0: from
                              bounce 3 on, fewer where a receiver's light has faded below
-                             its brightest bounce, to 1/8 at most; for comparison) */
+                             its brightest bounce, to 1/4 at most; for comparison) */
   uint32_t door_rays;     /* 0 = from quality: guided gather rays per texel of a door pass */
   ub_progress_fn progress;
   void *progress_user;
