@@ -1788,9 +1788,9 @@ static double lum3d(const double *rgb)
 }
 
 /* Later bounces with fewer rays (ub_pass_desc.bounce_full_rays = 0). Called after bounce b
- * (≥ 1) with receiver r's bounce-b light in light(r) (texels: I_z, probes: DC, luminance):
- * its gathers of bounce b + 1 trace rays >> k more, 2^k ≤ its brightest bounce so far /
- * this one (k ≤ UB_BOUNCE_RAY_SHIFT_MAX with its pass shift). A bounce's share of a
+ * (≥ 1) with the bounce's results in acc (stride doubles a receiver; the luminance of the
+ * first 3: texels' I_z, probes' DC): receiver r's gathers of bounce b + 1 trace rays >> k
+ * more, 2^k ≤ its brightest bounce so far / this one (ub_pass_bounce_shift). A bounce's share of a
  * receiver's noise goes as its light over √rays, so the rays follow the light (N_b ∝ the
  * bounce's light is what minimises the summed variance at a given ray count): where
  * light still arrives late (a room lit through a doorway) the peak comes late and the
@@ -1806,15 +1806,8 @@ static void bounce_shifts(recv_set *rs, const double *acc, size_t stride)
     float pk = rs->peak[r];
     if (v > (double)pk)
       rs->peak[r] = pk = (float)v;
-    uint32_t k = rs->pass_shift ? rs->pass_shift[r] : 0u;
-    if (pk > 0.0f) {
-      double x = v > 0.0 ? v : 0.0;
-      while (k < UB_BOUNCE_RAY_SHIFT_MAX && 2.0 * x <= (double)pk) {
-        x *= 2.0;
-        k++;
-      }
-    }
-    rs->bshift[r] = (uint8_t)k;
+    rs->bshift[r] =
+        (uint8_t)ub_pass_bounce_shift((double)pk, v, rs->pass_shift ? rs->pass_shift[r] : 0u);
   }
   rs->ray_shift = rs->bshift;
 }

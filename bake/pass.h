@@ -138,6 +138,23 @@ typedef struct ub_pass_desc {
  * worst with full rays. */
 #define UB_BOUNCE_RAY_SHIFT_MAX 2u
 
+/* A receiver's ray shift for its next bounce (bake/pass.c bounce_shifts): its pass shift,
+ * plus one per halving from its brightest bounce so far (peak) down to its last bounce's
+ * light (last), up to UB_BOUNCE_RAY_SHIFT_MAX (a larger pass shift stays); nothing more
+ * while it has seen no light (peak ≤ 0). */
+static inline uint32_t ub_pass_bounce_shift(double peak, double last, uint32_t pass_shift)
+{
+  uint32_t k = pass_shift;
+  if (peak > 0.0) {
+    double x = last > 0.0 ? last : 0.0;
+    while (k < UB_BOUNCE_RAY_SHIFT_MAX && 2.0 * x <= peak) {
+      x *= 2.0;
+      k++;
+    }
+  }
+  return k;
+}
+
 /* The gather rays of a receiver with ray shift k (ub_pass_desc.texel_ray_shift):
  * rays >> k, at least min(rays, 4). */
 static inline uint32_t ub_pass_shifted_rays(uint32_t rays, uint32_t k)
