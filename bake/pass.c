@@ -1790,12 +1790,13 @@ static double lum3d(const double *rgb)
 /* Later bounces with fewer rays (ub_pass_desc.bounce_full_rays = 0). Called after bounce b
  * (≥ 1) with the bounce's results in acc (stride doubles a receiver; the luminance of the
  * first 3: texels' I_z, probes' DC): receiver r's gathers of bounce b + 1 trace rays >> k
- * more, 2^k ≤ its brightest bounce so far / this one (ub_pass_bounce_shift). A bounce's share of a
- * receiver's noise goes as its light over √rays, so the rays follow the light (N_b ∝ the
- * bounce's light is what minimises the summed variance at a given ray count): where
- * light still arrives late (a room lit through a doorway) the peak comes late and the
- * rays stay. A receiver that has seen no light keeps its rays. The choice depends on the
- * bounce's results only (no thread count), and each bounce's estimate stays unbiased. */
+ * more, 2^k ≤ its brightest bounce so far / this one (ub_pass_bounce_shift). A bounce's
+ * share of a receiver's noise goes as its light over √rays, so the rays follow the light
+ * (N_b ∝ the bounce's light is what minimises the summed variance at a given ray count):
+ * where light still arrives late (a room lit through a doorway) the peak comes late and
+ * the rays stay. A receiver that has seen no light keeps its rays. The choice depends on
+ * the bounce's results only (no thread count), and each bounce's estimate stays unbiased
+ * (test_ray_shift, test_late_expectation). */
 static void bounce_shifts(recv_set *rs, const double *acc, size_t stride)
 {
   if (!rs->bshift)
