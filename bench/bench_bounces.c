@@ -20,14 +20,6 @@
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
 
-static double stage_s(const ub_bake_stats *st, const char *name)
-{
-  for (uint32_t i = 0; i < st->stage_count; i++)
-    if (!strcmp(st->stage_name[i], name))
-      return st->stage_seconds[i];
-  return 0.0;
-}
-
 static double dc_lum(const float *sh)
 {
   return 0.2126 * sh[0] + 0.7152 * sh[1] + 0.0722 * sh[2];
@@ -108,9 +100,7 @@ int main(int argc, char **argv)
   snprintf(level, sizeof level, "%s/levels/estate_small.gltf", build);
   for (int i = 1; i < argc; i++) {
     if (!strcmp(argv[i], "--quality") && i + 1 < argc) {
-      i++;
-      q = !strcmp(argv[i], "high") ? UB_QUALITY_HIGH
-                                   : (!strcmp(argv[i], "fast") ? UB_QUALITY_FAST : UB_QUALITY_DRAFT);
+      q = ub_bench_quality(argv[++i]);
     } else if (!strcmp(argv[i], "--ref-bounces") && i + 1 < argc) {
       ref_bounces = atoi(argv[++i]);
     } else if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
@@ -182,8 +172,8 @@ int main(int argc, char **argv)
       snprintf(name, sizeof name, "auto");
     else
       snprintf(name, sizeof name, "%d", counts[k]);
-    printf("  %-9s %7u %8.2f %8.2f |", name, st[k].bounces, stage_s(&st[k], "base pass"),
-           stage_s(&st[k], "dls"));
+    printf("  %-9s %7u %8.2f %8.2f |", name, st[k].bounces, ub_bench_stage_seconds(&st[k], "base pass"),
+           ub_bench_stage_seconds(&st[k], "dls"));
     print_errs(&eb);
     printf(" |");
     print_errs(&es);
@@ -192,7 +182,7 @@ int main(int argc, char **argv)
     free(es.v);
   }
   printf("  %-9s %7u %8.2f %8.2f | (reference)\n", "ref", st[0].bounces,
-         stage_s(&st[0], "base pass"), stage_s(&st[0], "dls"));
+         ub_bench_stage_seconds(&st[0], "base pass"), ub_bench_stage_seconds(&st[0], "dls"));
   for (int k = 0; k < 5; k++)
     ub_bakefile_free(bf[k]);
   return 0;

@@ -23,15 +23,6 @@
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
 
-/* the stage's seconds in a bake's stats (0 when it did not run) */
-static double stage_s(const ub_bake_stats *st, const char *name)
-{
-  for (uint32_t i = 0; i < st->stage_count; i++)
-    if (!strcmp(st->stage_name[i], name))
-      return st->stage_seconds[i];
-  return 0.0;
-}
-
 /* Errors of record a (sorted receivers ia, values va of stride floats) against ref (ib,
  * vb): the DC, green. */
 typedef struct rec_err {
@@ -100,9 +91,7 @@ int main(int argc, char **argv)
   snprintf(level, sizeof level, "%s/levels/estate_small.gltf", build);
   for (int i = 1; i < argc; i++) {
     if (!strcmp(argv[i], "--quality") && i + 1 < argc) {
-      i++;
-      q = !strcmp(argv[i], "high") ? UB_QUALITY_HIGH
-                                   : (!strcmp(argv[i], "fast") ? UB_QUALITY_FAST : UB_QUALITY_DRAFT);
+      q = ub_bench_quality(argv[++i]);
     } else if (!strcmp(argv[i], "--bounces") && i + 1 < argc) {
       bounces = atoi(argv[++i]);
     } else if (!strcmp(argv[i], "--texel-size") && i + 1 < argc) {
@@ -205,15 +194,15 @@ int main(int argc, char **argv)
          "mean (max: worst)", 100 * sl1[0][0] / n, 100 * sl1[1][0] / n, 100 * sp99[0][0] / n,
          100 * sp99[1][0] / n, 100 * smax[0], 100 * smax[1], 100 * sl1[0][1] / n,
          100 * sl1[1][1] / n, 100 * sp99[0][1] / n, 100 * sp99[1][1] / n);
-  double b0 = st[0].total_seconds - stage_s(&st[0], "dls");
-  double b1 = st[1].total_seconds - stage_s(&st[1], "dls");
+  double b0 = st[0].total_seconds - ub_bench_stage_seconds(&st[0], "dls");
+  double b1 = st[1].total_seconds - ub_bench_stage_seconds(&st[1], "dls");
   printf("  full passes' gathers: scaled %.1f%% of the full rays\n",
          100 * ub_report_number(st[0].ubk_path, "gather_share"));
   printf("  dls stage: scaled %.2f s, full rays %.2f s (%.2fx); the bake without it %.2f / "
          "%.2f s; bake / bake without the sets' stage: scaled %.2fx, full %.2fx; reference "
          "%.2f s\n",
-         stage_s(&st[0], "dls"), stage_s(&st[1], "dls"),
-         stage_s(&st[0], "dls") > 0 ? stage_s(&st[1], "dls") / stage_s(&st[0], "dls") : 0.0, b0,
+         ub_bench_stage_seconds(&st[0], "dls"), ub_bench_stage_seconds(&st[1], "dls"),
+         ub_bench_stage_seconds(&st[0], "dls") > 0 ? ub_bench_stage_seconds(&st[1], "dls") / ub_bench_stage_seconds(&st[0], "dls") : 0.0, b0,
          b1, b0 > 0 ? st[0].total_seconds / b0 : 0.0, b1 > 0 ? st[1].total_seconds / b1 : 0.0,
          st[2].total_seconds);
   printf("L1 = sum |record - reference| / sum |reference| (DC, green; receivers of either); "

@@ -78,15 +78,6 @@ static void log_fn(void *user, ub_log_level level, const char *msg)
     printf("  %s\n", msg);
 }
 
-static double stage_s(const ub_bake_stats *st, const char *name)
-{
-  double s = 0.0;
-  for (uint32_t i = 0; i < st->stage_count; i++)
-    if (!strcmp(st->stage_name[i], name))
-      s += st->stage_seconds[i];
-  return s;
-}
-
 static long long file_bytes(const char *path)
 {
   struct stat sb;
@@ -426,7 +417,7 @@ int main(int argc, char **argv)
       fprintf(stderr, "bench_estate: bake of %s failed\n", level);
       return 1;
     }
-    double dls_s = stage_s(&st, "dls"), base_total = st.total_seconds - dls_s;
+    double dls_s = ub_bench_stage_seconds(&st, "dls"), base_total = st.total_seconds - dls_s;
     double ratio = ub_bench_ceiling_ratio((double)st.rays_gather, (double)st.rays_shadow,
                                           st.gather_seconds, hit, shadow);
     ubk = file_bytes(st.ubk_path);
@@ -680,10 +671,10 @@ int main(int argc, char **argv)
       /* Stages up to the plan: measured on the full level. Base pass, LLG self term, leak
        * and write: proportional to receivers. Influence: below. Full set passes: proportional to what the sets keep (records): the hall's sets
        * as measured, the room sets at their mean record times the full count. */
-      double pre = stage_s(&fs, "load") + stage_s(&fs, "rays") + stage_s(&fs, "receivers") +
-                   stage_s(&fs, "probes") + stage_s(&fs, "llg") + stage_s(&fs, "plan");
-      double post = (stage_s(&st, "base pass") + stage_s(&st, "llg self") + stage_s(&st, "leak") +
-                     stage_s(&st, "write")) * kr;
+      double pre = ub_bench_stage_seconds(&fs, "load") + ub_bench_stage_seconds(&fs, "rays") + ub_bench_stage_seconds(&fs, "receivers") +
+                   ub_bench_stage_seconds(&fs, "probes") + ub_bench_stage_seconds(&fs, "llg") + ub_bench_stage_seconds(&fs, "plan");
+      double post = (ub_bench_stage_seconds(&st, "base pass") + ub_bench_stage_seconds(&st, "llg self") + ub_bench_stage_seconds(&st, "leak") +
+                     ub_bench_stage_seconds(&st, "write")) * kr;
       uint32_t nroom = bf->dls_count - nhall, nroom_f = (uint32_t)(fsets - (int)nhall);
       double rec_f = hall_sum + (nroom ? room_sum / nroom : 0.0) * nroom_f;
       /* Influence passes visit the receivers inside each set's reach bound (dls.c), which

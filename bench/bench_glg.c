@@ -377,13 +377,8 @@ int main(int argc, char **argv)
            "tets and leak planes are in .geometry): %.1f B/probe\n", rm.glg / np);
   }
   if (st.stage_count) {
-    double probes = 0, lm = 0;
-    for (uint32_t s = 0; s < st.stage_count; s++) {
-      if (!strcmp(st.stage_name[s], "probes") || !strcmp(st.stage_name[s], "leak"))
-        probes += st.stage_seconds[s];
-      if (!strcmp(st.stage_name[s], "receivers"))
-        lm += st.stage_seconds[s];
-    }
+    double probes = ub_bench_stage_seconds(&st, "probes") + ub_bench_stage_seconds(&st, "leak");
+    double lm = ub_bench_stage_seconds(&st, "receivers");
     printf("  bake: probe placement + TetGen + leak planes %.2f s vs lightmap receivers %.2f s; "
            "whole draft bake %.2f s (probes are gathered inside the same passes)\n",
            probes, lm, st.total_seconds);

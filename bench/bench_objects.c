@@ -72,10 +72,7 @@ static int bench_level(const char *level, float texel_size, const char *b)
     fprintf(stderr, "bench_objects: bake of %s failed\n", level);
     return 1;
   }
-  double obj_s = 0.0;
-  for (uint32_t i = 0; i < st.stage_count; i++)
-    if (!strcmp(st.stage_name[i], "objects"))
-      obj_s = st.stage_seconds[i];
+  double obj_s = ub_bench_stage_seconds(&st, "objects");
   double plain_s = st.total_seconds - obj_s;
   printf("bake (draft, %u texels): total %.2f s, objects stage %.2f s, plain %.2f s: %.2fx a plain bake\n",
          st.texels, st.total_seconds, obj_s, plain_s, plain_s > 0 ? st.total_seconds / plain_s : 0.0);

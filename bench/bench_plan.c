@@ -49,9 +49,7 @@ int main(int argc, char **argv)
   double estate_scale = 0.05;
   for (int i = 1; i < argc && nl < MAXL; i++) {
     if (!strcmp(argv[i], "--quality") && i + 1 < argc) {
-      i++;
-      q = !strcmp(argv[i], "high") ? UB_QUALITY_HIGH
-                                   : (!strcmp(argv[i], "fast") ? UB_QUALITY_FAST : UB_QUALITY_DRAFT);
+      q = ub_bench_quality(argv[++i]);
     } else if (!strcmp(argv[i], "--estate-scale") && i + 1 < argc) {
       estate_scale = strtod(argv[++i], NULL);
     } else if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {

@@ -8,7 +8,9 @@
  *   rays/s can be compared with what the machine does on that scene in the same run;
  * - ub_bench_rss_kb(): current resident set size (VmRSS), for memory deltas;
  * - ub_bench_load_average(): 1-minute load average (the machine is shared);
- * - ub_bench_genlevel(): runs ubake-genlevel for a generated benchmark level.
+ * - ub_bench_genlevel(): runs ubake-genlevel for a generated benchmark level;
+ * - ub_bench_stage_seconds(): a bake's seconds in the stages of one name;
+ * - ub_bench_quality(): a --quality argument (draft, fast, high; anything else: draft).
  * Benchmarks print figures and assert nothing. */
 #ifndef UBAKE_BENCH_UTIL_H
 #define UBAKE_BENCH_UTIL_H
@@ -21,6 +23,7 @@
 
 #include "bake/lights.h"
 #include "bake/rt.h"
+#include "ubake/bake.h"
 #include "ubake/scene.h"
 
 #define UB_BENCH_CHUNK 4096
@@ -36,6 +39,23 @@ static inline int ub_bench_cmp_double(const void *a, const void *b)
 {
   double x = *(const double *)a, y = *(const double *)b;
   return (x > y) - (x < y);
+}
+
+/* The seconds a bake spent in the stages called name (0 when none ran). */
+static inline double ub_bench_stage_seconds(const ub_bake_stats *st, const char *name)
+{
+  double s = 0.0;
+  for (uint32_t i = 0; i < st->stage_count; i++)
+    if (!strcmp(st->stage_name[i], name))
+      s += st->stage_seconds[i];
+  return s;
+}
+
+/* A --quality argument: "high", "fast", anything else draft. */
+static inline ub_quality ub_bench_quality(const char *arg)
+{
+  return !strcmp(arg, "high") ? UB_QUALITY_HIGH
+                              : (!strcmp(arg, "fast") ? UB_QUALITY_FAST : UB_QUALITY_DRAFT);
 }
 
 /* p in [0,1]: the value at rank floor(p·(n−1)) of v sorted (v is sorted in place). */
