@@ -3,7 +3,8 @@
  * See probes/tetgen.h. */
 #include "probes/tetgen.h"
 
-#include <dirent.h>
+#include "bake/fsutil.h"
+
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
@@ -307,22 +308,6 @@ static void frame_corner(const tg_frame *f, int c, double out_world[3], double o
 
 /* ---- temporary directory and child process ------------------------------------------ */
 
-static void remove_dir(const char *dir)
-{
-  DIR *d = opendir(dir);
-  if (d) {
-    struct dirent *e;
-    char path[4096];
-    while ((e = readdir(d)) != NULL) {
-      if (!strcmp(e->d_name, ".") || !strcmp(e->d_name, ".."))
-        continue;
-      snprintf(path, sizeof path, "%s/%s", dir, e->d_name);
-      unlink(path);
-    }
-    closedir(d);
-  }
-  rmdir(dir);
-}
 
 /* Last non-empty line of the child's output, for the error message. */
 static void last_line(const char *path, char *out, size_t cap)
@@ -1079,7 +1064,7 @@ ub_result ub_tetgen_build_ex(const float *points, uint32_t n, const ub_tetgen_op
   free(nei);
   free(coords);
   free(kept_idx);
-  remove_dir(dir);
+  ub_remove_dir(dir);
   *out = m;
   return UB_OK;
 
@@ -1095,6 +1080,6 @@ fail:
   free(kept_idx);
   ub_tetmesh_free(m);
   if (dir[0])
-    remove_dir(dir);
+    ub_remove_dir(dir);
   return res;
 }

@@ -1,6 +1,5 @@
 /* tests/test_bakefile.c — .ubk writer/reader round trip, corruption and hostile input,
  * half/CRC helpers, and the first run-time queries (ubake/runtime.h). */
-#include <dirent.h>
 #include <errno.h>
 #include <math.h>
 #include <stdint.h>
@@ -12,6 +11,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include "bake/fsutil.h"
 #include "runtime/crc32.h"
 #include "runtime/half.h"
 #include "runtime/texel_links.h"
@@ -1140,19 +1140,7 @@ static void write_corpus(const char *dir)
  * added later: links, bright and halves stayed behind, and so did the directory). */
 static void remove_tree(const char *dir)
 {
-  DIR *d = opendir(dir);
-  if (d) {
-    struct dirent *e;
-    char p[768];
-    while ((e = readdir(d)) != NULL) {
-      if (!strcmp(e->d_name, ".") || !strcmp(e->d_name, ".."))
-        continue;
-      snprintf(p, sizeof p, "%s/%s", dir, e->d_name);
-      remove(p);
-    }
-    closedir(d);
-  }
-  if (rmdir(dir) != 0)
+  if (ub_remove_dir(dir) != 0)
     fprintf(stderr, "test_bakefile: could not remove %s: %s\n", dir, strerror(errno));
 }
 

@@ -5,7 +5,6 @@
  * → sweep.csv after each rung → gnuplot. */
 #include "tools/sweep.h"
 
-#include <dirent.h>
 #include <errno.h>
 #include <math.h>
 #include <stdint.h>
@@ -18,6 +17,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "bake/fsutil.h"
 #include "bake/lights.h"
 #include "bake/reference.h"
 #include "bake/rt.h"
@@ -176,24 +176,6 @@ static int sw_mkdir_p(const char *path)
   return 0;
 }
 
-/* Removes the files of a rung's bake folder and the folder (not recursive: a bake
- * writes files only). */
-static void sw_remove_bake(const char *dir)
-{
-  DIR *d = opendir(dir);
-  if (!d)
-    return;
-  struct dirent *e;
-  char path[2048];
-  while ((e = readdir(d)) != NULL) {
-    if (!strcmp(e->d_name, ".") || !strcmp(e->d_name, ".."))
-      continue;
-    snprintf(path, sizeof path, "%s/%s", dir, e->d_name);
-    unlink(path);
-  }
-  closedir(d);
-  rmdir(dir);
-}
 
 static int sw_file_exists(const char *path)
 {
@@ -1107,7 +1089,7 @@ static int sw_run_result(sweep *s, int ri, const char *label, const char *dir, i
   ub_runtime_free(rt);
   m->done = 1;
   if (!keep && !s->keep_bakes)
-    sw_remove_bake(dir);
+    ub_remove_dir(dir); /* a bake writes files only */
   return 1;
 }
 
