@@ -116,60 +116,43 @@ static void texel_stats(const ub_runtime *rt, double *out_mean, double *out_p95_
 static void test_furnace(void)
 {
   /* Closed cube, uniform emission Le = 1 and albedo rho = 0.5 (generator defaults):
-   * E = π Le Σ_{k≤N} ρ^k at every point of every wall. */
+   * E = π Le Σ_{k≤N} ρ^k at every point of every wall.
+   * N = 8 runs twice, with later bounces at fewer rays (bake/pass.c bounce_shifts, the
+   * default) and with every bounce at full rays: every bounce brings half the last, so
+   * bounce 3 gathers with 1/2 of the rays, bounces 4..8 with 1/4 (the most,
+   * UB_BOUNCE_RAY_SHIFT_MAX). With bounce 0's gathers (they see the emitting walls, full
+   * rays) that is (1 + 2 + 1/2 + 5/4) / 9 = 53% of the gathers, 61% if rounding puts a
+   * bounce a hair above half the last (one step less shift). The furnace's radiance is
+   * the same in every direction, so any ray count gives the exact bounce: a mean off by a
+   * power of two would be a receiver weighed with the wrong count. */
   const double Le = 1.0, rho = 0.5;
-  const int Ns[] = {0, 1, 3};
-  for (int i = 0; i < 3; i++) {
+  const int Ns[] = {0, 1, 3, 8, 8}, full_rays[] = {0, 0, 0, 0, 1};
+  uint64_t gathers[2] = {0, 0}; /* N = 8: default, full rays */
+  for (int i = 0; i < 5; i++) {
     char tag[32];
-    snprintf(tag, sizeof tag, "furnace_b%d", Ns[i]);
+    snprintf(tag, sizeof tag, "furnace_b%d%s", Ns[i], full_rays[i] ? "_full" : "");
+    g_bounce_full_rays = full_rays[i];
     ub_runtime *rt = bake("furnace", tag, UB_QUALITY_FAST, Ns[i], 0, 0.0f, NULL, 0);
+    g_bounce_full_rays = 0;
     ASSERT_TRUE(rt != NULL);
     if (!rt)
       continue;
+    if (Ns[i] == 8)
+      gathers[full_rays[i]] = g_last.rays_gather;
     double expect = 0.0;
     for (int k = 0; k <= Ns[i]; k++)
       expect += M_PI * Le * pow(rho, k);
     double mean, p95;
     texel_stats(rt, &mean, &p95, expect);
-    printf("furnace N=%d: mean E = %.5f, closed form %.5f (%.3f%%), p95 texel deviation %.2f%%\n",
-           Ns[i], mean, expect, 100 * (mean - expect) / expect, 100 * p95);
-    ASSERT_NEAR(mean, expect, 0.0, 0.01);
-    ASSERT_TRUE(p95 < 0.05);
-    ub_runtime_free(rt);
-  }
-  /* Later bounces with fewer rays (bake/pass.c bounce_shifts): every bounce brings half the
-   * last, so bounce 3 gathers with 1/2 of the rays, bounces 4..8 with 1/4 (the most,
-   * UB_BOUNCE_RAY_SHIFT_MAX). With bounce 0's gathers (they see the emitting walls, full
-   * rays) that is (1 + 2 + 1/2 + 5/4) / 9 = 53% of the gathers, 61% if rounding puts a
-   * bounce a hair above half the last (one step less shift); 100% with full rays. The
-   * furnace's radiance is the same in every direction, so any ray count gives the exact
-   * bounce: a mean off by a power of two would be a receiver weighed with the wrong count. */
-  const int N = 8;
-  double expect = 0.0;
-  for (int k = 0; k <= N; k++)
-    expect += M_PI * Le * pow(rho, k);
-  uint64_t gathers[2] = {0, 0};
-  for (int full = 0; full < 2; full++) {
-    char tag[32];
-    snprintf(tag, sizeof tag, "furnace_b%d%s", N, full ? "_full" : "");
-    g_bounce_full_rays = full;
-    ub_runtime *rt = bake("furnace", tag, UB_QUALITY_FAST, N, 0, 0.0f, NULL, 0);
-    g_bounce_full_rays = 0;
-    ASSERT_TRUE(rt != NULL);
-    if (!rt)
-      continue;
-    gathers[full] = g_last.rays_gather;
-    double mean, p95;
-    texel_stats(rt, &mean, &p95, expect);
     printf("furnace N=%d%s: mean E = %.5f, closed form %.5f (%.3f%%), p95 texel deviation "
            "%.2f%%, %.1f M gather rays\n",
-           N, full ? " (every bounce at full rays)" : "", mean, expect,
+           Ns[i], full_rays[i] ? " (every bounce at full rays)" : "", mean, expect,
            100 * (mean - expect) / expect, 100 * p95, 1e-6 * (double)g_last.rays_gather);
     ASSERT_NEAR(mean, expect, 0.0, 0.01);
     ASSERT_TRUE(p95 < 0.05);
     ub_runtime_free(rt);
   }
-  printf("furnace N=%d: later bounces' fewer rays trace %.1f%% of the gathers\n", N,
+  printf("furnace N=8: later bounces' fewer rays trace %.1f%% of the gathers\n",
          gathers[1] ? 100.0 * (double)gathers[0] / (double)gathers[1] : 0.0);
   ASSERT_TRUE(gathers[1] > 0 && (double)gathers[0] < 0.7 * (double)gathers[1] &&
               (double)gathers[0] > 0.45 * (double)gathers[1]);
