@@ -199,6 +199,23 @@ static void toggle_classes(const ub_runtime *rt, const double *tog, double *cls[
   }
 }
 
+/* The medians of tog (toggle_times) by class (0 rooms, 1 halls) and direction (0 off,
+ * 1 back on): med[class][dir], 0 where a class has none. */
+static void toggle_directions(const ub_runtime *rt, const double *tog, double med[2][2])
+{
+  const uint32_t nd = ub_runtime_dls_count(rt);
+  double *v = malloc(sizeof(double) * (nd + 1));
+  for (int c = 0; c < 2; c++)
+    for (int ph = 0; ph < 2; ph++) {
+      uint32_t n = 0;
+      for (uint32_t d = 0; v && d < nd; d++)
+        if ((strncmp(ub_runtime_dls_name(rt, d), "hall_", 5) == 0) == c)
+          v[n++] = tog[2 * d + ph];
+      med[c][ph] = n ? ub_bench_percentile(v, n, 0.5) : 0.0;
+    }
+  free(v);
+}
+
 /* Every set changed at once, 7 times, alternating with a memcpy of the same bytes by
  * `jobs` threads (each its share; *ca, *cb: *cn bytes each, made at the first run when
  * NULL): the best seconds of each and the bytes an update moves. */
@@ -268,11 +285,14 @@ static void bench_jobs(ub_runtime *rt, int jobs, char *ca, char *cb, size_t cn)
   toggle_classes(rt, tog, cls, ncls);
   double tall, tcpy, bytes = 0.0;
   all_sets_times(rt, jobs, &ca, &cb, &cn, &tall, &tcpy, &bytes);
+  double med[2][2];
+  toggle_directions(rt, tog, med);
   printf("  with %d jobs on %d threads (ub_runtime_update_begin/job/end): one set toggled median "
-         "%.3f ms (room sets %.3f, one measurement each %.3f; hall sets %.3f) [0.1 ms]; all %u "
-         "sets changed: %.2f ms, %.2f GB/s; memcpy by %d threads %.2f GB/s; ratio %.0f%%\n",
+         "%.3f ms (room sets %.3f: off %.3f, back on %.3f; one measurement each %.3f; hall sets "
+         "%.3f) [0.1 ms]; all %u sets changed: %.2f ms, %.2f GB/s; memcpy by %d threads %.2f "
+         "GB/s; ratio %.0f%%\n",
          jobs, jobs, ub_bench_percentile(tog, 2 * nd, 0.5),
-         ncls[0] ? ub_bench_percentile(cls[0], ncls[0], 0.5) : 0.0, oroom,
+         ncls[0] ? ub_bench_percentile(cls[0], ncls[0], 0.5) : 0.0, med[0][0], med[0][1], oroom,
          ncls[1] ? ub_bench_percentile(cls[1], ncls[1], 0.5) : 0.0, nd, tall * 1e3,
          bytes / tall / 1e9, jobs, 2.0 * (double)cn / tcpy / 1e9,
          100.0 * (bytes / tall) / (2.0 * (double)cn / tcpy));
@@ -299,6 +319,7 @@ int main(int argc, char **argv)
       printf("usage: bench_estate [--scale S] [--full] [--bounces N] [--texel-size M]\n"
              "                    [--no-extrapolate] [--param k=v ...]\n"
              "                    [--ubk FILE.ubk [--repeat N]] [--jobs N] [--records8] [--plain-sums]\n"
+             "                    [--keep-state]\n"
              "Generates the ESTATE-scale level (ubake-genlevel estate) at scale S (default 0.05;\n"
              "--full: 1), bakes it at draft (reduced: --bounces 2, --texel-size 0.2 by default;\n"
              "full: the level's settings), loads it in the run-time and toggles its sets;\n"
@@ -306,7 +327,8 @@ int main(int argc, char **argv)
              "--ubk: the run-time figures of a file already baked; --jobs N: toggles and the\n"
              "all-sets update also split into N jobs on N threads (default: the CPUs, <= 8).\n"
              "--records8: the run-time keeps its records in 8 bits (UB_RUNTIME_RECORDS_8BIT);\n"
-             "--plain-sums: without the all-ones sums (UB_RUNTIME_PLAIN_SUMS).\n"
+             "--plain-sums: without the all-ones sums (UB_RUNTIME_PLAIN_SUMS);\n"
+             "--keep-state: the load state kept (UB_RUNTIME_KEEP_STATE).\n"
              "UB_BUILD: the build folder (default build).\n");
       return 0;
     } else if (!strcmp(argv[i], "--scale") && i + 1 < argc) {
@@ -338,6 +360,8 @@ int main(int argc, char **argv)
       load_flags |= UB_RUNTIME_RECORDS_8BIT;
     } else if (!strcmp(argv[i], "--plain-sums")) {
       load_flags |= UB_RUNTIME_PLAIN_SUMS;
+    } else if (!strcmp(argv[i], "--keep-state")) {
+      load_flags |= UB_RUNTIME_KEEP_STATE;
     } else if (!strcmp(argv[i], "--no-extrapolate")) {
       extrapolate = 0;
     } else if (!strcmp(argv[i], "--param") && i + 1 < argc) {
@@ -514,6 +538,8 @@ int main(int argc, char **argv)
   toggle_sums ts = {{0, 0, 0}, 0, 0, 0, 0};
   double *tog1 = malloc(sizeof(double) * (2 * nd + 1));
   toggle_times(rt, 1, PASSES * repeat, tog, tog1, &ts);
+  double dmed[2][2]; /* before the percentiles below sort tog */
+  toggle_directions(rt, tog, dmed);
   double *tog_c[2];
   uint32_t ntog_c[2];
   tog_c[0] = malloc(sizeof(double) * (2 * nd + 1));
@@ -558,6 +584,13 @@ int main(int argc, char **argv)
            ub_bench_percentile(tog_c[0], ntog_c[0], 0.9), ntog_c[1],
            ub_bench_percentile(tog_c[1], ntog_c[1], 0.5),
            ub_bench_percentile(tog_c[1], ntog_c[1], 0.9));
+  {
+    printf("  by direction: room sets off %.3f ms, back on %.3f ms; hall sets off %.3f ms, back "
+           "on %.3f ms (medians)%s\n", dmed[0][0], dmed[0][1], dmed[1][0], dmed[1][1],
+           load_flags & UB_RUNTIME_KEEP_STATE
+               ? "; the load state kept (UB_RUNTIME_KEEP_STATE): back on copies kept texels"
+               : "");
+  }
   {
     /* one measurement per toggle (the first pass): the spread a game sees */
     toggle_classes(rt, tog1, tog_c, ntog_c);

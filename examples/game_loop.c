@@ -145,6 +145,12 @@ int main(int argc, char **argv)
   ub_runtime *rt = NULL;
   if (ub_runtime_load(argv[1], &log, &rt) != UB_OK)
     return 1;
+  /* The level's normal lighting (as loaded: every set on) is what the game returns to:
+   * kept, a set turned back on costs a copy of its texels instead of a re-encode. */
+  if (ub_runtime_keep_state(rt) != UB_OK) {
+    ub_runtime_free(rt);
+    return 1;
+  }
   const ub_bakefile *bf = ub_runtime_bakefile(rt);
   const uint32_t sets = ub_runtime_dls_count(rt), atlases = bf->atlas_count;
   if (!toggles)
@@ -164,15 +170,17 @@ int main(int argc, char **argv)
 
   ub_glg_cursor cursor; /* one moving object */
   ub_glg_cursor_init(&cursor);
-  uint64_t texels = 0, models = 0;
+  uint64_t texels = 0, models = 0, kept = 0;
+  ub_runtime_update_stats us;
   uint32_t bad = 0;
   uint32_t h = 2024u;
   for (uint32_t t = 0; t < toggles && sets; t++) {
     /* the game turns a set off or on (or tints it) ... */
     h = h * 1664525u + 1013904223u;
     const uint32_t s = (h >> 8) % sets;
-    const float w = (h >> 29) < 3 ? 0.0f : (float)((h >> 12) & 0xff) / 128.0f;
-    const float rgb[3] = {w, w * 0.8f, w * 1.1f};
+    const uint32_t kind = h >> 29; /* off, back on, or tinted */
+    const float w = kind < 3 ? 0.0f : kind < 5 ? 1.0f : (float)((h >> 12) & 0xff) / 128.0f;
+    const float rgb[3] = {w, kind < 5 ? w : w * 0.8f, kind < 5 ? w : w * 1.1f};
     if (ub_runtime_set_dls(rt, s, rgb) != UB_OK)
       bad++;
     /* ... updates: every other frame split into jobs (ub_runtime_update_job(rt, j) would
@@ -185,11 +193,12 @@ int main(int argc, char **argv)
       }
       for (uint32_t j = 0; j < jobs; j++)
         ub_runtime_update_job(rt, j);
-      ub_runtime_update_end(rt, NULL);
-    } else if (ub_runtime_update(rt, NULL) != UB_OK) {
+      ub_runtime_update_end(rt, &us);
+    } else if (ub_runtime_update(rt, &us) != UB_OK) {
       bad++;
       break;
     }
+    kept += us.texels_kept;
     /* ... re-uploads the lightmap texels and LLG grids that changed ... */
     texels += upload_changes(rt, ga);
     for (uint32_t m = 0; m < bf->llg_count; m++)
@@ -203,8 +212,9 @@ int main(int argc, char **argv)
     }
     bad += !textures_match(rt, ga, atlases);
   }
-  printf("%u toggles: %llu texels and %llu LLG grids re-uploaded; textures %s the run-time's "
-         "atlases after every one (%u mismatches)\n", toggles, (unsigned long long)texels,
+  printf("%u toggles: %llu texels (%llu of them copied back from the kept state) and %llu LLG "
+         "grids re-uploaded; textures %s the run-time's atlases after every one (%u "
+         "mismatches)\n", toggles, (unsigned long long)texels, (unsigned long long)kept,
          (unsigned long long)models, bad ? "DIFFER from" : "equal", bad);
   atlases_free(ga, atlases);
   ub_runtime_free(rt);

@@ -136,8 +136,14 @@ struct ub_blend {
   uint8_t *notone;
   float *dwexp, *dwpat;
   float ones_w;         /* the weight the sums are kept at (desc ones_weight, 0 → 1) */
+  /* ub_blend_set_reference: the reference weights (element_count × 3) and, per element,
+   * whether its weight equals them; NULL without a reference */
+  float *ref;
+  uint8_t *atref;
   size_t engine_bytes, record_bytes;
 };
+
+const float ub_blend_at_reference[1] = {0.0f};
 
 /* One part's scratch: an update's parts may run on several threads at once. */
 typedef struct blend_scratch {
@@ -1141,12 +1147,52 @@ static inline int ones_cheaper(const ub_blend *b, uint32_t n1, uint32_t nz)
   return S * sizeof(float) + n1 * (uint64_t)b->rowb < S * b->base_size + nz * (uint64_t)b->rowb;
 }
 
+/* Hands the receivers [lo, hi) of group g to fn as rows `rows` (NULL: marking;
+ * UB_BLEND_AT_REFERENCE), consecutive receivers together. */
+static void group_report(const ub_blend *b, const blend_group *g, uint32_t lo, uint32_t hi,
+                         ub_blend_touched_fn fn, void *user, const float *rows)
+{
+  unit_iter it;
+  unit_iter_init(&it, b, g, lo, hi, 0);
+  uint32_t r, s0, s1;
+  size_t at;
+  const char *bs;
+  uint32_t pf = 0, pn = 0;
+  while (unit_next(&it, b, &r, &at, &bs, &s0, &s1)) {
+    if (pn && pf + pn == r + s0) {
+      pn += s1 - s0;
+      continue;
+    }
+    if (pn)
+      fn(user, pf, pn, rows);
+    pf = r + s0;
+    pn = s1 - s0;
+  }
+  if (pn)
+    fn(user, pf, pn, rows);
+}
+
 static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
 {
   const ub_blend *b = c->b;
   const blend_group *g = &b->groups[gi];
   const uint32_t gk = g->k_mode & ~GROUP_LIST;
   const uint32_t *mem = b->members + g->member_off;
+  if (b->atref && !c->out) {
+    uint32_t off = 0;
+    for (uint32_t m = 0; m < gk; m++)
+      off += !b->atref[mem[m]];
+    if (off == 0) { /* at the reference: the caller puts back what it kept */
+      stream_flush(c);
+      group_report(b, g, c->qlo, c->qhi, c->fn, c->user, UB_BLEND_AT_REFERENCE);
+      const uint64_t n = c->qhi - c->qlo;
+      st->groups += c->qlo == 0;
+      st->receivers += n;
+      st->receivers_reference += n;
+      st->bytes_read += c->qlo == 0 ? group_table_bytes(g) : 0;
+      return;
+    }
+  }
   uint32_t act_l[BLEND_SPECIALISED];
   uint32_t *act = gk <= BLEND_SPECIALISED ? act_l : c->s->act;
   uint32_t k = 0;
@@ -1355,24 +1401,7 @@ void ub_blend_mark_part(const ub_blend *b, uint32_t part, uint32_t parts,
     part_item(&p, i, g, &lo, &hi);
     if (lo >= hi)
       continue;
-    unit_iter it;
-    unit_iter_init(&it, b, g, lo, hi, 0);
-    uint32_t r, s0, s1;
-    size_t at;
-    const char *bs;
-    uint32_t pf = 0, pn = 0; /* consecutive receivers handed over together */
-    while (unit_next(&it, b, &r, &at, &bs, &s0, &s1)) {
-      if (pn && pf + pn == r + s0) {
-        pn += s1 - s0;
-        continue;
-      }
-      if (pn)
-        touched(user, pf, pn, NULL);
-      pf = r + s0;
-      pn = s1 - s0;
-    }
-    if (pn)
-      touched(user, pf, pn, NULL);
+    group_report(b, g, lo, hi, touched, user, NULL);
     st.groups += lo == 0;
     st.receivers += hi - lo;
     st.bytes_read += lo == 0 ? group_table_bytes(g) : 0;
@@ -1431,6 +1460,10 @@ ub_result ub_blend_set_weight(ub_blend *b, uint32_t element, const float rgb[3])
     w[c] = rgb[c] == 0.0f ? 0.0f : rgb[c]; /* -0 → +0: the same state, the same bits */
   weight_expand(b, element, w, b->wexp, b->wpat);
   b->nonzero[element] = w[0] != 0.0f || w[1] != 0.0f || w[2] != 0.0f;
+  if (b->atref) {
+    const float *rf = b->ref + (size_t)element * 3;
+    b->atref[element] = w[0] == rf[0] && w[1] == rf[1] && w[2] == rf[2];
+  }
   if (b->ones) { /* ω − ω1, rounded once per channel, as ub_blend_row computes it */
     const float o = b->ones_w;
     b->notone[element] = w[0] != o || w[1] != o || w[2] != o;
@@ -1441,6 +1474,29 @@ ub_result ub_blend_set_weight(ub_blend *b, uint32_t element, const float rgb[3])
     b->dirty[element] = 1;
     b->dirty_list[b->dirty_count++] = element;
   }
+  return UB_OK;
+}
+
+ub_result ub_blend_set_reference(ub_blend *b)
+{
+  assert(b);
+  if (b->dirty_count)
+    return UB_ERR_INVALID_ARGUMENT;
+  const size_t E = b->element_count ? b->element_count : 1;
+  if (!b->ref) {
+    float *rf = malloc(E * 3 * sizeof *rf);
+    uint8_t *at = malloc(E);
+    if (!rf || !at) {
+      free(rf);
+      free(at);
+      return UB_ERR_OUT_OF_MEMORY;
+    }
+    b->ref = rf;
+    b->atref = at;
+    b->engine_bytes += E * (3 * sizeof *rf + 1);
+  }
+  memcpy(b->ref, b->weight, (size_t)b->element_count * 3 * sizeof *b->ref);
+  memset(b->atref, 1, E);
   return UB_OK;
 }
 
@@ -1592,6 +1648,8 @@ void ub_blend_free(ub_blend *b)
   free(b->rmap);
   free(b->rdir);
   free(b->wlast);
+  free(b->ref);
+  free(b->atref);
   free(b);
 }
 

@@ -180,6 +180,8 @@ typedef struct ub_blend_stats {
                              * whose weight is not ω1 */
   uint64_t bytes_written;   /* rows stored to out_values: receivers × stride × 4 (0 when
                              * streaming) */
+  uint64_t receivers_reference; /* of receivers: at the reference state, reported as
+                                 * UB_BLEND_AT_REFERENCE, not computed (0 without one) */
 } ub_blend_stats;
 
 /* What create built (for reports, `ubake info` and benchmarks). */
@@ -211,6 +213,10 @@ typedef struct ub_blend_info {
  * handed over together, up to 32 receivers a call. */
 typedef void (*ub_blend_touched_fn)(void *user, uint32_t first, uint32_t count,
                                     const float *rows);
+
+/* rows of a touched call for receivers at the reference state (ub_blend_set_reference). */
+extern const float ub_blend_at_reference[1];
+#define UB_BLEND_AT_REFERENCE (ub_blend_at_reference)
 
 typedef struct ub_blend ub_blend;
 
@@ -279,6 +285,19 @@ void ub_blend_mark_part(const ub_blend *b, uint32_t part, uint32_t parts,
  * it touches at most first(p + 1) − first(p) + 1 groups, and all parts together at most
  * groups + parts. */
 uint32_t ub_blend_part_first(const ub_blend *b, uint32_t part, uint32_t parts);
+
+/* The reference state: a streaming caller that keeps its own product of the rows (the
+ * run-time: the AHD texels) as they are now can have them back instead of a re-blend.
+ * ub_blend_set_reference() takes the current weights as the reference (the weights of the
+ * last update: UB_ERR_INVALID_ARGUMENT while a weight changed since, nothing then
+ * changes; UB_ERR_OUT_OF_MEMORY). From then on a streaming update (out_values NULL)
+ * computes no group whose members' weights all equal their reference weights (== per
+ * channel): it reports its receivers to touched with rows = UB_BLEND_AT_REFERENCE (in the
+ * same order and pieces as mark_part, a pending stream handed over first), and the caller
+ * puts back what it kept. Exact: a receiver's value is a function of its group's weights
+ * alone (above), so its rows at those weights are the bits it had at the reference.
+ * Updates with out_values compute every group as before. Memory: 13 bytes an element. */
+ub_result ub_blend_set_reference(ub_blend *b);
 
 /* Receiver r's row as the last update (or create) left it: base + Σ ω_i·S_i under the
  * weights taken at the last ub_blend_update_begin (an update that only marked, too), with

@@ -112,8 +112,13 @@ struct ub_runtime {
    * touched texels come first by rank, so an update writes it sequentially, then the
    * untouched ones in slot order (ahd_index). */
   ub_ahd_packed *ahd;
+  /* ub_runtime_keep_state: the touched texels' AHD (by rank) at the kept state, which the
+   * lightmap blend's reference weights are; an update copies them back for the groups
+   * whose weights are those again (UB_BLEND_AT_REFERENCE). NULL: none kept. */
+  ub_ahd_packed *ahd_kept;
   float ahd_scale, ahd_inv_scale; /* a power of two ≥ 1, and its inverse */
   int ahd_ranked;
+  int kept_valid;  /* ahd_kept holds the blend's reference state */
   /* Jobs of the update in progress (ub_runtime_update_begin … end). */
   struct rt_job *jobs;
   uint32_t job_cap, job_count;
@@ -135,7 +140,8 @@ struct ub_runtime {
 /* One job's results (ub_runtime_update_job), added up by ub_runtime_update_end. */
 typedef struct rt_job {
   ub_blend_stats lm, glg, llg;
-  uint64_t texels;    /* re-encoded */
+  uint64_t texels;    /* re-encoded (or copied back from the kept state) */
+  uint64_t kept;      /* of them, copied back */
   uint32_t runs;      /* runs of them in chg_runs */
   int runs_full;      /* some did not fit */
   double seconds[3];  /* lightmap, GLG, LLG */
@@ -512,6 +518,7 @@ void ub_runtime_free(ub_runtime *rt)
   if (!rt)
     return;
   free(rt->ahd);
+  free(rt->ahd_kept);
   free(rt->jobs);
   free(rt->chg_runs);
   free(rt->chg_at);
@@ -1253,6 +1260,37 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     return r;
   ub_runtime_update_job(rt, 0);
   ub_runtime_update_end(rt, NULL);
+  if (rt->load_flags & UB_RUNTIME_KEEP_STATE) {
+    r = ub_runtime_keep_state(rt);
+    if (r != UB_OK)
+      ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory keeping the load state", path);
+  }
+  return r;
+}
+
+ub_result ub_runtime_keep_state(ub_runtime *rt)
+{
+  assert(rt);
+  if (rt->job_count)
+    return UB_ERR_INVALID_ARGUMENT;
+  if (!rt->lm_blend || !rt->touched)
+    return UB_OK; /* nothing an update re-encodes */
+  if (!rt->ahd_kept) {
+    rt->ahd_kept = malloc((size_t)rt->touched * sizeof *rt->ahd_kept);
+    if (!rt->ahd_kept)
+      return UB_ERR_OUT_OF_MEMORY;
+  }
+  /* the blend first: it refuses while a weight changed since the last update */
+  ub_result r = ub_blend_set_reference(rt->lm_blend);
+  if (r != UB_OK) {
+    if (!rt->kept_valid) {
+      free(rt->ahd_kept);
+      rt->ahd_kept = NULL;
+    }
+    return r;
+  }
+  memcpy(rt->ahd_kept, rt->ahd, (size_t)rt->touched * sizeof *rt->ahd_kept);
+  rt->kept_valid = 1;
   return UB_OK;
 }
 
@@ -1265,7 +1303,8 @@ ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags
                              ub_runtime **out)
 {
   assert(path && out);
-  if (flags & ~(unsigned)(UB_RUNTIME_RECORDS_8BIT | UB_RUNTIME_PLAIN_SUMS)) {
+  if (flags & ~(unsigned)(UB_RUNTIME_RECORDS_8BIT | UB_RUNTIME_PLAIN_SUMS |
+                          UB_RUNTIME_KEEP_STATE)) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: unknown load flags 0x%x", path, flags);
     return UB_ERR_INVALID_ARGUMENT;
   }
@@ -1486,6 +1525,7 @@ typedef struct touched_ctx {
   uint64_t texels;
   /* texels with their own normal waiting to be encoded eight at a time (the blend hands
    * over pieces of one group's run; their rows live only during the call: copied) */
+  uint64_t kept;   /* of texels: copied back from the kept state */
   uint32_t np;
   const float *prow[8]; /* into qrow */
   ub_ahd_packed *pout[8];
@@ -1532,6 +1572,12 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
       tc->full = 1;
   }
   ub_ahd_packed *out = rt->ahd + first;
+  if (rows == UB_BLEND_AT_REFERENCE) { /* the kept state's texels: their bits back */
+    memcpy(out, rt->ahd_kept + first, (size_t)count * sizeof *out);
+    tc->texels += count;
+    tc->kept += count;
+    return;
+  }
   const float inv_scale = rt->ahd_inv_scale;
   uint32_t i = 0;
   if (rt->lm_un_all && !tc->np) { /* no texel without a normal: no checks */
@@ -1670,6 +1716,7 @@ void ub_runtime_update_job(ub_runtime *rt, uint32_t job)
     ub_blend_update_part(rt->lm_blend, job, parts, lm_touched, &tc, NULL, &jb->lm);
     touched_flush(&tc);
     jb->texels = tc.texels;
+    jb->kept = tc.kept;
     jb->runs = tc.nruns;
     jb->runs_full = tc.full;
     t1 = rt_now();
@@ -1697,10 +1744,12 @@ void ub_runtime_update_end(ub_runtime *rt, ub_runtime_update_stats *out_stats)
     const rt_job *jb = &rt->jobs[j];
     st.texels_written += jb->lm.receivers;
     st.texels_reencoded += jb->texels;
+    st.texels_kept += jb->kept;
     /* the lightmap blend streams its rows; the re-encode reads the normals, writes the
-     * AHD */
-    st.bytes_read += jb->lm.bytes_read + jb->texels * 3 * sizeof(float) +
-                     jb->glg.bytes_read + jb->llg.bytes_read;
+     * AHD; a texel copied back reads its kept AHD */
+    st.bytes_read += jb->lm.bytes_read + (jb->texels - jb->kept) * 3 * sizeof(float) +
+                     jb->kept * sizeof(ub_ahd_packed) + jb->glg.bytes_read +
+                     jb->llg.bytes_read;
     st.bytes_written += jb->texels * sizeof(ub_ahd_packed) + jb->glg.bytes_written +
                         jb->llg.bytes_written;
     st.probes_written += jb->glg.receivers;
@@ -1803,6 +1852,8 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
                   (bf->atlases[a].sh ? t * UB_SH1_FLOATS * F : 0) +
                   (rt->fallback ? (size_t)rt->fallback[a].count * (U + 3 * F) : 0);
   }
+  if (rt->ahd_kept) /* the kept state's AHD (ub_runtime_keep_state) */
+    m.lightmap += (size_t)rt->touched * sizeof(ub_ahd_packed);
   if (rt->chg_runs) /* changed-texel runs */
     m.lightmap += ((size_t)rt->chg_groups + rt->job_cap) * 2 * U + (size_t)rt->job_cap * U;
   if (rt->llg_chg)

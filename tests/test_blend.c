@@ -1278,6 +1278,135 @@ static void test_ones(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st, u
   rep_free(&p);
 }
 
+/* ---- the reference state ---------------------------------------------------------- */
+
+typedef struct ref_log {
+  uint8_t *count;     /* per receiver: times reported */
+  uint32_t S;
+  float *out;         /* the rows as the caller keeps them */
+  const float *kept;  /* the rows at the reference */
+  uint64_t at_ref;    /* receivers reported as UB_BLEND_AT_REFERENCE */
+} ref_log;
+
+static void on_ref(void *user, uint32_t first, uint32_t count, const float *rows)
+{
+  ref_log *t = user;
+  for (uint32_t i = 0; i < count; i++)
+    if (t->count[first + i] < 255)
+      t->count[first + i]++;
+  const size_t at = (size_t)first * t->S, n = (size_t)count * t->S;
+  if (rows == UB_BLEND_AT_REFERENCE) {
+    memcpy(t->out + at, t->kept + at, sizeof(float) * n);
+    t->at_ref += count;
+  } else {
+    memcpy(t->out + at, rows, sizeof(float) * n);
+  }
+}
+
+/* ub_blend_set_reference: a streaming engine with a reference state against one without,
+ * 60 rounds of a few elements changed (back to their reference weight, off, or any
+ * weight), plain and in 3 parts, every update and the whole state: the same rows and the
+ * same receivers reported, once each; every receiver at the reference when every weight
+ * is; refused with a change pending. */
+static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st,
+                           uint32_t xflags)
+{
+  rep p;
+  rep_init_runs(&p, R, S, E, st, 5);
+  const size_t nf = (size_t)R * S;
+  ub_blend *ba = NULL, *bb = NULL;
+  ub_blend_desc d = rep_desc(&p, "reference");
+  d.flags = xflags;
+  float *oa = malloc(sizeof(float) * nf), *ob = malloc(sizeof(float) * nf);
+  float *kept = malloc(sizeof(float) * nf), *wref = malloc(sizeof(float) * 3 * E);
+  uint8_t *ca = calloc(R, 1), *cb = calloc(R, 1);
+  ASSERT_OK(ub_blend_create(&d, NULL, oa, &ba));
+  ASSERT_OK(ub_blend_create(&d, NULL, ob, &bb));
+  if (!ba || !bb) {
+    ub_blend_free(ba);
+    ub_blend_free(bb);
+    return;
+  }
+  ASSERT_OK(ub_blend_reserve_parts(bb, 3));
+  for (uint32_t e = 0; e < E; e++) { /* the reference: most elements on, some tinted */
+    float w[3] = {1.0f, 1.0f, 1.0f};
+    if (e % 4 == 1)
+      rnd_weight(w);
+    memcpy(wref + 3 * e, w, sizeof w);
+    ASSERT_OK(ub_blend_set_weight(ba, e, w));
+    ASSERT_OK(ub_blend_set_weight(bb, e, w));
+  }
+  update_as(ba, oa, ca, R, S, 1, 1, 1, NULL);
+  update_as(bb, ob, cb, R, S, 1, 1, 1, NULL);
+  ASSERT_OK(ub_blend_set_weight(bb, 0, (const float[3]){0.5f, 0.5f, 0.5f}));
+  ASSERT_TRUE(ub_blend_set_reference(bb) == UB_ERR_INVALID_ARGUMENT); /* a change pending */
+  ASSERT_OK(ub_blend_set_weight(bb, 0, wref));
+  update_as(bb, ob, cb, R, S, 1, 1, 0, NULL);
+  ASSERT_OK(ub_blend_set_reference(bb));
+  memcpy(kept, ob, sizeof(float) * nf);
+  int bad_rows = 0, bad_count = 0, all_ref = 1;
+  uint64_t at_ref = 0, reported = 0;
+  for (int round = 0; round < 60; round++) {
+    const int back = round % 15 == 14; /* every weight back to the reference */
+    const uint32_t nchg = back ? E : 1 + rnd_below(3);
+    for (uint32_t c = 0; c < nchg; c++) {
+      const uint32_t e = back ? c : rnd_below(E);
+      float w[3];
+      const double x = rnd();
+      if (back || x < 0.45)
+        memcpy(w, wref + 3 * e, sizeof w);
+      else if (x < 0.75)
+        w[0] = w[1] = w[2] = 0.0f;
+      else
+        rnd_weight(w);
+      ASSERT_OK(ub_blend_set_weight(ba, e, w));
+      ASSERT_OK(ub_blend_set_weight(bb, e, w));
+    }
+    memset(ca, 0, R);
+    touch_log tl = {ca, 0, S, NULL, oa, 0, 0, 0, 0};
+    ub_blend_update(ba, on_touched, &tl, NULL, NULL);
+    memset(cb, 0, R);
+    ref_log rl = {cb, S, ob, kept, 0};
+    ub_blend_stats sb;
+    memset(&sb, 0, sizeof sb);
+    if (round % 3 == 2) {
+      ub_blend_update_begin(bb, 0);
+      for (uint32_t q = 0; q < 3; q++) {
+        ub_blend_stats sq;
+        ub_blend_update_part(bb, 2 - q, 3, on_ref, &rl, NULL, &sq);
+        sb.receivers += sq.receivers;
+        sb.receivers_reference += sq.receivers_reference;
+      }
+    } else {
+      ub_blend_update(bb, on_ref, &rl, NULL, &sb);
+    }
+    bad_rows += memcmp(oa, ob, sizeof(float) * nf) != 0;
+    bad_count += memcmp(ca, cb, R) != 0;
+    for (uint32_t r = 0; r < R; r++)
+      bad_count += cb[r] > 1;
+    bad_count += sb.receivers_reference != rl.at_ref;
+    at_ref += rl.at_ref;
+    reported += sb.receivers;
+    if (back)
+      all_ref &= sb.receivers > 0 && sb.receivers_reference == sb.receivers;
+  }
+  printf("reference R=%u S=%u %s%s: 60 rounds, %d with differing rows, %d with differing "
+         "reports (want 0); %llu of %llu receivers put back from the reference, all of them "
+         "when every weight is back: %s\n", R, S, st == UB_BLEND_FLOAT16 ? "half" : "float",
+         (xflags & UB_BLEND_STORE_Q8) ? " q8" : "", bad_rows, bad_count,
+         (unsigned long long)at_ref, (unsigned long long)reported, all_ref ? "yes" : "NO");
+  ASSERT_TRUE(bad_rows == 0 && bad_count == 0 && all_ref && at_ref > 0 && at_ref < reported);
+  ub_blend_free(ba);
+  ub_blend_free(bb);
+  free(oa);
+  free(ob);
+  free(kept);
+  free(wref);
+  free(ca);
+  free(cb);
+  rep_free(&p);
+}
+
 /* One group of 40 members (more than ub_blend_row lists: its scalar loop) from its
  * all-ones sums: row queries give the update's rows, AVX and portable the same bits, with
  * half and 8-bit records. */
@@ -1683,5 +1812,10 @@ int main(void)
   test_ones_many(27, UB_BLEND_STORE_Q8);
   test_ones_many(12, UB_BLEND_STORE_Q8);
   test_q8_validation();
+  test_reference(20000, 12, 40, UB_BLEND_FLOAT16,
+                 UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF | UB_BLEND_ONES_SUM | UB_BLEND_ROW_QUERY);
+  test_reference(6000, 27, 24, UB_BLEND_FLOAT32, 0);
+  test_reference(8000, 12, 30, UB_BLEND_FLOAT16,
+                 UB_BLEND_OWN_BASE | UB_BLEND_STORE_Q8 | UB_BLEND_PORTABLE);
   TEST_MAIN_END();
 }

@@ -266,11 +266,10 @@ static void test_states_vs_reference(ub_runtime *rt)
 /* `ubake info --json --memory`: each set with its lights and receivers as the bake file
  * holds them and its bytes (28 per texel pixel: index + 12 halves; 58 per probe: index
  * + 27 halves), and the run-time's bytes by part = ub_runtime_memory_usage of rt. */
-static void test_info(const char *ubk, const ub_runtime *rt, int records8)
+static void test_info(const char *ubk, const ub_runtime *rt, const char *opts)
 {
   char cmd[2300];
-  snprintf(cmd, sizeof cmd, "'%s/ubake' info '%s' --json --memory%s", g_build, ubk,
-           records8 ? " --records 8bit" : "");
+  snprintf(cmd, sizeof cmd, "'%s/ubake' info '%s' --json --memory%s", g_build, ubk, opts);
   FILE *p = popen(cmd, "r");
   ASSERT_TRUE(p != NULL);
   if (!p)
@@ -313,7 +312,7 @@ static void test_info(const char *ubk, const ub_runtime *rt, int records8)
                        "\"glg\": %llu, \"llg\": %llu, \"records\": %llu, \"blend\": %llu, "
                        "\"total\": %llu", &g, &l, &gl, &ll, &rec, &bl, &tot) : 0;
   printf("ubake info --json --memory%s: %d of 2 sets wrong; run-time %llu bytes (here %zu), "
-         "records %llu\n", records8 ? " --records 8bit" : "", bad, tot, m.total, rec);
+         "records %llu\n", opts, bad, tot, m.total, rec);
   ASSERT_TRUE(bad == 0 && nm == 7);
   ASSERT_TRUE(tot == m.total && g == m.geometry && l == m.lightmap && gl == m.glg &&
               ll == m.llg && rec == m.records && bl == m.blend && rec > 0 &&
@@ -346,18 +345,20 @@ int main(void)
     ASSERT_TRUE(ub_runtime_dls_find(rt, "nope") == -1);
     const float bad[3] = {NAN, 0, 0};
     ASSERT_TRUE(ub_runtime_set_dls(rt, 0, bad) == UB_ERR_INVALID_ARGUMENT);
-    test_info(st.ubk_path, rt, 0);
+    test_info(st.ubk_path, rt, "");
     test_linearity(rt);
     test_toggle(rt);
     test_states_vs_reference(rt);
     ub_runtime_free(rt);
   }
-  /* The same with the records in 8 bits: still linear, still within the reference. */
+  /* The same with the records in 8 bits and the load state kept: still linear, still within
+   * the reference. */
   rt = NULL;
-  ASSERT_OK(ub_runtime_load_ex(st.ubk_path, NULL, UB_RUNTIME_RECORDS_8BIT, &rt));
+  ASSERT_OK(ub_runtime_load_ex(st.ubk_path, NULL, UB_RUNTIME_RECORDS_8BIT | UB_RUNTIME_KEEP_STATE,
+                               &rt));
   if (rt) {
-    printf("-- records in 8 bits --\n");
-    test_info(st.ubk_path, rt, 1);
+    printf("-- records in 8 bits, the load state kept --\n");
+    test_info(st.ubk_path, rt, " --records 8bit --keep-state");
     test_linearity(rt);
     test_states_vs_reference(rt);
     ub_runtime_free(rt);

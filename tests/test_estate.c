@@ -515,6 +515,137 @@ static void check_plain_sums(const char *ubk)
   ub_runtime_free(rp);
 }
 
+/* Every atlas's packed AHD of rt, concatenated (malloc'd; *n texels). */
+static ub_ahd_packed *atlas_bytes(const ub_runtime *rt, size_t *n)
+{
+  const ub_bakefile *f = ub_runtime_bakefile(rt);
+  size_t total = 0;
+  for (uint32_t a = 0; a < f->atlas_count; a++)
+    total += (size_t)f->atlases[a].width * f->atlases[a].height;
+  ub_ahd_packed *out = calloc(total ? total : 1, sizeof *out);
+  size_t k = 0;
+  for (uint32_t a = 0; out && a < f->atlas_count; a++) {
+    ASSERT_OK(ub_runtime_atlas_ahd(rt, a, out + k));
+    k += (size_t)f->atlases[a].width * f->atlases[a].height;
+  }
+  *n = total;
+  return out;
+}
+
+/* ub_runtime_keep_state (UB_RUNTIME_KEEP_STATE at load, and again mid-way at a tinted
+ * state) against a run-time without: 300 random changes (mostly a set off or back on,
+ * some tints, sometimes several at once, plain and 3-job updates), and after every update
+ * the whole atlas and the changed-texel list bit for bit the same; the kept state's
+ * texels are copied back (texels_kept > 0, and all of them when every set is back). */
+static void check_keep_state(const char *ubk)
+{
+  ub_runtime *ra = NULL, *rb = NULL;
+  ASSERT_OK(ub_runtime_load_ex(ubk, NULL, 0, &ra));
+  ASSERT_OK(ub_runtime_load_ex(ubk, NULL, UB_RUNTIME_KEEP_STATE, &rb));
+  const uint32_t nd = ra ? ub_runtime_dls_count(ra) : 0;
+  float *cur = malloc(sizeof(float) * 3 * (nd + 1)), *kept_w = malloc(sizeof(float) * 3 * (nd + 1));
+  if (!ra || !rb || !cur || !kept_w) {
+    ASSERT_TRUE(cur && kept_w);
+    free(cur);
+    free(kept_w);
+    ub_runtime_free(ra);
+    ub_runtime_free(rb);
+    return;
+  }
+  ub_runtime_memory ma, mb;
+  ub_runtime_memory_usage(ra, &ma);
+  ub_runtime_memory_usage(rb, &mb);
+  for (uint32_t i = 0; i < 3 * nd; i++)
+    cur[i] = kept_w[i] = 1.0f; /* the load state: every set on */
+  uint32_t h = 4242u;
+  size_t bad_atlas = 0, bad_changed = 0;
+  uint64_t kept = 0, reenc = 0, back_kept = 0, back_texels = 0;
+  for (int step = 0; step < 300; step++) {
+    if (step == 150) { /* keep another state: set 1 tinted, the others as they are */
+      const float t[3] = {0.7f, 1.0f, 0.4f};
+      memcpy(cur + 3, t, sizeof t);
+      ASSERT_OK(ub_runtime_set_dls(ra, 1, t));
+      ASSERT_OK(ub_runtime_set_dls(rb, 1, t));
+      /* refused while a change waits for its update */
+      ASSERT_TRUE(ub_runtime_keep_state(rb) == UB_ERR_INVALID_ARGUMENT);
+      ASSERT_OK(ub_runtime_update(ra, NULL));
+      ASSERT_OK(ub_runtime_update(rb, NULL));
+      ASSERT_OK(ub_runtime_keep_state(rb));
+      memcpy(kept_w, cur, sizeof(float) * 3 * nd);
+    }
+    const int nchg = step % 7 == 3 ? 3 : 1;
+    for (int c = 0; c < nchg; c++) {
+      h = h * 1664525u + 1013904223u;
+      uint32_t d = (h >> 8) % nd, kind = (h >> 4) % 8;
+      float *w = cur + 3 * d;
+      if (kind < 3) /* off */
+        w[0] = w[1] = w[2] = 0.0f;
+      else if (kind < 7) /* back to the kept value */
+        memcpy(w, kept_w + 3 * d, 3 * sizeof(float));
+      else
+        w[0] = w[1] = 1.0f, w[2] = 0.5f;
+    }
+    const int back = step == 99 || step == 299; /* every set back to the kept state */
+    if (back)
+      memcpy(cur, kept_w, sizeof(float) * 3 * nd);
+    for (uint32_t d = 0; d < nd; d++) {
+      ASSERT_OK(ub_runtime_set_dls(ra, d, cur + 3 * d));
+      ASSERT_OK(ub_runtime_set_dls(rb, d, cur + 3 * d));
+    }
+    ub_runtime_update_stats sa, sb;
+    if (step % 5 == 4) { /* 3 jobs, run one after another (rb's in reverse) */
+      uint32_t ja = 0, jb = 0;
+      ASSERT_OK(ub_runtime_update_begin(ra, 3, &ja));
+      ASSERT_OK(ub_runtime_update_begin(rb, 3, &jb));
+      for (uint32_t j = 0; j < ja; j++)
+        ub_runtime_update_job(ra, j);
+      for (uint32_t j = 0; j < jb; j++)
+        ub_runtime_update_job(rb, jb - 1 - j);
+      ub_runtime_update_end(ra, &sa);
+      ub_runtime_update_end(rb, &sb);
+    } else {
+      ASSERT_OK(ub_runtime_update(ra, &sa));
+      ASSERT_OK(ub_runtime_update(rb, &sb));
+    }
+    ASSERT_TRUE(sa.texels_kept == 0 && sa.texels_reencoded == sb.texels_reencoded);
+    kept += sb.texels_kept;
+    reenc += sb.texels_reencoded;
+    if (back) {
+      back_kept += sb.texels_kept;
+      back_texels += sb.texels_reencoded;
+    }
+    size_t na = 0, nb = 0;
+    ub_ahd_packed *aa = atlas_bytes(ra, &na), *ab = atlas_bytes(rb, &nb);
+    bad_atlas += !aa || !ab || na != nb || memcmp(aa, ab, na * sizeof *aa) != 0;
+    free(aa);
+    free(ab);
+    uint64_t ca = ub_runtime_changed_texel_count(ra), cb = ub_runtime_changed_texel_count(rb);
+    ub_runtime_texel_change *la = calloc(ca + 1, sizeof *la), *lb = calloc(cb + 1, sizeof *lb);
+    int same = la && lb && ca == cb && ub_runtime_changed_texels(ra, 0, ca, la) == ca &&
+               ub_runtime_changed_texels(rb, 0, cb, lb) == cb;
+    for (uint64_t i = 0; same && i < ca; i++)
+      same = la[i].atlas == lb[i].atlas && la[i].x == lb[i].x && la[i].y == lb[i].y &&
+             !memcmp(&la[i].ahd, &lb[i].ahd, sizeof la[i].ahd);
+    bad_changed += !same;
+    free(la);
+    free(lb);
+  }
+  printf("kept state: 300 changes, atlases differing after %zu updates, changed-texel lists "
+         "after %zu (want 0); %llu of %llu texels copied back (%llu of %llu when every set "
+         "returned to the kept state); memory +%.2f MiB\n",
+         bad_atlas, bad_changed, (unsigned long long)kept, (unsigned long long)reenc,
+         (unsigned long long)back_kept, (unsigned long long)back_texels,
+         ((double)mb.total - (double)ma.total) / 1048576.0);
+  ASSERT_TRUE(bad_atlas == 0 && bad_changed == 0);
+  ASSERT_TRUE(kept > 0 && kept < reenc);
+  ASSERT_TRUE(back_texels > 0 && back_kept == back_texels);
+  ASSERT_TRUE(mb.total > ma.total);
+  free(cur);
+  free(kept_w);
+  ub_runtime_free(ra);
+  ub_runtime_free(rb);
+}
+
 /* The decoded AHD lightmap at fixed points of the lit triangles and LLG irradiance at
  * fixed points (what a parallel update writes besides the SH the snapshot reads). */
 static void take_decoded(const ub_runtime *rt, float *out, int n)
@@ -790,6 +921,7 @@ int main(void)
     check_blend(st.ubk_path, bf, UB_RUNTIME_RECORDS_8BIT);
     check_records_8bit(st.ubk_path, bf);
     check_plain_sums(st.ubk_path);
+    check_keep_state(st.ubk_path);
     check_jobs(st.ubk_path);
     check_glg_threads(st.ubk_path);
   }

@@ -428,9 +428,9 @@ static int parse_records_arg(const char *cmd, const char *a, const char *v, unsi
   if (strcmp(a, "--records") || !v)
     return 0;
   if (!strcmp(v, "half")) {
-    *flags = 0;
+    *flags &= ~UB_RUNTIME_RECORDS_8BIT;
   } else if (!strcmp(v, "8bit")) {
-    *flags = UB_RUNTIME_RECORDS_8BIT;
+    *flags |= UB_RUNTIME_RECORDS_8BIT;
   } else {
     usage_error(cmd, "--records takes half or 8bit");
     return -1;
@@ -446,13 +446,15 @@ static int parse_records_arg(const char *cmd, const char *a, const char *v, unsi
 /* ---- info -------------------------------------------------------------------------- */
 
 static const char *INFO_HELP =
-    "usage: ubake info DIR/NAME.ubk [--json] [--memory [--records half|8bit]]\n"
+    "usage: ubake info DIR/NAME.ubk [--json] [--memory [--records half|8bit] [--keep-state]]\n"
     "Prints what the bake file holds: geometry, atlases, texels, bytes.\n"
     "  --json      the same as one JSON object\n"
     "  --memory    also load it in the run-time and print what the run-time holds, by\n"
     "              part (ub_runtime_memory_usage: geometry, lightmap, GLG, LLG, records,\n"
     "              blend engines), and the load time\n"
-    RECORDS_HELP;
+    RECORDS_HELP
+    "  --keep-state        with the load state kept (UB_RUNTIME_KEEP_STATE: 16 B a texel\n"
+    "                      that a set, door or object touches; a return to it copies)\n";
 
 /* The run-time's bytes for path (loads it): 0 on success. */
 static int info_memory(const char *path, const ub_log *log, unsigned flags,
@@ -486,6 +488,8 @@ static int cmd_info(int argc, char **argv)
       json = 1;
     } else if (!strcmp(argv[i], "--memory")) {
       memory = 1;
+    } else if (!strcmp(argv[i], "--keep-state")) {
+      load_flags |= UB_RUNTIME_KEEP_STATE;
     } else if (argv[i][0] == '-') {
       return usage_error("info", "unknown option");
     } else {
@@ -495,7 +499,8 @@ static int cmd_info(int argc, char **argv)
   if (!path)
     return usage_error("info", "no .ubk given");
   if (load_flags && !memory)
-    return usage_error("info", "--records goes with --memory (the run-time's bytes)");
+    return usage_error("info", "--records and --keep-state go with --memory (the run-time's "
+                               "bytes)");
   cli_log_state ls = {0, 0, 0};
   ub_log log = {cli_log, &ls};
   ub_bakefile *bf = NULL;

@@ -58,6 +58,9 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
  * the weights alone. UB_RUNTIME_PLAIN_SUMS keeps no such sums: less memory (full ESTATE
  * −22.5 MiB), slower toggles where many sets overlap (README, "All-ones sums"). */
 #define UB_RUNTIME_PLAIN_SUMS 2u
+/* UB_RUNTIME_KEEP_STATE: ub_runtime_keep_state() at load (the load state: every set on,
+ * doors closed, objects as baked). */
+#define UB_RUNTIME_KEEP_STATE 4u
 /* ub_runtime_load() with flags (0 or the flags above; UB_ERR_INVALID_ARGUMENT for others). */
 ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags,
                              ub_runtime **out);
@@ -279,6 +282,7 @@ float ub_runtime_door_fraction(float hinge_angle_radians);
 
 typedef struct ub_runtime_update_stats {
   uint64_t texels_written, texels_reencoded;
+  uint64_t texels_kept; /* of texels_reencoded: copied back from the kept state */
   uint64_t probes_written; /* GLG probes marked, blended when a query first reads them */
   uint64_t llg_probes_written;
   /* What the blends read (base and record rows, group tables) and write (current rows),
@@ -294,6 +298,18 @@ typedef struct ub_runtime_update_stats {
 /* UB_OK, or UB_ERR_INVALID_ARGUMENT while a job-split update (below) is begun and not
  * ended (nothing changes). */
 ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats);
+
+/* Keeps the current state (the last update's) for fast returns to it: a copy of the AHD
+ * of every texel an element touches (16 B each; full ESTATE: 1.26 M texels, 19.3 MiB).
+ * An update then re-encodes no texel whose elements are all back at their kept values:
+ * it copies that texel's kept AHD back (the same bits a re-encode gives: a texel's state
+ * is a function of its elements' values alone). A set turned off and on again, a door
+ * opened and closed, a flickering light: the way back costs a copy. Call it again to keep
+ * another state (one is kept at a time). UB_ERR_INVALID_ARGUMENT (nothing changes) while
+ * an element's value changed since the last update or an update is begun and not ended;
+ * UB_ERR_OUT_OF_MEMORY. Lightmap texels only: GLG probes are blended lazily, LLG probes
+ * as before. */
+ub_result ub_runtime_keep_state(ub_runtime *rt);
 
 /* The same update split into jobs for the game's job system (the library starts no
  * thread): ub_runtime_update_begin() takes the changed weights and splits the work into
