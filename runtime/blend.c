@@ -140,6 +140,9 @@ struct ub_blend {
    * whether its weight equals them; NULL without a reference */
   float *ref;
   uint8_t *atref;
+  /* ub_blend_set_reference_rows: the touched receivers' rows at the reference, group
+   * order (as obase), float; NULL: none */
+  float *refrows;
   size_t engine_bytes, record_bytes;
 };
 
@@ -1178,14 +1181,32 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
   const blend_group *g = &b->groups[gi];
   const uint32_t gk = g->k_mode & ~GROUP_LIST;
   const uint32_t *mem = b->members + g->member_off;
-  if (b->atref && !c->out) {
+  if (b->atref && (!c->out || b->refrows)) {
     uint32_t off = 0;
     for (uint32_t m = 0; m < gk; m++)
       off += !b->atref[mem[m]];
-    if (off == 0) { /* at the reference: the caller puts back what it kept */
-      stream_flush(c);
-      group_report(b, g, c->qlo, c->qhi, c->fn, c->user, UB_BLEND_AT_REFERENCE);
-      const uint64_t n = c->qhi - c->qlo;
+    if (off == 0) { /* at the reference: its rows back, or the caller puts back its own */
+      const uint64_t n = c->qhi - c->qlo, row = (uint64_t)b->stride * sizeof(float);
+      if (c->out) {
+        const size_t S = b->stride;
+        const float *rr = b->refrows + (size_t)g->base_row * S;
+        unit_iter it;
+        unit_iter_init(&it, b, g, c->qlo, c->qhi, 0);
+        uint32_t r, s0, s1;
+        size_t i0;
+        const char *bs;
+        while (unit_next(&it, b, &r, &i0, &bs, &s0, &s1)) {
+          float *o = c->out + (size_t)(r + s0) * S;
+          memcpy(o, rr + (i0 + s0) * S, (size_t)(s1 - s0) * S * sizeof(float));
+          if (c->fn)
+            c->fn(c->user, r + s0, s1 - s0, o);
+        }
+        st->bytes_read += n * row;
+        st->bytes_written += n * row;
+      } else {
+        stream_flush(c);
+        group_report(b, g, c->qlo, c->qhi, c->fn, c->user, UB_BLEND_AT_REFERENCE);
+      }
       st->groups += c->qlo == 0;
       st->receivers += n;
       st->receivers_reference += n;
@@ -1477,6 +1498,49 @@ ub_result ub_blend_set_weight(ub_blend *b, uint32_t element, const float rgb[3])
   return UB_OK;
 }
 
+int ub_blend_pending(const ub_blend *b)
+{
+  assert(b);
+  return b->dirty_count != 0;
+}
+
+ub_result ub_blend_set_reference_rows(ub_blend *b, const float *out_values)
+{
+  assert(b && out_values);
+  if (b->dirty_count || !b->obase)
+    return UB_ERR_INVALID_ARGUMENT;
+  const size_t S = b->stride;
+  int fresh = !b->refrows;
+  if (fresh) {
+    b->refrows = malloc((size_t)(b->touched ? b->touched : 1) * S * sizeof(float));
+    if (!b->refrows)
+      return UB_ERR_OUT_OF_MEMORY;
+  }
+  ub_result r = ub_blend_set_reference(b);
+  if (r != UB_OK) {
+    if (fresh) {
+      free(b->refrows);
+      b->refrows = NULL;
+    }
+    return r;
+  }
+  if (fresh)
+    b->engine_bytes += (size_t)b->touched * S * sizeof(float);
+  for (uint32_t gi = 0; gi < b->group_count; gi++) {
+    const blend_group *g = &b->groups[gi];
+    float *rr = b->refrows + (size_t)g->base_row * S;
+    unit_iter it;
+    unit_iter_init(&it, b, g, 0, g->receivers, 0);
+    uint32_t rc, s0, s1;
+    size_t i0;
+    const char *bs;
+    while (unit_next(&it, b, &rc, &i0, &bs, &s0, &s1))
+      memcpy(rr + (i0 + s0) * S, out_values + (size_t)(rc + s0) * S,
+             (size_t)(s1 - s0) * S * sizeof(float));
+  }
+  return UB_OK;
+}
+
 ub_result ub_blend_set_reference(ub_blend *b)
 {
   assert(b);
@@ -1650,6 +1714,7 @@ void ub_blend_free(ub_blend *b)
   free(b->wlast);
   free(b->ref);
   free(b->atref);
+  free(b->refrows);
   free(b);
 }
 

@@ -296,8 +296,17 @@ uint32_t ub_blend_part_first(const ub_blend *b, uint32_t part, uint32_t parts);
  * same order and pieces as mark_part, a pending stream handed over first), and the caller
  * puts back what it kept. Exact: a receiver's value is a function of its group's weights
  * alone (above), so its rows at those weights are the bits it had at the reference.
- * Updates with out_values compute every group as before. Memory: 13 bytes an element. */
+ * Updates with out_values compute every group as before (but see _rows below). Memory: 13
+ * bytes an element. */
 ub_result ub_blend_set_reference(ub_blend *b);
+/* The same for a caller that updates with out_values: the engine also keeps the touched
+ * receivers' rows of out_values (the array its updates write) as they are now (stride ×
+ * 4 bytes a touched receiver; needs UB_BLEND_OWN_BASE, else UB_ERR_INVALID_ARGUMENT), and
+ * an update with out_values copies them back for the groups at the reference instead of
+ * computing them (touched then gets those rows in out_values, as usual). */
+ub_result ub_blend_set_reference_rows(ub_blend *b, const float *out_values);
+/* 1 while a weight changed since the last update (ub_blend_set_reference refuses then). */
+int ub_blend_pending(const ub_blend *b);
 
 /* Receiver r's row as the last update (or create) left it: base + Σ ω_i·S_i under the
  * weights taken at the last ub_blend_update_begin (an update that only marked, too), with

@@ -118,7 +118,6 @@ struct ub_runtime {
   ub_ahd_packed *ahd_kept;
   float ahd_scale, ahd_inv_scale; /* a power of two ≥ 1, and its inverse */
   int ahd_ranked;
-  int kept_valid;  /* ahd_kept holds the blend's reference state */
   /* Jobs of the update in progress (ub_runtime_update_begin … end). */
   struct rt_job *jobs;
   uint32_t job_cap, job_count;
@@ -1271,26 +1270,26 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
 ub_result ub_runtime_keep_state(ub_runtime *rt)
 {
   assert(rt);
-  if (rt->job_count)
-    return UB_ERR_INVALID_ARGUMENT;
+  if (rt->job_count || (rt->lm_blend && ub_blend_pending(rt->lm_blend)) ||
+      (rt->llg_blend && ub_blend_pending(rt->llg_blend)))
+    return UB_ERR_INVALID_ARGUMENT; /* a change waits for its update */
+  /* LLG probes: the blend keeps their rows (llg_cur, what it writes) */
+  if (rt->llg_blend) {
+    ub_result r = ub_blend_set_reference_rows(rt->llg_blend, rt->llg_cur);
+    if (r != UB_OK)
+      return r;
+  }
   if (!rt->lm_blend || !rt->touched)
-    return UB_OK; /* nothing an update re-encodes */
+    return UB_OK; /* no texel an update re-encodes */
   if (!rt->ahd_kept) {
     rt->ahd_kept = malloc((size_t)rt->touched * sizeof *rt->ahd_kept);
     if (!rt->ahd_kept)
-      return UB_ERR_OUT_OF_MEMORY;
+      return UB_ERR_OUT_OF_MEMORY; /* (the LLG probes' state is kept) */
   }
-  /* the blend first: it refuses while a weight changed since the last update */
-  ub_result r = ub_blend_set_reference(rt->lm_blend);
-  if (r != UB_OK) {
-    if (!rt->kept_valid) {
-      free(rt->ahd_kept);
-      rt->ahd_kept = NULL;
-    }
+  ub_result r = ub_blend_set_reference(rt->lm_blend); /* cannot refuse: nothing pending */
+  if (r != UB_OK)
     return r;
-  }
   memcpy(rt->ahd_kept, rt->ahd, (size_t)rt->touched * sizeof *rt->ahd_kept);
-  rt->kept_valid = 1;
   return UB_OK;
 }
 
@@ -1754,6 +1753,7 @@ void ub_runtime_update_end(ub_runtime *rt, ub_runtime_update_stats *out_stats)
                         jb->llg.bytes_written;
     st.probes_written += jb->glg.receivers;
     st.llg_probes_written += jb->llg.receivers;
+    st.llg_probes_kept += jb->llg.receivers_reference;
     st.groups += jb->lm.groups + jb->glg.groups + jb->llg.groups;
     st.seconds_lightmap = fmax(st.seconds_lightmap, jb->seconds[0]);
     st.seconds_glg = fmax(st.seconds_glg, jb->seconds[1]);

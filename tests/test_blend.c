@@ -1307,7 +1307,8 @@ static void on_ref(void *user, uint32_t first, uint32_t count, const float *rows
  * 60 rounds of a few elements changed (back to their reference weight, off, or any
  * weight), plain and in 3 parts, every update and the whole state: the same rows and the
  * same receivers reported, once each; every receiver at the reference when every weight
- * is; refused with a change pending. */
+ * is; refused with a change pending. With UB_BLEND_OWN_BASE also an engine updating an
+ * out array with ub_blend_set_reference_rows: the same rows. */
 static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st,
                            uint32_t xflags)
 {
@@ -1328,6 +1329,19 @@ static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
     return;
   }
   ASSERT_OK(ub_blend_reserve_parts(bb, 3));
+  const int own = (xflags & UB_BLEND_OWN_BASE) != 0;
+  ub_blend *bc = NULL; /* out array, rows kept by the engine */
+  float *oc = malloc(sizeof(float) * nf);
+  uint8_t *cc = calloc(R, 1);
+  if (own) {
+    ASSERT_OK(ub_blend_create(&d, NULL, oc, &bc));
+    ASSERT_OK(ub_blend_reserve_parts(bc, 3));
+  } else {
+    ASSERT_OK(ub_blend_create(&d, NULL, oc, &bc));
+    ASSERT_TRUE(bc && ub_blend_set_reference_rows(bc, oc) == UB_ERR_INVALID_ARGUMENT);
+    ub_blend_free(bc);
+    bc = NULL;
+  }
   for (uint32_t e = 0; e < E; e++) { /* the reference: most elements on, some tinted */
     float w[3] = {1.0f, 1.0f, 1.0f};
     if (e % 4 == 1)
@@ -1335,9 +1349,15 @@ static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
     memcpy(wref + 3 * e, w, sizeof w);
     ASSERT_OK(ub_blend_set_weight(ba, e, w));
     ASSERT_OK(ub_blend_set_weight(bb, e, w));
+    if (bc)
+      ASSERT_OK(ub_blend_set_weight(bc, e, w));
   }
   update_as(ba, oa, ca, R, S, 1, 1, 1, NULL);
   update_as(bb, ob, cb, R, S, 1, 1, 1, NULL);
+  if (bc) {
+    update_as(bc, oc, cc, R, S, 0, 1, 1, NULL);
+    ASSERT_OK(ub_blend_set_reference_rows(bc, oc));
+  }
   ASSERT_OK(ub_blend_set_weight(bb, 0, (const float[3]){0.5f, 0.5f, 0.5f}));
   ASSERT_TRUE(ub_blend_set_reference(bb) == UB_ERR_INVALID_ARGUMENT); /* a change pending */
   ASSERT_OK(ub_blend_set_weight(bb, 0, wref));
@@ -1361,6 +1381,8 @@ static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
         rnd_weight(w);
       ASSERT_OK(ub_blend_set_weight(ba, e, w));
       ASSERT_OK(ub_blend_set_weight(bb, e, w));
+      if (bc)
+        ASSERT_OK(ub_blend_set_weight(bc, e, w));
     }
     memset(ca, 0, R);
     touch_log tl = {ca, 0, S, NULL, oa, 0, 0, 0, 0};
@@ -1380,8 +1402,12 @@ static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
     } else {
       ub_blend_update(bb, on_ref, &rl, NULL, &sb);
     }
+    if (bc) { /* out array: plain or in 3 parts */
+      update_as(bc, oc, cc, R, S, 0, round % 3 == 1 ? 3 : 1, 0, NULL);
+      bad_rows += memcmp(oa, oc, sizeof(float) * nf) != 0;
+    }
     bad_rows += memcmp(oa, ob, sizeof(float) * nf) != 0;
-    bad_count += memcmp(ca, cb, R) != 0;
+    bad_count += memcmp(ca, cb, R) != 0 || (bc && memcmp(ca, cc, R) != 0);
     for (uint32_t r = 0; r < R; r++)
       bad_count += cb[r] > 1;
     bad_count += sb.receivers_reference != rl.at_ref;
@@ -1398,8 +1424,11 @@ static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
   ASSERT_TRUE(bad_rows == 0 && bad_count == 0 && all_ref && at_ref > 0 && at_ref < reported);
   ub_blend_free(ba);
   ub_blend_free(bb);
+  ub_blend_free(bc);
   free(oa);
   free(ob);
+  free(oc);
+  free(cc);
   free(kept);
   free(wref);
   free(ca);

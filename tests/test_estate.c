@@ -558,8 +558,8 @@ static void check_keep_state(const char *ubk)
   for (uint32_t i = 0; i < 3 * nd; i++)
     cur[i] = kept_w[i] = 1.0f; /* the load state: every set on */
   uint32_t h = 4242u;
-  size_t bad_atlas = 0, bad_changed = 0;
-  uint64_t kept = 0, reenc = 0, back_kept = 0, back_texels = 0;
+  size_t bad_atlas = 0, bad_changed = 0, bad_llg = 0;
+  uint64_t kept = 0, reenc = 0, back_kept = 0, back_texels = 0, llg_kept = 0;
   for (int step = 0; step < 300; step++) {
     if (step == 150) { /* keep another state: set 1 tinted, the others as they are */
       const float t[3] = {0.7f, 1.0f, 0.4f};
@@ -629,14 +629,27 @@ static void check_keep_state(const char *ubk)
     bad_changed += !same;
     free(la);
     free(lb);
+    /* LLG probes (their grids as queries read them) and the models flagged changed */
+    const ub_bakefile *fa = ub_runtime_bakefile(ra), *fb = ub_runtime_bakefile(rb);
+    int llg_same = fa->llg_count == fb->llg_count;
+    for (uint32_t m = 0; llg_same && m < fa->llg_count; m++) {
+      const size_t np = (size_t)fa->llgs[m].dims[0] * fa->llgs[m].dims[1] * fa->llgs[m].dims[2];
+      llg_same = !memcmp(fa->llgs[m].probe_sh, fb->llgs[m].probe_sh, np * 27 * sizeof(float)) &&
+                 ub_runtime_llg_changed(ra, m) == ub_runtime_llg_changed(rb, m);
+    }
+    bad_llg += !llg_same;
+    llg_kept += sb.llg_probes_kept;
+    bad_llg += sa.llg_probes_kept != 0 || sa.llg_probes_written != sb.llg_probes_written ||
+               (back && sb.llg_probes_kept != sb.llg_probes_written);
   }
   printf("kept state: 300 changes, atlases differing after %zu updates, changed-texel lists "
-         "after %zu (want 0); %llu of %llu texels copied back (%llu of %llu when every set "
-         "returned to the kept state); memory +%.2f MiB\n",
-         bad_atlas, bad_changed, (unsigned long long)kept, (unsigned long long)reenc,
+         "after %zu, LLG grids after %zu (want 0); %llu of %llu texels copied back (%llu of "
+         "%llu when every set returned to the kept state), %llu LLG probes; memory +%.2f "
+         "MiB\n",
+         bad_atlas, bad_changed, bad_llg, (unsigned long long)kept, (unsigned long long)reenc,
          (unsigned long long)back_kept, (unsigned long long)back_texels,
-         ((double)mb.total - (double)ma.total) / 1048576.0);
-  ASSERT_TRUE(bad_atlas == 0 && bad_changed == 0);
+         (unsigned long long)llg_kept, ((double)mb.total - (double)ma.total) / 1048576.0);
+  ASSERT_TRUE(bad_atlas == 0 && bad_changed == 0 && bad_llg == 0 && llg_kept > 0);
   ASSERT_TRUE(kept > 0 && kept < reenc);
   ASSERT_TRUE(back_texels > 0 && back_kept == back_texels);
   ASSERT_TRUE(mb.total > ma.total);

@@ -285,6 +285,7 @@ typedef struct ub_runtime_update_stats {
   uint64_t texels_kept; /* of texels_reencoded: copied back from the kept state */
   uint64_t probes_written; /* GLG probes marked, blended when a query first reads them */
   uint64_t llg_probes_written;
+  uint64_t llg_probes_kept; /* of llg_probes_written: copied back from the kept state */
   /* What the blends read (base and record rows, group tables) and write (current rows),
    * plus the AHD re-encode's normals read and AHD texels written. GLG: its group tables
    * only (the rows are read when a query blends a marked probe, not counted here). */
@@ -300,15 +301,16 @@ typedef struct ub_runtime_update_stats {
 ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats);
 
 /* Keeps the current state (the last update's) for fast returns to it: a copy of the AHD
- * of every texel an element touches (16 B each; full ESTATE: 1.26 M texels, 19.3 MiB).
- * An update then re-encodes no texel whose elements are all back at their kept values:
- * it copies that texel's kept AHD back (the same bits a re-encode gives: a texel's state
- * is a function of its elements' values alone). A set turned off and on again, a door
- * opened and closed, a flickering light: the way back costs a copy. Call it again to keep
- * another state (one is kept at a time). UB_ERR_INVALID_ARGUMENT (nothing changes) while
- * an element's value changed since the last update or an update is begun and not ended;
- * UB_ERR_OUT_OF_MEMORY. Lightmap texels only: GLG probes are blended lazily, LLG probes
- * as before. */
+ * of every texel an element touches (16 B each; full ESTATE: 1.26 M texels, 19.3 MiB) and
+ * of the SH of every LLG probe one touches (108 B each). An update then re-encodes no
+ * texel and blends no LLG probe whose elements are all back at their kept values: it
+ * copies the kept values back (the same bits a re-blend gives: a receiver's state is a
+ * function of its elements' values alone). A set turned off and on again, a door opened
+ * and closed, a flickering light: the way back costs a copy. GLG probes are blended
+ * lazily by the queries anyway. Call it again to keep another state (one is kept at a
+ * time). UB_ERR_INVALID_ARGUMENT (nothing changes) while an element's value changed since
+ * the last update or an update is begun and not ended; UB_ERR_OUT_OF_MEMORY (the LLG
+ * probes' state may then be kept without the texels': still exact). */
 ub_result ub_runtime_keep_state(ub_runtime *rt);
 
 /* The same update split into jobs for the game's job system (the library starts no
