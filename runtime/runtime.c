@@ -1522,9 +1522,9 @@ float ub_runtime_dls_weight_from_lights(const float *strengths, uint32_t count)
 typedef struct touched_ctx {
   ub_runtime *rt;
   uint64_t texels;
+  uint64_t kept;   /* of texels: copied back from the kept state */
   /* texels with their own normal waiting to be encoded eight at a time (the blend hands
    * over pieces of one group's run; their rows live only during the call: copied) */
-  uint64_t kept;   /* of texels: copied back from the kept state */
   uint32_t np;
   const float *prow[8]; /* into qrow */
   ub_ahd_packed *pout[8];
