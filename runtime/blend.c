@@ -1504,6 +1504,8 @@ int ub_blend_pending(const ub_blend *b)
   return b->dirty_count != 0;
 }
 
+static ub_result take_reference(ub_blend *b);
+
 ub_result ub_blend_set_reference_rows(ub_blend *b, const float *out_values)
 {
   assert(b && out_values);
@@ -1516,7 +1518,7 @@ ub_result ub_blend_set_reference_rows(ub_blend *b, const float *out_values)
     if (!b->refrows)
       return UB_ERR_OUT_OF_MEMORY;
   }
-  ub_result r = ub_blend_set_reference(b);
+  ub_result r = take_reference(b);
   if (r != UB_OK) {
     if (fresh) {
       free(b->refrows);
@@ -1544,6 +1546,18 @@ ub_result ub_blend_set_reference_rows(ub_blend *b, const float *out_values)
 ub_result ub_blend_set_reference(ub_blend *b)
 {
   assert(b);
+  ub_result r = take_reference(b);
+  if (r == UB_OK && b->refrows) { /* rows of an earlier reference: stale now */
+    b->engine_bytes -= (size_t)b->touched * b->stride * sizeof(float);
+    free(b->refrows);
+    b->refrows = NULL;
+  }
+  return r;
+}
+
+/* The current weights as the reference (ref, atref); refrows untouched. */
+static ub_result take_reference(ub_blend *b)
+{
   if (b->dirty_count)
     return UB_ERR_INVALID_ARGUMENT;
   const size_t E = b->element_count ? b->element_count : 1;

@@ -171,9 +171,10 @@ typedef struct ub_blend_desc {
 
 /* Counters of one update (all for that call only). */
 typedef struct ub_blend_stats {
-  uint32_t groups;          /* groups recomputed */
+  uint32_t groups;          /* groups recomputed (or put back at the reference) */
   uint32_t groups_base;     /* of which all weights were 0: base rows copied */
-  uint64_t receivers;       /* receivers written, each exactly once */
+  uint64_t receivers;       /* receivers written (or reported at the reference), each
+                             * exactly once */
   uint64_t bytes_read;      /* base rows (as kept: 2 or 4 bytes a value) + record rows of
                              * non-zero members + group tables; a group from its all-ones
                              * sums: those (4 bytes a value) + the rows of the members
@@ -210,7 +211,9 @@ typedef struct ub_blend_info {
  * right after the rows are computed (cache-hot: re-encode AHD here); every recomputed
  * receiver is reported exactly once, in pieces of consecutive receivers. When streaming,
  * consecutive pieces (of one run, or of groups whose receivers continue each other) are
- * handed over together, up to 32 receivers a call. */
+ * handed over together, up to 32 receivers a call; receivers at the reference state
+ * (ub_blend_set_reference, rows UB_BLEND_AT_REFERENCE) come as whole stretches of a
+ * group's units, never joined with computed rows. */
 typedef void (*ub_blend_touched_fn)(void *user, uint32_t first, uint32_t count,
                                     const float *rows);
 
@@ -290,7 +293,10 @@ uint32_t ub_blend_part_first(const ub_blend *b, uint32_t part, uint32_t parts);
  * run-time: the AHD texels) as they are now can have them back instead of a re-blend.
  * ub_blend_set_reference() takes the current weights as the reference (the weights of the
  * last update: UB_ERR_INVALID_ARGUMENT while a weight changed since, nothing then
- * changes; UB_ERR_OUT_OF_MEMORY). From then on a streaming update (out_values NULL)
+ * changes; UB_ERR_OUT_OF_MEMORY; not between ub_blend_update_begin and the end of its
+ * parts, which the engine cannot tell: the weights begin took would become the reference
+ * and the parts would skip their groups). It drops rows kept by
+ * ub_blend_set_reference_rows. From then on a streaming update (out_values NULL)
  * computes no group whose members' weights all equal their reference weights (== per
  * channel): it reports its receivers to touched with rows = UB_BLEND_AT_REFERENCE (in the
  * same order and pieces as mark_part, a pending stream handed over first), and the caller
@@ -305,7 +311,8 @@ ub_result ub_blend_set_reference(ub_blend *b);
  * an update with out_values copies them back for the groups at the reference instead of
  * computing them (touched then gets those rows in out_values, as usual). */
 ub_result ub_blend_set_reference_rows(ub_blend *b, const float *out_values);
-/* 1 while a weight changed since the last update (ub_blend_set_reference refuses then). */
+/* 1 while a weight changed since the last update (ub_blend_set_reference refuses then);
+ * 0 from ub_blend_update_begin on, before its parts have run too. */
 int ub_blend_pending(const ub_blend *b);
 
 /* Receiver r's row as the last update (or create) left it: base + Σ ω_i·S_i under the

@@ -28,7 +28,8 @@ typedef struct ub_rt_fallback {
 
 struct ub_runtime {
   ub_bakefile *bf;
-  unsigned load_flags; /* ub_runtime_load_ex's: UB_RUNTIME_RECORDS_8BIT, _PLAIN_SUMS */
+  unsigned load_flags; /* ub_runtime_load_ex's: UB_RUNTIME_RECORDS_8BIT, _PLAIN_SUMS,
+                          _KEEP_STATE */
   /* AHD encode normals: a covered texel's own stored normal (ub_texel_normal, made when
    * needed), else the normal of the nearest texel that has one, kept here for those few
    * texels only (per atlas, pixels ascending; a zero normal: none in the atlas, the SH's
@@ -1281,14 +1282,19 @@ ub_result ub_runtime_keep_state(ub_runtime *rt)
   }
   if (!rt->lm_blend || !rt->touched)
     return UB_OK; /* no texel an update re-encodes */
-  if (!rt->ahd_kept) {
-    rt->ahd_kept = malloc((size_t)rt->touched * sizeof *rt->ahd_kept);
-    if (!rt->ahd_kept)
+  ub_ahd_packed *kept = rt->ahd_kept;
+  if (!kept) {
+    kept = malloc((size_t)rt->touched * sizeof *kept);
+    if (!kept)
       return UB_ERR_OUT_OF_MEMORY; /* (the LLG probes' state is kept) */
   }
   ub_result r = ub_blend_set_reference(rt->lm_blend); /* cannot refuse: nothing pending */
-  if (r != UB_OK)
+  if (r != UB_OK) {
+    if (kept != rt->ahd_kept)
+      free(kept);
     return r;
+  }
+  rt->ahd_kept = kept;
   memcpy(rt->ahd_kept, rt->ahd, (size_t)rt->touched * sizeof *rt->ahd_kept);
   return UB_OK;
 }

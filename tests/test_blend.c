@@ -1286,14 +1286,19 @@ typedef struct ref_log {
   float *out;         /* the rows as the caller keeps them */
   const float *kept;  /* the rows at the reference */
   uint64_t at_ref;    /* receivers reported as UB_BLEND_AT_REFERENCE */
+  uint32_t *seq;      /* the receivers in the order reported (R entries at most) */
+  uint32_t nseq;
 } ref_log;
 
 static void on_ref(void *user, uint32_t first, uint32_t count, const float *rows)
 {
   ref_log *t = user;
-  for (uint32_t i = 0; i < count; i++)
+  for (uint32_t i = 0; i < count; i++) {
     if (t->count[first + i] < 255)
       t->count[first + i]++;
+    if (t->count[first + i] == 1)
+      t->seq[t->nseq++] = first + i;
+  }
   const size_t at = (size_t)first * t->S, n = (size_t)count * t->S;
   if (rows == UB_BLEND_AT_REFERENCE) {
     memcpy(t->out + at, t->kept + at, sizeof(float) * n);
@@ -1307,8 +1312,10 @@ static void on_ref(void *user, uint32_t first, uint32_t count, const float *rows
  * 60 rounds of a few elements changed (back to their reference weight, off, or any
  * weight), plain and in 3 parts, every update and the whole state: the same rows and the
  * same receivers reported, once each; every receiver at the reference when every weight
- * is; refused with a change pending. With UB_BLEND_OWN_BASE also an engine updating an
- * out array with ub_blend_set_reference_rows: the same rows. */
+ * is, in the same order; refused with a change pending; row queries give the rows. With
+ * UB_BLEND_OWN_BASE also an engine updating an out array with ub_blend_set_reference_rows
+ * (back rounds in 5 parts, groups at the reference cut between parts): the same rows; and
+ * after ub_blend_set_reference its kept rows are gone (not put back stale). */
 static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st,
                            uint32_t xflags)
 {
@@ -1321,6 +1328,8 @@ static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
   float *oa = malloc(sizeof(float) * nf), *ob = malloc(sizeof(float) * nf);
   float *kept = malloc(sizeof(float) * nf), *wref = malloc(sizeof(float) * 3 * E);
   uint8_t *ca = calloc(R, 1), *cb = calloc(R, 1);
+  uint32_t *qa = malloc(sizeof(uint32_t) * R), *qb = malloc(sizeof(uint32_t) * R);
+  float row[UB_BLEND_MAX_STRIDE];
   ASSERT_OK(ub_blend_create(&d, NULL, oa, &ba));
   ASSERT_OK(ub_blend_create(&d, NULL, ob, &bb));
   if (!ba || !bb) {
@@ -1335,7 +1344,7 @@ static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
   uint8_t *cc = calloc(R, 1);
   if (own) {
     ASSERT_OK(ub_blend_create(&d, NULL, oc, &bc));
-    ASSERT_OK(ub_blend_reserve_parts(bc, 3));
+    ASSERT_OK(ub_blend_reserve_parts(bc, 5));
   } else {
     ASSERT_OK(ub_blend_create(&d, NULL, oc, &bc));
     ASSERT_TRUE(bc && ub_blend_set_reference_rows(bc, oc) == UB_ERR_INVALID_ARGUMENT);
@@ -1385,10 +1394,10 @@ static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
         ASSERT_OK(ub_blend_set_weight(bc, e, w));
     }
     memset(ca, 0, R);
-    touch_log tl = {ca, 0, S, NULL, oa, 0, 0, 0, 0};
-    ub_blend_update(ba, on_touched, &tl, NULL, NULL);
+    ref_log ra = {ca, S, oa, NULL, 0, qa, 0};
+    ub_blend_update(ba, on_ref, &ra, NULL, NULL);
     memset(cb, 0, R);
-    ref_log rl = {cb, S, ob, kept, 0};
+    ref_log rl = {cb, S, ob, kept, 0, qb, 0};
     ub_blend_stats sb;
     memset(&sb, 0, sizeof sb);
     if (round % 3 == 2) {
@@ -1402,11 +1411,17 @@ static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
     } else {
       ub_blend_update(bb, on_ref, &rl, NULL, &sb);
     }
-    if (bc) { /* out array: plain or in 3 parts */
-      update_as(bc, oc, cc, R, S, 0, round % 3 == 1 ? 3 : 1, 0, NULL);
+    if (bc) { /* out array: plain or in 3 or 5 parts */
+      update_as(bc, oc, cc, R, S, 0, back ? 5 : round % 3 == 1 ? 3 : 1, 0, NULL);
       bad_rows += memcmp(oa, oc, sizeof(float) * nf) != 0;
     }
     bad_rows += memcmp(oa, ob, sizeof(float) * nf) != 0;
+    bad_count += ra.nseq != rl.nseq; /* the order too, where bb's parts ran in order */
+    bad_count += round % 3 != 2 && memcmp(qa, qb, sizeof(uint32_t) * ra.nseq) != 0;
+    if (xflags & UB_BLEND_ROW_QUERY)
+      for (uint32_t r = round; r < R; r += 97)
+        if (ub_blend_row(bb, r, row))
+          bad_rows += memcmp(row, ob + (size_t)r * S, sizeof(float) * S) != 0;
     bad_count += memcmp(ca, cb, R) != 0 || (bc && memcmp(ca, cc, R) != 0);
     for (uint32_t r = 0; r < R; r++)
       bad_count += cb[r] > 1;
@@ -1415,6 +1430,31 @@ static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
     reported += sb.receivers;
     if (back)
       all_ref &= sb.receivers > 0 && sb.receivers_reference == sb.receivers;
+  }
+  if (bc) { /* a reference without rows (at another state): the kept rows must go */
+    const float w3[3] = {1.5f, 0.25f, 0.5f};
+    for (uint32_t e = 0; e < E; e += 2) {
+      memcpy(wref + 3 * e, w3, sizeof w3);
+      ASSERT_OK(ub_blend_set_weight(ba, e, w3));
+      ASSERT_OK(ub_blend_set_weight(bc, e, w3));
+    }
+    ub_blend_update(ba, NULL, NULL, oa, NULL);
+    update_as(bc, oc, cc, R, S, 0, 1, 0, NULL);
+    ASSERT_OK(ub_blend_set_reference(bc));
+    const float w2[3] = {0.3f, 0.6f, 0.9f};
+    for (uint32_t e = 0; e < E; e += 2) {
+      ASSERT_OK(ub_blend_set_weight(ba, e, w2));
+      ASSERT_OK(ub_blend_set_weight(bc, e, w2));
+    }
+    ub_blend_update(ba, NULL, NULL, oa, NULL); /* (ba's out array: any state will do) */
+    update_as(bc, oc, cc, R, S, 0, 1, 0, NULL);
+    for (uint32_t e = 0; e < E; e += 2) {
+      ASSERT_OK(ub_blend_set_weight(ba, e, wref + 3 * e));
+      ASSERT_OK(ub_blend_set_weight(bc, e, wref + 3 * e));
+    }
+    ub_blend_update(ba, NULL, NULL, oa, NULL);
+    update_as(bc, oc, cc, R, S, 0, 1, 0, NULL);
+    bad_rows += memcmp(oa, oc, sizeof(float) * nf) != 0;
   }
   printf("reference R=%u S=%u %s%s: 60 rounds, %d with differing rows, %d with differing "
          "reports (want 0); %llu of %llu receivers put back from the reference, all of them "
@@ -1429,10 +1469,72 @@ static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
   free(ob);
   free(oc);
   free(cc);
+  free(qa);
+  free(qb);
   free(kept);
   free(wref);
   free(ca);
   free(cb);
+  rep_free(&p);
+}
+
+/* Reference rows with groups cut between parts: a few long runs (bands without holes),
+ * elements off and back in 7 parts, against an engine without a reference. */
+static void test_reference_parts(void)
+{
+  enum { R = 3000, S = 12, E = 6 };
+  uint8_t **cover = malloc(sizeof(uint8_t *) * E);
+  for (uint32_t e = 0; e < E; e++) {
+    cover[e] = calloc(R, 1);
+    memset(cover[e] + (e % 3) * R / 4, 1, R / 2);
+  }
+  rep p;
+  rep_init(&p, R, S, E, UB_BLEND_FLOAT16, cover);
+  for (uint32_t e = 0; e < E; e++)
+    free(cover[e]);
+  free(cover);
+  ub_blend_desc d = rep_desc(&p, "reference parts");
+  d.flags = UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF;
+  float *oa = malloc(sizeof(float) * R * S), *ob = malloc(sizeof(float) * R * S);
+  uint8_t *cnt = calloc(R, 1);
+  ub_blend *ba = NULL, *bb = NULL;
+  ASSERT_OK(ub_blend_create(&d, NULL, oa, &ba));
+  ASSERT_OK(ub_blend_create(&d, NULL, ob, &bb));
+  if (!ba || !bb || !oa || !ob || !cnt)
+    return;
+  ASSERT_OK(ub_blend_reserve_parts(ba, 7));
+  ASSERT_OK(ub_blend_reserve_parts(bb, 7));
+  const float on[3] = {1.0f, 1.0f, 1.0f}, off[3] = {0.0f, 0.0f, 0.0f};
+  for (uint32_t e = 0; e < E; e++) {
+    ASSERT_OK(ub_blend_set_weight(ba, e, on));
+    ASSERT_OK(ub_blend_set_weight(bb, e, on));
+  }
+  update_as(ba, oa, cnt, R, S, 0, 1, 1, NULL);
+  update_as(bb, ob, cnt, R, S, 0, 1, 1, NULL);
+  ASSERT_OK(ub_blend_set_reference_rows(bb, ob));
+  int bad = 0;
+  uint64_t at_ref = 0;
+  for (uint32_t e = 0; e < E; e++)
+    for (int ph = 0; ph < 2; ph++) {
+      ASSERT_OK(ub_blend_set_weight(ba, e, ph ? on : off));
+      ASSERT_OK(ub_blend_set_weight(bb, e, ph ? on : off));
+      update_as(ba, oa, cnt, R, S, 0, 7, 0, NULL);
+      ub_blend_update_begin(bb, 0);
+      for (uint32_t q = 0; q < 7; q++) {
+        ub_blend_stats sq;
+        ub_blend_update_part(bb, q, 7, NULL, NULL, ob, &sq);
+        at_ref += sq.receivers_reference;
+      }
+      bad += memcmp(oa, ob, sizeof(float) * R * S) != 0;
+    }
+  printf("reference rows, long runs in 7 parts: %d of %d updates differ (want 0), %llu "
+         "receivers put back\n", bad, 2 * E, (unsigned long long)at_ref);
+  ASSERT_TRUE(bad == 0 && at_ref > 0);
+  ub_blend_free(ba);
+  ub_blend_free(bb);
+  free(oa);
+  free(ob);
+  free(cnt);
   rep_free(&p);
 }
 
@@ -1844,6 +1946,7 @@ int main(void)
   test_reference(20000, 12, 40, UB_BLEND_FLOAT16,
                  UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF | UB_BLEND_ONES_SUM | UB_BLEND_ROW_QUERY);
   test_reference(6000, 27, 24, UB_BLEND_FLOAT32, 0);
+  test_reference_parts();
   test_reference(8000, 12, 30, UB_BLEND_FLOAT16,
                  UB_BLEND_OWN_BASE | UB_BLEND_STORE_Q8 | UB_BLEND_PORTABLE);
   TEST_MAIN_END();

@@ -566,10 +566,15 @@ static void check_keep_state(const char *ubk)
       memcpy(cur + 3, t, sizeof t);
       ASSERT_OK(ub_runtime_set_dls(ra, 1, t));
       ASSERT_OK(ub_runtime_set_dls(rb, 1, t));
-      /* refused while a change waits for its update */
+      /* refused while a change waits for its update, */
       ASSERT_TRUE(ub_runtime_keep_state(rb) == UB_ERR_INVALID_ARGUMENT);
       ASSERT_OK(ub_runtime_update(ra, NULL));
-      ASSERT_OK(ub_runtime_update(rb, NULL));
+      uint32_t jobs = 0; /* and while an update is begun and not ended */
+      ASSERT_OK(ub_runtime_update_begin(rb, 2, &jobs));
+      ASSERT_TRUE(ub_runtime_keep_state(rb) == UB_ERR_INVALID_ARGUMENT);
+      for (uint32_t j = 0; j < jobs; j++)
+        ub_runtime_update_job(rb, j);
+      ub_runtime_update_end(rb, NULL);
       ASSERT_OK(ub_runtime_keep_state(rb));
       memcpy(kept_w, cur, sizeof(float) * 3 * nd);
     }

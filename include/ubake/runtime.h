@@ -91,12 +91,13 @@ typedef struct ub_runtime_memory {
   size_t lightmap;  /* per covered texel: AHD (16 B packed), SH (where a record touches it none: the
                        lightmap blend computes it; else the file's halves; touched: encode
                        normal, slot and rank); coverage/touched bitmaps; fallback encode
-                       normals */
+                       normals; the kept state's AHD (ub_runtime_keep_state) */
   size_t glg;       /* the GLG's compact probe store (58 B/probe) and its walk data */
   size_t llg;       /* LLG probe SH (current state) */
   size_t records;   /* element records: their values (half, or 8-bit rows), held by the blends */
   size_t blend;     /* the blend engines: tables, weights, touched receivers' base rows,
-                       all-ones sums (unless UB_RUNTIME_PLAIN_SUMS) */
+                       all-ones sums (unless UB_RUNTIME_PLAIN_SUMS), the kept state's LLG
+                       probe rows (ub_runtime_keep_state) */
   size_t total;     /* the sum */
 } ub_runtime_memory;
 void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out_memory);
@@ -287,8 +288,9 @@ typedef struct ub_runtime_update_stats {
   uint64_t llg_probes_written;
   uint64_t llg_probes_kept; /* of llg_probes_written: copied back from the kept state */
   /* What the blends read (base and record rows, group tables) and write (current rows),
-   * plus the AHD re-encode's normals read and AHD texels written. GLG: its group tables
-   * only (the rows are read when a query blends a marked probe, not counted here). */
+   * plus the AHD re-encode's normals read and AHD texels written; the kept state's values
+   * read where they are copied back (ub_runtime_keep_state). GLG: its group tables only
+   * (the rows are read when a query blends a marked probe, not counted here). */
   uint64_t bytes_read, bytes_written;
   uint32_t groups;
   /* Wall-clock seconds of the update's parts (monotonic clock; for benchmarks): lightmap
