@@ -208,6 +208,10 @@ double ub_plan_gather_bounces(double ratio, uint32_t bounces, int full_rays)
  * (or doors) combined with it. A name that is a set becomes a candidate (the door pass
  * stage bakes it when the influence regions overlap); any other name is listed as
  * skipped with the reason. */
+/* The share of a set's reach-bound candidates its influence pass keeps (dls.c), for the
+ * full pass's estimate: --bounces 2, draft, estate_small 0.61, ESTATE full scale 0.43. */
+#define UB_PLAN_KEPT_SHARE 0.5
+
 static ub_result plan_combos(const ub_scene *s, const uint8_t *set_reaches, ub_plan *out)
 {
   for (uint32_t n = 0; n < s->node_count; n++) {
@@ -470,7 +474,7 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
     double inf = photon_rays + (Tc + Pc) * nlight +
                  (double)ub_dls_influence_bounces(opt->bounces) *
                      (gt * Tc * out->influence_rays + gp * Pc * 2 * out->influence_rays);
-    double frac = out->influence_culling ? fmin(cand, 1.2 * reach) : 1.0;
+    double frac = out->influence_culling ? fmin(UB_PLAN_KEPT_SHARE * cand, 1.2 * reach) : 1.0;
     /* scaled rays (dls.c): the full passes' gathers at about half the rays (estate_small
      * and ESTATE full scale, draft: 47.2% and 47.6%) */
     double gs = out->dls_scaled_rays ? 0.5 : 1.0;
@@ -532,6 +536,12 @@ void ub_plan_print(const ub_plan *plan, const ub_scene *scene, const ub_log *log
       ub_log_printf(log, UB_LOG_INFO, "  pass dls %s: skipped, its lights reach no receiver",
                     scene->dls_names[d]);
     }
+  double sets = 0.0;
+  for (uint32_t d = 0; d < scene->dls_count; d++)
+    sets += plan->dls_est_rays[d] > 0 ? plan->dls_est_rays[d] : 0.0;
+  if (sets > 0)
+    ub_log_printf(log, UB_LOG_INFO, "  all sets: est. %.1f M rays, %.1f s (%.2fx the base "
+                  "pass)", sets * 1e-6, sets / plan->ray_rate, sets / plan->est_rays);
   for (uint32_t l = 0; l < scene->light_count; l++)
     if (plan->light_skip[l] != UB_SKIP_NONE && plan->light_skip[l] != UB_SKIP_IN_DLS)
       ub_log_printf(log, UB_LOG_INFO, "  light %u (%s): skipped: %s", l,
