@@ -479,6 +479,49 @@ int main(void)
     free(start);
   }
   ub_runtime_free(rt);
+  rt = NULL;
+
+  /* The load state kept (UB_RUNTIME_KEEP_STATE) with a door, objects and combinations: a
+   * run-time with it and one without through the same changes, the atlases bit for bit
+   * after every update; returning to the load state copies every texel back. */
+  ub_runtime *ra = NULL, *rk = NULL;
+  ASSERT_OK(ub_runtime_load(path, NULL, &ra));
+  ASSERT_OK(ub_runtime_load_ex(path, NULL, UB_RUNTIME_KEEP_STATE, &rk));
+  if (ra && rk && back) {
+    const size_t np = atlas_pixels(back, back->atlas_count);
+    /* (element, value) steps: door opened half and fully, crate hidden, barrel faded,
+     * each back to its load value (door 0, objects 1), then all at once */
+    const struct { int32_t e; float v; } steps[] = {
+        {0, 0.5f}, {0, 0.0f}, {1, 0.0f}, {0, 1.0f}, {1, 1.0f}, {0, 0.0f}, {2, 0.3f},
+        {1, 0.0f}, {0, 0.7f}, {2, 1.0f}, {1, 1.0f}, {0, 0.0f}};
+    int bad_ahd = 0;
+    uint64_t kept = 0, texels = 0, last_kept = 0, last_texels = 0;
+    for (size_t k = 0; k < sizeof steps / sizeof steps[0]; k++) {
+      ASSERT_OK(ub_runtime_set_element(ra, (uint32_t)steps[k].e, steps[k].v));
+      ASSERT_OK(ub_runtime_set_element(rk, (uint32_t)steps[k].e, steps[k].v));
+      ub_runtime_update_stats sa, sk;
+      ASSERT_OK(ub_runtime_update(ra, &sa));
+      ASSERT_OK(ub_runtime_update(rk, &sk));
+      ub_ahd_packed *xa = ahd_snapshot(ra, back), *xk = ahd_snapshot(rk, back);
+      bad_ahd += !xa || !xk || memcmp(xa, xk, np * sizeof *xa) != 0 ||
+                 sa.texels_reencoded != sk.texels_reencoded;
+      free(xa);
+      free(xk);
+      kept += sk.texels_kept;
+      texels += sk.texels_reencoded;
+      last_kept = sk.texels_kept;
+      last_texels = sk.texels_reencoded;
+    }
+    printf("kept load state with a door, objects and combinations: %d of %zu updates differ "
+           "(want 0); %llu of %llu texels copied back, %llu of %llu at the last (all back)\n",
+           bad_ahd, sizeof steps / sizeof steps[0], (unsigned long long)kept,
+           (unsigned long long)texels, (unsigned long long)last_kept,
+           (unsigned long long)last_texels);
+    ASSERT_TRUE(bad_ahd == 0 && kept > 0 && kept < texels);
+    ASSERT_TRUE(last_texels > 0 && last_kept == last_texels);
+  }
+  ub_runtime_free(ra);
+  ub_runtime_free(rk);
   ub_bakefile_free(back);
 
   /* Hostile records. */
