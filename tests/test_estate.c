@@ -515,21 +515,22 @@ static void check_plain_sums(const char *ubk)
   ub_runtime_free(rp);
 }
 
-/* Every atlas's packed AHD of rt, concatenated (malloc'd; *n texels). */
-static ub_ahd_packed *atlas_bytes(const ub_runtime *rt, size_t *n)
+/* 1 when the last updates of ra and rb changed the same texels (ub_runtime_changed_texels:
+ * the same list in the same order, with the same AHD) and flagged the same LLG models. */
+static int same_changes(const ub_runtime *ra, const ub_runtime *rb)
 {
-  const ub_bakefile *f = ub_runtime_bakefile(rt);
-  size_t total = 0;
-  for (uint32_t a = 0; a < f->atlas_count; a++)
-    total += (size_t)f->atlases[a].width * f->atlases[a].height;
-  ub_ahd_packed *out = calloc(total ? total : 1, sizeof *out);
-  size_t k = 0;
-  for (uint32_t a = 0; out && a < f->atlas_count; a++) {
-    ASSERT_OK(ub_runtime_atlas_ahd(rt, a, out + k));
-    k += (size_t)f->atlases[a].width * f->atlases[a].height;
-  }
-  *n = total;
-  return out;
+  const uint64_t n = ub_runtime_changed_texel_count(ra);
+  ub_runtime_texel_change *ca = malloc((n ? n : 1) * sizeof *ca);
+  ub_runtime_texel_change *cb = malloc((n ? n : 1) * sizeof *cb);
+  int same = ca && cb && ub_runtime_changed_texel_count(rb) == n &&
+             ub_runtime_changed_texels(ra, 0, (size_t)n, ca) == n &&
+             ub_runtime_changed_texels(rb, 0, (size_t)n, cb) == n &&
+             (!n || memcmp(ca, cb, (size_t)n * sizeof *ca) == 0);
+  free(ca);
+  free(cb);
+  for (uint32_t m = 0; m < ub_runtime_bakefile(ra)->llg_count; m++)
+    same &= ub_runtime_llg_changed(ra, m) == ub_runtime_llg_changed(rb, m);
+  return same;
 }
 
 /* ub_runtime_keep_state (UB_RUNTIME_KEEP_STATE at load, and again mid-way at a tinted
@@ -619,28 +620,18 @@ static void check_keep_state(const char *ubk)
       back_kept += sb.texels_kept;
       back_texels += sb.texels_reencoded;
     }
-    size_t na = 0, nb = 0;
-    ub_ahd_packed *aa = atlas_bytes(ra, &na), *ab = atlas_bytes(rb, &nb);
-    bad_atlas += !aa || !ab || na != nb || memcmp(aa, ab, na * sizeof *aa) != 0;
+    const ub_bakefile *fa = ub_runtime_bakefile(ra), *fb = ub_runtime_bakefile(rb);
+    const size_t np = atlas_pixels(fa, fa->atlas_count);
+    ub_ahd_packed *aa = ahd_snapshot(ra, fa), *ab = ahd_snapshot(rb, fb);
+    bad_atlas += !aa || !ab || memcmp(aa, ab, np * sizeof *aa) != 0;
     free(aa);
     free(ab);
-    uint64_t ca = ub_runtime_changed_texel_count(ra), cb = ub_runtime_changed_texel_count(rb);
-    ub_runtime_texel_change *la = calloc(ca + 1, sizeof *la), *lb = calloc(cb + 1, sizeof *lb);
-    int same = la && lb && ca == cb && ub_runtime_changed_texels(ra, 0, ca, la) == ca &&
-               ub_runtime_changed_texels(rb, 0, cb, lb) == cb;
-    for (uint64_t i = 0; same && i < ca; i++)
-      same = la[i].atlas == lb[i].atlas && la[i].x == lb[i].x && la[i].y == lb[i].y &&
-             !memcmp(&la[i].ahd, &lb[i].ahd, sizeof la[i].ahd);
-    bad_changed += !same;
-    free(la);
-    free(lb);
-    /* LLG probes (their grids as queries read them) and the models flagged changed */
-    const ub_bakefile *fa = ub_runtime_bakefile(ra), *fb = ub_runtime_bakefile(rb);
+    bad_changed += !same_changes(ra, rb); /* (and the LLG models flagged) */
+    /* LLG probes: their grids as queries read them */
     int llg_same = fa->llg_count == fb->llg_count;
     for (uint32_t m = 0; llg_same && m < fa->llg_count; m++) {
-      const size_t np = (size_t)fa->llgs[m].dims[0] * fa->llgs[m].dims[1] * fa->llgs[m].dims[2];
-      llg_same = !memcmp(fa->llgs[m].probe_sh, fb->llgs[m].probe_sh, np * 27 * sizeof(float)) &&
-                 ub_runtime_llg_changed(ra, m) == ub_runtime_llg_changed(rb, m);
+      const size_t n = (size_t)fa->llgs[m].dims[0] * fa->llgs[m].dims[1] * fa->llgs[m].dims[2];
+      llg_same = !memcmp(fa->llgs[m].probe_sh, fb->llgs[m].probe_sh, n * 27 * sizeof(float));
     }
     bad_llg += !llg_same;
     llg_kept += sb.llg_probes_kept;
@@ -648,7 +639,7 @@ static void check_keep_state(const char *ubk)
                (back && sb.llg_probes_kept != sb.llg_probes_written);
   }
   printf("kept state: 300 changes, atlases differing after %zu updates, changed-texel lists "
-         "after %zu, LLG grids after %zu (want 0); %llu of %llu texels copied back (%llu of "
+         "or LLG flags after %zu, LLG grids after %zu (want 0); %llu of %llu texels copied back (%llu of "
          "%llu when every set returned to the kept state), %llu LLG probes; memory +%.2f "
          "MiB\n",
          bad_atlas, bad_changed, bad_llg, (unsigned long long)kept, (unsigned long long)reenc,
@@ -787,19 +778,9 @@ static void check_jobs(const char *ubk)
     take_ahd(ra, ta, &nt);
     take_ahd(rb, tb, &nt);
     bad_q += memcmp(ta, tb, 3 * nt * sizeof(float)) != 0;
-    /* the changed texels: the same list, in the same order, whatever the jobs */
-    const uint64_t nca = ub_runtime_changed_texel_count(ra);
-    ub_runtime_texel_change *ca = malloc((nca ? nca : 1) * sizeof *ca);
-    ub_runtime_texel_change *cb = malloc((nca ? nca : 1) * sizeof *cb);
-    ASSERT_TRUE(ca && cb);
-    bad_q += nca != sa.texels_reencoded || ub_runtime_changed_texel_count(rb) != nca ||
-             ub_runtime_changed_texels(ra, 0, (size_t)nca, ca) != nca ||
-             ub_runtime_changed_texels(rb, 0, (size_t)nca, cb) != nca ||
-             (nca && memcmp(ca, cb, (size_t)nca * sizeof *ca) != 0);
-    free(ca);
-    free(cb);
-    for (uint32_t m = 0; m < ub_runtime_bakefile(ra)->llg_count; m++)
-      bad_q += ub_runtime_llg_changed(ra, m) != ub_runtime_llg_changed(rb, m);
+    /* the changed texels: the same list, in the same order, whatever the jobs; the same
+     * LLG models */
+    bad_q += ub_runtime_changed_texel_count(ra) != sa.texels_reencoded || !same_changes(ra, rb);
   }
   printf("jobs (2, 3, 5 on threads, every other state with FTZ/DAZ set on them) vs plain "
          "updates, 9 states: %zu SH values, %zu decoded query sets (AHD at 3000 points, every "
