@@ -172,8 +172,8 @@ int main(int argc, char **argv)
       snprintf(name, sizeof name, "auto");
     else
       snprintf(name, sizeof name, "%d", counts[k]);
-    printf("  %-9s %7u %8.2f %8.2f |", name, st[k].bounces, ub_bench_stage_seconds(&st[k], "base pass"),
-           ub_bench_stage_seconds(&st[k], "dls"));
+    printf("  %-9s %7u %8.2f %8.2f |", name, st[k].bounces,
+           ub_bench_stage_seconds(&st[k], "base pass"), ub_bench_stage_seconds(&st[k], "dls"));
     print_errs(&eb);
     printf(" |");
     print_errs(&es);

@@ -194,15 +194,15 @@ int main(int argc, char **argv)
          "mean (max: worst)", 100 * sl1[0][0] / n, 100 * sl1[1][0] / n, 100 * sp99[0][0] / n,
          100 * sp99[1][0] / n, 100 * smax[0], 100 * smax[1], 100 * sl1[0][1] / n,
          100 * sl1[1][1] / n, 100 * sp99[0][1] / n, 100 * sp99[1][1] / n);
-  double b0 = st[0].total_seconds - ub_bench_stage_seconds(&st[0], "dls");
-  double b1 = st[1].total_seconds - ub_bench_stage_seconds(&st[1], "dls");
+  const double d0 = ub_bench_stage_seconds(&st[0], "dls");
+  const double d1 = ub_bench_stage_seconds(&st[1], "dls");
+  double b0 = st[0].total_seconds - d0, b1 = st[1].total_seconds - d1;
   printf("  full passes' gathers: scaled %.1f%% of the full rays\n",
          100 * ub_report_number(st[0].ubk_path, "gather_share"));
   printf("  dls stage: scaled %.2f s, full rays %.2f s (%.2fx); the bake without it %.2f / "
          "%.2f s; bake / bake without the sets' stage: scaled %.2fx, full %.2fx; reference "
          "%.2f s\n",
-         ub_bench_stage_seconds(&st[0], "dls"), ub_bench_stage_seconds(&st[1], "dls"),
-         ub_bench_stage_seconds(&st[0], "dls") > 0 ? ub_bench_stage_seconds(&st[1], "dls") / ub_bench_stage_seconds(&st[0], "dls") : 0.0, b0,
+         d0, d1, d0 > 0 ? d1 / d0 : 0.0, b0,
          b1, b0 > 0 ? st[0].total_seconds / b0 : 0.0, b1 > 0 ? st[1].total_seconds / b1 : 0.0,
          st[2].total_seconds);
   printf("L1 = sum |record - reference| / sum |reference| (DC, green; receivers of either); "

@@ -189,12 +189,17 @@ static void toggle_times(ub_runtime *rt, int jobs, int passes, double *tog, doub
 /* By class: the hall's sets reach the big shared space (and each other: up to 16
  * overlaps), a room's set its room; at full scale rooms are most of the sets. cls[1]
  * gets the hall sets' toggles of tog, cls[0] the rooms' (each 2 × sets entries). */
+static int set_class(const ub_runtime *rt, uint32_t set)
+{
+  return !strncmp(ub_runtime_dls_name(rt, set), "hall_", 5);
+}
+
 static void toggle_classes(const ub_runtime *rt, const double *tog, double *cls[2],
                            uint32_t ncls[2])
 {
   ncls[0] = ncls[1] = 0;
   for (uint32_t i = 0; i < 2 * ub_runtime_dls_count(rt); i++) {
-    int hall = !strncmp(ub_runtime_dls_name(rt, i / 2), "hall_", 5);
+    int hall = set_class(rt, i / 2);
     cls[hall][ncls[hall]++] = tog[i];
   }
 }
@@ -209,7 +214,7 @@ static void toggle_directions(const ub_runtime *rt, const double *tog, double me
     for (int ph = 0; ph < 2; ph++) {
       uint32_t n = 0;
       for (uint32_t d = 0; v && d < nd; d++)
-        if ((strncmp(ub_runtime_dls_name(rt, d), "hall_", 5) == 0) == c)
+        if (set_class(rt, d) == c)
           v[n++] = tog[2 * d + ph];
       med[c][ph] = n ? ub_bench_percentile(v, n, 0.5) : 0.0;
     }
@@ -584,13 +589,11 @@ int main(int argc, char **argv)
            ub_bench_percentile(tog_c[0], ntog_c[0], 0.9), ntog_c[1],
            ub_bench_percentile(tog_c[1], ntog_c[1], 0.5),
            ub_bench_percentile(tog_c[1], ntog_c[1], 0.9));
-  {
-    printf("  by direction: room sets off %.3f ms, back on %.3f ms; hall sets off %.3f ms, back "
-           "on %.3f ms (medians)%s\n", dmed[0][0], dmed[0][1], dmed[1][0], dmed[1][1],
-           load_flags & UB_RUNTIME_KEEP_STATE
-               ? "; the load state kept (UB_RUNTIME_KEEP_STATE): back on copies kept texels"
-               : "");
-  }
+  printf("  by direction: room sets off %.3f ms, back on %.3f ms; hall sets off %.3f ms, back "
+         "on %.3f ms (medians)%s\n", dmed[0][0], dmed[0][1], dmed[1][0], dmed[1][1],
+         load_flags & UB_RUNTIME_KEEP_STATE
+             ? "; the load state kept (UB_RUNTIME_KEEP_STATE): back on copies kept texels"
+             : "");
   {
     /* one measurement per toggle (the first pass): the spread a game sees */
     toggle_classes(rt, tog1, tog_c, ntog_c);
@@ -704,10 +707,13 @@ int main(int argc, char **argv)
       /* Stages up to the plan: measured on the full level. Base pass, LLG self term, leak
        * and write: proportional to receivers. Influence: below. Full set passes: proportional to what the sets keep (records): the hall's sets
        * as measured, the room sets at their mean record times the full count. */
-      double pre = ub_bench_stage_seconds(&fs, "load") + ub_bench_stage_seconds(&fs, "rays") + ub_bench_stage_seconds(&fs, "receivers") +
-                   ub_bench_stage_seconds(&fs, "probes") + ub_bench_stage_seconds(&fs, "llg") + ub_bench_stage_seconds(&fs, "plan");
-      double post = (ub_bench_stage_seconds(&st, "base pass") + ub_bench_stage_seconds(&st, "llg self") + ub_bench_stage_seconds(&st, "leak") +
-                     ub_bench_stage_seconds(&st, "write")) * kr;
+      double pre = 0.0, post = 0.0;
+      static const char *const before[] = {"load", "rays", "receivers", "probes", "llg", "plan"};
+      static const char *const after[] = {"base pass", "llg self", "leak", "write"};
+      for (size_t k = 0; k < sizeof before / sizeof *before; k++)
+        pre += ub_bench_stage_seconds(&fs, before[k]);
+      for (size_t k = 0; k < sizeof after / sizeof *after; k++)
+        post += ub_bench_stage_seconds(&st, after[k]) * kr;
       uint32_t nroom = bf->dls_count - nhall, nroom_f = (uint32_t)(fsets - (int)nhall);
       double rec_f = hall_sum + (nroom ? room_sum / nroom : 0.0) * nroom_f;
       /* Influence passes visit the receivers inside each set's reach bound (dls.c), which
