@@ -204,14 +204,14 @@ double ub_plan_gather_bounces(double ratio, uint32_t bounces, int full_rays)
   return sum;
 }
 
-/* Combinations the level tags: `ubake_combine: "A,B"` on a door's closed leaf names sets
- * (or doors) combined with it. A name that is a set becomes a candidate (the door pass
- * stage bakes it when the influence regions overlap); any other name is listed as
- * skipped with the reason. */
 /* The share of a set's reach-bound candidates its influence pass keeps (dls.c), for the
  * full pass's estimate: --bounces 2, draft, estate_small 0.61, ESTATE full scale 0.43. */
 #define UB_PLAN_KEPT_SHARE 0.5
 
+/* Combinations the level tags: `ubake_combine: "A,B"` on a door's closed leaf names sets
+ * (or doors) combined with it. A name that is a set becomes a candidate (the door pass
+ * stage bakes it when the influence regions overlap); any other name is listed as
+ * skipped with the reason. */
 static ub_result plan_combos(const ub_scene *s, const uint8_t *set_reaches, ub_plan *out)
 {
   for (uint32_t n = 0; n < s->node_count; n++) {

@@ -308,7 +308,6 @@ static void frame_corner(const tg_frame *f, int c, double out_world[3], double o
 
 /* ---- temporary directory and child process ------------------------------------------ */
 
-
 /* Last non-empty line of the child's output, for the error message. */
 static void last_line(const char *path, char *out, size_t cap)
 {

@@ -1504,7 +1504,28 @@ int ub_blend_pending(const ub_blend *b)
   return b->dirty_count != 0;
 }
 
-static ub_result take_reference(ub_blend *b);
+/* The current weights as the reference (ref, atref); refrows untouched. */
+static ub_result take_reference(ub_blend *b)
+{
+  if (b->dirty_count)
+    return UB_ERR_INVALID_ARGUMENT;
+  const size_t E = b->element_count ? b->element_count : 1;
+  if (!b->ref) {
+    float *rf = malloc(E * 3 * sizeof *rf);
+    uint8_t *at = malloc(E);
+    if (!rf || !at) {
+      free(rf);
+      free(at);
+      return UB_ERR_OUT_OF_MEMORY;
+    }
+    b->ref = rf;
+    b->atref = at;
+    b->engine_bytes += E * (3 * sizeof *rf + 1);
+  }
+  memcpy(b->ref, b->weight, (size_t)b->element_count * 3 * sizeof *b->ref);
+  memset(b->atref, 1, E);
+  return UB_OK;
+}
 
 ub_result ub_blend_set_reference_rows(ub_blend *b, const float *out_values)
 {
@@ -1553,29 +1574,6 @@ ub_result ub_blend_set_reference(ub_blend *b)
     b->refrows = NULL;
   }
   return r;
-}
-
-/* The current weights as the reference (ref, atref); refrows untouched. */
-static ub_result take_reference(ub_blend *b)
-{
-  if (b->dirty_count)
-    return UB_ERR_INVALID_ARGUMENT;
-  const size_t E = b->element_count ? b->element_count : 1;
-  if (!b->ref) {
-    float *rf = malloc(E * 3 * sizeof *rf);
-    uint8_t *at = malloc(E);
-    if (!rf || !at) {
-      free(rf);
-      free(at);
-      return UB_ERR_OUT_OF_MEMORY;
-    }
-    b->ref = rf;
-    b->atref = at;
-    b->engine_bytes += E * (3 * sizeof *rf + 1);
-  }
-  memcpy(b->ref, b->weight, (size_t)b->element_count * 3 * sizeof *b->ref);
-  memset(b->atref, 1, E);
-  return UB_OK;
 }
 
 void ub_blend_weight(const ub_blend *b, uint32_t element, float out_rgb[3])

@@ -176,7 +176,6 @@ static int sw_mkdir_p(const char *path)
   return 0;
 }
 
-
 static int sw_file_exists(const char *path)
 {
   struct stat sb;
