@@ -148,6 +148,7 @@ int main(int argc, char **argv)
   /* The level's normal lighting (as loaded: every set on) is what the game returns to:
    * kept, a set turned back on costs a copy of its texels instead of a re-encode. */
   if (ub_runtime_keep_state(rt) != UB_OK) {
+    fprintf(stderr, "example_game_loop: out of memory keeping the load state\n");
     ub_runtime_free(rt);
     return 1;
   }
