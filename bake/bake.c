@@ -397,6 +397,13 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
               cs.seconds_influence + cs.seconds_full);
   }
 
+  /* No pass after this one: the passes' shared scratch (level-sized images and arrays the
+   * element passes kept for each other, ~0.4 GB at ESTATE scale) goes before the write
+   * stage adds its own images on top (the bake's peak RSS was there). */
+  ub_pass_cache_free(pass_cache);
+  pass_cache = NULL;
+  pd.cache = NULL;
+
   /* leak control: a separating plane for every tet that straddles a surface */
   stage_begin(&sc, "leak");
   r = ub_glg_leak_build(rt, tm->point_count, tm->points, tm->tet_count, tm->tets, &leak);

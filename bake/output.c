@@ -358,7 +358,9 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
 }
 
 /* Per atlas: dilated SH + normals + coverage for the .ubk, AHD for the EXR, irradiance
- * along the normal for the PNG. */
+ * along the normal for the PNG. The dilation image becomes the SH in place and the AHD and
+ * irradiance come after it is gone: 109 bytes a pixel at most, not 174 (at ESTATE scale
+ * the write stage's images were the bake's peak RSS). */
 static ub_result encode_atlas(const ub_lightmap *lm, const ub_pass_result *base, uint32_t a,
                               ub_bakefile_atlas *out, float **out_ahd, float **out_irr)
 {
@@ -366,12 +368,9 @@ static ub_result encode_atlas(const ub_lightmap *lm, const ub_pass_result *base,
   size_t npx = (size_t)at->width * at->height;
   float *img = calloc(npx * 16, sizeof(float)); /* 12 SH + 3 normal + 1 filled */
   uint8_t *cov = calloc(npx, 1);
-  out->sh = malloc(npx * UB_SH1_FLOATS * sizeof(float));
   out->normal = malloc(npx * 3 * sizeof(float));
   out->coverage = calloc(npx, 1);
-  *out_ahd = calloc(npx * 9, sizeof(float));
-  *out_irr = calloc(npx * 3, sizeof(float));
-  if (!img || !cov || !out->sh || !out->normal || !out->coverage || !*out_ahd || !*out_irr) {
+  if (!img || !cov || !out->normal || !out->coverage) {
     free(img);
     free(cov);
     return UB_ERR_OUT_OF_MEMORY;
@@ -396,33 +395,44 @@ static ub_result encode_atlas(const ub_lightmap *lm, const ub_pass_result *base,
     cov[px] = 1;
   }
   ub_lightmap_dilate(img, cov, at->width, at->height, 16, UB_DILATE_RINGS);
+  /* Pixel px's SH moves from 16·px to 12·px: never past a pixel not yet read. */
   for (size_t px = 0; px < npx; px++) {
     float *p = img + 16 * px;
     float *n = p + 12;
+    float *sh = img + UB_SH1_FLOATS * px;
     if (cov[px]) {
       out->coverage[px] = 1;
     } else if (p[15] > 0.0f) {
       out->coverage[px] = 2;
     } else {
-      memset(out->sh + UB_SH1_FLOATS * px, 0, UB_SH1_FLOATS * sizeof(float));
+      memset(sh, 0, UB_SH1_FLOATS * sizeof(float));
       memset(out->normal + 3 * px, 0, 3 * sizeof(float));
       continue;
     }
     float len = sqrtf(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
     for (int k = 0; k < 3; k++)
-      n[k] = len > 1e-6f ? n[k] / len : (k == 1 ? 1.0f : 0.0f);
-    memcpy(out->sh + UB_SH1_FLOATS * px, p, UB_SH1_FLOATS * sizeof(float));
-    memcpy(out->normal + 3 * px, n, 3 * sizeof(float));
+      out->normal[3 * px + k] = len > 1e-6f ? n[k] / len : (k == 1 ? 1.0f : 0.0f);
+    memmove(sh, p, UB_SH1_FLOATS * sizeof(float));
+  }
+  free(cov);
+  float *sh = realloc(img, npx * UB_SH1_FLOATS * sizeof(float) + 1);
+  out->sh = sh ? sh : img; /* (a failed shrink keeps the block) */
+  *out_ahd = calloc(npx * 9, sizeof(float));
+  *out_irr = calloc(npx * 3, sizeof(float));
+  if (!*out_ahd || !*out_irr)
+    return UB_ERR_OUT_OF_MEMORY;
+  for (size_t px = 0; px < npx; px++) {
+    if (!out->coverage[px])
+      continue;
+    const float *n = out->normal + 3 * px;
     ub_ahd ahd;
-    ub_ahd_encode(p, n, &ahd);
+    ub_ahd_encode(out->sh + UB_SH1_FLOATS * px, n, &ahd);
     float *o = *out_ahd + 9 * px;
     memcpy(o, ahd.ambient, 3 * sizeof(float));
     memcpy(o + 3, ahd.direction, 3 * sizeof(float));
     memcpy(o + 6, ahd.directional, 3 * sizeof(float));
     ub_ahd_irradiance(&ahd, n, *out_irr + 3 * px);
   }
-  free(img);
-  free(cov);
   return UB_OK;
 }
 

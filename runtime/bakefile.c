@@ -552,14 +552,28 @@ typedef struct ubk_writer {
   FILE *f;
   int err;          /* first errno, 0 = fine */
   uint64_t pos;     /* bytes emitted so far (file offset of the next byte) */
-  uint32_t crc;     /* running CRC of the current section's payload */
+  uint32_t crc;     /* running CRC of the current section's payload, up to buf[crc_from] */
   uint64_t clamped; /* half values clamped to ±UB_HALF_MAX */
+  int crc_on;       /* the bytes from buf[crc_from] on belong to the section's payload */
+  const float *un;  /* pack_normals() of the bake file written */
+  size_t crc_from;
   size_t n;
   uint8_t buf[1 << 16];
 } ubk_writer;
 
+/* The CRC runs over the buffer's stretches when they end (a flush, a section's end, bytes
+ * outside the payload), not per value: per value it was a sixth of a bake's write stage. */
+static void crc_sync(ubk_writer *w)
+{
+  if (w->crc_on && w->n > w->crc_from)
+    w->crc = ub_crc32_update(w->crc, w->buf + w->crc_from, w->n - w->crc_from);
+  w->crc_from = w->n;
+}
+
 static void wr_flush(ubk_writer *w)
 {
+  crc_sync(w);
+  w->crc_from = 0;
   if (w->n && !w->err) {
     errno = 0;
     if (fwrite(w->buf, 1, w->n, w->f) != w->n)
@@ -572,8 +586,10 @@ static void wr_flush(ubk_writer *w)
 static void wr_bytes(ubk_writer *w, const void *data, size_t size, int in_crc)
 {
   const uint8_t *p = (const uint8_t *)data;
-  if (in_crc)
-    w->crc = ub_crc32_update(w->crc, p, size);
+  if (in_crc != w->crc_on) {
+    crc_sync(w);
+    w->crc_on = in_crc;
+  }
   w->pos += size;
   while (size) {
     size_t k = sizeof w->buf - w->n;
@@ -588,8 +604,16 @@ static void wr_bytes(ubk_writer *w, const void *data, size_t size, int in_crc)
   }
 }
 
-static void wr_u32(ubk_writer *w, uint32_t v)
+static inline void wr_u32(ubk_writer *w, uint32_t v)
 {
+  if (w->crc_on && sizeof w->buf - w->n >= 4) { /* straight into the buffer */
+    le_put32(w->buf + w->n, v);
+    w->n += 4;
+    w->pos += 4;
+    if (w->n == sizeof w->buf)
+      wr_flush(w);
+    return;
+  }
   uint8_t b[4];
   le_put32(b, v);
   wr_bytes(w, b, 4, 1);
@@ -600,7 +624,7 @@ static void wr_f32(ubk_writer *w, float v)
   wr_u32(w, float_bits(v));
 }
 
-static void wr_half(ubk_writer *w, float v)
+static inline void wr_half(ubk_writer *w, float v)
 {
   if (v > UB_HALF_MAX) {
     v = UB_HALF_MAX;
@@ -611,6 +635,14 @@ static void wr_half(ubk_writer *w, float v)
   }
   uint16_t h = ub_half_from_float(v);
   uint8_t b[2] = {(uint8_t)h, (uint8_t)(h >> 8)};
+  if (w->crc_on && sizeof w->buf - w->n >= 2) { /* straight into the buffer */
+    memcpy(w->buf + w->n, b, 2);
+    w->n += 2;
+    w->pos += 2;
+    if (w->n == sizeof w->buf)
+      wr_flush(w);
+    return;
+  }
   wr_bytes(w, b, 2, 1);
 }
 
@@ -630,11 +662,13 @@ static void wr_begin(ubk_writer *w, ubk_section_entry *e, const char tag[4], uin
   memcpy(e->tag, tag, 4);
   e->flags = flags;
   e->offset = w->pos;
+  crc_sync(w);
   w->crc = 0;
 }
 
 static void wr_end(ubk_writer *w, ubk_section_entry *e)
 {
+  crc_sync(w);
   e->size = w->pos - e->offset;
   e->crc = w->crc;
 }
@@ -669,15 +703,42 @@ static void wr_geom(ubk_writer *w, const ub_bakefile *bf)
 
 /* Texel SH storage (runtime/texel_sh.h): I_z replaces L00 where the texel has a normal.
  * The normal that counts is the one the reader will see: the stored normal rounded to
- * half; I_z itself is evaluated with the baker's float normal (where it is exact). */
-static void texel_pack(float sh[UB_SH1_FLOATS], const float normal[3])
+ * half; I_z itself is evaluated with the baker's float normal (where it is exact).
+ * out: the unit normal to pack with, out[0] NaN where the texel keeps L00. */
+static void pack_normal(const float normal[3], float out[3])
 {
-  float nr[3], un_read[3], un[3];
+  float nr[3], un_read[3];
   for (int k = 0; k < 3; k++)
     nr[k] = ub_half_to_float(ub_half_from_float(normal[k]));
-  if (!ub_texel_normal(nr, un_read) || !ub_texel_normal(normal, un))
-    return;
-  ub_texel_sh_pack(sh, un);
+  if (!ub_texel_normal(nr, un_read) || !ub_texel_normal(normal, out))
+    out[0] = NAN;
+}
+
+/* pack_normal of every pixel of the atlases taken in order (global pixel p at 3·p), once
+ * per write: the ATLS scale and data and each record's scale and data all pack with it
+ * (per texel it was a sixth of the writer's time). NULL when out of memory. */
+static float *pack_normals(const ub_bakefile *bf)
+{
+  size_t pixels = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++)
+    pixels += (size_t)bf->atlases[a].width * bf->atlases[a].height;
+  float *un = malloc(pixels * 3 * sizeof(float) + 1);
+  if (!un)
+    return NULL;
+  size_t p = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    size_t n = (size_t)at->width * at->height;
+    for (size_t i = 0; i < n; i++, p++)
+      pack_normal(at->normal + 3 * i, un + 3 * p);
+  }
+  return un;
+}
+
+static inline void texel_pack(float sh[UB_SH1_FLOATS], const float un[3])
+{
+  if (!isnan(un[0]))
+    ub_texel_sh_pack(sh, un);
 }
 
 /* Stored normal of global atlas pixel p, or NULL. */
@@ -705,26 +766,28 @@ static float pow2_scale(double mx)
 static double max_abs(const float *v, size_t n)
 {
   double mx = 0.0;
-  for (size_t i = 0; i < n; i++)
-    mx = fmax(mx, fabs((double)v[i]));
+  for (size_t i = 0; i < n; i++) {
+    double a = fabs((double)v[i]);
+    mx = a > mx ? a : mx; /* (as fmax: a NaN is passed over) */
+  }
   return mx;
 }
 
 /* Power-of-two scale that keeps every stored texel SH value (in its stored form) within
  * the half range with margin: 1 unless the level is brighter than ~32768 W/m² (a sun in
  * W/m² with a bright sky). Exact: a power of two changes no mantissa bit. */
-static float atls_scale(const ub_bakefile *bf)
+static float atls_scale(const ubk_writer *w, const ub_bakefile *bf)
 {
   double mx = 0.0;
+  size_t p = 0;
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     const ub_bakefile_atlas *at = &bf->atlases[a];
     size_t texels = (size_t)at->width * at->height;
-    for (size_t i = 0; i < texels; i++) {
+    for (size_t i = 0; i < texels; i++, p++) {
       float sh[UB_SH1_FLOATS];
       memcpy(sh, at->sh + i * UB_SH1_FLOATS, sizeof sh);
-      texel_pack(sh, at->normal + 3 * i);
-      for (int k = 0; k < UB_SH1_FLOATS; k++)
-        mx = fmax(mx, fabs((double)sh[k]));
+      texel_pack(sh, w->un + 3 * p);
+      mx = fmax(mx, max_abs(sh, UB_SH1_FLOATS));
     }
   }
   return pow2_scale(mx);
@@ -732,23 +795,25 @@ static float atls_scale(const ub_bakefile *bf)
 
 static void wr_atls(ubk_writer *w, const ub_bakefile *bf)
 {
-  float scale = atls_scale(bf);
+  float scale = atls_scale(w, bf);
   wr_u32(w, bf->atlas_count);
   wr_f32(w, scale == 1.0f ? 0.0f : scale); /* SH scale (0 = 1) */
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     wr_u32(w, bf->atlases[a].width);
     wr_u32(w, bf->atlases[a].height);
   }
+  size_t p = 0;
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     const ub_bakefile_atlas *at = &bf->atlases[a];
     size_t texels = (size_t)at->width * at->height;
     for (size_t i = 0; i < texels; i++) {
       float sh[UB_SH1_FLOATS];
       memcpy(sh, at->sh + i * UB_SH1_FLOATS, sizeof sh);
-      texel_pack(sh, at->normal + 3 * i);
+      texel_pack(sh, w->un + 3 * (p + i));
       for (int k = 0; k < UB_SH1_FLOATS; k++)
         wr_half(w, sh[k] / scale);
     }
+    p += texels;
     for (size_t i = 0; i < texels * 3; i++)
       wr_half(w, at->normal[i]);
     wr_bytes(w, at->coverage, texels, 1);
@@ -787,7 +852,7 @@ static uint64_t record_block(const ub_bakefile_record *r)
 
 /* Sections DLSR and ELEM: a count, the record headers, then each record's indices and
  * half-precision SH (texel SH in the I_z-packed form, as ATLS). */
-static void wr_records(ubk_writer *w, const ub_bakefile *bf, const ub_bakefile_record *recs,
+static void wr_records(ubk_writer *w, const ub_bakefile_record *recs,
                        uint32_t count)
 {
   double mx = 0.0;
@@ -796,9 +861,7 @@ static void wr_records(ubk_writer *w, const ub_bakefile *bf, const ub_bakefile_r
     for (uint32_t i = 0; i < r->texel_count; i++) {
       float sh[UB_SH1_FLOATS];
       memcpy(sh, r->texel_sh + (size_t)i * UB_SH1_FLOATS, sizeof sh);
-      const float *n = pixel_normal(bf, r->texel_index[i]);
-      if (n)
-        texel_pack(sh, n);
+      texel_pack(sh, w->un + 3 * (size_t)r->texel_index[i]);
       mx = fmax(mx, max_abs(sh, UB_SH1_FLOATS));
     }
     mx = fmax(mx, max_abs(r->probe_sh, (size_t)r->probe_count * UB_GLG_SH_FLOATS));
@@ -834,9 +897,7 @@ static void wr_records(ubk_writer *w, const ub_bakefile *bf, const ub_bakefile_r
     for (uint32_t i = 0; i < r->texel_count; i++) {
       float sh[UB_SH1_FLOATS];
       memcpy(sh, r->texel_sh + (size_t)i * UB_SH1_FLOATS, sizeof sh);
-      const float *n = pixel_normal(bf, r->texel_index[i]);
-      if (n)
-        texel_pack(sh, n);
+      texel_pack(sh, w->un + 3 * (size_t)r->texel_index[i]);
       for (int k = 0; k < UB_SH1_FLOATS; k++)
         wr_half(w, sh[k] / scale);
     }
@@ -957,20 +1018,24 @@ ub_result ub_bakefile_write_ex(const ub_bakefile *bf, const char *path, const ub
   size_t plen = strlen(path);
   char *tmp = malloc(plen + 5);
   ubk_writer *w = calloc(1, sizeof *w);
-  if (!tmp || !w) {
+  float *un = pack_normals(bf);
+  if (!tmp || !w || !un) {
     free(tmp);
     free(w);
+    free(un);
     ubk_error(log, path, "write", "out of memory");
     return UB_ERR_OUT_OF_MEMORY;
   }
   memcpy(tmp, path, plen);
   memcpy(tmp + plen, ".tmp", 5);
 
+  w->un = un;
   w->f = fopen(tmp, "wb");
   if (!w->f) {
     ubk_error(log, path, "write", "cannot create %s: %s", tmp, strerror(errno));
     free(tmp);
     free(w);
+    free(un);
     return UB_ERR_IO;
   }
 
@@ -1019,7 +1084,7 @@ ub_result ub_bakefile_write_ex(const ub_bakefile *bf, const char *path, const ub
   }
   if (bf->dls_count) {
     wr_begin(w, &sec[UB_SEC_DLSR], ub_sec_tags[UB_SEC_DLSR], 0);
-    wr_records(w, bf, bf->dls, bf->dls_count);
+    wr_records(w, bf->dls, bf->dls_count);
     wr_end(w, &sec[UB_SEC_DLSR]);
   }
   if (bf->light_count) {
@@ -1034,7 +1099,7 @@ ub_result ub_bakefile_write_ex(const ub_bakefile *bf, const char *path, const ub
   }
   if (bf->elem_count) {
     wr_begin(w, &sec[UB_SEC_ELEM], ub_sec_tags[UB_SEC_ELEM], 0);
-    wr_records(w, bf, bf->elems, bf->elem_count);
+    wr_records(w, bf->elems, bf->elem_count);
     wr_end(w, &sec[UB_SEC_ELEM]);
   }
   if (bf->tri_role) {
@@ -1066,6 +1131,8 @@ ub_result ub_bakefile_write_ex(const ub_bakefile *bf, const char *path, const ub
     wr_end(w, &sec[UB_SEC_TXLK]);
   }
   wr_flush(w);
+  free(un);
+  w->un = NULL;
 
   memcpy(head, ub_ubk_magic, 4);
   le_put32(head + 4, UB_BAKEFILE_VERSION);
