@@ -318,10 +318,11 @@ __attribute__((target("avx"))) static inline void transpose8_avx(__m256 r[8])
  * the bits as the scalar code's finite_or_zero wants). */
 #define AHD_MAX_K 2
 #define AHD_FOR_G _Pragma("GCC unroll 4") for (int g = 0; g < K; g++)
-__attribute__((target("avx"), always_inline)) static inline unsigned
-encode_lanes_k(const int K, const float *const *rows, const float *nrm, __m256 o[][9])
+/* K groups of eight texels into lanes: t[g][k] coefficient k, n0..n2[g] the normals. */
+__attribute__((target("avx"), always_inline)) static inline void
+lanes_load_k(const int K, const float *const *rows, const float *nrm, __m256 t[][12],
+             __m256 *n0, __m256 *n1, __m256 *n2)
 {
-  __m256 t[AHD_MAX_K][12];
   AHD_FOR_G {
     const float *const *rw = rows + 8 * g;
     __m256 *tg = t[g];
@@ -343,7 +344,6 @@ encode_lanes_k(const int K, const float *const *rows, const float *nrm, __m256 o
     tg[11] = _mm256_shuffle_ps(a1, a3, 0xEE);
   }
   /* the normals (8 × 3 contiguous floats a group) into x, y, z lanes by shuffles */
-  __m256 n0[AHD_MAX_K], n1[AHD_MAX_K], n2[AHD_MAX_K];
   AHD_FOR_G {
     const float *ng = nrm + 24 * g;
     __m256 m03 = _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(ng)),
@@ -358,6 +358,13 @@ encode_lanes_k(const int K, const float *const *rows, const float *nrm, __m256 o
     n1[g] = _mm256_shuffle_ps(yz, xy, _MM_SHUFFLE(3, 1, 2, 0));
     n2[g] = _mm256_shuffle_ps(yz, m25, _MM_SHUFFLE(3, 0, 3, 1));
   }
+}
+
+__attribute__((target("avx"), always_inline)) static inline unsigned
+encode_lanes_k(const int K, const float *const *rows, const float *nrm, __m256 o[][9])
+{
+  __m256 t[AHD_MAX_K][12], n0[AHD_MAX_K], n1[AHD_MAX_K], n2[AHD_MAX_K];
+  lanes_load_k(K, rows, nrm, t, n0, n1, n2);
   const __m256 zero = _mm256_setzero_ps();
   const __m256 absm = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
   unsigned bad = 0;
@@ -497,6 +504,29 @@ __attribute__((target("avx"))) static void encode_iz8_avx(const float *const row
   }
 }
 
+/* Eight packed texels out of lanes: an 8 × 8 transpose of 16-bit words, wg[k] lane j →
+ * texel j word k. */
+__attribute__((target("avx"), always_inline)) static inline void
+store_words8(const __m128i wg[8], ub_ahd_packed *const *og)
+{
+  __m128i a0 = _mm_unpacklo_epi16(wg[0], wg[1]), a1 = _mm_unpackhi_epi16(wg[0], wg[1]);
+  __m128i a2 = _mm_unpacklo_epi16(wg[2], wg[3]), a3 = _mm_unpackhi_epi16(wg[2], wg[3]);
+  __m128i a4 = _mm_unpacklo_epi16(wg[4], wg[5]), a5 = _mm_unpackhi_epi16(wg[4], wg[5]);
+  __m128i a6 = _mm_unpacklo_epi16(wg[6], wg[7]), a7 = _mm_unpackhi_epi16(wg[6], wg[7]);
+  __m128i b0 = _mm_unpacklo_epi32(a0, a2), b1 = _mm_unpackhi_epi32(a0, a2);
+  __m128i b2 = _mm_unpacklo_epi32(a1, a3), b3 = _mm_unpackhi_epi32(a1, a3);
+  __m128i b4 = _mm_unpacklo_epi32(a4, a6), b5 = _mm_unpackhi_epi32(a4, a6);
+  __m128i b6 = _mm_unpacklo_epi32(a5, a7), b7 = _mm_unpackhi_epi32(a5, a7);
+  _mm_storeu_si128((__m128i *)(void *)og[0], _mm_unpacklo_epi64(b0, b4));
+  _mm_storeu_si128((__m128i *)(void *)og[1], _mm_unpackhi_epi64(b0, b4));
+  _mm_storeu_si128((__m128i *)(void *)og[2], _mm_unpacklo_epi64(b1, b5));
+  _mm_storeu_si128((__m128i *)(void *)og[3], _mm_unpackhi_epi64(b1, b5));
+  _mm_storeu_si128((__m128i *)(void *)og[4], _mm_unpacklo_epi64(b2, b6));
+  _mm_storeu_si128((__m128i *)(void *)og[5], _mm_unpackhi_epi64(b2, b6));
+  _mm_storeu_si128((__m128i *)(void *)og[6], _mm_unpacklo_epi64(b3, b7));
+  _mm_storeu_si128((__m128i *)(void *)og[7], _mm_unpackhi_epi64(b3, b7));
+}
+
 /* K groups' lanes (encode_lanes_k) packed (ub_ahd_pack's bits): the six colours through
  * F16C, the direction octahedral as in pack_direction, and each group's eight 16-byte
  * texels out of the lanes by a transpose of 16-bit words; out[8g + j]: texel j of group
@@ -543,27 +573,8 @@ pack_lanes_k(const int K, __m256 o[][9], unsigned skip, float inv_scale,
     w[g][7] = _mm_packs_epi32(_mm256_castsi256_si128(iv), _mm256_extractf128_si256(iv, 1));
   }
   AHD_FOR_G {
-    if (skip & (1u << g))
-      continue;
-    const __m128i *wg = w[g];
-    ub_ahd_packed *const *og = out + 8 * g;
-    /* 8 × 8 transpose of 16-bit words: w[k] lane j → texel j word k */
-    __m128i a0 = _mm_unpacklo_epi16(wg[0], wg[1]), a1 = _mm_unpackhi_epi16(wg[0], wg[1]);
-    __m128i a2 = _mm_unpacklo_epi16(wg[2], wg[3]), a3 = _mm_unpackhi_epi16(wg[2], wg[3]);
-    __m128i a4 = _mm_unpacklo_epi16(wg[4], wg[5]), a5 = _mm_unpackhi_epi16(wg[4], wg[5]);
-    __m128i a6 = _mm_unpacklo_epi16(wg[6], wg[7]), a7 = _mm_unpackhi_epi16(wg[6], wg[7]);
-    __m128i b0 = _mm_unpacklo_epi32(a0, a2), b1 = _mm_unpackhi_epi32(a0, a2);
-    __m128i b2 = _mm_unpacklo_epi32(a1, a3), b3 = _mm_unpackhi_epi32(a1, a3);
-    __m128i b4 = _mm_unpacklo_epi32(a4, a6), b5 = _mm_unpackhi_epi32(a4, a6);
-    __m128i b6 = _mm_unpacklo_epi32(a5, a7), b7 = _mm_unpackhi_epi32(a5, a7);
-    _mm_storeu_si128((__m128i *)(void *)og[0], _mm_unpacklo_epi64(b0, b4));
-    _mm_storeu_si128((__m128i *)(void *)og[1], _mm_unpackhi_epi64(b0, b4));
-    _mm_storeu_si128((__m128i *)(void *)og[2], _mm_unpacklo_epi64(b1, b5));
-    _mm_storeu_si128((__m128i *)(void *)og[3], _mm_unpackhi_epi64(b1, b5));
-    _mm_storeu_si128((__m128i *)(void *)og[4], _mm_unpacklo_epi64(b2, b6));
-    _mm_storeu_si128((__m128i *)(void *)og[5], _mm_unpackhi_epi64(b2, b6));
-    _mm_storeu_si128((__m128i *)(void *)og[6], _mm_unpacklo_epi64(b3, b7));
-    _mm_storeu_si128((__m128i *)(void *)og[7], _mm_unpackhi_epi64(b3, b7));
+    if (!(skip & (1u << g)))
+      store_words8(w[g], out + 8 * g);
   }
 }
 
@@ -595,6 +606,141 @@ __attribute__((target("avx,f16c"))) static void encode_iz16_packed_avx(const flo
     if (bad & (1u << g))
       encode8_packed_scalar(rows + 8 * g, nrm + 24 * g, inv_scale, out + 8 * g);
 }
+
+/* encode_iz16_packed_avx in the sixteen lanes of AVX-512 registers: the same operations in
+ * the same order (IEEE single; no FMA: contraction is off here, as AVX-512 brings FMA),
+ * the blends as mask moves, so each lane still gives the scalar bits (test_ahd). Texels
+ * come in and go out through the 8-lane transposes, a group of eight per 256-bit half.
+ * Half the encode's arithmetic instructions per texel of the AVX pair. */
+#pragma GCC push_options
+#pragma GCC optimize("fp-contract=off")
+#define AHD_W(lo, hi) /* two groups' 8 lanes → 16 lanes */                             \
+  _mm512_castpd_ps(_mm512_insertf64x4(_mm512_castpd256_pd512(_mm256_castps_pd(lo)),    \
+                                      _mm256_castps_pd(hi), 1))
+__attribute__((target("avx,f16c,avx512f"))) static void
+encode_iz16_packed_avx512(const float *const rows[16], const float *nrm, float inv_scale,
+                          ub_ahd_packed *const out[16])
+{
+  __m256 t8[2][12], n08[2], n18[2], n28[2];
+  lanes_load_k(2, rows, nrm, t8, n08, n18, n28);
+  __m512 t[12];
+  #pragma GCC unroll 12
+  for (int k = 0; k < 12; k++)
+    t[k] = AHD_W(t8[0][k], t8[1][k]);
+  const __m512 n0 = AHD_W(n08[0], n08[1]), n1 = AHD_W(n18[0], n18[1]),
+               n2 = AHD_W(n28[0], n28[1]);
+  const __m512 zero = _mm512_setzero_ps();
+  { /* the finite check of encode_lanes_k: any group with a bad lane goes the AVX way */
+    __m512 sm[6];
+    #pragma GCC unroll 12
+    for (int j = 0; j < 6; j++)
+      sm[j] = _mm512_add_ps(t[2 * j], t[2 * j + 1]);
+    __m512 all = _mm512_add_ps(_mm512_add_ps(_mm512_add_ps(sm[0], sm[1]),
+                                             _mm512_add_ps(sm[2], sm[3])),
+                               _mm512_add_ps(sm[4], sm[5]));
+    all = _mm512_mul_ps(all, zero);
+    if (_mm512_cmp_ps_mask(all, all, _CMP_UNORD_Q)) {
+      encode_iz16_packed_avx(rows, nrm, inv_scale, out);
+      return;
+    }
+  }
+#define AHD_DOT(a0, a1, a2, b0, b1, b2)                                                  \
+  _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(a0, b0), _mm512_mul_ps(a1, b1)),            \
+                _mm512_mul_ps(a2, b2))
+  const __m512 kb = _mm512_set1_ps((2.0f * UB_PI / 3.0f) * UB_SH_Y1);
+  __m512 b[3][3], iz[3], a[3], al = zero, bl[3] = {zero, zero, zero};
+  #pragma GCC unroll 12
+  for (int c = 0; c < 3; c++) {
+    b[c][0] = _mm512_mul_ps(kb, t[9 + c]);
+    b[c][1] = _mm512_mul_ps(kb, t[3 + c]);
+    b[c][2] = _mm512_mul_ps(kb, t[6 + c]);
+    iz[c] = t[c];
+    a[c] = _mm512_sub_ps(iz[c], AHD_DOT(b[c][0], b[c][1], b[c][2], n0, n1, n2));
+  }
+  #pragma GCC unroll 12
+  for (int c = 0; c < 3; c++) {
+    __m512 k = _mm512_set1_ps(k_lum[c]);
+    al = _mm512_add_ps(al, _mm512_mul_ps(k, _mm512_abs_ps(a[c])));
+    #pragma GCC unroll 12
+    for (int i = 0; i < 3; i++)
+      bl[i] = _mm512_add_ps(bl[i], _mm512_mul_ps(k, b[c][i]));
+  }
+  __m512 blen = _mm512_sqrt_ps(AHD_DOT(bl[0], bl[1], bl[2], bl[0], bl[1], bl[2]));
+  __mmask16 use_b =
+      _mm512_cmp_ps_mask(blen, _mm512_mul_ps(_mm512_set1_ps(UB_AHD_DIR_REL_EPS), al),
+                         _CMP_GT_OQ) &
+      _mm512_cmp_ps_mask(blen, _mm512_set1_ps(1e-30f), _CMP_GT_OQ);
+  __m512 inv_blen = _mm512_div_ps(_mm512_set1_ps(1.0f), blen);
+  __m512 d0 = _mm512_mask_mov_ps(n0, use_b, _mm512_mul_ps(bl[0], inv_blen));
+  __m512 d1 = _mm512_mask_mov_ps(n1, use_b, _mm512_mul_ps(bl[1], inv_blen));
+  __m512 d2 = _mm512_mask_mov_ps(n2, use_b, _mm512_mul_ps(bl[2], inv_blen));
+  __m512 dz = AHD_DOT(d0, d1, d2, n0, n1, n2);
+  __mmask16 dir = _mm512_cmp_ps_mask(dz, _mm512_set1_ps(UB_AHD_DZ_GUARD), _CMP_GT_OQ);
+  d0 = _mm512_mask_mov_ps(n0, dir, d0);
+  d1 = _mm512_mask_mov_ps(n1, dir, d1);
+  d2 = _mm512_mask_mov_ps(n2, dir, d2);
+  const __m512 one = _mm512_set1_ps(1.0f), sixth = _mm512_set1_ps(1.0f / 6.0f);
+  __m512 den = _mm512_add_ps(_mm512_sub_ps(sixth, _mm512_mul_ps(_mm512_set1_ps(0.5f), dz)),
+                             _mm512_mul_ps(dz, dz));
+  __m512 inv_den = _mm512_maskz_mov_ps(dir, _mm512_div_ps(one, den));
+  __m512 inv_dz = _mm512_maskz_mov_ps(dir, _mm512_div_ps(one, dz));
+  __m512 q = _mm512_sub_ps(_mm512_set1_ps(0.25f), dz);
+  __m512 o[9]; /* ambient, direction, directional in lanes */
+  o[3] = d0;
+  o[4] = d1;
+  o[5] = d2;
+  #pragma GCC unroll 12
+  for (int c = 0; c < 3; c++) { /* max(x, 0) / max(0, x): maxps's operand rule as AVX */
+    __m512 z = _mm512_max_ps(iz[c], zero);
+    __m512 beta = AHD_DOT(b[c][0], b[c][1], b[c][2], d0, d1, d2);
+    __m512 bn = AHD_DOT(b[c][0], b[c][1], b[c][2], n0, n1, n2);
+    __m512 cd0 = _mm512_mul_ps(
+        _mm512_sub_ps(_mm512_mul_ps(beta, sixth), _mm512_mul_ps(bn, q)), inv_den);
+    cd0 = _mm512_max_ps(cd0, zero);
+    __m512 ca = _mm512_max_ps(zero, _mm512_sub_ps(z, _mm512_mul_ps(cd0, dz)));
+    __m512 cd = _mm512_max_ps(_mm512_mul_ps(_mm512_sub_ps(z, ca), inv_dz), zero);
+    o[c] = _mm512_mask_mov_ps(z, dir, ca);
+    o[6 + c] = _mm512_maskz_mov_ps(dir, cd);
+  }
+#undef AHD_DOT
+  /* pack_lanes_k's arithmetic on sixteen lanes, its transposes per group of eight */
+  const __m512 invs = _mm512_set1_ps(inv_scale), hmax = _mm512_set1_ps(UB_HALF_MAX);
+  __m128i w[2][8];
+  static const int col[6] = {0, 1, 2, 6, 7, 8}; /* ambient, directional */
+  #pragma GCC unroll 12
+  for (int k = 0; k < 6; k++) {
+    __m256i h = _mm512_cvtps_ph(_mm512_min_ps(_mm512_mul_ps(o[col[k]], invs), hmax),
+                                _MM_FROUND_TO_NEAREST_INT);
+    w[0][k] = _mm256_castsi256_si128(h);
+    w[1][k] = _mm256_extractf128_si256(h, 1);
+  }
+  __m512 sa = _mm512_add_ps(_mm512_add_ps(_mm512_abs_ps(o[3]), _mm512_abs_ps(o[4])),
+                            _mm512_abs_ps(o[5]));
+  __mmask16 ok = _mm512_cmp_ps_mask(sa, zero, _CMP_GT_OQ);
+  __m512 inv = _mm512_div_ps(one, sa);
+  __m512 u = _mm512_maskz_mov_ps(ok, _mm512_mul_ps(o[3], inv));
+  __m512 v = _mm512_maskz_mov_ps(ok, _mm512_mul_ps(o[4], inv));
+  __mmask16 low = _mm512_cmp_ps_mask(o[5], zero, _CMP_LT_OQ);
+  const __m512 m1 = _mm512_set1_ps(-1.0f);
+  __m512 su = _mm512_mask_mov_ps(m1, _mm512_cmp_ps_mask(u, zero, _CMP_GE_OQ), one);
+  __m512 sv = _mm512_mask_mov_ps(m1, _mm512_cmp_ps_mask(v, zero, _CMP_GE_OQ), one);
+  __m512 nu = _mm512_mul_ps(_mm512_sub_ps(one, _mm512_abs_ps(v)), su);
+  __m512 nv = _mm512_mul_ps(_mm512_sub_ps(one, _mm512_abs_ps(u)), sv);
+  u = _mm512_mask_mov_ps(u, low, nu);
+  v = _mm512_mask_mov_ps(v, low, nv);
+  const __m512 k16 = _mm512_set1_ps(32767.0f);
+  __m256i iu = _mm512_cvtsepi32_epi16(_mm512_cvtps_epi32(_mm512_mul_ps(u, k16)));
+  __m256i iv = _mm512_cvtsepi32_epi16(_mm512_cvtps_epi32(_mm512_mul_ps(v, k16)));
+  w[0][6] = _mm256_castsi256_si128(iu);
+  w[1][6] = _mm256_extractf128_si256(iu, 1);
+  w[0][7] = _mm256_castsi256_si128(iv);
+  w[1][7] = _mm256_extractf128_si256(iv, 1);
+  #pragma GCC unroll 12
+  for (int g = 0; g < 2; g++)
+    store_words8(w[g], out + 8 * g);
+}
+#undef AHD_W
+#pragma GCC pop_options
 #endif
 
 void ub_ahd_encode_iz8_rows(const float *const rows[8], const float *unit_normals,
@@ -664,8 +810,8 @@ void ub_ahd_encode_iz_packed_n(const float *sh_iz, const float *unit_normals, fl
 {
   size_t i = 0;
 #if defined(AHD_HAVE_AVX)
-  const unsigned need = UB_CPU_AVX | UB_CPU_F16C;
-  if ((ub_cpu_features_cached() & need) == need)
+  const unsigned need = UB_CPU_AVX | UB_CPU_F16C, f = ub_cpu_features_cached();
+  if ((f & need) == need)
     for (; i + 16 <= count; i += 16) {
       const float *rows[16];
       ub_ahd_packed *out[16];
@@ -673,7 +819,10 @@ void ub_ahd_encode_iz_packed_n(const float *sh_iz, const float *unit_normals, fl
         rows[j] = sh_iz + 12 * (i + j);
         out[j] = out_packed + i + j;
       }
-      encode_iz16_packed_avx(rows, unit_normals + 3 * i, inv_scale, out);
+      if (f & UB_CPU_AVX512)
+        encode_iz16_packed_avx512(rows, unit_normals + 3 * i, inv_scale, out);
+      else
+        encode_iz16_packed_avx(rows, unit_normals + 3 * i, inv_scale, out);
     }
 #endif
   for (; i + 8 <= count; i += 8)

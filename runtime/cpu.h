@@ -1,20 +1,26 @@
 /* runtime/cpu.h — which SIMD paths this CPU and OS allow, from CPUID: AVX (with the OS
- * saving the ymm registers: OSXSAVE and XCR0 bits 1–2), F16C and AVX2. One test for every
- * run-time kernel that picks a path at run time (blend.c's half decode, glg.c's queries,
- * lightmaps/ahd.c's 8-lane encoder); clang's __builtin_cpu_supports knows no "f16c".
- * Cheap but not free (CPUID traps in some VMs): callers cache the answer.
+ * saving the ymm registers: OSXSAVE and XCR0 bits 1–2), F16C, AVX2 and AVX-512F (with the
+ * OS saving the opmask and zmm registers, XCR0 bits 5–7). One test for every run-time
+ * kernel that picks a path at run time (blend.c's half decode, glg.c's queries,
+ * lightmaps/ahd.c's 8- and 16-lane encoders); clang's __builtin_cpu_supports knows no
+ * "f16c". The environment variable UB_NO_AVX512 (set, not "0") hides AVX-512: the
+ * encoder then takes its AVX path (A/B runs, test_ahd_avx; a CPU that clocks down under
+ * zmm work). Cheap but not free (CPUID traps in some VMs): callers cache the answer.
  */
 #ifndef UBAKE_RUNTIME_CPU_H
 #define UBAKE_RUNTIME_CPU_H
 
 #include <stdatomic.h>
+#include <string.h>
 
 #define UB_CPU_AVX 1u
 #define UB_CPU_F16C 2u /* only with UB_CPU_AVX (the conversions use ymm registers) */
 #define UB_CPU_AVX2 4u /* only with UB_CPU_AVX */
+#define UB_CPU_AVX512 8u /* AVX-512F, only with UB_CPU_AVX */
 
 #if defined(__x86_64__) && defined(__GNUC__)
 #include <cpuid.h>
+#include <stdlib.h>
 
 static inline unsigned ub_cpu_features(void)
 {
@@ -33,6 +39,9 @@ static inline unsigned ub_cpu_features(void)
   if (__get_cpuid_max(0, NULL) >= 7) {
     __cpuid_count(7, 0, a, b, c, d);
     f |= (b >> 5 & 1u) ? UB_CPU_AVX2 : 0u;
+    const char *no = getenv("UB_NO_AVX512");
+    if ((b >> 16 & 1u) && (lo & 0xe6u) == 0xe6u && !(no && *no && strcmp(no, "0") != 0))
+      f |= UB_CPU_AVX512;
   }
   return f;
 }

@@ -1584,26 +1584,22 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
     return;
   }
   const float inv_scale = rt->ahd_inv_scale;
-  uint32_t i = 0;
-  if (rt->lm_un_all && !tc->np) { /* no texel without a normal: no checks */
-    uint32_t m = count & ~7u; /* sixteen at a time where it can */
-    ub_ahd_encode_iz_packed_n(rows, un, inv_scale, out, m);
-    i = m;
-    rows += (size_t)m * UB_SH1_FLOATS;
-    un += (size_t)m * 3;
-    out += m;
-  }
-  for (; i < count; i++, rows += UB_SH1_FLOATS, un += 3, out++) {
-    /* eight texels in a row with their own normals: encoded where they are */
-    if (!tc->np && count - i >= 8 && !isnan(un[0]) && !isnan(un[3]) && !isnan(un[6]) &&
-        !isnan(un[9]) && !isnan(un[12]) && !isnan(un[15]) && !isnan(un[18]) &&
-        !isnan(un[21])) {
-      ub_ahd_encode_iz8_packed(rows, un, inv_scale, out);
-      i += 7;
-      rows += 7 * UB_SH1_FLOATS;
-      un += 7 * 3;
-      out += 7;
-      continue;
+  for (uint32_t i = 0; i < count; i++, rows += UB_SH1_FLOATS, un += 3, out++) {
+    if (!tc->np) { /* a run of texels with their own normals: encoded where they are, sixteen
+                    * at a time where it can (AVX-512: 16 lanes), then eight */
+      uint32_t r = count - i;
+      if (!rt->lm_un_all)
+        for (r = 0; r < count - i && !isnan(un[3 * r]); r++) {
+        }
+      const uint32_t m = r & ~7u;
+      if (m) {
+        ub_ahd_encode_iz_packed_n(rows, un, inv_scale, out, m);
+        i += m - 1;
+        rows += (size_t)(m - 1) * UB_SH1_FLOATS;
+        un += (size_t)(m - 1) * 3;
+        out += m - 1;
+        continue;
+      }
     }
     if (isnan(un[0])) {
       uint64_t s = rt->tch_slot[first + i];

@@ -337,6 +337,8 @@ static void test_encode_iz8_bits(void)
       double m;
       random_sh(sh + 12 * j, &m);
       int kind = (int)(rnd() * 7);
+      if (round % 3 == 0 && (kind == 1 || kind == 6))
+        kind = 0; /* a third of the rounds all finite: whole lane groups take the SIMD math */
       if (kind == 1) /* one coefficient replaced by a special value */
         sh[12 * j + (int)(rnd() * 12)] = special[(int)(rnd() * ns)];
       else if (kind == 2) /* light exactly along a direction at the guard from n */
@@ -394,8 +396,9 @@ static void test_encode_iz8_bits(void)
              ? "AVX + F16C path"
              : "scalar path: this CPU has no AVX + F16C",
          pmismatch, total, saturated);
-  printf("ub_ahd_encode_iz_packed_n (8..24 texels, %d calls of 16 or more): %d of %d "
+  printf("ub_ahd_encode_iz_packed_n (%s; 8..24 texels, %d calls of 16 or more): %d of %d "
          "texels differ from ub_ahd_encode_iz + ub_ahd_pack\n",
+         (ub_cpu_features_cached() & UB_CPU_AVX512) ? "AVX-512 path" : "no AVX-512 path",
          paired, nmismatch, ntotal);
   ASSERT_TRUE(mismatches == 0);
   ASSERT_TRUE(pmismatch == 0);
