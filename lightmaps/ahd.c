@@ -612,8 +612,10 @@ __attribute__((target("avx,f16c"))) static void encode_iz16_packed_avx(const flo
  * the blends as mask moves, so each lane still gives the scalar bits (test_ahd). Texels
  * come in and go out through the 8-lane transposes, a group of eight per 256-bit half.
  * Half the encode's arithmetic instructions per texel of the AVX pair. */
+#if !defined(__clang__) /* GCC fuses the intrinsics' mul + add where FMA is on */
 #pragma GCC push_options
 #pragma GCC optimize("fp-contract=off")
+#endif
 #define AHD_W(lo, hi) /* two groups' 8 lanes → 16 lanes */                             \
   _mm512_castpd_ps(_mm512_insertf64x4(_mm512_castpd256_pd512(_mm256_castps_pd(lo)),    \
                                       _mm256_castps_pd(hi), 1))
@@ -621,6 +623,9 @@ __attribute__((target("avx,f16c,avx512f"))) static void
 encode_iz16_packed_avx512(const float *const rows[16], const float *nrm, float inv_scale,
                           ub_ahd_packed *const out[16])
 {
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#endif
   __m256 t8[2][12], n08[2], n18[2], n28[2];
   lanes_load_k(2, rows, nrm, t8, n08, n18, n28);
   __m512 t[12];
@@ -740,7 +745,9 @@ encode_iz16_packed_avx512(const float *const rows[16], const float *nrm, float i
     store_words8(w[g], out + 8 * g);
 }
 #undef AHD_W
+#if !defined(__clang__)
 #pragma GCC pop_options
+#endif
 #endif
 
 void ub_ahd_encode_iz8_rows(const float *const rows[8], const float *unit_normals,
