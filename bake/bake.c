@@ -398,7 +398,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   }
 
   /* No pass after this one: the passes' shared scratch (level-sized images and arrays the
-   * element passes kept for each other, ~0.4 GB at ESTATE scale) goes before the write
+   * element passes kept for each other, ~650 MB at ESTATE scale) goes before the write
    * stage adds its own images on top (the bake's peak RSS was there). */
   ub_pass_cache_free(pass_cache);
   pass_cache = NULL;
