@@ -611,7 +611,8 @@ __attribute__((target("avx,f16c"))) static void encode_iz16_packed_avx(const flo
  * the same order (IEEE single; no FMA: contraction is off here, as AVX-512 brings FMA),
  * the blends as mask moves, so each lane still gives the scalar bits (test_ahd). Texels
  * come in and go out through the 8-lane transposes, a group of eight per 256-bit half.
- * Half the encode's arithmetic instructions per texel of the AVX pair. */
+ * Half the encode's arithmetic instructions per texel of the AVX pair, 14% faster in cache
+ * (bench_ahd); fewer lane moves (inserts from memory, permutes) gained nothing measurable. */
 #if !defined(__clang__) /* GCC fuses the intrinsics' mul + add where FMA is on */
 #pragma GCC push_options
 #pragma GCC optimize("fp-contract=off")
