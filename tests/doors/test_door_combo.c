@@ -72,6 +72,16 @@ static const pt g_pts[NPTS] = {
     {"B 4m ceiling", {4, 3, 0}, {0, -1, 0}}};
 
 /* Generates a door_combo variant (name, extra --param list) and bakes it. */
+/* The options every bake of this test uses: the defaults at `quality` into out_dir. */
+static ub_bake_options bake_options(ub_quality quality, const char *out_dir)
+{
+  ub_bake_options o;
+  ub_bake_options_default(&o);
+  o.quality = quality;
+  o.out_dir = out_dir;
+  return o;
+}
+
 static int make(const char *name, const char *params, ub_quality quality, char *out_level,
                 size_t cap, ub_bake_stats *st)
 {
@@ -82,10 +92,7 @@ static int make(const char *name, const char *params, ub_quality quality, char *
     return 0;
   snprintf(out_level, cap, "%s/%s.gltf", g_dir, name);
   snprintf(out, sizeof out, "%s/%s", g_dir, name);
-  ub_bake_options o;
-  ub_bake_options_default(&o);
-  o.quality = quality;
-  o.out_dir = out;
+  ub_bake_options o = bake_options(quality, out);
   return ub_bake_level(out_level, &o, &g_log, st) == UB_OK;
 }
 
@@ -95,11 +102,8 @@ static ub_runtime *bake_seed(const char *level, const char *name, ub_quality qua
 {
   char out[1400];
   snprintf(out, sizeof out, "%s/%s_seed%u", g_dir, name, seed);
-  ub_bake_options o;
-  ub_bake_options_default(&o);
-  o.quality = quality;
+  ub_bake_options o = bake_options(quality, out);
   o.seed = seed;
-  o.out_dir = out;
   ub_bake_stats st;
   ub_runtime *rt = NULL;
   if (ub_bake_level(level, &o, &g_log, &st) == UB_OK)
@@ -446,10 +450,7 @@ static void test_pair(void)
   ASSERT_TRUE(system(cmd) == 0);
   snprintf(lv, sizeof lv, "%s/door_chain.gltf", g_dir);
   snprintf(out, sizeof out, "%s/door_chain", g_dir);
-  ub_bake_options o;
-  ub_bake_options_default(&o);
-  o.quality = UB_QUALITY_FAST;
-  o.out_dir = out;
+  ub_bake_options o = bake_options(UB_QUALITY_FAST, out);
   ub_bake_stats st;
   ub_scene *s = NULL;
   ub_bakefile *bf = NULL;
