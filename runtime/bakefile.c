@@ -209,6 +209,15 @@ static ub_result validate_glg(const ub_bakefile *bf, const char *name, const ub_
   return UB_OK;
 }
 
+/* Σ W·H over the atlases: the pixel numbering of records' texel indices. */
+static uint64_t atlas_pixel_total(const ub_bakefile *bf)
+{
+  uint64_t pixels = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++)
+    pixels += (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
+  return pixels;
+}
+
 static uint64_t llg_probe_total(const ub_bakefile *bf)
 {
   uint64_t n = 0;
@@ -243,9 +252,7 @@ static ub_result validate_records(const ub_bakefile *bf, int elem, const char *n
   const char *where = elem ? "section ELEM" : "section DLSR";
   const ub_bakefile_record *recs = elem ? bf->elems : bf->dls;
   uint32_t count = elem ? bf->elem_count : bf->dls_count;
-  uint64_t pixels = 0;
-  for (uint32_t a = 0; a < bf->atlas_count; a++)
-    pixels += (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
+  uint64_t pixels = atlas_pixel_total(bf);
   uint64_t llg_probes = llg_probe_total(bf);
   uint32_t prev_kind = 0;
   for (uint32_t d = 0; d < count; d++) {
@@ -719,10 +726,7 @@ static void pack_normal(const float normal[3], float out[3])
  * (per texel it was a sixth of the writer's time). NULL when out of memory. */
 static float *pack_normals(const ub_bakefile *bf)
 {
-  size_t pixels = 0;
-  for (uint32_t a = 0; a < bf->atlas_count; a++)
-    pixels += (size_t)bf->atlases[a].width * bf->atlases[a].height;
-  float *un = malloc(pixels * 3 * sizeof(float) + 1);
+  float *un = malloc((size_t)atlas_pixel_total(bf) * 3 * sizeof(float) + 1);
   if (!un)
     return NULL;
   size_t p = 0;
@@ -1636,9 +1640,7 @@ static ub_result parse_records(const ubk_reader *rd, const uint8_t *p, uint64_t 
  * Indices out of range are left for validate() to report. */
 static void unpack_record_texels(ub_bakefile *bf, ub_bakefile_record *recs, uint32_t count)
 {
-  uint64_t pixels = 0;
-  for (uint32_t a = 0; a < bf->atlas_count; a++)
-    pixels += (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
+  uint64_t pixels = atlas_pixel_total(bf);
   for (uint32_t d = 0; d < count; d++) {
     ub_bakefile_record *r = &recs[d];
     for (uint32_t i = 0; r->texel_sh && i < r->texel_count; i++) {
