@@ -371,6 +371,7 @@ static void test_combo_llg(void)
    * with their spread in the tolerance: |mean - ref| <= 3·sqrt(se_ref² + s²/n) + 5%, plus
    * the LLG's own error at that point (below). */
   enum { LLG_SEEDS = 4 };
+  _Static_assert(LLG_SEEDS == 4, "the LLG rows print four seeds' values");
   ub_runtime *seeds[LLG_SEEDS] = {run};
   for (uint32_t j = 1; j < LLG_SEEDS; j++) {
     seeds[j] = bake_seed(lv, "door_combo_llg", UB_QUALITY_FAST, 1 + j);
