@@ -433,6 +433,7 @@ fail:
   free(base_mask);
   free(orig_material);
   ub_dls_records_free(dls, scene ? scene->dls_count : 0);
+  ub_dls_stats_free(&dstats);
   ub_plan_free(&plan);
   ub_llg_free(&llg);
   ub_glg_leak_free(&leak);

@@ -27,6 +27,14 @@ uint32_t ub_dls_texel_pixel(const ub_lightmap *lm, uint32_t texel)
                     lm->texel_xy[2 * texel]);
 }
 
+void ub_dls_stats_free(ub_dls_stats *st)
+{
+  if (!st)
+    return;
+  free(st->sets);
+  st->sets = NULL;
+}
+
 void ub_dls_records_free(ub_bakefile_record *records, uint32_t count)
 {
   if (!records)
@@ -766,6 +774,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
   *out_records = NULL;
   if (s->dls_count == 0)
     return UB_OK;
+  out_stats->sets = calloc(s->dls_count, sizeof *out_stats->sets); /* NULL: not kept */
   ub_bakefile_record *recs = calloc(s->dls_count, sizeof *recs);
   uint8_t *enabled = calloc(s->light_count ? s->light_count : 1, 1);
   uint32_t *kt = malloc(((size_t)lm->texel_count + 1) * sizeof *kt);
@@ -870,6 +879,9 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
   for (uint32_t d = 0; d < s->dls_count && r == UB_OK; d++) {
     ub_bakefile_record *rec = &recs[d];
     snprintf(rec->name, sizeof rec->name, "%s", s->dls_names[d]);
+    /* this set's share of the totals, taken from them when it is done */
+    const uint64_t ri0 = out_stats->rays_influence, rf0 = out_stats->rays_full;
+    const double si0 = out_stats->seconds_influence, sf0 = out_stats->seconds_full;
     uint32_t reaching = 0;
     double lum_sum = 0.0;
     for (uint32_t l = 0; l < s->light_count; l++) {
@@ -1091,6 +1103,10 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     if (nkt == 0 && nkp == 0 && nkl == 0) {
       ub_pass_result_free(&inf);
       out_stats->sets_empty++;
+      if (out_stats->sets) { /* its influence pass ran */
+        out_stats->sets[d].rays_influence = out_stats->rays_influence - ri0;
+        out_stats->sets[d].seconds_influence = out_stats->seconds_influence - si0;
+      }
       ub_log_printf(log, UB_LOG_INFO, "  dls %-16s: no receiver above the threshold: skipped",
                     rec->name);
       continue;
@@ -1172,12 +1188,18 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     out_stats->texels_kept += nkt;
     out_stats->probes_kept += nkp;
     out_stats->llg_probes_kept += nkl;
+    ub_dls_set_stats ss = {out_stats->rays_influence - ri0, out_stats->rays_full - rf0,
+                           out_stats->seconds_influence - si0, out_stats->seconds_full - sf0};
+    if (out_stats->sets)
+      out_stats->sets[d] = ss;
     ub_log_printf(log, UB_LOG_INFO,
                   "  dls %-16s: %u light(s), %u of %u texels, %u of %u probes and %u of %u "
                   "LLG probes in its influence (threshold %.3g W/m²; reach bound %u texels, "
-                  "%u probes, %u LLG probes), record %u pixels",
+                  "%u probes, %u LLG probes), record %u pixels; influence %.2f M rays %.2f s, "
+                  "full %.2f M rays %.2f s",
                   rec->name, reaching, nkt, lm->texel_count, nkp, base->probe_count, nkl, nlp,
-                  thr, nct, ncp, ncl, rec->texel_count);
+                  thr, nct, ncp, ncl, rec->texel_count, ss.rays_influence * 1e-6,
+                  ss.seconds_influence, ss.rays_full * 1e-6, ss.seconds_full);
   }
   if (r == UB_OK && plan->influence_culling && out_stats->sets_baked + out_stats->sets_empty)
     ub_log_printf(log, UB_LOG_INFO,

@@ -123,6 +123,13 @@ uint32_t ub_dls_reach_texels(const ub_dls_reach *r, const ub_dls_texel_cells *tc
                              const ub_lightmap *lm, uint32_t *out);
 int ub_dls_reach_point(const ub_dls_reach *r, const float p[3]);
 
+/* One set's cost: its influence pass (with the reach bound's photons when the set traced
+ * them itself) and its full pass. Zero for a set that reaches nothing. */
+typedef struct ub_dls_set_stats {
+  uint64_t rays_influence, rays_full;
+  double seconds_influence, seconds_full;
+} ub_dls_set_stats;
+
 typedef struct ub_dls_stats {
   uint32_t sets_baked, sets_empty;
   uint64_t rays_influence, rays_full;
@@ -141,7 +148,13 @@ typedef struct ub_dls_stats {
    * (as traced at bounces 1 and 2; later bounces trace fewer, ub_pass_desc
    * bounce_full_rays), and with every receiver at the full count. */
   uint64_t gather_units, gather_units_full;
+  /* Per set (scene->dls_count entries; NULL when there was no memory for them): what the
+   * plan's per-set estimates are checked against (report.json, plan.passes). Freed by
+   * ub_dls_stats_free. */
+  ub_dls_set_stats *sets;
 } ub_dls_stats;
+
+void ub_dls_stats_free(ub_dls_stats *st);
 
 /* base: the base pass's settings (scene, rays, lightmap, probes, sample budgets); the
  * light selection, subsets and pass ids are replaced per set. Fills out_records

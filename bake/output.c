@@ -227,8 +227,18 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
     char nm[80];
     snprintf(nm, sizeof nm, "dls %s", scene->dls_names[d]);
     json_str(f, nm);
-    fprintf(f, ", \"estimated_rays\": %.0f, \"skipped\": %s}", plan->dls_est_rays[d],
+    fprintf(f, ", \"estimated_rays\": %.0f, \"estimated_seconds\": %.3f, \"skipped\": %s",
+            plan->dls_est_rays[d], plan->dls_est_seconds[d],
             plan->dls_est_rays[d] > 0 ? "false" : "true");
+    if (dstats && dstats->sets) {
+      const ub_dls_set_stats *ss = &dstats->sets[d];
+      fprintf(f, ", \"actual_rays\": %llu, \"actual_seconds\": %.3f, \"influence_rays\": %llu, "
+                 "\"influence_seconds\": %.3f",
+              (unsigned long long)(ss->rays_influence + ss->rays_full),
+              ss->seconds_influence + ss->seconds_full,
+              (unsigned long long)ss->rays_influence, ss->seconds_influence);
+    }
+    fprintf(f, "}");
   }
   for (uint32_t k = 0; k < plan->combo_count; k++) {
     char nm[160];

@@ -57,6 +57,10 @@ typedef struct ub_plan {
   uint32_t dls_passes;         /* sets with at least one light that reaches a receiver */
   double est_rays;             /* estimated rays of the base pass */
   double *dls_est_rays;        /* dls_count: estimated rays per set (0 = skipped) */
+  /* dls_count: estimated seconds per set: its influence pass's rays at
+   * UB_PLAN_INFLUENCE_RATE × ray_rate and its full pass's at UB_PLAN_FULL_RATE × ray_rate
+   * (the reach bound's photons are the plan's own time, dls_reach_seconds) */
+  double *dls_est_seconds;
   /* dls_count: share of the level's texels inside the set's reach bound (bake/dls.h), the
    * receivers its influence pass will see (1 without culling); probes are estimated at
    * the same share. */
