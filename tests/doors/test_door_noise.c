@@ -41,9 +41,9 @@ static float median3(float a, float b, float c)
   return fmaxf(fminf(a, b), fminf(fmaxf(a, b), c));
 }
 
-/* One representation of record e over the seeds: values v[receiver × n + seed] (0 where a
- * seed's record lacks the receiver). Prints and returns the worst deviation in units of
- * |median| + mean. */
+/* One representation of the door record over the seeds: v[receiver × n + seed] (0 where
+ * a seed's record lacks the receiver), R receivers. Prints and returns the worst
+ * deviation from a receiver's median in units of |median| + the mean |value|. */
 static double spread(const char *what, const float *v, size_t R)
 {
   const int n = UB_NOISE_SEEDS;
