@@ -19,6 +19,7 @@
 #include "ubake/scene.h"
 #include "ubake/sh.h"
 #include "tools/regress.h"
+#include "tools/spread.h"
 #include "tools/sweep.h"
 
 typedef struct cli_log_state {
@@ -1145,7 +1146,8 @@ static const char *MAIN_HELP =
     "  reference  path-traced ground truth at a point and normal\n"
     "  render     PNG of the level from a camera, as the run-time shows it\n"
     "  sweep      accuracy vs bake time: a ladder of settings measured against ground truth\n"
-    "  regress    door-opening regression: query vs reference, doors closed and open\n";
+    "  regress    door-opening regression: query vs reference, doors closed and open\n"
+    "  spread     how far dynamic elements' records vary between bakes with other seeds\n";
 
 int main(int argc, char **argv)
 {
@@ -1165,6 +1167,7 @@ int main(int argc, char **argv)
     return cmd_reference(argc - 2, argv + 2);
   if (!strcmp(cmd, "sweep")) return ub_cli_sweep(argc - 2, argv + 2);
   if (!strcmp(cmd, "regress")) return ub_cli_regress(argc - 2, argv + 2);
+  if (!strcmp(cmd, "spread")) return ub_cli_spread(argc - 2, argv + 2);
   if (!strcmp(cmd, "render"))
     return cmd_render(argc - 2, argv + 2);
   fprintf(stderr, "ubake: unknown command '%s' (see 'ubake --help')\n", cmd);
