@@ -154,9 +154,7 @@ int main(int argc, char **argv)
   for (int k = 1; k < 5; k++) {
     if (!bf[k])
       continue;
-    size_t cap = 1;
-    for (uint32_t a = 0; a < bf[0]->atlas_count; a++)
-      cap += (size_t)bf[0]->atlases[a].width * bf[0]->atlases[a].height;
+    size_t cap = 1 + ub_bakefile_atlas_pixels(bf[0]);
     size_t scap = 1;
     for (uint32_t d = 0; d < bf[k]->dls_count; d++)
       scap += bf[k]->dls[d].texel_count;

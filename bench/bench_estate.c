@@ -477,9 +477,7 @@ int main(int argc, char **argv)
     fprintf(stderr, "bench_estate: cannot read %s\n", st.ubk_path);
     return 1;
   }
-  size_t pixels = 0;
-  for (uint32_t a = 0; a < bf->atlas_count; a++)
-    pixels += (size_t)bf->atlases[a].width * bf->atlases[a].height;
+  size_t pixels = ub_bakefile_atlas_pixels(bf);
   double *rb = malloc(sizeof(double) * (bf->dls_count + 1));
   double rec_sum = 0.0, hall_sum = 0.0, room_sum = 0.0;
   uint32_t nhall = 0;

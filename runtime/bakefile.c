@@ -209,8 +209,7 @@ static ub_result validate_glg(const ub_bakefile *bf, const char *name, const ub_
   return UB_OK;
 }
 
-/* Σ W·H over the atlases: the pixel numbering of records' texel indices. */
-static uint64_t atlas_pixel_total(const ub_bakefile *bf)
+uint64_t ub_bakefile_atlas_pixels(const ub_bakefile *bf)
 {
   uint64_t pixels = 0;
   for (uint32_t a = 0; a < bf->atlas_count; a++)
@@ -218,7 +217,7 @@ static uint64_t atlas_pixel_total(const ub_bakefile *bf)
   return pixels;
 }
 
-static uint64_t llg_probe_total(const ub_bakefile *bf)
+uint64_t ub_bakefile_llg_probes(const ub_bakefile *bf)
 {
   uint64_t n = 0;
   for (uint32_t m = 0; m < bf->llg_count; m++)
@@ -252,8 +251,8 @@ static ub_result validate_records(const ub_bakefile *bf, int elem, const char *n
   const char *where = elem ? "section ELEM" : "section DLSR";
   const ub_bakefile_record *recs = elem ? bf->elems : bf->dls;
   uint32_t count = elem ? bf->elem_count : bf->dls_count;
-  uint64_t pixels = atlas_pixel_total(bf);
-  uint64_t llg_probes = llg_probe_total(bf);
+  uint64_t pixels = ub_bakefile_atlas_pixels(bf);
+  uint64_t llg_probes = ub_bakefile_llg_probes(bf);
   uint32_t prev_kind = 0;
   for (uint32_t d = 0; d < count; d++) {
     const ub_bakefile_record *r = &recs[d];
@@ -726,7 +725,7 @@ static void pack_normal(const float normal[3], float out[3])
  * (per texel it was a sixth of the writer's time). NULL when out of memory. */
 static float *pack_normals(const ub_bakefile *bf)
 {
-  float *un = malloc((size_t)atlas_pixel_total(bf) * 3 * sizeof(float) + 1);
+  float *un = malloc((size_t)ub_bakefile_atlas_pixels(bf) * 3 * sizeof(float) + 1);
   if (!un)
     return NULL;
   size_t p = 0;
@@ -1640,7 +1639,7 @@ static ub_result parse_records(const ubk_reader *rd, const uint8_t *p, uint64_t 
  * Indices out of range are left for validate() to report. */
 static void unpack_record_texels(ub_bakefile *bf, ub_bakefile_record *recs, uint32_t count)
 {
-  uint64_t pixels = atlas_pixel_total(bf);
+  uint64_t pixels = ub_bakefile_atlas_pixels(bf);
   for (uint32_t d = 0; d < count; d++) {
     ub_bakefile_record *r = &recs[d];
     for (uint32_t i = 0; r->texel_sh && i < r->texel_count; i++) {
@@ -1714,9 +1713,7 @@ static ub_result parse_txlk(const ubk_reader *rd, const uint8_t *p, uint64_t siz
   static const char *where = "section TXLK";
   ubk_cursor c = {p, (size_t)size};
   uint32_t n, reserved;
-  uint64_t total = 0;
-  for (uint32_t a = 0; a < bf->atlas_count; a++)
-    total += (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
+  uint64_t total = ub_bakefile_atlas_pixels(bf);
   if (!cur_u32(&c, &n) || !cur_u32(&c, &reserved) || n != bf->atlas_count ||
       8u + align8(total) != size) {
     ubk_error(rd->log, rd->name, where, "size %llu does not match the %u atlases",

@@ -127,9 +127,7 @@ static int glg_equals_float_blend(const ub_runtime *rt, const ub_bakefile *bf,
 static double check_texels(const ub_runtime *rt, const ub_bakefile *bf, const float applied[][3],
                            uint32_t n)
 {
-  uint64_t pixels = 0;
-  for (uint32_t a = 0; a < bf->atlas_count; a++)
-    pixels += (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
+  uint64_t pixels = ub_bakefile_atlas_pixels(bf);
   double *sum = calloc(pixels * 12, sizeof *sum), *mag = calloc(pixels * 3, sizeof *mag);
   float (*nrm)[3] = calloc(pixels, sizeof *nrm);
   uint8_t *ok = calloc(pixels, 1);

@@ -118,9 +118,7 @@ static void set_all(ub_runtime *rt, float w)
 
 static void check_records(const ub_bakefile *bf)
 {
-  size_t pixels = 0, covered = 0;
-  for (uint32_t a = 0; a < bf->atlas_count; a++)
-    pixels += (size_t)bf->atlases[a].width * bf->atlases[a].height;
+  size_t pixels = ub_bakefile_atlas_pixels(bf), covered = 0;
   uint8_t *cov = calloc(pixels, 1);
   uint16_t *over = calloc(pixels, sizeof *over);
   size_t off = 0;
@@ -250,9 +248,7 @@ static void check_blend(const char *ubk, const ub_bakefile *bf, unsigned load_fl
     ub_ahd_packed *before = ahd_snapshot(rt, bf);
     /* the LLG models' grids before (the run-time's bake file holds the current state) */
     const ub_bakefile *rbf = ub_runtime_bakefile(rt);
-    size_t nlp = 0;
-    for (uint32_t m = 0; m < rbf->llg_count; m++)
-      nlp += (size_t)rbf->llgs[m].dims[0] * rbf->llgs[m].dims[1] * rbf->llgs[m].dims[2] * 27;
+    size_t nlp = (size_t)ub_bakefile_llg_probes(rbf) * 27;
     float *llg0 = malloc((nlp ? nlp : 1) * sizeof *llg0);
     ASSERT_TRUE(llg0 != NULL);
     for (uint32_t m = 0, o = 0; m < rbf->llg_count; m++) {

@@ -38,22 +38,6 @@ static int cmp_float(const void *a, const void *b)
   return (x > y) - (x < y);
 }
 
-static size_t atlas_pixels(const ub_bakefile *bf)
-{
-  size_t n = 0;
-  for (uint32_t a = 0; a < bf->atlas_count; a++)
-    n += (size_t)bf->atlases[a].width * bf->atlases[a].height;
-  return n;
-}
-
-static size_t llg_probes(const ub_bakefile *bf)
-{
-  size_t n = 0;
-  for (uint32_t m = 0; m < bf->llg_count; m++)
-    n += (size_t)bf->llgs[m].dims[0] * bf->llgs[m].dims[1] * bf->llgs[m].dims[2];
-  return n;
-}
-
 static const ub_bakefile_record *element(const ub_bakefile *bf, uint32_t e)
 {
   return e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
@@ -75,11 +59,11 @@ static int same_level(ub_bakefile *const *bf, char **path, int j)
 {
   const ub_bakefile *a = bf[0], *b = bf[j];
   const char *what = NULL;
-  if (atlas_pixels(a) != atlas_pixels(b))
+  if (ub_bakefile_atlas_pixels(a) != ub_bakefile_atlas_pixels(b))
     what = "atlas pixels";
   else if (a->glg_probe_count != b->glg_probe_count)
     what = "GLG probes";
-  else if (llg_probes(a) != llg_probes(b))
+  else if (ub_bakefile_llg_probes(a) != ub_bakefile_llg_probes(b))
     what = "LLG probes";
   else if (a->dls_count != b->dls_count || a->elem_count != b->elem_count)
     what = "dynamic elements";
@@ -137,7 +121,8 @@ int ub_cli_spread(int argc, char **argv)
   size_t R = 0;
   float *v = NULL, *srt = malloc(n * sizeof *srt);
   if (!status) {
-    size_t rt = atlas_pixels(bf[0]), rg = bf[0]->glg_probe_count, rl = llg_probes(bf[0]);
+    size_t rt = ub_bakefile_atlas_pixels(bf[0]), rg = bf[0]->glg_probe_count;
+    size_t rl = ub_bakefile_llg_probes(bf[0]);
     R = rt > rg ? (rt > rl ? rt : rl) : (rg > rl ? rg : rl);
     v = malloc((R + 1) * n * sizeof *v);
   }

@@ -186,6 +186,10 @@ ub_result ub_bakefile_read_ex(const char *path, const ub_log *log, unsigned flag
 ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *name,
                                   const ub_log *log, ub_bakefile **out_bf);
 void ub_bakefile_free(ub_bakefile *bf);
+/* Σ W·H over the atlases: the pixel numbering of records' texel indices. */
+uint64_t ub_bakefile_atlas_pixels(const ub_bakefile *bf);
+/* LLG probes of all models: the numbering of records' llg_probe_index. */
+uint64_t ub_bakefile_llg_probes(const ub_bakefile *bf);
 
 #ifdef __cplusplus
 }
