@@ -497,8 +497,8 @@ ub_result ub_plan_build(const ub_scene *scene, const ub_rt *rt, const ub_emitter
                      (gt * Tc * out->influence_rays + gp * Pc * 2 * out->influence_rays);
     double frac = out->influence_culling ? fmin(UB_PLAN_KEPT_SHARE * cand, 1.2 * reach) : 1.0;
     /* scaled rays (dls.c): the full passes' gathers at about half the rays (estate_small
-     * and ESTATE full scale, draft: 47.2% and 47.6%) */
-    double gs = out->dls_scaled_rays ? 0.5 : 1.0;
+     * and ESTATE full scale, draft, the shift capped at 2: 55.2% and 53.5%) */
+    double gs = out->dls_scaled_rays ? 0.55 : 1.0;
     double full = frac * ((T * out->shadow_samples + P) * nlight +
                           gs * (T * out->gather_rays + P * out->probe_rays) * b);
     out->dls_est_rays[d] = (out->influence_culling ? inf : 0.0) + full;
