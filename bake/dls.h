@@ -32,14 +32,14 @@
  * are faint: scaled rays give them few). */
 #define UB_DLS_INFLUENCE_FRACTION_EXACT 0.004
 /* Full passes with scaled rays (ub_plan.dls_scaled_rays): a receiver gathers with at
- * least 2^-UB_DLS_RAY_SHIFT_MAX of the rays. 2, not 3: a faint receiver's light can come
- * from rare bright hits (a lit wall seen through a doorway), and one such hit weighs
- * 2^shift times what it weighs at full rays. estate_small, draft, seeds 1-3 (`ubake
- * spread`, tests/test_dls_noise.sh): the worst texel 3.99 at 3, 1.91 at 2, 1.95 with full
- * rays; the full passes' rays 27.0 / 34.2 / 50.8 M; at ESTATE full scale 673 -> 750 M
- * (+11%) for 3 -> 2. */
+ * least 2^-UB_DLS_RAY_SHIFT_MAX of the rays. A faint receiver's light can come from rare
+ * bright hits (a lit wall seen through a doorway), and one such hit weighs 2^shift times
+ * what it weighs at full rays: with the base pass's texel-light rule the worst texel of
+ * estate_small (draft, seeds 1-6, `ubake spread`) was 5.42 at 3, 2.27 at 2 and 1.92 with
+ * full rays. The sets' passes now take texel lights in every block
+ * (ub_pass_desc.texel_lights_everywhere), which find those hits: 1.88 at 3, so 3 stays. */
 #ifndef UB_DLS_RAY_SHIFT_MAX
-#define UB_DLS_RAY_SHIFT_MAX 2u
+#define UB_DLS_RAY_SHIFT_MAX 3u
 #endif
 /* Bounces of the influence pass (paper §3.2: 2) when the full passes run more bounces
  * than that or until converged (ub_dls_influence_bounces). */

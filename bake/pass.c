@@ -1216,7 +1216,8 @@ static void texel_lights_build(pass_ctx *c, const double *e_prev)
 /* The cluster table (cdf, tl_K entries) for the receivers of group g in a block: 1 when
  * texel lights are worth their shadow rays there — the brightest texel they can see carries
  * UB_TL_PEAK× the mean power of the texels they can see (in an evenly lit room the gather
- * rays alone do better). A cluster is seen unless every texel of it faces away from every
+ * rays alone do better), or with ub_pass_desc.texel_lights_everywhere whenever they see
+ * a lit texel. A cluster is seen unless every texel of it faces away from every
  * point of the receivers' box, or lies behind every receiver (bounds over the boxes and
  * the normal components); its weight is its power over its squared distance. */
 static int tl_block_table(const pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr,
@@ -1269,7 +1270,8 @@ static int tl_block_table(const pass_ctx *c, const recv_set *rs, uint32_t r0, ui
     sum += w;
     cdf[k] = (float)sum;
   }
-  if (!(sum > 0.0) || !isfinite(sum) || peak < UB_TL_PEAK * seen_power / seen_n)
+  double peak_min = c->d->texel_lights_everywhere ? 0.0 : UB_TL_PEAK * seen_power / seen_n;
+  if (!(sum > 0.0) || !isfinite(sum) || peak < peak_min)
     return 0;
   for (uint32_t k = 0; k < c->tl_K; k++)
     cdf[k] = (float)(cdf[k] / sum);

@@ -115,6 +115,13 @@ typedef struct ub_pass_desc {
    * they meet it or have had max_rounds rounds (0 = UB_ADAPT_MAX_ROUNDS). */
   double target_error;
   uint32_t max_rounds;
+  /* 1: texel lights (bounces ≥ 1: an eighth of the gather rays sampled toward the bright
+   * texels, MIS against the gathers) for every block of receivers that sees a lit texel,
+   * not only where the brightest carries UB_TL_PEAK× the mean power (pass.c
+   * tl_block_table). The DLS passes: a set's lamp lights one room, and a faint receiver
+   * that sees the lit walls through a doorway gets its light from rare bright gather
+   * hits, which the texel lights find. */
+  int texel_lights_everywhere;
   /* 1: no standard error estimates (texel_se and probe_se stay 0): their per-sample work
    * (each receiver's sample variance, the variance inherited from the lightmap read) is
    * skipped, for a caller that reads neither (the DLS passes). Ignored with target_error,
