@@ -2,7 +2,8 @@
 # estate_small (14 sets) baked at quality draft, 2 bounces, with seeds 1, 2 and 3, then
 # `ubake spread --bound 4`: every texel pixel, GLG probe and LLG probe of every set's
 # record lies within 4 × (|median over the seeds| + the record's mean |value|) of its
-# median, and at most 80 texel values (summed over the sets) lie over 0.5 of those units.
+# median, and at most 80 texel values (summed over the sets) lie over 0.5 of those units;
+# the base bake's receivers (`--base`) within 2.
 #
 # Why: a set's full pass gathers with fewer rays where its influence pass found the set's
 # light faint (scaled rays, bake/dls.c dls_ray_shift). A texel whose faint light comes from
@@ -43,5 +44,12 @@ done
 over=$(awk '/ texel pixels / { for (i = 1; i < NF; i++) if ($(i + 1) == "over" && $(i + 2) ~ /^0\.5,?$/) s += $i } END { print s + 0 }' "$out/spread.txt")
 echo "texel values over 0.5, summed over the sets: $over (bound 80)"
 [ "$over" -le 80 ] || { echo "FAIL: $over texel values over 0.5 (bound 80)" >&2; status=1; }
-[ "$status" -eq 0 ] || { echo "FAIL: a set record's spread over seeds is above its bounds" >&2; exit 1; }
+# The base bake over the same seeds (spread --base): 0.57 here, 2 values over 0.5.
+"$UBAKE" spread $files --base --element "(base)" --bound 2 | tee "$out/spread_base.txt"
+[ "${PIPESTATUS[0]}" -eq 0 ] || { echo "FAIL: the base bake's spread over seeds is above 2" >&2; status=1; }
+for kind in "texel pixels" "GLG probes" "LLG probes"; do
+  grep -q "^(base)  *$kind  *[1-9][0-9]* receivers" "$out/spread_base.txt" ||
+    { echo "FAIL: no '$kind' row for the base bake" >&2; status=1; }
+done
+[ "$status" -eq 0 ] || { echo "FAIL: a spread over seeds is above its bounds" >&2; exit 1; }
 echo "set records within the bound"

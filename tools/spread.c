@@ -17,13 +17,18 @@
 #define SPREAD_MAX_FILES 64
 
 static const char *HELP =
-    "usage: ubake spread A.ubk B.ubk [C.ubk ...] [--element NAME] [--bound X]\n"
+    "usage: ubake spread A.ubk B.ubk [C.ubk ...] [--element NAME] [--bound X] [--base]\n"
     "Bakes of one level with different seeds (ubake bake --seed N): for each dynamic\n"
     "element's record and representation (texel pixels, GLG probes, LLG probes), the\n"
     "largest deviation of a receiver's value (DC luminance) from its median over the files,\n"
     "in units of |median| + the record's mean |value|, and how many values lie over 0.5.\n"
     "  --element NAME  only the element (set, door, object or combination) named NAME\n"
-    "  --bound X       exit status 1 when any deviation exceeds X (a noise check)\n";
+    "                  ((base) with --base: the base bake)\n"
+    "  --bound X       exit status 1 when any deviation exceeds X (a noise check)\n"
+    "  --base          also the base bake, as an element named (base): every covered\n"
+    "                  texel pixel, GLG probe and LLG probe\n";
+
+#define SPREAD_BASE_NAME "(base)"
 
 static void quiet_log(void *user, ub_log_level level, const char *msg)
 {
@@ -41,6 +46,64 @@ static int cmp_float(const void *a, const void *b)
 static const ub_bakefile_record *element(const ub_bakefile *bf, uint32_t e)
 {
   return e < bf->dls_count ? &bf->dls[e] : &bf->elems[e - bf->dls_count];
+}
+
+/* The base bake of bf as a record (--base): its covered texel pixels (global pixel
+ * indices, SH copied), its GLG probes (glg_sh borrowed, not copied) and its LLG probes
+ * (copied in the global order). 0 when out of memory; base_free frees what it made. */
+static int base_record(const ub_bakefile *bf, ub_bakefile_record *r)
+{
+  memset(r, 0, sizeof *r);
+  snprintf(r->name, sizeof r->name, "%s", SPREAD_BASE_NAME);
+  r->kind = UINT32_MAX;
+  size_t covered = 0, off = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    for (size_t p = 0; p < (size_t)at->width * at->height; p++)
+      covered += at->coverage[p] == 1;
+  }
+  size_t ng = bf->glg_probe_count, nl = ub_bakefile_llg_probes(bf);
+  r->texel_index = malloc((covered + 1) * sizeof *r->texel_index);
+  r->texel_sh = malloc((covered + 1) * UB_SH1_FLOATS * sizeof *r->texel_sh);
+  r->probe_index = malloc((ng + 1) * sizeof *r->probe_index);
+  r->llg_probe_index = malloc((nl + 1) * sizeof *r->llg_probe_index);
+  r->llg_probe_sh = malloc((nl + 1) * 27 * sizeof *r->llg_probe_sh);
+  if (!r->texel_index || !r->texel_sh || !r->probe_index || !r->llg_probe_index ||
+      !r->llg_probe_sh)
+    return 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    for (size_t p = 0; p < (size_t)at->width * at->height; p++)
+      if (at->coverage[p] == 1) {
+        r->texel_index[r->texel_count] = (uint32_t)(off + p);
+        memcpy(r->texel_sh + (size_t)r->texel_count * UB_SH1_FLOATS,
+               at->sh + p * UB_SH1_FLOATS, UB_SH1_FLOATS * sizeof *r->texel_sh);
+        r->texel_count++;
+      }
+    off += (size_t)at->width * at->height;
+  }
+  r->probe_count = (uint32_t)ng;
+  for (size_t i = 0; i < ng; i++)
+    r->probe_index[i] = (uint32_t)i;
+  r->probe_sh = bf->glg_sh;
+  for (uint32_t m = 0; m < bf->llg_count; m++) {
+    const ub_bakefile_llg *g = &bf->llgs[m];
+    size_t np = (size_t)g->dims[0] * g->dims[1] * g->dims[2];
+    memcpy(r->llg_probe_sh + (size_t)r->llg_probe_count * 27, g->probe_sh,
+           np * 27 * sizeof *r->llg_probe_sh);
+    for (size_t i = 0; i < np; i++, r->llg_probe_count++)
+      r->llg_probe_index[r->llg_probe_count] = r->llg_probe_count;
+  }
+  return 1;
+}
+
+static void base_free(ub_bakefile_record *r)
+{
+  free(r->texel_index);
+  free(r->texel_sh);
+  free(r->probe_index); /* probe_sh is the file's */
+  free(r->llg_probe_index);
+  free(r->llg_probe_sh);
 }
 
 /* Receivers of representation k (0 texel pixels, 1 GLG probes, 2 LLG probes) of record r:
@@ -82,11 +145,14 @@ int ub_cli_spread(int argc, char **argv)
   int n = 0;
   const char *only = NULL;
   double bound = INFINITY;
+  int with_base = 0;
   for (int i = 0; i < argc; i++) {
     const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
     if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
       fputs(HELP, stdout);
       return 0;
+    } else if (!strcmp(a, "--base")) {
+      with_base = 1;
     } else if (!strcmp(a, "--element") && v) {
       only = v, i++;
     } else if (!strcmp(a, "--bound") && v) {
@@ -132,9 +198,21 @@ int ub_cli_spread(int argc, char **argv)
     fprintf(stderr, "ubake spread: out of memory\n");
     status = 1;
   }
-  uint32_t ne = status ? 0 : bf[0]->dls_count + bf[0]->elem_count, shown = 0;
+  /* --base: the base bake as one more element, after the files' own */
+  ub_bakefile_record base[SPREAD_MAX_FILES];
+  int nbase = 0;
+  for (; with_base && !status && nbase < n; nbase++)
+    if (!base_record(bf[nbase], &base[nbase])) {
+      fprintf(stderr, "ubake spread: out of memory\n");
+      status = 1;
+      nbase++; /* base_free frees what it made */
+      break;
+    }
+  uint32_t nf = status ? 0 : bf[0]->dls_count + bf[0]->elem_count; /* the files' elements */
+  uint32_t ne = nf + (status ? 0 : (uint32_t)with_base), shown = 0;
+#define ELEM(j, e) ((e) < nf ? element(bf[j], (e)) : &base[j])
   for (uint32_t e = 0; only && e < ne; e++)
-    shown += !strcmp(only, element(bf[0], e)->name);
+    shown += !strcmp(only, ELEM(0, e)->name);
   if (!status && only && !shown) {
     fprintf(stderr, "ubake spread: %s: no element named %s\n", path[0], only);
     status = 1;
@@ -145,7 +223,7 @@ int ub_cli_spread(int argc, char **argv)
     printf("%d files; deviation = |value - median| / (|median| + mean |value|)%s\n", n,
            isfinite(bound) ? ", bound given" : "");
   for (uint32_t e = 0; e < ne; e++) {
-    const char *name = element(bf[0], e)->name;
+    const char *name = ELEM(0, e)->name;
     if (only && strcmp(only, name))
       continue;
     for (int k = 0; k < 3; k++) {
@@ -154,7 +232,7 @@ int ub_cli_spread(int argc, char **argv)
         const uint32_t *idx;
         const float *val;
         size_t stride;
-        uint32_t c = rows_of(element(bf[j], e), k, &idx, &val, &stride);
+        uint32_t c = rows_of(ELEM(j, e), k, &idx, &val, &stride);
         for (uint32_t i = 0; i < c; i++) {
           size_t q = idx[i];
           if (q >= R)
@@ -203,8 +281,11 @@ int ub_cli_spread(int argc, char **argv)
         status = 1;
     }
   }
+#undef ELEM
   if (!status && !ne)
     printf("no dynamic elements\n");
+  for (int j = 0; j < nbase; j++)
+    base_free(&base[j]);
   free(v);
   free(srt);
   free(seen);
