@@ -3,7 +3,8 @@
 # `ubake spread --bound 4`: every texel pixel, GLG probe and LLG probe of every set's
 # record lies within 4 × (|median over the seeds| + the record's mean |value|) of its
 # median, and at most 80 texel values (summed over the sets) lie over 0.5 of those units;
-# the base bake's receivers (`--base`) within 2.
+# the base bake's receivers (`--base`) within 2; and bad arguments (one file, an unknown
+# element, a negative bound, a missing file, a bake of another level) refused by name.
 #
 # Why: a set's full pass gathers with fewer rays where its influence pass found the set's
 # light faint (scaled rays, bake/dls.c dls_ray_shift). A texel whose faint light comes from
@@ -51,5 +52,29 @@ for kind in "texel pixels" "GLG probes" "LLG probes"; do
   grep -q "^(base)  *$kind  *[1-9][0-9]* receivers" "$out/spread_base.txt" ||
     { echo "FAIL: no '$kind' row for the base bake" >&2; status=1; }
 done
-[ "$status" -eq 0 ] || { echo "FAIL: a spread over seeds is above its bounds" >&2; exit 1; }
+# Bad input: exit status 1 and a message naming what is wrong.
+bad() { # bad EXPECTED-STDERR-TEXT ARGS...
+  local want="$1"
+  shift
+  if "$UBAKE" spread "$@" >"$out/bad.out" 2>"$out/bad.err"; then
+    echo "FAIL: ubake spread $* exited 0" >&2
+    status=1
+  elif ! grep -qF -- "$want" "$out/bad.err"; then
+    echo "FAIL: ubake spread $*: stderr lacks '$want': $(cat "$out/bad.err")" >&2
+    status=1
+  fi
+}
+one="$out/seed1/estate_small.ubk"
+bad "give two or more" "$one"
+bad "no element named nope" "$one" "$out/seed2/estate_small.ubk" --element nope
+bad "--bound -1" "$one" "$out/seed2/estate_small.ubk" --bound -1
+bad "$out/missing.ubk" "$one" "$out/missing.ubk"
+if "$UBAKE" bake "$UB_BUILD/levels/furnace.gltf" -o "$out/other" --quality draft --no-progress \
+    >"$out/bake_other.log" 2>&1; then
+  bad "$out/other/furnace.ubk: not a bake of the level of $one" "$one" "$out/other/furnace.ubk"
+else
+  echo "FAIL: bake of furnace.gltf failed" >&2
+  status=1
+fi
+[ "$status" -eq 0 ] || { echo "FAIL: a spread over seeds is above its bounds, or bad input passed" >&2; exit 1; }
 echo "set records within the bound"
