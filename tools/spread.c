@@ -4,7 +4,8 @@
  * units of |median| + the record's mean |value|. A record whose worst receiver sits far
  * out in those units holds a sample that outweighed the rest (doors/door.c's portal
  * sample did: sunroom's door record read 13.1 over 6 seeds before it was bounded, 1.3
- * after). The files must be bakes of one level (same atlases, probes and elements). */
+ * after). --base adds the base bake as one more element, "(base)". The files must be
+ * bakes of one level (same atlases, probes and elements). */
 #include "tools/spread.h"
 
 #include <math.h>
