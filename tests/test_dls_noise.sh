@@ -17,6 +17,8 @@
 # 26 (seeds 4-6: 2.93 and 32).
 # Env (set by CTest): UBAKE = the ubake program, UB_BUILD = the build tree (levels/).
 set -u
+# shellcheck source=tests/seed_bakes.sh
+. "$(dirname "$0")/seed_bakes.sh"
 
 : "${UBAKE:?UBAKE must point to the ubake program}"
 : "${UB_BUILD:?UB_BUILD must point to the build tree}"
@@ -24,16 +26,7 @@ level="$UB_BUILD/levels/estate_small.gltf"
 out="$UB_BUILD/test_out/dls_noise"
 rm -rf "$out"
 mkdir -p "$out"
-files=""
-for seed in 1 2 3; do
-  if ! "$UBAKE" bake "$level" -o "$out/seed$seed" --quality draft --bounces 2 --seed "$seed" --no-progress \
-      >"$out/bake$seed.log" 2>&1; then
-    echo "FAIL: bake of $level with seed $seed failed:" >&2
-    tail -5 "$out/bake$seed.log" >&2
-    exit 1
-  fi
-  files="$files $out/seed$seed/estate_small.ubk"
-done
+bake_seeds "$level" "$out" estate_small --quality draft --bounces 2
 # shellcheck disable=SC2086 # the three paths, split on purpose
 "$UBAKE" spread $files --bound 4 | tee "$out/spread.txt"
 status=${PIPESTATUS[0]}

@@ -13,6 +13,8 @@
 # it sees: 1.08 and 0.54 (1.30 and 0.60 over seeds 1-6).
 # Env (set by CTest): UBAKE = the ubake program, UB_BUILD = the build tree (levels/).
 set -u
+# shellcheck source=tests/seed_bakes.sh
+. "$(dirname "$0")/../seed_bakes.sh"
 
 : "${UBAKE:?UBAKE must point to the ubake program}"
 : "${UB_BUILD:?UB_BUILD must point to the build tree}"
@@ -20,16 +22,7 @@ level="$UB_BUILD/levels/sunroom.gltf"
 out="$UB_BUILD/test_out/door_noise"
 rm -rf "$out"
 mkdir -p "$out"
-files=""
-for seed in 1 2 3; do
-  if ! "$UBAKE" bake "$level" -o "$out/seed$seed" --quality fast --seed "$seed" --no-progress \
-      >"$out/bake$seed.log" 2>&1; then
-    echo "FAIL: bake of $level with seed $seed failed:" >&2
-    tail -5 "$out/bake$seed.log" >&2
-    exit 1
-  fi
-  files="$files $out/seed$seed/sunroom.ubk"
-done
+bake_seeds "$level" "$out" sunroom --quality fast
 # shellcheck disable=SC2086 # the three paths, split on purpose
 "$UBAKE" spread $files --element front --bound 2.5 | tee "$out/spread.txt"
 status=${PIPESTATUS[0]}
