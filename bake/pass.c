@@ -1707,9 +1707,10 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
           if (src_np)
             src_np[ch] += L[ch] * cs * wt;
         }
-      sh_accum(sh, rs->nsh, ray->dir, L, wt);
+      double wsh = nrm && cs < UB_SH_COS_FLOOR ? wt * cs / UB_SH_COS_FLOOR : wt;
+      sh_accum(sh, rs->nsh, ray->dir, L, wsh);
       if (sh_np)
-        sh_accum(sh_np, rs->nsh, ray->dir, L, wt);
+        sh_accum(sh_np, rs->nsh, ray->dir, L, wsh);
       if (contrib) {
         /* Texels: irradiance along the normal; probes: DC irradiance π·Y0·(Y0·L·wt). */
         double l = 0.2126 * L[0] + 0.7152 * L[1] + 0.0722 * L[2];
