@@ -1707,7 +1707,10 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
           if (src_np)
             src_np[ch] += L[ch] * cs * wt;
         }
-      double wsh = nrm && cs < UB_SH_COS_FLOOR ? wt * cs / UB_SH_COS_FLOOR : wt;
+      /* SH weight capped at a cosine ray's at UB_SH_COS_FLOOR (bake/pass.h); weights
+       * bounded by other strategies (MIS with lights, guided door rays) stay */
+      double wcap = M_PI / (N * UB_SH_COS_FLOOR);
+      double wsh = nrm && wt > wcap ? wcap : wt;
       sh_accum(sh, rs->nsh, ray->dir, L, wsh);
       if (sh_np)
         sh_accum(sh_np, rs->nsh, ray->dir, L, wsh);

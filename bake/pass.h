@@ -149,7 +149,9 @@ typedef struct ub_pass_desc {
  * unbounded at the horizon. The irradiance along the normal (I_z, cos θ·L/(N·pdf)) is
  * bounded and the stored SH is corrected to it, but the DC and the tangential L1 are not:
  * one ray at cos θ = 0.0002 put 100× a texel's DC into it (README "Grazing gather rays").
- * Rays below this cos θ add to the SH with weight × cos θ / UB_SH_COS_FLOOR instead.
+ * A ray's SH weight is capped at π/(N·UB_SH_COS_FLOOR), a cosine ray's at this cos θ: a
+ * plain gather ray below it adds with weight × cos θ / UB_SH_COS_FLOOR (weights that MIS
+ * with lights or a door's guide already bound stay as they are).
  * Biased, by a known amount: for radiance L uniform over the hemisphere the DC (after the
  * I_z correction) comes out (1 − 2·floor/7) of its value and the L1 along n (1 + 2·floor/7),
  * −0.57% / +0.57% at 0.02 (measured on sky_plane: −0.55% / +0.56%), the irradiance at 45°
