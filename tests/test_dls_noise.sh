@@ -3,8 +3,10 @@
 # `ubake spread --bound 4`: every texel pixel, GLG probe and LLG probe of every set's
 # record lies within 4 × (|median over the seeds| + the record's mean |value|) of its
 # median, and at most 80 texel values (summed over the sets) lie over 0.5 of those units;
-# the base bake's receivers (`--base`) within 2; and bad arguments (one file, an unknown
-# element, a negative bound, a missing file, a bake of another level) refused by name.
+# the base bake's receivers (`--base`) within 2; the sets' two bounds again for the
+# irradiance along each texel's normal (`--along-normal`); and bad arguments (one file, an
+# unknown element, a negative bound, a missing file, a bake of another level) refused by
+# name.
 #
 # Why: a set's full pass gathers with fewer rays where its influence pass found the set's
 # light faint (scaled rays, bake/dls.c dls_ray_shift). A texel whose faint light comes from
@@ -13,8 +15,9 @@
 # only where the base pass does (pass.c UB_TL_PEAK): worst 6.09 and 216 values over 0.5
 # here (seeds 4-6: 5.32, 207), and this test fails on both counts. With the rays at least
 # 1/4 instead of 1/8: 2.96 and 179; with full rays: 1.91 and 79. With texel lights in
-# every block of the sets' passes (ub_pass_desc.texel_lights_everywhere, now): 1.29 and
-# 26 (seeds 4-6: 2.93 and 32).
+# every block of the sets' passes (ub_pass_desc.texel_lights_everywhere): 1.29 and
+# 26 (seeds 4-6: 2.93 and 32); with grazing gather rays' SH weight floored too
+# (UB_SH_COS_FLOOR, bake/pass.h; now): 1.29 and 17.
 # Env (set by CTest): UBAKE = the ubake program, UB_BUILD = the build tree (levels/).
 set -u
 # shellcheck source=tests/seed_bakes.sh
@@ -38,13 +41,22 @@ done
 over=$(awk '/ texel pixels / { for (i = 1; i < NF; i++) if ($(i + 1) == "over" && $(i + 2) ~ /^0\.5,?$/) s += $i } END { print s + 0 }' "$out/spread.txt")
 echo "texel values over 0.5, summed over the sets: $over (bound 80)"
 [ "$over" -le 80 ] || { echo "FAIL: $over texel values over 0.5 (bound 80)" >&2; status=1; }
-# The base bake over the same seeds (spread --base): 0.57 here, 2 values over 0.5.
+# The base bake over the same seeds (spread --base): 0.57 here, 1 value over 0.5.
 "$UBAKE" spread $files --base --element "(base)" --bound 2 | tee "$out/spread_base.txt"
 [ "${PIPESTATUS[0]}" -eq 0 ] || { echo "FAIL: the base bake's spread over seeds is above 2" >&2; status=1; }
 for kind in "texel pixels" "GLG probes" "LLG probes"; do
   grep -q "^(base)  *$kind  *[1-9][0-9]* receivers" "$out/spread_base.txt" ||
     { echo "FAIL: no '$kind' row for the base bake" >&2; status=1; }
 done
+# What a flat surface shows (spread --along-normal: the irradiance along each texel's
+# normal, which UB_SH_COS_FLOOR does not touch): 1.32 here, 25 values over 0.5.
+"$UBAKE" spread $files --along-normal --bound 4 | tee "$out/spread_normal.txt"
+[ "${PIPESTATUS[0]}" -eq 0 ] || { echo "FAIL: the sets' irradiance along the normal spreads above 4" >&2; status=1; }
+grep -q "; texel values along the normal" "$out/spread_normal.txt" ||
+  { echo "FAIL: spread --along-normal does not say it reads along the normal" >&2; status=1; }
+over=$(awk '/ texel pixels / { for (i = 1; i < NF; i++) if ($(i + 1) == "over" && $(i + 2) ~ /^0\.5,?$/) s += $i } END { print s + 0 }' "$out/spread_normal.txt")
+echo "texel values along the normal over 0.5, summed over the sets: $over (bound 80)"
+[ "$over" -le 80 ] || { echo "FAIL: $over values along the normal over 0.5 (bound 80)" >&2; status=1; }
 # Bad input: exit status 1 and a message naming what is wrong.
 bad() { # bad EXPECTED-STDERR-TEXT ARGS...
   local want="$1"

@@ -1,6 +1,7 @@
 /* ubake spread A.ubk B.ubk …: per dynamic element (sets, doors, objects, combinations) and
  * representation (lightmap texel pixels, GLG probes, LLG probes), each receiver's value
- * (luminance of its DC coefficient) in every file against its median over the files, in
+ * (luminance of its DC coefficient; --along-normal: of a texel's irradiance along its
+ * normal) in every file against its median over the files, in
  * units of |median| + the record's mean |value|. A record whose worst receiver sits far
  * out in those units holds a sample that outweighed the rest (doors/door.c's portal
  * sample did: sunroom's door record read 13.1 over 6 seeds before it was bounded, 1.3
@@ -13,12 +14,14 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "runtime/texel_sh.h"
 #include "ubake/bakefile.h"
 
 #define SPREAD_MAX_FILES 64
 
 static const char *HELP =
     "usage: ubake spread A.ubk B.ubk [C.ubk ...] [--element NAME] [--bound X] [--base]\n"
+    "                    [--along-normal]\n"
     "Bakes of one level with different seeds (ubake bake --seed N): for each dynamic\n"
     "element's record and representation (texel pixels, GLG probes, LLG probes), the\n"
     "largest deviation of a receiver's value (DC luminance) from its median over the files,\n"
@@ -27,7 +30,11 @@ static const char *HELP =
     "                  ((base) with --base: the base bake)\n"
     "  --bound X       exit status 1 when any deviation exceeds X (a noise check)\n"
     "  --base          also the base bake, as an element named (base): every covered\n"
-    "                  texel pixel, GLG probe and LLG probe\n";
+    "                  texel pixel, GLG probe and LLG probe\n"
+    "  --along-normal  texel pixels: the luminance of the irradiance along the pixel's\n"
+    "                  normal (what a flat surface shows) instead of the DC (which also\n"
+    "                  carries the light a normal map sees); pixels without a normal\n"
+    "                  (padding) are left out\n";
 
 #define SPREAD_BASE_NAME "(base)"
 
@@ -118,6 +125,20 @@ static uint32_t rows_of(const ub_bakefile_record *r, int k, const uint32_t **idx
   return k == 0 ? r->texel_count : k == 1 ? r->probe_count : r->llg_probe_count;
 }
 
+/* Unit normal of global texel pixel q (atlases in order, padding included); 0 where the
+ * pixel has none (empty or padding pixels: the file keeps normals of covered texels). */
+static int pixel_normal(const ub_bakefile *bf, size_t q, float out[3])
+{
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    const ub_bakefile_atlas *at = &bf->atlases[a];
+    size_t np = (size_t)at->width * at->height;
+    if (q < np)
+      return at->normal && ub_texel_normal(at->normal + 3 * q, out);
+    q -= np;
+  }
+  return 0;
+}
+
 /* The files agree on what the receivers and elements are; else a message naming file j. */
 static int same_level(ub_bakefile *const *bf, char **path, int j)
 {
@@ -146,7 +167,7 @@ int ub_cli_spread(int argc, char **argv)
   int n = 0;
   const char *only = NULL;
   double bound = INFINITY;
-  int with_base = 0;
+  int with_base = 0, along_normal = 0;
   for (int i = 0; i < argc; i++) {
     const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
     if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
@@ -154,6 +175,8 @@ int ub_cli_spread(int argc, char **argv)
       return 0;
     } else if (!strcmp(a, "--base")) {
       with_base = 1;
+    } else if (!strcmp(a, "--along-normal")) {
+      along_normal = 1;
     } else if (!strcmp(a, "--element") && v) {
       only = v, i++;
     } else if (!strcmp(a, "--bound") && v) {
@@ -221,8 +244,9 @@ int ub_cli_spread(int argc, char **argv)
   }
   static const char *kind_name[3] = {"texel pixels", "GLG probes", "LLG probes"};
   if (ne)
-    printf("%d files; deviation = |value - median| / (|median| + mean |value|)%s\n", n,
-           isfinite(bound) ? ", bound given" : "");
+    printf("%d files; deviation = |value - median| / (|median| + mean |value|)%s%s\n", n,
+           isfinite(bound) ? ", bound given" : "",
+           along_normal ? "; texel values along the normal" : "");
   for (uint32_t e = 0; e < ne; e++) {
     const char *name = ELEM(0, e)->name;
     if (only && strcmp(only, name))
@@ -236,7 +260,9 @@ int ub_cli_spread(int argc, char **argv)
         uint32_t c = rows_of(ELEM(j, e), k, &idx, &val, &stride);
         for (uint32_t i = 0; i < c; i++) {
           size_t q = idx[i];
-          if (q >= R)
+          float un[3];
+          int has_n = k == 0 && along_normal && pixel_normal(bf[j], q, un);
+          if (q >= R || (k == 0 && along_normal && !has_n))
             continue;
           if (!seen[q]) {
             seen[q] = 1;
@@ -245,6 +271,12 @@ int ub_cli_spread(int argc, char **argv)
               v[q * n + jj] = 0.0f;
           }
           const float *s = val + stride * i;
+          float iz[UB_SH1_FLOATS]; /* the file's I_z form: I_z in place of L00 */
+          if (has_n) {
+            memcpy(iz, s, sizeof iz);
+            ub_texel_sh_pack(iz, un);
+            s = iz;
+          }
           v[q * n + j] = 0.2126f * s[0] + 0.7152f * s[1] + 0.0722f * s[2];
         }
       }
