@@ -1707,10 +1707,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
           if (src_np)
             src_np[ch] += L[ch] * cs * wt;
         }
-      /* SH weight capped at a cosine ray's at UB_SH_COS_FLOOR (bake/pass.h); weights
-       * bounded by other strategies (MIS with lights, guided door rays) stay */
-      double wcap = M_PI / (N * UB_SH_COS_FLOOR);
-      double wsh = nrm && wt > wcap ? wcap : wt;
+      double wsh = nrm ? ub_texel_sh_weight(wt, N) : wt; /* UB_SH_COS_FLOOR */
       sh_accum(sh, rs->nsh, ray->dir, L, wsh);
       if (sh_np)
         sh_accum(sh_np, rs->nsh, ray->dir, L, wsh);

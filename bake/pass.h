@@ -151,7 +151,7 @@ typedef struct ub_pass_desc {
  * one ray at cos θ = 0.0002 put 100× a texel's DC into it (README "Grazing gather rays").
  * A ray's SH weight is capped at π/(N·UB_SH_COS_FLOOR), a cosine ray's at this cos θ: a
  * plain gather ray below it adds with weight × cos θ / UB_SH_COS_FLOOR (weights that MIS
- * with lights or a door's guide already bound stay as they are).
+ * with lights or a door's guide already bound stay as they are; ub_texel_sh_weight).
  * Biased, by a known amount: for radiance L uniform over the hemisphere the DC (after the
  * I_z correction) comes out (1 − 2·floor/7) of its value and the L1 along n (1 + 2·floor/7),
  * −0.57% / +0.57% at 0.02 (measured on sky_plane: −0.55% / +0.56%), the irradiance at 45°
@@ -160,6 +160,15 @@ typedef struct ub_pass_desc {
  * 0.05 (bias 1.4%) cut ESTATE's tails no further (README "Grazing gather rays").
  * Checked by tests/hard/test_hard_sh_horizon.c. */
 #define UB_SH_COS_FLOOR 0.02
+
+/* A texel receiver's SH weight for a ray of weight wt (1/(n_rays·pdf), or an MIS weight)
+ * among n_rays: wt capped at a cosine ray's at UB_SH_COS_FLOOR. The passes, door passes
+ * and object passes all use it for their texels' SH; their I_z keeps wt. */
+static inline double ub_texel_sh_weight(double wt, uint32_t n_rays)
+{
+  double cap = 3.14159265358979323846 / ((double)n_rays * UB_SH_COS_FLOOR);
+  return wt > cap ? cap : wt;
+}
 
 /* A receiver's ray shift for its next bounce (bake/pass.c bounce_shifts): its pass shift,
  * plus one per halving from its brightest bounce so far (peak) down to its last bounce's

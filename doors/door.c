@@ -350,12 +350,12 @@ static void receiver_estimate(const door_ctx *c, const float *origins, uint32_t 
     }
     if (L[0] == 0.0f && L[1] == 0.0f && L[2] == 0.0f)
       continue;
-    double wt = 1.0 / (pdf * (double)N);
+    double wt = 1.0 / (pdf * (double)N), wsh = n ? ub_texel_sh_weight(wt, N) : wt;
     float y[9];
     ub_sh2_eval_basis(w, y);
     for (uint32_t k = 0; k < nsh; k++)
       for (int ch = 0; ch < 3; ch++)
-        sh[k * 3 + ch] += (double)y[k] * L[ch] * wt;
+        sh[k * 3 + ch] += (double)y[k] * L[ch] * wsh;
     if (n) {
       double cs = fmax(0.0, dot3(n, w));
       for (int ch = 0; ch < 3; ch++)
@@ -613,12 +613,12 @@ static void bounce_estimate(const door_ctx *c, float *const *prev, const float *
       L[k] = alb[k] / (float)M_PI * E[k];
     if (L[0] == 0.0f && L[1] == 0.0f && L[2] == 0.0f)
       continue;
-    double wt = 1.0 / (pdf * (double)N);
+    double wt = 1.0 / (pdf * (double)N), wsh = n ? ub_texel_sh_weight(wt, N) : wt;
     float y[9];
     ub_sh2_eval_basis(w, y);
     for (uint32_t k = 0; k < nsh; k++)
       for (int ch = 0; ch < 3; ch++)
-        sh[k * 3 + ch] += (double)y[k] * L[ch] * wt;
+        sh[k * 3 + ch] += (double)y[k] * L[ch] * wsh;
     if (n) {
       double cs = fmax(0.0, dot3(n, w));
       for (int ch = 0; ch < 3; ch++)

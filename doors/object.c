@@ -309,7 +309,7 @@ static void hidden_first_order(job *j, uint32_t t, uint32_t nrays, ub_ray *rays,
     double L[3];
     hit_radiance(j, j->ls, 1, 2, &rays[k], &hits[k], t, k, L);
     double wt = M_PI / (nrays * cs);
-    sh_add(sh, 4, rays[k].dir, L, wt);
+    sh_add(sh, 4, rays[k].dir, L, ub_texel_sh_weight(wt, nrays));
     for (int c = 0; c < 3; c++)
       iz[c] += L[c] * cs * wt;
   }
@@ -407,7 +407,7 @@ static void first_order(job *j, const float *samples, uint32_t spr, const float 
       continue;
     if (L[0] == 0.0 && L[1] == 0.0 && L[2] == 0.0)
       continue;
-    sh_add(sh, nsh, ray->dir, L, wt);
+    sh_add(sh, nsh, ray->dir, L, nrm ? ub_texel_sh_weight(wt, nrays) : wt);
     if (iz)
       for (int c = 0; c < 3; c++)
         iz[c] += L[c] * cs * wt;
@@ -456,7 +456,7 @@ static void gather_prev(job *j, const field *prev, const float *samples, uint32_
     if (L[0] == 0.0 && L[1] == 0.0 && L[2] == 0.0)
       continue;
     double wt = 1.0 / (nrays * pdf);
-    sh_add(sh, nsh, rays[k].dir, L, wt);
+    sh_add(sh, nsh, rays[k].dir, L, nrm ? ub_texel_sh_weight(wt, nrays) : wt);
     if (iz)
       for (int c = 0; c < 3; c++)
         iz[c] += L[c] * cs * wt;
