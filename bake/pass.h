@@ -155,8 +155,10 @@ typedef struct ub_pass_desc {
  * Biased, by a known amount: for radiance L uniform over the hemisphere the DC (after the
  * I_z correction) comes out (1 − 2·floor/7) of its value and the L1 along n (1 + 2·floor/7),
  * −0.57% / +0.57% at 0.02 (measured on sky_plane: −0.55% / +0.56%), the irradiance at 45°
- * off the normal −0.10%, along the normal exact; light from near the horizon only is
- * moved toward the normal more. I_z and the light the next bounce reads are untouched.
+ * off the normal −0.10%, along the normal exact. In irradiance terms, whatever the light:
+ * at a normal α off n it moves E by at most floor·L_h·(sin α/2 + (π/7)(1 − cos α)) ≤
+ * 0.019·L_h, L_h the largest radiance arriving below cos θ = floor (README "Grazing gather
+ * rays"). I_z and the light the next bounce reads are untouched.
  * 0.05 (bias 1.4%) cut ESTATE's tails no further (README "Grazing gather rays").
  * Checked by tests/hard/test_hard_sh_horizon.c. */
 #define UB_SH_COS_FLOOR 0.02
