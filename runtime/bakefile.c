@@ -217,6 +217,18 @@ uint64_t ub_bakefile_atlas_pixels(const ub_bakefile *bf)
   return pixels;
 }
 
+const float *ub_bakefile_pixel_normal(const ub_bakefile *bf, uint64_t p)
+{
+  uint64_t first = 0;
+  for (uint32_t a = 0; a < bf->atlas_count; a++) {
+    uint64_t n = (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
+    if (p < first + n)
+      return bf->atlases[a].normal ? bf->atlases[a].normal + 3 * (size_t)(p - first) : NULL;
+    first += n;
+  }
+  return NULL;
+}
+
 uint64_t ub_bakefile_llg_probes(const ub_bakefile *bf)
 {
   uint64_t n = 0;
@@ -742,19 +754,6 @@ static inline void texel_pack(float sh[UB_SH1_FLOATS], const float un[3])
 {
   if (!isnan(un[0]))
     ub_texel_sh_pack(sh, un);
-}
-
-/* Stored normal of global atlas pixel p, or NULL. */
-static const float *pixel_normal(const ub_bakefile *bf, uint32_t p)
-{
-  uint64_t first = 0;
-  for (uint32_t a = 0; a < bf->atlas_count; a++) {
-    uint64_t n = (uint64_t)bf->atlases[a].width * bf->atlases[a].height;
-    if (p < first + n)
-      return bf->atlases[a].normal + 3 * (size_t)(p - first);
-    first += n;
-  }
-  return NULL;
 }
 
 /* The power of two ≥ 1 that brings mx within the half range with margin (≤ 32768). */
@@ -1645,7 +1644,7 @@ static void unpack_record_texels(ub_bakefile *bf, ub_bakefile_record *recs, uint
     for (uint32_t i = 0; r->texel_sh && i < r->texel_count; i++) {
       if (r->texel_index[i] >= pixels)
         continue;
-      const float *n = pixel_normal(bf, r->texel_index[i]);
+      const float *n = ub_bakefile_pixel_normal(bf, r->texel_index[i]);
       float un[3];
       if (n && ub_texel_normal(n, un))
         ub_texel_sh_unpack(r->texel_sh + (size_t)i * UB_SH1_FLOATS, un);

@@ -125,20 +125,6 @@ static uint32_t rows_of(const ub_bakefile_record *r, int k, const uint32_t **idx
   return k == 0 ? r->texel_count : k == 1 ? r->probe_count : r->llg_probe_count;
 }
 
-/* Unit normal of global texel pixel q (atlases in order, padding included); 0 where the
- * pixel has none (empty or padding pixels: the file keeps normals of covered texels). */
-static int pixel_normal(const ub_bakefile *bf, size_t q, float out[3])
-{
-  for (uint32_t a = 0; a < bf->atlas_count; a++) {
-    const ub_bakefile_atlas *at = &bf->atlases[a];
-    size_t np = (size_t)at->width * at->height;
-    if (q < np)
-      return at->normal && ub_texel_normal(at->normal + 3 * q, out);
-    q -= np;
-  }
-  return 0;
-}
-
 /* The files agree on what the receivers and elements are; else a message naming file j. */
 static int same_level(ub_bakefile *const *bf, char **path, int j)
 {
@@ -261,7 +247,8 @@ int ub_cli_spread(int argc, char **argv)
         for (uint32_t i = 0; i < c; i++) {
           size_t q = idx[i];
           float un[3];
-          int has_n = k == 0 && along_normal && pixel_normal(bf[j], q, un);
+          const float *sn = k == 0 && along_normal ? ub_bakefile_pixel_normal(bf[j], q) : NULL;
+          int has_n = sn && ub_texel_normal(sn, un); /* padding pixels: normal 0 */
           if (q >= R || (k == 0 && along_normal && !has_n))
             continue;
           if (!seen[q]) {

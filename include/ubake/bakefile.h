@@ -188,6 +188,9 @@ ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *nam
 void ub_bakefile_free(ub_bakefile *bf);
 /* Σ W·H over the atlases: the pixel numbering of records' texel indices. */
 uint64_t ub_bakefile_atlas_pixels(const ub_bakefile *bf);
+/* The stored normal (3 floats, not normalised; 0 for empty and padding pixels) of global
+ * atlas pixel p in that numbering, or NULL when p is out of range. */
+const float *ub_bakefile_pixel_normal(const ub_bakefile *bf, uint64_t p);
 /* LLG probes of all models: the numbering of records' llg_probe_index. */
 uint64_t ub_bakefile_llg_probes(const ub_bakefile *bf);
 
