@@ -9,7 +9,8 @@
  * visibility: one plane per straddling tet, no rays at run time.
  *
  * Output: plane_of[t] = index into planes (4 floats: unit normal, d; n·x + d = 0) or
- * UB_GLG_NO_PLANE. The caller frees both arrays.
+ * UB_GLG_NO_PLANE; tets whose planes have the same bits share one entry. The caller frees
+ * both arrays.
  */
 #ifndef UBAKE_PROBES_LEAK_H
 #define UBAKE_PROBES_LEAK_H
