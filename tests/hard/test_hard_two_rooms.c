@@ -125,5 +125,42 @@ int main(void)
   ASSERT_TRUE(nonfinite == 0 && negative == 0);
   free(lit);
   ub_runtime_free(rt);
+
+  /* The GLG's leak planes (probes/leak.h): one entry per distinct plane, shared by the
+   * tets along a wall, and every tet's plane still cuts one of its edges (a corner on
+   * each side, or on it): the sharing kept each tet its own plane. */
+  ub_bakefile *file = NULL;
+  ASSERT_OK(ub_bakefile_read(st.ubk_path, &hard_log, &file));
+  if (file) {
+    const uint32_t K = file->glg_plane_count, T = file->glg_tet_count;
+    uint32_t with = 0, dup = 0, uncut = 0;
+    for (uint32_t i = 0; i < K; i++)
+      for (uint32_t j = i + 1; j < K; j++)
+        dup += !memcmp(file->glg_planes + 4 * (size_t)i, file->glg_planes + 4 * (size_t)j,
+                       4 * sizeof(float));
+    for (uint32_t t = 0; t < T; t++) {
+      uint32_t k = file->glg_plane_of[t];
+      if (k == 0xFFFFFFFFu)
+        continue;
+      with++;
+      ASSERT_TRUE(k < K);
+      if (k >= K)
+        break;
+      const float *pl = file->glg_planes + 4 * (size_t)k;
+      int below = 0, above = 0;
+      for (int c = 0; c < 4; c++) {
+        const float *x = file->glg_positions + 3 * (size_t)file->glg_tets[4 * (size_t)t + c];
+        double s = (double)pl[0] * x[0] + (double)pl[1] * x[1] + (double)pl[2] * x[2] + pl[3];
+        below += s <= 1e-4;
+        above += s >= -1e-4;
+      }
+      uncut += !(below && above);
+    }
+    printf("leak planes: %u tets, %u with a plane, %u planes (%u equal pairs), %u tets whose "
+           "plane cuts none of their edges\n", T, with, K, dup, uncut);
+    ASSERT_TRUE(with > 0 && K > 0 && K < with);
+    ASSERT_TRUE(dup == 0 && uncut == 0);
+    ub_bakefile_free(file);
+  }
   TEST_MAIN_END();
 }
