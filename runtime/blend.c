@@ -34,6 +34,10 @@
 /* Specialised kernels exist for up to this many non-zero members; more use the generic
  * one (same operations in the same order, so the same bits). */
 #define BLEND_SPECIALISED 8
+/* update_begin's element lists (see ub_blend.few): their longest, and the fewest members a
+ * group needs to search them instead of reading every member's flags */
+#define BLEND_FEW 8
+#define BLEND_FEW_MIN_K 8
 
 /* Streaming mode (no out array): rows are blended into an L1-sized scratch of this many
  * receivers and handed to the callback. 32 rather than 64: the run-time's AHD re-encode
@@ -140,6 +144,15 @@ struct ub_blend {
    * whether its weight equals them; NULL without a reference */
   float *ref;
   uint8_t *atref;
+  /* What update_begin found among all elements, for groups of many members: the elements
+   * with ω = 0, with ω ≠ ω1 (all-ones sums) and not at the reference, ascending, when each
+   * list has at most BLEND_FEW; `few` 0 otherwise, or once a weight changed since. A group
+   * then finds its zero / non-one / moved members by a binary search per listed element
+   * instead of reading a flag per member (a hall texel's group has 16-23 members and a
+   * toggle changes one of them). */
+  int few;
+  uint32_t few_n[3];
+  uint32_t few_e[3][BLEND_FEW];
   /* ub_blend_set_reference_rows: the touched receivers' rows at the reference, group
    * order (as obase), float; NULL: none */
   float *refrows;
@@ -1175,16 +1188,43 @@ static void group_report(const ub_blend *b, const blend_group *g, uint32_t lo, u
     fn(user, pf, pn, rows);
 }
 
+/* The positions in mem[0..gk) (ascending element ids) of the listed elements e[0..n)
+ * (ascending) that are members, ascending; returns their count. */
+static inline uint32_t few_find(const uint32_t *mem, uint32_t gk, const uint32_t *e, uint32_t n,
+                                uint32_t *pos)
+{
+  uint32_t c = 0, lo = 0;
+  for (uint32_t i = 0; i < n && lo < gk; i++) {
+    uint32_t a = lo, z = gk; /* first position with mem ≥ e[i] */
+    while (a < z) {
+      const uint32_t mid = a + (z - a) / 2;
+      if (mem[mid] < e[i])
+        a = mid + 1;
+      else
+        z = mid;
+    }
+    if (a < gk && mem[a] == e[i])
+      pos[c++] = a++;
+    lo = a;
+  }
+  return c;
+}
+
 static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
 {
   const ub_blend *b = c->b;
   const blend_group *g = &b->groups[gi];
   const uint32_t gk = g->k_mode & ~GROUP_LIST;
   const uint32_t *mem = b->members + g->member_off;
+  const int few = b->few && gk >= BLEND_FEW_MIN_K;
+  uint32_t fpos[BLEND_FEW];
   if (b->atref && (!c->out || b->refrows)) {
     uint32_t off = 0;
-    for (uint32_t m = 0; m < gk; m++)
-      off += !b->atref[mem[m]];
+    if (few)
+      off = few_find(mem, gk, b->few_e[2], b->few_n[2], fpos);
+    else
+      for (uint32_t m = 0; m < gk; m++)
+        off += !b->atref[mem[m]];
     if (off == 0) { /* at the reference: its rows back, or the caller puts back its own */
       const uint64_t n = c->qhi - c->qlo, row = (uint64_t)b->stride * sizeof(float);
       if (c->out) {
@@ -1217,22 +1257,42 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
   uint32_t act_l[BLEND_SPECIALISED];
   uint32_t *act = gk <= BLEND_SPECIALISED ? act_l : c->s->act;
   uint32_t k = 0;
-  for (uint32_t m = 0; m < gk; m++) { /* branch-free: the pattern is data */
-    act[k] = m;
-    k += b->nonzero[mem[m]];
-  }
   blend_call cc = *c;
   cc.ones = 0;
-  if (g->ones_row != ONES_NONE) {
-    uint32_t n1 = 0;
-    for (uint32_t m = 0; m < gk; m++)
-      n1 += b->notone[mem[m]];
-    if (ones_cheaper(b, n1, k)) { /* from the all-ones sums: the members with ω ≠ 1 */
+  if (few) { /* the same lists from update_begin's element lists */
+    const uint32_t nz0 = few_find(mem, gk, b->few_e[0], b->few_n[0], fpos);
+    uint32_t one[BLEND_FEW], n1 = 0;
+    if (g->ones_row != ONES_NONE)
+      n1 = few_find(mem, gk, b->few_e[1], b->few_n[1], one);
+    if (g->ones_row != ONES_NONE && ones_cheaper(b, n1, gk - nz0)) {
       cc.ones = 1;
-      k = 0;
-      for (uint32_t m = 0; m < gk; m++) {
-        act[k] = m;
-        k += b->notone[mem[m]];
+      for (; k < n1; k++)
+        act[k] = one[k];
+    } else {
+      for (uint32_t m = 0, z = 0; m < gk; m++) {
+        if (z < nz0 && fpos[z] == m) {
+          z++;
+          continue;
+        }
+        act[k++] = m;
+      }
+    }
+  } else {
+    for (uint32_t m = 0; m < gk; m++) { /* branch-free: the pattern is data */
+      act[k] = m;
+      k += b->nonzero[mem[m]];
+    }
+    if (g->ones_row != ONES_NONE) {
+      uint32_t n1 = 0;
+      for (uint32_t m = 0; m < gk; m++)
+        n1 += b->notone[mem[m]];
+      if (ones_cheaper(b, n1, k)) { /* from the all-ones sums: the members with ω ≠ 1 */
+        cc.ones = 1;
+        k = 0;
+        for (uint32_t m = 0; m < gk; m++) {
+          act[k] = m;
+          k += b->notone[mem[m]];
+        }
       }
     }
   }
@@ -1311,6 +1371,19 @@ void ub_blend_update_begin(ub_blend *b, int all)
   }
   b->dirty_count = 0;
   b->work_count = n;
+  /* the element lists process_group searches (see ub_blend.few) */
+  b->few = 1;
+  b->few_n[0] = b->few_n[1] = b->few_n[2] = 0;
+  for (uint32_t e = 0; e < b->element_count && b->few; e++) {
+    const int in[3] = {!b->nonzero[e], b->ones && b->notone[e], b->atref && !b->atref[e]};
+    for (int l = 0; l < 3; l++)
+      if (in[l]) {
+        if (b->few_n[l] == BLEND_FEW)
+          b->few = 0;
+        else
+          b->few_e[l][b->few_n[l]++] = e;
+      }
+  }
   b->wcost[0] = 0;
   for (uint32_t i = 0; i < n; i++)
     b->wcost[i + 1] = b->wcost[i] + group_cost(&b->groups[b->work[i]]);
@@ -1480,6 +1553,7 @@ ub_result ub_blend_set_weight(ub_blend *b, uint32_t element, const float rgb[3])
   for (int c = 0; c < 3; c++)
     w[c] = rgb[c] == 0.0f ? 0.0f : rgb[c]; /* -0 → +0: the same state, the same bits */
   weight_expand(b, element, w, b->wexp, b->wpat);
+  b->few = 0;
   b->nonzero[element] = w[0] != 0.0f || w[1] != 0.0f || w[2] != 0.0f;
   if (b->atref) {
     const float *rf = b->ref + (size_t)element * 3;
@@ -1524,6 +1598,7 @@ static ub_result take_reference(ub_blend *b)
   }
   memcpy(b->ref, b->weight, (size_t)b->element_count * 3 * sizeof *b->ref);
   memset(b->atref, 1, E);
+  b->few = 0;
   return UB_OK;
 }
 
