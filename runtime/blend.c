@@ -1168,12 +1168,32 @@ static inline int ones_cheaper(const ub_blend *b, uint32_t n1, uint32_t nz)
 static void group_report(const ub_blend *b, const blend_group *g, uint32_t lo, uint32_t hi,
                          ub_blend_touched_fn fn, void *user, const float *rows)
 {
+  uint32_t pf = 0, pn = 0;
+  if (lo == 0 && hi == g->receivers) {
+    /* a whole group (a GLG set's probes are mostly lists, a kept texel group's runs):
+     * its units straight from the table, consecutive ones joined as below */
+    const uint32_t *u = b->units + g->unit_off;
+    const int list = (g->k_mode & GROUP_LIST) != 0;
+    for (uint32_t i = 0; i < g->units; i++) {
+      const uint32_t r = list ? u[i] : u[2 * i], n = list ? 1 : u[2 * i + 1];
+      if (pn && pf + pn == r) {
+        pn += n;
+        continue;
+      }
+      if (pn)
+        fn(user, pf, pn, rows);
+      pf = r;
+      pn = n;
+    }
+    if (pn)
+      fn(user, pf, pn, rows);
+    return;
+  }
   unit_iter it;
   unit_iter_init(&it, b, g, lo, hi, 0);
   uint32_t r, s0, s1;
   size_t at;
   const char *bs;
-  uint32_t pf = 0, pn = 0;
   while (unit_next(&it, b, &r, &at, &bs, &s0, &s1)) {
     if (pn && pf + pn == r + s0) {
       pn += s1 - s0;
