@@ -409,9 +409,9 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   r = ub_glg_leak_build(rt, tm->point_count, tm->points, tm->tet_count, tm->tets, &leak);
   if (r != UB_OK)
     goto fail;
-  stats.glg_leak_tets = leak.plane_count;
-  stage_end(&sc, "%u of %u tets straddle a surface (%.2f M rays)", leak.plane_count,
-            tm->tet_count, leak.rays * 1e-6);
+  stats.glg_leak_tets = leak.tets;
+  stage_end(&sc, "%u of %u tets straddle a surface, %u distinct planes (%.2f M rays)", leak.tets,
+            tm->tet_count, leak.plane_count, leak.rays * 1e-6);
 
   /* encode + write */
   stage_begin(&sc, "write");

@@ -118,6 +118,7 @@ ub_result ub_glg_leak_build(const ub_rt *rt, uint32_t point_count, const float *
     out->planes = plane_tmp;
   }
   out->plane_count = np;
+  out->tets = marked;
   out->rays = (uint64_t)tet_count * 12;
   return UB_OK;
 }

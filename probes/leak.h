@@ -22,7 +22,8 @@
 #define UB_GLG_NO_PLANE 0xFFFFFFFFu
 
 typedef struct ub_glg_leak {
-  uint32_t plane_count;
+  uint32_t plane_count;  /* distinct planes */
+  uint32_t tets;         /* tets with a plane */
   float *planes;       /* plane_count × 4 */
   uint32_t *plane_of;  /* tet_count */
   uint64_t rays;
