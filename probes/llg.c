@@ -593,10 +593,30 @@ int ub_llg_hit_irradiance(const ub_llg_set *set, const ub_scene *s, const float 
   float sgn = (n[0] * dir[0] + n[1] * dir[1] + n[2] * dir[2]) > 0.0f ? -1.0f : 1.0f;
   for (int j = 0; j < 3; j++)
     n[j] *= sgn / len;
-  float L[27];
-  ub_llg_grid_sample(m->center, m->axes, m->half, m->dims,
-                     probe_sh + 27 * (size_t)m->probe_first, p, L);
-  ub_llg_irradiance(L, vis, self, n, out_rgb);
+  /* ub_llg_irradiance(grid sample at p, vis, self, n) with the product folded into nine
+   * weights on the corners' radiance (a gather hit on a prop: ~a third of the work) */
+  float wi[9], wc[8];
+  uint32_t idx[8];
+  ub_llg_irradiance_weights(vis, n, wi);
+  const uint32_t nc = ub_llg_grid_corners(m->center, m->axes, m->half, m->dims, p, idx, wc);
+  const float *sh = probe_sh + 27 * (size_t)m->probe_first;
+  float acc[27] = {0.0f};
+  for (uint32_t c = 0; c < nc; c++) { /* the corners' radiance, weighted (27 in a row) */
+    const float *L = sh + 27 * (size_t)idx[c];
+    const float w = wc[c];
+    #pragma GCC unroll 27
+    for (int k = 0; k < 27; k++)
+      acc[k] += w * L[k];
+  }
+  for (int ch = 0; ch < 3; ch++) {
+    float v = 0.0f;
+    for (int i = 0; i < 9; i++)
+      v += wi[i] * acc[3 * i + ch];
+    v = isfinite(v) && v > 0.0f ? v : 0.0f;
+    if (isfinite(self[ch]) && self[ch] > 0.0f)
+      v += self[ch];
+    out_rgb[ch] = v;
+  }
   return 1;
 }
 

@@ -125,9 +125,9 @@ static void local_coords(const float center[3], const float axes[9], const float
     out_q[a] = d[0] * axes[3 * a] + d[1] * axes[3 * a + 1] + d[2] * axes[3 * a + 2];
 }
 
-void ub_llg_grid_sample(const float center[3], const float axes[9], const float half[3],
-                        const uint32_t dims[3], const float *probe_sh, const float p[3],
-                        float out_sh[27])
+uint32_t ub_llg_grid_corners(const float center[3], const float axes[9], const float half[3],
+                             const uint32_t dims[3], const float p[3], uint32_t idx[8],
+                             float wt[8])
 {
   float q[3];
   local_coords(center, axes, p, q);
@@ -145,8 +145,7 @@ void ub_llg_grid_sample(const float center[3], const float axes[9], const float 
     i0[a] = i;
     t[a] = dims[a] >= 2 ? g - (float)i : 0.0f;
   }
-  double acc[27];
-  memset(acc, 0, sizeof acc);
+  uint32_t n = 0;
   for (int c = 0; c < 8; c++) {
     uint32_t ix = i0[0] + (c & 1), iy = i0[1] + ((c >> 1) & 1), iz = i0[2] + ((c >> 2) & 1);
     if (ix >= dims[0] || iy >= dims[1] || iz >= dims[2])
@@ -155,9 +154,25 @@ void ub_llg_grid_sample(const float center[3], const float axes[9], const float 
               (((c >> 2) & 1) ? t[2] : 1.0f - t[2]);
     if (w == 0.0f)
       continue;
-    const float *s = probe_sh + 27 * (((size_t)iz * dims[1] + iy) * dims[0] + ix);
+    idx[n] = ((uint32_t)iz * dims[1] + iy) * dims[0] + ix;
+    wt[n++] = w;
+  }
+  return n;
+}
+
+void ub_llg_grid_sample(const float center[3], const float axes[9], const float half[3],
+                        const uint32_t dims[3], const float *probe_sh, const float p[3],
+                        float out_sh[27])
+{
+  uint32_t idx[8];
+  float wt[8];
+  const uint32_t n = ub_llg_grid_corners(center, axes, half, dims, p, idx, wt);
+  double acc[27];
+  memset(acc, 0, sizeof acc);
+  for (uint32_t c = 0; c < n; c++) {
+    const float *s = probe_sh + 27 * (size_t)idx[c];
     for (int k = 0; k < 27; k++)
-      acc[k] += (double)w * s[k];
+      acc[k] += (double)wt[c] * s[k];
   }
   for (int k = 0; k < 27; k++)
     out_sh[k] = (float)acc[k];
@@ -206,6 +221,29 @@ void ub_llg_irradiance(const float L[27], const float *vis, const float *self, c
     if (self && isfinite(self[c]) && self[c] > 0.0f)
       e += self[c];
     out_rgb[c] = e;
+  }
+}
+
+void ub_llg_irradiance_weights(const float *vis, const float n[3], float w[9])
+{
+  float y[9];
+  ub_sh2_eval_basis(n, y);
+  static const float band[9] = {UB_SH_A0, UB_SH_A1, UB_SH_A1, UB_SH_A1, UB_SH_A2,
+                                UB_SH_A2, UB_SH_A2, UB_SH_A2, UB_SH_A2};
+  if (!vis) {
+    for (int k = 0; k < 9; k++)
+      w[k] = band[k] * y[k];
+    return;
+  }
+  /* prod_k = Σ_t c_t (L_i V_j + [i ≠ j] L_j V_i) over the entries t = (i, j, k): L_i's
+   * weight gathers c_t·V_j·a_k, L_j's c_t·V_i·a_k */
+  memset(w, 0, 9 * sizeof *w);
+  for (size_t e = 0; e < sizeof ub_llg_tp / sizeof ub_llg_tp[0]; e++) {
+    const tp_entry *t = &ub_llg_tp[e];
+    const float a = band[t->k] * y[t->k] * t->c;
+    w[t->i] += a * vis[t->j];
+    if (t->i != t->j)
+      w[t->j] += a * vis[t->i];
   }
 }
 

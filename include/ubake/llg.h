@@ -57,6 +57,12 @@ void ub_llg_grid_sample(const float center[3], const float axes[9], const float 
                         const uint32_t dims[3], const float *probe_sh, const float p[3],
                         float out_sh[27]);
 
+/* The probes ub_llg_grid_sample blends at p and their weights: out_sh = Σ_c w[c]·probe
+ * idx[c] over the returned count (≤ 8; the same weights, the same order). */
+uint32_t ub_llg_grid_corners(const float center[3], const float axes[9], const float half[3],
+                             const uint32_t dims[3], const float p[3], uint32_t idx[8],
+                             float w[8]);
+
 /* World position of probe (ix, iy, iz). */
 void ub_llg_probe_position(const float center[3], const float axes[9], const float half[3],
                            const uint32_t dims[3], uint32_t ix, uint32_t iy, uint32_t iz,
@@ -70,6 +76,13 @@ float ub_llg_box_distance(const float center[3], const float axes[9], const floa
  * self-visibility vis (9 floats, or NULL: none), plus self (3 floats, or NULL: 0). */
 void ub_llg_irradiance(const float L[27], const float *vis, const float *self, const float n[3],
                        float out_rgb[3]);
+
+/* The irradiance as weights on the radiance: for every L, Σ_i w[i]·L[3i + c] is channel c
+ * of ub_sh2_irradiance(ub_llg_sh_product(L, vis), n) in exact arithmetic (vis NULL: of
+ * ub_sh2_irradiance(L, n)), before ub_llg_irradiance's clamp and self term. For many
+ * radiance functions at one point and normal (a grid's corners): 9 weights once instead
+ * of a product per function. */
+void ub_llg_irradiance_weights(const float *vis, const float n[3], float w[9]);
 
 #ifdef __cplusplus
 }
