@@ -608,15 +608,13 @@ int ub_llg_hit_irradiance(const ub_llg_set *set, const ub_scene *s, const float 
     for (int k = 0; k < 27; k++)
       acc[k] += w * L[k];
   }
+  float e[3];
   for (int ch = 0; ch < 3; ch++) {
-    float v = 0.0f;
+    e[ch] = 0.0f;
     for (int i = 0; i < 9; i++)
-      v += wi[i] * acc[3 * i + ch];
-    v = isfinite(v) && v > 0.0f ? v : 0.0f;
-    if (isfinite(self[ch]) && self[ch] > 0.0f)
-      v += self[ch];
-    out_rgb[ch] = v;
+      e[ch] += wi[i] * acc[3 * i + ch];
   }
+  ub_llg_irradiance_finish(e, self, out_rgb);
   return 1;
 }
 

@@ -66,16 +66,24 @@ void ub_sh2_from_sh1(const float sh1[12], float out[27])
   memset(out + 12, 0, 15 * sizeof(float));
 }
 
-void ub_sh2_irradiance(const float sh[27], const float n[3], float out_rgb[3])
+void ub_sh2_irradiance_basis(const float n[3], float out_w[9])
 {
   float y[9];
   ub_sh2_eval_basis(n, y);
   static const float band[9] = {UB_SH_A0, UB_SH_A1, UB_SH_A1, UB_SH_A1, UB_SH_A2,
                                 UB_SH_A2, UB_SH_A2, UB_SH_A2, UB_SH_A2};
+  for (int k = 0; k < 9; k++)
+    out_w[k] = band[k] * y[k];
+}
+
+void ub_sh2_irradiance(const float sh[27], const float n[3], float out_rgb[3])
+{
+  float w[9];
+  ub_sh2_irradiance_basis(n, w);
   for (int c = 0; c < 3; c++) {
     float e = 0.0f;
     for (int k = 0; k < 9; k++)
-      e += band[k] * y[k] * sh[k * 3 + c];
+      e += w[k] * sh[k * 3 + c];
     out_rgb[c] = e;
   }
 }

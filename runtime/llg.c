@@ -216,23 +216,25 @@ void ub_llg_irradiance(const float L[27], const float *vis, const float *self, c
     s = prod;
   }
   ub_sh2_irradiance(s, n, out_rgb);
+  ub_llg_irradiance_finish(out_rgb, self, out_rgb);
+}
+
+void ub_llg_irradiance_finish(const float e[3], const float *self, float out_rgb[3])
+{
   for (int c = 0; c < 3; c++) {
-    float e = isfinite(out_rgb[c]) && out_rgb[c] > 0.0f ? out_rgb[c] : 0.0f;
+    float v = isfinite(e[c]) && e[c] > 0.0f ? e[c] : 0.0f;
     if (self && isfinite(self[c]) && self[c] > 0.0f)
-      e += self[c];
-    out_rgb[c] = e;
+      v += self[c];
+    out_rgb[c] = v;
   }
 }
 
 void ub_llg_irradiance_weights(const float *vis, const float n[3], float w[9])
 {
-  float y[9];
-  ub_sh2_eval_basis(n, y);
-  static const float band[9] = {UB_SH_A0, UB_SH_A1, UB_SH_A1, UB_SH_A1, UB_SH_A2,
-                                UB_SH_A2, UB_SH_A2, UB_SH_A2, UB_SH_A2};
+  float a9[9]; /* ub_sh2_irradiance's weights */
+  ub_sh2_irradiance_basis(n, a9);
   if (!vis) {
-    for (int k = 0; k < 9; k++)
-      w[k] = band[k] * y[k];
+    memcpy(w, a9, sizeof a9);
     return;
   }
   /* prod_k = Σ_t c_t (L_i V_j + [i ≠ j] L_j V_i) over the entries t = (i, j, k): L_i's
@@ -240,7 +242,7 @@ void ub_llg_irradiance_weights(const float *vis, const float n[3], float w[9])
   memset(w, 0, 9 * sizeof *w);
   for (size_t e = 0; e < sizeof ub_llg_tp / sizeof ub_llg_tp[0]; e++) {
     const tp_entry *t = &ub_llg_tp[e];
-    const float a = band[t->k] * y[t->k] * t->c;
+    const float a = a9[t->k] * t->c;
     w[t->i] += a * vis[t->j];
     if (t->i != t->j)
       w[t->j] += a * vis[t->i];

@@ -76,6 +76,9 @@ float ub_llg_box_distance(const float center[3], const float axes[9], const floa
  * self-visibility vis (9 floats, or NULL: none), plus self (3 floats, or NULL: 0). */
 void ub_llg_irradiance(const float L[27], const float *vis, const float *self, const float n[3],
                        float out_rgb[3]);
+/* Its last step: the SH irradiance e clamped to ≥ 0 (non-finite → 0) per channel, plus
+ * self where that is finite and positive (self NULL: none). out_rgb may alias e. */
+void ub_llg_irradiance_finish(const float e[3], const float *self, float out_rgb[3]);
 
 /* The irradiance as weights on the radiance: for every L, Σ_i w[i]·L[3i + c] is channel c
  * of ub_sh2_irradiance(ub_llg_sh_product(L, vis), n) in exact arithmetic (vis NULL: of

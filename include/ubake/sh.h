@@ -71,6 +71,9 @@ void ub_sh2_from_sh1(const float sh1[12], float out_sh2[27]);
 /* Irradiance (W/m²) for unit normal n, per channel. Linear in sh: the value is signed and
  * can be negative for un-windowed SH; callers that need a physical value clamp at 0. */
 void ub_sh2_irradiance(const float sh[27], const float n[3], float out_rgb[3]);
+/* The weights ub_sh2_irradiance puts on the 9 coefficients for unit normal n: the cosine
+ * lobe's band factors times the basis at n (E_c = Σ_k out_w[k]·sh[3k + c]). */
+void ub_sh2_irradiance_basis(const float n[3], float out_w[9]);
 
 /* Minimum over all unit normals of ub_sh2_irradiance, per channel (W/m²). Solved exactly
  * (the L2 irradiance restricted to the sphere is a quadratic, so this is a trust-region
