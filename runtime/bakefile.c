@@ -17,7 +17,10 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
+#include <sys/types.h>
+#include <unistd.h>
 #if defined(__x86_64__) && defined(__GNUC__)
 #include <immintrin.h>
 #endif
@@ -1190,15 +1193,148 @@ ub_result ub_bakefile_write_ex(const ub_bakefile *bf, const char *path, const ub
 /* ---------------------------------------------------------------------------------- */
 /* Reader.                                                                             */
 
-/* Bounds-checked view of a section payload: every read checks `left` first. */
+/* Where a file's bytes come from: the caller's memory, or an open file read where they
+ * are needed (pread), so a load never holds the whole file: each section is read when it
+ * is parsed and freed after, and the records (DLSR, ELEM: most of a file with dynamic
+ * light sets) stream through a buffer. */
+typedef struct ubk_src {
+  const uint8_t *mem; /* NULL: read from fd */
+  int fd;
+  uint64_t size;
+  int err; /* a read failed: its errno, or -1 when the file ended early (it changed) */
+} ubk_src;
+
+static int src_read(ubk_src *s, uint64_t off, void *dst, size_t n)
+{
+  if (s->mem) {
+    memcpy(dst, s->mem + off, n);
+    return 1;
+  }
+  uint8_t *o = dst;
+  while (n) {
+    ssize_t got = pread(s->fd, o, n, (off_t)off);
+    if (got < 0 && errno == EINTR)
+      continue;
+    if (got <= 0) {
+      s->err = got < 0 ? (errno ? errno : EIO) : -1;
+      return 0;
+    }
+    o += got;
+    off += (uint64_t)got;
+    n -= (size_t)got;
+  }
+  return 1;
+}
+
+/* The reader's temporary buffers (a section, the records' stream, a chunk) are mapped
+ * pages of their own, not malloc's: freeing a large malloc block raises glibc's mmap
+ * threshold to its size, and the many record arrays allocated after it then came from the
+ * heap, whose freed holes stayed resident (+98 MiB after loading the full ESTATE file).
+ * A buffer is preceded by its mapped size. */
+static void *tmp_alloc(size_t n)
+{
+  if (n > SIZE_MAX - 64)
+    return NULL;
+  size_t len = n + 64;
+  void *m = mmap(NULL, len, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+  if (m == MAP_FAILED)
+    return NULL;
+  memcpy(m, &len, sizeof len);
+  return (uint8_t *)m + 64;
+}
+
+static void tmp_free(void *p)
+{
+  if (!p)
+    return;
+  uint8_t *m = (uint8_t *)p - 64;
+  size_t len;
+  memcpy(&len, m, sizeof len);
+  munmap(m, len);
+}
+
+/* n bytes at off: a pointer into the memory, or a buffer read from the file that *owned
+ * holds (tmp_free it). NULL: out of memory, or the read failed (s->err). */
+static const uint8_t *src_view(ubk_src *s, uint64_t off, uint64_t n, uint8_t **owned)
+{
+  *owned = NULL;
+  if (s->mem)
+    return s->mem + off;
+  if (n > SIZE_MAX - 1)
+    return NULL;
+  uint8_t *b = tmp_alloc((size_t)n + 1);
+  if (!b)
+    return NULL;
+  if (!src_read(s, off, b, (size_t)n)) {
+    tmp_free(b);
+    return NULL;
+  }
+  *owned = b;
+  return b;
+}
+
+/* Reads of a file go through this many bytes at a time where the bytes are not kept. */
+#define UBK_CHUNK ((size_t)1 << 20)
+
+/* The CRC of n bytes at off (a file: read a chunk at a time). 0: the read failed. */
+static int src_crc(ubk_src *s, uint64_t off, uint64_t n, uint8_t *chunk, uint32_t *out)
+{
+  if (s->mem) {
+    *out = ub_crc32_update(0, s->mem + off, (size_t)n);
+    return 1;
+  }
+  uint32_t crc = 0;
+  while (n) {
+    size_t k = n < UBK_CHUNK ? (size_t)n : UBK_CHUNK;
+    if (!src_read(s, off, chunk, k))
+      return 0;
+    crc = ub_crc32_update(crc, chunk, k);
+    off += k;
+    n -= k;
+  }
+  *out = crc;
+  return 1;
+}
+
+/* Streams a section's bytes [next, end) through buf (cap bytes) for a cursor. */
+typedef struct ubk_stream {
+  ubk_src *src;
+  uint64_t next, end;
+  uint8_t *buf;
+  size_t cap;
+} ubk_stream;
+
+/* Bounds-checked view of a section payload: every read checks `left` first. A streaming
+ * cursor (s) refills p from the file as it goes; a read wider than its buffer fails. */
 typedef struct ubk_cursor {
   const uint8_t *p;
-  size_t left;
+  size_t left; /* bytes at p */
+  ubk_stream *s;
 } ubk_cursor;
+
+/* At least n bytes at c->p (a streaming cursor reads more); 0: the payload has fewer. */
+static int cur_need(ubk_cursor *c, size_t n)
+{
+  if (c->left >= n)
+    return 1;
+  ubk_stream *s = c->s;
+  if (!s || n > s->cap || n - c->left > s->end - s->next)
+    return 0;
+  memmove(s->buf, c->p, c->left);
+  size_t want = s->cap - c->left;
+  if (want > s->end - s->next)
+    want = (size_t)(s->end - s->next);
+  if (!src_read(s->src, s->next, s->buf + c->left, want))
+    return 0;
+  s->next += want;
+  c->p = s->buf;
+  c->left += want;
+  return 1;
+}
 
 static int cur_take(ubk_cursor *c, size_t n, const uint8_t **out)
 {
-  if (c->left < n)
+  if (!cur_need(c, n))
     return 0;
   *out = c->p;
   c->p += n;
@@ -1220,7 +1356,7 @@ static int cur_u32(ubk_cursor *c, uint32_t *out)
 static int cur_f32s(ubk_cursor *c, float *out, size_t n)
 {
   const uint8_t *p;
-  if (n > c->left / 4 || !cur_take(c, n * 4, &p))
+  if (n > SIZE_MAX / 4 || !cur_take(c, n * 4, &p))
     return 0;
   for (size_t i = 0; i < n; i++) {
     uint8_t b[4];
@@ -1233,7 +1369,7 @@ static int cur_f32s(ubk_cursor *c, float *out, size_t n)
 static int cur_u32s(ubk_cursor *c, uint32_t *out, size_t n)
 {
   const uint8_t *p;
-  if (n > c->left / 4 || !cur_take(c, n * 4, &p))
+  if (n > SIZE_MAX / 4 || !cur_take(c, n * 4, &p))
     return 0;
   for (size_t i = 0; i < n; i++) {
     uint8_t b[4];
@@ -1265,7 +1401,7 @@ __attribute__((target("avx,f16c"))) static size_t halves_f16c(const uint8_t *p, 
 static int cur_halves(ubk_cursor *c, float *out, size_t n)
 {
   const uint8_t *p;
-  if (n > c->left / 2 || !cur_take(c, n * 2, &p))
+  if (n > SIZE_MAX / 2 || !cur_take(c, n * 2, &p))
     return 0;
   size_t i = 0;
 #if defined(__x86_64__) && defined(__GNUC__)
@@ -1285,7 +1421,7 @@ static int cur_halves(ubk_cursor *c, float *out, size_t n)
 static int cur_halves_raw(ubk_cursor *c, uint16_t *out, size_t n)
 {
   const uint8_t *p;
-  if (n > c->left / 2 || !cur_take(c, n * 2, &p))
+  if (n > SIZE_MAX / 2 || !cur_take(c, n * 2, &p))
     return 0;
   for (size_t i = 0; i < n; i++)
     out[i] = le_get16(p + i * 2);
@@ -1316,7 +1452,7 @@ static ub_result parse_meta(const ubk_reader *rd, const uint8_t *p, uint64_t siz
               (unsigned long long)size, UB_UBK_META_SIZE);
     return UB_ERR_INVALID_DATA;
   }
-  ubk_cursor c = {p, (size_t)size};
+  ubk_cursor c = {p, (size_t)size, NULL};
   const uint8_t *name;
   cur_take(&c, 64, &name);
   const uint8_t *nul = memchr(name, 0, 64);
@@ -1333,7 +1469,7 @@ static ub_result parse_meta(const ubk_reader *rd, const uint8_t *p, uint64_t siz
 static ub_result parse_geom(const ubk_reader *rd, const uint8_t *p, uint64_t size,
                             ub_bakefile *bf)
 {
-  ubk_cursor c = {p, (size_t)size};
+  ubk_cursor c = {p, (size_t)size, NULL};
   uint32_t v, t;
   if (!cur_u32(&c, &v) || !cur_u32(&c, &t)) {
     ubk_error(rd->log, rd->name, "section GEOM", "size %llu too small for the counts",
@@ -1374,7 +1510,7 @@ static ub_result parse_geom(const ubk_reader *rd, const uint8_t *p, uint64_t siz
 static ub_result parse_atls(const ubk_reader *rd, const uint8_t *p, uint64_t size,
                             ub_bakefile *bf)
 {
-  ubk_cursor c = {p, (size_t)size};
+  ubk_cursor c = {p, (size_t)size, NULL};
   uint32_t count;
   float scale;
   if (!cur_u32(&c, &count) || !cur_f32s(&c, &scale, 1)) {
@@ -1485,7 +1621,7 @@ static void apply_scale(float *v, size_t n, float scale)
 static ub_result parse_glgp(const ubk_reader *rd, const uint8_t *p, uint64_t size,
                             ub_bakefile *bf)
 {
-  ubk_cursor c = {p, (size_t)size};
+  ubk_cursor c = {p, (size_t)size, NULL};
   uint32_t np, nt, nk;
   float scale;
   if (!cur_u32(&c, &np) || !cur_u32(&c, &nt) || !cur_u32(&c, &nk) || !cur_f32s(&c, &scale, 1)) {
@@ -1530,18 +1666,37 @@ static ub_result parse_glgp(const ubk_reader *rd, const uint8_t *p, uint64_t siz
   return UB_OK;
 }
 
-static ub_result parse_records(const ubk_reader *rd, const uint8_t *p, uint64_t size,
+/* A read of the file failed while parsing `where` (src->err), or memory ran out. */
+static ub_result src_error(const ubk_reader *rd, const ubk_src *src, const char *where)
+{
+  if (!src->err) {
+    ubk_error(rd->log, rd->name, where, "out of memory");
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  ubk_error(rd->log, rd->name, where, "%s",
+            src->err > 0 ? strerror(src->err) : "file changed while reading");
+  return UB_ERR_IO;
+}
+
+/* The records section at off (size bytes) of src: its count and headers are read first, the
+ * values then stream (a file: through a buffer of a few MiB, never the whole section). */
+static ub_result parse_records(const ubk_reader *rd, ubk_src *src, uint64_t off, uint64_t size,
                                const char *where, ub_bakefile_record **out_recs,
                                uint32_t *out_count)
 {
-  ubk_cursor c = {p, (size_t)size};
-  uint32_t ns;
-  float scale;
-  if (!cur_u32(&c, &ns) || !cur_f32s(&c, &scale, 1)) {
+  uint8_t h8[8];
+  if (size < 8) {
     ubk_error(rd->log, rd->name, where, "size %llu too small for the count",
               (unsigned long long)size);
     return UB_ERR_INVALID_DATA;
   }
+  if (!src_read(src, off, h8, 8))
+    return src_error(rd, src, where);
+  ubk_cursor c = {h8, 8, NULL};
+  uint32_t ns;
+  float scale;
+  int ok = cur_u32(&c, &ns) && cur_f32s(&c, &scale, 1);
+  assert(ok);
   if (!check_scale(rd, where, &scale))
     return UB_ERR_INVALID_DATA;
   if ((uint64_t)ns * UB_REC_HEADER > size - 8) {
@@ -1549,32 +1704,43 @@ static ub_result parse_records(const ubk_reader *rd, const uint8_t *p, uint64_t 
               (unsigned long long)size);
     return UB_ERR_INVALID_DATA;
   }
-  /* Walk the headers to check the exact size before allocating anything big. */
-  uint64_t expect = 8u + (uint64_t)ns * UB_REC_HEADER;
+  const uint64_t head = (uint64_t)ns * UB_REC_HEADER;
+  uint8_t *owned;
+  const uint8_t *p = src_view(src, off + 8, head, &owned);
+  if (!p)
+    return src_error(rd, src, where);
+  /* Walk the headers to check the exact size before allocating anything big; the widest
+   * array sizes the stream's buffer. */
+  uint64_t expect = 8u + head, widest = 0;
   for (uint32_t d = 0; d < ns; d++) {
-    const uint8_t *h = p + 8 + (size_t)d * UB_REC_HEADER;
+    const uint8_t *h = p + (size_t)d * UB_REC_HEADER;
     uint64_t tc = le_get32(h + 84), pc = le_get32(h + 88), lc = le_get32(h + 92);
     expect += align8(28u * tc + 58u * pc + 58u * lc);
+    uint64_t w = 24u * tc > 54u * (pc > lc ? pc : lc) ? 24u * tc : 54u * (pc > lc ? pc : lc);
+    widest = w > widest ? w : widest;
     if (expect > size)
       break;
   }
   if (expect != size) {
     ubk_error(rd->log, rd->name, where, "size %llu does not match its %u records' counts",
               (unsigned long long)size, ns);
+    tmp_free(owned);
     return UB_ERR_INVALID_DATA;
   }
   ub_bakefile_record *recs = calloc_array(ns, sizeof *recs);
   if (ns && !recs) {
     ubk_error(rd->log, rd->name, where, "out of memory");
+    tmp_free(owned);
     return UB_ERR_OUT_OF_MEMORY;
   }
   *out_recs = recs;
   *out_count = ns;
+  c = (ubk_cursor){p, (size_t)head, NULL};
   for (uint32_t d = 0; d < ns; d++) {
     ub_bakefile_record *r = &recs[d];
     const uint8_t *nm;
     uint32_t p0, p1;
-    int ok = cur_take(&c, 64, &nm);
+    ok = cur_take(&c, 64, &nm);
     assert(ok);
     memcpy(r->name, nm, 64);
     ok = cur_u32(&c, &r->kind) && cur_u32(&c, &p0) && cur_u32(&c, &p1) &&
@@ -1586,7 +1752,23 @@ static ub_result parse_records(const ubk_reader *rd, const uint8_t *p, uint64_t 
     r->parent[0] = (int32_t)p0;
     r->parent[1] = (int32_t)p1;
   }
-  for (uint32_t d = 0; d < ns; d++) {
+  tmp_free(owned);
+  /* the values: in memory as they are, from a file through the stream's buffer */
+  ubk_stream st = {src, off + 8 + head, off + size, NULL, 0};
+  if (src->mem) {
+    c = (ubk_cursor){src->mem + st.next, (size_t)(size - 8 - head), NULL};
+  } else {
+    /* an eighth of the file, at most 4 MiB (a small file refills it too: the tests' files
+     * go through the refill), at least the widest array */
+    uint64_t cap = src->size / 8 < 4 * UBK_CHUNK ? src->size / 8 : 4 * UBK_CHUNK;
+    st.cap = (size_t)(widest + 64 > cap ? widest + 64 : cap);
+    st.buf = tmp_alloc(st.cap);
+    if (!st.buf)
+      return src_error(rd, src, where);
+    c = (ubk_cursor){st.buf, 0, &st};
+  }
+  ub_result res = UB_OK;
+  for (uint32_t d = 0; d < ns && res == UB_OK; d++) {
     ub_bakefile_record *r = &recs[d];
     r->texel_index = calloc_array(r->texel_count, sizeof(uint32_t));
     r->probe_index = calloc_array(r->probe_count, sizeof(uint32_t));
@@ -1610,28 +1792,34 @@ static ub_result parse_records(const ubk_reader *rd, const uint8_t *p, uint64_t 
         (r->llg_probe_count &&
          (!r->llg_probe_index || !(halves ? (void *)r->llg_probe_sh_half : (void *)r->llg_probe_sh)))) {
       ubk_error(rd->log, rd->name, where, "out of memory");
-      return UB_ERR_OUT_OF_MEMORY;
+      res = UB_ERR_OUT_OF_MEMORY;
+      break;
     }
     uint64_t block = record_block(r);
     const uint8_t *pad;
-    int ok = cur_u32s(&c, r->texel_index, r->texel_count) &&
-             cur_u32s(&c, r->probe_index, r->probe_count) &&
-             cur_u32s(&c, r->llg_probe_index, r->llg_probe_count) &&
-             (halves ? cur_halves_raw(&c, r->texel_sh_half, nt) &&
-                           cur_halves_raw(&c, r->probe_sh_half, np) &&
-                           cur_halves_raw(&c, r->llg_probe_sh_half, nl)
-                     : cur_halves(&c, r->texel_sh, nt) && cur_halves(&c, r->probe_sh, np) &&
-                           cur_halves(&c, r->llg_probe_sh, nl)) &&
-             cur_take(&c, (size_t)(align8(block) - block), &pad);
-    assert(ok); /* guaranteed by the exact size walk above */
-    (void)ok;
+    ok = cur_u32s(&c, r->texel_index, r->texel_count) &&
+         cur_u32s(&c, r->probe_index, r->probe_count) &&
+         cur_u32s(&c, r->llg_probe_index, r->llg_probe_count) &&
+         (halves ? cur_halves_raw(&c, r->texel_sh_half, nt) &&
+                       cur_halves_raw(&c, r->probe_sh_half, np) &&
+                       cur_halves_raw(&c, r->llg_probe_sh_half, nl)
+                 : cur_halves(&c, r->texel_sh, nt) && cur_halves(&c, r->probe_sh, np) &&
+                       cur_halves(&c, r->llg_probe_sh, nl)) &&
+         cur_take(&c, (size_t)(align8(block) - block), &pad);
+    /* the exact size walk above guarantees the bytes; only a file read can fail */
+    assert(ok || src->err);
+    if (!ok) {
+      res = src_error(rd, src, where);
+      break;
+    }
     if (!halves) {
       apply_scale(r->texel_sh, nt, scale);
       apply_scale(r->probe_sh, np, scale);
       apply_scale(r->llg_probe_sh, nl, scale);
     }
   }
-  return UB_OK;
+  tmp_free(st.buf);
+  return res;
 }
 
 /* After ATLS and the records are parsed: the records' texel SH back from the I_z form.
@@ -1655,7 +1843,7 @@ static void unpack_record_texels(ub_bakefile *bf, ub_bakefile_record *recs, uint
 static ub_result parse_lite(const ubk_reader *rd, const uint8_t *p, uint64_t size,
                             ub_bakefile *bf)
 {
-  ubk_cursor c = {p, (size_t)size};
+  ubk_cursor c = {p, (size_t)size, NULL};
   uint32_t n, reserved;
   if (!cur_u32(&c, &n) || !cur_u32(&c, &reserved) ||
       align8(8u + (uint64_t)UB_LITE_SIZE * n) != size) {
@@ -1687,7 +1875,7 @@ static ub_result parse_trir(const ubk_reader *rd, const uint8_t *p, uint64_t siz
                             ub_bakefile *bf)
 {
   static const char *where = "section TRIR";
-  ubk_cursor c = {p, (size_t)size};
+  ubk_cursor c = {p, (size_t)size, NULL};
   uint32_t n, reserved;
   if (!cur_u32(&c, &n) || !cur_u32(&c, &reserved) || n != bf->triangle_count ||
       8u + align8(4u * (uint64_t)n) != size) {
@@ -1710,7 +1898,7 @@ static ub_result parse_txlk(const ubk_reader *rd, const uint8_t *p, uint64_t siz
                             ub_bakefile *bf)
 {
   static const char *where = "section TXLK";
-  ubk_cursor c = {p, (size_t)size};
+  ubk_cursor c = {p, (size_t)size, NULL};
   uint32_t n, reserved;
   uint64_t total = ub_bakefile_atlas_pixels(bf);
   if (!cur_u32(&c, &n) || !cur_u32(&c, &reserved) || n != bf->atlas_count ||
@@ -1744,7 +1932,7 @@ static ub_result parse_llgm(const ubk_reader *rd, const uint8_t *p, uint64_t siz
                             ub_bakefile *bf)
 {
   static const char *where = "section LLGM";
-  ubk_cursor c = {p, (size_t)size};
+  ubk_cursor c = {p, (size_t)size, NULL};
   uint32_t nm, flags;
   if (!cur_u32(&c, &nm) || !cur_u32(&c, &flags)) {
     ubk_error(rd->log, rd->name, where, "size %llu too small for the count",
@@ -1851,33 +2039,60 @@ static ub_result parse_llgm(const ubk_reader *rd, const uint8_t *p, uint64_t siz
   return UB_OK;
 }
 
-static ub_result read_memory_ex(const void *data, size_t size, const char *name,
-                                const ub_log *log, unsigned flags, ub_bakefile **out_bf);
+static ub_result read_src(ubk_src *src, const char *name, const ub_log *log, unsigned flags,
+                          ub_bakefile **out_bf);
 
 ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *name,
                                   const ub_log *log, ub_bakefile **out_bf)
 {
-  return read_memory_ex(data, size, name, log, 0, out_bf);
+  assert(data || size == 0);
+  ubk_src src = {(const uint8_t *)data, -1, size, 0};
+  if (!data) /* size 0: the header check below reports it */
+    src.mem = (const uint8_t *)"";
+  return read_src(&src, name ? name : "(memory)", log, 0, out_bf);
 }
 
-static ub_result read_memory_ex(const void *data, size_t size, const char *name,
-                                const ub_log *log, unsigned flags, ub_bakefile **out_bf)
-{
-  assert(out_bf);
-  assert(data || size == 0);
-  const uint8_t *d = (const uint8_t *)data;
-  ubk_reader rd = {name ? name : "(memory)", log, flags};
+typedef ub_result (*ubk_parse_fn)(const ubk_reader *rd, const uint8_t *p, uint64_t size,
+                                  ub_bakefile *bf);
 
+/* One section parsed from src (a file: read whole, then freed). */
+static ub_result parse_section(const ubk_reader *rd, ubk_src *src, uint64_t off, uint64_t size,
+                               const char *tag, ubk_parse_fn fn, ub_bakefile *bf)
+{
+  uint8_t *owned;
+  const uint8_t *p = src_view(src, off, size, &owned);
+  if (!p) {
+    char where[32];
+    snprintf(where, sizeof where, "section %.4s", tag);
+    return src_error(rd, src, where);
+  }
+  ub_result r = fn(rd, p, size, bf);
+  tmp_free(owned);
+  return r;
+}
+
+/* Reads and checks the header and section table, every section's CRC (a file: a chunk at a
+ * time), then parses the sections one at a time (a file: each read when parsed, freed
+ * after; the records streamed). */
+static ub_result read_src(ubk_src *src, const char *name, const ub_log *log, unsigned flags,
+                          ub_bakefile **out_bf)
+{
+  assert(src && name && out_bf);
+  ubk_reader rd = {name, log, flags};
+  const size_t size = (size_t)src->size;
+  uint8_t hd[UB_UBK_HEADER_SIZE];
   if (size < UB_UBK_HEADER_SIZE) {
     ubk_error(log, rd.name, "header", "file is %zu bytes, shorter than the %u-byte header",
               size, UB_UBK_HEADER_SIZE);
     return UB_ERR_INVALID_DATA;
   }
-  if (memcmp(d, ub_ubk_magic, 4) != 0) {
+  if (!src_read(src, 0, hd, UB_UBK_HEADER_SIZE))
+    return src_error(&rd, src, "header");
+  if (memcmp(hd, ub_ubk_magic, 4) != 0) {
     ubk_error(log, rd.name, "header", "not a .ubk file (bad magic)");
     return UB_ERR_INVALID_DATA;
   }
-  uint32_t version = le_get32(d + 4);
+  uint32_t version = le_get32(hd + 4);
   if (version == 0) {
     ubk_error(log, rd.name, "header", "format version 0 is invalid");
     return UB_ERR_INVALID_DATA;
@@ -1892,25 +2107,35 @@ static ub_result read_memory_ex(const void *data, size_t size, const char *name,
               version, UB_BAKEFILE_VERSION);
     return UB_ERR_UNSUPPORTED_VERSION;
   }
-  uint32_t count = le_get32(d + 8);
+  uint32_t count = le_get32(hd + 8);
   uint64_t table_end = UB_UBK_HEADER_SIZE + (uint64_t)count * UB_UBK_ENTRY_SIZE;
   if (table_end > size) {
     ubk_error(log, rd.name, "header", "section table (%u entries) runs past the end of the "
               "file (%zu bytes)", count, size);
     return UB_ERR_INVALID_DATA;
   }
+  uint8_t *table_owned;
+  const uint8_t *d = src_view(src, 0, table_end, &table_owned);
+  uint8_t *chunk = src->mem ? NULL : tmp_alloc(UBK_CHUNK);
+  if (!d || (!src->mem && !chunk)) {
+    tmp_free(table_owned);
+    tmp_free(chunk);
+    return src_error(&rd, src, "header");
+  }
+  ub_result r = UB_OK;
   uint32_t hcrc = ub_crc32_update(0, d, 12);
   hcrc = ub_crc32_update(hcrc, d + UB_UBK_HEADER_SIZE, (size_t)(table_end - UB_UBK_HEADER_SIZE));
   if (UB_UBK_CHECK_CRC && hcrc != le_get32(d + 12)) {
     ubk_error(log, rd.name, "header", "header CRC mismatch (0x%08x stored, 0x%08x computed)",
               le_get32(d + 12), hcrc);
-    return UB_ERR_INVALID_DATA;
+    r = UB_ERR_INVALID_DATA;
+    goto table_done;
   }
 
   /* Section table: in file order, 8-aligned, non-overlapping, gaps zero, no trailing
    * bytes: every byte of the file is covered by a CRC or checked to be zero. */
-  const uint8_t *known[UB_SEC_KNOWN] = {NULL};
-  uint64_t known_size[UB_SEC_KNOWN] = {0};
+  int known[UB_SEC_KNOWN] = {0};
+  uint64_t known_off[UB_SEC_KNOWN] = {0}, known_size[UB_SEC_KNOWN] = {0};
   uint64_t prev_end = table_end;
   for (uint32_t i = 0; i < count; i++) {
     const uint8_t *e = d + UB_UBK_HEADER_SIZE + (size_t)i * UB_UBK_ENTRY_SIZE;
@@ -1923,7 +2148,8 @@ static ub_result read_memory_ex(const void *data, size_t size, const char *name,
         printable = 0;
     if (!printable) {
       ubk_error(log, rd.name, "header", "section %u: tag is not printable ASCII", i);
-      return UB_ERR_INVALID_DATA;
+      r = UB_ERR_INVALID_DATA;
+      goto table_done;
     }
     snprintf(where, sizeof where, "section %s", tag);
     uint32_t flags = le_get32(e + 4);
@@ -1932,24 +2158,42 @@ static ub_result read_memory_ex(const void *data, size_t size, const char *name,
     if (off % 8 != 0) {
       ubk_error(log, rd.name, where, "offset %llu is not 8-byte aligned",
                 (unsigned long long)off);
-      return UB_ERR_INVALID_DATA;
+      r = UB_ERR_INVALID_DATA;
+      goto table_done;
     }
     if (off < prev_end || off > size || sz > size - off) {
       ubk_error(log, rd.name, where, "offset %llu size %llu outside [%llu, %zu] or overlapping",
                 (unsigned long long)off, (unsigned long long)sz, (unsigned long long)prev_end,
                 size);
-      return UB_ERR_INVALID_DATA;
+      r = UB_ERR_INVALID_DATA;
+      goto table_done;
     }
-    for (uint64_t g = prev_end; g < off; g++)
-      if (d[g] != 0) {
-        ubk_error(log, rd.name, where, "non-zero padding byte at file offset %llu",
-                  (unsigned long long)g);
-        return UB_ERR_INVALID_DATA;
+    for (uint64_t g = prev_end; g < off;) { /* the gap, a chunk at a time */
+      size_t k = off - g < UBK_CHUNK ? (size_t)(off - g) : UBK_CHUNK;
+      const uint8_t *gp = src->mem ? src->mem + g : (src_read(src, g, chunk, k) ? chunk : NULL);
+      if (!gp) {
+        r = src_error(&rd, src, where);
+        goto table_done;
       }
+      for (size_t j = 0; j < k; j++)
+        if (gp[j] != 0) {
+          ubk_error(log, rd.name, where, "non-zero padding byte at file offset %llu",
+                    (unsigned long long)(g + j));
+          r = UB_ERR_INVALID_DATA;
+          goto table_done;
+        }
+      g += k;
+    }
     prev_end = off + sz;
-    if (UB_UBK_CHECK_CRC && ub_crc32_update(0, d + off, (size_t)sz) != crc) {
+    uint32_t got_crc = 0;
+    if (UB_UBK_CHECK_CRC && !src_crc(src, off, sz, chunk, &got_crc)) {
+      r = src_error(&rd, src, where);
+      goto table_done;
+    }
+    if (UB_UBK_CHECK_CRC && got_crc != crc) {
       ubk_error(log, rd.name, where, "CRC mismatch (corrupted or truncated file)");
-      return UB_ERR_INVALID_DATA;
+      r = UB_ERR_INVALID_DATA;
+      goto table_done;
     }
     int k;
     for (k = 0; k < UB_SEC_KNOWN; k++)
@@ -1958,60 +2202,73 @@ static ub_result read_memory_ex(const void *data, size_t size, const char *name,
     if (k == UB_SEC_KNOWN) {
       if (flags & UB_UBK_FLAG_REQUIRED) {
         ubk_error(log, rd.name, where, "required by the file but unknown to this reader");
-        return UB_ERR_UNSUPPORTED_VERSION;
+        r = UB_ERR_UNSUPPORTED_VERSION;
+        goto table_done;
       }
       continue; /* optional and unknown: skipped (forward compatibility) */
     }
     if (known[k]) {
       ubk_error(log, rd.name, where, "appears twice");
-      return UB_ERR_INVALID_DATA;
+      r = UB_ERR_INVALID_DATA;
+      goto table_done;
     }
-    known[k] = d + off;
+    known[k] = 1;
+    known_off[k] = off;
     known_size[k] = sz;
   }
   if (prev_end != size) {
     ubk_error(log, rd.name, "header", "%llu bytes after the last section",
               (unsigned long long)(size - prev_end));
-    return UB_ERR_INVALID_DATA;
+    r = UB_ERR_INVALID_DATA;
+    goto table_done;
   }
   for (int k = 0; k < UB_SEC_MANDATORY; k++)
     if (!known[k]) {
       char where[32];
       snprintf(where, sizeof where, "section %s", ub_sec_tags[k]);
       ubk_error(log, rd.name, where, "missing");
-      return UB_ERR_INVALID_DATA;
+      r = UB_ERR_INVALID_DATA;
+      goto table_done;
     }
+
+table_done:
+  tmp_free(table_owned);
+  tmp_free(chunk);
+  if (r != UB_OK)
+    return r;
 
   ub_bakefile *bf = calloc(1, sizeof *bf);
   if (!bf) {
     ubk_error(log, rd.name, "header", "out of memory");
     return UB_ERR_OUT_OF_MEMORY;
   }
-  ub_result r = parse_meta(&rd, known[UB_SEC_META], known_size[UB_SEC_META], bf);
+#define SECTION(k, fn) parse_section(&rd, src, known_off[k], known_size[k], ub_sec_tags[k], fn, bf)
+  r = SECTION(UB_SEC_META, parse_meta);
   if (r == UB_OK)
-    r = parse_geom(&rd, known[UB_SEC_GEOM], known_size[UB_SEC_GEOM], bf);
+    r = SECTION(UB_SEC_GEOM, parse_geom);
   if (r == UB_OK)
-    r = parse_atls(&rd, known[UB_SEC_ATLS], known_size[UB_SEC_ATLS], bf);
+    r = SECTION(UB_SEC_ATLS, parse_atls);
   if (r == UB_OK && known[UB_SEC_GLGP])
-    r = parse_glgp(&rd, known[UB_SEC_GLGP], known_size[UB_SEC_GLGP], bf);
+    r = SECTION(UB_SEC_GLGP, parse_glgp);
   if (r == UB_OK && known[UB_SEC_DLSR])
-    r = parse_records(&rd, known[UB_SEC_DLSR], known_size[UB_SEC_DLSR], "section DLSR",
-                      &bf->dls, &bf->dls_count);
+    r = parse_records(&rd, src, known_off[UB_SEC_DLSR], known_size[UB_SEC_DLSR],
+                      "section DLSR", &bf->dls, &bf->dls_count);
   if (r == UB_OK && known[UB_SEC_ELEM])
-    r = parse_records(&rd, known[UB_SEC_ELEM], known_size[UB_SEC_ELEM], "section ELEM",
-                      &bf->elems, &bf->elem_count);
+    r = parse_records(&rd, src, known_off[UB_SEC_ELEM], known_size[UB_SEC_ELEM],
+                      "section ELEM", &bf->elems, &bf->elem_count);
   if (r == UB_OK) {
     unpack_record_texels(bf, bf->dls, bf->dls_count);
     unpack_record_texels(bf, bf->elems, bf->elem_count);
   }
   if (r == UB_OK && known[UB_SEC_LITE])
-    r = parse_lite(&rd, known[UB_SEC_LITE], known_size[UB_SEC_LITE], bf);
+    r = SECTION(UB_SEC_LITE, parse_lite);
   if (r == UB_OK && known[UB_SEC_LLGM])
-    r = parse_llgm(&rd, known[UB_SEC_LLGM], known_size[UB_SEC_LLGM], bf);
+    r = SECTION(UB_SEC_LLGM, parse_llgm);
   if (r == UB_OK && known[UB_SEC_TRIR])
-    r = parse_trir(&rd, known[UB_SEC_TRIR], known_size[UB_SEC_TRIR], bf);
+    r = SECTION(UB_SEC_TRIR, parse_trir);
   if (r == UB_OK && known[UB_SEC_TXLK])
-    r = parse_txlk(&rd, known[UB_SEC_TXLK], known_size[UB_SEC_TXLK], bf);
+    r = SECTION(UB_SEC_TXLK, parse_txlk);
+#undef SECTION
   if (r == UB_OK)
     r = validate(bf, rd.name, log);
   if (r != UB_OK) {
@@ -2054,25 +2311,19 @@ ub_result ub_bakefile_read_ex(const char *path, const ub_log *log, unsigned flag
     fclose(f);
     return UB_ERR_INVALID_DATA;
   }
-  size_t size = (size_t)st.st_size;
-  uint8_t *buf = malloc(size ? size : 1);
-  if (!buf) {
-    ubk_error(log, path, "read", "out of memory (%zu bytes)", size);
-    fclose(f);
-    return UB_ERR_OUT_OF_MEMORY;
+  /* Read where parsed (ubk_src): the load holds a section at a time, not the file. */
+  ubk_src src = {NULL, fileno(f), (uint64_t)st.st_size, 0};
+  ub_result r = read_src(&src, path, log, flags, out_bf);
+  /* A file that grew or shrank while it was read may have mixed old and new bytes. */
+  struct stat st2;
+  if (r == UB_OK && (fstat(fileno(f), &st2) != 0 || st2.st_size != st.st_size ||
+                     st2.st_mtime != st.st_mtime)) {
+    ubk_error(log, path, "read", "file changed while reading");
+    ub_bakefile_free(*out_bf);
+    *out_bf = NULL;
+    r = UB_ERR_IO;
   }
-  size_t got = fread(buf, 1, size, f);
-  int rerr = ferror(f) ? (errno ? errno : EIO) : 0;
-  /* The file may have grown since fstat: one extra byte tells. */
-  int grew = got == size && fgetc(f) != EOF;
   fclose(f);
-  if (rerr || got != size || grew) {
-    ubk_error(log, path, "read", "%s", rerr ? strerror(rerr) : "file changed while reading");
-    free(buf);
-    return UB_ERR_IO;
-  }
-  ub_result r = read_memory_ex(buf, size, path, log, flags, out_bf);
-  free(buf);
   return r;
 }
 

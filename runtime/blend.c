@@ -1948,20 +1948,19 @@ static ub_result validate(const ub_blend_desc *d, const ub_log *log, uint64_t *o
 typedef struct build_tmp {
   uint32_t *off;      /* receiver_count + 1: memberships of receiver r = [off[r], off[r+1]) */
   uint32_t *m_elem;   /* per membership: element id (ascending within a receiver) */
-  uint32_t *m_pos;    /* per membership: position in that element's record */
   uint32_t *touched;  /* touched receivers, ascending */
   uint32_t *gid;      /* per touched receiver: its group */
   uint32_t *g_k, *g_moff, *g_hash, *g_n, *g_start, *g_units;
   uint32_t *members;  /* capacity: memberships */
   uint32_t *table;    /* hash: group id + 1, 0 = empty */
   uint32_t *order;    /* touched receivers sorted by group */
+  uint32_t *r_gid, *r_at; /* receiver_count: a touched receiver's group, its place in it */
 } build_tmp;
 
 static void build_tmp_free(build_tmp *t)
 {
   free(t->off);
   free(t->m_elem);
-  free(t->m_pos);
   free(t->touched);
   free(t->gid);
   free(t->g_k);
@@ -1973,9 +1972,12 @@ static void build_tmp_free(build_tmp *t)
   free(t->members);
   free(t->table);
   free(t->order);
+  free(t->r_gid);
+  free(t->r_at);
 }
 
-static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
+static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t,
+                       void (*values_done)(void *user, uint32_t element), void *user)
 {
   const uint32_t R = d->receiver_count, E = d->element_count;
   const uint64_t M = b->memberships;
@@ -1984,8 +1986,7 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
   /* 1. Per receiver, its elements (ascending id, as elements are visited in order). */
   t->off = calloc_n((size_t)R + 1, sizeof(uint32_t), NULL);
   t->m_elem = alloc_n(M, sizeof(uint32_t), NULL);
-  t->m_pos = alloc_n(M, sizeof(uint32_t), NULL);
-  if (!t->off || !t->m_elem || !t->m_pos)
+  if (!t->off || !t->m_elem)
     return UB_ERR_OUT_OF_MEMORY;
   for (uint32_t e = 0; e < E; e++)
     for (uint32_t i = 0; i < d->elements[e].count; i++)
@@ -2001,7 +2002,6 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
     for (uint32_t i = 0; i < d->elements[e].count; i++) {
       uint32_t r = d->elements[e].receivers[i], at = t->off[r]++;
       t->m_elem[at] = e;
-      t->m_pos[at] = i;
     }
   for (uint32_t r = R; r > 0; r--) /* the fill advanced off[r] to off[r+1]: shift back */
     t->off[r] = t->off[r - 1];
@@ -2118,9 +2118,8 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
   for (uint32_t g = 0; g < G; g++) {
     const blend_group *bg = &b->groups[g];
     const uint32_t *rs = t->order + t->g_start[g];
-    uint32_t n = bg->receivers, k = bg->k_mode & ~GROUP_LIST;
+    uint32_t n = bg->receivers;
     uint32_t *w = b->units + bg->unit_off;
-    char *v = (char *)b->values + bg->val_off * rowb;
     for (uint32_t i = 0; i < n;) {
       uint32_t len = 1;
       if (!(bg->k_mode & GROUP_LIST))
@@ -2131,14 +2130,35 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
         *w++ = len;
       i += len;
     }
-    /* Runs: member m's rows for the group's receivers in order (members = ascending
-     * element ids, as m_elem lists them per receiver), one block per member. Lists: per
-     * receiver its members' rows. */
-    const int glist = (bg->k_mode & GROUP_LIST) != 0;
-    for (uint32_t q = 0; q < n * k; q++, v += rowb) {
-      const uint32_t m = glist ? q % k : q / n, i = glist ? q / k : q % n;
-      const uint32_t el = t->m_elem[t->off[rs[i]] + m], pos = t->m_pos[t->off[rs[i]] + m];
-      const char *src = (const char *)d->elements[el].values + (size_t)pos * srcb;
+    assert(w == b->units + bg->unit_off + bg->units * ((bg->k_mode & GROUP_LIST) ? 1u : 2u));
+  }
+  /* The values, element by element (values_done may free each one's after): a run
+   * group holds member m's rows for its receivers in order (members = ascending element
+   * ids, as m_elem lists them per receiver), one block per member; a list group per
+   * receiver its members' rows. A receiver's group and place in it: t->gid (by touched
+   * rank, in receiver order) as r_gid, and r_at. */
+  t->r_gid = alloc_n(R ? R : 1, sizeof(uint32_t), NULL);
+  t->r_at = alloc_n(R ? R : 1, sizeof(uint32_t), NULL);
+  if (!t->r_gid || !t->r_at)
+    return UB_ERR_OUT_OF_MEMORY;
+  for (uint32_t g = 0; g < G; g++)
+    for (uint32_t i = 0; i < b->groups[g].receivers; i++)
+      t->r_at[t->order[t->g_start[g] + i]] = i;
+  for (uint32_t ti = 0; ti < T; ti++)
+    t->r_gid[t->touched[ti]] = t->gid[ti];
+  for (uint32_t e = 0; e < E; e++) {
+    const ub_blend_record *er = &d->elements[e];
+    for (uint32_t pos = 0; pos < er->count; pos++) {
+      const uint32_t r = er->receivers[pos], g = t->r_gid[r], i = t->r_at[r];
+      const blend_group *bg = &b->groups[g];
+      const uint32_t n = bg->receivers, k = bg->k_mode & ~GROUP_LIST;
+      uint32_t m = 0;
+      while (t->m_elem[t->off[r] + m] != e)
+        m++;
+      assert(m < k);
+      const uint64_t q = (bg->k_mode & GROUP_LIST) ? (uint64_t)i * k + m : (uint64_t)m * n + i;
+      char *v = (char *)b->values + (bg->val_off + q) * rowb;
+      const char *src = (const char *)er->values + (size_t)pos * srcb;
       if (b->q8) {
         float f[UB_BLEND_MAX_STRIDE];
         const uint16_t *h = d->storage == UB_BLEND_FLOAT16 ? (const uint16_t *)(const void *)src
@@ -2158,7 +2178,8 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t)
         memcpy(v, src, rowb);
       }
     }
-    assert(w == b->units + bg->unit_off + bg->units * ((bg->k_mode & GROUP_LIST) ? 1u : 2u));
+    if (values_done)
+      values_done(user, e);
   }
 
   /* 4b. UB_BLEND_OWN_BASE: the touched receivers' base rows, in group order. */
@@ -2533,6 +2554,13 @@ static ub_result build_ones(ub_blend *b)
 ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *out_values,
                           ub_blend **out_blend)
 {
+  return ub_blend_create_ex(desc, log, out_values, NULL, NULL, out_blend);
+}
+
+ub_result ub_blend_create_ex(const ub_blend_desc *desc, const ub_log *log, float *out_values,
+                             void (*values_done)(void *user, uint32_t element), void *user,
+                             ub_blend **out_blend)
+{
   if (!desc || !out_blend)
     return UB_ERR_INVALID_ARGUMENT;
   uint64_t memberships = 0;
@@ -2583,7 +2611,7 @@ ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *o
 
   build_tmp t;
   memset(&t, 0, sizeof t);
-  res = build(b, desc, &t);
+  res = build(b, desc, &t, values_done, user);
   build_tmp_free(&t);
   if (res != UB_OK)
     goto oom;

@@ -231,6 +231,14 @@ typedef struct ub_blend ub_blend;
  * desc->name, the element and the position. */
 ub_result ub_blend_create(const ub_blend_desc *desc, const ub_log *log, float *out_values,
                           ub_blend **out_blend);
+/* ub_blend_create, calling values_done(user, e) once element e's values are copied (create
+ * reads them no more; in element order), so a caller can free each while the next are
+ * copied (the values of elements it was not told of, after a failure, are still its own):
+ * the run-time held the full ESTATE file's texel records twice while the copy was made
+ * (146 MB). */
+ub_result ub_blend_create_ex(const ub_blend_desc *desc, const ub_log *log, float *out_values,
+                             void (*values_done)(void *user, uint32_t element), void *user,
+                             ub_blend **out_blend);
 void ub_blend_free(ub_blend *b);
 
 /* Sets element's RGB weight (finite, any sign; typical 0..1 × tint). Marks the element

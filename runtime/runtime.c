@@ -503,6 +503,15 @@ static void encode_texel_packed(const ub_runtime *rt, uint32_t a, const float *r
   ub_ahd_pack(&f, rt->ahd_inv_scale, out);
 }
 
+/* ub_blend_desc.values_done: element e's halves (user: its ub_blend_record array) are
+ * copied into the blend, which reads them no more. */
+static void rec_values_done(void *user, uint32_t e)
+{
+  ub_blend_record *recs = user;
+  free((void *)(uintptr_t)recs[e].values);
+  recs[e].values = NULL;
+}
+
 /* Frees the records' halves records_prepare handed to n elements (the blend made from them
  * keeps its own copy). */
 static void free_rec_values(ub_blend_record *recs, uint32_t n)
@@ -1108,6 +1117,9 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
       rt->tch_slot[ix] = (uint32_t)sl;
     }
   }
+  /* every row is in lm_tbase or lm_static now: gone before the blend's copies are made */
+  free(rt->lm_base);
+  rt->lm_base = NULL;
   /* The blend's receivers are the touched ranks. Ranks are group-major, not monotonic
    * in the slots: each record is sorted again, its rows with it. */
   for (uint32_t e = 0; e < n; e++) {
@@ -1142,7 +1154,8 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
       ((rt->load_flags & UB_RUNTIME_PLAIN_SUMS) ? 0 : UB_BLEND_ONES_SUM);
   bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_ROW_QUERY | UB_BLEND_BASE_HALF | rec_flags;
   bd.ones_weight = rt->lm_scale; /* a set on has blend weight 1 × its pool's scale */
-  r = ub_blend_create(&bd, log, NULL, &rt->lm_blend);
+  /* each element's halves go once copied (rec_values_done) */
+  r = ub_blend_create_ex(&bd, log, NULL, rec_values_done, rt->lm_rec, &rt->lm_blend);
   if (r != UB_OK)
     return r;
   free_rec_values(rt->lm_rec, n);
@@ -1158,8 +1171,6 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   /* Base rows in half too (UB_BLEND_BASE_HALF): the touched texels' as the untouched ones'
    * (lm_static); the probes' are the file's halves, kept exactly. */
   bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF | rec_flags;
-  free(rt->lm_base);
-  rt->lm_base = NULL;
   free(rt->lm_tbase);
   rt->lm_tbase = NULL;
   if (rt->has_glg) {
@@ -1173,7 +1184,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
      * (glg_row_source, ub_blend_row: the bits an eager update streams). */
     bd.flags |= UB_BLEND_ROW_QUERY;
     bd.ones_weight = rt->glg_scale;
-    r = ub_blend_create(&bd, log, NULL, &rt->glg_blend);
+    r = ub_blend_create_ex(&bd, log, NULL, rec_values_done, rt->glg_rec, &rt->glg_blend);
     bd.flags &= ~UB_BLEND_ROW_QUERY;
     if (r != UB_OK)
       return r;
@@ -1202,7 +1213,8 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     bd.base = rt->llg_base;
     bd.elements = rt->llg_rec;
     bd.ones_weight = rt->llg_scale;
-    r = ub_blend_create(&bd, log, rt->llg_cur, &rt->llg_blend);
+    r = ub_blend_create_ex(&bd, log, rt->llg_cur, rec_values_done, rt->llg_rec,
+                           &rt->llg_blend);
     if (r != UB_OK)
       return r;
     rt->llg_chg = calloc(bf->llg_count, sizeof *rt->llg_chg);

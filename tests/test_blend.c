@@ -1906,6 +1906,72 @@ static void test_parts_one_group(void)
   rep_free(&p);
 }
 
+/* ---- ub_blend_create_ex: values handed back as they are copied ------------------------ */
+
+typedef struct done_log {
+  ub_blend_record *recs; /* the copies create_ex reads; freed by on_done */
+  uint32_t calls, next, out_of_order;
+} done_log;
+
+static void on_done(void *user, uint32_t e)
+{
+  done_log *d = user;
+  d->out_of_order += e != d->next;
+  d->next = e + 1;
+  d->calls++;
+  free((void *)(uintptr_t)d->recs[e].values);
+  d->recs[e].values = NULL; /* read again, the engine would crash or differ */
+}
+
+/* create_ex calls values_done once per element, in order, and the engine it builds from
+ * values freed as they are copied gives the bits of ub_blend_create's, update after
+ * update, over run and list groups (stores as given, 8-bit rows). */
+static void test_values_done(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st,
+                             uint32_t flags)
+{
+  rep p;
+  rep_init_runs(&p, R, S, E, st, 4);
+  ub_blend_desc d = rep_desc(&p, "values done");
+  d.flags = flags;
+  const size_t vs = st == UB_BLEND_FLOAT16 ? 2 : 4;
+  ub_blend_record *copy = malloc(sizeof *copy * (E + 1));
+  for (uint32_t e = 0; e < E; e++) {
+    copy[e] = p.recs[e];
+    void *v = malloc((size_t)p.cnt[e] * S * vs + 1);
+    memcpy(v, p.recs[e].values, (size_t)p.cnt[e] * S * vs);
+    copy[e].values = v;
+  }
+  ub_blend_desc dc = d;
+  dc.elements = copy;
+  done_log dl = {copy, 0, 0, 0};
+  float *oa = malloc(sizeof(float) * R * S), *ob = malloc(sizeof(float) * R * S);
+  ub_blend *ba = NULL, *bb = NULL;
+  ASSERT_OK(ub_blend_create(&d, NULL, oa, &ba));
+  ASSERT_OK(ub_blend_create_ex(&dc, NULL, ob, on_done, &dl, &bb));
+  ASSERT_TRUE(dl.calls == E && dl.out_of_order == 0);
+  for (uint32_t e = 0; e < E; e++)
+    ASSERT_TRUE(copy[e].values == NULL);
+  ASSERT_TRUE(memcmp(oa, ob, sizeof(float) * R * S) == 0);
+  for (int round = 0; ba && bb && round < 20; round++) {
+    for (int c = 0; c < 3; c++) {
+      uint32_t e = rnd_below(E);
+      float w[3];
+      rnd_weight(w);
+      ASSERT_OK(ub_blend_set_weight(ba, e, w));
+      ASSERT_OK(ub_blend_set_weight(bb, e, w));
+    }
+    ub_blend_update(ba, NULL, NULL, oa, NULL);
+    ub_blend_update(bb, NULL, NULL, ob, NULL);
+    ASSERT_TRUE(memcmp(oa, ob, sizeof(float) * R * S) == 0);
+  }
+  ub_blend_free(ba);
+  ub_blend_free(bb);
+  free(copy);
+  free(oa);
+  free(ob);
+  rep_free(&p);
+}
+
 int main(void)
 {
   const uint32_t strides[] = {12, 27, 9, 48};
@@ -1947,6 +2013,8 @@ int main(void)
                  UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF | UB_BLEND_ONES_SUM | UB_BLEND_ROW_QUERY);
   test_reference(6000, 27, 24, UB_BLEND_FLOAT32, 0);
   test_reference_parts();
+  test_values_done(20000, 12, 40, UB_BLEND_FLOAT16, 0);
+  test_values_done(6000, 27, 24, UB_BLEND_FLOAT32, UB_BLEND_STORE_Q8);
   test_reference(8000, 12, 30, UB_BLEND_FLOAT16,
                  UB_BLEND_OWN_BASE | UB_BLEND_STORE_Q8 | UB_BLEND_PORTABLE);
   TEST_MAIN_END();
