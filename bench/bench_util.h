@@ -7,6 +7,7 @@
  *   through the same Embree wrapper the baker uses, on all OpenMP threads — so a bake's
  *   rays/s can be compared with what the machine does on that scene in the same run;
  * - ub_bench_rss_kb(): current resident set size (VmRSS), for memory deltas;
+ * - ub_bench_peak_rss_kb(), ub_bench_peak_rss_reset(): the peak (VmHWM) since a reset;
  * - ub_bench_load_average(): 1-minute load average (the machine is shared);
  * - ub_bench_genlevel(): runs ubake-genlevel for a generated benchmark level;
  * - ub_bench_stage_seconds(): a bake's seconds in the stages of one name;
@@ -153,20 +154,43 @@ static inline double ub_bench_ceiling_ratio(double rays_gather, double rays_shad
   return (rays_gather + rays_shadow) / (seconds + 1e-30) / mix;
 }
 
-static inline long ub_bench_rss_kb(void)
+/* A /proc/self/status line's kB (key with its colon), -1 if absent. */
+static inline long ub_bench_status_kb(const char *key)
 {
   long kb = -1;
   char line[256];
+  size_t n = strlen(key);
   FILE *f = fopen("/proc/self/status", "r");
   if (!f)
     return -1;
   while (fgets(line, sizeof line, f))
-    if (!strncmp(line, "VmRSS:", 6)) {
-      kb = strtol(line + 6, NULL, 10);
+    if (!strncmp(line, key, n)) {
+      kb = strtol(line + n, NULL, 10);
       break;
     }
   fclose(f);
   return kb;
+}
+
+static inline long ub_bench_rss_kb(void)
+{
+  return ub_bench_status_kb("VmRSS:");
+}
+
+/* The peak resident set size (VmHWM) since the process started or the last
+ * ub_bench_peak_rss_reset() (0 if the kernel cannot reset it: then since the start). */
+static inline long ub_bench_peak_rss_kb(void)
+{
+  return ub_bench_status_kb("VmHWM:");
+}
+
+static inline int ub_bench_peak_rss_reset(void)
+{
+  FILE *f = fopen("/proc/self/clear_refs", "w");
+  if (!f)
+    return 0;
+  int ok = fputs("5", f) >= 0;
+  return fclose(f) == 0 && ok;
 }
 
 static inline double ub_bench_load_average(void)

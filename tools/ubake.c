@@ -457,15 +457,41 @@ static const char *INFO_HELP =
     "  --keep-state        with the load state kept (UB_RUNTIME_KEEP_STATE: 16 B a texel\n"
     "                      that a set, door or object touches; a return to it copies)\n";
 
-/* The run-time's bytes for path (loads it): 0 on success. */
-static int info_memory(const char *path, const ub_log *log, unsigned flags,
-                       ub_runtime_memory *out, double *out_seconds)
+/* A /proc/self/status line's kB (key with its colon), -1 if absent. */
+static long status_kb(const char *key)
 {
+  long kb = -1;
+  char line[256];
+  size_t n = strlen(key);
+  FILE *f = fopen("/proc/self/status", "r");
+  if (!f)
+    return -1;
+  while (fgets(line, sizeof line, f))
+    if (!strncmp(line, key, n)) {
+      kb = strtol(line + n, NULL, 10);
+      break;
+    }
+  fclose(f);
+  return kb;
+}
+
+/* The run-time's bytes for path (loads it, first thing in the process): 0 on success.
+ * out_peak_mib: how far the resident set rose above the process's while loading (the
+ * kernel's peak, reset first; -1 where it cannot be reset). */
+static int info_memory(const char *path, const ub_log *log, unsigned flags,
+                       ub_runtime_memory *out, double *out_seconds, double *out_peak_mib)
+{
+  FILE *cr = fopen("/proc/self/clear_refs", "w"); /* "5": reset the peak (VmHWM) */
+  int reset = cr && fputs("5", cr) >= 0;
+  reset = cr && fclose(cr) == 0 && reset;
+  long rss0 = status_kb("VmRSS:");
   double t0 = now_s();
   ub_runtime *rt = NULL;
   if (ub_runtime_load_ex(path, log, flags, &rt) != UB_OK)
     return 1;
   *out_seconds = now_s() - t0;
+  long hwm = status_kb("VmHWM:");
+  *out_peak_mib = reset && rss0 >= 0 && hwm >= 0 ? (hwm - rss0) / 1024.0 : -1.0;
   ub_runtime_memory_usage(rt, out);
   ub_runtime_free(rt);
   return 0;
@@ -502,20 +528,20 @@ static int cmd_info(int argc, char **argv)
   if (load_flags && !memory)
     return usage_error("info", "--records and --keep-state go with --memory (the run-time's "
                                "bytes)");
-  cli_log_state ls = {0, 0, 0};
+  /* --json: stdout holds the JSON only (the run-time's load notes were printed before it) */
+  cli_log_state ls = {0, json, 0};
   ub_log log = {cli_log, &ls};
+  /* the run-time first: its load's peak is then its own */
+  ub_runtime_memory mem;
+  double load_s = 0.0, load_peak = -1.0;
+  if (memory && info_memory(path, &log, load_flags, &mem, &load_s, &load_peak))
+    return fail(&ls, UB_ERR_INVALID_DATA, path);
   ub_bakefile *bf = NULL;
   ub_result r = ub_bakefile_read(path, &log, &bf);
   if (r != UB_OK)
     return fail(&ls, r, path);
   struct stat sb;
   long long bytes = stat(path, &sb) == 0 ? (long long)sb.st_size : -1;
-  ub_runtime_memory mem;
-  double load_s = 0.0;
-  if (memory && info_memory(path, &log, load_flags, &mem, &load_s)) {
-    ub_bakefile_free(bf);
-    return fail(&ls, UB_ERR_INVALID_DATA, path);
-  }
   uint64_t covered = 0, dilated = 0, total = 0;
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
     size_t npx = (size_t)bf->atlases[a].width * bf->atlases[a].height;
@@ -577,8 +603,8 @@ static int cmd_info(int argc, char **argv)
     if (memory)
       printf(", \"runtime_memory\": {\"geometry\": %zu, \"lightmap\": %zu, \"glg\": %zu, "
              "\"llg\": %zu, \"records\": %zu, \"blend\": %zu, \"total\": %zu, "
-             "\"load_seconds\": %.3f}", mem.geometry, mem.lightmap, mem.glg, mem.llg,
-             mem.records, mem.blend, mem.total, load_s);
+             "\"load_seconds\": %.3f, \"load_peak_mib\": %.1f}", mem.geometry, mem.lightmap,
+             mem.glg, mem.llg, mem.records, mem.blend, mem.total, load_s, load_peak);
     printf("}\n");
   } else {
     printf("%s: level %s, %lld bytes, seed %u, %u bounces\n", path, bf->level_name, bytes,
@@ -624,11 +650,15 @@ static int cmd_info(int argc, char **argv)
              element_kind_name(rc->kind), rc->name, rc->texel_count, rc->probe_count,
              rc->llg_probe_count, record_bytes(rc), parents);
     }
-    if (memory)
+    if (memory) {
       printf("  run-time memory: %.1f MiB = geometry %.1f + lightmap %.1f + GLG %.1f + LLG %.1f"
-             " + records %.1f + blend engines %.1f (loaded in %.2f s)\n", mem.total / 1048576.0,
+             " + records %.1f + blend engines %.1f (loaded in %.2f s", mem.total / 1048576.0,
              mem.geometry / 1048576.0, mem.lightmap / 1048576.0, mem.glg / 1048576.0,
              mem.llg / 1048576.0, mem.records / 1048576.0, mem.blend / 1048576.0, load_s);
+      if (load_peak >= 0.0)
+        printf(", resident set at most +%.1f MiB while loading", load_peak);
+      printf(")\n");
+    }
   }
   ub_bakefile_free(bf);
   return 0;
