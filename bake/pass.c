@@ -1054,6 +1054,7 @@ static void scr_give(ub_pass_cache *cache, int slot, void *p, size_t bytes, cons
     return;
   }
   free(cache->scr[slot]); /* another size (another level's pass): the newer one stays */
+#pragma omp parallel for schedule(static)
   for (uint32_t i = 0; i < n; i++)
     memset((char *)p + (size_t)idx[i] * row_bytes, 0, row_bytes);
   cache->scr[slot] = p;
@@ -1178,12 +1179,15 @@ static void texel_lights_build(pass_ctx *c, const double *e_prev)
   /* A subset pass: only its act texels hold light (tl_rad is 0 elsewhere from the start),
    * and a cluster without one has no power: its cdf and texel shares stay 0. */
   uint32_t n = c->act ? c->nact : T;
+#pragma omp parallel for schedule(static)
   for (uint32_t i = 0; i < n; i++) {
     uint32_t t = c->act ? c->act[i] : i;
     const float *alb = s->materials[s->tri_material[lm->texel_tri[t]]].albedo;
     for (int ch = 0; ch < 3; ch++)
       c->tl_rad[3 * (size_t)t + ch] = (float)(alb[ch] * M_1_PI * e_prev[3 * (size_t)t + ch]);
   }
+  int on = 0; /* clusters are independent: each its own texels, cdf range and fields */
+#pragma omp parallel for schedule(dynamic, 64) reduction(| : on)
   for (uint32_t k = 0; k < c->tl_K; k++) {
     tl_cluster *cl = &c->tl_cl[k];
     if (c->tl_hot && !c->tl_hot[k]) {
@@ -1209,8 +1213,9 @@ static void texel_lights_build(pass_ctx *c, const double *e_prev)
       c->tl_ccdf[c->tl_start[k + 1] - 1] = 1.0f;
     cl->power = sum;
     cl->peak = peak;
-    c->tl_on |= sum > 0.0;
+    on |= sum > 0.0;
   }
+  c->tl_on = on;
 }
 
 /* The cluster table (cdf, tl_K entries) for the receivers of group g in a block: 1 when
@@ -1898,6 +1903,7 @@ static void relative_variance(const pass_ctx *c, const double *read, float *rel2
                               const uint32_t *act, uint32_t n)
 {
   const recv_set *tx = &c->sets[0];
+#pragma omp parallel for schedule(static)
   for (uint32_t i = 0; i < n; i++) {
     uint32_t t = act ? act[i] : i;
     double e = fmax(lum3d(read + 3 * (size_t)t), lum3d(tx->acc_iz + 3 * (size_t)t));
@@ -2435,10 +2441,12 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     goto done;
   }
   if (est) {
+#pragma omp parallel for schedule(static)
     for (uint32_t i = 0; i < nact; i++) {
       uint32_t t = ACT(i);
       var_tx[t] += tx->acc_var[t] + tx->acc_pvar[t];
     }
+#pragma omp parallel for schedule(static)
     for (uint32_t i = 0; i < npact; i++) {
       uint32_t q = PACT(i);
       var_pr[q] += pr->acc_var[q] + pr->acc_pvar[q];
@@ -2450,12 +2458,16 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   double total_energy = energy_of(tx->acc_iz, act, nact);
   double src_energy = outgoing_energy(&c, tx->acc_src, act, nact);
   out->bounce_energy[0] = total_energy;
+  /* Per receiver, independent: on every thread (serial, these loops were a fifth of an
+   * influence pass's time with the other thread idle). */
+#pragma omp parallel for schedule(static)
   for (uint32_t i = 0; i < nact; i++) {
     size_t t = ACT(i);
     memcpy(sh_total + 12 * t, tx->acc_sh + 12 * t, 12 * sizeof(double));
     memcpy(iz_total + 3 * t, tx->acc_iz + 3 * t, 3 * sizeof(double));
     out->texel_direct[t] = (float)lum3d(tx->acc_src + 3 * t);
   }
+#pragma omp parallel for schedule(static)
   for (uint32_t i = 0; i < npact; i++) {
     size_t q = PACT(i);
     memcpy(probe_total + 27 * q, pr->acc_sh + 27 * q, 27 * sizeof(double));
@@ -2469,6 +2481,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   texel_lights_build(&c, tx->acc_src);
   c.tl_full = c.nee;
   /* LLG probes likewise: bounce 1 reads their non-punctual bounce 0 when NEE is on. */
+#pragma omp parallel for schedule(static)
   for (uint32_t i = 0; i < nlact; i++) {
     size_t q = LACT(i);
     out->llg_direct[q] = (float)(M_PI * UB_Y0 * lum3d(lg->acc_sh + 27 * q));
@@ -2507,6 +2520,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       converged = 1;
       break; /* nothing to bounce */
     }
+#pragma omp parallel for schedule(static)
     for (uint32_t i = 0; i < nact; i++) {
       size_t t = ACT(i);
       memset(tx->acc_sh + 12 * t, 0, 12 * sizeof(double));
@@ -2514,12 +2528,14 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       if (est)
         tx->acc_var[t] = tx->acc_pvar[t] = 0.0;
     }
+#pragma omp parallel for schedule(static)
     for (uint32_t i = 0; i < npact; i++) {
       size_t q = PACT(i);
       memset(pr->acc_sh + 27 * q, 0, 27 * sizeof(double));
       if (est)
         pr->acc_var[q] = pr->acc_pvar[q] = 0.0;
     }
+#pragma omp parallel for schedule(static)
     for (uint32_t i = 0; i < nlact; i++)
       memset(lg->acc_sh + 27 * (size_t)LACT(i), 0, 27 * sizeof(double));
     c.bounce = b;
@@ -2536,6 +2552,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     }
     if (d->gather_donor && d->gather_subset) {
       uint32_t na = d->texel_subset ? d->texel_subset_count : T;
+      /* a donor is its own (never written here) */
+#pragma omp parallel for schedule(static)
       for (uint32_t i = 0; i < na; i++) {
         uint32_t t = d->texel_subset ? d->texel_subset[i] : i, g = d->gather_donor[t];
         if (g == t || g >= T)
@@ -2550,6 +2568,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     }
     if (d->llg_gather_donor && d->llg_gather_subset) {
       uint32_t na = d->llg_subset ? d->llg_subset_count : LP;
+#pragma omp parallel for schedule(static)
       for (uint32_t i = 0; i < na; i++) {
         uint32_t q = d->llg_subset ? d->llg_subset[i] : i, g = d->llg_gather_donor[q];
         if (g != q && g < LP)
@@ -2558,6 +2577,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     }
     double e = energy_of(tx->acc_iz, act, nact);
     out->bounce_energy[b] = e;
+#pragma omp parallel for schedule(static)
     for (uint32_t i = 0; i < nact; i++) {
       size_t t = ACT(i);
       for (size_t j = 12 * t; j < 12 * t + 12; j++)
@@ -2571,6 +2591,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
         for (int j = 0; j < 3; j++)
           out->texel_bounce_iz[(size_t)(b - 1) * T * 3 + 3 * t + j] = (float)tx->acc_iz[3 * t + j];
     }
+#pragma omp parallel for schedule(static)
     for (uint32_t i = 0; i < npact; i++) {
       size_t q = PACT(i);
       for (size_t j = 27 * q; j < 27 * q + 27; j++)
@@ -2579,6 +2600,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
         var_pr[q] += pr->acc_var[q] + pr->acc_pvar[q];
       out->probe_indirect[q] += (float)(M_PI * UB_Y0 * lum3d(pr->acc_sh + 27 * q));
     }
+#pragma omp parallel for schedule(static)
     for (uint32_t i = 0; i < nlact; i++) {
       size_t q = LACT(i);
       for (size_t j = 27 * q; j < 27 * q + 27; j++)
@@ -2627,6 +2649,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       double last = out->bounce_energy[k];
       double scale = b <= d->outside_bounces ? 1.0 : (last > 0.0 ? e / last : 0.0);
       const float *src = d->outside_bounce_iz + (size_t)(k - 1) * T * 3;
+#pragma omp parallel for schedule(static)
       for (uint32_t i = 0; i < nact; i++) {
         uint32_t t = ACT(i);
         if (outside[t])
@@ -2639,6 +2662,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     c.tl_full = 0;
     if (est)
       relative_variance(&c, tx->acc_iz, rel2, act, nact);
+#pragma omp parallel for schedule(static)
     for (uint32_t i = 0; i < nlact; i++)
       for (size_t j = 27 * (size_t)LACT(i); j < 27 * (size_t)LACT(i) + 27; j++)
         c.llg_prev[j] = (float)lg->acc_sh[j];
@@ -2671,6 +2695,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
                                                      (UB_Y1 * UB_Y1);
   const double h0 = UB_Y0 * M_PI / K, h1 = UB_Y1 * (2.0 * M_PI / 3.0) / K;
   uint64_t clamped = 0;
+#pragma omp parallel for schedule(static) reduction(+ : clamped)
   for (uint32_t i = 0; i < nact; i++) {
     uint32_t t = ACT(i);
     const float *n = lm->texel_normal + 3 * (size_t)t;
