@@ -94,6 +94,8 @@ int ub_lightmap_image_fill(const ub_lightmap *lm, uint32_t atlas, const float *i
 static void sparse_ring(const ub_atlas *at, const uint8_t *level, uint8_t ring,
                         const uint32_t *px, uint32_t n, float *img)
 {
+  /* A ring's pixels are distinct and read only lower levels: on every thread. */
+#pragma omp parallel for schedule(static) if (n > 4096)
   for (uint32_t k = 0; k < n; k++) {
     uint32_t i = px[k], x = i % at->width, y = i / at->width;
     float sum[4] = {0.0f, 0.0f, 0.0f, 0.0f};
@@ -210,6 +212,7 @@ void ub_lightmap_sparse_fill(const ub_lightmap *lm, const ub_lightmap_sparse *sp
                              const double *izd, float *img)
 {
   const ub_atlas *at = &lm->atlases[sp->atlas];
+#pragma omp parallel for schedule(static) if (sp->n0 > 4096)
   for (uint32_t k = 0; k < sp->n0; k++)
     for (int c = 0; c < 3; c++)
       img[4 * (size_t)sp->px[k] + c] = (float)izd[3 * (size_t)sp->t0[k] + c];
