@@ -1808,6 +1808,11 @@ static ub_result parse_records(const ubk_reader *rd, ubk_src *src, uint64_t off,
          cur_take(&c, (size_t)(align8(block) - block), &pad);
     /* the exact size walk above guarantees the bytes; only a file read can fail */
     assert(ok || src->err);
+    if (!ok && !src->err) { /* a read wider than the stream's buffer: a reader bug */
+      ubk_error(rd->log, rd->name, where, "record %u: read past the stream's buffer", d);
+      res = UB_ERR_INVALID_DATA;
+      break;
+    }
     if (!ok) {
       res = src_error(rd, src, where);
       break;
@@ -2314,10 +2319,15 @@ ub_result ub_bakefile_read_ex(const char *path, const ub_log *log, unsigned flag
   /* Read where parsed (ubk_src): the load holds a section at a time, not the file. */
   ubk_src src = {NULL, fileno(f), (uint64_t)st.st_size, 0};
   ub_result r = read_src(&src, path, log, flags, out_bf);
-  /* A file that grew or shrank while it was read may have mixed old and new bytes. */
+  /* The CRCs are checked in a first read and the sections parsed from a second: a file
+   * written while it was read (size, modification or status change time, to the
+   * nanosecond, or another inode) may have mixed old and new bytes. The baker writes a
+   * new file and renames it over the old, which an open reader does not see. */
   struct stat st2;
-  if (r == UB_OK && (fstat(fileno(f), &st2) != 0 || st2.st_size != st.st_size ||
-                     st2.st_mtime != st.st_mtime)) {
+  if (r == UB_OK &&
+      (fstat(fileno(f), &st2) != 0 || st2.st_size != st.st_size || st2.st_ino != st.st_ino ||
+       st2.st_mtim.tv_sec != st.st_mtim.tv_sec || st2.st_mtim.tv_nsec != st.st_mtim.tv_nsec ||
+       st2.st_ctim.tv_sec != st.st_ctim.tv_sec || st2.st_ctim.tv_nsec != st.st_ctim.tv_nsec)) {
     ubk_error(log, path, "read", "file changed while reading");
     ub_bakefile_free(*out_bf);
     *out_bf = NULL;
