@@ -76,33 +76,6 @@ static inline uint32_t ub_cdf_pick(const float *cdf, uint32_t n, float u)
   return lo;
 }
 
-/* A guide for ub_cdf_pick_guided over cdf (n > 0 entries, as ub_cdf_pick's; n < 2^24):
- * guide[j] (j < n) = the first index whose value exceeds (j − 1)/n (n − 1 at most):
- * every entry before it is ≤ any u with (uint32_t)(u·n) = j (cut points, Chen & Asau). */
-static inline void ub_cdf_guide(const float *cdf, uint32_t n, uint32_t *guide)
-{
-  uint32_t i = 0;
-  for (uint32_t j = 0; j < n; j++) {
-    const double thr = ((double)j - 1.0) / (double)n;
-    while (i < n - 1 && (double)cdf[i] <= thr)
-      i++;
-    guide[j] = i;
-  }
-}
-/* ub_cdf_pick's answer for every u (the first i with cdf[i] > u, n − 1 when none), found
- * from the guide's entry for u onwards instead of by bisection: about two reads next to
- * each other instead of log2(n) spread over the table. A guide of zeros is valid (a
- * linear search). */
-static inline uint32_t ub_cdf_pick_guided(const float *cdf, const uint32_t *guide, uint32_t n,
-                                          float u)
-{
-  uint32_t j = (uint32_t)(u * (float)n);
-  uint32_t i = guide[j < n ? j : n - 1];
-  while (i < n - 1 && !(cdf[i] > u))
-    i++;
-  return i;
-}
-
 /* Sampling helpers. */
 void ub_sample_cosine(const float n[3], float u1, float u2, float out_dir[3]);
 void ub_onb(const float n[3], float out_t[3], float out_b[3]);

@@ -111,8 +111,6 @@ typedef struct pass_ctx {
   uint32_t *tl_start;         /* cluster → first entry of tl_list; tl_K + 1 entries */
   uint32_t *tl_list;          /* texels ordered by cluster */
   float *tl_ccdf;             /* tl_list order: cumulative power within the cluster, last 1 */
-  uint32_t *tl_guide;         /* tl_list order: each lit cluster's ub_cdf_guide of its tl_ccdf
-                                 (0 elsewhere: valid for any table) */
   struct tl_cluster *tl_cl;   /* tl_K clusters */
   uint32_t tl_K;
   int tl_on;                  /* some texel has power this bounce */
@@ -759,16 +757,6 @@ typedef struct tl_pick {
   uint32_t cl, t, sp;
 } tl_pick;
 
-/* A block's cluster table (tl_block_table) is K floats followed by their guide. */
-static inline uint32_t *tl_table_guide(float *cdf, uint32_t K)
-{
-  return (uint32_t *)(void *)(cdf + K);
-}
-static inline const uint32_t *tl_table_guide_c(const float *cdf, uint32_t K)
-{
-  return (const uint32_t *)(const void *)(cdf + K);
-}
-
 /* The picks of receivers i0 .. i1-1 of a block (out[(i - i0) · M + k]), with the draws
  * texel_light_block made inline before (same hashes, same order), and their texels' data
  * asked of the memory system: each pick is a chain of random reads (cluster table, texel
@@ -787,14 +775,14 @@ static void tl_pick_round(const pass_ctx *c, const recv_set *rs, uint32_t r0, ui
     for (uint32_t k = 0; cdf && k < M; k++) {
       tl_pick *o = &out[(size_t)(i - i0) * M + k];
       uint32_t h = ub_hash_mix(hr, k);
-      uint32_t cl = ub_cdf_pick_guided(cdf, tl_table_guide_c(cdf, K), K, ub_u01(h));
+      uint32_t cl = ub_cdf_pick(cdf, K, ub_u01(h));
       uint32_t b0 = c->tl_start[cl], b1 = c->tl_start[cl + 1];
       o->cl = cl;
       o->t = UINT32_MAX;
       if (b1 <= b0)
         continue;
-      uint32_t t = c->tl_list[b0 + ub_cdf_pick_guided(c->tl_ccdf + b0, c->tl_guide + b0, b1 - b0,
-                                                      ub_u01(ub_hash4(h, 3, 0, 0)))];
+      uint32_t t = c->tl_list[b0 + ub_cdf_pick(c->tl_ccdf + b0, b1 - b0,
+                                               ub_u01(ub_hash4(h, 3, 0, 0)))];
       o->t = t;
       o->sp = ub_hash4(h, 1, 0, 0) % UB_TEXEL_SAMPLES;
       const float *qo = lm->sample_pos + ((size_t)t * UB_TEXEL_SAMPLES + o->sp) * 3;
@@ -941,8 +929,7 @@ static int texel_clusters_build(pass_ctx *c)
   c->tl_list = malloc(((size_t)T + 1) * sizeof *c->tl_list);
   c->tl_ccdf = calloc((size_t)T + 1, sizeof *c->tl_ccdf); /* 0: clusters never lit */
   c->tl_pc = calloc((size_t)T + 1, sizeof *c->tl_pc);
-  c->tl_guide = calloc((size_t)T + 1, sizeof *c->tl_guide);
-  if (!key || !c->tl_of || !c->tl_list || !c->tl_ccdf || !c->tl_pc || !c->tl_guide) {
+  if (!key || !c->tl_of || !c->tl_list || !c->tl_ccdf || !c->tl_pc) {
     free(key);
     return 0;
   }
@@ -1174,8 +1161,7 @@ static int texel_clusters_from_cache(pass_ctx *c, const ub_pass_cache *cache)
   c->tl_cl = malloc((K + 1) * sizeof *c->tl_cl);
   c->tl_ccdf = calloc(T + 1, sizeof *c->tl_ccdf);
   c->tl_pc = calloc(T + 1, sizeof *c->tl_pc);
-  c->tl_guide = calloc(T + 1, sizeof *c->tl_guide);
-  if (!c->tl_cl || !c->tl_ccdf || !c->tl_pc || !c->tl_guide)
+  if (!c->tl_cl || !c->tl_ccdf || !c->tl_pc)
     return 0;
   memcpy(c->tl_cl, cache->cl, K * sizeof *c->tl_cl);
   return tl_hot_build(c);
@@ -1223,11 +1209,8 @@ static void texel_lights_build(pass_ctx *c, const double *e_prev)
       c->tl_ccdf[i] = (float)(c->tl_ccdf[i] / sum);
       c->tl_pc[c->tl_list[i]] = (float)(c->tl_pc[c->tl_list[i]] / sum);
     }
-    if (sum > 0.0) {
+    if (sum > 0.0)
       c->tl_ccdf[c->tl_start[k + 1] - 1] = 1.0f;
-      ub_cdf_guide(c->tl_ccdf + c->tl_start[k], c->tl_start[k + 1] - c->tl_start[k],
-                   c->tl_guide + c->tl_start[k]);
-    }
     cl->power = sum;
     cl->peak = peak;
     on |= sum > 0.0;
@@ -1298,7 +1281,6 @@ static int tl_block_table(const pass_ctx *c, const recv_set *rs, uint32_t r0, ui
   for (uint32_t k = 0; k < c->tl_K; k++)
     cdf[k] = (float)(cdf[k] / sum);
   cdf[c->tl_K - 1] = 1.0f;
-  ub_cdf_guide(cdf, c->tl_K, tl_table_guide(cdf, c->tl_K));
   return 1;
 }
 
@@ -1891,11 +1873,10 @@ static void run_blocks(pass_ctx *c, int direct, int gather, const char *stage, d
       float *tl_buf = NULL;
       int tl_any = 0;
       if (gather && c->bounce >= 1 && c->tl_on && rs->samples) {
-        /* per group: its cdf (tl_K floats), then the cdf's guide (tl_K words) */
-        tl_buf = malloc((size_t)UB_TL_GROUPS * 2 * c->tl_K * sizeof *tl_buf);
+        tl_buf = malloc((size_t)UB_TL_GROUPS * c->tl_K * sizeof *tl_buf);
         for (int g = 0; tl_buf && g < UB_TL_GROUPS; g++)
-          if (tl_block_table(c, rs, r0, nr, g, tl_buf + (size_t)g * 2 * c->tl_K)) {
-            tl[g] = tl_buf + (size_t)g * 2 * c->tl_K;
+          if (tl_block_table(c, rs, r0, nr, g, tl_buf + (size_t)g * c->tl_K)) {
+            tl[g] = tl_buf + (size_t)g * c->tl_K;
             tl_any = 1;
           }
       }
@@ -2825,7 +2806,6 @@ done:
   }
   free(c.tl_pc);
   free(c.tl_ccdf);
-  free(c.tl_guide);
   free(c.tl_cl);
   free(c.tl_hot);
   free(lg->acc_sh);

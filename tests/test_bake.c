@@ -499,70 +499,11 @@ static void test_determinism(void)
   ub_runtime_free(r2);
 }
 
-/* ub_cdf_pick_guided gives ub_cdf_pick's index for every u: tables of 1..5000 entries
- * (even, skewed by a few large entries, with runs of zero-width entries, all zero), u at
- * random, at 0, at the entries' values and the floats next to them, and just below 1. */
-static void test_cdf_guided(void)
-{
-  uint64_t st = 0x9E3779B97F4A7C15ull;
-  const uint32_t sizes[] = {1, 2, 3, 7, 64, 100, 1000, 4096, 5000};
-  uint64_t checked = 0, differ = 0;
-  for (int kind = 0; kind < 4; kind++)
-    for (size_t si = 0; si < sizeof sizes / sizeof sizes[0]; si++) {
-      uint32_t n = sizes[si];
-      float *cdf = malloc(sizeof(float) * n);
-      uint32_t *guide = malloc(sizeof(uint32_t) * n);
-      double *w = malloc(sizeof(double) * n), sum = 0.0;
-      for (uint32_t i = 0; i < n; i++) {
-        st = st * 6364136223846793005ull + 1442695040888963407ull;
-        double x = (double)(st >> 11) * 0x1.0p-53;
-        w[i] = kind == 0   ? 1.0
-               : kind == 1 ? (x < 0.01 ? 1e4 * x : x)
-               : kind == 2 ? (x < 0.6 ? 0.0 : x)
-                           : 0.0;
-        sum += w[i];
-      }
-      double acc = 0.0;
-      for (uint32_t i = 0; i < n; i++) { /* as texel_lights_build makes a table */
-        acc += w[i];
-        cdf[i] = sum > 0.0 ? (float)(acc / sum) : 0.0f;
-      }
-      if (sum > 0.0)
-        cdf[n - 1] = 1.0f;
-      ub_cdf_guide(cdf, n, guide);
-      for (uint32_t k = 0; k < 4000 + 4 * n; k++) {
-        float u;
-        st = st * 6364136223846793005ull + 1442695040888963407ull;
-        if (k < 4 * n) { /* an entry's value and its neighbours */
-          float v = cdf[k / 4];
-          u = k % 4 == 0   ? v
-              : k % 4 == 1 ? nextafterf(v, 0.0f)
-              : k % 4 == 2 ? nextafterf(v, 1.0f)
-                           : 0.0f;
-          if (!(u < 1.0f))
-            u = nextafterf(1.0f, 0.0f);
-        } else {
-          u = ub_u01((uint32_t)(st >> 32));
-        }
-        checked++;
-        differ += ub_cdf_pick_guided(cdf, guide, n, u) != ub_cdf_pick(cdf, n, u);
-      }
-      free(cdf);
-      free(guide);
-      free(w);
-    }
-  printf("cdf guided: %llu picks, %llu differ from the bisection (want 0)\n",
-         (unsigned long long)checked, (unsigned long long)differ);
-  ASSERT_TRUE(differ == 0);
-}
-
 int main(int argc, char **argv)
 {
   const char *b = getenv("UB_BUILD");
   snprintf(g_build, sizeof g_build, "%s", b ? b : "build");
   const char *only = argc > 1 ? argv[1] : NULL;
-  if (!only || !strcmp(only, "cdf_guided"))
-    test_cdf_guided();
   if (!only || !strcmp(only, "furnace"))
     test_furnace();
   if (!only || !strcmp(only, "plane_point"))
