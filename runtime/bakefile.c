@@ -1693,8 +1693,8 @@ static ub_result parse_records(const ubk_reader *rd, ubk_src *src, uint64_t off,
   if (!src_read(src, off, h8, 8))
     return src_error(rd, src, where);
   ubk_cursor c = {h8, 8, NULL};
-  uint32_t ns;
-  float scale;
+  uint32_t ns = 0;
+  float scale = 0.0f; /* both read: 8 bytes are there (GCC -O3 cannot see it past assert) */
   int ok = cur_u32(&c, &ns) && cur_f32s(&c, &scale, 1);
   assert(ok);
   if (!check_scale(rd, where, &scale))
