@@ -177,6 +177,11 @@ ub_result ub_bakefile_write(const ub_bakefile *bf, const char *path, const ub_lo
  * SH of atlases, GLG probes and records are scaled instead, so only LLG data can clamp. */
 ub_result ub_bakefile_write_ex(const ub_bakefile *bf, const char *path, const ub_log *log,
                                uint64_t *out_clamped);
+/* Reads path a section at a time (never the whole file at once: the records stream through
+ * a buffer of at most 4 MiB), checking every section's CRC before it is parsed. Errors:
+ * UB_ERR_IO (cannot open or read it, or it changed while read: inode, size or times),
+ * UB_ERR_INVALID_DATA, UB_ERR_UNSUPPORTED_VERSION, UB_ERR_OUT_OF_MEMORY; one message to
+ * log naming the file and the section. */
 ub_result ub_bakefile_read(const char *path, const ub_log *log, ub_bakefile **out_bf);
 /* Flags of ub_bakefile_read_ex. */
 #define UB_BAKEFILE_RECORD_HALVES 1u /* records' SH as the file's halves (see the record) */
