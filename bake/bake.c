@@ -62,6 +62,32 @@ long ub_peak_rss_kb(void)
   return ru.ru_maxrss;
 }
 
+long ub_proc_status_kb(const char *key)
+{
+  long kb = -1;
+  char line[256];
+  size_t n = strlen(key);
+  FILE *f = fopen("/proc/self/status", "r");
+  if (!f)
+    return -1;
+  while (fgets(line, sizeof line, f))
+    if (!strncmp(line, key, n)) {
+      kb = strtol(line + n, NULL, 10);
+      break;
+    }
+  fclose(f);
+  return kb;
+}
+
+int ub_peak_rss_reset(void)
+{
+  FILE *f = fopen("/proc/self/clear_refs", "w"); /* "5": reset VmHWM */
+  if (!f)
+    return 0;
+  int ok = fputs("5", f) >= 0;
+  return fclose(f) == 0 && ok;
+}
+
 typedef struct stage_clock {
   ub_bake_stats *stats;
   const ub_log *log;

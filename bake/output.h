@@ -31,5 +31,9 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
                           ub_bake_stats *stats, const ub_log *log);
 
 long ub_peak_rss_kb(void);
+/* A /proc/self/status line's kB (key with its colon: "VmRSS:", "VmHWM:"), -1 if absent. */
+long ub_proc_status_kb(const char *key);
+/* Resets the kernel's peak resident set (VmHWM) to the current one; 0 if it cannot. */
+int ub_peak_rss_reset(void);
 
 #endif

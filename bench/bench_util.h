@@ -23,6 +23,7 @@
 #include <time.h>
 
 #include "bake/lights.h"
+#include "bake/output.h"
 #include "bake/rt.h"
 #include "ubake/bake.h"
 #include "ubake/scene.h"
@@ -154,43 +155,21 @@ static inline double ub_bench_ceiling_ratio(double rays_gather, double rays_shad
   return (rays_gather + rays_shadow) / (seconds + 1e-30) / mix;
 }
 
-/* A /proc/self/status line's kB (key with its colon), -1 if absent. */
-static inline long ub_bench_status_kb(const char *key)
-{
-  long kb = -1;
-  char line[256];
-  size_t n = strlen(key);
-  FILE *f = fopen("/proc/self/status", "r");
-  if (!f)
-    return -1;
-  while (fgets(line, sizeof line, f))
-    if (!strncmp(line, key, n)) {
-      kb = strtol(line + n, NULL, 10);
-      break;
-    }
-  fclose(f);
-  return kb;
-}
-
 static inline long ub_bench_rss_kb(void)
 {
-  return ub_bench_status_kb("VmRSS:");
+  return ub_proc_status_kb("VmRSS:");
 }
 
 /* The peak resident set size (VmHWM) since the process started or the last
  * ub_bench_peak_rss_reset() (0 if the kernel cannot reset it: then since the start). */
 static inline long ub_bench_peak_rss_kb(void)
 {
-  return ub_bench_status_kb("VmHWM:");
+  return ub_proc_status_kb("VmHWM:");
 }
 
 static inline int ub_bench_peak_rss_reset(void)
 {
-  FILE *f = fopen("/proc/self/clear_refs", "w");
-  if (!f)
-    return 0;
-  int ok = fputs("5", f) >= 0;
-  return fclose(f) == 0 && ok;
+  return ub_peak_rss_reset();
 }
 
 static inline double ub_bench_load_average(void)

@@ -11,6 +11,7 @@
 
 #include "bake/geomstate.h"
 #include "bake/lights.h"
+#include "bake/output.h"
 #include "bake/reference.h"
 #include "bake/rt.h"
 #include "ubake/bake.h"
@@ -457,40 +458,20 @@ static const char *INFO_HELP =
     "  --keep-state        with the load state kept (UB_RUNTIME_KEEP_STATE: 16 B a texel\n"
     "                      that a set, door or object touches; a return to it copies)\n";
 
-/* A /proc/self/status line's kB (key with its colon), -1 if absent. */
-static long status_kb(const char *key)
-{
-  long kb = -1;
-  char line[256];
-  size_t n = strlen(key);
-  FILE *f = fopen("/proc/self/status", "r");
-  if (!f)
-    return -1;
-  while (fgets(line, sizeof line, f))
-    if (!strncmp(line, key, n)) {
-      kb = strtol(line + n, NULL, 10);
-      break;
-    }
-  fclose(f);
-  return kb;
-}
-
 /* The run-time's bytes for path (loads it, first thing in the process): 0 on success.
  * out_peak_mib: how far the resident set rose above the process's while loading (the
  * kernel's peak, reset first; -1 where it cannot be reset). */
 static int info_memory(const char *path, const ub_log *log, unsigned flags,
                        ub_runtime_memory *out, double *out_seconds, double *out_peak_mib)
 {
-  FILE *cr = fopen("/proc/self/clear_refs", "w"); /* "5": reset the peak (VmHWM) */
-  int reset = cr && fputs("5", cr) >= 0;
-  reset = cr && fclose(cr) == 0 && reset;
-  long rss0 = status_kb("VmRSS:");
+  int reset = ub_peak_rss_reset();
+  long rss0 = ub_proc_status_kb("VmRSS:");
   double t0 = now_s();
   ub_runtime *rt = NULL;
   if (ub_runtime_load_ex(path, log, flags, &rt) != UB_OK)
     return 1;
   *out_seconds = now_s() - t0;
-  long hwm = status_kb("VmHWM:");
+  long hwm = ub_proc_status_kb("VmHWM:");
   *out_peak_mib = reset && rss0 >= 0 && hwm >= 0 ? (hwm - rss0) / 1024.0 : -1.0;
   ub_runtime_memory_usage(rt, out);
   ub_runtime_free(rt);
