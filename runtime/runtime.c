@@ -503,8 +503,8 @@ static void encode_texel_packed(const ub_runtime *rt, uint32_t a, const float *r
   ub_ahd_pack(&f, rt->ahd_inv_scale, out);
 }
 
-/* ub_blend_desc.values_done: element e's halves (user: its ub_blend_record array) are
- * copied into the blend, which reads them no more. */
+/* ub_blend_create_ex's values_done: element e's halves (user: its ub_blend_record array)
+ * are copied into the blend, which reads them no more. */
 static void rec_values_done(void *user, uint32_t e)
 {
   ub_blend_record *recs = user;
