@@ -7,7 +7,6 @@
  *   through the same Embree wrapper the baker uses, on all OpenMP threads — so a bake's
  *   rays/s can be compared with what the machine does on that scene in the same run;
  * - ub_bench_rss_kb(): current resident set size (VmRSS), for memory deltas;
- * - ub_bench_peak_rss_kb(), ub_bench_peak_rss_reset(): the peak (VmHWM) since a reset;
  * - ub_bench_load_average(): 1-minute load average (the machine is shared);
  * - ub_bench_genlevel(): runs ubake-genlevel for a generated benchmark level;
  * - ub_bench_stage_seconds(): a bake's seconds in the stages of one name;
@@ -158,18 +157,6 @@ static inline double ub_bench_ceiling_ratio(double rays_gather, double rays_shad
 static inline long ub_bench_rss_kb(void)
 {
   return ub_proc_status_kb("VmRSS:");
-}
-
-/* The peak resident set size (VmHWM) since the process started or the last
- * ub_bench_peak_rss_reset() (0 if the kernel cannot reset it: then since the start). */
-static inline long ub_bench_peak_rss_kb(void)
-{
-  return ub_proc_status_kb("VmHWM:");
-}
-
-static inline int ub_bench_peak_rss_reset(void)
-{
-  return ub_peak_rss_reset();
 }
 
 static inline double ub_bench_load_average(void)
