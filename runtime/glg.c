@@ -285,8 +285,12 @@ static int hull_sees(const ub_glg *g, const double p[3], const hull_hit *hit, ui
   return dn >= -1e-9 * sqrt(d3dot(d, d) * d3dot(n, n));
 }
 
+/* The nearest hull face by a scan of them all (ub_glg_init keeps at least 4); when no
+ * distance is below HUGE_VAL (p so far that they overflow), face 0's weights, so *best
+ * always names a face. */
 static void hull_brute(const ub_glg *g, const double p[3], hull_hit *best)
 {
+  hull_eval(g, p, 0, best);
   best->d2 = HUGE_VAL;
   for (uint32_t h = 0; h < g->hull_count; h++) {
     hull_hit hit;
