@@ -607,34 +607,86 @@ __attribute__((target("avx,f16c"))) static void encode_iz16_packed_avx(const flo
       encode8_packed_scalar(rows + 8 * g, nrm + 24 * g, inv_scale, out + 8 * g);
 }
 
-/* encode_iz16_packed_avx in the sixteen lanes of AVX-512 registers: the same operations in
- * the same order (IEEE single; no FMA: contraction is off here, as AVX-512 brings FMA),
- * the blends as mask moves, so each lane still gives the scalar bits (test_ahd). Texels
- * come in and go out through the 8-lane transposes, a group of eight per 256-bit half.
- * Half the encode's arithmetic instructions per texel of the AVX pair, 14% faster in cache
- * (bench_ahd); fewer lane moves (inserts from memory, permutes) gained nothing measurable. */
+/* encode_iz16_packed_avx in the sixteen lanes of AVX-512 registers, for sixteen texels
+ * stored one after the other (sh: 16 × 12 floats, nrm: 16 × 3, out: 16): the same
+ * operations in the same order (IEEE single; no FMA: contraction is off here, as AVX-512
+ * brings FMA), the blends as mask moves, so each lane still gives the scalar bits
+ * (test_ahd). Half the encode's arithmetic instructions per texel of the AVX pair.
+ * Texels come in and go out by AVX-512 permutes of whole registers: the twelve registers
+ * of rows become twelve coefficient registers in 48 two-source permutes and unpacks (the
+ * 8-lane transposes of the pair took ~100 such lane moves, and with the arithmetic's own
+ * 512-bit operations they share the one shuffle port of Intel's cores), the normals in 6
+ * and the packed texels go out through a 4 × 4 transpose of 32-bit words. Lane p holds
+ * texel ahd_pi(p) = 4·(p mod 4) + p / 4: the order the register transposes give, the same
+ * on the way out. */
 #if !defined(__clang__) /* GCC fuses the intrinsics' mul + add where FMA is on */
 #pragma GCC push_options
 #pragma GCC optimize("fp-contract=off")
 #endif
-#define AHD_W(lo, hi) /* two groups' 8 lanes → 16 lanes */                             \
-  _mm512_castpd_ps(_mm512_insertf64x4(_mm512_castpd256_pd512(_mm256_castps_pd(lo)),    \
-                                      _mm256_castps_pd(hi), 1))
+/* Permute indices. Rows 4m..4m+3 are registers 3m..3m+2 (48 floats, twelve 128-bit
+ * quarters; quarter 3i + s holds coefficients 4s..4s+3 of row i): ahd_row_ix[s] gathers
+ * quarter s of the four rows into the four quarters of one register, first from registers
+ * 3m and 3m+1, then ([s][1]) the rest from 3m+2. ahd_nrm_ix[k]: component k of the normals
+ * in lane order, from the first two of the three normal registers, then from the third. */
+static const int32_t ahd_row_ix[3][2][16] __attribute__((aligned(64))) = {
+    {{0, 1, 2, 3, 12, 13, 14, 15, 24, 25, 26, 27, 0, 0, 0, 0},
+     {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 20, 21, 22, 23}},
+    {{4, 5, 6, 7, 16, 17, 18, 19, 28, 29, 30, 31, 0, 0, 0, 0},
+     {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 24, 25, 26, 27}},
+    {{8, 9, 10, 11, 20, 21, 22, 23, 0, 0, 0, 0, 0, 0, 0, 0},
+     {0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 28, 29, 30, 31}}};
+static const int32_t ahd_nrm_ix[3][2][16] __attribute__((aligned(64))) = {
+    {{0, 12, 24, 0, 3, 15, 27, 0, 6, 18, 30, 0, 9, 21, 0, 0},
+     {0, 1, 2, 20, 4, 5, 6, 23, 8, 9, 10, 26, 12, 13, 17, 29}},
+    {{1, 13, 25, 0, 4, 16, 28, 0, 7, 19, 31, 0, 10, 22, 0, 0},
+     {0, 1, 2, 21, 4, 5, 6, 24, 8, 9, 10, 27, 12, 13, 18, 30}},
+    {{2, 14, 26, 0, 5, 17, 29, 0, 8, 20, 0, 0, 11, 23, 0, 0},
+     {0, 1, 2, 22, 4, 5, 6, 25, 8, 9, 16, 28, 12, 13, 19, 31}}};
+#define AHD_IX(tab) _mm512_load_si512((const void *)(tab))
+/* Two 16-bit planes (16 words each) as the 32-bit words lo | hi << 16. */
+#define AHD_PAIR(lo, hi)                                                                 \
+  _mm512_or_si512(_mm512_cvtepu16_epi32(lo), _mm512_slli_epi32(_mm512_cvtepu16_epi32(hi), 16))
 __attribute__((target("avx,f16c,avx512f"))) static void
-encode_iz16_packed_avx512(const float *const rows[16], const float *nrm, float inv_scale,
-                          ub_ahd_packed *const out[16])
+encode16_packed_avx512(const float *sh, const float *nrm, float inv_scale, ub_ahd_packed *out)
 {
 #if defined(__clang__)
 #pragma clang fp contract(off)
 #endif
-  __m256 t8[2][12], n08[2], n18[2], n28[2];
-  lanes_load_k(2, rows, nrm, t8, n08, n18, n28);
-  __m512 t[12];
-  #pragma GCC unroll 12
-  for (int k = 0; k < 12; k++)
-    t[k] = AHD_W(t8[0][k], t8[1][k]);
-  const __m512 n0 = AHD_W(n08[0], n08[1]), n1 = AHD_W(n18[0], n18[1]),
-               n2 = AHD_W(n28[0], n28[1]);
+  __m512 t[12], n0, n1, n2;
+  #pragma GCC unroll 4
+  for (int m = 0; m < 4; m++) {
+    const float *z = sh + 48 * m;
+    const __m512 z0 = _mm512_loadu_ps(z), z1 = _mm512_loadu_ps(z + 16),
+                 z2 = _mm512_loadu_ps(z + 32);
+    #pragma GCC unroll 3
+    for (int q = 0; q < 3; q++) /* a[q][m]: quarter q of rows 4m..4m+3 */
+      t[4 * q + m] = _mm512_permutex2var_ps(
+          _mm512_permutex2var_ps(z0, AHD_IX(ahd_row_ix[q][0]), z1), AHD_IX(ahd_row_ix[q][1]),
+          z2);
+  }
+  #pragma GCC unroll 3
+  for (int q = 0; q < 3; q++) { /* 4 × 4 transposes within 128-bit quarters */
+    __m512 *a = t + 4 * q;
+    __m512 u0 = _mm512_unpacklo_ps(a[0], a[1]), u1 = _mm512_unpackhi_ps(a[0], a[1]);
+    __m512 u2 = _mm512_unpacklo_ps(a[2], a[3]), u3 = _mm512_unpackhi_ps(a[2], a[3]);
+    a[0] = _mm512_shuffle_ps(u0, u2, 0x44);
+    a[1] = _mm512_shuffle_ps(u0, u2, 0xEE);
+    a[2] = _mm512_shuffle_ps(u1, u3, 0x44);
+    a[3] = _mm512_shuffle_ps(u1, u3, 0xEE);
+  }
+  {
+    const __m512 m0 = _mm512_loadu_ps(nrm), m1 = _mm512_loadu_ps(nrm + 16),
+                 m2 = _mm512_loadu_ps(nrm + 32);
+    __m512 nn[3];
+    #pragma GCC unroll 3
+    for (int k = 0; k < 3; k++)
+      nn[k] = _mm512_permutex2var_ps(
+          _mm512_permutex2var_ps(m0, AHD_IX(ahd_nrm_ix[k][0]), m1), AHD_IX(ahd_nrm_ix[k][1]),
+          m2);
+    n0 = nn[0];
+    n1 = nn[1];
+    n2 = nn[2];
+  }
   const __m512 zero = _mm512_setzero_ps();
   { /* the finite check of encode_lanes_k: any group with a bad lane goes the AVX way */
     __m512 sm[6];
@@ -646,7 +698,13 @@ encode_iz16_packed_avx512(const float *const rows[16], const float *nrm, float i
                                _mm512_add_ps(sm[4], sm[5]));
     all = _mm512_mul_ps(all, zero);
     if (_mm512_cmp_ps_mask(all, all, _CMP_UNORD_Q)) {
-      encode_iz16_packed_avx(rows, nrm, inv_scale, out);
+      const float *rows[16];
+      ub_ahd_packed *po[16];
+      for (int j = 0; j < 16; j++) {
+        rows[j] = sh + 12 * j;
+        po[j] = out + j;
+      }
+      encode_iz16_packed_avx(rows, nrm, inv_scale, po);
       return;
     }
   }
@@ -709,17 +767,14 @@ encode_iz16_packed_avx512(const float *const rows[16], const float *nrm, float i
     o[6 + c] = _mm512_maskz_mov_ps(dir, cd);
   }
 #undef AHD_DOT
-  /* pack_lanes_k's arithmetic on sixteen lanes, its transposes per group of eight */
+  /* pack_lanes_k's arithmetic on sixteen lanes */
   const __m512 invs = _mm512_set1_ps(inv_scale), hmax = _mm512_set1_ps(UB_HALF_MAX);
-  __m128i w[2][8];
+  __m256i h[6];
   static const int col[6] = {0, 1, 2, 6, 7, 8}; /* ambient, directional */
   #pragma GCC unroll 12
-  for (int k = 0; k < 6; k++) {
-    __m256i h = _mm512_cvtps_ph(_mm512_min_ps(_mm512_mul_ps(o[col[k]], invs), hmax),
-                                _MM_FROUND_TO_NEAREST_INT);
-    w[0][k] = _mm256_castsi256_si128(h);
-    w[1][k] = _mm256_extractf128_si256(h, 1);
-  }
+  for (int k = 0; k < 6; k++)
+    h[k] = _mm512_cvtps_ph(_mm512_min_ps(_mm512_mul_ps(o[col[k]], invs), hmax),
+                           _MM_FROUND_TO_NEAREST_INT);
   __m512 sa = _mm512_add_ps(_mm512_add_ps(_mm512_abs_ps(o[3]), _mm512_abs_ps(o[4])),
                             _mm512_abs_ps(o[5]));
   __mmask16 ok = _mm512_cmp_ps_mask(sa, zero, _CMP_GT_OQ);
@@ -735,17 +790,24 @@ encode_iz16_packed_avx512(const float *const rows[16], const float *nrm, float i
   u = _mm512_mask_mov_ps(u, low, nu);
   v = _mm512_mask_mov_ps(v, low, nv);
   const __m512 k16 = _mm512_set1_ps(32767.0f);
-  __m256i iu = _mm512_cvtsepi32_epi16(_mm512_cvtps_epi32(_mm512_mul_ps(u, k16)));
-  __m256i iv = _mm512_cvtsepi32_epi16(_mm512_cvtps_epi32(_mm512_mul_ps(v, k16)));
-  w[0][6] = _mm256_castsi256_si128(iu);
-  w[1][6] = _mm256_extractf128_si256(iu, 1);
-  w[0][7] = _mm256_castsi256_si128(iv);
-  w[1][7] = _mm256_extractf128_si256(iv, 1);
-  #pragma GCC unroll 12
-  for (int g = 0; g < 2; g++)
-    store_words8(w[g], out + 8 * g);
+  /* snorm16 as pack_direction's saturating conversion, in 32-bit lanes */
+  const __m512i smin = _mm512_set1_epi32(-32768), smax = _mm512_set1_epi32(32767);
+  __m512i iu = _mm512_min_epi32(_mm512_max_epi32(_mm512_cvtps_epi32(_mm512_mul_ps(u, k16)), smin), smax);
+  __m512i iv = _mm512_min_epi32(_mm512_max_epi32(_mm512_cvtps_epi32(_mm512_mul_ps(v, k16)), smin), smax);
+  /* the texels' four 32-bit words in lanes, then a 4 × 4 transpose within each quarter:
+   * register m holds texels 4m..4m+3 (ahd_pi) */
+  __m512i w0 = AHD_PAIR(h[0], h[1]), w1 = AHD_PAIR(h[2], h[3]), w2 = AHD_PAIR(h[4], h[5]);
+  __m512i w3 = _mm512_or_si512(_mm512_and_si512(iu, _mm512_set1_epi32(0xffff)),
+                               _mm512_slli_epi32(iv, 16));
+  __m512i e0 = _mm512_unpacklo_epi32(w0, w1), e1 = _mm512_unpackhi_epi32(w0, w1);
+  __m512i e2 = _mm512_unpacklo_epi32(w2, w3), e3 = _mm512_unpackhi_epi32(w2, w3);
+  _mm512_storeu_si512((void *)out, _mm512_unpacklo_epi64(e0, e2));
+  _mm512_storeu_si512((void *)(out + 4), _mm512_unpackhi_epi64(e0, e2));
+  _mm512_storeu_si512((void *)(out + 8), _mm512_unpacklo_epi64(e1, e3));
+  _mm512_storeu_si512((void *)(out + 12), _mm512_unpackhi_epi64(e1, e3));
 }
-#undef AHD_W
+#undef AHD_IX
+#undef AHD_PAIR
 #if !defined(__clang__)
 #pragma GCC pop_options
 #endif
@@ -821,16 +883,18 @@ void ub_ahd_encode_iz_packed_n(const float *sh_iz, const float *unit_normals, fl
   const unsigned need = UB_CPU_AVX | UB_CPU_F16C, f = ub_cpu_features_cached();
   if ((f & need) == need)
     for (; i + 16 <= count; i += 16) {
+      if (f & UB_CPU_AVX512) {
+        encode16_packed_avx512(sh_iz + 12 * i, unit_normals + 3 * i, inv_scale,
+                               out_packed + i);
+        continue;
+      }
       const float *rows[16];
       ub_ahd_packed *out[16];
       for (int j = 0; j < 16; j++) {
         rows[j] = sh_iz + 12 * (i + j);
         out[j] = out_packed + i + j;
       }
-      if (f & UB_CPU_AVX512)
-        encode_iz16_packed_avx512(rows, unit_normals + 3 * i, inv_scale, out);
-      else
-        encode_iz16_packed_avx(rows, unit_normals + 3 * i, inv_scale, out);
+      encode_iz16_packed_avx(rows, unit_normals + 3 * i, inv_scale, out);
     }
 #endif
   for (; i + 8 <= count; i += 8)

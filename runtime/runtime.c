@@ -1541,30 +1541,31 @@ typedef struct touched_ctx {
   ub_runtime *rt;
   uint64_t texels;
   uint64_t kept;   /* of texels: copied back from the kept state */
-  /* texels with their own normal waiting to be encoded eight at a time (the blend hands
-   * over pieces of one group's run; their rows live only during the call: copied) */
+  /* texels with their own normal waiting to be encoded sixteen at a time (the blend hands
+   * over pieces of one group's run, which end in fewer than sixteen; their rows live only
+   * during the call: copied, so the sixteen are contiguous for the AVX-512 encode) */
   uint32_t np;
-  const float *prow[8]; /* into qrow */
-  ub_ahd_packed *pout[8];
-  float pn[24];
-  float qrow[8][UB_SH1_FLOATS];
+  ub_ahd_packed *pout[16];
+  float pn[48];
+  float qrow[16][UB_SH1_FLOATS];
   /* the job's runs of re-encoded ranks (rt->chg_runs) */
   uint32_t *runs, nruns, cap;
   int full;
 } touched_ctx;
 
-/* Encodes the waiting texels (padded to eight lanes with copies of the first). */
+/* Encodes the waiting texels (padded to sixteen with copies of the first). */
 static void touched_flush(touched_ctx *tc)
 {
   if (!tc->np)
     return;
-  ub_ahd_packed pad[8];
-  for (uint32_t j = tc->np; j < 8; j++) {
-    tc->prow[j] = tc->prow[0];
-    tc->pout[j] = &pad[j];
+  ub_ahd_packed got[16];
+  for (uint32_t j = tc->np; j < 16; j++) {
+    memcpy(tc->qrow[j], tc->qrow[0], sizeof tc->qrow[0]);
     memcpy(tc->pn + 3 * j, tc->pn, 3 * sizeof(float));
   }
-  ub_ahd_encode_iz8_rows_packed(tc->prow, tc->pn, tc->rt->ahd_inv_scale, tc->pout);
+  ub_ahd_encode_iz_packed_n(tc->qrow[0], tc->pn, tc->rt->ahd_inv_scale, got, 16);
+  for (uint32_t j = 0; j < tc->np; j++)
+    *tc->pout[j] = got[j];
   tc->np = 0;
 }
 
@@ -1597,13 +1598,13 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
   }
   const float inv_scale = rt->ahd_inv_scale;
   for (uint32_t i = 0; i < count; i++, rows += UB_SH1_FLOATS, un += 3, out++) {
-    if (!tc->np) { /* a run of texels with their own normals: encoded where they are, sixteen
-                    * at a time where it can (AVX-512: 16 lanes), then eight */
+    if (!tc->np) { /* a run of texels with their own normals: encoded where they are,
+                    * sixteen at a time (AVX-512: 16 lanes; AVX: two groups of eight) */
       uint32_t r = count - i;
       if (!rt->lm_un_all)
         for (r = 0; r < count - i && !isnan(un[3 * r]); r++) {
         }
-      const uint32_t m = r & ~7u;
+      const uint32_t m = r & ~15u;
       if (m) {
         ub_ahd_encode_iz_packed_n(rows, un, inv_scale, out, m);
         i += m - 1;
@@ -1620,9 +1621,8 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
     }
     memcpy(tc->pn + 3 * tc->np, un, 3 * sizeof(float));
     memcpy(tc->qrow[tc->np], rows, UB_SH1_FLOATS * sizeof(float));
-    tc->prow[tc->np] = tc->qrow[tc->np];
     tc->pout[tc->np] = out;
-    if (++tc->np == 8)
+    if (++tc->np == 16)
       touched_flush(tc);
   }
   tc->texels += count;
