@@ -324,7 +324,7 @@ int main(int argc, char **argv)
       printf("usage: bench_estate [--scale S] [--full] [--bounces N] [--texel-size M]\n"
              "                    [--no-extrapolate] [--param k=v ...]\n"
              "                    [--ubk FILE.ubk [--repeat N]] [--jobs N] [--records8] [--plain-sums]\n"
-             "                    [--keep-state]\n"
+             "                    [--keep-state] [--glg-small-walk]\n"
              "Generates the ESTATE-scale level (ubake-genlevel estate) at scale S (default 0.05;\n"
              "--full: 1), bakes it at draft (reduced: --bounces 2, --texel-size 0.2 by default;\n"
              "full: the level's settings), loads it in the run-time and toggles its sets;\n"
@@ -333,7 +333,8 @@ int main(int argc, char **argv)
              "all-sets update also split into N jobs on N threads (default: the CPUs, <= 8).\n"
              "--records8: the run-time keeps its records in 8 bits (UB_RUNTIME_RECORDS_8BIT);\n"
              "--plain-sums: without the all-ones sums (UB_RUNTIME_PLAIN_SUMS);\n"
-             "--keep-state: the load state kept (UB_RUNTIME_KEEP_STATE).\n"
+             "--keep-state: the load state kept (UB_RUNTIME_KEEP_STATE);\n"
+             "--glg-small-walk: the GLG's small walk (UB_RUNTIME_GLG_SMALL_WALK).\n"
              "UB_BUILD: the build folder (default build).\n");
       return 0;
     } else if (!strcmp(argv[i], "--scale") && i + 1 < argc) {
@@ -367,6 +368,8 @@ int main(int argc, char **argv)
       load_flags |= UB_RUNTIME_PLAIN_SUMS;
     } else if (!strcmp(argv[i], "--keep-state")) {
       load_flags |= UB_RUNTIME_KEEP_STATE;
+    } else if (!strcmp(argv[i], "--glg-small-walk")) {
+      load_flags |= UB_RUNTIME_GLG_SMALL_WALK;
     } else if (!strcmp(argv[i], "--no-extrapolate")) {
       extrapolate = 0;
     } else if (!strcmp(argv[i], "--param") && i + 1 < argc) {

@@ -113,6 +113,13 @@ int main(int argc, char **argv)
   }
   const ub_glg *g = ub_runtime_glg(rt);
   const ub_bakefile *bf = ub_runtime_bakefile(rt);
+  /* The same file with the small walk (UB_RUNTIME_GLG_SMALL_WALK): its price, same run. */
+  ub_runtime *rts = NULL;
+  if (ub_runtime_load_ex(ubk, NULL, UB_RUNTIME_GLG_SMALL_WALK, &rts) != UB_OK) {
+    fprintf(stderr, "bench_glg: %s: load with the small walk failed\n", ubk);
+    return 1;
+  }
+  const ub_glg *gs = ub_runtime_glg(rts);
   /* The file as written (the run-time's copy has no positions, neighbours or float SH). */
   ub_bakefile *nbf = NULL;
   if (ub_bakefile_read(ubk, NULL, &nbf) != UB_OK) {
@@ -187,15 +194,18 @@ int main(int argc, char **argv)
   memset(mc_a, 1, mc_bytes);
   memset(mc_b, 2, mc_bytes);
   double cohf_r[ROUNDS], cohc_r[ROUNDS], bat_r[ROUNDS], half_r[ROUNDS], halfb_r[ROUNDS], lat_r[ROUNDS], mc_r[ROUNDS];
+  double scoh_r[ROUNDS], scohc_r[ROUNDS], srnd_r[ROUNDS], sbat_r[ROUNDS]; /* small walk */
   for (int round = 0; round < ROUNDS; round++) {
     /* Coherent: the walk (the same path each round) with a tet cache, with a cursor, and
      * over the float store. */
     coh_r[round] = coherent_rate(g, 0, lo, hi, N, &sink);
     cohc_r[round] = coherent_rate(g, 1, lo, hi, N, &sink);
     cohf_r[round] = coherent_rate(&gh, 0, lo, hi, N, &sink);
+    scoh_r[round] = coherent_rate(gs, 0, lo, hi, N, &sink);
+    scohc_r[round] = coherent_rate(gs, 1, lo, hi, N, &sink);
     if (getenv("UB_BENCH_COHERENT_ONLY")) { /* for profiling the coherent path */
       rnd_r[round] = base_r[round] = bat_r[round] = half_r[round] = halfb_r[round] = 0.0;
-      lat_r[round] = mc_r[round] = 0.0;
+      lat_r[round] = mc_r[round] = srnd_r[round] = sbat_r[round] = 0.0;
       continue;
     }
     /* Random points in the level's bounds, one cache. */
@@ -211,6 +221,19 @@ int main(int argc, char **argv)
     t0 = ub_bench_now();
     ub_glg_query_batch(g, M, pts, nrm, NULL, rgb);
     bat_r[round] = M / (ub_bench_now() - t0);
+    sink += rgb[1];
+    /* Both with the small walk. */
+    cache = UB_GLG_NO_CACHE;
+    t0 = ub_bench_now();
+    for (uint32_t i = 0; i < M; i++) {
+      float n[3] = {0, 1, 0}, e[3];
+      ub_glg_query(gs, pts + 3 * i, n, &cache, e);
+      sink += e[1];
+    }
+    srnd_r[round] = M / (ub_bench_now() - t0);
+    t0 = ub_bench_now();
+    ub_glg_query_batch(gs, M, pts, nrm, NULL, rgb);
+    sbat_r[round] = M / (ub_bench_now() - t0);
     sink += rgb[1];
     /* Float SH: one by one (one cache) and batched. */
     cache = UB_GLG_NO_CACHE;
@@ -268,6 +291,22 @@ int main(int argc, char **argv)
       double ref = a[c] + a2[c];
       if (ref > 0.0)
         half_err = fmax(half_err, fmax(fabs(a[c] - b[c]), fabs(a2[c] - b2[c])) / ref);
+    }
+  }
+  /* Small walk vs walk records at the random points: the largest difference relative to
+   * the point's irradiance for the normal and its opposite (float rounding expected). */
+  double small_err = 0.0;
+  for (uint32_t i = 0; i < M; i++) {
+    float n[3] = {0.48f, 0.6f, 0.64f}, m[3] = {-0.48f, -0.6f, -0.64f}, a[3], b[3], a2[3], b2[3];
+    uint32_t c1 = UB_GLG_NO_CACHE, c2 = UB_GLG_NO_CACHE;
+    ub_glg_query(g, pts + 3 * i, n, &c1, a);
+    ub_glg_query(gs, pts + 3 * i, n, &c2, b);
+    ub_glg_query(g, pts + 3 * i, m, &c1, a2);
+    ub_glg_query(gs, pts + 3 * i, m, &c2, b2);
+    for (int c = 0; c < 3; c++) {
+      double ref = a[c] + a2[c];
+      if (ref > 0.0)
+        small_err = fmax(small_err, fmax(fabs(a[c] - b[c]), fabs(a2[c] - b2[c])) / ref);
     }
   }
   /* Windowing every probe's raw SH (what a re-blend costs per touched probe). */
@@ -375,6 +414,18 @@ int main(int argc, char **argv)
     ub_runtime_memory_usage(rt, &rm);
     printf("  run-time GLG total (ub_runtime_memory_usage .glg, compact store + walk data; "
            "tets and leak planes are in .geometry): %.1f B/probe\n", rm.glg / np);
+    ub_runtime_memory sm;
+    ub_runtime_memory_usage(rts, &sm);
+    double scoh = median(scoh_r, ROUNDS), scohc = median(scohc_r, ROUNDS),
+           srnd = median(srnd_r, ROUNDS), sbat = median(sbat_r, ROUNDS);
+    printf("  small walk (UB_RUNTIME_GLG_SMALL_WALK: links 16 B a tet + positions 12 B a probe "
+           "instead of 64-B walk records): run-time GLG %.1f B/probe (%.2f MiB less); coherent "
+           "%.2f M/s (x%.2f of the records'), with a cursor %.2f (x%.2f), random %.2f (x%.2f), "
+           "batched %.2f (x%.2f); largest difference from the records' irradiance %.1e of "
+           "E(n) + E(-n)\n",
+           sm.glg / np, ((double)rm.glg - (double)sm.glg) / 1048576.0, scoh * 1e-6,
+           scoh / coherent, scohc * 1e-6, scohc / cohc, srnd * 1e-6, srnd / random,
+           sbat * 1e-6, sbat / batch, small_err);
   }
   if (st.stage_count) {
     double probes = ub_bench_stage_seconds(&st, "probes") + ub_bench_stage_seconds(&st, "leak");
@@ -449,6 +500,7 @@ int main(int argc, char **argv)
   free(mc_a);
   free(mc_b);
   free(pts);
+  ub_runtime_free(rts);
   ub_runtime_free(rt);
   return 0;
 }

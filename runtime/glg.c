@@ -100,10 +100,12 @@ static inline float min4f(const float l[4])
   return a < b ? a : b;
 }
 
-/* Corner i of a badly shaped tet t (ill-conditioned or singular): the positions kept
- * for them (ill_ids ascending), found by bisection. */
+/* Corner i of tet t with small_walk; else of a badly shaped tet t (ill-conditioned or
+ * singular): the positions kept for them (ill_ids ascending), found by bisection. */
 static const float *tet_corner(const ub_glg *g, uint32_t t, int i)
 {
+  if (g->pos)
+    return g->pos + 3 * (size_t)g->tets[4 * (size_t)t + i];
   uint32_t lo = 0, hi = g->ill_tet_count;
   while (hi - lo > 1) {
     uint32_t mid = lo + (hi - lo) / 2;
@@ -125,6 +127,66 @@ static inline void rec_bary(const struct ub_glg_tet *r, const float p[3], float 
   l[2] = r->m[3] * dx + r->m[4] * dy + r->m[5] * dz;
   l[3] = r->m[6] * dx + r->m[7] * dy + r->m[8] * dz;
   l[0] = 1.0f - l[1] - l[2] - l[3];
+}
+
+/* small_walk: the barycentrics of p in tet t from its corners, in double (exact
+ * differences of the float positions, then one division), rounded to float; a badly
+ * shaped tet gives (1, 0, 0, 0) as its zeroed record does (its callers go on to
+ * tet_bary_double by its flag). */
+static inline void corner_bary(const ub_glg *g, uint32_t t, const float p[3], float l[4])
+{
+  if (g->tet_flags[t]) {
+    l[0] = 1.0f;
+    l[1] = l[2] = l[3] = 0.0f;
+    return;
+  }
+  const uint32_t *v = g->tets + 4 * (size_t)t;
+  const float *a = g->pos + 3 * (size_t)v[0], *b = g->pos + 3 * (size_t)v[1],
+              *c = g->pos + 3 * (size_t)v[2], *d = g->pos + 3 * (size_t)v[3];
+  double e1[3], e2[3], e3[3], x[3], r1[3], r2[3], r3[3];
+  for (int k = 0; k < 3; k++) {
+    e1[k] = (double)b[k] - a[k];
+    e2[k] = (double)c[k] - a[k];
+    e3[k] = (double)d[k] - a[k];
+    x[k] = (double)p[k] - a[k];
+  }
+  d3cross(e2, e3, r1);
+  d3cross(e3, e1, r2);
+  d3cross(e1, e2, r3);
+  const double inv = 1.0 / d3dot(e1, r1); /* well shaped: det far from 0 */
+  l[1] = (float)(d3dot(r1, x) * inv);
+  l[2] = (float)(d3dot(r2, x) * inv);
+  l[3] = (float)(d3dot(r3, x) * inv);
+  l[0] = 1.0f - l[1] - l[2] - l[3];
+}
+
+/* Barycentrics of p in tet t as the walk computes them (record or corners). */
+static inline void walk_bary(const ub_glg *g, uint32_t t, const float p[3], float l[4])
+{
+  if (g->tet_data)
+    rec_bary(&g->tet_data[t], p, l);
+  else
+    corner_bary(g, t, p, l);
+}
+
+/* Tet t's four links: ≥ 0 the tet across the face opposite corner i, < 0 −1 − hull face. */
+static inline const int32_t *tet_links(const ub_glg *g, uint32_t t)
+{
+  return g->tet_data ? g->tet_data[t].nb : g->tet_nb + 4 * (size_t)t;
+}
+
+/* Requests tet t's walk record, or (small walk) its links (the callers request the
+ * corners, g->tets, where they need them). One prefetch of a selected address: GCC 12
+ * dropped the record's prefetch when it was one branch of an if. */
+static inline void prefetch_walk(const ub_glg *g, uint32_t t)
+{
+#if defined(__GNUC__)
+  __builtin_prefetch(g->tet_data ? (const void *)&g->tet_data[t]
+                                 : (const void *)(g->tet_nb + 4 * (size_t)t));
+#else
+  (void)g;
+  (void)t;
+#endif
 }
 
 /* Double-precision barycentrics from the positions; 0 if the tet is singular. */
@@ -450,7 +512,7 @@ static inline int tet_bary(const ub_glg *g, uint32_t t, const float p[3], float 
     for (int i = 0; i < 4; i++)
       l[i] = (float)ld[i];
   } else {
-    rec_bary(&g->tet_data[t], p, l);
+    walk_bary(g, t, p, l);
   }
   return 1;
 }
@@ -505,7 +567,7 @@ static uint32_t walk(const ub_glg *g, const float p[3], uint32_t t, float bary[4
   for (uint32_t step = 0; step < g->walk_cap; step++) {
     if (info)
       info->steps++;
-    const struct ub_glg_tet *r = &g->tet_data[t];
+    const int32_t *lk = tet_links(g, t);
 #if defined(__GNUC__)
     /* This tet may be the answer: start loading what the interpolation reads of it
      * (corners, flag, leak plane) while its walk record arrives (random queries are
@@ -520,11 +582,11 @@ static uint32_t walk(const ub_glg *g, const float p[3], uint32_t t, float bary[4
      * soon as t's arrives rather than after the barycentric test has picked one (~6%
      * more random queries per second on kaos, 2.5 steps per query). */
     for (int i = 0; i < 4; i++)
-      if (r->nb[i] >= 0 && (uint32_t)r->nb[i] != prev)
-        __builtin_prefetch(&g->tet_data[r->nb[i]]);
+      if (lk[i] >= 0 && (uint32_t)lk[i] != prev)
+        prefetch_walk(g, (uint32_t)lk[i]);
 #endif
     float l[4];
-    rec_bary(r, p, l);
+    walk_bary(g, t, p, l);
     float mn = min4f(l);
     if (mn >= -GLG_EPS) {
       uint8_t fl = g->tet_flags[t];
@@ -541,7 +603,7 @@ static uint32_t walk(const ub_glg *g, const float p[3], uint32_t t, float bary[4
         uint32_t best = GLG_NONE;
         float best_v = -HUGE_VALF;
         for (int i = 0; i < 4; i++) {
-          int32_t u = r->nb[i];
+          int32_t u = lk[i];
           if (u < 0 || (uint32_t)u == prev)
             continue;
           float v = tet_min_bary(g, (uint32_t)u, p);
@@ -575,11 +637,11 @@ static uint32_t walk(const ub_glg *g, const float p[3], uint32_t t, float bary[4
     float kv = -GLG_EPS;
     int hull_k = -1;
     for (int i = 0; i < 4; i++) {
-      if (l[i] < kv && !(r->nb[i] >= 0 && (uint32_t)r->nb[i] == prev)) {
+      if (l[i] < kv && !(lk[i] >= 0 && (uint32_t)lk[i] == prev)) {
         kv = l[i];
         k = i;
       }
-      if (r->nb[i] < 0 && l[i] < -GLG_EPS && (hull_k < 0 || l[i] < l[hull_k]))
+      if (lk[i] < 0 && l[i] < -GLG_EPS && (hull_k < 0 || l[i] < l[hull_k]))
         hull_k = i;
     }
     if (hull_k >= 0)
@@ -590,7 +652,7 @@ static uint32_t walk(const ub_glg *g, const float p[3], uint32_t t, float bary[4
       *out_cache = t;
       return t;
     }
-    int32_t nb = r->nb[k];
+    int32_t nb = lk[k];
     if (nb < 0) { /* beyond a hull face's supporting plane: outside the convex hull */
       if (info)
         info->outside = 1;
@@ -658,7 +720,7 @@ static uint32_t locate_walk(const ub_glg *g, const float p[3], uint32_t start, f
     if (start != GLG_NONE) {
       /* Near the cached tet, in its own units (barycentrics: a big tet in open space
        * stays near for a long way) or within two grid cells: walk from it. */
-      const float *o = g->tet_data[start].o;
+      const float *o = g->tet_data ? g->tet_data[start].o : tet_corner(g, start, 0);
       float dx = p[0] - o[0], dy = p[1] - o[1], dz = p[2] - o[2];
       far = dx * dx + dy * dy + dz * dz > g->grid_far2;
       uint8_t fl = g->tet_flags[start];
@@ -683,7 +745,7 @@ static uint32_t locate_walk(const ub_glg *g, const float p[3], uint32_t start, f
 uint32_t ub_glg_locate_ex(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
                           float out_bary[4], ub_glg_locate_info *info)
 {
-  assert(g && g->tet_data && p && out_bary);
+  assert(g && g->tet_flags && p && out_bary);
   if (info)
     memset(info, 0, sizeof *info);
   uint32_t cache = inout_tet_cache ? *inout_tet_cache : GLG_NONE;
@@ -719,7 +781,7 @@ uint32_t ub_glg_locate_ex(const ub_glg *g, const float p[3], uint32_t *inout_tet
     /* Still inside the cached tet (the common case for a moving object): done. Tets can
      * be much larger than a start-grid cell, so this comes before the distance test. */
     float l[4];
-    rec_bary(&g->tet_data[start], p, l);
+    walk_bary(g, start, p, l);
     start_min = min4f(l);
     if (start_min >= -GLG_EPS) {
       if (info)
@@ -910,7 +972,7 @@ static inline const float *glg_row(const ub_glg *g, uint32_t v, float *tmp)
 
 ub_result ub_glg_enable_lazy(ub_glg *g, float *win, const float *raw)
 {
-  if (!g || !win || !raw || !g->tet_data || g->sh_half || !g->sh_windowed || win != g->sh)
+  if (!g || !win || !raw || !g->tet_flags || g->sh_half || !g->sh_windowed || win != g->sh)
     return UB_ERR_INVALID_ARGUMENT;
   if (g->stale)
     return UB_OK;
@@ -1492,7 +1554,7 @@ static inline uint32_t sample_locate(const ub_glg *g, const float p[3], uint32_t
   /* Fast path, the same answer as ub_glg_locate's first test: p (finite) still inside
    * the cached, well-shaped tet. */
   if (t < g->tet_count && !g->tet_flags[t] && isfinite(p[0] + p[1] + p[2])) {
-    rec_bary(&g->tet_data[t], p, w);
+    walk_bary(g, t, p, w);
     float mn = min4f(w);
     if (mn >= -GLG_EPS)
       bary_finish(w);
@@ -1582,7 +1644,7 @@ void ub_glg_query(const ub_glg *g, const float p[3], const float n[3],
 void ub_glg_query_batch(const ub_glg *g, uint32_t count, const float *points,
                         const float *normals, uint32_t *inout_tet_caches, float *out_rgb)
 {
-  assert(g && g->tet_data && (points || !count) && (normals || !count) && (out_rgb || !count));
+  assert(g && g->tet_flags && (points || !count) && (normals || !count) && (out_rgb || !count));
   for (uint32_t b0 = 0; b0 < count; b0 += GLG_BATCH) {
     uint32_t nb = count - b0 < GLG_BATCH ? count - b0 : GLG_BATCH;
     uint32_t cache[GLG_BATCH], tet[GLG_BATCH];
@@ -1597,7 +1659,7 @@ void ub_glg_query_batch(const ub_glg *g, uint32_t count, const float *points,
       cache[i] = c;
 #if defined(__GNUC__)
       if (c < g->tet_count) {
-        __builtin_prefetch(&g->tet_data[c]);
+        prefetch_walk(g, c);
         __builtin_prefetch(g->tets + 4 * (size_t)c);
       }
 #endif
@@ -1623,11 +1685,11 @@ void ub_glg_query_batch(const ub_glg *g, uint32_t count, const float *points,
       for (uint32_t j = 0; j < na; j++) {
         uint32_t i = active[j], t = at[i];
         const float *p = points + 3 * (size_t)(b0 + i);
-        const struct ub_glg_tet *r = &g->tet_data[t];
+        const int32_t *lk = tet_links(g, t);
         int finish = g->tet_flags[t] != 0 || steps[i] >= 64;
         if (!finish) {
           float l[4];
-          rec_bary(r, p, l);
+          walk_bary(g, t, p, l);
           if (min4f(l) >= -GLG_EPS) {
             memcpy(bary[i], l, sizeof l);
             bary_finish(bary[i]);
@@ -1639,21 +1701,21 @@ void ub_glg_query_batch(const ub_glg *g, uint32_t count, const float *points,
           int k = -1;
           float kv = -GLG_EPS;
           for (int f = 0; f < 4; f++)
-            if (l[f] < kv && !(r->nb[f] >= 0 && (uint32_t)r->nb[f] == prev[i])) {
+            if (l[f] < kv && !(lk[f] >= 0 && (uint32_t)lk[f] == prev[i])) {
               kv = l[f];
               k = f;
             }
           for (int f = 0; f < 4; f++)
-            if (r->nb[f] < 0 && l[f] < -GLG_EPS)
+            if (lk[f] < 0 && l[f] < -GLG_EPS)
               k = -1; /* beyond a hull face: the hull projection */
-          if (k < 0 || r->nb[k] < 0) {
+          if (k < 0 || lk[k] < 0) {
             finish = 1;
           } else {
             prev[i] = t;
-            at[i] = (uint32_t)r->nb[k];
+            at[i] = (uint32_t)lk[k];
             steps[i]++;
 #if defined(__GNUC__)
-            __builtin_prefetch(&g->tet_data[at[i]]);
+            prefetch_walk(g, at[i]);
             __builtin_prefetch(g->tets + 4 * (size_t)at[i]);
 #endif
             active[keep++] = i;
@@ -1701,7 +1763,7 @@ ub_result ub_glg_resample_llg(const ub_glg *g, const float center[3], const floa
                               const float half[3], uint32_t nx, uint32_t ny, uint32_t nz,
                               uint32_t *inout_tet_cache, float *out_sh)
 {
-  if (!g || !g->tet_data || !center || !axes || !half || !out_sh || !nx || !ny || !nz)
+  if (!g || !g->tet_flags || !center || !axes || !half || !out_sh || !nx || !ny || !nz)
     return UB_ERR_INVALID_ARGUMENT;
   if ((uint64_t)nx * ny * nz > ((uint64_t)1 << 32) / 27)
     return UB_ERR_INVALID_ARGUMENT;
@@ -1834,21 +1896,21 @@ static uint32_t walk_within(const ub_glg *g, const float p[3], uint32_t base)
     int64_t d = (int64_t)t - base;
     if (d >= INT16_MIN && d <= INT16_MAX)
       best = t;
-    const struct ub_glg_tet *r = &g->tet_data[t];
+    const int32_t *lk = tet_links(g, t);
     float l[4];
     if (!tet_bary(g, t, p, l))
       break;
     int k = -1;
     float kv = -GLG_EPS;
     for (int i = 0; i < 4; i++)
-      if (l[i] < kv && r->nb[i] >= 0 && (uint32_t)r->nb[i] != prev) {
+      if (l[i] < kv && lk[i] >= 0 && (uint32_t)lk[i] != prev) {
         kv = l[i];
         k = i;
       }
     if (k < 0)
       break;
     prev = t;
-    t = (uint32_t)r->nb[k];
+    t = (uint32_t)lk[k];
   }
   return best;
 }
@@ -2088,17 +2150,28 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
   }
 
   res = UB_ERR_OUT_OF_MEMORY;
-  g->tet_data = aligned_alloc(64, (size_t)d->tet_count * sizeof *g->tet_data);
+  if (d->small_walk) {
+    g->tet_nb = malloc((size_t)d->tet_count * 4 * sizeof *g->tet_nb);
+    g->pos = malloc((size_t)d->probe_count * 3 * sizeof *g->pos);
+    if (!g->tet_nb || !g->pos)
+      goto fail;
+    memcpy(g->pos, d->positions, (size_t)d->probe_count * 3 * sizeof *g->pos);
+  } else {
+    g->tet_data = aligned_alloc(64, (size_t)d->tet_count * sizeof *g->tet_data);
+    if (!g->tet_data)
+      goto fail;
+  }
   g->tet_flags = calloc(d->tet_count, 1);
   g->hull = malloc((size_t)hull_count * sizeof *g->hull);
-  if (!g->tet_data || !g->tet_flags || !g->hull)
+  if (!g->tet_flags || !g->hull)
     goto fail;
   g->hull_count = hull_count;
 
   uint32_t h = 0;
   for (uint32_t t = 0; t < d->tet_count; t++) {
     const uint32_t *v = d->tets + 4 * (size_t)t;
-    struct ub_glg_tet *r = &g->tet_data[t];
+    struct ub_glg_tet rec; /* the walk record (kept unless small_walk) */
+    struct ub_glg_tet *r = g->tet_data ? &g->tet_data[t] : &rec;
     double a[3], e[3][3], inv[3][3], lmax2 = 0.0;
     double q[4][3];
     for (int i = 0; i < 4; i++)
@@ -2163,6 +2236,8 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
       r->nb[i] = -(int32_t)h - 1;
       h++;
     }
+    if (g->tet_nb)
+      memcpy(g->tet_nb + 4 * (size_t)t, r->nb, sizeof r->nb);
   }
   if (g->ill_tet_count) { /* the badly shaped tets' corners, for tet_corner */
     g->ill_ids = malloc((size_t)g->ill_tet_count * sizeof *g->ill_ids);
@@ -2227,6 +2302,8 @@ void ub_glg_release(ub_glg *g)
   if (!g)
     return;
   free(g->tet_data);
+  free(g->tet_nb);
+  free(g->pos);
   free(g->tet_flags);
   free(g->leak_drop);
   free(g->hull);
@@ -2250,11 +2327,18 @@ static size_t grid_bytes(const ub_glg *g)
   return blocks * sizeof(uint32_t) + cells * sizeof(int16_t);
 }
 
+/* Walk bytes a tet: its record, or (small_walk) its links. */
+static size_t walk_bytes(const ub_glg *g)
+{
+  return g->tet_data ? sizeof(struct ub_glg_tet) : 4 * sizeof(int32_t);
+}
+
 size_t ub_glg_owned_bytes(const ub_glg *g)
 {
-  if (!g || !g->tet_data)
+  if (!g || !g->tet_flags)
     return 0;
-  return (size_t)g->tet_count * (sizeof(struct ub_glg_tet) + 1 + (g->leak_drop ? 1 : 0)) +
+  return (size_t)g->tet_count * (walk_bytes(g) + 1 + (g->leak_drop ? 1 : 0)) +
+         (g->pos ? (size_t)g->probe_count * 3 * sizeof(float) : 0) +
          (size_t)g->hull_count * sizeof(struct ub_glg_hull) + grid_bytes(g) +
          (size_t)g->ill_tet_count * (4 + 12 * sizeof(float)) +
          (g->stale ? (size_t)g->probe_count : 0) +
@@ -2265,15 +2349,16 @@ void ub_glg_memory_usage(const ub_glg *g, ub_glg_memory *out)
 {
   assert(out);
   memset(out, 0, sizeof *out);
-  if (!g || !g->tet_data)
+  if (!g || !g->tet_flags)
     return;
   size_t np = g->probe_count, nt = g->tet_count;
   out->positions = (size_t)g->ill_tet_count * (4 + 12 * sizeof(float)) +
-                   (size_t)g->hull_count * 9 * sizeof(float);
+                   (size_t)g->hull_count * 9 * sizeof(float) +
+                   (g->pos ? np * 3 * sizeof(float) : 0);
   out->sh = np * (g->cp_rows ? 27 * sizeof(uint16_t) + sizeof(uint32_t)
                   : g->sh_half ? 27 * sizeof(uint16_t) + (g->sh_half_exp ? 1 : 0)
                                : 27 * sizeof(float));
-  out->walk_records = nt * sizeof(struct ub_glg_tet);
+  out->walk_records = nt * walk_bytes(g);
   out->tet_corners = nt * 4 * sizeof(uint32_t);
   out->tet_flags = nt;
   if (g->leak_plane_of)

@@ -1321,7 +1321,7 @@ ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags
 {
   assert(path && out);
   if (flags & ~(unsigned)(UB_RUNTIME_RECORDS_8BIT | UB_RUNTIME_PLAIN_SUMS |
-                          UB_RUNTIME_KEEP_STATE)) {
+                          UB_RUNTIME_KEEP_STATE | UB_RUNTIME_GLG_SMALL_WALK)) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: unknown load flags 0x%x", path, flags);
     return UB_ERR_INVALID_ARGUMENT;
   }
@@ -1384,14 +1384,16 @@ ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags
      * finds its window, so loading windows nothing and probes nobody looks at never are
      * (windowing all of kaos's 35,822 probes took ~0.1 s at load). */
     gd.compact = 1;
+    gd.small_walk = (rt->load_flags & UB_RUNTIME_GLG_SMALL_WALK) != 0;
     r = ub_glg_init(&rt->glg, &gd, log);
     rt->has_glg = r == UB_OK;
     if (r != UB_OK) {
       ub_runtime_free(rt);
       return r;
     }
-    /* The walk records hold the neighbours (16 B per tet), the GLG the positions it needs
-     * (hull faces, badly shaped tets) and its own SH: the file's copies go. The elements'
+    /* The walk records (or the small walk's links) hold the neighbours (16 B per tet), the
+     * GLG the positions it needs (hull faces, badly shaped tets; every probe's with the
+     * small walk) and its own SH: the file's copies go. The elements'
      * blend reads the base SH first (setup_elements frees it then). */
     free(bf->glg_neigh);
     bf->glg_neigh = NULL;

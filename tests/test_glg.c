@@ -103,13 +103,20 @@ static float *linfield_sh(const linfield *f, const ub_tetmesh *m)
   return sh;
 }
 
-static ub_result make_glg(const ub_tetmesh *m, const float *sh, const uint8_t *vis, ub_glg *g)
+/* small: ub_glg_desc.small_walk */
+static ub_result make_glg_ex(const ub_tetmesh *m, const float *sh, const uint8_t *vis, int small,
+                             ub_glg *g)
 {
   /* sh_windowed: these tests' fields are not radiance; windowing is tested apart */
   ub_glg_desc d = {.probe_count = m->point_count, .positions = m->points, .sh = sh,
                    .tet_count = m->tet_count, .tets = m->tets, .neigh = m->neigh,
-                   .corner_visible = vis, .sh_windowed = 1};
+                   .corner_visible = vis, .sh_windowed = 1, .small_walk = small};
   return ub_glg_init(g, &d, &test_log);
+}
+
+static ub_result make_glg(const ub_tetmesh *m, const float *sh, const uint8_t *vis, ub_glg *g)
+{
+  return make_glg_ex(m, sh, vis, 0, g);
 }
 
 static double sh_scale(const float *sh, uint32_t n)
@@ -157,18 +164,22 @@ static void mesh_bounds(const ub_tetmesh *m, float lo[3], float hi[3])
     }
 }
 
-/* Linear reproduction inside the hull, cache vs scratch, far-outside bounds, locate sanity. */
-static void check_glg_on_mesh(const char *name, const ub_tetmesh *m)
+/* Linear reproduction inside the hull, cache vs scratch, far-outside bounds, locate sanity;
+ * small: with ub_glg_desc.small_walk, whose samples must also match the walk records' to
+ * float rounding (the two compute the same barycentrics, in float from a stored inverse
+ * or in double from the corners). */
+static void check_glg_mode(const char *name, const ub_tetmesh *m, int small)
 {
   linfield f;
   linfield_init(&f);
   float *sh = linfield_sh(&f, m);
   ub_glg g;
-  ASSERT_OK(make_glg(m, sh, NULL, &g));
-  if (!g.tet_data) {
+  ASSERT_OK(make_glg_ex(m, sh, NULL, small, &g));
+  if (!g.tet_flags) {
     free(sh);
     return;
   }
+  ASSERT_TRUE(small ? !g.tet_data && g.tet_nb && g.pos : g.tet_data && !g.tet_nb && !g.pos);
   double scale = sh_scale(sh, m->point_count);
   double worst_lin = 0.0, worst_cache = 0.0, worst_pos = 0.0;
   uint32_t cache = UB_GLG_NO_CACHE;
@@ -268,16 +279,49 @@ static void check_glg_on_mesh(const char *name, const ub_tetmesh *m)
   for (int i = 0; i < 27; i++)
     ASSERT_TRUE(isfinite(out[i]));
   ASSERT_TRUE(isfinite(rgb[0]) && isfinite(rgb[1]) && isfinite(rgb[2]));
-  printf("%-22s %6u probes (%u merged, %u added, %s) %7u tets %5u hull faces: linear err %.1e,"
-         " cache-vs-scratch %.1e, located-point err %.1e x tet size, far-outside ok\n",
+  double worst_rec = 0.0; /* small walk vs the walk records, inside and outside */
+  if (small) {
+    ub_glg gr;
+    ASSERT_OK(make_glg(m, sh, NULL, &gr));
+    uint32_t ca = UB_GLG_NO_CACHE, cb = UB_GLG_NO_CACHE;
+    for (int it = 0; it < 2000 && gr.tet_data; it++) {
+      float p[3], a[27], b[27];
+      if (it % 5 == 4) {
+        float d[3];
+        rnd_dir(d);
+        for (int k = 0; k < 3; k++)
+          p[k] = (float)(0.5 * (lo[k] + hi[k]) + ext * (0.3 + rnd()) * d[k]);
+      } else {
+        point_in_tet(m, rndu(m->tet_count), it % 4, p);
+      }
+      ub_glg_sample(&g, p, &ca, a);
+      ub_glg_sample(&gr, p, &cb, b);
+      for (int i = 0; i < 27; i++)
+        worst_rec = fmax(worst_rec, fabs(a[i] - b[i]) / scale);
+    }
+    ub_glg_release(&gr);
+    ASSERT_TRUE(worst_rec < 1e-4);
+  }
+  printf("%-22s %6u probes (%u merged, %u added, %s) %7u tets %5u hull faces%s: linear err %.1e,"
+         " cache-vs-scratch %.1e, located-point err %.1e x tet size, far-outside ok",
          name, m->point_count, m->merged_count, m->added_count,
          m->degeneracy == UB_TETGEN_GENERAL     ? "general"
          : m->degeneracy == UB_TETGEN_COPLANAR  ? "coplanar"
          : m->degeneracy == UB_TETGEN_COLLINEAR ? "collinear"
                                                 : "point",
-         m->tet_count, g.hull_count, worst_lin, worst_cache, worst_pos);
+         m->tet_count, g.hull_count, small ? " (small walk)" : "", worst_lin, worst_cache,
+         worst_pos);
+  if (small)
+    printf(", vs walk records %.1e", worst_rec);
+  printf("\n");
   ub_glg_release(&g);
   free(sh);
+}
+
+static void check_glg_on_mesh(const char *name, const ub_tetmesh *m)
+{
+  check_glg_mode(name, m, 0);
+  check_glg_mode(name, m, 1);
 }
 
 static ub_tetmesh *build_checked(const char *name, const float *pts, uint32_t n)
@@ -510,7 +554,7 @@ static void check_continuity(const char *name, const ub_tetmesh *m, const float 
 {
   ub_glg g;
   ASSERT_OK(make_glg(m, sh, NULL, &g));
-  if (!g.tet_data)
+  if (!g.tet_flags)
     return;
   double scale = sh_scale(sh, m->point_count);
   const float eps = 1e-5f;
@@ -701,7 +745,7 @@ static void test_hooks(void)
   /* Hostile GLG input. */
   int32_t bad_neigh[4] = {-1, 0, -1, -1}; /* self-neighbour */
   d.neigh = bad_neigh;
-  ASSERT_TRUE(ub_glg_init(&g, &d, &test_log) == UB_ERR_INVALID_DATA && !g.tet_data);
+  ASSERT_TRUE(ub_glg_init(&g, &d, &test_log) == UB_ERR_INVALID_DATA && !g.tet_flags);
   d.neigh = neigh;
   uint32_t bad_tets[4] = {0, 1, 2, 7};
   d.tets = bad_tets;
@@ -749,7 +793,7 @@ static void test_scale(void)
   t0 = now_s();
   ASSERT_OK(make_glg(m, sh, NULL, &g));
   double t_init = now_s() - t0;
-  if (!g.tet_data) {
+  if (!g.tet_flags) {
     free(sh);
     free(pts);
     ub_tetmesh_free(m);
@@ -855,7 +899,7 @@ static void test_scale(void)
   ASSERT_OK(ub_glg_init(&graw, &draw, &test_log));
   double t_raw = 0.0;
   const int NW = 400000;
-  if (graw.tet_data) {
+  if (graw.tet_flags) {
     cache = UB_GLG_NO_CACHE;
     for (int i = 0; i < NW; i++)
       for (int a = 0; a < 3; a++)
@@ -1089,7 +1133,7 @@ static void test_fast_vs_reference(void)
   d.sh_half = sh_half;
   d.sh_half_exp = sh_exp;
   ASSERT_OK(ub_glg_init(&gh, &d, &test_log));
-  if (!g.tet_data || !gs.tet_data || !gh.tet_data) {
+  if (!g.tet_flags || !gs.tet_flags || !gh.tet_flags) {
     ub_glg_release(&g);
     ub_glg_release(&gs);
     ub_glg_release(&gh);

@@ -448,7 +448,8 @@ static int parse_records_arg(const char *cmd, const char *a, const char *v, unsi
 /* ---- info -------------------------------------------------------------------------- */
 
 static const char *INFO_HELP =
-    "usage: ubake info DIR/NAME.ubk [--json] [--memory [--records half|8bit] [--keep-state]]\n"
+    "usage: ubake info DIR/NAME.ubk [--json] [--memory [--records half|8bit] [--keep-state]\n"
+    "                                                  [--glg-small-walk]]\n"
     "Prints what the bake file holds: geometry, atlases, texels, bytes.\n"
     "  --json      the same as one JSON object\n"
     "  --memory    also load it in the run-time and print what the run-time holds, by\n"
@@ -456,7 +457,9 @@ static const char *INFO_HELP =
     "              blend engines), and the load time\n"
     RECORDS_HELP
     "  --keep-state        with the load state kept (UB_RUNTIME_KEEP_STATE: 16 B a texel\n"
-    "                      that a set, door or object touches; a return to it copies)\n";
+    "                      that a set, door or object touches; a return to it copies)\n"
+    "  --glg-small-walk    with the GLG's small walk (UB_RUNTIME_GLG_SMALL_WALK: 48 B a\n"
+    "                      tet less, slower GLG queries)\n";
 
 /* The run-time's bytes for path (loads it, first thing in the process): 0 on success.
  * out_peak_mib: how far the resident set rose above the process's while loading (the
@@ -498,6 +501,8 @@ static int cmd_info(int argc, char **argv)
       memory = 1;
     } else if (!strcmp(argv[i], "--keep-state")) {
       load_flags |= UB_RUNTIME_KEEP_STATE;
+    } else if (!strcmp(argv[i], "--glg-small-walk")) {
+      load_flags |= UB_RUNTIME_GLG_SMALL_WALK;
     } else if (argv[i][0] == '-') {
       return usage_error("info", "unknown option");
     } else {
@@ -507,8 +512,8 @@ static int cmd_info(int argc, char **argv)
   if (!path)
     return usage_error("info", "no .ubk given");
   if (load_flags && !memory)
-    return usage_error("info", "--records and --keep-state go with --memory (the run-time's "
-                               "bytes)");
+    return usage_error("info", "--records, --keep-state and --glg-small-walk go with --memory "
+                               "(the run-time's bytes)");
   /* --json: stdout holds the JSON only (the run-time's load notes were printed before it) */
   cli_log_state ls = {0, json, 0};
   ub_log log = {cli_log, &ls};

@@ -121,6 +121,11 @@ typedef struct ub_glg_desc {
   int sh_windowed;                /* 1: every probe's sh already went through ub_sh2_window */
   int compact; /* 1: the GLG keeps its own compact probe store (below) made from sh (raw,
                   float; sh_windowed 0; sh_half NULL), read during init only */
+  int small_walk; /* 1: no 64-byte walk record per tet (its inverse edge matrix, origin
+                     and links): the links alone (16 B a tet) and a copy of the positions
+                     (12 B a probe), barycentrics computed from the corners in double at
+                     each step; 48 B a tet less (full ESTATE: −57 MiB), queries slower
+                     (README "Small GLG walk") */
 } ub_glg_desc;
 
 #define UB_GLG_NO_LEAK_PLANE 0xFFFFFFFFu
@@ -134,7 +139,7 @@ typedef struct ub_glg_hull ub_glg_hull; /* private: one hull face */
 typedef int (*ub_glg_row_fn)(void *user, uint32_t probe, float out[27]);
 
 typedef struct ub_glg {
-  /* borrowed (see ub_glg_desc; positions are read during init only) */
+  /* borrowed (see ub_glg_desc; positions are read during init only, small_walk copies them) */
   uint32_t probe_count;
   const float *sh;
   const uint16_t *sh_half; /* non-NULL: probes read from here instead of sh */
@@ -147,7 +152,10 @@ typedef struct ub_glg {
   const uint32_t *leak_plane_of;
   int sh_windowed;
   /* owned, built by ub_glg_init */
-  ub_glg_tet *tet_data;  /* per tet: inverse edge matrix, origin, neighbours/hull links */
+  ub_glg_tet *tet_data;  /* per tet: inverse edge matrix, origin, neighbours/hull links;
+                            NULL with small_walk: */
+  int32_t *tet_nb;       /* small_walk: per tet the four links (as the record's) ... */
+  float *pos;            /* ... and every probe's position (probe_count × 3) */
   uint8_t *tet_flags;    /* per tet: 0 normal, 1 ill-conditioned (double), 2 singular */
   uint8_t *leak_drop;    /* per tet with a leak plane: corners dropped on each side */
   uint32_t hull_count;

@@ -61,6 +61,11 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
 /* UB_RUNTIME_KEEP_STATE: ub_runtime_keep_state() at load (the load state: every set on,
  * doors closed, objects as baked). */
 #define UB_RUNTIME_KEEP_STATE 4u
+/* UB_RUNTIME_GLG_SMALL_WALK: the GLG keeps no 64-byte walk record per tet, only its links
+ * and the probe positions (ub_glg_desc.small_walk): 48 B a tet less (full ESTATE, 1.3 M
+ * tets: −57 MiB), each walk step and cached-tet test computes the barycentrics from the
+ * corners instead (README, "Small GLG walk", gives the measured price). */
+#define UB_RUNTIME_GLG_SMALL_WALK 8u
 /* ub_runtime_load() with flags (0 or the flags above; UB_ERR_INVALID_ARGUMENT for others). */
 ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags,
                              ub_runtime **out);
