@@ -82,6 +82,25 @@ static double coherent_rate(const ub_glg *g, int with_cursor, const float lo[3],
   return N / (ub_bench_now() - t0);
 }
 
+/* Queries per second at the M points pts (normal +y): one by one with one tet cache
+ * (*one), and as one ub_glg_query_batch (*batch; nrm: the normals, rgb: its output). */
+static void random_rates(const ub_glg *g, const float *pts, const float *nrm, float *rgb,
+                         uint32_t M, double *one, double *batch, double *sink)
+{
+  uint32_t cache = UB_GLG_NO_CACHE;
+  double t0 = ub_bench_now();
+  for (uint32_t i = 0; i < M; i++) {
+    float n[3] = {0, 1, 0}, e[3];
+    ub_glg_query(g, pts + 3 * i, n, &cache, e);
+    *sink += e[1];
+  }
+  *one = M / (ub_bench_now() - t0);
+  t0 = ub_bench_now();
+  ub_glg_query_batch(g, M, pts, nrm, NULL, rgb);
+  *batch = M / (ub_bench_now() - t0);
+  *sink += rgb[1];
+}
+
 int main(int argc, char **argv)
 {
   const char *build = getenv("UB_BUILD") ? getenv("UB_BUILD") : "build";
@@ -208,46 +227,12 @@ int main(int argc, char **argv)
       lat_r[round] = mc_r[round] = srnd_r[round] = sbat_r[round] = 0.0;
       continue;
     }
-    /* Random points in the level's bounds, one cache. */
-    cache = UB_GLG_NO_CACHE;
-    double t0 = ub_bench_now();
-    for (uint32_t i = 0; i < M; i++) {
-      float n[3] = {0, 1, 0}, e[3];
-      ub_glg_query(g, pts + 3 * i, n, &cache, e);
-      sink += e[1];
-    }
-    rnd_r[round] = M / (ub_bench_now() - t0);
-    /* The same random points as one batch (no caches). */
-    t0 = ub_bench_now();
-    ub_glg_query_batch(g, M, pts, nrm, NULL, rgb);
-    bat_r[round] = M / (ub_bench_now() - t0);
-    sink += rgb[1];
-    /* Both with the small walk. */
-    cache = UB_GLG_NO_CACHE;
-    t0 = ub_bench_now();
-    for (uint32_t i = 0; i < M; i++) {
-      float n[3] = {0, 1, 0}, e[3];
-      ub_glg_query(gs, pts + 3 * i, n, &cache, e);
-      sink += e[1];
-    }
-    srnd_r[round] = M / (ub_bench_now() - t0);
-    t0 = ub_bench_now();
-    ub_glg_query_batch(gs, M, pts, nrm, NULL, rgb);
-    sbat_r[round] = M / (ub_bench_now() - t0);
-    sink += rgb[1];
-    /* Float SH: one by one (one cache) and batched. */
-    cache = UB_GLG_NO_CACHE;
-    t0 = ub_bench_now();
-    for (uint32_t i = 0; i < M; i++) {
-      float n[3] = {0, 1, 0}, e[3];
-      ub_glg_query(&gh, pts + 3 * i, n, &cache, e);
-      sink += e[1];
-    }
-    half_r[round] = M / (ub_bench_now() - t0);
-    t0 = ub_bench_now();
-    ub_glg_query_batch(&gh, M, pts, nrm, NULL, rgb);
-    halfb_r[round] = M / (ub_bench_now() - t0);
-    sink += rgb[1];
+    /* Random points in the level's bounds: one by one (one cache) and as one batch (no
+     * caches); then the same with the small walk and over the float store. */
+    random_rates(g, pts, nrm, rgb, M, &rnd_r[round], &bat_r[round], &sink);
+    random_rates(gs, pts, nrm, rgb, M, &srnd_r[round], &sbat_r[round], &sink);
+    random_rates(&gh, pts, nrm, rgb, M, &half_r[round], &halfb_r[round], &sink);
+    double t0;
     /* Miss latency: 2M dependent reads. */
     {
       uint32_t at = 0;
