@@ -129,8 +129,38 @@ static inline void rec_bary(const struct ub_glg_tet *r, const float p[3], float 
   l[0] = 1.0f - l[1] - l[2] - l[3];
 }
 
-/* small_walk: the barycentrics of p in tet t from its corners, in double (exact
- * differences of the float positions, then one division), rounded to float; a badly
+/* small_walk: well-shaped tet t's geometry for geo_bary, in double from its corners (exact
+ * differences of the float positions): the cofactor rows r1, r2, r3 (geo[0..8]), 1 / det
+ * (geo[9]; det far from 0) and corner 0 (geo[10..12]). */
+static inline void tet_geo(const ub_glg *g, uint32_t t, double geo[13])
+{
+  const uint32_t *v = g->tets + 4 * (size_t)t;
+  const float *a = g->pos + 3 * (size_t)v[0], *b = g->pos + 3 * (size_t)v[1],
+              *c = g->pos + 3 * (size_t)v[2], *d = g->pos + 3 * (size_t)v[3];
+  double e1[3], e2[3], e3[3];
+  for (int k = 0; k < 3; k++) {
+    e1[k] = (double)b[k] - a[k];
+    e2[k] = (double)c[k] - a[k];
+    e3[k] = (double)d[k] - a[k];
+    geo[10 + k] = a[k];
+  }
+  d3cross(e2, e3, geo);
+  d3cross(e3, e1, geo + 3);
+  d3cross(e1, e2, geo + 6);
+  geo[9] = 1.0 / d3dot(e1, geo);
+}
+
+/* The barycentrics of p from tet_geo's geometry, rounded to float. */
+static inline void geo_bary(const double geo[13], const float p[3], float l[4])
+{
+  const double x[3] = {(double)p[0] - geo[10], (double)p[1] - geo[11], (double)p[2] - geo[12]};
+  l[1] = (float)(d3dot(geo, x) * geo[9]);
+  l[2] = (float)(d3dot(geo + 3, x) * geo[9]);
+  l[3] = (float)(d3dot(geo + 6, x) * geo[9]);
+  l[0] = 1.0f - l[1] - l[2] - l[3];
+}
+
+/* small_walk: the barycentrics of p in tet t from its corners (tet_geo, geo_bary); a badly
  * shaped tet gives (1, 0, 0, 0) as its zeroed record does (its callers go on to
  * tet_bary_double by its flag). */
 static inline void corner_bary(const ub_glg *g, uint32_t t, const float p[3], float l[4])
@@ -140,24 +170,9 @@ static inline void corner_bary(const ub_glg *g, uint32_t t, const float p[3], fl
     l[1] = l[2] = l[3] = 0.0f;
     return;
   }
-  const uint32_t *v = g->tets + 4 * (size_t)t;
-  const float *a = g->pos + 3 * (size_t)v[0], *b = g->pos + 3 * (size_t)v[1],
-              *c = g->pos + 3 * (size_t)v[2], *d = g->pos + 3 * (size_t)v[3];
-  double e1[3], e2[3], e3[3], x[3], r1[3], r2[3], r3[3];
-  for (int k = 0; k < 3; k++) {
-    e1[k] = (double)b[k] - a[k];
-    e2[k] = (double)c[k] - a[k];
-    e3[k] = (double)d[k] - a[k];
-    x[k] = (double)p[k] - a[k];
-  }
-  d3cross(e2, e3, r1);
-  d3cross(e3, e1, r2);
-  d3cross(e1, e2, r3);
-  const double inv = 1.0 / d3dot(e1, r1); /* well shaped: det far from 0 */
-  l[1] = (float)(d3dot(r1, x) * inv);
-  l[2] = (float)(d3dot(r2, x) * inv);
-  l[3] = (float)(d3dot(r3, x) * inv);
-  l[0] = 1.0f - l[1] - l[2] - l[3];
+  double geo[13];
+  tet_geo(g, t, geo);
+  geo_bary(geo, p, l);
 }
 
 /* Barycentrics of p in tet t as the walk computes them (record or corners). */
@@ -1579,16 +1594,34 @@ void ub_glg_cursor_init(ub_glg_cursor *c)
 {
   assert(c);
   memset(c, 0, sizeof *c);
-  c->tet = c->rows_tet = UB_GLG_NO_CACHE;
+  c->tet = c->rows_tet = c->geo_tet = UB_GLG_NO_CACHE;
 }
 
 /* ub_glg_sample through a cursor (compact store): the interpolated windowed SH into sh
- * (28 floats, the last 0). */
+ * (28 floats, the last 0). With the small walk, the cached tet's test uses the cursor's
+ * geometry: the bits sample_locate's corner_bary gives, without reading the corners. */
 static void cursor_sample(const ub_glg *g, const float p[3], ub_glg_cursor *c, float sh[28])
 {
   float w[4];
   sh[27] = 0.0f;
-  uint32_t t = sample_locate(g, p, &c->tet, w);
+  uint32_t t;
+  if (g->pos && c->tet == c->geo_tet && c->tet < g->tet_count && c->geo[9] != 0.0 &&
+      isfinite(p[0] + p[1] + p[2])) {
+    geo_bary(c->geo, p, w); /* sample_locate's fast path, its answer when inside */
+    if (min4f(w) >= -GLG_EPS) {
+      bary_finish(w);
+      t = c->tet;
+      leak_weights(g, t, p, w);
+    } else {
+      t = sample_locate(g, p, &c->tet, w);
+    }
+  } else {
+    t = sample_locate(g, p, &c->tet, w);
+  }
+  if (g->pos && c->tet == t && t != c->geo_tet && t < g->tet_count && !g->tet_flags[t]) {
+    tet_geo(g, t, c->geo);
+    c->geo_tet = t;
+  }
   uint32_t gen = atomic_load_explicit(cp_words(g) + g->probe_count, memory_order_relaxed);
   if (t != c->rows_tet || gen != c->generation) {
     const uint32_t *v = g->tets + 4 * (size_t)t;

@@ -1549,12 +1549,40 @@ static void test_compact(void)
     for (int c = 0; c < 3; c++)
       finite &= isfinite(rgb[c]) && rgb[c] >= 0.0f;
   }
+  /* the small walk: its cursor (which keeps the tet's geometry) against its own plain
+   * queries, bit for bit, along the same points and steps */
+  int small_bits = 1, small_near = 1;
+  {
+    ub_glg_desc ds = d;
+    ds.small_walk = 1;
+    ub_glg gs;
+    ASSERT_OK(ub_glg_init(&gs, &ds, &test_log));
+    ub_glg_set_probes(&gs, 5, 1, bad);
+    ub_glg_cursor cs;
+    ub_glg_cursor_init(&cs);
+    uint32_t ps = UB_GLG_NO_CACHE, pr = UB_GLG_NO_CACHE;
+    for (int i = 0; i < Q && gs.tet_flags; i++)
+      for (int st = 0; st <= (i % 10 == 0 ? 20 : 0); st++) {
+        float pp[3] = {qp[3 * i] + 0.002f * st, qp[3 * i + 1] + 0.001f * st, qp[3 * i + 2]};
+        float a[3], b[3], r[3];
+        ub_glg_query(&gs, pp, qn + 3 * i, &ps, a);
+        ub_glg_query_cursor(&gs, pp, qn + 3 * i, &cs, b);
+        small_bits &= !memcmp(a, b, sizeof a) && ps == cs.tet;
+        ub_glg_query(&g, pp, qn + 3 * i, &pr, r); /* the records' answer, to rounding */
+        for (int c = 0; c < 3; c++)
+          small_near &= fabsf(a[c] - r[c]) <= 1e-4f * (fabsf(r[c]) + 1e-3f);
+      }
+    ub_glg_release(&gs);
+  }
   printf("compact queries: %d points, interpolation vs the definition worst %.2e of the "
-         "magnitudes; AVX and scalar kernels %s; cursor queries %s\n", Q, worst_def,
-         same_bits ? "bit-identical" : "DIFFER", cursor_bits ? "bit-identical" : "DIFFER");
+         "magnitudes; AVX and scalar kernels %s; cursor queries %s; small walk: cursor %s, "
+         "%s the walk records'\n", Q, worst_def,
+         same_bits ? "bit-identical" : "DIFFER", cursor_bits ? "bit-identical" : "DIFFER",
+         small_bits ? "bit-identical" : "DIFFERS", small_near ? "near" : "FAR FROM");
   ASSERT_TRUE(worst_def < 1e-6);
   ASSERT_TRUE(same_bits);
   ASSERT_TRUE(cursor_bits);
+  ASSERT_TRUE(small_bits && small_near);
   /* the LLG resample (a cursor inside) equals ub_glg_sample along its serpentine order */
   {
     enum { NX = 5, NY = 4, NZ = 3 };

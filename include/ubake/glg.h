@@ -224,16 +224,20 @@ void ub_glg_query(const ub_glg *g, const float p[3], const float n[3],
 
 /* A moving object's cursor: its tet cache and, with the compact store, the windowed rows
  * of that tet's four probes, so consecutive queries in one tet read 4 × 27 floats instead
- * of decoding and windowing the probes (the same bits as ub_glg_query). Valid for one
- * ub_glg; ub_glg_set_probes and ub_glg_mark_unblended make its rows stale (a generation count). 464 bytes.
+ * of decoding and windowing the probes (the same bits as ub_glg_query); with the small
+ * walk also that tet's barycentric rows, so they are not recomputed from its corners at
+ * every query. Valid for one ub_glg; ub_glg_set_probes and ub_glg_mark_unblended make its
+ * rows stale (a generation count). 568 bytes.
  * Initialise with ub_glg_cursor_init. Thread safety: one cursor per thread, like a tet
  * cache. */
 typedef struct ub_glg_cursor {
   uint32_t tet;        /* the tet cache (as inout_tet_cache) */
   uint32_t rows_tet;   /* the tet whose rows are held, UB_GLG_NO_CACHE: none */
   uint32_t generation; /* the store's generation they are from */
-  uint32_t pad;
+  uint32_t geo_tet;    /* small walk: the well-shaped tet whose geometry geo holds, or
+                          UB_GLG_NO_CACHE */
   float rows[4][28];
+  double geo[13];      /* small walk: the tet's cofactor rows (3 × 3), 1 / det, corner 0 */
 } ub_glg_cursor;
 void ub_glg_cursor_init(ub_glg_cursor *c);
 /* ub_glg_query through a cursor (any store; without the compact one, only its tet). */
