@@ -2272,7 +2272,8 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
     if (g->tet_nb)
       memcpy(g->tet_nb + 4 * (size_t)t, r->nb, sizeof r->nb);
   }
-  if (g->ill_tet_count) { /* the badly shaped tets' corners, for tet_corner */
+  if (g->ill_tet_count && !g->pos) { /* the badly shaped tets' corners, for tet_corner (the
+                                        small walk keeps every probe's position) */
     g->ill_ids = malloc((size_t)g->ill_tet_count * sizeof *g->ill_ids);
     g->ill_pos = malloc((size_t)g->ill_tet_count * 12 * sizeof *g->ill_pos);
     if (!g->ill_ids || !g->ill_pos) {
@@ -2373,7 +2374,7 @@ size_t ub_glg_owned_bytes(const ub_glg *g)
   return (size_t)g->tet_count * (walk_bytes(g) + 1 + (g->leak_drop ? 1 : 0)) +
          (g->pos ? (size_t)g->probe_count * 3 * sizeof(float) : 0) +
          (size_t)g->hull_count * sizeof(struct ub_glg_hull) + grid_bytes(g) +
-         (size_t)g->ill_tet_count * (4 + 12 * sizeof(float)) +
+         (g->ill_ids ? (size_t)g->ill_tet_count * (4 + 12 * sizeof(float)) : 0) +
          (g->stale ? (size_t)g->probe_count : 0) +
          (g->cp_rows ? (size_t)g->probe_count * (27 * sizeof(uint16_t) + sizeof(uint32_t)) : 0);
 }
@@ -2385,7 +2386,7 @@ void ub_glg_memory_usage(const ub_glg *g, ub_glg_memory *out)
   if (!g || !g->tet_flags)
     return;
   size_t np = g->probe_count, nt = g->tet_count;
-  out->positions = (size_t)g->ill_tet_count * (4 + 12 * sizeof(float)) +
+  out->positions = (g->ill_ids ? (size_t)g->ill_tet_count * (4 + 12 * sizeof(float)) : 0) +
                    (size_t)g->hull_count * 9 * sizeof(float) +
                    (g->pos ? np * 3 * sizeof(float) : 0);
   out->sh = np * (g->cp_rows ? 27 * sizeof(uint16_t) + sizeof(uint32_t)
