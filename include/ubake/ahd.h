@@ -64,8 +64,9 @@ void ub_ahd_encode_iz8_packed(const float *sh_iz, const float *unit_normals, flo
 void ub_ahd_encode_iz8_rows_packed(const float *const rows[8], const float *unit_normals,
                                    float inv_scale, ub_ahd_packed *const out[8]);
 /* count contiguous texels (sh_iz: count × 12, unit_normals: count × 3), packed: the bits
- * of ub_ahd_encode_iz then ub_ahd_pack for each. With AVX + F16C, sixteen at a time in two
- * interleaved groups of eight (the encode's latency hidden), then eight, then one by one. */
+ * of ub_ahd_encode_iz then ub_ahd_pack for each. With AVX + F16C, sixteen at a time (AVX-512:
+ * in the lanes of one register set, loaded and stored by whole-register permutes; AVX: two
+ * interleaved groups of eight, the encode's latency hidden), then eight, then one by one. */
 void ub_ahd_encode_iz_packed_n(const float *sh_iz, const float *unit_normals, float inv_scale,
                                ub_ahd_packed *out_packed, size_t count);
 /* Irradiance (W/m²) for any unit normal n'. */
