@@ -461,17 +461,39 @@ static const char *INFO_HELP =
     "  --glg-small-walk    with the GLG's small walk (UB_RUNTIME_GLG_SMALL_WALK: 48 B a\n"
     "                      tet less, slower GLG queries)\n";
 
+/* The run-time load's notes for ubake info: errors and warnings go to the CLI's log at
+ * once, notes are kept (up to 4 KiB) and printed under the run-time memory line, after
+ * the header they used to come before. */
+typedef struct info_notes {
+  const ub_log *cli;
+  char text[4096];
+  size_t len;
+} info_notes;
+
+static void info_notes_log(void *user, ub_log_level level, const char *msg)
+{
+  info_notes *n = user;
+  if (level != UB_LOG_INFO) {
+    n->cli->fn(n->cli->user, level, msg);
+    return;
+  }
+  int w = snprintf(n->text + n->len, sizeof n->text - n->len, "    note: %s\n", msg);
+  if (w > 0)
+    n->len = n->len + (size_t)w < sizeof n->text ? n->len + (size_t)w : sizeof n->text - 1;
+}
+
 /* The run-time's bytes for path (loads it, first thing in the process): 0 on success.
  * out_peak_mib: how far the resident set rose above the process's while loading (the
- * kernel's peak, reset first; -1 where it cannot be reset). */
-static int info_memory(const char *path, const ub_log *log, unsigned flags,
+ * kernel's peak, reset first; -1 where it cannot be reset). The load's notes go to notes. */
+static int info_memory(const char *path, info_notes *notes, unsigned flags,
                        ub_runtime_memory *out, double *out_seconds, double *out_peak_mib)
 {
   int reset = ub_peak_rss_reset();
   long rss0 = ub_proc_status_kb("VmRSS:");
   double t0 = now_s();
   ub_runtime *rt = NULL;
-  if (ub_runtime_load_ex(path, log, flags, &rt) != UB_OK)
+  const ub_log log = {info_notes_log, notes};
+  if (ub_runtime_load_ex(path, &log, flags, &rt) != UB_OK)
     return 1;
   *out_seconds = now_s() - t0;
   long hwm = ub_proc_status_kb("VmHWM:");
@@ -520,7 +542,8 @@ static int cmd_info(int argc, char **argv)
   /* the run-time first: its load's peak is then its own */
   ub_runtime_memory mem;
   double load_s = 0.0, load_peak = -1.0;
-  if (memory && info_memory(path, &log, load_flags, &mem, &load_s, &load_peak))
+  info_notes notes = {&log, {0}, 0};
+  if (memory && info_memory(path, &notes, load_flags, &mem, &load_s, &load_peak))
     return fail(&ls, UB_ERR_INVALID_DATA, path);
   ub_bakefile *bf = NULL;
   ub_result r = ub_bakefile_read(path, &log, &bf);
@@ -644,6 +667,7 @@ static int cmd_info(int argc, char **argv)
       if (load_peak >= 0.0)
         printf(", resident set at most +%.1f MiB while loading", load_peak);
       printf(")\n");
+      fputs(notes.text, stdout); /* the load's notes, if any */
     }
   }
   ub_bakefile_free(bf);
