@@ -129,25 +129,34 @@ static inline void rec_bary(const struct ub_glg_tet *r, const float p[3], float 
   l[0] = 1.0f - l[1] - l[2] - l[3];
 }
 
-/* small_walk: well-shaped tet t's geometry for geo_bary, in double from its corners (exact
- * differences of the float positions): the cofactor rows r1, r2, r3 (geo[0..8]), 1 / det
- * (geo[9]; det far from 0) and corner 0 (geo[10..12]). */
-static inline void tet_geo(const ub_glg *g, uint32_t t, double geo[13])
+/* The cofactor rows of tet (a, b, c, d) in double, from the exact differences of its
+ * float corners e1 = b − a, e2 = c − a, e3 = d − a: r = (e2 × e3, e3 × e1, e1 × e2);
+ * returns det = e1 · (e2 × e3). λ_i = r_i · (p − a) / det. */
+static inline double tet_cofactors(const float *a, const float *b, const float *c,
+                                   const float *d, double r[9])
 {
-  const uint32_t *v = g->tets + 4 * (size_t)t;
-  const float *a = g->pos + 3 * (size_t)v[0], *b = g->pos + 3 * (size_t)v[1],
-              *c = g->pos + 3 * (size_t)v[2], *d = g->pos + 3 * (size_t)v[3];
   double e1[3], e2[3], e3[3];
   for (int k = 0; k < 3; k++) {
     e1[k] = (double)b[k] - a[k];
     e2[k] = (double)c[k] - a[k];
     e3[k] = (double)d[k] - a[k];
-    geo[10 + k] = a[k];
   }
-  d3cross(e2, e3, geo);
-  d3cross(e3, e1, geo + 3);
-  d3cross(e1, e2, geo + 6);
-  geo[9] = 1.0 / d3dot(e1, geo);
+  d3cross(e2, e3, r);
+  d3cross(e3, e1, r + 3);
+  d3cross(e1, e2, r + 6);
+  return d3dot(e1, r);
+}
+
+/* small_walk: well-shaped tet t's geometry for geo_bary: its cofactor rows (geo[0..8]),
+ * 1 / det (geo[9]; det far from 0) and corner 0 (geo[10..12]). */
+static inline void tet_geo(const ub_glg *g, uint32_t t, double geo[13])
+{
+  const uint32_t *v = g->tets + 4 * (size_t)t;
+  const float *a = g->pos + 3 * (size_t)v[0];
+  geo[9] = 1.0 / tet_cofactors(a, g->pos + 3 * (size_t)v[1], g->pos + 3 * (size_t)v[2],
+                               g->pos + 3 * (size_t)v[3], geo);
+  for (int k = 0; k < 3; k++)
+    geo[10 + k] = a[k];
 }
 
 /* The barycentrics of p from tet_geo's geometry, rounded to float. */
@@ -207,25 +216,16 @@ static inline void prefetch_walk(const ub_glg *g, uint32_t t)
 /* Double-precision barycentrics from the positions; 0 if the tet is singular. */
 static int tet_bary_double(const ub_glg *g, uint32_t t, const float p[3], double l[4])
 {
-  double a[3], b[3], c[3], d[3], q[3], e1[3], e2[3], e3[3], x[3], r1[3], r2[3], r3[3];
-  d3load(tet_corner(g, t, 0), a);
-  d3load(tet_corner(g, t, 1), b);
-  d3load(tet_corner(g, t, 2), c);
-  d3load(tet_corner(g, t, 3), d);
-  d3load(p, q);
-  d3sub(b, a, e1);
-  d3sub(c, a, e2);
-  d3sub(d, a, e3);
-  d3sub(q, a, x);
-  d3cross(e2, e3, r1);
-  d3cross(e3, e1, r2);
-  d3cross(e1, e2, r3);
-  double det = d3dot(e1, r1);
+  const float *a = tet_corner(g, t, 0);
+  double r[9];
+  const double det = tet_cofactors(a, tet_corner(g, t, 1), tet_corner(g, t, 2),
+                                   tet_corner(g, t, 3), r);
   if (!(fabs(det) > 0.0) || !isfinite(det))
     return 0;
-  l[1] = d3dot(r1, x) / det;
-  l[2] = d3dot(r2, x) / det;
-  l[3] = d3dot(r3, x) / det;
+  const double x[3] = {(double)p[0] - a[0], (double)p[1] - a[1], (double)p[2] - a[2]};
+  l[1] = d3dot(r, x) / det;
+  l[2] = d3dot(r + 3, x) / det;
+  l[3] = d3dot(r + 6, x) / det;
   l[0] = 1.0 - l[1] - l[2] - l[3];
   return 1;
 }
@@ -1563,13 +1563,17 @@ static void shade(const ub_glg *g, float sh[28], const float n[3], float out_rgb
 
 /* The tet for p and its interpolation weights (barycentrics with the leak weights). */
 static inline uint32_t sample_locate(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
-                                     float w[4])
+                                     const double *geo, float w[4])
 {
   uint32_t t = inout_tet_cache ? *inout_tet_cache : GLG_NONE;
   /* Fast path, the same answer as ub_glg_locate's first test: p (finite) still inside
-   * the cached, well-shaped tet. */
+   * the cached, well-shaped tet (geo: its tet_geo when the caller keeps it, the bits
+   * walk_bary gives without reading the corners). */
   if (t < g->tet_count && !g->tet_flags[t] && isfinite(p[0] + p[1] + p[2])) {
-    walk_bary(g, t, p, w);
+    if (geo)
+      geo_bary(geo, p, w);
+    else
+      walk_bary(g, t, p, w);
     float mn = min4f(w);
     if (mn >= -GLG_EPS)
       bary_finish(w);
@@ -1586,7 +1590,7 @@ void ub_glg_sample(const ub_glg *g, const float p[3], uint32_t *inout_tet_cache,
                    float out_sh[27])
 {
   float w[4];
-  uint32_t t = sample_locate(g, p, inout_tet_cache, w);
+  uint32_t t = sample_locate(g, p, inout_tet_cache, NULL, w);
   interp4(g, g->tets + 4 * (size_t)t, w, out_sh);
 }
 
@@ -1598,26 +1602,14 @@ void ub_glg_cursor_init(ub_glg_cursor *c)
 }
 
 /* ub_glg_sample through a cursor (compact store): the interpolated windowed SH into sh
- * (28 floats, the last 0). With the small walk, the cached tet's test uses the cursor's
- * geometry: the bits sample_locate's corner_bary gives, without reading the corners. */
+ * (28 floats, the last 0). With the small walk, sample_locate tests the cached tet with the
+ * cursor's geometry (the bits corner_bary gives) instead of reading its corners. */
 static void cursor_sample(const ub_glg *g, const float p[3], ub_glg_cursor *c, float sh[28])
 {
   float w[4];
   sh[27] = 0.0f;
-  uint32_t t;
-  if (g->pos && c->tet == c->geo_tet && c->tet < g->tet_count && c->geo[9] != 0.0 &&
-      isfinite(p[0] + p[1] + p[2])) {
-    geo_bary(c->geo, p, w); /* sample_locate's fast path, its answer when inside */
-    if (min4f(w) >= -GLG_EPS) {
-      bary_finish(w);
-      t = c->tet;
-      leak_weights(g, t, p, w);
-    } else {
-      t = sample_locate(g, p, &c->tet, w);
-    }
-  } else {
-    t = sample_locate(g, p, &c->tet, w);
-  }
+  const double *geo = g->pos && c->tet == c->geo_tet && c->geo[9] != 0.0 ? c->geo : NULL;
+  uint32_t t = sample_locate(g, p, &c->tet, geo, w);
   if (g->pos && c->tet == t && t != c->geo_tet && t < g->tet_count && !g->tet_flags[t]) {
     tet_geo(g, t, c->geo);
     c->geo_tet = t;
