@@ -101,6 +101,28 @@ static void random_rates(const ub_glg *g, const float *pts, const float *nrm, fl
   *sink += rgb[1];
 }
 
+/* The largest irradiance difference between two GLGs at the M points, relative to the
+ * point's mean irradiance in a (E for a normal and its opposite, summed). */
+static double query_diff(const ub_glg *a, const ub_glg *b, const float *pts, uint32_t M)
+{
+  double worst = 0.0;
+  for (uint32_t i = 0; i < M; i++) {
+    float n[3] = {0.48f, 0.6f, 0.64f}, m[3] = {-0.48f, -0.6f, -0.64f}, ea[3], eb[3], ea2[3],
+          eb2[3];
+    uint32_t c1 = UB_GLG_NO_CACHE, c2 = UB_GLG_NO_CACHE;
+    ub_glg_query(a, pts + 3 * i, n, &c1, ea);
+    ub_glg_query(b, pts + 3 * i, n, &c2, eb);
+    ub_glg_query(a, pts + 3 * i, m, &c1, ea2);
+    ub_glg_query(b, pts + 3 * i, m, &c2, eb2);
+    for (int c = 0; c < 3; c++) {
+      double ref = ea[c] + ea2[c];
+      if (ref > 0.0)
+        worst = fmax(worst, fmax(fabs(ea[c] - eb[c]), fabs(ea2[c] - eb2[c])) / ref);
+    }
+  }
+  return worst;
+}
+
 int main(int argc, char **argv)
 {
   const char *build = getenv("UB_BUILD") ? getenv("UB_BUILD") : "build";
@@ -262,38 +284,9 @@ int main(int argc, char **argv)
          half1 = median(half_r, ROUNDS), cohf = median(cohf_r, ROUNDS),
          cohc = median(cohc_r, ROUNDS), halfb = median(halfb_r, ROUNDS),
          lat = median(lat_r, ROUNDS), mcbw = median(mc_r, ROUNDS);
-  /* Compact vs float SH: irradiance difference at the random points, relative to the
-   * point's mean irradiance (E for the normal and its opposite, summed). */
-  double half_err = 0.0;
-  for (uint32_t i = 0; i < M; i++) {
-    float n[3] = {0.48f, 0.6f, 0.64f}, m[3] = {-0.48f, -0.6f, -0.64f}, a[3], b[3], a2[3], b2[3];
-    uint32_t c1 = UB_GLG_NO_CACHE, c2 = UB_GLG_NO_CACHE;
-    ub_glg_query(g, pts + 3 * i, n, &c1, a);
-    ub_glg_query(&gh, pts + 3 * i, n, &c2, b);
-    ub_glg_query(g, pts + 3 * i, m, &c1, a2);
-    ub_glg_query(&gh, pts + 3 * i, m, &c2, b2);
-    for (int c = 0; c < 3; c++) {
-      double ref = a[c] + a2[c];
-      if (ref > 0.0)
-        half_err = fmax(half_err, fmax(fabs(a[c] - b[c]), fabs(a2[c] - b2[c])) / ref);
-    }
-  }
-  /* Small walk vs walk records at the random points: the largest difference relative to
-   * the point's irradiance for the normal and its opposite (float rounding expected). */
-  double small_err = 0.0;
-  for (uint32_t i = 0; i < M; i++) {
-    float n[3] = {0.48f, 0.6f, 0.64f}, m[3] = {-0.48f, -0.6f, -0.64f}, a[3], b[3], a2[3], b2[3];
-    uint32_t c1 = UB_GLG_NO_CACHE, c2 = UB_GLG_NO_CACHE;
-    ub_glg_query(g, pts + 3 * i, n, &c1, a);
-    ub_glg_query(gs, pts + 3 * i, n, &c2, b);
-    ub_glg_query(g, pts + 3 * i, m, &c1, a2);
-    ub_glg_query(gs, pts + 3 * i, m, &c2, b2);
-    for (int c = 0; c < 3; c++) {
-      double ref = a[c] + a2[c];
-      if (ref > 0.0)
-        small_err = fmax(small_err, fmax(fabs(a[c] - b[c]), fabs(a2[c] - b2[c])) / ref);
-    }
-  }
+  /* Compact vs float SH, and small walk vs walk records: irradiance differences at the
+   * random points (query_diff). */
+  const double half_err = query_diff(g, &gh, pts, M), small_err = query_diff(g, gs, pts, M);
   /* Windowing every probe's raw SH (what a re-blend costs per touched probe). */
   double win_fast = 0.0, win_ref = 0.0;
   unsigned win_count = 0;
