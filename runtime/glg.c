@@ -2197,26 +2197,22 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
     const uint32_t *v = d->tets + 4 * (size_t)t;
     struct ub_glg_tet rec; /* the walk record (kept unless small_walk) */
     struct ub_glg_tet *r = g->tet_data ? &g->tet_data[t] : &rec;
-    double a[3], e[3][3], inv[3][3], lmax2 = 0.0;
+    double inv[9], lmax2 = 0.0; /* inv: the cofactor rows (the inverse times det) */
     double q[4][3];
     for (int i = 0; i < 4; i++)
       d3load(d->positions + 3 * (size_t)v[i], q[i]);
-    memcpy(a, q[0], sizeof a);
-    for (int i = 0; i < 3; i++)
-      d3sub(q[i + 1], a, e[i]);
     for (int i = 0; i < 4; i++)
       for (int j = i + 1; j < 4; j++) {
         double x[3];
         d3sub(q[i], q[j], x);
         lmax2 = fmax(lmax2, d3dot(x, x));
       }
-    d3cross(e[1], e[2], inv[0]);
-    d3cross(e[2], e[0], inv[1]);
-    d3cross(e[0], e[1], inv[2]);
-    double det = d3dot(e[0], inv[0]);
+    const double det =
+        tet_cofactors(d->positions + 3 * (size_t)v[0], d->positions + 3 * (size_t)v[1],
+                      d->positions + 3 * (size_t)v[2], d->positions + 3 * (size_t)v[3], inv);
     double qual = fabs(det) / (lmax2 * sqrt(lmax2));
     for (int i = 0; i < 3; i++)
-      r->o[i] = (float)a[i];
+      r->o[i] = (float)q[0][i];
     if (!(qual >= GLG_ILL_Q) || !isfinite(qual)) {
       memset(r->m, 0, sizeof r->m);
       g->tet_flags[t] = (qual >= GLG_SINGULAR_Q && isfinite(qual)) ? GLG_FLAG_ILL
@@ -2226,7 +2222,7 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
     } else {
       for (int i = 0; i < 3; i++)
         for (int j = 0; j < 3; j++)
-          r->m[3 * i + j] = (float)(inv[i][j] / det);
+          r->m[3 * i + j] = (float)(inv[3 * i + j] / det);
     }
     for (int i = 0; i < 4; i++) {
       int32_t u = d->neigh[4 * (size_t)t + i];
