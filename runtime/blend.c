@@ -1355,7 +1355,10 @@ void ub_blend_update_begin(ub_blend *b, int all)
 {
   assert(b);
   uint32_t n = 0;
-  if (all) {
+  /* every element changed (e.g. a global dimmer): every group holds one of them, so the
+   * work is every group, without stamping each element's groups (full ESTATE, all 132
+   * sets: 0.9 -> 0.1 ms for the three engines) */
+  if (all || (b->dirty_count == b->element_count && b->element_count)) {
     for (uint32_t i = 0; i < b->dirty_count; i++)
       b->dirty[b->dirty_list[i]] = 0;
     if (b->wlast)
