@@ -1508,6 +1508,13 @@ void ub_blend_update_part(const ub_blend *b, uint32_t part, uint32_t parts,
 void ub_blend_mark_part(const ub_blend *b, uint32_t part, uint32_t parts,
                         ub_blend_touched_fn touched, void *user, ub_blend_stats *out_stats)
 {
+  ub_blend_mark_part_ex(b, part, parts, touched, NULL, user, out_stats);
+}
+
+void ub_blend_mark_part_ex(const ub_blend *b, uint32_t part, uint32_t parts,
+                           ub_blend_touched_fn touched, ub_blend_listed_fn listed, void *user,
+                           ub_blend_stats *out_stats)
+{
   assert(b && touched && parts >= 1 && part < parts && parts <= b->job_cap);
   ub_blend_stats st;
   memset(&st, 0, sizeof st);
@@ -1518,7 +1525,10 @@ void ub_blend_mark_part(const ub_blend *b, uint32_t part, uint32_t parts,
     part_item(&p, i, g, &lo, &hi);
     if (lo >= hi)
       continue;
-    group_report(b, g, lo, hi, touched, user, NULL);
+    if (listed && (g->k_mode & GROUP_LIST)) /* unit i of a list is receiver i of the group */
+      listed(user, b->units + g->unit_off + lo, hi - lo);
+    else
+      group_report(b, g, lo, hi, touched, user, NULL);
     st.groups += lo == 0;
     st.receivers += hi - lo;
     st.bytes_read += lo == 0 ? group_table_bytes(g) : 0;

@@ -289,6 +289,15 @@ void ub_blend_update_part(const ub_blend *b, uint32_t part, uint32_t parts,
  * update_part's (groups_base 0), bytes_read the group tables only, nothing written. */
 void ub_blend_mark_part(const ub_blend *b, uint32_t part, uint32_t parts,
                         ub_blend_touched_fn touched, void *user, ub_blend_stats *out_stats);
+/* The receivers of a group kept as a list (scattered receivers, e.g. GLG probes), count ≥
+ * 1 of them in ascending order, valid during the call only. */
+typedef void (*ub_blend_listed_fn)(void *user, const uint32_t *receivers, uint32_t count);
+/* ub_blend_mark_part, but a list group's receivers of the part go to listed (when not
+ * NULL) in one call instead of to touched in pieces (one a receiver unless consecutive):
+ * every receiver still reported once, to one of the two, groups in ascending order. */
+void ub_blend_mark_part_ex(const ub_blend *b, uint32_t part, uint32_t parts,
+                           ub_blend_touched_fn touched, ub_blend_listed_fn listed, void *user,
+                           ub_blend_stats *out_stats);
 
 /* The first work item (a group to recompute, in the update's ascending order) of part
  * `part` of `parts` of the update begun (part == parts: the work's size). Part p reaches

@@ -1333,6 +1333,17 @@ void ub_glg_mark_unblended(ub_glg *g, uint32_t first, uint32_t count)
   cp_new_generation(g);
 }
 
+void ub_glg_mark_unblended_list(ub_glg *g, const uint32_t *probes, uint32_t count)
+{
+  assert(g && g->cp_rows && g->row_fn && (probes || !count));
+  _Atomic uint32_t *w = cp_words(g);
+  for (uint32_t i = 0; i < count; i++) {
+    assert(probes[i] < g->probe_count);
+    atomic_store_explicit(w + probes[i], CP_UNBLENDED, memory_order_relaxed);
+  }
+  cp_new_generation(g);
+}
+
 void ub_glg_probe_sh(const ub_glg *g, uint32_t v, int windowed, float out[27])
 {
   assert(g && v < g->probe_count);

@@ -271,6 +271,21 @@ static void on_marked(void *user, uint32_t first, uint32_t count, const float *r
   t->total += count;
 }
 
+/* ub_blend_listed_fn for ub_blend_mark_part_ex: counts into the touch_log's count (as
+ * on_marked), rows_bad for an empty or unsorted list; pieces: the calls */
+static void on_listed(void *user, const uint32_t *receivers, uint32_t count)
+{
+  touch_log *t = user;
+  t->rows_bad += count == 0;
+  for (uint32_t i = 0; i < count; i++) {
+    t->rows_bad += i && receivers[i] <= receivers[i - 1];
+    if (t->count[receivers[i]] < 255)
+      t->count[receivers[i]]++;
+  }
+  t->total += count;
+  t->pieces_bad++; /* (used as a call count here) */
+}
+
 /* One update of b, its reports counted into count (R receivers): rows into out, or (stream)
  * streamed and copied into out; as `parts` parts on this thread (ub_blend_update_begin /
  * _part), else ub_blend_update (all: _all) with its stats into st (may be NULL). */
@@ -1790,6 +1805,7 @@ static void test_base_half(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
   uint8_t *count = calloc(R, 1);
   float row[UB_BLEND_MAX_STRIDE];
   int bad_bits = 0, bad_rows = 0, bad_bytes = 0;
+  uint32_t list_calls = 0;
   for (int round = 0; round < 50; round++) {
     const int all = round % 10 == 9, off = round == 49;
     for (uint32_t e = 0; e < E; e++)
@@ -1827,12 +1843,18 @@ static void test_base_half(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
        * each once, without rows; a row query then gives each the update's bits */
       memset(mcount, 0, R);
       touch_log tm = {mcount, 0, S, NULL, NULL, 0, 0, 0, 0};
+      touch_log tlist = {mcount, 0, S, NULL, NULL, 0, 0, 0, 0}; /* odd rounds: lists apart */
       ub_blend_update_begin(hm, all);
       for (uint32_t q = 0; q < 3; q++) {
         ub_blend_stats sq;
-        ub_blend_mark_part(hm, q, 3, on_marked, &tm, &sq);
+        if (round & 1)
+          ub_blend_mark_part_ex(hm, q, 3, on_marked, on_listed, &tlist, &sq);
+        else
+          ub_blend_mark_part(hm, q, 3, on_marked, &tm, &sq);
         bad_marks += sq.bytes_written != 0;
       }
+      bad_marks += tlist.rows_bad != 0;
+      list_calls += (uint32_t)tlist.pieces_bad;
       bad_marks += tm.rows_bad != 0 || memcmp(mcount, count, R) != 0;
       for (uint32_t r = 0; r < R; r++)
         if (mcount[r])
@@ -1849,9 +1871,10 @@ static void test_base_half(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
   printf("base half R=%u S=%u %s: scale %g, %d of %d engine-updates differ in bits, %d bad "
          "row queries, %d bad byte counts\n", R, S, st == UB_BLEND_FLOAT16 ? "half" : "float",
          (double)sc, bad_bits, 50 * NH, bad_rows, bad_bytes);
-  printf("  marked only (ub_blend_mark_part, 3 parts), rows asked for afterwards: %d bad "
-         "marks or rows\n", bad_marks);
+  printf("  marked only (ub_blend_mark_part, 3 parts; _ex with %u list calls on odd rounds), "
+         "rows asked for afterwards: %d bad marks or rows\n", list_calls, bad_marks);
   ASSERT_TRUE(bad_bits == 0 && bad_rows == 0 && bad_bytes == 0 && bad_marks == 0);
+  ASSERT_TRUE(list_calls > 0);
   ASSERT_TRUE(memcmp(ref, rb, sizeof(float) * nf) == 0); /* all off: the rounded base */
   ub_blend_free(hm);
   free(mcount);

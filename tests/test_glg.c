@@ -1639,7 +1639,7 @@ static void test_compact(void)
     ub_glg_release(&fresh);
   }
   ASSERT_TRUE(mismatch == 0);
-  /* Lazy blending: probes marked unblended take their rows from the row source when a
+  /* Lazy blending (round 1 marks by ub_glg_mark_unblended_list): probes marked unblended take their rows from the row source when a
    * query first reads them, on 4 threads at once: the bits of a GLG built from the rows
    * (and of ub_glg_set_probes with them); the source is asked once per marked probe read,
    * never for one nobody reads, and never again once the row is in the store. */
@@ -1655,7 +1655,16 @@ static void test_compact(void)
     memcpy(at, m->points + 3 * (size_t)first, sizeof at);
     ub_glg_query_cursor(&g, at, qn, &cur, cq);
     atomic_store(&src.calls, 0u);
-    ub_glg_mark_unblended(&g, first, count);
+    if (round == 1) { /* the same probes as a list: descending, the middle one twice */
+      uint32_t *list = malloc(sizeof(uint32_t) * (count + 1));
+      for (uint32_t i = 0; i < count; i++)
+        list[i] = first + count - 1 - i;
+      list[count] = first + count / 2;
+      ub_glg_mark_unblended_list(&g, list, count + 1);
+      free(list);
+    } else {
+      ub_glg_mark_unblended(&g, first, count);
+    }
     /* one query: at most its 4 corners are asked for */
     ub_glg_query(&g, at, qn, &pc, rs);
     lazy_calls_ok &= atomic_load(&src.calls) >= 1 && atomic_load(&src.calls) <= 4;

@@ -292,6 +292,9 @@ void ub_glg_set_row_source(ub_glg *g, ub_glg_row_fn fn, void *user);
  * ever blended: the same bits as ub_glg_set_probes with those rows. Not concurrently with
  * queries; distinct ranges may be marked from different threads at once. */
 void ub_glg_mark_unblended(ub_glg *g, uint32_t first, uint32_t count);
+/* The same for the count probes listed (each < the probe count; any order, repeats
+ * allowed): one call for a scattered set instead of one a probe. */
+void ub_glg_mark_unblended_list(ub_glg *g, const uint32_t *probes, uint32_t count);
 
 /* Probe v's SH as a query reads it: windowed = 1 the windowed row (a stale probe is
  * windowed now, a marked one blended (its row source asked) and windowed now, with either
