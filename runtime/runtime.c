@@ -767,41 +767,80 @@ static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs,
 }
 
 typedef struct rank_key {
-  uint64_t key; /* hash of the texel's combination of records */
-  uint32_t bit; /* bitmap rank */
+  uint64_t mask[2]; /* the combination's 128 highest-priority records, bit 63 - p of word 0
+                     * for priority p < 64, of word 1 for p - 64 */
+  uint64_t key;     /* hash of the texel's combination of records */
+  uint32_t bit;     /* bitmap rank */
 } rank_key;
 
 static int rank_key_cmp(const void *pa, const void *pb)
 {
   const rank_key *a = pa, *b = pb;
+  for (int w = 0; w < 2; w++) /* descending: a combination holding the bigger record first */
+    if (a->mask[w] != b->mask[w])
+      return a->mask[w] > b->mask[w] ? -1 : 1;
   if (a->key != b->key)
     return a->key < b->key ? -1 : 1;
   return a->bit < b->bit ? -1 : a->bit > b->bit;
 }
 
-/* tch_grp: the touched slots ordered by the combination of texel records holding them
- * (a 64-bit hash of the record ids, in id order: a collision only interleaves two
- * groups, the blend still finds each), in slot order within a combination. Needs
- * tch_bits, tch_rank, touched and the records' receivers as global slots. */
+/* Records in mask order: by texel count, most first (ties: lower id). */
+typedef struct rank_prio {
+  uint32_t count, e;
+} rank_prio;
+
+static int rank_prio_cmp(const void *pa, const void *pb)
+{
+  const rank_prio *a = pa, *b = pb;
+  if (a->count != b->count)
+    return a->count > b->count ? -1 : 1;
+  return (a->e > b->e) - (a->e < b->e);
+}
+
+/* tch_grp: the touched slots ordered by the combination of texel records holding them,
+ * in slot order within a combination. Combinations are ordered as bit vectors over the
+ * records sorted by texel count (most first; the 128 biggest, then a 64-bit hash of the
+ * record ids: a collision only interleaves two groups, the blend still finds each), so
+ * the groups holding a big set are neighbours in rank order: the blend keeps its group
+ * tables, base rows, sums and records in that order, and the AHD texels and normals are
+ * stored by rank, so toggling a hall set streams one stretch instead of ~22k groups
+ * scattered over the level (a hash order did that). Needs tch_bits, tch_rank, touched and
+ * the records' receivers as global slots. */
 static ub_result rank_touched(ub_runtime *rt)
 {
   uint64_t touched = rt->touched;
   rank_key *k = malloc((size_t)(touched ? touched : 1) * sizeof *k);
+  rank_prio *ord = malloc((size_t)(rt->elem_total ? rt->elem_total : 1) * sizeof *ord);
+  uint32_t *prio = malloc((size_t)(rt->elem_total ? rt->elem_total : 1) * sizeof *prio);
   rt->tch_grp = malloc((size_t)(touched ? touched : 1) * sizeof *rt->tch_grp);
-  if (!k || !rt->tch_grp) {
+  if (!k || !ord || !prio || !rt->tch_grp) {
     free(k);
+    free(ord);
+    free(prio);
     return UB_ERR_OUT_OF_MEMORY;
   }
+  for (uint32_t e = 0; e < rt->elem_total; e++)
+    ord[e] = (rank_prio){rt->lm_rec[e].count, e};
+  qsort(ord, rt->elem_total, sizeof *ord, rank_prio_cmp);
+  for (uint32_t p = 0; p < rt->elem_total; p++)
+    prio[ord[p].e] = p;
   for (uint64_t t = 0; t < touched; t++) {
+    k[t].mask[0] = k[t].mask[1] = 0;
     k[t].key = UINT64_C(0x243f6a8885a308d3);
     k[t].bit = (uint32_t)t;
   }
-  for (uint32_t e = 0; e < rt->elem_total; e++)
+  for (uint32_t e = 0; e < rt->elem_total; e++) {
+    const uint32_t p = prio[e];
     for (uint32_t i = 0; i < rt->lm_rec[e].count; i++) {
       uint64_t t = touched_before(rt, rt->lm_rec[e].receivers[i]);
       uint64_t h = (k[t].key ^ (e + UINT64_C(0x9e3779b97f4a7c15))) * UINT64_C(0xff51afd7ed558ccd);
       k[t].key = h ^ (h >> 32);
+      if (p < 128)
+        k[t].mask[p >> 6] |= UINT64_C(1) << (63 - (p & 63));
     }
+  }
+  free(ord);
+  free(prio);
   qsort(k, (size_t)touched, sizeof *k, rank_key_cmp);
   for (uint64_t r = 0; r < touched; r++)
     rt->tch_grp[k[r].bit] = (uint32_t)r;
