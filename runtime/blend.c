@@ -54,14 +54,14 @@
 
 /* A group: receivers sharing one combination of k elements (its members, ascending ids).
  * Its receivers, from unit_off in b->units: as runs, per run [first receiver, length]; as
- * a list, per receiver [receiver]. Its record values, from val_off in b->values: for a
- * run group one block per member (ascending ids) holding that member's rows (S values
- * each) for the group's receivers in order (a run of consecutive receivers is then one
- * flat array per member); for a list group per receiver its members' rows one after the
- * other (one stream). No record position is kept. A row is rowb bytes: stride halves or
- * floats, or a UB_BLEND_STORE_Q8 row (q8_encode). */
+ * a list, per receiver [receiver]. Its record values: member m's rows (S values each) for
+ * the group's receivers in order, from row moff[member_off + m] of b->values, which holds
+ * each element's rows for its groups in ascending group order, element after element (a
+ * run of consecutive receivers is then one flat array per member, and a set's rows over
+ * all its groups one stream: a toggle reads it straight through). No record position is
+ * kept. A row is rowb bytes: stride halves or floats, or a UB_BLEND_STORE_Q8 row
+ * (q8_encode). */
 typedef struct blend_group {
-  uint64_t val_off;    /* in record rows (of rowb bytes) */
   uint64_t unit_off;   /* in units (words) */
   uint32_t member_off; /* first of k element ids in b->members, ascending */
   uint32_t receivers;
@@ -104,8 +104,11 @@ struct ub_blend {
   uint32_t dirty_count;
   blend_group *groups;
   uint32_t *members;
+  uint32_t *moff;    /* per group member (as members): its first row in values (rows <
+                      * 2^32: validate) */
   uint32_t *units;      /* groups' receivers (blend_group) */
-  void *values;         /* memberships × stride record values (desc storage), group order */
+  void *values;         /* memberships × stride record values (desc storage), element-major,
+                         * each element's in group order (blend_group) */
   uint32_t *elem_off; /* element_count + 1: groups of element e = elem_groups[off[e]…] */
   uint32_t *elem_groups;
   uint32_t *stamp; /* per group, the update epoch that collected it */
@@ -465,13 +468,14 @@ BLEND_INLINE void blend_row_any(float *restrict o, const float *restrict bs,
 #define blend_row_any blend_row_scalar
 #endif
 
-/* Where member slot m's row for the group's receiver at position pos (among the group's
- * receivers) is, in bytes from the group's values (see blend_group): a list group holds
- * per receiver its members' rows one after the other, a run group one block per member. */
-BLEND_INLINE size_t member_row_off(int list, size_t gk, size_t m, size_t pos, size_t rowb,
-                                   size_t block)
+/* Member slot m's row for the group's receiver at position pos (among the group's
+ * receivers). The values are element-major: each element's rows for its groups in group
+ * order (a group's in its receivers' order), so an element's rows over its groups in
+ * ascending order are one stream, for run and list groups alike. */
+BLEND_INLINE const char *member_rows(const ub_blend *b, const blend_group *g, size_t m,
+                                     size_t pos)
 {
-  return list ? (pos * gk + m) * rowb : m * block + pos * rowb;
+  return (const char *)b->values + ((size_t)b->moff[g->member_off + m] + pos) * b->rowb;
 }
 
 typedef struct blend_call {
@@ -728,10 +732,7 @@ BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const
   const __m256 sc = _mm256_set1_ps(b->bscale);
   const size_t bsz = hb ? 2 : 4;
   const uint32_t S = b->stride;
-  const int list = (g->k_mode & GROUP_LIST) != 0;
-  const size_t rowb = b->rowb, block = (size_t)g->receivers * rowb;
-  const size_t gk = g->k_mode & ~GROUP_LIST;
-  const char *vb = (const char *)b->values + g->val_off * rowb;
+  const size_t rowb = b->rowb;
   float *out = c->out;
   uint32_t chunk = c->fn || !out ? BLEND_CHUNK : UINT32_MAX;
   const char **dsrc = c->s->avx_dec;
@@ -746,7 +747,7 @@ BLEND_AVX_INLINE void avx_group(const blend_call *c, const blend_group *g, const
   const char *bs;
   while (unit_next(&it, b, &r, &i0, &bs, &s0, &s1)) {
     for (uint32_t m = 0; m < k; m++)
-      src[m] = vb + member_row_off(list, gk, act[m], i0 + s0, rowb, block);
+      src[m] = member_rows(b, g, act[m], i0 + s0);
     for (uint32_t i = s0; i < s1;) {
       uint32_t n = s1 - i < chunk ? s1 - i : chunk;
       float *o = out ? out + (size_t)(r + i) * S : stream_slot(c, r + i, &n);
@@ -867,10 +868,6 @@ BLEND_AVX2_INLINE void avx2_group_q(const blend_call *c, const blend_group *g,
   const uint32_t nv = S == 27 ? 3 : 1;
   const __m256 sc = _mm256_set1_ps(b->bscale);
   const size_t bsz = hb ? 2 : 4;
-  const int list = (g->k_mode & GROUP_LIST) != 0;
-  const size_t block = (size_t)g->receivers * rowb;
-  const size_t gk = g->k_mode & ~GROUP_LIST;
-  const char *vb = (const char *)b->values + g->val_off * rowb;
   float *out = c->out;
   const uint32_t chunk = c->fn || !out ? BLEND_CHUNK : UINT32_MAX;
   unit_iter it;
@@ -880,7 +877,7 @@ BLEND_AVX2_INLINE void avx2_group_q(const blend_call *c, const blend_group *g,
   const char *bs;
   while (unit_next(&it, b, &r, &i0, &bs, &s0, &s1)) {
     for (uint32_t m = 0; m < k; m++)
-      src[m] = vb + member_row_off(list, gk, act[m], i0 + s0, rowb, block);
+      src[m] = member_rows(b, g, act[m], i0 + s0);
     for (uint32_t i = s0; i < s1;) {
       uint32_t n = s1 - i < chunk ? s1 - i : chunk;
       float *o = out ? out + (size_t)(r + i) * S : stream_slot(c, r + i, &n);
@@ -1010,11 +1007,8 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
   const char **src = k <= BLEND_SPECIALISED ? src_l : c->s->src;
   const float **rows = k <= BLEND_SPECIALISED ? rows_l : c->s->rowp;
   const float **w = k <= BLEND_SPECIALISED ? w_l : c->s->w;
-  const int list = (g->k_mode & GROUP_LIST) != 0;
   const uint32_t *mem = b->members + g->member_off;
-  const size_t rowb = b->rowb, block = (size_t)g->receivers * rowb;
-  const size_t gk = g->k_mode & ~GROUP_LIST;
-  const char *vb = (const char *)b->values + g->val_off * rowb;
+  const size_t rowb = b->rowb;
   const blend_decode_fn decode = b->decode;
   float *out = c->out;
 
@@ -1036,7 +1030,7 @@ BLEND_INLINE void group_body(const blend_call *c, const blend_group *g, const ui
   const char *bsu;
   while (unit_next(&it, b, &r, &i0, &bsu, &s0, &s1)) {
     for (uint32_t m = 0; m < k; m++)
-      src[m] = vb + member_row_off(list, gk, act[m], i0 + s0, rowb, block);
+      src[m] = member_rows(b, g, act[m], i0 + s0);
     for (uint32_t i = s0; i < s1;) {
       uint32_t n = s1 - i < chunk ? s1 - i : chunk;
       float *o0 = out ? out + (size_t)(r + i) * S : stream_slot(c, r + i, &n), *o = o0;
@@ -1814,6 +1808,7 @@ void ub_blend_free(ub_blend *b)
   free(b->groups);
   free(b->obase);
   free(b->members);
+  free(b->moff);
   free(b->units);
   free(b->values);
   free(b->elem_off);
@@ -2103,7 +2098,6 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t,
     int list = n < 2 * (uint64_t)runs; /* one word per receiver vs two per run */
     blend_group *bg = &b->groups[g];
     bg->unit_off = words;
-    bg->val_off = vals;
     bg->member_off = t->g_moff[g];
     bg->receivers = n;
     bg->units = list ? n : runs;
@@ -2121,8 +2115,27 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t,
   b->unit_words = words;
   b->units = alloc_n(words, sizeof(uint32_t), acc);
   b->values = alloc_n(vals, b->rowb, NULL); /* counted as record_bytes */
-  if (!b->units || !b->values)
+  b->moff = alloc_n(nmem ? nmem : 1, sizeof(uint32_t), acc);
+  if (!b->units || !b->values || !b->moff)
     return UB_ERR_OUT_OF_MEMORY;
+  { /* element-major rows: element e's from Σ of the earlier elements' counts, its groups
+     * in ascending order (each of its receivers is in one of them) */
+    uint32_t *cur = alloc_n((size_t)E + 1, sizeof(uint32_t), NULL);
+    if (!cur)
+      return UB_ERR_OUT_OF_MEMORY;
+    cur[0] = 0;
+    for (uint32_t e = 0; e < E; e++)
+      cur[e + 1] = cur[e] + d->elements[e].count;
+    for (uint32_t g = 0; g < G; g++) {
+      const blend_group *bg = &b->groups[g];
+      for (uint32_t m = 0; m < (bg->k_mode & ~GROUP_LIST); m++) {
+        const uint32_t e = b->members[bg->member_off + m];
+        b->moff[bg->member_off + m] = cur[e];
+        cur[e] += bg->receivers;
+      }
+    }
+    free(cur);
+  }
   const size_t rowb = b->rowb;
   /* UB_BLEND_STORE_HALF: float records kept as half; UB_BLEND_STORE_Q8: either kind kept
    * as 8-bit rows. */
@@ -2145,11 +2158,10 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t,
     }
     assert(w == b->units + bg->unit_off + bg->units * ((bg->k_mode & GROUP_LIST) ? 1u : 2u));
   }
-  /* The values, element by element (values_done may free each one's after): a run
-   * group holds member m's rows for its receivers in order (members = ascending element
-   * ids, as m_elem lists them per receiver), one block per member; a list group per
-   * receiver its members' rows. A receiver's group and place in it: t->gid (by touched
-   * rank, in receiver order) as r_gid, and r_at. */
+  /* The values, element by element (values_done may free each one's after): member m's
+   * row for a group's receiver at place i is row moff[member_off + m] + i (members =
+   * ascending element ids, as m_elem lists them per receiver). A receiver's group and
+   * place in it: t->gid (by touched rank, in receiver order) as r_gid, and r_at. */
   t->r_gid = alloc_n(R ? R : 1, sizeof(uint32_t), NULL);
   t->r_at = alloc_n(R ? R : 1, sizeof(uint32_t), NULL);
   if (!t->r_gid || !t->r_at)
@@ -2164,13 +2176,11 @@ static ub_result build(ub_blend *b, const ub_blend_desc *d, build_tmp *t,
     for (uint32_t pos = 0; pos < er->count; pos++) {
       const uint32_t r = er->receivers[pos], g = t->r_gid[r], i = t->r_at[r];
       const blend_group *bg = &b->groups[g];
-      const uint32_t n = bg->receivers, k = bg->k_mode & ~GROUP_LIST;
       uint32_t m = 0;
       while (t->m_elem[t->off[r] + m] != e)
         m++;
-      assert(m < k);
-      const uint64_t q = (bg->k_mode & GROUP_LIST) ? (uint64_t)i * k + m : (uint64_t)m * n + i;
-      char *v = (char *)b->values + (bg->val_off + q) * rowb;
+      assert(m < (bg->k_mode & ~GROUP_LIST));
+      char *v = (char *)b->values + ((size_t)b->moff[bg->member_off + m] + i) * rowb;
       const char *src = (const char *)er->values + (size_t)pos * srcb;
       if (b->q8) {
         float f[UB_BLEND_MAX_STRIDE];
@@ -2392,11 +2402,9 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
   }
   const blend_group *g = &b->groups[e->group];
   const uint32_t pos = e->pos + (r - e->first), gk = g->k_mode & ~GROUP_LIST;
-  const int list = (g->k_mode & GROUP_LIST) != 0;
   const char *bsu = b->obase ? b->obase + ((size_t)g->base_row + pos) * S * b->base_size
                              : (const char *)(b->base + (size_t)r * S);
-  const size_t vs = b->value_size, rowb = b->rowb, block = (size_t)g->receivers * rowb;
-  const char *vb = (const char *)b->values + g->val_off * rowb;
+  const size_t vs = b->value_size, rowb = b->rowb;
   const uint32_t *mem = b->members + g->member_off;
   /* As the kernels: the base row, then the members in id order, those with a non-zero
    * weight only, each term ω[j mod 3]·v rounded to float, then added (C11 evaluates float
@@ -2434,7 +2442,7 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
       w = dwl[nl];
     }
     wl[nl] = w;
-    sl[nl] = vb + member_row_off(list, gk, m, pos, rowb, block);
+    sl[nl] = member_rows(b, g, m, pos);
     __builtin_prefetch(sl[nl]);
     __builtin_prefetch(sl[nl] + rowb - 1);
     nl++;
@@ -2469,7 +2477,7 @@ int ub_blend_row(const ub_blend *b, uint32_t r, float *out_row)
         dw[c] = w[c] - o1;
       w = dw;
     }
-    const char *src = vb + member_row_off(list, gk, m, pos, rowb, block);
+    const char *src = member_rows(b, g, m, pos);
     if (b->q8) {
       float v[UB_BLEND_MAX_STRIDE];
       q8_decode(b, src, v, 1);
@@ -2533,9 +2541,7 @@ static ub_result build_ones(ub_blend *b)
     const blend_group *bg = &b->groups[g];
     if (bg->ones_row == ONES_NONE)
       continue;
-    const size_t gk = bg->k_mode & ~GROUP_LIST, block = (size_t)bg->receivers * b->rowb;
-    const int list = (bg->k_mode & GROUP_LIST) != 0;
-    const char *vb = (const char *)b->values + bg->val_off * b->rowb;
+    const size_t gk = bg->k_mode & ~GROUP_LIST;
     for (uint32_t i = 0; i < bg->receivers; i++) {
       const char *bs = b->obase + ((size_t)bg->base_row + i) * S * b->base_size;
       if (b->base_size == 2)
@@ -2545,7 +2551,7 @@ static ub_result build_ones(ub_blend *b)
       for (uint32_t j = 0; j < S; j++)
         sum[j] = v[j];
       for (size_t m = 0; m < gk; m++) {
-        const char *src = vb + member_row_off(list, gk, m, i, b->rowb, block);
+        const char *src = member_rows(b, bg, m, i);
         if (b->q8)
           q8_decode(b, src, v, 1);
         else if (b->value_size == 2)

@@ -23,9 +23,11 @@
  * element gets its combination (sorted element ids); receivers with the same combination
  * form a group. A group stores its receivers either as runs of consecutive receivers
  * (first receiver + length) or, when runs are short, as a list (one index per receiver),
- * and the engine keeps its own copy of the record values in group order: per group and
- * member, that member's rows for the group's receivers, so an update reads each member of
- * a group as one sequential stream (records are scattered otherwise) and keeps no record
+ * and the engine keeps its own copy of the record values: per element, its rows for its
+ * groups in ascending group order (a group's in its receivers' order), so an update reads
+ * each member of a group as one sequential stream, and an element's rows over all its
+ * groups as one stream too (records are scattered otherwise; a layout per group, members
+ * side by side, made a big set's toggle jump from group to group), and keeps no record
  * positions; the records themselves are not needed after create. Kernels are specialised
  * for the stride (12, 27, other) and 1..8 non-zero members; a generic kernel takes any
  * count. On a CPU with AVX and F16C (checked at create, unless UB_BLEND_PORTABLE) each
