@@ -1351,7 +1351,7 @@ void ub_blend_update_begin(ub_blend *b, int all)
   uint32_t n = 0;
   /* every element changed (e.g. a global dimmer): every group holds one of them, so the
    * work is every group, without stamping each element's groups (full ESTATE, all 132
-   * sets: 0.9 -> 0.1 ms for the three engines) */
+   * sets: 0.9 -> 0.17 ms for the three engines) */
   if (all || (b->dirty_count == b->element_count && b->element_count)) {
     for (uint32_t i = 0; i < b->dirty_count; i++)
       b->dirty[b->dirty_list[i]] = 0;
