@@ -1359,6 +1359,15 @@ void ub_blend_update_begin(ub_blend *b, int all)
       memcpy(b->wlast, b->weight, (size_t)b->element_count * 3 * sizeof(float));
     for (uint32_t g = 0; g < b->group_count; g++)
       b->work[n++] = g;
+  } else if (b->dirty_count == 1) {
+    /* one element changed (a set toggled): its groups, already ascending (elem_groups),
+     * no stamps (a hall set's ~22k groups: 0.2 ms of stamping and scanning) */
+    const uint32_t e = b->dirty_list[0];
+    b->dirty[e] = 0;
+    if (b->wlast)
+      memcpy(b->wlast + (size_t)e * 3, b->weight + (size_t)e * 3, 3 * sizeof(float));
+    n = b->elem_off[e + 1] - b->elem_off[e];
+    memcpy(b->work, b->elem_groups + b->elem_off[e], (size_t)n * sizeof *b->work);
   } else {
     if (++b->epoch == 0) { /* wrapped: forget every stamp */
       memset(b->stamp, 0, (size_t)b->group_count * sizeof *b->stamp);
