@@ -1687,38 +1687,22 @@ static void glg_listed(void *user, const uint32_t *probes, uint32_t count)
   ub_glg_mark_unblended_list(&rt->glg, probes, count);
 }
 
-/* llg_touched's context: the run-time and the model the last piece ended in (a part's
- * pieces come in ascending order, so the next one mostly starts in it: no search) */
-typedef struct llg_ctx {
-  const ub_runtime *rt;
-  uint32_t model;
-} llg_ctx;
-
 /* The LLG probes [first, first + count) the blend just wrote: their models changed. */
-
 static void llg_touched(void *user, uint32_t first, uint32_t count, const float *rows)
 {
   (void)rows;
-  llg_ctx *lc = user;
-  const ub_runtime *rt = lc->rt;
-  const uint32_t nm = rt->bf->llg_count;
-  uint32_t lo = lc->model; /* the model holding `first` */
-  if (!(rt->llg_first[lo] <= first && first < rt->llg_first[lo + 1])) {
-    uint32_t hi = nm;
-    lo = 0;
-    while (hi - lo > 1) {
-      const uint32_t mid = (lo + hi) / 2;
-      if (rt->llg_first[mid] <= first)
-        lo = mid;
-      else
-        hi = mid;
-    }
+  const ub_runtime *rt = user;
+  uint32_t lo = 0, hi = rt->bf->llg_count; /* the model holding `first` */
+  while (hi - lo > 1) {
+    const uint32_t mid = (lo + hi) / 2;
+    if (rt->llg_first[mid] <= first)
+      lo = mid;
+    else
+      hi = mid;
   }
-  uint32_t m = lo;
-  for (; m < nm && rt->llg_first[m] < (uint64_t)first + count; m++)
+  for (uint32_t m = lo; m < rt->bf->llg_count && rt->llg_first[m] < (uint64_t)first + count; m++)
     if (rt->llg_first[m + 1] > rt->llg_first[m]) /* (a model without probes never changes) */
       atomic_store_explicit(&rt->llg_chg[m], 1, memory_order_relaxed);
-  lc->model = m - 1; /* the last model the piece reached (the loop ran at least once) */
 }
 
 static double rt_now(void)
@@ -1803,10 +1787,8 @@ void ub_runtime_update_job(ub_runtime *rt, uint32_t job)
     t2 = rt_now();
   } else
     t2 = t1;
-  if (rt->llg_blend) { /* models read llg_cur */
-    llg_ctx lc = {rt, 0};
-    ub_blend_update_part(rt->llg_blend, job, parts, llg_touched, &lc, rt->llg_cur, &jb->llg);
-  }
+  if (rt->llg_blend) /* models read llg_cur */
+    ub_blend_update_part(rt->llg_blend, job, parts, llg_touched, rt, rt->llg_cur, &jb->llg);
   jb->seconds[0] = t1 - t0;
   jb->seconds[1] = t2 - t1;
   jb->seconds[2] = rt_now() - t2;

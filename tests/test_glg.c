@@ -1639,10 +1639,11 @@ static void test_compact(void)
     ub_glg_release(&fresh);
   }
   ASSERT_TRUE(mismatch == 0);
-  /* Lazy blending (round 1 marks by ub_glg_mark_unblended_list): probes marked unblended take their rows from the row source when a
-   * query first reads them, on 4 threads at once: the bits of a GLG built from the rows
-   * (and of ub_glg_set_probes with them); the source is asked once per marked probe read,
-   * never for one nobody reads, and never again once the row is in the store. */
+  /* Lazy blending (round 1 marks by ub_glg_mark_unblended_list): probes marked unblended
+   * take their rows from the row source when a query first reads them, on 4 threads at
+   * once: the bits of a GLG built from the rows (and of ub_glg_set_probes with them); the
+   * source is asked once per marked probe read, never for one nobody reads, and never
+   * again once the row is in the store. */
   row_src src = {.raw = raw};
   atomic_init(&src.calls, 0u);
   ub_glg_set_row_source(&g, row_src_fn, &src);
