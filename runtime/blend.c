@@ -1349,13 +1349,18 @@ void ub_blend_update_begin(ub_blend *b, int all)
 {
   assert(b);
   uint32_t n = 0;
+  /* the changed elements: clean again, their weights now the ones the rows hold */
+  for (uint32_t i = 0; i < b->dirty_count; i++) {
+    const uint32_t e = b->dirty_list[i];
+    b->dirty[e] = 0;
+    if (b->wlast)
+      memcpy(b->wlast + (size_t)e * 3, b->weight + (size_t)e * 3, 3 * sizeof(float));
+  }
   /* every element changed (e.g. a global dimmer): every group holds one of them, so the
    * work is every group, without stamping each element's groups (full ESTATE, all 132
    * sets: 0.9 -> 0.17 ms for the three engines) */
   if (all || (b->dirty_count == b->element_count && b->element_count)) {
-    for (uint32_t i = 0; i < b->dirty_count; i++)
-      b->dirty[b->dirty_list[i]] = 0;
-    if (b->wlast)
+    if (all && b->wlast) /* every row recomputed: with every element's weight */
       memcpy(b->wlast, b->weight, (size_t)b->element_count * 3 * sizeof(float));
     for (uint32_t g = 0; g < b->group_count; g++)
       b->work[n++] = g;
@@ -1363,9 +1368,6 @@ void ub_blend_update_begin(ub_blend *b, int all)
     /* one element changed (a set toggled): its groups, already ascending (elem_groups),
      * no stamps (a hall set's ~22k groups: 0.2 ms of stamping and scanning) */
     const uint32_t e = b->dirty_list[0];
-    b->dirty[e] = 0;
-    if (b->wlast)
-      memcpy(b->wlast + (size_t)e * 3, b->weight + (size_t)e * 3, 3 * sizeof(float));
     n = b->elem_off[e + 1] - b->elem_off[e];
     memcpy(b->work, b->elem_groups + b->elem_off[e], (size_t)n * sizeof *b->work);
   } else {
@@ -1374,10 +1376,7 @@ void ub_blend_update_begin(ub_blend *b, int all)
       b->epoch = 1;
     }
     for (uint32_t i = 0; i < b->dirty_count; i++) {
-      uint32_t e = b->dirty_list[i];
-      b->dirty[e] = 0;
-      if (b->wlast)
-        memcpy(b->wlast + (size_t)e * 3, b->weight + (size_t)e * 3, 3 * sizeof(float));
+      const uint32_t e = b->dirty_list[i];
       for (uint32_t j = b->elem_off[e]; j < b->elem_off[e + 1]; j++) {
         uint32_t g = b->elem_groups[j];
         if (b->stamp[g] != b->epoch) {
