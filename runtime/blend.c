@@ -632,7 +632,12 @@ BLEND_AVX_INLINE __m128 avx_load4(const char *src, size_t j, const int half)
 }
 
 /* Values ahead of the current ones each member's stream asks for (software prefetch: up
- * to 16 streams at once, more than the hardware prefetchers follow well). */
+ * to 16 streams at once, more than the hardware prefetchers follow well). avx_flat asks
+ * for them into L2 (prefetcht1), not L1: with up to 23 member streams a chunk ahead, the
+ * lines asked into L1 crowd it. Full ESTATE, all 132 sets changed, in one process
+ * alternating per update (2026-12-04): 21.1-21.8 → 19.6-20.0 ms best; distances 256-576
+ * values the same; the 8-bit rows' decode ahead did not gain (kept at T0); toggles the
+ * same (hall off 2.71 vs 2.69 ms). */
 #define BLEND_PF_VALUES 384
 
 /* Base values j.. as float: floats, or (hb) halves times the scale (exact). */
@@ -665,7 +670,7 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const char *restrict bs,
     for (uint32_t m = 0; m < k; m++) {
       const float *w = wp[m];
       if (pf)
-        _mm_prefetch(src[m] + (j + BLEND_PF_VALUES) * (half ? 2 : 4), _MM_HINT_T0);
+        _mm_prefetch(src[m] + (j + BLEND_PF_VALUES) * (half ? 2 : 4), _MM_HINT_T1);
       a0 = _mm256_add_ps(a0, _mm256_mul_ps(_mm256_load_ps(w), avx_load8(src[m], j, half)));
       a1 = _mm256_add_ps(a1, _mm256_mul_ps(_mm256_load_ps(w + 8), avx_load8(src[m], j + 8, half)));
       a2 = _mm256_add_ps(a2, _mm256_mul_ps(_mm256_load_ps(w + 16), avx_load8(src[m], j + 16, half)));
