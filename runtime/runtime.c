@@ -1637,6 +1637,12 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
     tc->kept += count;
     return;
   }
+  /* The next piece's normals (a chunk, 32 texels, 6 lines) asked for now, while this
+   * piece is encoded: the all-sets update on the full ESTATE 2.5-3% faster (one process
+   * alternating per update, 2026-12-04; the AHD lines written next asked as well: no
+   * gain) */
+  for (size_t o = 0; o < 32 * 3 * sizeof(float); o += 64)
+    __builtin_prefetch((const char *)(un + 3 * (size_t)count) + o, 0, 3);
   const float inv_scale = rt->ahd_inv_scale;
   for (uint32_t i = 0; i < count; i++, rows += UB_SH1_FLOATS, un += 3, out++) {
     if (!tc->np) { /* a run of texels with their own normals: encoded where they are,
