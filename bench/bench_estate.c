@@ -9,7 +9,10 @@
  * (e.g. estate_small, or a full ESTATE bake): records, memory, toggles, all-sets update;
  * --repeat N repeats the toggle loop N times (for a profiler).
  * --records8 loads the run-time with its records in 8 bits (UB_RUNTIME_RECORDS_8BIT);
- * --plain-sums without the all-ones sums (UB_RUNTIME_PLAIN_SUMS).
+ * --plain-sums without the all-ones sums (UB_RUNTIME_PLAIN_SUMS); --keep-state,
+ * --glg-small-walk, --no-base-ahd: the load flags of those names.
+ * Toggles are measured with the other sets on, then with them off (each set on and off
+ * again: the off fast path).
  * --jobs N (default: the CPUs, at most 8) also measures toggles and the all-sets update
  * split into N jobs (ub_runtime_update_begin/job/end) on N OpenMP threads, against a
  * memcpy of the same bytes by N threads (each its share) in the same run; 1: not.
@@ -152,26 +155,33 @@ typedef struct toggle_sums {
 /* Each set off, then on again (the others as they are: on), `passes` times; tog[2d + 0/1]
  * the best milliseconds of set d's off/on update, once[2d + 0/1] (may be NULL) those of
  * the first pass (one measurement each: what a game's toggle sees, the best of several
- * is the luckiest). sums may be NULL. */
+ * is the luckiest). sums may be NULL. others_off: every set off first, each set then on
+ * and off again (the same slots), every set back on at the end. */
 static void toggle_times(ub_runtime *rt, int jobs, int passes, double *tog, double *once,
-                         toggle_sums *sums)
+                         toggle_sums *sums, int others_off)
 {
   const uint32_t nd = ub_runtime_dls_count(rt);
   const float one[3] = {1, 1, 1}, zero[3] = {0, 0, 0};
   ub_runtime_update_stats us;
   for (uint32_t i = 0; i < 2 * nd; i++)
     tog[i] = 1e30;
+  if (others_off) {
+    for (uint32_t d = 0; d < nd; d++)
+      ub_runtime_set_dls(rt, d, zero);
+    update_n(rt, jobs, &us);
+  }
   for (int pass = 0; pass < passes; pass++)
     for (uint32_t d = 0; d < nd; d++)
       for (int ph = 0; ph < 2; ph++) {
-        ub_runtime_set_dls(rt, d, ph ? one : zero);
+        const int on = others_off ? !ph : ph;
+        ub_runtime_set_dls(rt, d, on ? one : zero);
         double t = ub_bench_now();
         update_n(rt, jobs, &us);
         t = (ub_bench_now() - t) * 1e3;
-        if (t < tog[2 * d + ph])
-          tog[2 * d + ph] = t;
+        if (t < tog[2 * d + on])
+          tog[2 * d + on] = t;
         if (once && pass == 0)
-          once[2 * d + ph] = t;
+          once[2 * d + on] = t;
         if (!sums)
           continue;
         sums->seconds[0] += us.seconds_lightmap;
@@ -184,6 +194,11 @@ static void toggle_times(ub_runtime *rt, int jobs, int passes, double *tog, doub
           sums->llg += (double)us.llg_probes_written;
         }
       }
+  if (others_off) {
+    for (uint32_t d = 0; d < nd; d++)
+      ub_runtime_set_dls(rt, d, one);
+    update_n(rt, jobs, &us);
+  }
 }
 
 /* By class: the hall's sets reach the big shared space (and each other: up to 16
@@ -284,7 +299,7 @@ static void bench_jobs(ub_runtime *rt, int jobs, char *ca, char *cb, size_t cn)
   double *one_t = malloc(sizeof(double) * (2 * nd + 1)), *ocls[2];
   ocls[0] = malloc(sizeof(double) * (2 * nd + 1));
   ocls[1] = malloc(sizeof(double) * (2 * nd + 1));
-  toggle_times(rt, jobs, 3, tog, one_t, NULL);
+  toggle_times(rt, jobs, 3, tog, one_t, NULL, 0);
   toggle_classes(rt, one_t, ocls, ncls);
   const double oroom = ncls[0] ? ub_bench_percentile(ocls[0], ncls[0], 0.5) : 0.0;
   toggle_classes(rt, tog, cls, ncls);
@@ -324,7 +339,7 @@ int main(int argc, char **argv)
       printf("usage: bench_estate [--scale S] [--full] [--bounces N] [--texel-size M]\n"
              "                    [--no-extrapolate] [--param k=v ...]\n"
              "                    [--ubk FILE.ubk [--repeat N]] [--jobs N] [--records8] [--plain-sums]\n"
-             "                    [--keep-state] [--glg-small-walk]\n"
+             "                    [--keep-state] [--glg-small-walk] [--no-base-ahd]\n"
              "Generates the ESTATE-scale level (ubake-genlevel estate) at scale S (default 0.05;\n"
              "--full: 1), bakes it at draft (reduced: --bounces 2, --texel-size 0.2 by default;\n"
              "full: the level's settings), loads it in the run-time and toggles its sets;\n"
@@ -334,7 +349,8 @@ int main(int argc, char **argv)
              "--records8: the run-time keeps its records in 8 bits (UB_RUNTIME_RECORDS_8BIT);\n"
              "--plain-sums: without the all-ones sums (UB_RUNTIME_PLAIN_SUMS);\n"
              "--keep-state: the load state kept (UB_RUNTIME_KEEP_STATE);\n"
-             "--glg-small-walk: the GLG's small walk (UB_RUNTIME_GLG_SMALL_WALK).\n"
+             "--glg-small-walk: the GLG's small walk (UB_RUNTIME_GLG_SMALL_WALK);\n"
+             "--no-base-ahd: no AHD of the base state kept (UB_RUNTIME_NO_BASE_AHD).\n"
              "UB_BUILD: the build folder (default build).\n");
       return 0;
     } else if (!strcmp(argv[i], "--scale") && i + 1 < argc) {
@@ -370,6 +386,8 @@ int main(int argc, char **argv)
       load_flags |= UB_RUNTIME_KEEP_STATE;
     } else if (!strcmp(argv[i], "--glg-small-walk")) {
       load_flags |= UB_RUNTIME_GLG_SMALL_WALK;
+    } else if (!strcmp(argv[i], "--no-base-ahd")) {
+      load_flags |= UB_RUNTIME_NO_BASE_AHD;
     } else if (!strcmp(argv[i], "--no-extrapolate")) {
       extrapolate = 0;
     } else if (!strcmp(argv[i], "--param") && i + 1 < argc) {
@@ -544,9 +562,16 @@ int main(int argc, char **argv)
   double *tog = malloc(sizeof(double) * (2 * nd + 1));
   toggle_sums ts = {{0, 0, 0}, 0, 0, 0, 0};
   double *tog1 = malloc(sizeof(double) * (2 * nd + 1));
-  toggle_times(rt, 1, PASSES * repeat, tog, tog1, &ts);
+  toggle_times(rt, 1, PASSES * repeat, tog, tog1, &ts, 0);
   double dmed[2][2]; /* before the percentiles below sort tog */
   toggle_directions(rt, tog, dmed);
+  double omed[2][2]; /* the same with the other sets off */
+  {
+    double *to = malloc(sizeof(double) * (2 * nd + 1));
+    toggle_times(rt, 1, PASSES * repeat, to, NULL, NULL, 1);
+    toggle_directions(rt, to, omed);
+    free(to);
+  }
   double *tog_c[2];
   uint32_t ntog_c[2];
   tog_c[0] = malloc(sizeof(double) * (2 * nd + 1));
@@ -601,6 +626,12 @@ int main(int argc, char **argv)
          load_flags & UB_RUNTIME_KEEP_STATE
              ? "; the load state kept (UB_RUNTIME_KEEP_STATE): back on copies kept texels"
              : "");
+  printf("  with the other sets off: room sets on %.3f ms, off again %.3f ms; hall sets on %.3f "
+         "ms, off again %.3f ms (medians, best of %d)%s\n", omed[0][1], omed[0][0], omed[1][1],
+         omed[1][0], PASSES * repeat,
+         load_flags & UB_RUNTIME_NO_BASE_AHD
+             ? "; no base AHD kept (UB_RUNTIME_NO_BASE_AHD): off re-encodes the base"
+             : "; off copies the base's AHD where no other set lights a texel");
   {
     /* one measurement per toggle (the first pass): the spread a game sees */
     toggle_classes(rt, tog1, tog_c, ntog_c);

@@ -159,10 +159,12 @@ struct ub_blend {
   /* ub_blend_set_reference_rows: the touched receivers' rows at the reference, group
    * order (as obase), float; NULL: none */
   float *refrows;
+  int base_report; /* ub_blend_set_base_report */
   size_t engine_bytes, record_bytes;
 };
 
 const float ub_blend_at_reference[1] = {0.0f};
+const float ub_blend_at_base[1] = {0.0f};
 
 /* One part's scratch: an update's parts may run on several threads at once. */
 typedef struct blend_scratch {
@@ -1229,6 +1231,26 @@ static inline uint32_t few_find(const uint32_t *mem, uint32_t gk, const uint32_t
   return c;
 }
 
+/* A streaming update's group whose members' weights are all 0, with
+ * ub_blend_set_base_report on: its receivers reported as UB_BLEND_AT_BASE (the pending
+ * stream handed over first), not streamed. 0: the caller computes it. */
+static int group_at_base(const blend_call *c, const blend_group *g, ub_blend_stats *st)
+{
+  const ub_blend *b = c->b;
+  if (!b->base_report || c->out || !c->fn)
+    return 0;
+  stream_flush(c);
+  group_report(b, g, c->qlo, c->qhi, c->fn, c->user, UB_BLEND_AT_BASE);
+  const uint32_t n = c->qhi - c->qlo;
+  const int first = c->qlo == 0;
+  st->groups += first;
+  st->groups_base += first;
+  st->receivers += n;
+  st->receivers_base += n;
+  st->bytes_read += first ? group_table_bytes(g) : 0;
+  return 1;
+}
+
 static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
 {
   const ub_blend *b = c->b;
@@ -1280,6 +1302,8 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
   cc.ones = 0;
   if (few) { /* the same lists from update_begin's element lists */
     const uint32_t nz0 = few_find(mem, gk, b->few_e[0], b->few_n[0], fpos);
+    if (nz0 == gk && group_at_base(c, g, st))
+      return;
     uint32_t one[BLEND_FEW], n1 = 0;
     if (g->ones_row != ONES_NONE)
       n1 = few_find(mem, gk, b->few_e[1], b->few_n[1], one);
@@ -1301,6 +1325,8 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
       act[k] = m;
       k += b->nonzero[mem[m]];
     }
+    if (k == 0 && group_at_base(c, g, st))
+      return;
     if (g->ones_row != ONES_NONE) {
       uint32_t n1 = 0;
       for (uint32_t m = 0; m < gk; m++)
@@ -1677,6 +1703,12 @@ ub_result ub_blend_set_reference_rows(ub_blend *b, const float *out_values)
              (size_t)(s1 - s0) * S * sizeof(float));
   }
   return UB_OK;
+}
+
+void ub_blend_set_base_report(ub_blend *b, int on)
+{
+  assert(b);
+  b->base_report = on != 0;
 }
 
 ub_result ub_blend_set_reference(ub_blend *b)

@@ -185,6 +185,8 @@ typedef struct ub_blend_stats {
                              * streaming) */
   uint64_t receivers_reference; /* of receivers: at the reference state, reported as
                                  * UB_BLEND_AT_REFERENCE, not computed (0 without one) */
+  uint64_t receivers_base;  /* of receivers: every weight 0, reported as UB_BLEND_AT_BASE
+                             * (ub_blend_set_base_report), not streamed */
 } ub_blend_stats;
 
 /* What create built (for reports, `ubake info` and benchmarks). */
@@ -222,6 +224,10 @@ typedef void (*ub_blend_touched_fn)(void *user, uint32_t first, uint32_t count,
 /* rows of a touched call for receivers at the reference state (ub_blend_set_reference). */
 extern const float ub_blend_at_reference[1];
 #define UB_BLEND_AT_REFERENCE (ub_blend_at_reference)
+/* rows of a touched call for receivers whose elements' weights are all 0
+ * (ub_blend_set_base_report). */
+extern const float ub_blend_at_base[1];
+#define UB_BLEND_AT_BASE (ub_blend_at_base)
 
 typedef struct ub_blend ub_blend;
 
@@ -330,6 +336,16 @@ ub_result ub_blend_set_reference(ub_blend *b);
  * an update with out_values copies them back for the groups at the reference instead of
  * computing them (touched then gets those rows in out_values, as usual). */
 ub_result ub_blend_set_reference_rows(ub_blend *b, const float *out_values);
+/* The base state: a streaming caller that keeps its own product of every touched
+ * receiver's base rows (the run-time: the AHD texels with every set off) can have them
+ * instead of the base rows. With on, a streaming update (out_values NULL) streams no
+ * group whose members' weights are all 0 (a group at the reference state stays a
+ * reference report): it reports its receivers to touched with rows = UB_BLEND_AT_BASE (in
+ * the same order and pieces as mark_part, a pending stream handed over first), and the
+ * caller puts back its product of the base rows. Exact: such a group's rows are its base
+ * rows, whatever the other weights. Turning a set off is then a copy wherever no other
+ * set overlaps it. Updates with out_values are unchanged. Off by default. */
+void ub_blend_set_base_report(ub_blend *b, int on);
 /* 1 while a weight changed since the last update (ub_blend_set_reference refuses then);
  * 0 from ub_blend_update_begin on, before its parts have run too. */
 int ub_blend_pending(const ub_blend *b);

@@ -29,7 +29,7 @@ typedef struct ub_rt_fallback {
 struct ub_runtime {
   ub_bakefile *bf;
   unsigned load_flags; /* ub_runtime_load_ex's: UB_RUNTIME_RECORDS_8BIT, _PLAIN_SUMS,
-                          _KEEP_STATE */
+                          _KEEP_STATE, _GLG_SMALL_WALK, _NO_BASE_AHD */
   /* AHD encode normals: a covered texel's own stored normal (ub_texel_normal, made when
    * needed), else the normal of the nearest texel that has one, kept here for those few
    * texels only (per atlas, pixels ascending; a zero normal: none in the atlas, the SH's
@@ -117,6 +117,11 @@ struct ub_runtime {
    * lightmap blend's reference weights are; an update copies them back for the groups
    * whose weights are those again (UB_BLEND_AT_REFERENCE). NULL: none kept. */
   ub_ahd_packed *ahd_kept;
+  /* The touched texels' AHD (by rank) with every element at 0, encoded at load: an update
+   * copies them for the groups whose weights are all 0 (UB_BLEND_AT_BASE), so turning a
+   * set off re-encodes only the texels another set still lights. NULL:
+   * UB_RUNTIME_NO_BASE_AHD. */
+  ub_ahd_packed *ahd_base;
   float ahd_scale, ahd_inv_scale; /* a power of two ≥ 1, and its inverse */
   int ahd_ranked;
   /* Jobs of the update in progress (ub_runtime_update_begin … end). */
@@ -142,6 +147,7 @@ typedef struct rt_job {
   ub_blend_stats lm, glg, llg;
   uint64_t texels;    /* re-encoded (or copied back from the kept state) */
   uint64_t kept;      /* of them, copied back */
+  uint64_t based;     /* of them, the base's copied (every element at 0) */
   uint32_t runs;      /* runs of them in chg_runs */
   int runs_full;      /* some did not fit */
   double seconds[3];  /* lightmap, GLG, LLG */
@@ -528,6 +534,7 @@ void ub_runtime_free(ub_runtime *rt)
     return;
   free(rt->ahd);
   free(rt->ahd_kept);
+  free(rt->ahd_base);
   free(rt->jobs);
   free(rt->chg_runs);
   free(rt->chg_at);
@@ -913,6 +920,7 @@ static ub_result sort_record(uint32_t *recv, uint16_t *rows, uint32_t count, uin
 static const float *texel_row(const ub_runtime *rt, uint32_t a, size_t i,
                               float srow[UB_SH1_FLOATS]);
 static ub_result update_begin_ex(ub_runtime *rt, uint32_t max_jobs, int all, uint32_t *out_jobs);
+static ub_result take_base_ahd(ub_runtime *rt);
 
 /* rt->ahd in ahd_index order (ranked: the touched texels by rank first): the untouched
  * texels encoded from their rows (lm_static), the touched ones left zero for the set-up's
@@ -1303,6 +1311,13 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return r;
   }
+  if (!(rt->load_flags & UB_RUNTIME_NO_BASE_AHD) && rt->lm_blend && rt->touched) {
+    r = take_base_ahd(rt);
+    if (r != UB_OK) {
+      ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory keeping the base state", path);
+      return r;
+    }
+  }
   /* every group, dirty or not (a group of closed doors only has weights 0): every touched
    * texel's AHD encoded from the blend's row */
   uint32_t jobs;
@@ -1317,6 +1332,50 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
       ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory keeping the load state", path);
   }
   return r;
+}
+
+/* rt->ahd_base: an update of every group with the lightmap blend's weights all 0 (the
+ * other blends' as they are: the load's update after this one rewrites everything), its
+ * texels' AHD kept, the weights put back; from then on the blend reports such groups
+ * (ub_blend_set_base_report). The same code encodes them as any update would: the bits a
+ * re-encode of the base rows gives. */
+static ub_result take_base_ahd(ub_runtime *rt)
+{
+  ub_blend_info in;
+  ub_blend_get_info(rt->lm_blend, &in);
+  const uint32_t E = in.element_count;
+  float *w = malloc(((size_t)E * 3 + 1) * sizeof *w);
+  rt->ahd_base = malloc((size_t)rt->touched * sizeof *rt->ahd_base);
+  if (!w || !rt->ahd_base) {
+    free(w);
+    free(rt->ahd_base);
+    rt->ahd_base = NULL;
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  static const float zero[3] = {0.0f, 0.0f, 0.0f};
+  ub_result r = UB_OK;
+  for (uint32_t e = 0; e < E && r == UB_OK; e++) {
+    ub_blend_weight(rt->lm_blend, e, w + 3 * (size_t)e);
+    r = ub_blend_set_weight(rt->lm_blend, e, zero);
+  }
+  uint32_t jobs = 0;
+  if (r == UB_OK)
+    r = update_begin_ex(rt, 1, 1, &jobs);
+  if (r == UB_OK) {
+    ub_runtime_update_job(rt, 0);
+    ub_runtime_update_end(rt, NULL);
+    memcpy(rt->ahd_base, rt->ahd, (size_t)rt->touched * sizeof *rt->ahd_base);
+  }
+  for (uint32_t e = 0; e < E; e++) /* the same finite weights back: cannot fail */
+    ub_blend_set_weight(rt->lm_blend, e, w + 3 * (size_t)e);
+  free(w);
+  if (r != UB_OK) {
+    free(rt->ahd_base);
+    rt->ahd_base = NULL;
+    return r;
+  }
+  ub_blend_set_base_report(rt->lm_blend, 1);
+  return UB_OK;
 }
 
 ub_result ub_runtime_keep_state(ub_runtime *rt)
@@ -1360,7 +1419,8 @@ ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags
 {
   assert(path && out);
   if (flags & ~(unsigned)(UB_RUNTIME_RECORDS_8BIT | UB_RUNTIME_PLAIN_SUMS |
-                          UB_RUNTIME_KEEP_STATE | UB_RUNTIME_GLG_SMALL_WALK)) {
+                          UB_RUNTIME_KEEP_STATE | UB_RUNTIME_GLG_SMALL_WALK |
+                          UB_RUNTIME_NO_BASE_AHD)) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: unknown load flags 0x%x", path, flags);
     return UB_ERR_INVALID_ARGUMENT;
   }
@@ -1582,6 +1642,7 @@ typedef struct touched_ctx {
   ub_runtime *rt;
   uint64_t texels;
   uint64_t kept;   /* of texels: copied back from the kept state */
+  uint64_t based;  /* of texels: the base's copied (UB_BLEND_AT_BASE) */
   /* texels with their own normal waiting to be encoded sixteen at a time (the blend hands
    * over pieces of one group's run, which end in fewer than sixteen; their rows live only
    * during the call: copied, so the sixteen are contiguous for the AVX-512 encode) */
@@ -1635,6 +1696,12 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
     memcpy(out, rt->ahd_kept + first, (size_t)count * sizeof *out);
     tc->texels += count;
     tc->kept += count;
+    return;
+  }
+  if (rows == UB_BLEND_AT_BASE) { /* every element at 0: the base's bits */
+    memcpy(out, rt->ahd_base + first, (size_t)count * sizeof *out);
+    tc->texels += count;
+    tc->based += count;
     return;
   }
   /* The next piece's normals (a chunk, 32 texels, 6 lines) asked for now, while this
@@ -1784,6 +1851,7 @@ void ub_runtime_update_job(ub_runtime *rt, uint32_t job)
     touched_flush(&tc);
     jb->texels = tc.texels;
     jb->kept = tc.kept;
+    jb->based = tc.based;
     jb->runs = tc.nruns;
     jb->runs_full = tc.full;
     t1 = rt_now();
@@ -1812,10 +1880,12 @@ void ub_runtime_update_end(ub_runtime *rt, ub_runtime_update_stats *out_stats)
     st.texels_written += jb->lm.receivers;
     st.texels_reencoded += jb->texels;
     st.texels_kept += jb->kept;
+    st.texels_base += jb->based;
     /* the lightmap blend streams its rows; the re-encode reads the normals, writes the
-     * AHD; a texel copied back reads its kept AHD */
-    st.bytes_read += jb->lm.bytes_read + (jb->texels - jb->kept) * 3 * sizeof(float) +
-                     jb->kept * sizeof(ub_ahd_packed) + jb->glg.bytes_read +
+     * AHD; a texel copied back reads its kept or base AHD */
+    const uint64_t copied = jb->kept + jb->based;
+    st.bytes_read += jb->lm.bytes_read + (jb->texels - copied) * 3 * sizeof(float) +
+                     copied * sizeof(ub_ahd_packed) + jb->glg.bytes_read +
                      jb->llg.bytes_read;
     st.bytes_written += jb->texels * sizeof(ub_ahd_packed) + jb->glg.bytes_written +
                         jb->llg.bytes_written;
@@ -1921,6 +1991,8 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
                   (rt->fallback ? (size_t)rt->fallback[a].count * (U + 3 * F) : 0);
   }
   if (rt->ahd_kept) /* the kept state's AHD (ub_runtime_keep_state) */
+    m.lightmap += (size_t)rt->touched * sizeof(ub_ahd_packed);
+  if (rt->ahd_base) /* the base state's AHD */
     m.lightmap += (size_t)rt->touched * sizeof(ub_ahd_packed);
   if (rt->chg_runs) /* changed-texel runs */
     m.lightmap += ((size_t)rt->chg_groups + rt->job_cap) * 2 * U + (size_t)rt->job_cap * U;

@@ -481,30 +481,40 @@ int main(void)
 
   /* The load state kept (UB_RUNTIME_KEEP_STATE) with a door, objects and combinations: a
    * run-time with it and one without through the same changes, the atlases bit for bit
-   * after every update; returning to the load state copies every texel back. */
-  ub_runtime *ra = NULL, *rk = NULL;
+   * after every update; returning to the load state copies every texel back. A third
+   * without the base state's AHD (UB_RUNTIME_NO_BASE_AHD): the same bits, none copied from
+   * the base, where the default copies the texels whose elements are all at 0. */
+  ub_runtime *ra = NULL, *rk = NULL, *rn = NULL;
   ASSERT_OK(ub_runtime_load(path, NULL, &ra));
   ASSERT_OK(ub_runtime_load_ex(path, NULL, UB_RUNTIME_KEEP_STATE, &rk));
-  if (ra && rk && back) {
+  ASSERT_OK(ub_runtime_load_ex(path, NULL, UB_RUNTIME_NO_BASE_AHD, &rn));
+  if (ra && rk && rn && back) {
     const size_t np = atlas_pixels(back, back->atlas_count);
     /* (element, value) steps: door opened half and fully, crate hidden, barrel faded,
      * each back to its load value (door 0, objects 1), then all at once */
     const struct { int32_t e; float v; } steps[] = {
         {0, 0.5f}, {0, 0.0f}, {1, 0.0f}, {0, 1.0f}, {1, 1.0f}, {0, 0.0f}, {2, 0.3f},
         {1, 0.0f}, {0, 0.7f}, {2, 1.0f}, {1, 1.0f}, {0, 0.0f}};
-    int bad_ahd = 0;
-    uint64_t kept = 0, texels = 0, last_kept = 0, last_texels = 0;
+    int bad_ahd = 0, bad_base = 0;
+    uint64_t kept = 0, texels = 0, last_kept = 0, last_texels = 0, based = 0;
     for (size_t k = 0; k < sizeof steps / sizeof steps[0]; k++) {
       ASSERT_OK(ub_runtime_set_element(ra, (uint32_t)steps[k].e, steps[k].v));
       ASSERT_OK(ub_runtime_set_element(rk, (uint32_t)steps[k].e, steps[k].v));
-      ub_runtime_update_stats sa, sk;
+      ASSERT_OK(ub_runtime_set_element(rn, (uint32_t)steps[k].e, steps[k].v));
+      ub_runtime_update_stats sa, sk, sn;
       ASSERT_OK(ub_runtime_update(ra, &sa));
       ASSERT_OK(ub_runtime_update(rk, &sk));
-      ub_ahd_packed *xa = ahd_snapshot(ra, back), *xk = ahd_snapshot(rk, back);
+      ASSERT_OK(ub_runtime_update(rn, &sn));
+      ub_ahd_packed *xa = ahd_snapshot(ra, back), *xk = ahd_snapshot(rk, back),
+                    *xn = ahd_snapshot(rn, back);
       bad_ahd += !xa || !xk || memcmp(xa, xk, np * sizeof *xa) != 0 ||
                  sa.texels_reencoded != sk.texels_reencoded;
+      bad_base += !xa || !xn || memcmp(xa, xn, np * sizeof *xa) != 0 ||
+                  sa.texels_reencoded != sn.texels_reencoded || sn.texels_base != 0;
+      based += sa.texels_base;
       free(xa);
       free(xk);
+      free(xn);
       kept += sk.texels_kept;
       texels += sk.texels_reencoded;
       last_kept = sk.texels_kept;
@@ -517,9 +527,40 @@ int main(void)
            (unsigned long long)last_texels);
     ASSERT_TRUE(bad_ahd == 0 && kept > 0 && kept < texels);
     ASSERT_TRUE(last_texels > 0 && last_kept == last_texels);
+    /* then every set off, the door opened and shut: the texels no object or set still
+     * changes go back to the base state (objects shown and doors shut apply 0) */
+    uint64_t based_end = 0;
+    for (int k = 0; k < 3; k++) {
+      const float off[3] = {0.0f, 0.0f, 0.0f};
+      for (uint32_t d = 0; k == 0 && d < ub_runtime_dls_count(ra); d++) {
+        ASSERT_OK(ub_runtime_set_dls(ra, d, off));
+        ASSERT_OK(ub_runtime_set_dls(rn, d, off));
+      }
+      if (k > 0) {
+        ASSERT_OK(ub_runtime_set_element(ra, 0, k == 1 ? 1.0f : 0.0f));
+        ASSERT_OK(ub_runtime_set_element(rn, 0, k == 1 ? 1.0f : 0.0f));
+      }
+      ub_runtime_update_stats sa, sn;
+      ASSERT_OK(ub_runtime_update(ra, &sa));
+      ASSERT_OK(ub_runtime_update(rn, &sn));
+      ub_ahd_packed *xa = ahd_snapshot(ra, back), *xn = ahd_snapshot(rn, back);
+      bad_base += !xa || !xn || memcmp(xa, xn, np * sizeof *xa) != 0 ||
+                  sa.texels_reencoded != sn.texels_reencoded || sn.texels_base != 0;
+      free(xa);
+      free(xn);
+      based += sa.texels_base;
+      based_end += k == 2 ? sa.texels_base : 0;
+    }
+    printf("base state's AHD with a door, objects and combinations: %d of %zu updates differ "
+           "from a run-time without (want 0); %llu texels copied from the base, %llu when the "
+           "door shut with every set off\n",
+           bad_base, sizeof steps / sizeof steps[0] + 3, (unsigned long long)based,
+           (unsigned long long)based_end);
+    ASSERT_TRUE(bad_base == 0 && based_end > 0);
   }
   ub_runtime_free(ra);
   ub_runtime_free(rk);
+  ub_runtime_free(rn);
   ub_bakefile_free(back);
 
   /* Hostile records. */

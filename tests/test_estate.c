@@ -651,6 +651,104 @@ static void check_keep_state(const char *ubk)
   ub_runtime_free(rb);
 }
 
+/* The base state's AHD (kept by default) against a run-time without it
+ * (UB_RUNTIME_NO_BASE_AHD): 300 random changes, mostly sets off (from all on, then from a
+ * state with most sets off, where a set turned off leaves texels no other set lights),
+ * some back on or tinted, sometimes several at once, plain and 3-job updates; after every
+ * update the whole atlas, the changed-texel list and the LLG grids bit for bit the same.
+ * The base's texels are copied (texels_base > 0; all of them when every set is off) and
+ * cost 16 B a touched texel. */
+static void check_base_ahd(const char *ubk)
+{
+  ub_runtime *ra = NULL, *rb = NULL;
+  ASSERT_OK(ub_runtime_load_ex(ubk, NULL, UB_RUNTIME_NO_BASE_AHD, &ra));
+  ASSERT_OK(ub_runtime_load_ex(ubk, NULL, 0, &rb));
+  if (!ra || !rb) {
+    ub_runtime_free(ra);
+    ub_runtime_free(rb);
+    return;
+  }
+  const uint32_t nd = ub_runtime_dls_count(ra);
+  uint32_t h = 9191u;
+  size_t bad_atlas = 0, bad_changed = 0, bad_llg = 0;
+  uint64_t based = 0, reenc = 0, all_off_base = 0, all_off_texels = 0;
+  for (int step = 0; step < 300; step++) {
+    const int nchg = step % 7 == 3 ? 3 : 1;
+    for (int c = 0; c < nchg; c++) {
+      h = h * 1664525u + 1013904223u;
+      uint32_t d = (h >> 8) % nd, kind = (h >> 4) % 8;
+      const float off[3] = {0.0f, 0.0f, 0.0f}, on[3] = {1.0f, 1.0f, 1.0f},
+                  tint[3] = {1.0f, 0.6f, 0.3f};
+      /* the first half mostly turns sets off, the second mostly on */
+      const int turn_off = step < 150 ? kind < 6 : kind < 2;
+      const float *w = turn_off ? off : kind == 7 ? tint : on;
+      ASSERT_OK(ub_runtime_set_dls(ra, d, w));
+      ASSERT_OK(ub_runtime_set_dls(rb, d, w));
+    }
+    const int all_off = step == 149; /* every set off: every touched texel at the base */
+    if (all_off)
+      for (uint32_t d = 0; d < nd; d++) {
+        const float off[3] = {0.0f, 0.0f, 0.0f};
+        ASSERT_OK(ub_runtime_set_dls(ra, d, off));
+        ASSERT_OK(ub_runtime_set_dls(rb, d, off));
+      }
+    ub_runtime_update_stats sa, sb;
+    if (step % 5 == 4) { /* 3 jobs, run one after another (rb's in reverse) */
+      uint32_t ja = 0, jb = 0;
+      ASSERT_OK(ub_runtime_update_begin(ra, 3, &ja));
+      ASSERT_OK(ub_runtime_update_begin(rb, 3, &jb));
+      for (uint32_t j = 0; j < ja; j++)
+        ub_runtime_update_job(ra, j);
+      for (uint32_t j = 0; j < jb; j++)
+        ub_runtime_update_job(rb, jb - 1 - j);
+      ub_runtime_update_end(ra, &sa);
+      ub_runtime_update_end(rb, &sb);
+    } else {
+      ASSERT_OK(ub_runtime_update(ra, &sa));
+      ASSERT_OK(ub_runtime_update(rb, &sb));
+    }
+    ASSERT_TRUE(sa.texels_base == 0 && sa.texels_reencoded == sb.texels_reencoded);
+    based += sb.texels_base;
+    reenc += sb.texels_reencoded;
+    if (all_off) {
+      all_off_base += sb.texels_base;
+      all_off_texels += sb.texels_reencoded;
+    }
+    const ub_bakefile *fa = ub_runtime_bakefile(ra), *fb = ub_runtime_bakefile(rb);
+    const size_t np = atlas_pixels(fa, fa->atlas_count);
+    ub_ahd_packed *aa = ahd_snapshot(ra, fa), *ab = ahd_snapshot(rb, fb);
+    bad_atlas += !aa || !ab || memcmp(aa, ab, np * sizeof *aa) != 0;
+    free(aa);
+    free(ab);
+    bad_changed += !same_changes(ra, rb);
+    int llg_same = fa->llg_count == fb->llg_count;
+    for (uint32_t m = 0; llg_same && m < fa->llg_count; m++) {
+      const size_t n = (size_t)fa->llgs[m].dims[0] * fa->llgs[m].dims[1] * fa->llgs[m].dims[2];
+      llg_same = !memcmp(fa->llgs[m].probe_sh, fb->llgs[m].probe_sh, n * 27 * sizeof(float));
+    }
+    bad_llg += !llg_same;
+  }
+  ub_runtime_memory ma, mb;
+  ub_runtime_memory_usage(ra, &ma);
+  ub_runtime_memory_usage(rb, &mb);
+  printf("base AHD: 300 changes, atlases differing after %zu updates, changed-texel lists "
+         "after %zu, LLG grids after %zu (want 0); %llu of %llu texels copied from the base "
+         "(%llu of %llu with every set off); memory +%.3f MiB\n",
+         bad_atlas, bad_changed, bad_llg, (unsigned long long)based, (unsigned long long)reenc,
+         (unsigned long long)all_off_base, (unsigned long long)all_off_texels,
+         ((double)mb.total - (double)ma.total) / 1048576.0);
+  ASSERT_TRUE(bad_atlas == 0 && bad_changed == 0 && bad_llg == 0);
+  ASSERT_TRUE(based > 0 && based < reenc);
+  ASSERT_TRUE(all_off_texels > 0 && all_off_base == all_off_texels);
+  /* 16 B a touched texel (at least the ones the all-off update re-encoded), nothing else */
+  const size_t extra = mb.lightmap - ma.lightmap;
+  ASSERT_TRUE(mb.lightmap > ma.lightmap && extra % sizeof(ub_ahd_packed) == 0 &&
+              extra >= all_off_texels * sizeof(ub_ahd_packed) &&
+              mb.total - ma.total == extra);
+  ub_runtime_free(ra);
+  ub_runtime_free(rb);
+}
+
 /* The decoded AHD lightmap at fixed points of the lit triangles and LLG irradiance at
  * fixed points (what a parallel update writes besides the SH the snapshot reads). */
 static void take_decoded(const ub_runtime *rt, float *out, int n)
@@ -951,6 +1049,7 @@ int main(void)
     check_records_8bit(st.ubk_path, bf);
     check_plain_sums(st.ubk_path);
     check_keep_state(st.ubk_path);
+    check_base_ahd(st.ubk_path);
     check_jobs(st.ubk_path);
     check_glg_threads(st.ubk_path);
   }

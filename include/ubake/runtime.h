@@ -66,6 +66,13 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
  * tets: −57 MiB), each walk step and cached-tet test computes the barycentrics from the
  * corners instead (README, "Small GLG walk", gives the measured price). */
 #define UB_RUNTIME_GLG_SMALL_WALK 8u
+/* By default the run-time also keeps the AHD of every texel an element touches as it is
+ * with every element at 0 (16 B a touched texel; full ESTATE: 1.25 M texels, 19.1 MiB),
+ * encoded at load: an update copies it for the texels whose elements are then all at 0
+ * instead of re-encoding them, so turning a set off costs a copy wherever no other set
+ * lights the texel (the bits a re-encode gives). UB_RUNTIME_NO_BASE_AHD keeps none: less
+ * memory, every such texel re-encoded (README, "Base AHD", gives the measured price). */
+#define UB_RUNTIME_NO_BASE_AHD 16u
 /* ub_runtime_load() with flags (0 or the flags above; UB_ERR_INVALID_ARGUMENT for others). */
 ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags,
                              ub_runtime **out);
@@ -96,7 +103,8 @@ typedef struct ub_runtime_memory {
   size_t lightmap;  /* per covered texel: AHD (16 B packed), SH (where a record touches it none: the
                        lightmap blend computes it; else the file's halves; touched: encode
                        normal, slot and rank); coverage/touched bitmaps; fallback encode
-                       normals; the kept state's AHD (ub_runtime_keep_state) */
+                       normals; the kept state's AHD (ub_runtime_keep_state); the base
+                       state's AHD (unless UB_RUNTIME_NO_BASE_AHD) */
   size_t glg;       /* the GLG's compact probe store (58 B/probe) and its walk data */
   size_t llg;       /* LLG probe SH (current state) */
   size_t records;   /* element records: their values (half, or 8-bit rows), held by the blends */
@@ -289,6 +297,8 @@ float ub_runtime_door_fraction(float hinge_angle_radians);
 typedef struct ub_runtime_update_stats {
   uint64_t texels_written, texels_reencoded;
   uint64_t texels_kept; /* of texels_reencoded: copied back from the kept state */
+  uint64_t texels_base; /* of texels_reencoded: every element at 0, the base's AHD copied
+                           (unless UB_RUNTIME_NO_BASE_AHD) */
   uint64_t probes_written; /* GLG probes marked, blended when a query first reads them */
   uint64_t llg_probes_written;
   uint64_t llg_probes_kept; /* of llg_probes_written: copied back from the kept state */
