@@ -529,6 +529,48 @@ static int same_changes(const ub_runtime *ra, const ub_runtime *rb)
   return same;
 }
 
+/* The same update of ra and rb: plain, or (jobs) in 3 jobs run one after another (rb's in
+ * reverse). */
+static void update_pair(ub_runtime *ra, ub_runtime *rb, int jobs, ub_runtime_update_stats *sa,
+                        ub_runtime_update_stats *sb)
+{
+  if (!jobs) {
+    ASSERT_OK(ub_runtime_update(ra, sa));
+    ASSERT_OK(ub_runtime_update(rb, sb));
+    return;
+  }
+  uint32_t ja = 0, jb = 0;
+  ASSERT_OK(ub_runtime_update_begin(ra, 3, &ja));
+  ASSERT_OK(ub_runtime_update_begin(rb, 3, &jb));
+  for (uint32_t j = 0; j < ja; j++)
+    ub_runtime_update_job(ra, j);
+  for (uint32_t j = 0; j < jb; j++)
+    ub_runtime_update_job(rb, jb - 1 - j);
+  ub_runtime_update_end(ra, sa);
+  ub_runtime_update_end(rb, sb);
+}
+
+/* Counts, after an update of both, whether ra and rb differ in their whole atlas, their
+ * changed-texel lists and LLG flags (same_changes), and their LLG grids as queries read
+ * them. */
+static void compare_pair(const ub_runtime *ra, const ub_runtime *rb, size_t *bad_atlas,
+                         size_t *bad_changed, size_t *bad_llg)
+{
+  const ub_bakefile *fa = ub_runtime_bakefile(ra), *fb = ub_runtime_bakefile(rb);
+  const size_t np = atlas_pixels(fa, fa->atlas_count);
+  ub_ahd_packed *aa = ahd_snapshot(ra, fa), *ab = ahd_snapshot(rb, fb);
+  *bad_atlas += !aa || !ab || memcmp(aa, ab, np * sizeof *aa) != 0;
+  free(aa);
+  free(ab);
+  *bad_changed += !same_changes(ra, rb);
+  int llg_same = fa->llg_count == fb->llg_count;
+  for (uint32_t m = 0; llg_same && m < fa->llg_count; m++) {
+    const size_t n = (size_t)fa->llgs[m].dims[0] * fa->llgs[m].dims[1] * fa->llgs[m].dims[2];
+    llg_same = !memcmp(fa->llgs[m].probe_sh, fb->llgs[m].probe_sh, n * 27 * sizeof(float));
+  }
+  *bad_llg += !llg_same;
+}
+
 /* ub_runtime_keep_state (UB_RUNTIME_KEEP_STATE at load, and again mid-way at a tinted
  * state) against a run-time without: 300 random changes (mostly a set off or back on,
  * some tints, sometimes several at once, plain and 3-job updates), and after every update
@@ -595,20 +637,7 @@ static void check_keep_state(const char *ubk)
       ASSERT_OK(ub_runtime_set_dls(rb, d, cur + 3 * d));
     }
     ub_runtime_update_stats sa, sb;
-    if (step % 5 == 4) { /* 3 jobs, run one after another (rb's in reverse) */
-      uint32_t ja = 0, jb = 0;
-      ASSERT_OK(ub_runtime_update_begin(ra, 3, &ja));
-      ASSERT_OK(ub_runtime_update_begin(rb, 3, &jb));
-      for (uint32_t j = 0; j < ja; j++)
-        ub_runtime_update_job(ra, j);
-      for (uint32_t j = 0; j < jb; j++)
-        ub_runtime_update_job(rb, jb - 1 - j);
-      ub_runtime_update_end(ra, &sa);
-      ub_runtime_update_end(rb, &sb);
-    } else {
-      ASSERT_OK(ub_runtime_update(ra, &sa));
-      ASSERT_OK(ub_runtime_update(rb, &sb));
-    }
+    update_pair(ra, rb, step % 5 == 4, &sa, &sb);
     ASSERT_TRUE(sa.texels_kept == 0 && sa.texels_reencoded == sb.texels_reencoded);
     kept += sb.texels_kept;
     reenc += sb.texels_reencoded;
@@ -616,20 +645,7 @@ static void check_keep_state(const char *ubk)
       back_kept += sb.texels_kept;
       back_texels += sb.texels_reencoded;
     }
-    const ub_bakefile *fa = ub_runtime_bakefile(ra), *fb = ub_runtime_bakefile(rb);
-    const size_t np = atlas_pixels(fa, fa->atlas_count);
-    ub_ahd_packed *aa = ahd_snapshot(ra, fa), *ab = ahd_snapshot(rb, fb);
-    bad_atlas += !aa || !ab || memcmp(aa, ab, np * sizeof *aa) != 0;
-    free(aa);
-    free(ab);
-    bad_changed += !same_changes(ra, rb); /* (and the LLG models flagged) */
-    /* LLG probes: their grids as queries read them */
-    int llg_same = fa->llg_count == fb->llg_count;
-    for (uint32_t m = 0; llg_same && m < fa->llg_count; m++) {
-      const size_t n = (size_t)fa->llgs[m].dims[0] * fa->llgs[m].dims[1] * fa->llgs[m].dims[2];
-      llg_same = !memcmp(fa->llgs[m].probe_sh, fb->llgs[m].probe_sh, n * 27 * sizeof(float));
-    }
-    bad_llg += !llg_same;
+    compare_pair(ra, rb, &bad_atlas, &bad_changed, &bad_llg);
     llg_kept += sb.llg_probes_kept;
     bad_llg += sa.llg_probes_kept != 0 || sa.llg_probes_written != sb.llg_probes_written ||
                (back && sb.llg_probes_kept != sb.llg_probes_written);
@@ -693,20 +709,7 @@ static void check_base_ahd(const char *ubk)
         ASSERT_OK(ub_runtime_set_dls(rb, d, off));
       }
     ub_runtime_update_stats sa, sb;
-    if (step % 5 == 4) { /* 3 jobs, run one after another (rb's in reverse) */
-      uint32_t ja = 0, jb = 0;
-      ASSERT_OK(ub_runtime_update_begin(ra, 3, &ja));
-      ASSERT_OK(ub_runtime_update_begin(rb, 3, &jb));
-      for (uint32_t j = 0; j < ja; j++)
-        ub_runtime_update_job(ra, j);
-      for (uint32_t j = 0; j < jb; j++)
-        ub_runtime_update_job(rb, jb - 1 - j);
-      ub_runtime_update_end(ra, &sa);
-      ub_runtime_update_end(rb, &sb);
-    } else {
-      ASSERT_OK(ub_runtime_update(ra, &sa));
-      ASSERT_OK(ub_runtime_update(rb, &sb));
-    }
+    update_pair(ra, rb, step % 5 == 4, &sa, &sb);
     ASSERT_TRUE(sa.texels_base == 0 && sa.texels_reencoded == sb.texels_reencoded);
     based += sb.texels_base;
     reenc += sb.texels_reencoded;
@@ -714,19 +717,7 @@ static void check_base_ahd(const char *ubk)
       all_off_base += sb.texels_base;
       all_off_texels += sb.texels_reencoded;
     }
-    const ub_bakefile *fa = ub_runtime_bakefile(ra), *fb = ub_runtime_bakefile(rb);
-    const size_t np = atlas_pixels(fa, fa->atlas_count);
-    ub_ahd_packed *aa = ahd_snapshot(ra, fa), *ab = ahd_snapshot(rb, fb);
-    bad_atlas += !aa || !ab || memcmp(aa, ab, np * sizeof *aa) != 0;
-    free(aa);
-    free(ab);
-    bad_changed += !same_changes(ra, rb);
-    int llg_same = fa->llg_count == fb->llg_count;
-    for (uint32_t m = 0; llg_same && m < fa->llg_count; m++) {
-      const size_t n = (size_t)fa->llgs[m].dims[0] * fa->llgs[m].dims[1] * fa->llgs[m].dims[2];
-      llg_same = !memcmp(fa->llgs[m].probe_sh, fb->llgs[m].probe_sh, n * 27 * sizeof(float));
-    }
-    bad_llg += !llg_same;
+    compare_pair(ra, rb, &bad_atlas, &bad_changed, &bad_llg);
   }
   ub_runtime_memory ma, mb;
   ub_runtime_memory_usage(ra, &ma);
