@@ -1303,6 +1303,8 @@ typedef struct ref_log {
   uint64_t at_ref;    /* receivers reported as UB_BLEND_AT_REFERENCE */
   uint32_t *seq;      /* the receivers in the order reported (R entries at most) */
   uint32_t nseq;
+  const float *based; /* the rows with every weight 0 (ub_blend_set_base_report) */
+  uint64_t at_base;   /* receivers reported as UB_BLEND_AT_BASE */
 } ref_log;
 
 static void on_ref(void *user, uint32_t first, uint32_t count, const float *rows)
@@ -1318,6 +1320,9 @@ static void on_ref(void *user, uint32_t first, uint32_t count, const float *rows
   if (rows == UB_BLEND_AT_REFERENCE) {
     memcpy(t->out + at, t->kept + at, sizeof(float) * n);
     t->at_ref += count;
+  } else if (rows == UB_BLEND_AT_BASE) {
+    memcpy(t->out + at, t->based + at, sizeof(float) * n);
+    t->at_base += count;
   } else {
     memcpy(t->out + at, rows, sizeof(float) * n);
   }
@@ -1409,10 +1414,10 @@ static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
         ASSERT_OK(ub_blend_set_weight(bc, e, w));
     }
     memset(ca, 0, R);
-    ref_log ra = {ca, S, oa, NULL, 0, qa, 0};
+    ref_log ra = {ca, S, oa, NULL, 0, qa, 0, NULL, 0};
     ub_blend_update(ba, on_ref, &ra, NULL, NULL);
     memset(cb, 0, R);
-    ref_log rl = {cb, S, ob, kept, 0, qb, 0};
+    ref_log rl = {cb, S, ob, kept, 0, qb, 0, NULL, 0};
     ub_blend_stats sb;
     memset(&sb, 0, sizeof sb);
     if (round % 3 == 2) {
@@ -1490,6 +1495,102 @@ static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
   free(wref);
   free(ca);
   free(cb);
+  rep_free(&p);
+}
+
+/* ub_blend_set_base_report: a streaming engine reporting its all-zero groups against one
+ * streaming them, 60 rounds of a few elements changed (off, on, or any weight; every
+ * weight 0 every 15th round), plain and in 3 parts run in reverse: the same rows (the
+ * reported ones from the rows an update with every weight 0 streamed) and the same
+ * receivers reported, once each; every receiver at the base when every weight is 0. */
+static void test_base_report(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage st,
+                             uint32_t xflags)
+{
+  rep p;
+  rep_init_runs(&p, R, S, E, st, 5);
+  const size_t nf = (size_t)R * S;
+  ub_blend_desc d = rep_desc(&p, "base report");
+  d.flags = xflags;
+  float *oa = calloc(nf, sizeof(float)), *ob = calloc(nf, sizeof(float));
+  float *based = calloc(nf, sizeof(float));
+  uint8_t *ca = calloc(R, 1), *cb = calloc(R, 1);
+  uint32_t *qa = malloc(sizeof(uint32_t) * R), *qb = malloc(sizeof(uint32_t) * R);
+  ub_blend *ba = NULL, *bb = NULL;
+  ASSERT_OK(ub_blend_create(&d, NULL, NULL, &ba));
+  ASSERT_OK(ub_blend_create(&d, NULL, NULL, &bb));
+  if (!ba || !bb || !oa || !ob || !based || !ca || !cb || !qa || !qb) {
+    ASSERT_TRUE(0);
+    goto done;
+  }
+  ASSERT_OK(ub_blend_reserve_parts(bb, 3));
+  { /* the caller's base product: what an update with every weight 0 streams */
+    ref_log z = {ca, S, based, NULL, 0, qa, 0, NULL, 0};
+    ub_blend_update_all(bb, on_ref, &z, NULL, NULL);
+    memset(ca, 0, R);
+  }
+  ub_blend_set_base_report(bb, 1);
+  int bad_rows = 0, bad_count = 0, all_base = 1;
+  uint64_t at_base = 0, reported = 0;
+  for (int round = 0; round < 60; round++) {
+    const int zero = round % 15 == 14;
+    const uint32_t nchg = zero ? E : 1 + rnd_below(4);
+    for (uint32_t c = 0; c < nchg; c++) {
+      const uint32_t e = zero ? c : rnd_below(E);
+      float w[3] = {0.0f, 0.0f, 0.0f};
+      const double x = rnd();
+      if (!zero && x >= 0.5) {
+        w[0] = w[1] = w[2] = 1.0f;
+        if (x >= 0.8)
+          rnd_weight(w);
+      }
+      ASSERT_OK(ub_blend_set_weight(ba, e, w));
+      ASSERT_OK(ub_blend_set_weight(bb, e, w));
+    }
+    memset(ca, 0, R);
+    memset(cb, 0, R);
+    ref_log ra = {ca, S, oa, NULL, 0, qa, 0, NULL, 0};
+    ref_log rb = {cb, S, ob, NULL, 0, qb, 0, based, 0};
+    ub_blend_update(ba, on_ref, &ra, NULL, NULL);
+    ub_blend_stats sb;
+    memset(&sb, 0, sizeof sb);
+    if (round % 3 == 2) {
+      ub_blend_update_begin(bb, 0);
+      for (uint32_t q = 0; q < 3; q++) {
+        ub_blend_stats sq;
+        ub_blend_update_part(bb, 2 - q, 3, on_ref, &rb, NULL, &sq);
+        sb.receivers += sq.receivers;
+        sb.receivers_base += sq.receivers_base;
+      }
+    } else {
+      ub_blend_update(bb, on_ref, &rb, NULL, &sb);
+    }
+    bad_rows += memcmp(oa, ob, sizeof(float) * nf) != 0;
+    bad_count += ra.nseq != rb.nseq || memcmp(ca, cb, R) != 0;
+    bad_count += round % 3 != 2 && memcmp(qa, qb, sizeof(uint32_t) * ra.nseq) != 0;
+    for (uint32_t r = 0; r < R; r++)
+      bad_count += cb[r] > 1;
+    bad_count += sb.receivers_base != rb.at_base || rb.at_ref != 0;
+    at_base += rb.at_base;
+    reported += sb.receivers;
+    if (zero)
+      all_base &= sb.receivers > 0 && sb.receivers_base == sb.receivers;
+  }
+  printf("base report R=%u S=%u %s: 60 rounds, %d with differing rows, %d with differing "
+         "reports (want 0); %llu of %llu receivers reported at the base, all of them when "
+         "every weight is 0: %s\n", R, S, st == UB_BLEND_FLOAT16 ? "half" : "float", bad_rows,
+         bad_count, (unsigned long long)at_base, (unsigned long long)reported,
+         all_base ? "yes" : "NO");
+  ASSERT_TRUE(bad_rows == 0 && bad_count == 0 && all_base && at_base > 0 && at_base < reported);
+done:
+  ub_blend_free(ba);
+  ub_blend_free(bb);
+  free(oa);
+  free(ob);
+  free(based);
+  free(ca);
+  free(cb);
+  free(qa);
+  free(qb);
   rep_free(&p);
 }
 
@@ -2036,6 +2137,9 @@ int main(void)
                  UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF | UB_BLEND_ONES_SUM | UB_BLEND_ROW_QUERY);
   test_reference(6000, 27, 24, UB_BLEND_FLOAT32, 0);
   test_reference_parts();
+  test_base_report(20000, 12, 40, UB_BLEND_FLOAT16,
+                   UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF | UB_BLEND_ONES_SUM);
+  test_base_report(6000, 27, 24, UB_BLEND_FLOAT32, 0);
   test_values_done(20000, 12, 40, UB_BLEND_FLOAT16, 0);
   test_values_done(6000, 27, 24, UB_BLEND_FLOAT32, UB_BLEND_STORE_Q8);
   test_reference(8000, 12, 30, UB_BLEND_FLOAT16,
