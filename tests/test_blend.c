@@ -1328,6 +1328,25 @@ static void on_ref(void *user, uint32_t first, uint32_t count, const float *rows
   }
 }
 
+/* A streaming update of b into log (on_ref): plain, or (parts) in 3 parts run in reverse;
+ * *sb: the receivers, those at the reference and those at the base. */
+static void update_streaming(ub_blend *b, int parts, ref_log *log, ub_blend_stats *sb)
+{
+  memset(sb, 0, sizeof *sb);
+  if (!parts) {
+    ub_blend_update(b, on_ref, log, NULL, sb);
+    return;
+  }
+  ub_blend_update_begin(b, 0);
+  for (uint32_t q = 0; q < 3; q++) {
+    ub_blend_stats sq;
+    ub_blend_update_part(b, 2 - q, 3, on_ref, log, NULL, &sq);
+    sb->receivers += sq.receivers;
+    sb->receivers_reference += sq.receivers_reference;
+    sb->receivers_base += sq.receivers_base;
+  }
+}
+
 /* ub_blend_set_reference: a streaming engine with a reference state against one without,
  * 60 rounds of a few elements changed (back to their reference weight, off, or any
  * weight), plain and in 3 parts, every update and the whole state: the same rows and the
@@ -1419,18 +1438,7 @@ static void test_reference(uint32_t R, uint32_t S, uint32_t E, ub_blend_storage 
     memset(cb, 0, R);
     ref_log rl = {cb, S, ob, kept, 0, qb, 0, NULL, 0};
     ub_blend_stats sb;
-    memset(&sb, 0, sizeof sb);
-    if (round % 3 == 2) {
-      ub_blend_update_begin(bb, 0);
-      for (uint32_t q = 0; q < 3; q++) {
-        ub_blend_stats sq;
-        ub_blend_update_part(bb, 2 - q, 3, on_ref, &rl, NULL, &sq);
-        sb.receivers += sq.receivers;
-        sb.receivers_reference += sq.receivers_reference;
-      }
-    } else {
-      ub_blend_update(bb, on_ref, &rl, NULL, &sb);
-    }
+    update_streaming(bb, round % 3 == 2, &rl, &sb);
     if (bc) { /* out array: plain or in 3 or 5 parts */
       update_as(bc, oc, cc, R, S, 0, back ? 5 : round % 3 == 1 ? 3 : 1, 0, NULL);
       bad_rows += memcmp(oa, oc, sizeof(float) * nf) != 0;
@@ -1552,18 +1560,7 @@ static void test_base_report(uint32_t R, uint32_t S, uint32_t E, ub_blend_storag
     ref_log rb = {cb, S, ob, NULL, 0, qb, 0, based, 0};
     ub_blend_update(ba, on_ref, &ra, NULL, NULL);
     ub_blend_stats sb;
-    memset(&sb, 0, sizeof sb);
-    if (round % 3 == 2) {
-      ub_blend_update_begin(bb, 0);
-      for (uint32_t q = 0; q < 3; q++) {
-        ub_blend_stats sq;
-        ub_blend_update_part(bb, 2 - q, 3, on_ref, &rb, NULL, &sq);
-        sb.receivers += sq.receivers;
-        sb.receivers_base += sq.receivers_base;
-      }
-    } else {
-      ub_blend_update(bb, on_ref, &rb, NULL, &sb);
-    }
+    update_streaming(bb, round % 3 == 2, &rb, &sb);
     bad_rows += memcmp(oa, ob, sizeof(float) * nf) != 0;
     bad_count += ra.nseq != rb.nseq || memcmp(ca, cb, R) != 0;
     bad_count += round % 3 != 2 && memcmp(qa, qb, sizeof(uint32_t) * ra.nseq) != 0;
