@@ -3,6 +3,7 @@
 #define UBAKE_TEST_RT_UTIL_H
 
 #include <stdlib.h>
+#include <string.h>
 
 #include "ubake/ahd.h"
 #include "ubake/bakefile.h"
@@ -26,6 +27,18 @@ static ub_ahd_packed *ahd_snapshot(const ub_runtime *rt, const ub_bakefile *bf)
   for (uint32_t a = 0; a < bf->atlas_count; a++)
     ASSERT_OK(ub_runtime_atlas_ahd(rt, a, s + atlas_pixels(bf, a)));
   return s;
+}
+
+/* 1 when a and b hold the same packed AHD in every atlas (bf: a's file; b's has the same
+ * atlases), bit for bit. */
+static inline int same_atlases(const ub_runtime *a, const ub_runtime *b, const ub_bakefile *bf)
+{
+  const size_t n = atlas_pixels(bf, bf->atlas_count);
+  ub_ahd_packed *sa = ahd_snapshot(a, bf), *sb = ahd_snapshot(b, bf);
+  const int same = sa && sb && memcmp(sa, sb, n * sizeof *sa) == 0;
+  free(sa);
+  free(sb);
+  return same;
 }
 
 #endif
