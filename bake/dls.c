@@ -975,6 +975,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     pd.llg_subset_count = ncl;
     pd.keep_bounce_iz = NB;
     pd.no_error_estimate = 1; /* neither pass's texel_se / probe_se is read */
+    pd.no_store = 1;          /* the keep rule reads the influence measures only */
     pd.texel_lights_everywhere = 1; /* ub_pass_desc; the full pass below sets it too */
     if (plan->influence_sparse) {
       if (!sub) /* no reach bound: every texel is a candidate */

@@ -2683,6 +2683,9 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
                   100.0 * out->bounce_cap_tail, ratio);
   }
 
+  uint64_t clamped = 0;
+  if (d->no_store) /* the caller reads only the influence measures */
+    goto counters;
   /* Store: SH corrected so that its irradiance along the normal is the exact I_z. */
   out->sh = calloc((size_t)T * 12 + 1, sizeof(float)); /* zero outside act */
   out->iz = calloc((size_t)T * 3 + 1, sizeof(float));
@@ -2694,7 +2697,6 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   const double K = M_PI * M_PI * (UB_Y0 * UB_Y0) + (2.0 * M_PI / 3.0) * (2.0 * M_PI / 3.0) *
                                                      (UB_Y1 * UB_Y1);
   const double h0 = UB_Y0 * M_PI / K, h1 = UB_Y1 * (2.0 * M_PI / 3.0) / K;
-  uint64_t clamped = 0;
 #pragma omp parallel for schedule(static) reduction(+ : clamped)
   for (uint32_t i = 0; i < nact; i++) {
     uint32_t t = ACT(i);
@@ -2748,6 +2750,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     float v = (float)sqrt(var_pr[q]);
     out->probe_se[q] = isfinite(v) ? v : 0.0f;
   }
+counters:
   out->rays_gather = atomic_load(&c.rays_gather);
   out->rays_shadow = atomic_load(&c.rays_shadow);
   out->clamped = atomic_load(&c.clamped) + clamped;

@@ -127,6 +127,12 @@ typedef struct ub_pass_desc {
    * skipped, for a caller that reads neither (the DLS passes). Ignored with target_error,
    * whose rounds need them. The other outputs are the same bits either way. */
   int no_error_estimate;
+  /* 1: only the influence measures are kept (texel_direct / _indirect / _bounce_iz, the
+   * probes' and LLG probes' direct / indirect, bounce energies, counters); sh, iz,
+   * probe_sh, llg_sh, texel_se and probe_se stay NULL, and values a store would have
+   * clamped are not counted. For the DLS influence passes, which read nothing else:
+   * their level-sized result arrays were allocated, first-touched and freed per set. */
+  int no_store;
   ub_progress_fn progress;
   void *progress_user;
   double progress_base, progress_span; /* this pass's share of the whole bake */
