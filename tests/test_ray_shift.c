@@ -18,7 +18,11 @@
  *   rule's values (ub_pass_bounce_shift), and cornell at 6 bounces over 48 seeds: the same
  *   expectations as every bounce at full rays, with fewer gather rays
  *   (test_late_expectation). A shift chosen from a bounce's own noisy results leaves each
- *   bounce's estimate unbiased; this is where that claim is checked. */
+ *   bounce's estimate unbiased; this is where that claim is checked.
+ * - the store left out (ub_pass_desc.no_store, the DLS influence passes): cornell with GLG
+ *   probes, a texel subset and each bounce's I_z kept gives the influence measures, bounce
+ *   energies and ray counts bit for bit as with the store, and no stored arrays
+ *   (test_no_store). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -321,6 +325,73 @@ static void test_late_expectation(void)
   expectation_ab(48, 1, 500, "6 bounces, later bounces with fewer rays vs full");
 }
 
+/* Arrays of n floats equal bit for bit (both NULL counts as equal). */
+static int same_floats(const float *a, const float *b, size_t n)
+{
+  if (!a || !b)
+    return a == b;
+  return memcmp(a, b, n * sizeof *a) == 0;
+}
+
+static void test_no_store(void)
+{
+  level L;
+  if (!level_open(g_build, "cornell", &L))
+    return;
+  enum { P = 27 };
+  uint32_t T = L.lm->texel_count;
+  uint8_t *en = calloc(L.s->light_count + 1, 1);
+  memset(en, 1, L.s->light_count);
+  float pos[P * 3];
+  for (int i = 0; i < P; i++) {
+    pos[3 * i] = -0.6f + 0.6f * (float)(i % 3);
+    pos[3 * i + 1] = 0.4f + 0.6f * (float)(i / 3 % 3);
+    pos[3 * i + 2] = -0.6f + 0.6f * (float)(i / 9);
+  }
+  uint32_t *sub = malloc(((size_t)T + 1) * sizeof *sub), ns = 0;
+  for (uint32_t t = 0; t < T; t++)
+    if (t % 3 != 1) /* two texels in three, as an influence pass's candidates */
+      sub[ns++] = t;
+  ub_pass_result r[2];
+  for (int a = 0; a < 2; a++) {
+    ub_pass_desc pd;
+    desc_init(&L, en, &pd);
+    pd.gather_rays = 16;
+    pd.probe_count = P;
+    pd.probe_pos = pos;
+    pd.probe_rays = 32;
+    pd.texel_subset = sub;
+    pd.texel_subset_count = ns;
+    pd.keep_bounce_iz = 2;
+    pd.no_error_estimate = 1;
+    pd.pass_id = 7;
+    pd.no_store = a;
+    ASSERT_OK(ub_pass_run(&pd, NULL, &r[a]));
+  }
+  ASSERT_TRUE(r[0].sh && r[0].iz && r[0].probe_sh && r[0].texel_bounce_iz);
+  ASSERT_TRUE(!r[1].sh && !r[1].iz && !r[1].probe_sh && !r[1].llg_sh && !r[1].texel_se &&
+              !r[1].probe_se);
+  ASSERT_TRUE(same_floats(r[0].texel_direct, r[1].texel_direct, T));
+  ASSERT_TRUE(same_floats(r[0].texel_indirect, r[1].texel_indirect, T));
+  ASSERT_TRUE(same_floats(r[0].texel_bounce_iz, r[1].texel_bounce_iz, (size_t)T * 3 * 2));
+  ASSERT_TRUE(same_floats(r[0].probe_direct, r[1].probe_direct, P));
+  ASSERT_TRUE(same_floats(r[0].probe_indirect, r[1].probe_indirect, P));
+  ASSERT_TRUE(r[0].bounces == r[1].bounces && r[0].rays_gather == r[1].rays_gather &&
+              r[0].rays_shadow == r[1].rays_shadow);
+  ASSERT_TRUE(memcmp(r[0].bounce_energy, r[1].bounce_energy, sizeof r[0].bounce_energy) == 0);
+  double lit = 0.0;
+  for (uint32_t t = 0; t < T; t++)
+    lit += r[1].texel_indirect[t] > 0.0f;
+  ASSERT_TRUE(lit > 0.5 * ns); /* the measures are there, not zeros on both sides */
+  printf("cornell, no store: %u of %u texels, %u probes: influence measures bit for bit, "
+         "%.0f texels with indirect light\n", ns, T, (unsigned)P, lit);
+  ub_pass_result_free(&r[0]);
+  ub_pass_result_free(&r[1]);
+  free(sub);
+  free(en);
+  level_close(&L);
+}
+
 int main(void)
 {
   const char *b = getenv("UB_BUILD");
@@ -330,5 +401,6 @@ int main(void)
   test_expectation();
   test_bounce_shift_rule();
   test_late_expectation();
+  test_no_store();
   TEST_MAIN_END();
 }
