@@ -25,12 +25,15 @@
  * same level measured in the same run (bench/bench_util.h); bake seconds without the sets
  * (every stage but "dls") and with them; peak RSS; .ubk bytes; record bytes per set; the
  * overlap histogram of the records; run-time load seconds and resident memory, one set
- * toggled (median / p90 / max over sets, each the best of 3), every set changed at once
+ * toggled (median / p90 / max over sets, each the best of 3) and the floor of a toggle
+ * on one core for the data it moves and encodes (its bytes at the memcpy rate of the run,
+ * its texels at the AHD encode's in-cache rate), every set changed at once
  * (GB/s against memcpy of the same bytes, measured alternately). Unless --no-extrapolate
  * (or --full), the full level is generated too and its receivers counted by a
  * --plan-only bake, and the full-scale bake is extrapolated stage by stage (the model is
  * printed with the figures). Needs UB_BUILD (default "build") for ubake-genlevel. */
 #include <errno.h>
+#include <math.h>
 #include <omp.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -39,6 +42,7 @@
 
 #include "bake/output.h"
 #include "bench/bench_util.h"
+#include "ubake/ahd.h"
 #include "ubake/bake.h"
 #include "ubake/bakefile.h"
 #include "ubake/glg.h"
@@ -150,6 +154,9 @@ static void update_n(ub_runtime *rt, int jobs, ub_runtime_update_stats *us)
  * LLG), the first pass's bytes and receivers. */
 typedef struct toggle_sums {
   double seconds[3], bytes, texels, probes, llg;
+  /* Optional (NULL: not kept), per set and state as tog: the first pass's bytes moved and
+   * texels AHD-encoded (re-encoded, less those copied from the kept or base state). */
+  double *set_bytes, *set_encoded;
 } toggle_sums;
 
 /* Each set off, then on again (the others as they are: on), `passes` times; tog[2d + 0/1]
@@ -192,6 +199,11 @@ static void toggle_times(ub_runtime *rt, int jobs, int passes, double *tog, doub
           sums->texels += (double)us.texels_written;
           sums->probes += (double)us.probes_written;
           sums->llg += (double)us.llg_probes_written;
+          if (sums->set_bytes) {
+            sums->set_bytes[2 * d + on] = (double)(us.bytes_read + us.bytes_written);
+            sums->set_encoded[2 * d + on] =
+                (double)(us.texels_reencoded - us.texels_kept - us.texels_base);
+          }
         }
       }
   if (others_off) {
@@ -199,6 +211,50 @@ static void toggle_times(ub_runtime *rt, int jobs, int passes, double *tog, doub
       ub_runtime_set_dls(rt, d, one);
     update_n(rt, jobs, &us);
   }
+}
+
+/* Nanoseconds a texel of the run-time's AHD encode in cache (ub_ahd_encode_iz_packed_n on
+ * 512 texels of plausible light, best of 7 rounds of 200 calls). */
+static double encode_ns_in_cache(void)
+{
+  enum { N = 512 };
+  float *sh = malloc(sizeof(float) * 12 * N), *nrm = malloc(sizeof(float) * 3 * N);
+  ub_ahd_packed *out = malloc(sizeof *out * N);
+  if (!sh || !nrm || !out) {
+    free(sh);
+    free(nrm);
+    free(out);
+    return 0.0;
+  }
+  uint32_t h = 12345u;
+  for (int i = 0; i < N; i++) {
+    float v[3];
+    double l = 0.0;
+    for (int k = 0; k < 3; k++) {
+      h = h * 1664525u + 1013904223u;
+      v[k] = (float)(h >> 8) / 16777216.0f - 0.5f;
+      l += (double)v[k] * v[k];
+    }
+    for (int k = 0; k < 3; k++)
+      nrm[3 * i + k] = l > 1e-6 ? (float)(v[k] / sqrt(l)) : (k == 2);
+    for (int k = 0; k < 12; k++) { /* I_z 0.5-2.5 a channel, the L1 band +-0.3 */
+      h = h * 1664525u + 1013904223u;
+      float u = (float)(h >> 8) / 16777216.0f;
+      sh[12 * i + k] = k < 3 ? 0.5f + 2.0f * u : 0.6f * u - 0.3f;
+    }
+  }
+  double best = 1e30;
+  for (int r = 0; r < 7; r++) {
+    double t = ub_bench_now();
+    for (int k = 0; k < 200; k++)
+      ub_ahd_encode_iz_packed_n(sh, nrm, 1.0f, out, N);
+    t = ub_bench_now() - t;
+    best = t < best ? t : best;
+  }
+  free(sh);
+  free(nrm);
+  free(out);
+  return best * 1e9 / (200.0 * N);
 }
 
 /* By class: the hall's sets reach the big shared space (and each other: up to 16
@@ -560,7 +616,14 @@ int main(int argc, char **argv)
   ub_runtime_update(rt, NULL);
   enum { PASSES = 3 };
   double *tog = malloc(sizeof(double) * (2 * nd + 1));
-  toggle_sums ts = {{0, 0, 0}, 0, 0, 0, 0};
+  toggle_sums ts = {{0, 0, 0}, 0, 0, 0, 0, NULL, NULL};
+  ts.set_bytes = malloc(sizeof(double) * (2 * nd + 1));
+  ts.set_encoded = malloc(sizeof(double) * (2 * nd + 1));
+  if (!ts.set_bytes || !ts.set_encoded) {
+    free(ts.set_bytes);
+    free(ts.set_encoded);
+    ts.set_bytes = ts.set_encoded = NULL;
+  }
   double *tog1 = malloc(sizeof(double) * (2 * nd + 1));
   toggle_times(rt, 1, PASSES * repeat, tog, tog1, &ts, 0);
   double dmed[2][2]; /* before the percentiles below sort tog */
@@ -626,6 +689,41 @@ int main(int argc, char **argv)
          load_flags & UB_RUNTIME_KEEP_STATE
              ? "; the load state kept (UB_RUNTIME_KEEP_STATE): back on copies kept texels"
              : "");
+  if (ts.set_bytes) {
+    /* What one core cannot go below for a toggle: its bytes at the memcpy rate of this run
+     * (all-sets measurement below) and its encoded texels at the encode's in-cache rate.
+     * The two overlap at best (the larger), not at all the sum. */
+    double ens = encode_ns_in_cache(), fl[2][2][2], ms[2][2];
+    for (int c = 0; c < 2; c++)
+      for (int ph = 0; ph < 2; ph++) {
+        double *v[2], *w = malloc(sizeof(double) * (nd + 1));
+        v[0] = malloc(sizeof(double) * (nd + 1));
+        v[1] = malloc(sizeof(double) * (nd + 1));
+        uint32_t n = 0;
+        for (uint32_t d = 0; v[0] && v[1] && w && d < nd; d++)
+          if (set_class(rt, d) == c) {
+            double tb = ts.set_bytes[2 * d + ph] / (cgbs * 1e9) * 1e3;
+            double te = ts.set_encoded[2 * d + ph] * ens * 1e-6;
+            v[0][n] = tb > te ? tb : te;
+            v[1][n] = tb + te;
+            w[n++] = tb;
+          }
+        for (int k = 0; k < 2; k++)
+          fl[c][ph][k] = n ? ub_bench_percentile(v[k], n, 0.5) : 0.0;
+        ms[c][ph] = n ? ub_bench_percentile(w, n, 0.5) : 0.0;
+        free(v[0]);
+        free(v[1]);
+        free(w);
+      }
+    printf("  floor of a toggle on one core (its bytes at this run's memcpy rate, %.2f GB/s, and "
+           "its encoded texels at %.2f ns each, the encode in cache; overlapped / one after the "
+           "other, medians): room sets off %.3f / %.3f ms (measured %.3f), on %.3f / %.3f "
+           "(%.3f); hall sets off %.3f / %.3f (%.3f), on %.3f / %.3f (%.3f); the bytes alone: "
+           "room %.3f / %.3f, hall %.3f / %.3f ms (target 0.1 ms)\n", cgbs, ens, fl[0][0][0],
+           fl[0][0][1], dmed[0][0], fl[0][1][0], fl[0][1][1], dmed[0][1], fl[1][0][0],
+           fl[1][0][1], dmed[1][0], fl[1][1][0], fl[1][1][1], dmed[1][1], ms[0][0], ms[0][1],
+           ms[1][0], ms[1][1]);
+  }
   printf("  with the other sets off: room sets on %.3f ms, off again %.3f ms; hall sets on %.3f "
          "ms, off again %.3f ms (medians, best of %d)%s\n", omed[0][1], omed[0][0], omed[1][1],
          omed[1][0], PASSES * repeat,
@@ -722,6 +820,8 @@ int main(int argc, char **argv)
   free(ca);
   free(cb);
   free(tog);
+  free(ts.set_bytes);
+  free(ts.set_encoded);
   ub_runtime_free(rt);
 
   /* Extrapolation to full scale. */
