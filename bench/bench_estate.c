@@ -690,9 +690,10 @@ int main(int argc, char **argv)
              ? "; the load state kept (UB_RUNTIME_KEEP_STATE): back on copies kept texels"
              : "");
   if (ts.set_bytes) {
-    /* What one core cannot go below for a toggle: its bytes at the memcpy rate of this run
-     * (all-sets measurement below) and its encoded texels at the encode's in-cache rate.
-     * The two overlap at best (the larger), not at all the sum. */
+    /* What one core cannot go below for a toggle whose data comes from memory: its bytes
+     * at the memcpy rate of this run (measured with the all-sets update) and its encoded
+     * texels at the encode's in-cache rate. The two overlap at best (the larger), not at
+     * all the sum. A set toggled again soon may find part of its data in the cache. */
     double ens = encode_ns_in_cache(), fl[2][2][2], ms[2][2];
     for (int c = 0; c < 2; c++)
       for (int ph = 0; ph < 2; ph++) {
