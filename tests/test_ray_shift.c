@@ -192,6 +192,29 @@ static void test_cornell(void)
   level_close(&L);
 }
 
+/* GLG probes for cornell: a 3 × 3 × 3 grid inside the box (pos: 27 × 3 floats). */
+#define CORNELL_PROBES 27
+static void cornell_probe_grid(float *pos)
+{
+  for (int i = 0; i < CORNELL_PROBES; i++) {
+    pos[3 * i] = -0.6f + 0.6f * (float)(i % 3);
+    pos[3 * i + 1] = 0.4f + 0.6f * (float)(i / 3 % 3);
+    pos[3 * i + 2] = -0.6f + 0.6f * (float)(i / 9);
+  }
+}
+
+/* cornell with every light enabled (*en: the caller frees it) and its probe grid in pos;
+ * 0 when the level cannot be opened (reported by level_open). */
+static int cornell_open(level *L, uint8_t **en, float *pos)
+{
+  if (!level_open(g_build, "cornell", L))
+    return 0;
+  *en = calloc(L->s->light_count + 1, 1);
+  memset(*en, 1, L->s->light_count);
+  cornell_probe_grid(pos);
+  return 1;
+}
+
 /* Cornell's expectations over S seeds, two arms: arm 0 the variant, arm 1 the reference.
  * late = 0: the variant gives texels 1/4 and probes 1/8 of the rays (pass shifts), at 2
  * bounces; late = 1: 6 bounces, the variant with later bounces' fewer rays (the default),
@@ -200,19 +223,13 @@ static void test_cornell(void)
  * and the level's total irradiance by at most 4; the variant traces fewer gather rays. */
 static void expectation_ab(int S, int late, uint32_t pid0, const char *what)
 {
+  enum { P = CORNELL_PROBES };
   level L;
-  if (!level_open(g_build, "cornell", &L))
-    return;
-  enum { P = 27 };
-  uint32_t T = L.lm->texel_count;
-  uint8_t *en = calloc(L.s->light_count + 1, 1);
-  memset(en, 1, L.s->light_count);
+  uint8_t *en;
   float pos[P * 3];
-  for (int i = 0; i < P; i++) {
-    pos[3 * i] = -0.6f + 0.6f * (float)(i % 3);
-    pos[3 * i + 1] = 0.4f + 0.6f * (float)(i / 3 % 3);
-    pos[3 * i + 2] = -0.6f + 0.6f * (float)(i / 9);
-  }
+  if (!cornell_open(&L, &en, pos))
+    return;
+  uint32_t T = L.lm->texel_count;
   uint8_t *tsh = malloc((size_t)T + 1), psh[P];
   memset(tsh, 2, (size_t)T + 1);
   memset(psh, 3, sizeof psh);
@@ -335,19 +352,13 @@ static int same_floats(const float *a, const float *b, size_t n)
 
 static void test_no_store(void)
 {
+  enum { P = CORNELL_PROBES };
   level L;
-  if (!level_open(g_build, "cornell", &L))
-    return;
-  enum { P = 27 };
-  uint32_t T = L.lm->texel_count;
-  uint8_t *en = calloc(L.s->light_count + 1, 1);
-  memset(en, 1, L.s->light_count);
+  uint8_t *en;
   float pos[P * 3];
-  for (int i = 0; i < P; i++) {
-    pos[3 * i] = -0.6f + 0.6f * (float)(i % 3);
-    pos[3 * i + 1] = 0.4f + 0.6f * (float)(i / 3 % 3);
-    pos[3 * i + 2] = -0.6f + 0.6f * (float)(i / 9);
-  }
+  if (!cornell_open(&L, &en, pos))
+    return;
+  uint32_t T = L.lm->texel_count;
   uint32_t *sub = malloc(((size_t)T + 1) * sizeof *sub), ns = 0;
   for (uint32_t t = 0; t < T; t++)
     if (t % 3 != 1) /* two texels in three, as an influence pass's candidates */
