@@ -1142,6 +1142,9 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
      * their light at full bounces. */
     pd.outside_bounce_iz = plan->influence_culling ? inf.texel_bounce_iz : NULL;
     pd.outside_bounces = inf.texel_bounce_iz ? NB : 0;
+    /* the influence pass ran over the candidates only: its estimate is zero elsewhere */
+    pd.outside_candidates = sub ? ct : NULL;
+    pd.outside_candidate_count = sub ? nct : 0;
     if (scaled) {
       pd.texel_ray_shift = tsh;
       pd.probe_ray_shift = psh;

@@ -2202,7 +2202,29 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
    * At ESTATE scale (1.6 M texels, 264 subset passes) those whole-level loops, and the
    * page faults of touching whole-level arrays, were most of the sets' bake time. */
   uint32_t *act = NULL, nact = T;
-  if (d->texel_subset) {
+  if (d->texel_subset && outside && d->outside_candidates) {
+    /* the subset and the candidates that hold outside light, merged (both ascending) */
+    const uint32_t *sb = d->texel_subset, *oc = d->outside_candidates;
+    const uint32_t ns = d->texel_subset_count, no = d->outside_candidate_count;
+    act = malloc(((size_t)ns + no + 1) * sizeof *act);
+    if (act) {
+      nact = 0;
+      for (uint32_t i = 0, j = 0; i < ns || j < no;) {
+        if (j == no || (i < ns && sb[i] < oc[j])) {
+          act[nact++] = sb[i++];
+          continue;
+        }
+        uint32_t t = oc[j++];
+        int lit = 0; /* a subset texel is not outside: taken from sb */
+        for (uint32_t k = 0; outside[t] && !lit && k < d->outside_bounces; k++) {
+          const float *v = d->outside_bounce_iz + (size_t)k * T * 3 + 3 * (size_t)t;
+          lit = v[0] != 0.0f || v[1] != 0.0f || v[2] != 0.0f;
+        }
+        if (lit)
+          act[nact++] = t;
+      }
+    }
+  } else if (d->texel_subset) {
     uint8_t *mk = calloc((size_t)T + 1, 1);
     if (mk) {
       for (uint32_t i = 0; i < d->texel_subset_count; i++)

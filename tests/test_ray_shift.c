@@ -22,7 +22,11 @@
  * - the store left out (ub_pass_desc.no_store, the DLS influence passes): cornell with GLG
  *   probes, a texel subset and each bounce's I_z kept gives the influence measures, bounce
  *   energies and ray counts bit for bit as with the store, and no stored arrays
- *   (test_no_store). */
+ *   (test_no_store).
+ * - outside texels looked for among candidates (ub_pass_desc.outside_candidates, the DLS
+ *   full passes): cornell, an influence-like pass over three texels in four, then a pass
+ *   over half of those lit at the others by the first pass's bounces: the same SH and I_z
+ *   bits with the candidate list as without (test_outside_candidates). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -403,6 +407,67 @@ static void test_no_store(void)
   level_close(&L);
 }
 
+static void test_outside_candidates(void)
+{
+  enum { P = CORNELL_PROBES };
+  level L;
+  uint8_t *en;
+  float pos[P * 3];
+  if (!cornell_open(&L, &en, pos))
+    return;
+  uint32_t T = L.lm->texel_count;
+  uint32_t *cand = malloc(((size_t)T + 1) * sizeof *cand), *kept = malloc(((size_t)T + 1) * sizeof *kept);
+  uint32_t nc = 0, nk = 0;
+  for (uint32_t t = 0; t < T; t++)
+    if (t % 4 != 3) {
+      cand[nc++] = t;
+      if (t % 2 == 0)
+        kept[nk++] = t;
+    }
+  ub_pass_desc pd;
+  desc_init(&L, en, &pd);
+  pd.gather_rays = 16;
+  pd.texel_subset = cand;
+  pd.texel_subset_count = nc;
+  pd.keep_bounce_iz = 2;
+  pd.no_error_estimate = 1;
+  pd.no_store = 1;
+  pd.pass_id = 8;
+  ub_pass_result inf, r[2];
+  ASSERT_OK(ub_pass_run(&pd, NULL, &inf));
+  uint32_t lit = 0; /* outside texels (candidates, not kept) with an estimate */
+  for (uint32_t i = 0; i < nc; i++) {
+    const float *v = inf.texel_bounce_iz + 3 * (size_t)cand[i];
+    lit += cand[i] % 2 != 0 && (v[0] != 0.0f || v[1] != 0.0f || v[2] != 0.0f);
+  }
+  for (int a = 0; a < 2; a++) {
+    desc_init(&L, en, &pd);
+    pd.gather_rays = 16;
+    pd.texel_subset = kept;
+    pd.texel_subset_count = nk;
+    pd.outside_bounce_iz = inf.texel_bounce_iz;
+    pd.outside_bounces = 2;
+    pd.outside_candidates = a ? cand : NULL;
+    pd.outside_candidate_count = a ? nc : 0;
+    pd.no_error_estimate = 1;
+    pd.pass_id = 9;
+    ASSERT_OK(ub_pass_run(&pd, NULL, &r[a]));
+  }
+  ASSERT_TRUE(lit > nk / 4);
+  ASSERT_TRUE(same_floats(r[0].sh, r[1].sh, (size_t)T * 12));
+  ASSERT_TRUE(same_floats(r[0].iz, r[1].iz, (size_t)T * 3));
+  ASSERT_TRUE(r[0].rays_gather == r[1].rays_gather && r[0].rays_shadow == r[1].rays_shadow);
+  printf("cornell, outside candidates: %u kept of %u candidates, %u outside texels lit: SH "
+         "and I_z bit for bit\n", nk, nc, lit);
+  ub_pass_result_free(&inf);
+  ub_pass_result_free(&r[0]);
+  ub_pass_result_free(&r[1]);
+  free(cand);
+  free(kept);
+  free(en);
+  level_close(&L);
+}
+
 int main(void)
 {
   const char *b = getenv("UB_BUILD");
@@ -413,5 +478,6 @@ int main(void)
   test_bounce_shift_rule();
   test_late_expectation();
   test_no_store();
+  test_outside_candidates();
   TEST_MAIN_END();
 }
