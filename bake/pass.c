@@ -1004,7 +1004,8 @@ static int texel_clusters_build(pass_ctx *c)
 enum {
   SCR_SH_TOTAL, SCR_IZ_TOTAL, SCR_PROBE_TOTAL, SCR_ACC_SH, SCR_ACC_IZ, SCR_ACC_SRC,
   SCR_ACC_SRC_NP, SCR_TL_RAD, SCR_ACC_VAR, SCR_ACC_PVAR, SCR_REL2, SCR_VAR_TX, SCR_PR_ACC_SH,
-  SCR_PR_ACC_VAR, SCR_PR_ACC_PVAR, SCR_VAR_PR, UB_SCR_SLOTS
+  SCR_PR_ACC_VAR, SCR_PR_ACC_PVAR, SCR_VAR_PR, SCR_LLG_ACC_SH, SCR_LLG_ACC_NP, SCR_LLG_TOTAL,
+  UB_SCR_SLOTS
 };
 
 /* The clusters' geometry (texel areas, membership, bounds) depends on the scene and the
@@ -2341,8 +2342,11 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   lg->ray_shift = d->llg_ray_shift;
   lg->id_base = UB_LLG_ID_BASE;
   lg->rt = llg ? llg->rt_env : d->rt;
-  lg->acc_sh = calloc((size_t)LP * 27 + 1, sizeof(double));
-  lg->acc_sh_np = calloc((size_t)LP * 27 + 1, sizeof(double));
+  /* The LLG probes' arrays too when the pass has an LLG subset (written at its rows only) */
+  ub_pass_cache *lcache = lact ? scache : NULL;
+  const size_t B_LSH = ((size_t)LP * 27 + 1) * sizeof(double);
+  lg->acc_sh = scr_take(lcache, SCR_LLG_ACC_SH, B_LSH);
+  lg->acc_sh_np = scr_take(lcache, SCR_LLG_ACC_NP, B_LSH);
   tx->pass_shift = tx->ray_shift;
   pr->pass_shift = pr->ray_shift;
   lg->pass_shift = lg->ray_shift;
@@ -2360,7 +2364,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       }
     }
   }
-  double *llg_total = calloc((size_t)LP * 27 + 1, sizeof(double));
+  double *llg_total = scr_take(lcache, SCR_LLG_TOTAL, B_LSH);
   out->llg_direct = calloc((size_t)LP + 1, sizeof(float));
   out->llg_indirect = calloc((size_t)LP + 1, sizeof(float));
   /* Error estimates: this bounce's variance per texel / GLG probe, and the sum over
@@ -2513,7 +2517,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     }
   }
   ub_llg_fill_invalid(llg, c.llg_prev);
-  free(lg->acc_sh_np);
+  scr_give(lcache, SCR_LLG_ACC_NP, lg->acc_sh_np, B_LSH, lact, nlact, 27 * sizeof(double));
   lg->acc_sh_np = NULL;
   scr_give(scache, SCR_ACC_SRC, tx->acc_src, B_IZ, act, nact, 3 * sizeof(double));
   scr_give(scache, SCR_ACC_SRC_NP, tx->acc_src_np, B_IZ, act, nact, 3 * sizeof(double));
@@ -2833,13 +2837,14 @@ done:
   free(c.tl_ccdf);
   free(c.tl_cl);
   free(c.tl_hot);
-  free(lg->acc_sh);
-  free(lg->acc_sh_np);
+  ub_pass_cache *lgive = lact ? give : NULL;
+  scr_give(lgive, SCR_LLG_ACC_SH, lg->acc_sh, B_LSH, lact, nlact, 27 * sizeof(double));
+  scr_give(lgive, SCR_LLG_ACC_NP, lg->acc_sh_np, B_LSH, lact, nlact, 27 * sizeof(double));
   for (int k = 0; k < 3; k++) {
     free(c.sets[k].bshift);
     free(c.sets[k].peak);
   }
-  free(llg_total);
+  scr_give(lgive, SCR_LLG_TOTAL, llg_total, B_LSH, lact, nlact, 27 * sizeof(double));
   free(c.llg_prev);
   if (c.sparse)
     for (uint32_t a = 0; a < lm->atlas_count; a++)
