@@ -102,8 +102,9 @@ typedef struct ub_pass_desc {
   /* Optional with outside_bounce_iz (ascending; NULL: any texel): the only texels where it
    * may be non-zero (a DLS full pass: its influence pass's candidates, whose estimate it
    * is). The outside texels that hold light are then looked for among these, not among
-   * the level's every texel (two scans of 1.6 M texels per pass at ESTATE scale, on one
-   * thread). The same act list either way, so the same bits. */
+   * the level's every texel (four single-threaded scans of 1.6 M texels per pass at
+   * ESTATE scale: one per outside bounce, then counting and listing). The same act list
+   * either way, so the same bits. */
   const uint32_t *outside_candidates;
   uint32_t outside_candidate_count;
   /* Footprint samples of a point or spot light near a texel (within 6 texel widths; k × k
