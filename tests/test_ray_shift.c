@@ -346,6 +346,20 @@ static void test_late_expectation(void)
   expectation_ab(48, 1, 500, "6 bounces, later bounces with fewer rays vs full");
 }
 
+/* A pass like a DLS influence pass (ub_dls_bake): 16 gather rays over the texels sub[0..n),
+ * each bounce's I_z kept, no error estimates. */
+static void influence_desc(const level *L, const uint8_t *en, const uint32_t *sub, uint32_t n,
+                           uint32_t pass_id, ub_pass_desc *pd)
+{
+  desc_init(L, en, pd);
+  pd->gather_rays = 16;
+  pd->texel_subset = sub;
+  pd->texel_subset_count = n;
+  pd->keep_bounce_iz = 2;
+  pd->no_error_estimate = 1;
+  pd->pass_id = pass_id;
+}
+
 /* Arrays of n floats equal bit for bit (both NULL counts as equal). */
 static int same_floats(const float *a, const float *b, size_t n)
 {
@@ -370,16 +384,10 @@ static void test_no_store(void)
   ub_pass_result r[2];
   for (int a = 0; a < 2; a++) {
     ub_pass_desc pd;
-    desc_init(&L, en, &pd);
-    pd.gather_rays = 16;
+    influence_desc(&L, en, sub, ns, 7, &pd);
     pd.probe_count = P;
     pd.probe_pos = pos;
     pd.probe_rays = 32;
-    pd.texel_subset = sub;
-    pd.texel_subset_count = ns;
-    pd.keep_bounce_iz = 2;
-    pd.no_error_estimate = 1;
-    pd.pass_id = 7;
     pd.no_store = a;
     ASSERT_OK(ub_pass_run(&pd, NULL, &r[a]));
   }
@@ -425,14 +433,8 @@ static void test_outside_candidates(void)
         kept[nk++] = t;
     }
   ub_pass_desc pd;
-  desc_init(&L, en, &pd);
-  pd.gather_rays = 16;
-  pd.texel_subset = cand;
-  pd.texel_subset_count = nc;
-  pd.keep_bounce_iz = 2;
-  pd.no_error_estimate = 1;
+  influence_desc(&L, en, cand, nc, 8, &pd);
   pd.no_store = 1;
-  pd.pass_id = 8;
   ub_pass_result inf, r[2];
   ASSERT_OK(ub_pass_run(&pd, NULL, &inf));
   uint32_t lit = 0; /* outside texels (candidates, not kept) with an estimate */
