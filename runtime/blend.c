@@ -1231,23 +1231,37 @@ static inline uint32_t few_find(const uint32_t *mem, uint32_t gk, const uint32_t
   return c;
 }
 
-/* A streaming update's group whose members' weights are all 0, with
- * ub_blend_set_base_report on: its receivers reported as UB_BLEND_AT_BASE (the pending
- * stream handed over first), not streamed. 0: the caller computes it. */
-static int group_at_base(const blend_call *c, const blend_group *g, ub_blend_stats *st)
+/* A group's piece [qlo, qhi) counted: the part holding the group's start counts the
+ * group and its tables, so the parts' stats add up to a whole update's. Returns the
+ * piece's receivers. */
+static uint64_t count_group(const blend_call *c, const blend_group *g, ub_blend_stats *st)
 {
-  const ub_blend *b = c->b;
-  if (!b->base_report || c->out || !c->fn)
-    return 0;
-  stream_flush(c);
-  group_report(b, g, c->qlo, c->qhi, c->fn, c->user, UB_BLEND_AT_BASE);
-  const uint32_t n = c->qhi - c->qlo;
   const int first = c->qlo == 0;
   st->groups += first;
-  st->groups_base += first;
-  st->receivers += n;
-  st->receivers_base += n;
+  st->receivers += c->qhi - c->qlo;
   st->bytes_read += first ? group_table_bytes(g) : 0;
+  return c->qhi - c->qlo;
+}
+
+/* A streaming update's group piece reported to touched with rows (UB_BLEND_AT_REFERENCE
+ * or UB_BLEND_AT_BASE), the pending stream handed over first, and counted. */
+static uint64_t report_group(const blend_call *c, const blend_group *g, ub_blend_stats *st,
+                             const float *rows)
+{
+  stream_flush(c);
+  group_report(c->b, g, c->qlo, c->qhi, c->fn, c->user, rows);
+  return count_group(c, g, st);
+}
+
+/* A streaming update's group whose members' weights are all 0, with
+ * ub_blend_set_base_report on: its receivers reported as UB_BLEND_AT_BASE, not streamed.
+ * 0: the caller computes it. */
+static int group_at_base(const blend_call *c, const blend_group *g, ub_blend_stats *st)
+{
+  if (!c->b->base_report || c->out || !c->fn)
+    return 0;
+  st->groups_base += c->qlo == 0;
+  st->receivers_base += report_group(c, g, st, UB_BLEND_AT_BASE);
   return 1;
 }
 
@@ -1267,8 +1281,8 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
       for (uint32_t m = 0; m < gk; m++)
         off += !b->atref[mem[m]];
     if (off == 0) { /* at the reference: its rows back, or the caller puts back its own */
-      const uint64_t n = c->qhi - c->qlo, row = (uint64_t)b->stride * sizeof(float);
       if (c->out) {
+        const uint64_t n = c->qhi - c->qlo, row = (uint64_t)b->stride * sizeof(float);
         const size_t S = b->stride;
         const float *rr = b->refrows + (size_t)g->base_row * S;
         unit_iter it;
@@ -1284,14 +1298,10 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
         }
         st->bytes_read += n * row;
         st->bytes_written += n * row;
+        st->receivers_reference += count_group(c, g, st);
       } else {
-        stream_flush(c);
-        group_report(b, g, c->qlo, c->qhi, c->fn, c->user, UB_BLEND_AT_REFERENCE);
+        st->receivers_reference += report_group(c, g, st, UB_BLEND_AT_REFERENCE);
       }
-      st->groups += c->qlo == 0;
-      st->receivers += n;
-      st->receivers_reference += n;
-      st->bytes_read += c->qlo == 0 ? group_table_bytes(g) : 0;
       return;
     }
   }
@@ -1350,17 +1360,11 @@ static void process_group(const blend_call *c, uint32_t gi, ub_blend_stats *st)
   else
     group_blend(&cc, g, act, k);
 
-  /* A group split between parts: the part holding its start counts the group and its
-   * tables, so the parts' stats add up to a whole update's. */
-  const uint64_t row = (uint64_t)b->stride * sizeof(float), n = c->qhi - c->qlo;
-  const int first = c->qlo == 0;
-  st->groups += first;
-  st->groups_base += first && k == 0 && !cc.ones;
-  st->receivers += n;
+  const uint64_t row = (uint64_t)b->stride * sizeof(float), n = count_group(c, g, st);
+  st->groups_base += c->qlo == 0 && k == 0 && !cc.ones;
   st->bytes_written += c->out ? n * row : 0;
   st->bytes_read += n * b->stride * (cc.ones ? sizeof(float) : b->base_size) +
-                    (uint64_t)k * n * b->rowb +
-                    (first ? group_table_bytes(g) : 0);
+                    (uint64_t)k * n * b->rowb;
 }
 
 static int cmp_u32(const void *a, const void *b)
