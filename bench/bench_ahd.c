@@ -17,29 +17,6 @@
 #include "bench/bench_util.h"
 #include "ubake/ahd.h"
 
-/* Deterministic rows as a blend gives them: I_z > 0 mostly, linear terms within ±I_z. */
-static void make_texels(size_t n, float *rows, float *nrm)
-{
-  uint32_t h = 12345u;
-  for (size_t i = 0; i < n; i++) {
-    float u[4];
-    for (int k = 0; k < 4; k++) {
-      h = h * 1664525u + 1013904223u;
-      u[k] = (float)(h >> 8) * (1.0f / 16777216.0f);
-    }
-    float z = 2.0f * u[0] - 1.0f, r = sqrtf(fmaxf(0.0f, 1.0f - z * z)), ph = 6.2831853f * u[1];
-    nrm[3 * i] = r * cosf(ph);
-    nrm[3 * i + 1] = r * sinf(ph);
-    nrm[3 * i + 2] = z;
-    for (int c = 0; c < 3; c++)
-      rows[12 * i + c] = 0.1f + 4.0f * u[2] * (1.0f + 0.1f * (float)c);
-    for (int k = 3; k < 12; k++) {
-      h = h * 1664525u + 1013904223u;
-      rows[12 * i + k] = ((float)(h >> 8) * (1.0f / 16777216.0f) - 0.4f) * u[3] * 2.0f;
-    }
-  }
-}
-
 typedef enum { MODE_SCALAR, MODE_IZ8, MODE_ROWS, MODE_PACKED, MODE_PACKED_N, MODE_COUNT } mode;
 
 static ub_ahd_packed *g_packed; /* MODE_PACKED's output, as many texels as out */
@@ -119,7 +96,7 @@ int main(int argc, char **argv)
     fprintf(stderr, "bench_ahd: out of memory\n");
     return 1;
   }
-  make_texels(big, rows, nrm);
+  ub_bench_make_texels(big, rows, nrm);
   memset(out, 0, big * sizeof(ub_ahd));
   memset(g_packed, 0, big * sizeof *g_packed);
   memset(ca, 1, cbytes);

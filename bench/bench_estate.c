@@ -33,7 +33,6 @@
  * --plan-only bake, and the full-scale bake is extrapolated stage by stage (the model is
  * printed with the figures). Needs UB_BUILD (default "build") for ubake-genlevel. */
 #include <errno.h>
-#include <math.h>
 #include <omp.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -214,7 +213,7 @@ static void toggle_times(ub_runtime *rt, int jobs, int passes, double *tog, doub
 }
 
 /* Nanoseconds a texel of the run-time's AHD encode in cache (ub_ahd_encode_iz_packed_n on
- * 512 texels of plausible light, best of 7 rounds of 200 calls). */
+ * 512 texels from ub_bench_make_texels, best of 7 rounds of 200 calls). */
 static double encode_ns_in_cache(void)
 {
   enum { N = 512 };
@@ -226,23 +225,7 @@ static double encode_ns_in_cache(void)
     free(out);
     return 0.0;
   }
-  uint32_t h = 12345u;
-  for (int i = 0; i < N; i++) {
-    float v[3];
-    double l = 0.0;
-    for (int k = 0; k < 3; k++) {
-      h = h * 1664525u + 1013904223u;
-      v[k] = (float)(h >> 8) / 16777216.0f - 0.5f;
-      l += (double)v[k] * v[k];
-    }
-    for (int k = 0; k < 3; k++)
-      nrm[3 * i + k] = l > 1e-6 ? (float)(v[k] / sqrt(l)) : (k == 2);
-    for (int k = 0; k < 12; k++) { /* I_z 0.5-2.5 a channel, the L1 band +-0.3 */
-      h = h * 1664525u + 1013904223u;
-      float u = (float)(h >> 8) / 16777216.0f;
-      sh[12 * i + k] = k < 3 ? 0.5f + 2.0f * u : 0.6f * u - 0.3f;
-    }
-  }
+  ub_bench_make_texels(N, sh, nrm);
   double best = 1e30;
   for (int r = 0; r < 7; r++) {
     double t = ub_bench_now();

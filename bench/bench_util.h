@@ -10,7 +10,8 @@
  * - ub_bench_load_average(): 1-minute load average (the machine is shared);
  * - ub_bench_genlevel(): runs ubake-genlevel for a generated benchmark level;
  * - ub_bench_stage_seconds(): a bake's seconds in the stages of one name;
- * - ub_bench_quality(): a --quality argument (draft, fast, high; anything else: draft).
+ * - ub_bench_quality(): a --quality argument (draft, fast, high; anything else: draft);
+ * - ub_bench_make_texels(): deterministic texel rows and normals for the AHD encode.
  * Benchmarks print figures and assert nothing. */
 #ifndef UBAKE_BENCH_UTIL_H
 #define UBAKE_BENCH_UTIL_H
@@ -60,6 +61,30 @@ static inline ub_quality ub_bench_quality(const char *arg)
 }
 
 /* p in [0,1]: the value at rank floor(p·(n−1)) of v sorted (v is sorted in place). */
+/* n deterministic texels as a blend gives them (rows: 12 floats each, the SH with I_z in
+ * the first three; nrm: a unit normal each): I_z > 0 mostly, linear terms within ±I_z. */
+static inline void ub_bench_make_texels(size_t n, float *rows, float *nrm)
+{
+  uint32_t h = 12345u;
+  for (size_t i = 0; i < n; i++) {
+    float u[4];
+    for (int k = 0; k < 4; k++) {
+      h = h * 1664525u + 1013904223u;
+      u[k] = (float)(h >> 8) * (1.0f / 16777216.0f);
+    }
+    float z = 2.0f * u[0] - 1.0f, r = sqrtf(fmaxf(0.0f, 1.0f - z * z)), ph = 6.2831853f * u[1];
+    nrm[3 * i] = r * cosf(ph);
+    nrm[3 * i + 1] = r * sinf(ph);
+    nrm[3 * i + 2] = z;
+    for (int c = 0; c < 3; c++)
+      rows[12 * i + c] = 0.1f + 4.0f * u[2] * (1.0f + 0.1f * (float)c);
+    for (int k = 3; k < 12; k++) {
+      h = h * 1664525u + 1013904223u;
+      rows[12 * i + k] = ((float)(h >> 8) * (1.0f / 16777216.0f) - 0.4f) * u[3] * 2.0f;
+    }
+  }
+}
+
 static inline double ub_bench_percentile(double *v, size_t n, double p)
 {
   if (n == 0)
