@@ -1558,7 +1558,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     order[dst] = (uint32_t)j;
     sorted[dst] = rays[j];
   }
-  ub_rt_intersect(rs->rt, sorted, (uint32_t)n, hits);
+  ub_rt_intersect_sorted(rs->rt, sorted, (uint32_t)n, hits);
   atomic_fetch_add(&c->rays_gather, n);
   /* Scatter hits back to ray order (bucket reused as the inverse permutation). */
   for (size_t j = 0; j < n; j++)

@@ -38,6 +38,12 @@ void ub_rt_free(ub_rt *rt);
 
 /* Closest hits for n rays (any n; traced in coherent streams internally). */
 void ub_rt_intersect(const ub_rt *rt, const ub_ray *rays, uint32_t n, ub_hit *out_hits);
+/* The same for rays the caller sorted into runs of like directions from nearby origins
+ * (the gathers' direction buckets): with at least UB_RT_COHERENT_MIN of them Embree is
+ * told they are coherent and traces them as packets. The same hit triangles as
+ * ub_rt_intersect, t and barycentrics within float rounding (test_rt: test_sorted). */
+#define UB_RT_COHERENT_MIN 4096u
+void ub_rt_intersect_sorted(const ub_rt *rt, const ub_ray *rays, uint32_t n, ub_hit *out_hits);
 /* Any-hit: out_occluded[i] = 1 if something lies in (tnear, tfar). */
 void ub_rt_occluded(const ub_rt *rt, const ub_ray *rays, uint32_t n, uint8_t *out_occluded);
 
