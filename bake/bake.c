@@ -197,7 +197,8 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   if (r != UB_OK)
     goto fail;
   stats.emissive_triangles = em->count;
-  stage_end(&sc, "Embree BVH over %u triangles, %u emissive", scene->triangle_count, em->count);
+  stage_end(&sc, "Embree BVH over %u triangles, %u emissive, %llu facing another in their plane",
+            scene->triangle_count, em->count, (unsigned long long)ub_rt_twin_count(rt));
 
   /* receivers */
   stage_begin(&sc, "receivers");

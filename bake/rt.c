@@ -20,6 +20,8 @@ struct ub_rt {
   uint32_t *prim_to_tri; /* Embree primitive id → scene triangle */
   uint32_t prim_count;
   float scene_eps;       /* absolute epsilon floor from the level's extent */
+  uint8_t *twin;         /* per primitive: another faces the other way in its plane */
+  uint64_t twin_count;
   _Atomic uint64_t rays;
   const ub_log *log;
 };
@@ -28,6 +30,88 @@ static void rt_error(void *user, enum RTCError code, const char *str)
 {
   const ub_rt *rt = user;
   ub_log_printf(rt->log, UB_LOG_ERROR, "embree error %d: %s", (int)code, str ? str : "");
+}
+
+/* A primitive's plane, for find_twins: the normal turned so that its largest component
+ * (axis ax) is positive, side = whether it was turned, d = n·centroid. */
+typedef struct plane_key {
+  double n[3], d;
+  float lo[3], hi[3]; /* bounds */
+  uint32_t prim;
+  uint8_t ax, side;
+} plane_key;
+
+static int cmp_plane(const void *a, const void *b)
+{
+  const plane_key *x = a, *y = b;
+  if (x->ax != y->ax)
+    return x->ax < y->ax ? -1 : 1;
+  return x->d < y->d ? -1 : x->d > y->d;
+}
+
+/* rt->twin: the primitives with another in the same plane (d within tol, normals within
+ * 1e-4) facing the other way, their bounds (grown by tol) overlapping: a superset of the
+ * faces a ray can find at the same t as an opposite one (prefer_front traces only their
+ * back-face hits again). NULL (no primitive has one) or an array of prim_count flags. */
+static int find_twins(ub_rt *rt, const ub_scene *s, double tol)
+{
+  const uint32_t n = rt->prim_count;
+  plane_key *k = malloc((size_t)(n ? n : 1) * sizeof *k);
+  if (!k)
+    return 0;
+  for (uint32_t i = 0; i < n; i++) {
+    const uint32_t *ix = s->indices + 3 * (size_t)rt->prim_to_tri[i];
+    const float *p0 = s->positions + 3 * (size_t)ix[0], *p1 = s->positions + 3 * (size_t)ix[1],
+                *p2 = s->positions + 3 * (size_t)ix[2];
+    double e1[3], e2[3], c[3];
+    plane_key *q = &k[i];
+    for (int j = 0; j < 3; j++) {
+      e1[j] = (double)p1[j] - p0[j];
+      e2[j] = (double)p2[j] - p0[j];
+      c[j] = ((double)p0[j] + p1[j] + p2[j]) / 3.0;
+      q->lo[j] = fminf(p0[j], fminf(p1[j], p2[j])) - (float)tol;
+      q->hi[j] = fmaxf(p0[j], fmaxf(p1[j], p2[j])) + (float)tol;
+    }
+    double m[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                   e1[0] * e2[1] - e1[1] * e2[0]};
+    double l = sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
+    q->prim = i;
+    q->ax = fabs(m[0]) >= fabs(m[1]) ? (fabs(m[0]) >= fabs(m[2]) ? 0 : 2)
+                                     : (fabs(m[1]) >= fabs(m[2]) ? 1 : 2);
+    q->side = m[q->ax] < 0.0;
+    double f = l > 0.0 ? (q->side ? -1.0 : 1.0) / l : 0.0;
+    for (int j = 0; j < 3; j++)
+      q->n[j] = m[j] * f;
+    q->d = q->n[0] * c[0] + q->n[1] * c[1] + q->n[2] * c[2];
+  }
+  qsort(k, n, sizeof *k, cmp_plane);
+  uint64_t flagged = 0;
+  for (uint32_t a = 0, b; a < n; a = b) {
+    /* a run of primitives whose planes chain within tol, both sides present */
+    int sides = 1 << k[a].side;
+    for (b = a + 1; b < n && k[b].ax == k[a].ax && k[b].d - k[b - 1].d <= tol; b++)
+      sides |= 1 << k[b].side;
+    if (sides != 3)
+      continue;
+    for (uint32_t i = a; i < b; i++)
+      for (uint32_t j = i + 1; j < b && k[j].d - k[i].d <= tol; j++) {
+        int apart = k[i].side == k[j].side;
+        for (int c = 0; c < 3 && !apart; c++)
+          apart = fabs(k[i].n[c] - k[j].n[c]) > 1e-4 || k[i].hi[c] < k[j].lo[c] ||
+                  k[j].hi[c] < k[i].lo[c];
+        if (apart)
+          continue;
+        if (!rt->twin && !(rt->twin = calloc(n, 1))) {
+          free(k);
+          return 0;
+        }
+        flagged += !rt->twin[k[i].prim] + !rt->twin[k[j].prim];
+        rt->twin[k[i].prim] = rt->twin[k[j].prim] = 1;
+      }
+  }
+  free(k);
+  rt->twin_count = flagged;
+  return 1;
 }
 
 static void set_ftz_daz(void)
@@ -98,6 +182,10 @@ ub_result ub_rt_create(const ub_scene *scene, const uint8_t *mask, const ub_log 
   /* Epsilon floor: 1e-7 of the extent, at least a micrometre. */
   float extent = ub_scene_extent(scene);
   rt->scene_eps = fmaxf(extent * 1e-7f, 1e-6f);
+  if (!find_twins(rt, scene, 4.0 * rt->scene_eps)) {
+    ub_rt_free(rt);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
   atomic_init(&rt->rays, 0);
   *out_rt = rt;
   return UB_OK;
@@ -112,6 +200,7 @@ void ub_rt_free(ub_rt *rt)
   if (rt->device)
     rtcReleaseDevice(rt->device);
   free(rt->prim_to_tri);
+  free(rt->twin);
   free(rt);
 }
 
@@ -133,11 +222,11 @@ static void front_only(const struct RTCFilterFunctionNArguments *a)
  * each room's own face) are hit at the same t, and which one Embree returns depends on
  * its traversal: of test_rt's 98,304 gather-like rays on estate_small, 4,990 got the far
  * room's face (a back face: no light) one ray at a time and 8,592 as packets. A back-face
- * hit is traced again within t's rounding, front faces only: a front face there is the
- * side the ray arrived on. */
+ * hit on a primitive with a twin (find_twins) is traced again within t's rounding, front
+ * faces only: a front face there is the side the ray arrived on. */
 static void prefer_front(const ub_rt *rt, struct RTCRayHit *h)
 {
-  if (h->hit.geomID == RTC_INVALID_GEOMETRY_ID ||
+  if (h->hit.geomID == RTC_INVALID_GEOMETRY_ID || !rt->twin || !rt->twin[h->hit.primID] ||
       h->hit.Ng_x * h->ray.dir_x + h->hit.Ng_y * h->ray.dir_y + h->hit.Ng_z * h->ray.dir_z <= 0.0f)
     return;
   struct RTCRayHit f = *h;
@@ -277,6 +366,11 @@ void ub_rt_offset_point(const ub_rt *rt, const float p[3], const float n[3], flo
 uint64_t ub_rt_rays_traced(const ub_rt *rt)
 {
   return atomic_load_explicit(&((ub_rt *)rt)->rays, memory_order_relaxed);
+}
+
+uint64_t ub_rt_twin_count(const ub_rt *rt)
+{
+  return rt->twin_count;
 }
 
 const ub_scene *ub_rt_scene(const ub_rt *rt)

@@ -55,6 +55,9 @@ float ub_rt_epsilon(const ub_rt *rt, const float p[3]);
 
 /* Counters (rays traced since creation, summed across threads). */
 uint64_t ub_rt_rays_traced(const ub_rt *rt);
+/* Triangles with another in their plane facing the other way (a wall two rooms share,
+ * each with its own face): where a back-face hit on one is traced again for the front. */
+uint64_t ub_rt_twin_count(const ub_rt *rt);
 
 const ub_scene *ub_rt_scene(const ub_rt *rt);
 
