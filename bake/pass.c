@@ -403,13 +403,14 @@ static void shadow_var(const recv_set *rs, uint32_t r0, const shadow_rec *rec,
   free(pr);
 }
 
-/* Traces a block's shadow rays and adds the unoccluded ones to their receivers: the
- * stored result (not for primary lights), the next bounce's source (bounce 0) and its
- * non-punctual part. Frees the scratch. */
+/* Traces a block's shadow rays (unless occ already holds them: traced) and adds the
+ * unoccluded ones to their receivers: the stored result (not for primary lights), the
+ * next bounce's source (bounce 0) and its non-punctual part. Frees the scratch. */
 static void shadow_flush(pass_ctx *c, const recv_set *rs, uint32_t r0, ub_ray *rays,
-                         shadow_rec *rec, uint8_t *occ, size_t n)
+                         shadow_rec *rec, uint8_t *occ, size_t n, int traced)
 {
-  ub_rt_occluded(rs->rt, rays, (uint32_t)n, occ);
+  if (!traced)
+    ub_rt_occluded(rs->rt, rays, (uint32_t)n, occ);
   atomic_fetch_add(&c->rays_shadow, n);
   uint64_t nem = 0;
   for (size_t j = 0; j < n; j++)
@@ -472,6 +473,41 @@ static int on_texel(const pass_ctx *c, uint32_t t, const float q[3])
 }
 
 /* Bounce 0: punctual lights and emissive area samples with shadow rays. */
+/* The occlusion of a block's n shadow rays (occ), traced grouped by light (slot[j] <
+ * slots: ray j's light): the rays of one light leave nearby receivers toward one point,
+ * which Embree traces as packets (ub_rt_occluded_sorted). 0 without memory (the caller
+ * traces them as they are). Full ESTATE, base pass (33 lights), one thread each, two runs
+ * at once: 98.4 / 100.9 s in rays' order, 92.9 / 91.6 s grouped; oa_dm4 (13.5 M shadow
+ * rays of 143 M) the same within 2%. */
+static int trace_by_light(const ub_rt *rt, const ub_ray *rays, const uint32_t *slot,
+                          uint32_t slots, size_t n, uint8_t *occ)
+{
+  uint32_t *start = calloc((size_t)slots + 1, sizeof *start);
+  uint32_t *order = malloc((n ? n : 1) * sizeof *order);
+  ub_ray *sorted = malloc((n ? n : 1) * sizeof *sorted);
+  uint8_t *socc = malloc(n ? n : 1);
+  int ok = start && order && sorted && socc;
+  if (ok) {
+    for (size_t j = 0; j < n; j++)
+      start[slot[j] + 1]++;
+    for (uint32_t q = 0; q < slots; q++)
+      start[q + 1] += start[q];
+    for (size_t j = 0; j < n; j++) { /* stable: a light's rays in receiver order */
+      uint32_t dst = start[slot[j]]++;
+      order[dst] = (uint32_t)j;
+      sorted[dst] = rays[j];
+    }
+    ub_rt_occluded_sorted(rt, sorted, (uint32_t)n, socc);
+    for (size_t j = 0; j < n; j++)
+      occ[order[j]] = socc[j];
+  }
+  free(start);
+  free(order);
+  free(sorted);
+  free(socc);
+  return ok;
+}
+
 static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t nr)
 {
   const ub_pass_desc *d = c->d;
@@ -496,6 +532,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   int mis_gather = d->sky || ne; /* gather rays also see emitters in bounce 0 */
   /* a near texel's footprint points kept; without memory the sample points stand in */
   float *fp = rs->texels ? malloc((size_t)nnear * 3 * sizeof *fp) : NULL;
+  uint32_t *slot = malloc((cap ? cap : 1) * sizeof *slot); /* a ray's light (trace_by_light) */
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
@@ -576,6 +613,8 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
         memcpy(ray->dir, dir, sizeof dir);
         ray->tnear = 0.0f;
         ray->tfar = isfinite(dist) ? dist * (1.0f - 1e-4f) : INFINITY;
+        if (slot)
+          slot[n] = li;
         n++;
       }
     }
@@ -622,11 +661,15 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
       memcpy(ray->dir, w, sizeof w);
       ray->tnear = 0.0f;
       ray->tfar = dist - 2.0f * ub_rt_epsilon(d->rt, q);
+      if (slot)
+        slot[n] = nlights; /* the emitters' samples after the lights' */
       n++;
     }
   }
   free(fp);
-  shadow_flush(c, rs, r0, rays, rec, occ, n);
+  int traced = slot && trace_by_light(rs->rt, rays, slot, nlights + 1, n, occ);
+  shadow_flush(c, rs, r0, rays, rec, occ, n, traced);
+  free(slot);
 }
 
 /* Next-event estimation at bounce-1 hits (shadow rays against the whole level, also for
@@ -887,7 +930,7 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
     }
   }
   free(pk);
-  shadow_flush(c, rs, r0, rays, rec, occ, n);
+  shadow_flush(c, rs, r0, rays, rec, occ, n, 0);
 }
 
 static int cmp_u64(const void *a, const void *b)

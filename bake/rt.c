@@ -314,12 +314,15 @@ void ub_rt_intersect_sorted(const ub_rt *rt, const ub_ray *rays, uint32_t n, ub_
   intersect(rt, rays, n, out_hits, n >= UB_RT_COHERENT_MIN);
 }
 
-void ub_rt_occluded(const ub_rt *rt, const ub_ray *rays, uint32_t n, uint8_t *out_occluded)
+static void occluded(const ub_rt *rt, const ub_ray *rays, uint32_t n, uint8_t *out_occluded,
+                     int coherent)
 {
   set_ftz_daz();
   struct RTCRay buf[UB_RT_STREAM] __attribute__((aligned(64)));
   struct RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
+  if (coherent)
+    ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
   for (uint32_t base = 0; base < n; base += UB_RT_STREAM) {
     uint32_t m = n - base < UB_RT_STREAM ? n - base : UB_RT_STREAM;
     for (uint32_t i = 0; i < m; i++) {
@@ -343,6 +346,20 @@ void ub_rt_occluded(const ub_rt *rt, const ub_ray *rays, uint32_t n, uint8_t *ou
       out_occluded[base + i] = buf[i].tfar == -INFINITY;
   }
   atomic_fetch_add_explicit(&((ub_rt *)rt)->rays, n, memory_order_relaxed);
+}
+
+void ub_rt_occluded(const ub_rt *rt, const ub_ray *rays, uint32_t n, uint8_t *out_occluded)
+{
+  occluded(rt, rays, n, out_occluded, 0);
+}
+
+/* As packets at any n: a block's rays toward one light stay coherent even when few (a
+ * DLS set's 2 lights); measured in bake/pass.c trace_by_light. The texel lights' and the
+ * gather hits' shadow rays go everywhere: traced as packets they made a bake 5% slower. */
+void ub_rt_occluded_sorted(const ub_rt *rt, const ub_ray *rays, uint32_t n,
+                           uint8_t *out_occluded)
+{
+  occluded(rt, rays, n, out_occluded, 1);
 }
 
 float ub_rt_epsilon(const ub_rt *rt, const float p[3])

@@ -46,6 +46,11 @@ void ub_rt_intersect(const ub_rt *rt, const ub_ray *rays, uint32_t n, ub_hit *ou
 void ub_rt_intersect_sorted(const ub_rt *rt, const ub_ray *rays, uint32_t n, ub_hit *out_hits);
 /* Any-hit: out_occluded[i] = 1 if something lies in (tnear, tfar). */
 void ub_rt_occluded(const ub_rt *rt, const ub_ray *rays, uint32_t n, uint8_t *out_occluded);
+/* The same for rays the caller grouped by target (a light's shadow rays from a block of
+ * nearby receivers): traced as packets (Embree's coherent flag). The same answers as
+ * ub_rt_occluded but for rays grazing an edge (test_rt: test_occluded_sorted). */
+void ub_rt_occluded_sorted(const ub_rt *rt, const ub_ray *rays, uint32_t n,
+                           uint8_t *out_occluded);
 
 /* Ray origin offset for a point p on a surface with unit normal n (pointing to the side
  * the ray leaves from): p + n × eps, with eps relative to |p| and the level's extent so

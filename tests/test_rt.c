@@ -8,7 +8,8 @@
  * and never the back of a shared wall where its front (the twin face at the same t) is
  * there (without prefer_front, bake/rt.c: 4,990 such hits one ray at a time and 8,592 as
  * packets, of 98,304, and 3,672 rays on another triangle); below the threshold the two
- * are the same call, bit for bit. */
+ * are the same call, bit for bit. Shadow rays grouped by light (ub_rt_occluded_sorted)
+ * answer as ub_rt_occluded does. */
 #include <math.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -226,7 +227,8 @@ static void test_sorted(const char *level)
          "back-face hits on one %llu / %llu (one by one / sorted)\n",
          (unsigned long long)total, (unsigned long long)coherent_blocks,
          total ? 100.0 * hits / total : 0.0, (unsigned long long)other_tri, worst_t, worst_uv,
-         twins, s->triangle_count, (unsigned long long)twin_back_a, (unsigned long long)twin_back_b);
+         twins, s->triangle_count, (unsigned long long)twin_back_a,
+         (unsigned long long)twin_back_b);
   ASSERT_TRUE(twins > 0);       /* the level has such walls (else the next check is empty) */
   ASSERT_TRUE(twin_back_a == 0 && twin_back_b == 0); /* the side the ray arrived on */
   ASSERT_TRUE(coherent_blocks >= BLOCKS / 2); /* the packet path was taken */
@@ -242,11 +244,74 @@ static void test_sorted(const char *level)
   ub_scene_free(s);
 }
 
+/* Shadow rays grouped by light (ub_rt_occluded_sorted, as the direct light's): from the
+ * blocks' origins toward 8 points inside the level, each light's rays together; the same
+ * answers as ub_rt_occluded but for rays grazing an edge. */
+static void test_occluded_sorted(const char *level)
+{
+  ub_scene *s = NULL;
+  ub_rt *rt = NULL;
+  ASSERT_OK(ub_scene_load(level, NULL, &s));
+  if (!s)
+    return;
+  ASSERT_OK(ub_rt_create(s, NULL, NULL, &rt));
+  enum { LIGHTS = 8 };
+  ub_ray *rays = malloc((size_t)ORIGINS * DIRS * sizeof *rays);
+  ub_ray *sh = malloc((size_t)ORIGINS * DIRS * LIGHTS * sizeof *sh);
+  uint8_t *oa = malloc((size_t)ORIGINS * DIRS * LIGHTS);
+  uint8_t *ob = malloc((size_t)ORIGINS * DIRS * LIGHTS);
+  ASSERT_TRUE(rt && rays && sh && oa && ob);
+  uint64_t total = 0, blocked = 0, differ = 0;
+  uint32_t seed = 12345;
+  for (uint32_t b = 0; rt && rays && sh && oa && ob && b < BLOCKS; b++) {
+    uint32_t n = make_block(s, b, rays), m = 0;
+    /* the lights: points a few metres along some of the block's own rays */
+    float lp[LIGHTS][3];
+    for (int l = 0; l < LIGHTS; l++) {
+      const ub_ray *r = &rays[lcg(&seed) % (n ? n : 1)];
+      for (int j = 0; j < 3; j++)
+        lp[l][j] = r->org[j] + (1.0f + 4.0f * u01(&seed)) * r->dir[j];
+    }
+    for (int l = 0; l < LIGHTS; l++)
+      for (uint32_t i = 0; i < n; i += DIRS) { /* one ray per origin and light */
+        ub_ray *q = &sh[m++];
+        float d2 = 0.0f;
+        for (int j = 0; j < 3; j++) {
+          q->org[j] = rays[i].org[j];
+          q->dir[j] = lp[l][j] - q->org[j];
+          d2 += q->dir[j] * q->dir[j];
+        }
+        q->tnear = 0.0f;
+        q->tfar = d2 > 0.0f ? 1.0f - 1e-4f : 0.0f; /* t in units of the (unnormalised) dir */
+      }
+    ub_rt_occluded(rt, sh, m, oa);
+    ub_rt_occluded_sorted(rt, sh, m, ob);
+    for (uint32_t i = 0; i < m; i++) {
+      total++;
+      blocked += oa[i];
+      differ += oa[i] != ob[i];
+    }
+  }
+  printf("test_rt: %llu shadow rays grouped by light, %.1f%% blocked, %llu answered otherwise "
+         "as packets\n",
+         (unsigned long long)total, total ? 100.0 * blocked / total : 0.0,
+         (unsigned long long)differ);
+  ASSERT_TRUE(blocked > total / 20 && blocked < total - total / 20); /* both answers occur */
+  ASSERT_TRUE(differ * 10000 <= total);
+  free(rays);
+  free(sh);
+  free(oa);
+  free(ob);
+  ub_rt_free(rt);
+  ub_scene_free(s);
+}
+
 int main(void)
 {
   const char *b = getenv("UB_BUILD");
   char path[1024];
   snprintf(path, sizeof path, "%s/levels/estate_small.gltf", b ? b : "build");
   test_sorted(path);
+  test_occluded_sorted(path);
   TEST_MAIN_END();
 }
