@@ -307,8 +307,7 @@ void ub_rt_intersect(const ub_rt *rt, const ub_ray *rays, uint32_t n, ub_hit *ou
  * each, two runs at once, 2 rounds swapped): with the flag from 4096 rays the base pass
  * and the DLS full passes ran 4-11% faster (Embree's packets); from 2048 rays, or with
  * every stream coherent, the influence passes (8 rays a receiver, sparse) ran 8-10%
- * slower; from 8192 as from 4096. Shadow rays stay incoherent: as packets (the texel
- * lights' rays go everywhere) they ran 5% slower. */
+ * slower; from 8192 as from 4096. (Shadow rays: ub_rt_occluded_sorted.) */
 void ub_rt_intersect_sorted(const ub_rt *rt, const ub_ray *rays, uint32_t n, ub_hit *out_hits)
 {
   intersect(rt, rays, n, out_hits, n >= UB_RT_COHERENT_MIN);
