@@ -239,10 +239,8 @@ static void prefer_front(const ub_rt *rt, struct RTCRayHit *h)
   rtcInitIntersectContext(&ctx);
   ctx.filter = front_only;
   rtcIntersect1(rt->rscene, &ctx, &f);
-  if (f.hit.geomID != RTC_INVALID_GEOMETRY_ID) {
-    f.ray.tnear = h->ray.tnear;
-    *h = f;
-  }
+  if (f.hit.geomID != RTC_INVALID_GEOMETRY_ID)
+    *h = f; /* its hit and t (tfar); the caller reads nothing else */
 }
 
 static void intersect(const ub_rt *rt, const ub_ray *rays, uint32_t n, ub_hit *out_hits,

@@ -184,11 +184,11 @@ static void test_sorted(const ub_scene *s, const ub_rt *rt)
   ub_ray *rays = malloc((size_t)ORIGINS * DIRS * sizeof *rays);
   ub_hit *ha = malloc((size_t)ORIGINS * DIRS * sizeof *ha);
   ub_hit *hb = malloc((size_t)ORIGINS * DIRS * sizeof *hb);
-  ASSERT_TRUE(rt && rays && ha && hb);
+  ASSERT_TRUE(rays && ha && hb);
   uint64_t total = 0, hits = 0, other_tri = 0, coherent_blocks = 0, twin_back_a = 0,
            twin_back_b = 0;
   double worst_t = 0.0, worst_uv = 0.0;
-  for (uint32_t b = 0; rt && rays && ha && hb && b < BLOCKS; b++) {
+  for (uint32_t b = 0; rays && ha && hb && b < BLOCKS; b++) {
     uint32_t n = make_block(s, b, rays);
     coherent_blocks += n >= UB_RT_COHERENT_MIN;
     ub_rt_intersect(rt, rays, n, ha);
@@ -245,10 +245,10 @@ static void test_occluded_sorted(const ub_scene *s, const ub_rt *rt)
   ub_ray *sh = malloc((size_t)ORIGINS * DIRS * LIGHTS * sizeof *sh);
   uint8_t *oa = malloc((size_t)ORIGINS * DIRS * LIGHTS);
   uint8_t *ob = malloc((size_t)ORIGINS * DIRS * LIGHTS);
-  ASSERT_TRUE(rt && rays && sh && oa && ob);
+  ASSERT_TRUE(rays && sh && oa && ob);
   uint64_t total = 0, blocked = 0, differ = 0;
   uint32_t seed = 12345;
-  for (uint32_t b = 0; rt && rays && sh && oa && ob && b < BLOCKS; b++) {
+  for (uint32_t b = 0; rays && sh && oa && ob && b < BLOCKS; b++) {
     uint32_t n = make_block(s, b, rays), m = 0;
     /* the lights: points a few metres along some of the block's own rays */
     float lp[LIGHTS][3];
