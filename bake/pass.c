@@ -40,6 +40,21 @@ typedef struct tl_cluster {
   uint32_t n;           /* texels */
 } tl_cluster;
 
+/* One texel as the texel-light readers see it (a gather ray's hit, a texel-light sample):
+ * the five values they read at a random texel in one 32-byte record, so each such read
+ * costs one cache line instead of five separate arrays' (full ESTATE DLS, perf: those
+ * five loads were a third of gather_block's samples, prefetched or not). area, texel_area
+ * and of never change for a level; rad and pc are this bounce's, zero where no light. */
+typedef struct tl_texel {
+  _Alignas(32) float rad[3]; /* outgoing radiance albedo/π·E of the previous bounce */
+  float pc;                  /* probability of the texel within its cluster */
+  float area;                /* = tl_area */
+  float texel_area;          /* = lm->texel_area */
+  uint32_t of;               /* = tl_of */
+  float unused;
+} tl_texel;
+_Static_assert(sizeof(tl_texel) == 32, "tl_texel: one half cache line");
+
 /* One kind of receiver, seen uniformly by the direct and gather kernels. */
 typedef struct recv_set {
   int texels;            /* 1: lightmap texels (footprints known), 0: probes */
@@ -103,10 +118,11 @@ typedef struct pass_ctx {
    * share a dominant axis) by a per-block table — its power over its distance to the
    * block, zero when it faces away from every point of the block (the sunlit roof above a
    * room) — then a texel of it in proportion to power. */
-  float *tl_rad;              /* texel × 3: outgoing radiance albedo/π·E of the previous bounce */
+  tl_texel *tl_tex;           /* texel: what the readers read (radiance, share, areas,
+                                 cluster), from tl_area, tl_of and this bounce's light */
+  int tl_tex_borrowed;        /* tl_tex belongs to desc.cache (its rad and pc zeroed after) */
   float *tl_area;             /* texel: its square's world area (m²): its power, the near
                                  field; the strategy's density is per lm->texel_area */
-  float *tl_pc;               /* texel: probability of the texel within its cluster */
   uint32_t *tl_of;            /* texel → cluster, UINT32_MAX: none (no area) */
   uint32_t *tl_start;         /* cluster → first entry of tl_list; tl_K + 1 entries */
   uint32_t *tl_list;          /* texels ordered by cluster */
@@ -831,11 +847,8 @@ static void tl_pick_round(const pass_ctx *c, const recv_set *rs, uint32_t r0, ui
       const float *qo = lm->sample_pos + ((size_t)t * UB_TEXEL_SAMPLES + o->sp) * 3;
       __builtin_prefetch(qo);
       __builtin_prefetch(qo + 2); /* the point may straddle two lines */
-      __builtin_prefetch(&c->tl_area[t]);
-      __builtin_prefetch(&c->lm->texel_area[t]);
+      __builtin_prefetch(&c->tl_tex[t]);
       __builtin_prefetch(lm->texel_normal + 3 * (size_t)t);
-      __builtin_prefetch(&c->tl_pc[t]);
-      __builtin_prefetch(c->tl_rad + 3 * (size_t)t);
     }
   }
 }
@@ -881,7 +894,8 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
       uint32_t cl = pq->cl, t = pq->t;
       if (t == UINT32_MAX)
         continue;
-      if (!(c->tl_area[t] > 0.0f))
+      const tl_texel *tt = &c->tl_tex[t];
+      if (!(tt->area > 0.0f))
         continue;
       /* One of the texel's sample points (already off the surface): the points its value
        * was gathered at, on its chart's open side. A random point of the texel's square
@@ -894,7 +908,7 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
       const float *p = rs->samples + ((size_t)r * rs->spr + (k + po) % rs->spr) * 3;
       float w[3] = {qo[0] - p[0], qo[1] - p[1], qo[2] - p[2]};
       float d2 = dot3(w, w);
-      if (!(d2 >= UB_TL_NEAR2 * c->tl_area[t]) || !(d2 > 0.0f))
+      if (!(d2 >= UB_TL_NEAR2 * tt->area) || !(d2 > 0.0f))
         continue; /* near field: gathers read it (tl_readable) */
       float dist = sqrtf(d2);
       for (int ch = 0; ch < 3; ch++)
@@ -902,8 +916,8 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
       float cs = nrm ? dot3(nrm, w) : 1.0f, ce = -dot3(tn, w);
       if (cs <= 1e-4f || ce <= 0.0f)
         continue;
-      double p_t = (double)(cdf[cl] - (cl ? cdf[cl - 1] : 0.0f)) * c->tl_pc[t];
-      double pdf_sa = p_t / lm->texel_area[t] * d2 / ce;
+      double p_t = (double)(cdf[cl] - (cl ? cdf[cl - 1] : 0.0f)) * tt->pc;
+      double pdf_sa = p_t / tt->texel_area * d2 / ce;
       double denom = M * pdf_sa + N * gather_pdf(nrm, w);
       shadow_rec *sr = &rec[n];
       sr->recv = i;
@@ -911,7 +925,7 @@ static void texel_light_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint
       sr->emissive = 0;
       memcpy(sr->dir, w, sizeof w);
       for (int ch = 0; ch < 3; ch++)
-        sr->e[ch] = (float)(c->tl_rad[3 * (size_t)t + ch] / denom);
+        sr->e[ch] = (float)(tt->rad[ch] / denom);
       sr->cos = cs;
       if (!finite3(sr->e))
         continue;
@@ -971,8 +985,7 @@ static int texel_clusters_build(pass_ctx *c)
   c->tl_of = malloc(((size_t)T + 1) * sizeof *c->tl_of);
   c->tl_list = malloc(((size_t)T + 1) * sizeof *c->tl_list);
   c->tl_ccdf = calloc((size_t)T + 1, sizeof *c->tl_ccdf); /* 0: clusters never lit */
-  c->tl_pc = calloc((size_t)T + 1, sizeof *c->tl_pc);
-  if (!key || !c->tl_of || !c->tl_list || !c->tl_ccdf || !c->tl_pc) {
+  if (!key || !c->tl_of || !c->tl_list || !c->tl_ccdf) {
     free(key);
     return 0;
   }
@@ -1046,7 +1059,7 @@ static int texel_clusters_build(pass_ctx *c)
 /* Level-sized scratch arrays a subset pass borrows from the cache (scr_take / scr_give). */
 enum {
   SCR_SH_TOTAL, SCR_IZ_TOTAL, SCR_PROBE_TOTAL, SCR_ACC_SH, SCR_ACC_IZ, SCR_ACC_SRC,
-  SCR_ACC_SRC_NP, SCR_TL_RAD, SCR_ACC_VAR, SCR_ACC_PVAR, SCR_REL2, SCR_VAR_TX, SCR_PR_ACC_SH,
+  SCR_ACC_SRC_NP, SCR_ACC_VAR, SCR_ACC_PVAR, SCR_REL2, SCR_VAR_TX, SCR_PR_ACC_SH,
   SCR_PR_ACC_VAR, SCR_PR_ACC_PVAR, SCR_VAR_PR, SCR_LLG_ACC_SH, SCR_LLG_ACC_NP, SCR_LLG_TOTAL,
   UB_SCR_SLOTS
 };
@@ -1062,6 +1075,7 @@ struct ub_pass_cache {
   float *tl_area;
   uint32_t *tl_of, *tl_list, *tl_start;
   tl_cluster *cl; /* bounds and counts; power and peak 0 */
+  tl_texel *tl_tex; /* rad and pc zero between passes (a pass borrowing it zeroes its own) */
   /* per atlas: the zero-light image and pixel levels subset passes start from
    * (ub_lightmap_sparse_base), built by the first subset pass; zbuilt: 1 ok, -1 failed */
   int zbuilt;
@@ -1116,6 +1130,7 @@ void ub_pass_cache_free(ub_pass_cache *cache)
     return;
   free(cache->tl_area);
   free(cache->tl_of);
+  free(cache->tl_tex);
   free(cache->tl_list);
   free(cache->tl_start);
   free(cache->cl);
@@ -1158,6 +1173,47 @@ static int sparse_base_ready(ub_pass_cache *cache, const ub_lightmap *lm)
   return cache->zbuilt == 1;
 }
 
+/* The readers' records of T texels from the clusters' arrays: rad and pc zero. NULL when
+ * out of memory. */
+static tl_texel *tl_tex_new(const ub_lightmap *lm, const float *tl_area, const uint32_t *tl_of)
+{
+  size_t T = lm->texel_count;
+  tl_texel *tx = aligned_alloc(_Alignof(tl_texel), (T + 1) * sizeof *tx);
+  if (!tx)
+    return NULL;
+  memset(tx, 0, (T + 1) * sizeof *tx);
+  for (size_t t = 0; t < T; t++) {
+    tx[t].area = tl_area[t];
+    tx[t].texel_area = lm->texel_area[t];
+    tx[t].of = tl_of[t];
+  }
+  return tx;
+}
+
+/* A borrowed tl_tex back to the state the cache keeps (rad and pc zero): the rows this
+ * pass's texel_lights_build wrote, rad at its act texels and pc in its hot clusters; all
+ * rows for a pass over every texel. */
+static void tl_tex_reset(const pass_ctx *c)
+{
+  tl_texel *tx = c->tl_tex;
+  if (!c->act || !c->tl_hot) {
+    uint32_t T = c->lm->texel_count;
+#pragma omp parallel for schedule(static)
+    for (uint32_t t = 0; t < T; t++) {
+      memset(tx[t].rad, 0, sizeof tx[t].rad);
+      tx[t].pc = 0.0f;
+    }
+    return;
+  }
+#pragma omp parallel for schedule(static)
+  for (uint32_t i = 0; i < c->nact; i++)
+    memset(tx[c->act[i]].rad, 0, sizeof tx[c->act[i]].rad);
+#pragma omp parallel for schedule(dynamic, 64)
+  for (uint32_t k = 0; k < c->tl_K; k++)
+    for (uint32_t i = c->tl_start[k]; c->tl_hot[k] && i < c->tl_start[k + 1]; i++)
+      tx[c->tl_list[i]].pc = 0.0f;
+}
+
 static void texel_clusters_to_cache(const pass_ctx *c, const ub_lightmap *lm,
                                     const ub_scene *s, ub_pass_cache *cache)
 {
@@ -1178,6 +1234,7 @@ static void texel_clusters_to_cache(const pass_ctx *c, const ub_lightmap *lm,
   }
   memcpy(cache->tl_area, c->tl_area, T * sizeof(float));
   memcpy(cache->tl_of, c->tl_of, T * sizeof(uint32_t));
+  cache->tl_tex = tl_tex_new(lm, c->tl_area, c->tl_of); /* NULL: passes build their own */
   memcpy(cache->tl_list, c->tl_list, (size_t)c->tl_start[K] * sizeof(uint32_t)); /* the rest unused */
   memcpy(cache->tl_start, c->tl_start, (K + 1) * sizeof(uint32_t));
   for (size_t k = 0; k < K; k++) {
@@ -1204,8 +1261,9 @@ static int texel_clusters_from_cache(pass_ctx *c, const ub_pass_cache *cache)
   c->tl_K = cache->K;
   c->tl_cl = malloc((K + 1) * sizeof *c->tl_cl);
   c->tl_ccdf = calloc(T + 1, sizeof *c->tl_ccdf);
-  c->tl_pc = calloc(T + 1, sizeof *c->tl_pc);
-  if (!c->tl_cl || !c->tl_ccdf || !c->tl_pc)
+  c->tl_tex = cache->tl_tex; /* NULL (no memory then): the pass builds its own */
+  c->tl_tex_borrowed = c->tl_tex != NULL;
+  if (!c->tl_cl || !c->tl_ccdf)
     return 0;
   memcpy(c->tl_cl, cache->cl, K * sizeof *c->tl_cl);
   return tl_hot_build(c);
@@ -1218,9 +1276,9 @@ static void texel_lights_build(pass_ctx *c, const double *e_prev)
   const ub_scene *s = c->s;
   uint32_t T = lm->texel_count;
   c->tl_on = 0;
-  if (!c->tl_rad || !c->tl_samples || !c->tl_K)
+  if (!c->tl_tex || !c->tl_samples || !c->tl_K)
     return;
-  /* A subset pass: only its act texels hold light (tl_rad is 0 elsewhere from the start),
+  /* A subset pass: only its act texels hold light (rad is 0 elsewhere from the start),
    * and a cluster without one has no power: its cdf and texel shares stay 0. */
   uint32_t n = c->act ? c->nact : T;
 #pragma omp parallel for schedule(static)
@@ -1228,7 +1286,7 @@ static void texel_lights_build(pass_ctx *c, const double *e_prev)
     uint32_t t = c->act ? c->act[i] : i;
     const float *alb = s->materials[s->tri_material[lm->texel_tri[t]]].albedo;
     for (int ch = 0; ch < 3; ch++)
-      c->tl_rad[3 * (size_t)t + ch] = (float)(alb[ch] * M_1_PI * e_prev[3 * (size_t)t + ch]);
+      c->tl_tex[t].rad[ch] = (float)(alb[ch] * M_1_PI * e_prev[3 * (size_t)t + ch]);
   }
   int on = 0; /* clusters are independent: each its own texels, cdf range and fields */
 #pragma omp parallel for schedule(dynamic, 64) reduction(| : on)
@@ -1241,17 +1299,17 @@ static void texel_lights_build(pass_ctx *c, const double *e_prev)
     double sum = 0.0, peak = 0.0;
     for (uint32_t i = c->tl_start[k]; i < c->tl_start[k + 1]; i++) {
       uint32_t t = c->tl_list[i];
-      const float *L = c->tl_rad + 3 * (size_t)t;
-      double pw = (0.2126 * L[0] + 0.7152 * L[1] + 0.0722 * L[2]) * c->tl_area[t];
+      const float *L = c->tl_tex[t].rad;
+      double pw = (0.2126 * L[0] + 0.7152 * L[1] + 0.0722 * L[2]) * c->tl_tex[t].area;
       pw = pw > 0.0 && isfinite(pw) ? pw : 0.0;
       peak = pw > peak ? pw : peak;
       sum += pw;
       c->tl_ccdf[i] = (float)sum;
-      c->tl_pc[t] = (float)pw;
+      c->tl_tex[t].pc = (float)pw;
     }
     for (uint32_t i = c->tl_start[k]; sum > 0.0 && i < c->tl_start[k + 1]; i++) {
       c->tl_ccdf[i] = (float)(c->tl_ccdf[i] / sum);
-      c->tl_pc[c->tl_list[i]] = (float)(c->tl_pc[c->tl_list[i]] / sum);
+      c->tl_tex[c->tl_list[i]].pc = (float)(c->tl_tex[c->tl_list[i]].pc / sum);
     }
     if (sum > 0.0)
       c->tl_ccdf[c->tl_start[k + 1] - 1] = 1.0f;
@@ -1418,13 +1476,7 @@ static void prefetch_hits(const pass_ctx *c, const ub_hit *hits, const uint32_t 
     __builtin_prefetch(c->img[hx[j].a] + 4 * (size_t)hx[j].px);
     if (!tl_any || hx[j].t < 0)
       continue;
-    size_t t = (size_t)hx[j].t;
-    __builtin_prefetch(&c->tl_area[t]);
-    __builtin_prefetch(&c->lm->texel_area[t]);
-    __builtin_prefetch(&c->tl_of[t]);
-    if (c->tl_pc)
-      __builtin_prefetch(&c->tl_pc[t]);
-    __builtin_prefetch(&c->tl_rad[3 * t]);
+    __builtin_prefetch(&c->tl_tex[hx[j].t]);
   }
 }
 
@@ -1436,8 +1488,8 @@ static inline int tl_readable(const pass_ctx *c, const ub_hit *h, const float di
 {
   float gl = sqrtf(dot3(h->ng, h->ng));
   *ce = gl > 0.0f ? -dot3(h->ng, dir) / gl : 0.0f;
-  return t >= 0 && *ce > 0.0f && c->tl_area[t] > 0.0f &&
-         h->t * h->t >= UB_TL_NEAR2 * c->tl_area[t];
+  return t >= 0 && *ce > 0.0f && c->tl_tex[t].area > 0.0f &&
+         h->t * h->t >= UB_TL_NEAR2 * c->tl_tex[t].area;
 }
 
 /* The gather rays whose bounce-1 NEE the shading would drop (gather_block: a ray at
@@ -1648,7 +1700,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
       if (cs <= 1e-4f)
         continue;
       double wt = 1.0 / (N * pdf); /* plain estimator: L·f/(N·pdf) */
-      int tl_read = 0;             /* L is a texel light's radiance (tl_rad) */
+      int tl_read = 0;             /* L is a texel light's radiance (tl_tex rad) */
       if (h->tri == UB_RT_MISS) {
         misses++;
         if (c->bounce == 0 && d->sky) {
@@ -1707,13 +1759,14 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
               int32_t t = t_hit;
               float ce;
               if (tl_readable(c, h, ray->dir, t, &ce)) {
-                uint32_t k = c->tl_of[t];
+                const tl_texel *tt = &c->tl_tex[t];
+                uint32_t k = tt->of;
                 double p_t = k == UINT32_MAX ? 0.0
                                              : (double)(tl_cdf[k] - (k ? tl_cdf[k - 1] : 0.0f)) *
-                                                   c->tl_pc[t];
-                double pdf_sa = p_t / c->lm->texel_area[t] * h->t * h->t / ce;
+                                                   tt->pc;
+                double pdf_sa = p_t / tt->texel_area * h->t * h->t / ce;
                 wt = 1.0 / (c->tl_samples * pdf_sa + N * pdf);
-                memcpy(L, c->tl_rad + 3 * (size_t)t, sizeof L);
+                memcpy(L, tt->rad, sizeof L);
                 tl_hit = 1;
                 tl_read = 1;
               }
@@ -2339,7 +2392,6 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   tx->acc_src_np = scr_take(scache, SCR_ACC_SRC_NP, B_IZ);
   /* Texel lights: an eighth of the gather rays (at least 4) toward bright texels. */
   c.tl_samples = N / 8 < 4 ? 4 : N / 8;
-  c.tl_rad = scr_take(scache, SCR_TL_RAD, ((size_t)T * 3 + 1) * sizeof(float));
   c.act = act;
   c.nact = nact;
   int tl_ok;
@@ -2358,6 +2410,10 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     }
     if (tl_ok && cache && !cache->ok)
       texel_clusters_to_cache(&c, lm, s, cache); /* best effort: without it, built again */
+  }
+  if (tl_ok && !c.tl_tex) {
+    c.tl_tex = tl_tex_new(lm, c.tl_area, c.tl_of);
+    tl_ok = c.tl_tex != NULL;
   }
   c.light_on = malloc(((size_t)s->light_count + 1) * sizeof *c.light_on);
   for (uint32_t l = 0; c.light_on && l < s->light_count; l++)
@@ -2444,7 +2500,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   c.img = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *c.img);
   c.emitter_of = malloc((size_t)(s->triangle_count ? s->triangle_count : 1) * sizeof(int32_t));
   int oom = !sh_total || !iz_total || !tx->acc_sh || !tx->acc_iz || !tx->acc_src ||
-            !c.tl_rad || !tl_ok || !c.light_on ||
+            !tl_ok || !c.light_on ||
             !tx->acc_src_np || !c.img ||
             !c.emitter_of || !pr->acc_sh || !probe_total || !out->texel_direct ||
             !out->texel_indirect || (d->keep_bounce_iz && !out->texel_bounce_iz) ||
@@ -2845,8 +2901,6 @@ done:
   scr_give(give, SCR_ACC_IZ, tx->acc_iz, B_IZ, act, nact, 3 * sizeof(double));
   scr_give(give, SCR_ACC_SRC, tx->acc_src, B_IZ, act, nact, 3 * sizeof(double));
   scr_give(give, SCR_ACC_SRC_NP, tx->acc_src_np, B_IZ, act, nact, 3 * sizeof(double));
-  scr_give(give, SCR_TL_RAD, c.tl_rad, ((size_t)T * 3 + 1) * sizeof(float), act, nact,
-           3 * sizeof(float));
   scr_give(give, SCR_ACC_VAR, tx->acc_var, B_T, act, nact, sizeof(double));
   scr_give(give, SCR_ACC_PVAR, tx->acc_pvar, B_T, act, nact, sizeof(double));
   scr_give(give, SCR_REL2, rel2, ((size_t)T + 1) * sizeof(float), act, nact, sizeof(float));
@@ -2868,6 +2922,10 @@ done:
       }
   }
   free(img_ready);
+  if (c.tl_tex_borrowed) /* before act goes */
+    tl_tex_reset(&c);
+  else
+    free(c.tl_tex);
   free(act);
   free(outside);
   if (!c.tl_borrowed) {
@@ -2876,7 +2934,6 @@ done:
     free(c.tl_start);
     free(c.tl_list);
   }
-  free(c.tl_pc);
   free(c.tl_ccdf);
   free(c.tl_cl);
   free(c.tl_hot);
