@@ -2410,6 +2410,10 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     }
     if (tl_ok && cache && !cache->ok)
       texel_clusters_to_cache(&c, lm, s, cache); /* best effort: without it, built again */
+    if (tl_ok && cache && cache->ok && cache->tl_tex) { /* one copy, not two */
+      c.tl_tex = cache->tl_tex;
+      c.tl_tex_borrowed = 1;
+    }
   }
   if (tl_ok && !c.tl_tex) {
     c.tl_tex = tl_tex_new(lm, c.tl_area, c.tl_of);
