@@ -37,6 +37,7 @@ static void rt_error(void *user, enum RTCError code, const char *str)
 typedef struct plane_key {
   double n[3], d;
   float lo[3], hi[3]; /* bounds */
+  float sweep;        /* lo along an in-plane axis: find_twins' order within a run */
   uint32_t prim;
   uint8_t ax, side;
 } plane_key;
@@ -47,6 +48,12 @@ static int cmp_plane(const void *a, const void *b)
   if (x->ax != y->ax)
     return x->ax < y->ax ? -1 : 1;
   return x->d < y->d ? -1 : x->d > y->d;
+}
+
+static int cmp_sweep(const void *a, const void *b)
+{
+  const plane_key *x = a, *y = b;
+  return x->sweep < y->sweep ? -1 : x->sweep > y->sweep;
 }
 
 /* rt->twin: the primitives with another in the same plane (d within tol, normals within
@@ -93,8 +100,19 @@ static int find_twins(ub_rt *rt, const ub_scene *s, double tol)
       sides |= 1 << k[b].side;
     if (sides != 3)
       continue;
+    /* The pairs overlapping along an in-plane axis, by a sweep in the order of their low
+     * bounds on it: a large plane with both sides present (a floor of 10k triangles a
+     * side) costs a sort and its neighbours' pairs, not every pair of the run (the d-order
+     * window was O(k²) there). The same pairs as every pair of the run within tol: the
+     * overlap on that axis is one of the conditions below. */
+    const int u = (k[a].ax + 1) % 3;
     for (uint32_t i = a; i < b; i++)
-      for (uint32_t j = i + 1; j < b && k[j].d - k[i].d <= tol; j++) {
+      k[i].sweep = k[i].lo[u];
+    qsort(k + a, b - a, sizeof *k, cmp_sweep);
+    for (uint32_t i = a; i < b; i++)
+      for (uint32_t j = i + 1; j < b && k[j].lo[u] <= k[i].hi[u]; j++) {
+        if (fabs(k[j].d - k[i].d) > tol)
+          continue;
         int apart = k[i].side == k[j].side;
         for (int c = 0; c < 3 && !apart; c++)
           apart = fabs(k[i].n[c] - k[j].n[c]) > 1e-4 || k[i].hi[c] < k[j].lo[c] ||

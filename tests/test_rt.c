@@ -9,12 +9,17 @@
  * there (without prefer_front, bake/rt.c: 4,990 such hits one ray at a time and 8,592 as
  * packets, of 98,304, and 3,672 rays on another triangle); below the threshold the two
  * are the same call, bit for bit. Shadow rays grouped by light (ub_rt_occluded_sorted)
- * answer as ub_rt_occluded does. */
+ * answer as ub_rt_occluded does. The twin search on a large plane with both sides (a
+ * floor of 28,800 triangles, the other side over part of it) flags exactly the triangles
+ * whose bounds meet the other side's, and prints its time (all pairs of the plane before
+ * the sweep: O(k²)). */
 #include <math.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <time.h>
 
 #include "bake/rt.h"
 #include "test_util.h"
@@ -289,6 +294,95 @@ static void test_occluded_sorted(const ub_scene *s, const ub_rt *rt)
   free(ob);
 }
 
+/* A floor at y = 3.7 of n×n unit quads facing up, and below it the same quads facing
+ * down over the m×m corner [0, m]² (the other side of the same surface), written as a
+ * glTF at path (its buffer beside it). 1 when written. */
+static int write_plane(const char *path, uint32_t n, uint32_t m)
+{
+  const uint32_t nv = (n + 1) * (n + 1), nt = 2 * (n * n + m * m);
+  float *pos = malloc((size_t)nv * 3 * sizeof *pos);
+  uint32_t *idx = malloc((size_t)nt * 3 * sizeof *idx);
+  if (!pos || !idx) {
+    free(pos);
+    free(idx);
+    return 0;
+  }
+  for (uint32_t z = 0; z <= n; z++)
+    for (uint32_t x = 0; x <= n; x++) {
+      float *p = pos + 3 * ((size_t)z * (n + 1) + x);
+      p[0] = (float)x, p[1] = 3.7f, p[2] = (float)z;
+    }
+  size_t k = 0;
+  for (int side = 0; side < 2; side++) {
+    uint32_t e = side ? m : n;
+    for (uint32_t z = 0; z < e; z++)
+      for (uint32_t x = 0; x < e; x++) {
+        uint32_t a = z * (n + 1) + x, b = a + 1, c = a + n + 1, d = c + 1;
+        uint32_t q[6] = {a, c, b, b, c, d}; /* up: (c − a) × (b − a) = +y */
+        for (int j = 0; j < 6; j++)
+          idx[k++] = side ? q[j - j % 3 + (3 - j % 3) % 3] : q[j]; /* down: reversed */
+      }
+  }
+  char bin[1200];
+  snprintf(bin, sizeof bin, "%s.bin", path);
+  FILE *fb = fopen(bin, "wb"), *f = fopen(path, "w");
+  int ok = fb && f && fwrite(pos, sizeof *pos, (size_t)nv * 3, fb) == (size_t)nv * 3 &&
+           fwrite(idx, sizeof *idx, (size_t)nt * 3, fb) == (size_t)nt * 3;
+  if (f) {
+    const char *name = strrchr(bin, '/');
+    fprintf(f,
+            "{\"asset\":{\"version\":\"2.0\"},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],"
+            "\"nodes\":[{\"name\":\"plane\",\"mesh\":0}],\"meshes\":[{\"primitives\":"
+            "[{\"attributes\":{\"POSITION\":0},\"indices\":1}]}],"
+            "\"buffers\":[{\"uri\":\"%s\",\"byteLength\":%zu}],\"bufferViews\":["
+            "{\"buffer\":0,\"byteOffset\":0,\"byteLength\":%zu},"
+            "{\"buffer\":0,\"byteOffset\":%zu,\"byteLength\":%zu}],\"accessors\":["
+            "{\"bufferView\":0,\"componentType\":5126,\"count\":%u,\"type\":\"VEC3\","
+            "\"min\":[0,3.7,0],\"max\":[%u,3.7,%u]},"
+            "{\"bufferView\":1,\"componentType\":5125,\"count\":%u,\"type\":\"SCALAR\"}]}\n",
+            name ? name + 1 : bin, ((size_t)nv * 3 + (size_t)nt * 3) * 4, (size_t)nv * 12,
+            (size_t)nv * 12, (size_t)nt * 12, nv, n, n, nt * 3);
+    ok = ok && fclose(f) == 0;
+  }
+  if (fb)
+    ok = fclose(fb) == 0 && ok;
+  free(pos);
+  free(idx);
+  return ok;
+}
+
+/* Twins on a large two-sided plane: the down faces (m² quads) all, the up faces of the
+ * (m + 1)² quads whose bounds meet the corner (inside it or touching its edge; the next
+ * ones are a unit apart, far beyond the search's tolerance), none elsewhere. */
+static void test_twins_plane(const char *build)
+{
+  const uint32_t n = 120, m = 80;
+  char dir[1024], path[1100];
+  snprintf(dir, sizeof dir, "%s/test_out", build);
+  mkdir(dir, 0777);
+  snprintf(path, sizeof path, "%s/rt_plane.gltf", dir);
+  ASSERT_TRUE(write_plane(path, n, m));
+  ub_scene *s = NULL;
+  ub_rt *rt = NULL;
+  ASSERT_OK(ub_scene_load(path, NULL, &s));
+  if (!s)
+    return;
+  struct timespec t0, t1;
+  clock_gettime(CLOCK_MONOTONIC, &t0);
+  ASSERT_OK(ub_rt_create(s, NULL, NULL, &rt));
+  clock_gettime(CLOCK_MONOTONIC, &t1);
+  uint64_t want = 2 * (uint64_t)m * m + 2 * (uint64_t)(m + 1) * (m + 1);
+  uint64_t got = rt ? ub_rt_twin_count(rt) : 0;
+  printf("two-sided plane: %u triangles, %llu with a twin (expected %llu), ub_rt_create "
+         "%.3f s\n",
+         s->triangle_count, (unsigned long long)got, (unsigned long long)want,
+         (double)(t1.tv_sec - t0.tv_sec) + 1e-9 * (double)(t1.tv_nsec - t0.tv_nsec));
+  ASSERT_TRUE(s->triangle_count == 2 * (n * n + m * m));
+  ASSERT_TRUE(got == want);
+  ub_rt_free(rt);
+  ub_scene_free(s);
+}
+
 int main(void)
 {
   const char *b = getenv("UB_BUILD");
@@ -305,5 +399,6 @@ int main(void)
   }
   ub_rt_free(rt);
   ub_scene_free(s);
+  test_twins_plane(b ? b : "build");
   TEST_MAIN_END();
 }
