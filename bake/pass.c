@@ -106,7 +106,8 @@ typedef struct pass_ctx {
   const uint32_t *act;        /* a subset pass's texels that can hold light (or NULL: all) */
   uint32_t nact;
   uint8_t *tl_hot;            /* per cluster: holds an act texel (subset passes) */
-  int tl_borrowed;            /* tl_area, tl_of, tl_list, tl_start belong to desc.cache */
+  int tl_borrowed;            /* tl_list, tl_start belong to desc.cache (tl_area and tl_of
+                                 NULL then: tl_tex has them) */
   recv_set sets[3];           /* 0: texels, 1: GLG probes, 2: LLG probes */
   const ub_llg_set *llg;      /* LLG models, or NULL */
   float *llg_prev;            /* LLG probes' SH of bounce k-1 (what LLG-lit hits read) */
@@ -963,9 +964,11 @@ static int tl_hot_build(pass_ctx *c)
   c->tl_hot = calloc((size_t)c->tl_K + 1, 1);
   if (!c->tl_hot)
     return 0;
-  for (uint32_t i = 0; i < c->nact; i++)
-    if (c->tl_of[c->act[i]] != UINT32_MAX)
-      c->tl_hot[c->tl_of[c->act[i]]] = 1;
+  for (uint32_t i = 0; i < c->nact; i++) {
+    uint32_t k = c->tl_of ? c->tl_of[c->act[i]] : c->tl_tex[c->act[i]].of;
+    if (k != UINT32_MAX)
+      c->tl_hot[k] = 1;
+  }
   return 1;
 }
 
@@ -1072,10 +1075,10 @@ struct ub_pass_cache {
   const ub_lightmap *lm;
   const ub_scene *s;
   uint32_t T, K;
-  float *tl_area;
-  uint32_t *tl_of, *tl_list, *tl_start;
+  tl_texel *tl_tex; /* areas and clusters; rad and pc zero between passes (a pass
+                       borrowing it zeroes what it wrote) */
+  uint32_t *tl_list, *tl_start;
   tl_cluster *cl; /* bounds and counts; power and peak 0 */
-  tl_texel *tl_tex; /* rad and pc zero between passes (a pass borrowing it zeroes its own) */
   /* per atlas: the zero-light image and pixel levels subset passes start from
    * (ub_lightmap_sparse_base), built by the first subset pass; zbuilt: 1 ok, -1 failed */
   int zbuilt;
@@ -1128,8 +1131,6 @@ void ub_pass_cache_free(ub_pass_cache *cache)
 {
   if (!cache)
     return;
-  free(cache->tl_area);
-  free(cache->tl_of);
   free(cache->tl_tex);
   free(cache->tl_list);
   free(cache->tl_start);
@@ -1218,23 +1219,18 @@ static void texel_clusters_to_cache(const pass_ctx *c, const ub_lightmap *lm,
                                     const ub_scene *s, ub_pass_cache *cache)
 {
   size_t T = lm->texel_count, K = c->tl_K;
-  cache->tl_area = malloc((T + 1) * sizeof(float));
-  cache->tl_of = malloc((T + 1) * sizeof(uint32_t));
+  cache->tl_tex = tl_tex_new(lm, c->tl_area, c->tl_of);
   cache->tl_list = malloc((T + 1) * sizeof(uint32_t));
   cache->tl_start = malloc((K + 1) * sizeof(uint32_t));
   cache->cl = malloc((K + 1) * sizeof(tl_cluster));
-  if (!cache->tl_area || !cache->tl_of || !cache->tl_list || !cache->tl_start || !cache->cl) {
-    free(cache->tl_area), free(cache->tl_of), free(cache->tl_list), free(cache->tl_start);
-    free(cache->cl);
-    cache->tl_area = NULL; /* the clusters only: the images and scratch stay */
-    cache->tl_of = cache->tl_list = cache->tl_start = NULL;
+  if (!cache->tl_tex || !cache->tl_list || !cache->tl_start || !cache->cl) {
+    free(cache->tl_tex), free(cache->tl_list), free(cache->tl_start), free(cache->cl);
+    cache->tl_tex = NULL; /* the clusters only: the images and scratch stay */
+    cache->tl_list = cache->tl_start = NULL;
     cache->cl = NULL;
     cache->ok = 0;
     return;
   }
-  memcpy(cache->tl_area, c->tl_area, T * sizeof(float));
-  memcpy(cache->tl_of, c->tl_of, T * sizeof(uint32_t));
-  cache->tl_tex = tl_tex_new(lm, c->tl_area, c->tl_of); /* NULL: passes build their own */
   memcpy(cache->tl_list, c->tl_list, (size_t)c->tl_start[K] * sizeof(uint32_t)); /* the rest unused */
   memcpy(cache->tl_start, c->tl_start, (K + 1) * sizeof(uint32_t));
   for (size_t k = 0; k < K; k++) {
@@ -1254,15 +1250,15 @@ static int texel_clusters_from_cache(pass_ctx *c, const ub_pass_cache *cache)
 {
   size_t T = cache->T, K = cache->K;
   c->tl_borrowed = 1;
-  c->tl_area = cache->tl_area;
-  c->tl_of = cache->tl_of;
+  c->tl_area = NULL; /* the areas and clusters are tl_tex's */
+  c->tl_of = NULL;
   c->tl_list = cache->tl_list;
   c->tl_start = cache->tl_start;
   c->tl_K = cache->K;
   c->tl_cl = malloc((K + 1) * sizeof *c->tl_cl);
   c->tl_ccdf = calloc(T + 1, sizeof *c->tl_ccdf);
-  c->tl_tex = cache->tl_tex; /* NULL (no memory then): the pass builds its own */
-  c->tl_tex_borrowed = c->tl_tex != NULL;
+  c->tl_tex = cache->tl_tex;
+  c->tl_tex_borrowed = 1;
   if (!c->tl_cl || !c->tl_ccdf)
     return 0;
   memcpy(c->tl_cl, cache->cl, K * sizeof *c->tl_cl);
