@@ -43,8 +43,10 @@ typedef struct tl_cluster {
 /* One texel as the texel-light readers see it (a gather ray's hit, a texel-light sample):
  * the five values they read at a random texel in one 32-byte record, so each such read
  * costs one cache line instead of five separate arrays' (full ESTATE DLS, perf: those
- * five loads were a third of gather_block's samples, prefetched or not). area, texel_area
- * and of never change for a level; rad and pc are this bounce's, zero where no light. */
+ * five loads were a third of gather_block's samples, prefetched or not; one thread, the
+ * sets' stage 4–8% faster at scale 0.12, 1.4% at full scale, where the one load stays the
+ * hot spot). area, texel_area and of never change for a level; rad and pc are this
+ * bounce's, zero where no light. */
 typedef struct tl_texel {
   _Alignas(32) float rad[3]; /* outgoing radiance albedo/π·E of the previous bounce */
   float pc;                  /* probability of the texel within its cluster */
