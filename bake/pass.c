@@ -2406,11 +2406,12 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       }
       tl_ok = texel_clusters_build(&c);
     }
-    if (tl_ok && cache && !cache->ok)
+    if (tl_ok && cache && !cache->ok) {
       texel_clusters_to_cache(&c, lm, s, cache); /* best effort: without it, built again */
-    if (tl_ok && cache && cache->ok && cache->tl_tex) { /* one copy, not two */
-      c.tl_tex = cache->tl_tex;
-      c.tl_tex_borrowed = 1;
+      if (cache->ok) { /* filled from this pass's clusters: one copy, not two */
+        c.tl_tex = cache->tl_tex;
+        c.tl_tex_borrowed = 1;
+      }
     }
   }
   if (tl_ok && !c.tl_tex) {
