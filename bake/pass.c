@@ -491,6 +491,24 @@ static int on_texel(const pass_ctx *c, uint32_t t, const float q[3])
   return at->texel_of[hit_pixel(lm, at, &h, uv)] == (int32_t)t;
 }
 
+/* Rays j < n in a stable order by key[j] < nkeys (counting sort; start: nkeys + 1
+ * counters): sorted[i] = rays[order[i]]. The gathers by direction bucket, the shadow rays
+ * by light: runs Embree traces as packets. */
+static void sort_rays(const ub_ray *rays, const uint32_t *key, size_t n, uint32_t nkeys,
+                      uint32_t *start, uint32_t *order, ub_ray *sorted)
+{
+  memset(start, 0, ((size_t)nkeys + 1) * sizeof *start);
+  for (size_t j = 0; j < n; j++)
+    start[key[j] + 1]++;
+  for (uint32_t q = 0; q < nkeys; q++)
+    start[q + 1] += start[q];
+  for (size_t j = 0; j < n; j++) {
+    uint32_t dst = start[key[j]]++;
+    order[dst] = (uint32_t)j;
+    sorted[dst] = rays[j];
+  }
+}
+
 /* The occlusion of a block's n shadow rays (occ), traced grouped by light (slot[j] <
  * slots: ray j's light): the rays of one light leave nearby receivers toward one point,
  * which Embree traces as packets (ub_rt_occluded_sorted). 0 without memory (the caller
@@ -500,21 +518,13 @@ static int on_texel(const pass_ctx *c, uint32_t t, const float q[3])
 static int trace_by_light(const ub_rt *rt, const ub_ray *rays, const uint32_t *slot,
                           uint32_t slots, size_t n, uint8_t *occ)
 {
-  uint32_t *start = calloc((size_t)slots + 1, sizeof *start);
+  uint32_t *start = malloc(((size_t)slots + 1) * sizeof *start);
   uint32_t *order = malloc((n ? n : 1) * sizeof *order);
   ub_ray *sorted = malloc((n ? n : 1) * sizeof *sorted);
   uint8_t *socc = malloc(n ? n : 1);
   int ok = start && order && sorted && socc;
   if (ok) {
-    for (size_t j = 0; j < n; j++)
-      start[slot[j] + 1]++;
-    for (uint32_t q = 0; q < slots; q++)
-      start[q + 1] += start[q];
-    for (size_t j = 0; j < n; j++) { /* stable: a light's rays in receiver order */
-      uint32_t dst = start[slot[j]]++;
-      order[dst] = (uint32_t)j;
-      sorted[dst] = rays[j];
-    }
+    sort_rays(rays, slot, n, slots, start, order, sorted); /* a light's rays in receiver order */
     ub_rt_occluded_sorted(rt, sorted, (uint32_t)n, socc);
     for (size_t j = 0; j < n; j++)
       occ[order[j]] = socc[j];
@@ -1637,20 +1647,12 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
       ray->tfar = INFINITY;
     }
   }
-  /* Stable counting sort by direction bucket: rays of a block start close together, so
-   * equal directions make coherent streams. */
-  uint32_t count[UB_DIR_BUCKETS + 1] = {0};
-  for (size_t j = 0; j < n; j++) {
+  /* Sorted by direction bucket: rays of a block start close together, so equal
+   * directions make coherent streams. */
+  uint32_t count[UB_DIR_BUCKETS + 1];
+  for (size_t j = 0; j < n; j++)
     bucket[j] = dir_bucket(rays[j].dir);
-    count[bucket[j] + 1]++;
-  }
-  for (int b = 0; b < UB_DIR_BUCKETS; b++)
-    count[b + 1] += count[b];
-  for (size_t j = 0; j < n; j++) {
-    uint32_t dst = count[bucket[j]]++;
-    order[dst] = (uint32_t)j;
-    sorted[dst] = rays[j];
-  }
+  sort_rays(rays, bucket, n, UB_DIR_BUCKETS, count, order, sorted);
   ub_rt_intersect_sorted(rs->rt, sorted, (uint32_t)n, hits);
   atomic_fetch_add(&c->rays_gather, n);
   /* Scatter hits back to ray order (bucket reused as the inverse permutation). */
