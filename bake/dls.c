@@ -60,8 +60,8 @@ static int pixel_pair_cmp(const void *pa, const void *pb)
 /* The set's texel SH at the kept texels' atlas pixels, ascending, rows that are all zero
  * left out. No padding: the run-time shows each dilated padding pixel as the covered
  * texel it copies (ub_runtime_texel_source), so padding rows would never be read. */
-ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint32_t nkept,
-                              const float *sh, ub_bakefile_record *rec)
+static ub_result texel_record(const ub_lightmap *lm, const uint32_t *kept, uint32_t nkept,
+                              const float *sh, int rows, ub_bakefile_record *rec)
 {
   uint64_t *pair = malloc((nkept ? nkept : 1) * sizeof *pair);
   uint32_t *idx = malloc((nkept ? nkept : 1) * sizeof *idx);
@@ -73,7 +73,7 @@ ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint3
     return UB_ERR_OUT_OF_MEMORY;
   }
   for (uint32_t i = 0; i < nkept; i++)
-    pair[i] = (uint64_t)ub_dls_texel_pixel(lm, kept[i]) << 32 | kept[i];
+    pair[i] = (uint64_t)ub_dls_texel_pixel(lm, kept[i]) << 32 | (rows ? i : kept[i]);
   qsort(pair, nkept, sizeof *pair, pixel_pair_cmp);
   size_t n = 0;
   for (uint32_t i = 0; i < nkept; i++) {
@@ -92,6 +92,18 @@ ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint3
   rec->texel_index = idx;
   rec->texel_sh = val;
   return UB_OK;
+}
+
+ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint32_t nkept,
+                              const float *sh, ub_bakefile_record *rec)
+{
+  return texel_record(lm, kept, nkept, sh, 0, rec);
+}
+
+ub_result ub_dls_texel_record_rows(const ub_lightmap *lm, const uint32_t *kept, uint32_t nkept,
+                                   const float *sh_rows, ub_bakefile_record *rec)
+{
+  return texel_record(lm, kept, nkept, sh_rows, 1, rec);
 }
 
 /* ---- Uniform voxel grids: the reach bound's and the sparse probe grid's ---- */
@@ -809,10 +821,13 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
   memset(&cells, 0, sizeof cells);
   uint8_t *psh = scaled ? calloc((size_t)base->probe_count + 1, 1) : NULL;
   uint8_t *lsh = scaled ? calloc((size_t)nlp + 1, 1) : NULL;
-  if (!recs || !enabled || !kt || !kp || !kl || !ct || !cp || !cl ||
+  /* a set's culling estimate per texel, read at its candidates only */
+  float *est = malloc(((size_t)lm->texel_count + 1) * sizeof *est);
+  if (!recs || !enabled || !kt || !kp || !kl || !ct || !cp || !cl || !est ||
       (scaled && (!tsh || !psh || !lsh)) ||
       (plan->influence_sparse && (!donor || !gat || !is_cand)) ||
       (llg_sparse && (!ldonor || !lgat || !lcand))) {
+    free(est);
     free(tsh);
     free(psh);
     free(lsh);
@@ -1035,15 +1050,16 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     const float *b2 = inf.texel_bounce_iz && NB >= 1
                           ? inf.texel_bounce_iz + (size_t)(NB - 1) * lm->texel_count * 3
                           : NULL;
-    float *est = malloc(((size_t)lm->texel_count + 1) * sizeof *est);
-    if (!est) {
-      ub_pass_result_free(&inf);
-      r = UB_ERR_OUT_OF_MEMORY;
-      break;
-    }
+    /* The influence pass wrote its candidates only (the subset): the measures are zero
+     * elsewhere, so the rule reads those (ascending: the same sums) — not the whole
+     * level's arrays per set, whose reads page-faulted in 0.5 M pages at ESTATE full scale. */
+    const uint32_t *cand_t = sub ? ct : NULL, *cand_p = sub ? cp : NULL, *cand_l = sub ? cl : NULL;
+    const uint32_t ncand_t = sub ? nct : lm->texel_count;
+    const uint32_t ncand_p = sub ? ncp : base->probe_count, ncand_l = sub ? ncl : nlp;
     double ind_sum = 0.0;
     uint64_t lit = 0;
-    for (uint32_t t = 0; t < lm->texel_count; t++) {
+    for (uint32_t i = 0; i < ncand_t; i++) {
+      uint32_t t = cand_t ? cand_t[i] : i;
       double last = b2 ? 0.2126 * b2[3 * (size_t)t] + 0.7152 * b2[3 * (size_t)t + 1] +
                              0.0722 * b2[3 * (size_t)t + 2]
                        : 0.0;
@@ -1063,18 +1079,24 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     double ptail = 1.0 + (ind_e > 0.0 ? tail * inf.bounce_energy[NB] / ind_e : 0.0);
     uint32_t nkt = 0, nkp = 0, nkl = 0;
     /* --plan all keeps every receiver (no culling), to measure what culling drops. */
-    for (uint32_t t = 0; t < lm->texel_count; t++)
+    for (uint32_t i = 0; i < ncand_t; i++) {
+      uint32_t t = cand_t ? cand_t[i] : i;
       if (!plan->influence_culling || inf.texel_direct[t] > 0.0f || est[t] > thr)
         kt[nkt++] = t;
-    for (uint32_t q = 0; q < base->probe_count; q++)
+    }
+    for (uint32_t i = 0; i < ncand_p; i++) {
+      uint32_t q = cand_p ? cand_p[i] : i;
       if (!plan->influence_culling || inf.probe_direct[q] > 0.0f ||
           inf.probe_indirect[q] * ptail > thr)
         kp[nkp++] = q;
+    }
     /* LLG probes: the GLG probes' rule (they are points in free space too). */
-    for (uint32_t q = 0; q < nlp; q++)
+    for (uint32_t i = 0; i < ncand_l; i++) {
+      uint32_t q = cand_l ? cand_l[i] : i;
       if (!plan->influence_culling || inf.llg_direct[q] > 0.0f ||
           inf.llg_indirect[q] * ptail > thr)
         kl[nkl++] = q;
+    }
     /* Scaled rays: a kept receiver whose estimated indirect is a fraction f of the set's
      * reference (the mean over its directly lit texels, thr / frac)
      * gathers with the rays scaled to the power of two at or above f (at least
@@ -1101,9 +1123,8 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     }
     out_stats->gather_units_full += full_units;
     out_stats->gather_units += units;
-    free(est);
     if (nkt == 0 && nkp == 0 && nkl == 0) {
-      ub_pass_result_free(&inf);
+      ub_pass_result_recycle(&inf);
       out_stats->sets_empty++;
       if (out_stats->sets) { /* its influence pass ran */
         out_stats->sets[d].rays_influence = out_stats->rays_influence - ri0;
@@ -1130,6 +1151,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
      * receiver: a fixed count, as that is what finds the faint receivers' rare hits; an
      * eighth of each receiver's own rays gave 110 and 2.57 for 28.6 M). */
     pd.texel_lights_everywhere = 1;
+    pd.compact_store = 1; /* the record reads the kept rows only */
     pd.texel_subset = kt;
     pd.texel_subset_count = nkt;
     pd.probe_subset = kp;
@@ -1154,12 +1176,13 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     t0 = now_s();
     ub_pass_result full;
     r = ub_pass_run(&pd, NULL, &full);
-    ub_pass_result_free(&inf);
+    ub_pass_result_recycle(&inf);
     if (r != UB_OK)
       break;
     out_stats->rays_full += full.rays_gather + full.rays_shadow;
     out_stats->seconds_full += now_s() - t0;
-    r = ub_dls_texel_record(lm, kt, nkt, full.sh, rec);
+    r = full.compact ? ub_dls_texel_record_rows(lm, kt, nkt, full.sh, rec)
+                     : ub_dls_texel_record(lm, kt, nkt, full.sh, rec);
     if (r == UB_OK && nkp) {
       rec->probe_index = malloc((size_t)nkp * sizeof *rec->probe_index);
       rec->probe_sh = malloc((size_t)nkp * 27 * sizeof *rec->probe_sh);
@@ -1169,8 +1192,8 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
         rec->probe_count = nkp;
         for (uint32_t i = 0; i < nkp; i++) {
           rec->probe_index[i] = kp[i];
-          memcpy(rec->probe_sh + 27 * (size_t)i, full.probe_sh + 27 * (size_t)kp[i],
-                 27 * sizeof(float));
+          memcpy(rec->probe_sh + 27 * (size_t)i,
+                 full.probe_sh + 27 * (size_t)(full.compact ? i : kp[i]), 27 * sizeof(float));
         }
       }
     }
@@ -1188,7 +1211,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
         }
       }
     }
-    ub_pass_result_free(&full);
+    ub_pass_result_recycle(&full);
     if (scaled) { /* back to zero for the next set */
       for (uint32_t i = 0; i < nkt; i++)
         tsh[kt[i]] = 0;
@@ -1235,6 +1258,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
                   100.0 * out_stats->probes_candidate / ((double)s->dls_count * (base->probe_count + 1)),
                   100.0 * out_stats->llg_probes_candidate / ((double)s->dls_count * (nlp + 1)));
   ub_dls_texel_cells_free(&cells);
+  free(est);
   free(tsh);
   free(psh);
   free(lsh);

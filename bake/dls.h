@@ -174,6 +174,10 @@ void ub_dls_records_free(ub_bakefile_record *records, uint32_t count);
  * DLS, door and object records. */
 ub_result ub_dls_texel_record(const ub_lightmap *lm, const uint32_t *kept, uint32_t nkept,
                               const float *sh, ub_bakefile_record *rec);
+/* The same from the kept texels' own rows (sh_rows: nkept × 12, row i for kept[i]: a
+ * compact store, ub_pass_desc.compact_store). */
+ub_result ub_dls_texel_record_rows(const ub_lightmap *lm, const uint32_t *kept, uint32_t nkept,
+                                   const float *sh_rows, ub_bakefile_record *rec);
 
 /* Global pixel index of a texel (atlases in order, row-major). */
 uint32_t ub_dls_texel_pixel(const ub_lightmap *lm, uint32_t texel);

@@ -130,6 +130,7 @@ typedef struct pass_ctx {
   uint32_t *tl_start;         /* cluster → first entry of tl_list; tl_K + 1 entries */
   uint32_t *tl_list;          /* texels ordered by cluster */
   float *tl_ccdf;             /* tl_list order: cumulative power within the cluster, last 1 */
+  struct ub_pass_cache *tl_ccdf_cache; /* tl_ccdf goes back there (ub_pass_cache.tl_ccdf) */
   struct tl_cluster *tl_cl;   /* tl_K clusters */
   uint32_t tl_K;
   int tl_on;                  /* some texel has power this bounce */
@@ -1076,8 +1077,9 @@ enum {
   SCR_SH_TOTAL, SCR_IZ_TOTAL, SCR_PROBE_TOTAL, SCR_ACC_SH, SCR_ACC_IZ, SCR_ACC_SRC,
   SCR_ACC_SRC_NP, SCR_ACC_VAR, SCR_ACC_PVAR, SCR_REL2, SCR_VAR_TX, SCR_PR_ACC_SH,
   SCR_PR_ACC_VAR, SCR_PR_ACC_PVAR, SCR_VAR_PR, SCR_LLG_ACC_SH, SCR_LLG_ACC_NP, SCR_LLG_TOTAL,
-  UB_SCR_SLOTS
+  SCR_LLG_PREV, UB_SCR_SLOTS
 };
+#define UB_POOL_SLOTS 24
 
 /* The clusters' geometry (texel areas, membership, bounds) depends on the scene and the
  * lightmap only: passes sharing a desc.cache build it once (a qsort of every texel per
@@ -1103,7 +1105,44 @@ struct ub_pass_cache {
   void *scr[UB_SCR_SLOTS];
   size_t scr_bytes[UB_SCR_SLOTS];
   float **simg; /* zatlases */
+  /* Output arrays of subset passes given back by ub_pass_result_recycle (all zero) and
+   * taken by the next pass of the same sizes (pool_take): each of a set's two passes
+   * wrote fresh level-sized outputs (the influence measures and bounce planes, 51 MB at
+   * ESTATE full scale), and the page faults of those first writes, × 264 passes, were
+   * ~0.5 M of the bake's 2.6 M (perf record -e page-faults). Held whole (+36 MB of peak
+   * RSS there: they fill in over the sets), for −9% of the sets' stage with the compact
+   * store (desc.compact_store). */
+  void *pool[UB_POOL_SLOTS];
+  size_t pool_bytes[UB_POOL_SLOTS];
+  /* A cluster cdf (tl_ccdf, T + 1 floats, all zero) a pass gave back (tl_ccdf_give). */
+  float *tl_ccdf;
 };
+
+/* A zeroed array of `bytes` from the pool (ub_pass_cache.pool), else calloc'd. */
+static void *pool_take(ub_pass_cache *cache, size_t bytes)
+{
+  for (int i = 0; cache && i < UB_POOL_SLOTS; i++)
+    if (cache->pool[i] && cache->pool_bytes[i] == bytes) {
+      void *p = cache->pool[i];
+      cache->pool[i] = NULL;
+      return p;
+    }
+  return calloc(bytes, 1);
+}
+
+/* p (all zero, `bytes` long) into a free pool slot, else freed. */
+static void pool_give(ub_pass_cache *cache, void *p, size_t bytes)
+{
+  if (!p)
+    return;
+  for (int i = 0; cache && i < UB_POOL_SLOTS; i++)
+    if (!cache->pool[i]) {
+      cache->pool[i] = p;
+      cache->pool_bytes[i] = bytes;
+      return;
+    }
+  free(p);
+}
 
 static void *scr_take(ub_pass_cache *cache, int slot, size_t bytes)
 {
@@ -1153,6 +1192,9 @@ void ub_pass_cache_free(ub_pass_cache *cache)
   }
   for (int i = 0; i < UB_SCR_SLOTS; i++)
     free(cache->scr[i]);
+  for (int i = 0; i < UB_POOL_SLOTS; i++)
+    free(cache->pool[i]);
+  free(cache->tl_ccdf);
   for (uint32_t a = 0; cache->simg && a < cache->zatlases; a++)
     free(cache->simg[a]);
   free(cache->simg);
@@ -1201,6 +1243,29 @@ static tl_texel *tl_tex_new(const ub_lightmap *lm, const float *tl_area, const u
     tx[t].of = tl_of[t];
   }
   return tx;
+}
+
+/* The pass's cluster cdf back to the cache it came from (texel_clusters_from_cache),
+ * zeroed where texel_lights_build wrote it (the hot clusters' ranges), else freed. */
+static void tl_ccdf_give(const pass_ctx *c)
+{
+  ub_pass_cache *cache = c->tl_ccdf_cache;
+  if (!c->tl_ccdf)
+    return;
+  if (!cache || cache->tl_ccdf) {
+    free(c->tl_ccdf);
+    return;
+  }
+  if (!c->act || !c->tl_hot) {
+    memset(c->tl_ccdf, 0, ((size_t)c->lm->texel_count + 1) * sizeof *c->tl_ccdf);
+  } else {
+#pragma omp parallel for schedule(dynamic, 64)
+    for (uint32_t k = 0; k < c->tl_K; k++)
+      if (c->tl_hot[k])
+        memset(c->tl_ccdf + c->tl_start[k], 0,
+               (size_t)(c->tl_start[k + 1] - c->tl_start[k]) * sizeof *c->tl_ccdf);
+  }
+  cache->tl_ccdf = c->tl_ccdf;
 }
 
 /* A borrowed tl_tex back to the state the cache keeps (rad and pc zero): the rows this
@@ -1258,7 +1323,7 @@ static void texel_clusters_to_cache(const pass_ctx *c, const ub_lightmap *lm,
 
 /* texel_clusters_build's result from the cache: the geometry borrowed, the per-pass
  * arrays (cluster power, cdfs, shares, hot flags) new. */
-static int texel_clusters_from_cache(pass_ctx *c, const ub_pass_cache *cache)
+static int texel_clusters_from_cache(pass_ctx *c, ub_pass_cache *cache)
 {
   size_t T = cache->T, K = cache->K;
   c->tl_borrowed = 1;
@@ -1268,7 +1333,9 @@ static int texel_clusters_from_cache(pass_ctx *c, const ub_pass_cache *cache)
   c->tl_start = cache->tl_start;
   c->tl_K = cache->K;
   c->tl_cl = malloc((K + 1) * sizeof *c->tl_cl);
-  c->tl_ccdf = calloc(T + 1, sizeof *c->tl_ccdf);
+  c->tl_ccdf = cache->tl_ccdf ? cache->tl_ccdf : calloc(T + 1, sizeof *c->tl_ccdf);
+  cache->tl_ccdf = NULL; /* back at the pass's end (ub_pass_run) */
+  c->tl_ccdf_cache = cache;
   c->tl_tex = cache->tl_tex;
   c->tl_tex_borrowed = 1;
   if (!c->tl_cl || !c->tl_ccdf)
@@ -1867,9 +1934,9 @@ static double outgoing_energy(const pass_ctx *c, const double *iz, const uint32_
  * listed in idx (n of them), the others 0; idx NULL: rows 0..n-1. A subset pass converts
  * only its own receivers' rows (the rest of v is zero). */
 static float *finite_rows(const double *v, size_t rows, size_t width, const uint32_t *idx,
-                          size_t n, uint64_t *clamped)
+                          size_t n, ub_pass_cache *pool, uint64_t *clamped)
 {
-  float *out = idx ? calloc(rows * width + 1, sizeof(float))
+  float *out = idx ? pool_take(pool, (rows * width + 1) * sizeof(float))
                    : malloc((rows * width + 1) * sizeof(float));
   if (!out)
     return NULL;
@@ -1884,6 +1951,23 @@ static float *finite_rows(const double *v, size_t rows, size_t width, const uint
       out[i] = f;
     }
   }
+  return out;
+}
+
+/* As finite_rows, but row k of the result is row idx[k] of v (n rows, no others). */
+static float *finite_rows_compact(const double *v, size_t width, const uint32_t *idx, size_t n,
+                                  uint64_t *clamped)
+{
+  float *out = malloc((n * width + 1) * sizeof(float));
+  for (size_t k = 0; out && k < n; k++)
+    for (size_t i = 0; i < width; i++) {
+      float f = (float)v[(size_t)idx[k] * width + i];
+      if (!isfinite(f)) {
+        f = 0.0f;
+        (*clamped)++;
+      }
+      out[k * width + i] = f;
+    }
   return out;
 }
 
@@ -2280,10 +2364,6 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
 
   uint32_t P = d->probe_count;
   uint32_t N = d->gather_rays ? d->gather_rays : 1;
-  out->texel_direct = calloc((size_t)T + 1, sizeof(float));
-  out->texel_indirect = calloc((size_t)T + 1, sizeof(float));
-  if (d->keep_bounce_iz)
-    out->texel_bounce_iz = calloc((size_t)T * 3 * d->keep_bounce_iz + 1, sizeof(float));
   /* texels outside the subset whose estimated bounce light is fed to the images */
   uint8_t *outside = d->outside_bounce_iz && d->outside_bounces && d->texel_subset
                          ? malloc((size_t)T + 1) : NULL;
@@ -2357,6 +2437,13 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
    * in it, probe_gather_subset within probe_subset (a row written outside would stay in
    * the cache for every later pass). */
   ub_pass_cache *scache = d->cache && act && pact && !(d->target_error > 0.0) ? d->cache : NULL;
+  /* Its outputs likewise from the cache's pool (ub_pass_result_recycle gives them back). */
+  ub_pass_cache *ocache = scache;
+  out->texel_direct = pool_take(ocache, ((size_t)T + 1) * sizeof(float));
+  out->texel_indirect = pool_take(ocache, ((size_t)T + 1) * sizeof(float));
+  if (d->keep_bounce_iz)
+    out->texel_bounce_iz =
+        pool_take(ocache, ((size_t)T * 3 * d->keep_bounce_iz + 1) * sizeof(float));
   const size_t B_SH = ((size_t)T * 12 + 1) * sizeof(double), B_IZ = ((size_t)T * 3 + 1) * sizeof(double),
                B_T = ((size_t)T + 1) * sizeof(double), B_PSH = ((size_t)P * 27 + 1) * sizeof(double),
                B_P = ((size_t)P + 1) * sizeof(double);
@@ -2366,8 +2453,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
 #define ACT(i) (act ? act[i] : (i))
 #define PACT(i) (pact ? pact[i] : (i))
 #define LACT(i) (lact ? lact[i] : (i))
-  out->probe_direct = calloc((size_t)P + 1, sizeof(float));
-  out->probe_indirect = calloc((size_t)P + 1, sizeof(float));
+  out->probe_direct = pool_take(ocache, ((size_t)P + 1) * sizeof(float));
+  out->probe_indirect = pool_take(ocache, ((size_t)P + 1) * sizeof(float));
   recv_set *tx = &c.sets[0], *pr = &c.sets[1], *lg = &c.sets[2];
   const ub_llg_set *llg = d->llg && d->llg->probe_count ? d->llg : NULL;
   uint32_t LP = llg ? llg->probe_count : 0;
@@ -2469,8 +2556,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     }
   }
   double *llg_total = scr_take(lcache, SCR_LLG_TOTAL, B_LSH);
-  out->llg_direct = calloc((size_t)LP + 1, sizeof(float));
-  out->llg_indirect = calloc((size_t)LP + 1, sizeof(float));
+  out->llg_direct = pool_take(ocache, ((size_t)LP + 1) * sizeof(float));
+  out->llg_indirect = pool_take(ocache, ((size_t)LP + 1) * sizeof(float));
   /* Error estimates: this bounce's variance per texel / GLG probe, and the sum over
    * bounces. Bounces are taken as independent (var_total = Σ_k var_k): each bounce's
    * samples are fresh, and the error a receiver's bounce k inherits comes from other
@@ -2500,7 +2587,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     var_pr = scr_take(scache, SCR_VAR_PR, B_P);
   }
   if (LP)
-    c.llg_prev = calloc((size_t)LP * 27, sizeof(float));
+    c.llg_prev = scr_take(scache, SCR_LLG_PREV, (size_t)LP * 27 * sizeof(float));
   pr->acc_sh = scr_take(scache, SCR_PR_ACC_SH, B_PSH);
   c.img = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *c.img);
   c.emitter_of = malloc((size_t)(s->triangle_count ? s->triangle_count : 1) * sizeof(int32_t));
@@ -2816,10 +2903,28 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   uint64_t clamped = 0;
   if (d->no_store) /* the caller reads only the influence measures */
     goto counters;
-  /* Store: SH corrected so that its irradiance along the normal is the exact I_z. */
-  out->sh = calloc((size_t)T * 12 + 1, sizeof(float)); /* zero outside act */
-  out->iz = calloc((size_t)T * 3 + 1, sizeof(float));
-  if (!out->sh || !out->iz) {
+  /* Store: SH corrected so that its irradiance along the normal is the exact I_z. A
+   * compact store writes the subset's rows only (srank: act index → subset row, or
+   * UINT32_MAX for an outside texel, whose values are still checked and counted). */
+  const int compact = d->compact_store && d->texel_subset && d->probe_subset && act;
+  const uint32_t NS = d->texel_subset_count;
+  uint32_t *srank = NULL;
+  if (compact) {
+    out->compact = 1;
+    srank = malloc(((size_t)nact + 1) * sizeof *srank);
+    out->sh = malloc(((size_t)NS * 12 + 1) * sizeof(float));
+    out->iz = malloc(((size_t)NS * 3 + 1) * sizeof(float));
+    for (uint32_t i = 0, j = 0; srank && i < nact; i++) {
+      while (j < NS && d->texel_subset[j] < act[i])
+        j++;
+      srank[i] = j < NS && d->texel_subset[j] == act[i] ? j : UINT32_MAX;
+    }
+  } else {
+    out->sh = pool_take(ocache, ((size_t)T * 12 + 1) * sizeof(float)); /* zero outside act */
+    out->iz = pool_take(ocache, ((size_t)T * 3 + 1) * sizeof(float));
+  }
+  if (!out->sh || !out->iz || (compact && !srank)) {
+    free(srank);
     res = UB_ERR_OUT_OF_MEMORY;
     goto done;
   }
@@ -2832,6 +2937,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     uint32_t t = ACT(i);
     const float *n = lm->texel_normal + 3 * (size_t)t;
     double *sh = sh_total + 12 * (size_t)t;
+    const size_t row = srank ? srank[i] : t; /* the output row, when keep */
+    const int keep = !srank || srank[i] != UINT32_MAX;
     for (int ch = 0; ch < 3; ch++) {
       double e_sh = M_PI * UB_Y0 * sh[ch] +
                     (2.0 * M_PI / 3.0) * UB_Y1 *
@@ -2846,7 +2953,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       sh[3 + ch] += delta * h1 * n[1];
       sh[6 + ch] += delta * h1 * n[2];
       sh[9 + ch] += delta * h1 * n[0];
-      out->iz[3 * (size_t)t + ch] = (float)iz;
+      if (keep)
+        out->iz[3 * row + ch] = (float)iz;
     }
     for (int i = 0; i < 12; i++) {
       float v = (float)sh[i];
@@ -2854,18 +2962,21 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
         v = 0.0f;
         clamped++;
       }
-      out->sh[12 * (size_t)t + i] = v;
+      if (keep)
+        out->sh[12 * row + i] = v;
     }
   }
-  out->probe_sh = finite_rows(probe_total, P, 27, pact, npact, &clamped);
-  out->llg_sh = finite_rows(llg_total, LP, 27, lact, nlact, &clamped);
+  free(srank);
+  out->probe_sh = compact ? finite_rows_compact(probe_total, 27, pact, npact, &clamped)
+                          : finite_rows(probe_total, P, 27, pact, npact, ocache, &clamped);
+  out->llg_sh = finite_rows(llg_total, LP, 27, lact, nlact, ocache, &clamped);
   if (!out->probe_sh || !out->llg_sh) {
     res = UB_ERR_OUT_OF_MEMORY;
     goto done;
   }
   ub_llg_fill_invalid(llg, out->llg_sh);
-  out->texel_se = calloc((size_t)T + 1, sizeof(float));
-  out->probe_se = calloc((size_t)P + 1, sizeof(float));
+  out->texel_se = pool_take(ocache, ((size_t)T + 1) * sizeof(float));
+  out->probe_se = pool_take(ocache, ((size_t)P + 1) * sizeof(float));
   if (!out->texel_se || !out->probe_se) {
     res = UB_ERR_OUT_OF_MEMORY;
     goto done;
@@ -2931,6 +3042,21 @@ done:
     tl_tex_reset(&c);
   else
     free(c.tl_tex);
+  tl_ccdf_give(&c);
+  if (res == UB_OK && ocache && act) { /* the rows ub_pass_result_recycle zeroes */
+    out->pool = ocache;
+    out->pool_texels = act;
+    out->pool_ntexels = nact;
+    out->pool_probes = malloc(((size_t)npact + 1) * sizeof *out->pool_probes);
+    if (out->pool_probes)
+      memcpy(out->pool_probes, pact, (size_t)npact * sizeof *pact);
+    out->pool_nprobes = npact;
+    out->pool_T = T;
+    out->pool_P = P;
+    out->pool_LP = LP;
+    out->pool_keep = d->keep_bounce_iz;
+    act = NULL;
+  }
   free(act);
   free(outside);
   if (!c.tl_borrowed) {
@@ -2939,7 +3065,6 @@ done:
     free(c.tl_start);
     free(c.tl_list);
   }
-  free(c.tl_ccdf);
   free(c.tl_cl);
   free(c.tl_hot);
   ub_pass_cache *lgive = lact ? give : NULL;
@@ -2950,7 +3075,9 @@ done:
     free(c.sets[k].peak);
   }
   scr_give(lgive, SCR_LLG_TOTAL, llg_total, B_LSH, lact, nlact, 27 * sizeof(double));
-  free(c.llg_prev);
+  if (give && c.llg_prev) /* written at lact and the invalid probes: zeroed whole */
+    memset(c.llg_prev, 0, (size_t)LP * 27 * sizeof(float));
+  scr_give(give, SCR_LLG_PREV, c.llg_prev, (size_t)LP * 27 * sizeof(float), NULL, 0, 0);
   if (c.sparse)
     for (uint32_t a = 0; a < lm->atlas_count; a++)
       ub_lightmap_sparse_free(&c.sparse[a]);
@@ -2989,4 +3116,67 @@ void ub_pass_result_free(ub_pass_result *r)
   r->sh = NULL;
   r->iz = NULL;
   r->probe_sh = NULL;
+  free(r->pool_texels);
+  free(r->pool_probes);
+  r->pool_texels = r->pool_probes = NULL;
+  r->pool = NULL;
+}
+
+/* a[rows[i]·width ..] = 0 for the n rows, then a (bytes long) back to the pool */
+static void pool_give_rows(ub_pass_cache *pool, float *a, size_t bytes, const uint32_t *rows,
+                           uint32_t n, size_t width)
+{
+  if (!a)
+    return;
+#pragma omp parallel for schedule(static)
+  for (uint32_t i = 0; i < n; i++)
+    memset(a + (size_t)rows[i] * width, 0, width * sizeof *a);
+  pool_give(pool, a, bytes);
+}
+
+void ub_pass_result_recycle(ub_pass_result *r)
+{
+  ub_pass_cache *pc = r ? r->pool : NULL;
+  if (!pc || !r->pool_texels || !r->pool_probes) {
+    ub_pass_result_free(r);
+    return;
+  }
+  const size_t T = r->pool_T, P = r->pool_P, LP = r->pool_LP;
+  const uint32_t *tr = r->pool_texels, *pr = r->pool_probes;
+  const uint32_t nt = r->pool_ntexels, np = r->pool_nprobes;
+  pool_give_rows(pc, r->texel_direct, (T + 1) * sizeof(float), tr, nt, 1);
+  pool_give_rows(pc, r->texel_indirect, (T + 1) * sizeof(float), tr, nt, 1);
+  pool_give_rows(pc, r->texel_se, (T + 1) * sizeof(float), tr, nt, 1);
+  if (!r->compact) { /* else the subsets' rows only: freed below */
+    pool_give_rows(pc, r->sh, (T * 12 + 1) * sizeof(float), tr, nt, 12);
+    pool_give_rows(pc, r->iz, (T * 3 + 1) * sizeof(float), tr, nt, 3);
+    pool_give_rows(pc, r->probe_sh, (P * 27 + 1) * sizeof(float), pr, np, 27);
+    r->sh = r->iz = r->probe_sh = NULL;
+  }
+  if (r->texel_bounce_iz) { /* keep planes of T × 3, each written at the act rows */
+    for (uint32_t k = 0; k < r->pool_keep; k++) {
+      float *plane = r->texel_bounce_iz + k * T * 3;
+#pragma omp parallel for schedule(static)
+      for (uint32_t i = 0; i < nt; i++)
+        memset(plane + 3 * (size_t)tr[i], 0, 3 * sizeof *plane);
+    }
+    pool_give(pc, r->texel_bounce_iz, (T * 3 * r->pool_keep + 1) * sizeof(float));
+  }
+  pool_give_rows(pc, r->probe_direct, (P + 1) * sizeof(float), pr, np, 1);
+  pool_give_rows(pc, r->probe_indirect, (P + 1) * sizeof(float), pr, np, 1);
+  pool_give_rows(pc, r->probe_se, (P + 1) * sizeof(float), pr, np, 1);
+  /* LLG arrays: written at the LLG subset and (llg_sh) its invalid probes: zeroed whole */
+  float *la[3] = {r->llg_direct, r->llg_indirect, r->llg_sh};
+  const size_t lb[3] = {(LP + 1) * sizeof(float), (LP + 1) * sizeof(float),
+                        (LP * 27 + 1) * sizeof(float)};
+  for (int k = 0; k < 3; k++)
+    if (la[k]) {
+      memset(la[k], 0, lb[k]);
+      pool_give(pc, la[k], lb[k]);
+    }
+  r->texel_direct = r->texel_indirect = r->texel_se = NULL;
+  r->texel_bounce_iz = NULL;
+  r->probe_direct = r->probe_indirect = r->probe_se = NULL;
+  r->llg_direct = r->llg_indirect = r->llg_sh = NULL;
+  ub_pass_result_free(r);
 }

@@ -141,6 +141,12 @@ typedef struct ub_pass_desc {
    * clamped are not counted. For the DLS influence passes, which read nothing else:
    * their level-sized result arrays were allocated, first-touched and freed per set. */
   int no_store;
+  /* 1 (with texel_subset and probe_subset): sh and iz hold the texel subset's rows in its
+   * order (row i: texel_subset[i]) and probe_sh the probe subset's, instead of level-sized
+   * arrays zero elsewhere (ub_pass_result.compact). For the DLS full passes, which read
+   * only those rows: at ESTATE full scale their 119 MB of level-sized store per set were
+   * first-touched and freed 132 times (~0.4 M page faults). Same values. */
+  int compact_store;
   ub_progress_fn progress;
   void *progress_user;
   double progress_base, progress_span; /* this pass's share of the whole bake */
@@ -251,6 +257,12 @@ typedef struct ub_pass_result {
   uint64_t rays_adaptive;        /* gather + shadow rays of the adaptive rounds */
   uint32_t adaptive_rounds;      /* extra rounds run, summed over bounces */
   uint64_t adaptive_receivers;   /* receiver-rounds refined, summed over rounds */
+  /* A subset pass with desc.cache: its outputs came from the cache's pool and go back
+   * there, zeroed at the rows it wrote (ub_pass_result_recycle); NULL otherwise. */
+  int compact; /* desc.compact_store took effect: sh, iz, probe_sh hold the subsets' rows */
+  struct ub_pass_cache *pool;
+  uint32_t *pool_texels, *pool_probes; /* the rows written: act texels, subset probes */
+  uint32_t pool_ntexels, pool_nprobes, pool_T, pool_P, pool_LP, pool_keep;
 } ub_pass_result;
 
 /* Adaptive sampling's round cap: 16 rounds = 16× the base rays at most, per bounce. */
@@ -273,5 +285,10 @@ static inline double ub_rel_error(double se, double e, double floor)
 
 ub_result ub_pass_run(const ub_pass_desc *desc, const ub_log *log, ub_pass_result *out_result);
 void ub_pass_result_free(ub_pass_result *r);
+/* As ub_pass_result_free, but a subset pass's outputs go back to the cache they came
+ * from (r->pool) for the next pass: the caller must not have written them outside the
+ * pass's subsets (texels, GLG probes; LLG arrays are zeroed whole). Call it before that
+ * cache is freed. */
+void ub_pass_result_recycle(ub_pass_result *r);
 
 #endif
