@@ -130,7 +130,6 @@ typedef struct pass_ctx {
   uint32_t *tl_start;         /* cluster → first entry of tl_list; tl_K + 1 entries */
   uint32_t *tl_list;          /* texels ordered by cluster */
   float *tl_ccdf;             /* tl_list order: cumulative power within the cluster, last 1 */
-  struct ub_pass_cache *tl_ccdf_cache; /* tl_ccdf goes back there (ub_pass_cache.tl_ccdf) */
   struct tl_cluster *tl_cl;   /* tl_K clusters */
   uint32_t tl_K;
   int tl_on;                  /* some texel has power this bounce */
@@ -1077,7 +1076,7 @@ enum {
   SCR_SH_TOTAL, SCR_IZ_TOTAL, SCR_PROBE_TOTAL, SCR_ACC_SH, SCR_ACC_IZ, SCR_ACC_SRC,
   SCR_ACC_SRC_NP, SCR_ACC_VAR, SCR_ACC_PVAR, SCR_REL2, SCR_VAR_TX, SCR_PR_ACC_SH,
   SCR_PR_ACC_VAR, SCR_PR_ACC_PVAR, SCR_VAR_PR, SCR_LLG_ACC_SH, SCR_LLG_ACC_NP, SCR_LLG_TOTAL,
-  SCR_LLG_PREV, UB_SCR_SLOTS
+  SCR_LLG_PREV, SCR_TL_CCDF, UB_SCR_SLOTS
 };
 #define UB_POOL_SLOTS 24
 
@@ -1114,8 +1113,6 @@ struct ub_pass_cache {
    * store (desc.compact_store). */
   void *pool[UB_POOL_SLOTS];
   size_t pool_bytes[UB_POOL_SLOTS];
-  /* A cluster cdf (tl_ccdf, T + 1 floats, all zero) a pass gave back (tl_ccdf_give). */
-  float *tl_ccdf;
 };
 
 /* A zeroed array of `bytes` from the pool (ub_pass_cache.pool), else calloc'd. */
@@ -1144,6 +1141,14 @@ static void pool_give(ub_pass_cache *cache, void *p, size_t bytes)
   free(p);
 }
 
+/* The n rows idx[i] of row_bytes each in p set to 0: the only rows a pass wrote. */
+static void zero_rows(void *p, const uint32_t *idx, uint32_t n, size_t row_bytes)
+{
+#pragma omp parallel for schedule(static)
+  for (uint32_t i = 0; i < n; i++)
+    memset((char *)p + (size_t)idx[i] * row_bytes, 0, row_bytes);
+}
+
 static void *scr_take(ub_pass_cache *cache, int slot, size_t bytes)
 {
   if (cache && cache->scr[slot] && cache->scr_bytes[slot] == bytes) {
@@ -1166,9 +1171,7 @@ static void scr_give(ub_pass_cache *cache, int slot, void *p, size_t bytes, cons
     return;
   }
   free(cache->scr[slot]); /* another size (another level's pass): the newer one stays */
-#pragma omp parallel for schedule(static)
-  for (uint32_t i = 0; i < n; i++)
-    memset((char *)p + (size_t)idx[i] * row_bytes, 0, row_bytes);
+  zero_rows(p, idx, n, row_bytes);
   cache->scr[slot] = p;
   cache->scr_bytes[slot] = bytes;
 }
@@ -1194,7 +1197,6 @@ void ub_pass_cache_free(ub_pass_cache *cache)
     free(cache->scr[i]);
   for (int i = 0; i < UB_POOL_SLOTS; i++)
     free(cache->pool[i]);
-  free(cache->tl_ccdf);
   for (uint32_t a = 0; cache->simg && a < cache->zatlases; a++)
     free(cache->simg[a]);
   free(cache->simg);
@@ -1245,27 +1247,23 @@ static tl_texel *tl_tex_new(const ub_lightmap *lm, const float *tl_area, const u
   return tx;
 }
 
-/* The pass's cluster cdf back to the cache it came from (texel_clusters_from_cache),
- * zeroed where texel_lights_build wrote it (the hot clusters' ranges), else freed. */
+/* The pass's cluster cdf back to the scratch slot it came from (texel_clusters_from_cache
+ * borrows the cache's clusters and takes it there), zeroed where texel_lights_build wrote
+ * it (the hot clusters' ranges); else freed. */
 static void tl_ccdf_give(const pass_ctx *c)
 {
-  ub_pass_cache *cache = c->tl_ccdf_cache;
-  if (!c->tl_ccdf)
-    return;
-  if (!cache || cache->tl_ccdf) {
-    free(c->tl_ccdf);
-    return;
-  }
-  if (!c->act || !c->tl_hot) {
-    memset(c->tl_ccdf, 0, ((size_t)c->lm->texel_count + 1) * sizeof *c->tl_ccdf);
-  } else {
+  ub_pass_cache *cache = c->tl_borrowed ? c->d->cache : NULL;
+  const size_t bytes = ((size_t)c->lm->texel_count + 1) * sizeof *c->tl_ccdf;
+  if (cache && c->tl_ccdf && (!c->act || !c->tl_hot)) {
+    memset(c->tl_ccdf, 0, bytes);
+  } else if (cache && c->tl_ccdf) {
 #pragma omp parallel for schedule(dynamic, 64)
     for (uint32_t k = 0; k < c->tl_K; k++)
       if (c->tl_hot[k])
         memset(c->tl_ccdf + c->tl_start[k], 0,
                (size_t)(c->tl_start[k + 1] - c->tl_start[k]) * sizeof *c->tl_ccdf);
   }
-  cache->tl_ccdf = c->tl_ccdf;
+  scr_give(cache, SCR_TL_CCDF, c->tl_ccdf, bytes, NULL, 0, 0);
 }
 
 /* A borrowed tl_tex back to the state the cache keeps (rad and pc zero): the rows this
@@ -1333,9 +1331,7 @@ static int texel_clusters_from_cache(pass_ctx *c, ub_pass_cache *cache)
   c->tl_start = cache->tl_start;
   c->tl_K = cache->K;
   c->tl_cl = malloc((K + 1) * sizeof *c->tl_cl);
-  c->tl_ccdf = cache->tl_ccdf ? cache->tl_ccdf : calloc(T + 1, sizeof *c->tl_ccdf);
-  cache->tl_ccdf = NULL; /* back at the pass's end (ub_pass_run) */
-  c->tl_ccdf_cache = cache;
+  c->tl_ccdf = scr_take(cache, SCR_TL_CCDF, (T + 1) * sizeof *c->tl_ccdf); /* tl_ccdf_give */
   c->tl_tex = cache->tl_tex;
   c->tl_tex_borrowed = 1;
   if (!c->tl_cl || !c->tl_ccdf)
@@ -1934,40 +1930,25 @@ static double outgoing_energy(const pass_ctx *c, const double *iz, const uint32_
  * listed in idx (n of them), the others 0; idx NULL: rows 0..n-1. A subset pass converts
  * only its own receivers' rows (the rest of v is zero). */
 static float *finite_rows(const double *v, size_t rows, size_t width, const uint32_t *idx,
-                          size_t n, ub_pass_cache *pool, uint64_t *clamped)
+                          size_t n, int compact, ub_pass_cache *pool, uint64_t *clamped)
 {
-  float *out = idx ? pool_take(pool, (rows * width + 1) * sizeof(float))
-                   : malloc((rows * width + 1) * sizeof(float));
+  /* compact: row k of the result is row idx[k] of v, n rows and no others */
+  float *out = compact ? malloc((n * width + 1) * sizeof(float))
+               : idx   ? pool_take(pool, (rows * width + 1) * sizeof(float))
+                       : malloc((rows * width + 1) * sizeof(float));
   if (!out)
     return NULL;
   for (size_t k = 0; k < n; k++) {
-    size_t o = (idx ? idx[k] : k) * width;
-    for (size_t i = o; i < o + width; i++) {
-      float f = (float)v[i];
+    size_t o = (idx ? idx[k] : k) * width, w = compact ? k * width : o;
+    for (size_t i = 0; i < width; i++) {
+      float f = (float)v[o + i];
       if (!isfinite(f)) {
         f = 0.0f;
         (*clamped)++;
       }
-      out[i] = f;
+      out[w + i] = f;
     }
   }
-  return out;
-}
-
-/* As finite_rows, but row k of the result is row idx[k] of v (n rows, no others). */
-static float *finite_rows_compact(const double *v, size_t width, const uint32_t *idx, size_t n,
-                                  uint64_t *clamped)
-{
-  float *out = malloc((n * width + 1) * sizeof(float));
-  for (size_t k = 0; out && k < n; k++)
-    for (size_t i = 0; i < width; i++) {
-      float f = (float)v[(size_t)idx[k] * width + i];
-      if (!isfinite(f)) {
-        f = 0.0f;
-        (*clamped)++;
-      }
-      out[k * width + i] = f;
-    }
   return out;
 }
 
@@ -2438,12 +2419,11 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
    * the cache for every later pass). */
   ub_pass_cache *scache = d->cache && act && pact && !(d->target_error > 0.0) ? d->cache : NULL;
   /* Its outputs likewise from the cache's pool (ub_pass_result_recycle gives them back). */
-  ub_pass_cache *ocache = scache;
-  out->texel_direct = pool_take(ocache, ((size_t)T + 1) * sizeof(float));
-  out->texel_indirect = pool_take(ocache, ((size_t)T + 1) * sizeof(float));
+  out->texel_direct = pool_take(scache, ((size_t)T + 1) * sizeof(float));
+  out->texel_indirect = pool_take(scache, ((size_t)T + 1) * sizeof(float));
   if (d->keep_bounce_iz)
     out->texel_bounce_iz =
-        pool_take(ocache, ((size_t)T * 3 * d->keep_bounce_iz + 1) * sizeof(float));
+        pool_take(scache, ((size_t)T * 3 * d->keep_bounce_iz + 1) * sizeof(float));
   const size_t B_SH = ((size_t)T * 12 + 1) * sizeof(double), B_IZ = ((size_t)T * 3 + 1) * sizeof(double),
                B_T = ((size_t)T + 1) * sizeof(double), B_PSH = ((size_t)P * 27 + 1) * sizeof(double),
                B_P = ((size_t)P + 1) * sizeof(double);
@@ -2453,8 +2433,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
 #define ACT(i) (act ? act[i] : (i))
 #define PACT(i) (pact ? pact[i] : (i))
 #define LACT(i) (lact ? lact[i] : (i))
-  out->probe_direct = pool_take(ocache, ((size_t)P + 1) * sizeof(float));
-  out->probe_indirect = pool_take(ocache, ((size_t)P + 1) * sizeof(float));
+  out->probe_direct = pool_take(scache, ((size_t)P + 1) * sizeof(float));
+  out->probe_indirect = pool_take(scache, ((size_t)P + 1) * sizeof(float));
   recv_set *tx = &c.sets[0], *pr = &c.sets[1], *lg = &c.sets[2];
   const ub_llg_set *llg = d->llg && d->llg->probe_count ? d->llg : NULL;
   uint32_t LP = llg ? llg->probe_count : 0;
@@ -2556,8 +2536,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     }
   }
   double *llg_total = scr_take(lcache, SCR_LLG_TOTAL, B_LSH);
-  out->llg_direct = pool_take(ocache, ((size_t)LP + 1) * sizeof(float));
-  out->llg_indirect = pool_take(ocache, ((size_t)LP + 1) * sizeof(float));
+  out->llg_direct = pool_take(scache, ((size_t)LP + 1) * sizeof(float));
+  out->llg_indirect = pool_take(scache, ((size_t)LP + 1) * sizeof(float));
   /* Error estimates: this bounce's variance per texel / GLG probe, and the sum over
    * bounces. Bounces are taken as independent (var_total = Σ_k var_k): each bounce's
    * samples are fresh, and the error a receiver's bounce k inherits comes from other
@@ -2920,8 +2900,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       srank[i] = j < NS && d->texel_subset[j] == act[i] ? j : UINT32_MAX;
     }
   } else {
-    out->sh = pool_take(ocache, ((size_t)T * 12 + 1) * sizeof(float)); /* zero outside act */
-    out->iz = pool_take(ocache, ((size_t)T * 3 + 1) * sizeof(float));
+    out->sh = pool_take(scache, ((size_t)T * 12 + 1) * sizeof(float)); /* zero outside act */
+    out->iz = pool_take(scache, ((size_t)T * 3 + 1) * sizeof(float));
   }
   if (!out->sh || !out->iz || (compact && !srank)) {
     free(srank);
@@ -2967,16 +2947,15 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     }
   }
   free(srank);
-  out->probe_sh = compact ? finite_rows_compact(probe_total, 27, pact, npact, &clamped)
-                          : finite_rows(probe_total, P, 27, pact, npact, ocache, &clamped);
-  out->llg_sh = finite_rows(llg_total, LP, 27, lact, nlact, ocache, &clamped);
+  out->probe_sh = finite_rows(probe_total, P, 27, pact, npact, compact, scache, &clamped);
+  out->llg_sh = finite_rows(llg_total, LP, 27, lact, nlact, 0, scache, &clamped);
   if (!out->probe_sh || !out->llg_sh) {
     res = UB_ERR_OUT_OF_MEMORY;
     goto done;
   }
   ub_llg_fill_invalid(llg, out->llg_sh);
-  out->texel_se = pool_take(ocache, ((size_t)T + 1) * sizeof(float));
-  out->probe_se = pool_take(ocache, ((size_t)P + 1) * sizeof(float));
+  out->texel_se = pool_take(scache, ((size_t)T + 1) * sizeof(float));
+  out->probe_se = pool_take(scache, ((size_t)P + 1) * sizeof(float));
   if (!out->texel_se || !out->probe_se) {
     res = UB_ERR_OUT_OF_MEMORY;
     goto done;
@@ -3043,8 +3022,8 @@ done:
   else
     free(c.tl_tex);
   tl_ccdf_give(&c);
-  if (res == UB_OK && ocache && act) { /* the rows ub_pass_result_recycle zeroes */
-    out->pool = ocache;
+  if (res == UB_OK && scache && act) { /* the rows ub_pass_result_recycle zeroes */
+    out->pool = scache;
     out->pool_texels = act;
     out->pool_ntexels = nact;
     out->pool_probes = malloc(((size_t)npact + 1) * sizeof *out->pool_probes);
@@ -3122,15 +3101,13 @@ void ub_pass_result_free(ub_pass_result *r)
   r->pool = NULL;
 }
 
-/* a[rows[i]·width ..] = 0 for the n rows, then a (bytes long) back to the pool */
+/* a (bytes long) zeroed at the n rows of width floats, then back to the pool */
 static void pool_give_rows(ub_pass_cache *pool, float *a, size_t bytes, const uint32_t *rows,
                            uint32_t n, size_t width)
 {
   if (!a)
     return;
-#pragma omp parallel for schedule(static)
-  for (uint32_t i = 0; i < n; i++)
-    memset(a + (size_t)rows[i] * width, 0, width * sizeof *a);
+  zero_rows(a, rows, n, width * sizeof *a);
   pool_give(pool, a, bytes);
 }
 
@@ -3154,12 +3131,8 @@ void ub_pass_result_recycle(ub_pass_result *r)
     r->sh = r->iz = r->probe_sh = NULL;
   }
   if (r->texel_bounce_iz) { /* keep planes of T × 3, each written at the act rows */
-    for (uint32_t k = 0; k < r->pool_keep; k++) {
-      float *plane = r->texel_bounce_iz + k * T * 3;
-#pragma omp parallel for schedule(static)
-      for (uint32_t i = 0; i < nt; i++)
-        memset(plane + 3 * (size_t)tr[i], 0, 3 * sizeof *plane);
-    }
+    for (uint32_t k = 0; k < r->pool_keep; k++)
+      zero_rows(r->texel_bounce_iz + k * T * 3, tr, nt, 3 * sizeof(float));
     pool_give(pc, r->texel_bounce_iz, (T * 3 * r->pool_keep + 1) * sizeof(float));
   }
   pool_give_rows(pc, r->probe_direct, (P + 1) * sizeof(float), pr, np, 1);

@@ -257,9 +257,9 @@ typedef struct ub_pass_result {
   uint64_t rays_adaptive;        /* gather + shadow rays of the adaptive rounds */
   uint32_t adaptive_rounds;      /* extra rounds run, summed over bounces */
   uint64_t adaptive_receivers;   /* receiver-rounds refined, summed over rounds */
+  int compact; /* desc.compact_store took effect: sh, iz, probe_sh hold the subsets' rows */
   /* A subset pass with desc.cache: its outputs came from the cache's pool and go back
    * there, zeroed at the rows it wrote (ub_pass_result_recycle); NULL otherwise. */
-  int compact; /* desc.compact_store took effect: sh, iz, probe_sh hold the subsets' rows */
   struct ub_pass_cache *pool;
   uint32_t *pool_texels, *pool_probes; /* the rows written: act texels, subset probes */
   uint32_t pool_ntexels, pool_nprobes, pool_T, pool_P, pool_LP, pool_keep;
