@@ -39,9 +39,9 @@ test-sanitize: deps
 	cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=Debug -DUB_SANITIZE=ON >/dev/null
 	cmake --build build-asan -j $(JOBS)
 	@# Any ASan/UBSan report fails its test (-fno-sanitize-recover=all, halt_on_error).
-	@# The whole suite, slow label included (what CI runs; measured 2026-11-22 on this 2-core
-	@# machine, load ~4: 51 tests in 928 s, the 6 labelled slow in CMakeLists.txt in 567 s —
-	@# test_estate_plan 424 s, test_plan_oa_dm4 300 s — all clean; ~25 min with the build).
+	@# The whole suite, slow label included (what CI runs). Built at -O1 (CMakeLists.txt), the
+	@# tests' OpenMP waits passive: 66 tests in 443 s on this 2-core machine (2026-12-05;
+	@# 873 s at -O0 with spinning waits), ~9 min with the build.
 	@# SANITIZE_CTEST_ARGS="-LE slow" leaves the slow ones out for a quicker local run.
 	cd build-asan && ASAN_OPTIONS=detect_leaks=1:halt_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 ctest --output-on-failure -j $(JOBS) --timeout 1800 $(SANITIZE_CTEST_ARGS)
 

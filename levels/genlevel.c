@@ -828,7 +828,7 @@ static void build_hallway(void)
     box_node("hall_wall_east", mat, v3(X, 0, -Z), v3(X + w, H, Z));
     static const double lx[4] = { -4.5, -1.5, 1.5, 4.5 };
     for (int i = 0; i < 4; i++) {
-        char nm[16];
+        char nm[24];
         snprintf(nm, sizeof nm, "lamp_%d", i + 1);
         Node *l = light_node(nm, LIGHT_POINT, I, 1, 1, 1, v3(lx[i], ly, 0));
         node_extra(l, "ubake_light", i == 1 ? "primary" : "static");
@@ -891,7 +891,7 @@ static void build_inn(void)
     node_extra(l, "ubake_light", "primary");
     static const double cz[2] = { 0.9, -0.9 };
     for (int i = 0; i < 2; i++) {
-        char nm[16];
+        char nm[24];
         snprintf(nm, sizeof nm, "candle_%d", i + 1);
         l = light_node(nm, LIGHT_POINT, candle, 1, 1, 1, v3(-2.75, 1.6, cz[i]));
         node_extra(l, "ubake_light", "static");
@@ -1293,13 +1293,13 @@ static void build_estate(void)
                 continue;
             }
             for (int s = 0; s < ns; s++, nsets++) {
-                char set[40];
+                char set[48];
                 if (k == -2) snprintf(set, sizeof set, "hall_%02d", s);
                 else snprintf(set, sizeof set, "room_%d_%d_%d", i, j, s);
                 /* warm or cool sets, alternately static and primary */
                 double warm = est_hash(seed, 6, (uint64_t)nsets, 0);
                 for (int l = 0; l < lps; l++) {
-                    char nm[64];
+                    char nm[72];
                     snprintf(nm, sizeof nm, "lamp_%s_%d", set, l);
                     double lx = x0 + est_hash(seed, 7, (uint64_t)nsets, (uint64_t)l) * ext;
                     double lz = z0 + est_hash(seed, 8, (uint64_t)nsets, (uint64_t)l) * ext;
