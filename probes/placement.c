@@ -9,8 +9,10 @@
 /* Rays per candidate for the inside test, and the back-face share that means "inside". */
 #define UB_INSIDE_RAYS 24
 #define UB_INSIDE_BACKFACE_SHARE 0.5
-/* Coarse cells per axis at most: keeps a 20 km level from allocating a continent. */
-#define UB_GLG_MAX_CELLS_AXIS 1024
+/* Coarse cells per axis at most: what the fine lattice's 21-bit keys hold (2 m spacing:
+ * 2,000 km). Only occupied cells and their neighbours are stored, so the count costs
+ * nothing by itself. */
+#define UB_GLG_MAX_CELLS_AXIS ((1u << 20) - 1u)
 
 static int cmp_u64(const void *a, const void *b)
 {
@@ -22,6 +24,29 @@ static int cmp_u64(const void *a, const void *b)
 static uint64_t key_of(uint32_t i, uint32_t j, uint32_t k)
 {
   return ((uint64_t)i << 42) | ((uint64_t)j << 21) | (uint64_t)k;
+}
+
+/* Coarse cell (or coarse lattice point) key, ordered as a scan of the lattice: k, then j,
+ * then i (21 bits each). */
+static uint64_t cell_key(uint32_t i, uint32_t j, uint32_t k)
+{
+  return ((uint64_t)k << 42) | ((uint64_t)j << 21) | (uint64_t)i;
+}
+static uint32_t cell_i(uint64_t key) { return (uint32_t)key & 0x1FFFFF; }
+static uint32_t cell_j(uint64_t key) { return (uint32_t)(key >> 21) & 0x1FFFFF; }
+static uint32_t cell_k(uint64_t key) { return (uint32_t)(key >> 42); }
+
+/* Sorts v[0..n) and drops repeats; returns how many are left. */
+static size_t sort_unique(uint64_t *v, size_t n)
+{
+  if (n < 2)
+    return n;
+  qsort(v, n, sizeof *v, cmp_u64);
+  size_t w = 1;
+  for (size_t r = 1; r < n; r++)
+    if (v[r] != v[w - 1])
+      v[w++] = v[r];
+  return w;
 }
 
 ub_result ub_glg_place(const ub_scene *scene, const ub_rt *rt, const ub_lightmap *lm,
@@ -50,103 +75,91 @@ ub_result ub_glg_place(const ub_scene *scene, const ub_rt *rt, const ub_lightmap
     n[a] = (uint32_t)ceilf(ext[a] / s);
     if (n[a] < 1)
       n[a] = 1;
+    if (n[a] > UB_GLG_MAX_CELLS_AXIS) /* ext / s rounded up past the cap */
+      n[a] = UB_GLG_MAX_CELLS_AXIS;
     step[a] = ext[a] / (float)n[a]; /* cells exactly tile the bounds */
   }
-  /* Occupied coarse cells: any texel position or vertex inside. */
-  size_t ncells = (size_t)n[0] * n[1] * n[2];
-  uint8_t *occ = calloc(ncells, 1);
+  /* Occupied coarse cells (any texel position or vertex inside), as a sorted list of
+   * cell keys: a level's few occupied cells cost memory, its empty space none, so a small
+   * room far out in a 20 km level keeps its spacing. */
+  const size_t nsrc = (size_t)lm->texel_count + scene->vertex_count;
+  uint64_t *occ = malloc((nsrc ? nsrc : 1) * sizeof *occ);
   if (!occ)
     return UB_ERR_OUT_OF_MEMORY;
-#define CELL_OF(p, out_idx)                                                                \
-  do {                                                                                     \
-    uint32_t c_[3];                                                                        \
-    for (int a_ = 0; a_ < 3; a_++) {                                                       \
-      float f_ = ((p)[a_] - lo[a_]) / step[a_];                                            \
-      int i_ = (int)floorf(f_);                                                            \
-      c_[a_] = i_ < 0 ? 0 : ((uint32_t)i_ >= n[a_] ? n[a_] - 1 : (uint32_t)i_);            \
-    }                                                                                      \
-    (out_idx) = ((size_t)c_[2] * n[1] + c_[1]) * n[0] + c_[0];                             \
-  } while (0)
-  for (uint32_t t = 0; t < lm->texel_count; t++) {
-    size_t ci;
-    CELL_OF(lm->texel_pos + 3 * (size_t)t, ci);
-    occ[ci] = 1;
-  }
-  for (uint32_t v = 0; v < scene->vertex_count; v++) {
-    size_t ci;
-    CELL_OF(scene->positions + 3 * (size_t)v, ci);
-    occ[ci] = 1;
-  }
-#undef CELL_OF
-  /* Candidate keys on the fine lattice (2× resolution): coarse points everywhere, fine
-   * points inside occupied cells. */
-  size_t cap = ((size_t)n[0] + 1) * (n[1] + 1) * (n[2] + 1) + 1;
   size_t nocc = 0;
-  for (size_t ci = 0; ci < ncells; ci++)
-    nocc += occ[ci];
-  cap += nocc * 27;
-  uint64_t *keys = malloc(cap * sizeof *keys);
-  if (!keys) {
-    free(occ);
-    return UB_ERR_OUT_OF_MEMORY;
+  for (size_t q = 0; q < nsrc; q++) {
+    const float *p = q < lm->texel_count ? lm->texel_pos + 3 * q
+                                         : scene->positions + 3 * (q - lm->texel_count);
+    uint32_t c[3];
+    for (int a = 0; a < 3; a++) {
+      int64_t i = (int64_t)floorf((p[a] - lo[a]) / step[a]);
+      c[a] = i < 0 ? 0 : (i >= (int64_t)n[a] ? n[a] - 1 : (uint32_t)i);
+    }
+    const uint64_t key = cell_key(c[0], c[1], c[2]);
+    if (nocc == 0 || occ[nocc - 1] != key) /* neighbouring texels share cells */
+      occ[nocc++] = key;
   }
+  nocc = sort_unique(occ, nocc);
   /* Coarse points only where they can matter: corners of cells within one cell of a
-   * surface, plus the bounds' 8 corners (the hull). Empty space far from any surface (a
-   * small room in a 20 km level) gets no probes. */
-  uint8_t *nearc = calloc(ncells, 1);
+   * surface, plus the bounds' 8 corners (the hull). Empty space far from any surface gets
+   * no probes. In the order of a scan of the lattice (k, then j, then i). */
+  uint64_t *nearc = malloc((nocc * 27 + 1) * sizeof *nearc);
   if (!nearc) {
     free(occ);
-    free(keys);
     return UB_ERR_OUT_OF_MEMORY;
   }
-  for (uint32_t k = 0; k < n[2]; k++)
-    for (uint32_t j = 0; j < n[1]; j++)
-      for (uint32_t i = 0; i < n[0]; i++) {
-        if (!occ[((size_t)k * n[1] + j) * n[0] + i])
-          continue;
-        for (int dk = -1; dk <= 1; dk++)
-          for (int dj = -1; dj <= 1; dj++)
-            for (int di = -1; di <= 1; di++) {
-              int64_t a = (int64_t)i + di, b = (int64_t)j + dj, cc = (int64_t)k + dk;
-              if (a < 0 || b < 0 || cc < 0 || a >= n[0] || b >= n[1] || cc >= n[2])
-                continue;
-              nearc[((size_t)cc * n[1] + (size_t)b) * n[0] + (size_t)a] = 1;
-            }
-      }
-  size_t nk = 0;
-  for (uint32_t k = 0; k <= n[2]; k++)
-    for (uint32_t j = 0; j <= n[1]; j++)
-      for (uint32_t i = 0; i <= n[0]; i++) {
-        int keep = (i == 0 || i == n[0]) && (j == 0 || j == n[1]) && (k == 0 || k == n[2]);
-        for (int c = 0; c < 8 && !keep; c++) {
-          int64_t a = (int64_t)i - (c & 1), b = (int64_t)j - ((c >> 1) & 1),
-                  cc = (int64_t)k - ((c >> 2) & 1);
-          if (a >= 0 && b >= 0 && cc >= 0 && a < n[0] && b < n[1] && cc < n[2])
-            keep = nearc[((size_t)cc * n[1] + (size_t)b) * n[0] + (size_t)a];
+  size_t nnear = 0;
+  for (size_t o = 0; o < nocc; o++) {
+    const uint32_t i = cell_i(occ[o]), j = cell_j(occ[o]), k = cell_k(occ[o]);
+    for (int dk = -1; dk <= 1; dk++)
+      for (int dj = -1; dj <= 1; dj++)
+        for (int di = -1; di <= 1; di++) {
+          int64_t x = (int64_t)i + di, y = (int64_t)j + dj, z = (int64_t)k + dk;
+          if (x < 0 || y < 0 || z < 0 || x >= n[0] || y >= n[1] || z >= n[2])
+            continue;
+          nearc[nnear++] = cell_key((uint32_t)x, (uint32_t)y, (uint32_t)z);
         }
-        if (keep)
-          keys[nk++] = key_of(2 * i, 2 * j, 2 * k);
-      }
+  }
+  nnear = sort_unique(nearc, nnear);
+  uint64_t *cand = malloc((nnear * 8 + 8) * sizeof *cand);
+  if (!cand) {
+    free(occ);
+    free(nearc);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  size_t nc = 0;
+  for (size_t q = 0; q < nnear; q++) /* a near cell's 8 corners are coarse points */
+    for (int c = 0; c < 8; c++)
+      cand[nc++] = cell_key(cell_i(nearc[q]) + (c & 1), cell_j(nearc[q]) + ((c >> 1) & 1),
+                            cell_k(nearc[q]) + ((c >> 2) & 1));
+  for (int c = 0; c < 8; c++)
+    cand[nc++] = cell_key(c & 1 ? n[0] : 0, c & 2 ? n[1] : 0, c & 4 ? n[2] : 0);
   free(nearc);
+  nc = sort_unique(cand, nc);
+  /* Candidate keys on the fine lattice (2× resolution): the coarse points, then the fine
+   * points inside occupied cells, ascending. */
+  size_t nk = nc + nocc * 26;
+  uint64_t *keys = malloc((nk ? nk : 1) * sizeof *keys);
+  if (!keys) {
+    free(occ);
+    free(cand);
+    return UB_ERR_OUT_OF_MEMORY;
+  }
+  for (size_t q = 0; q < nc; q++)
+    keys[q] = key_of(2 * cell_i(cand[q]), 2 * cell_j(cand[q]), 2 * cell_k(cand[q]));
+  free(cand);
+  nk = nc;
   size_t ncoarse = nk;
-  for (uint32_t k = 0; k < n[2]; k++)
-    for (uint32_t j = 0; j < n[1]; j++)
-      for (uint32_t i = 0; i < n[0]; i++) {
-        if (!occ[((size_t)k * n[1] + j) * n[0] + i])
-          continue;
-        for (uint32_t dk = 0; dk < 3; dk++)
-          for (uint32_t dj = 0; dj < 3; dj++)
-            for (uint32_t di = 0; di < 3; di++)
-              if ((di | dj | dk) & 1)
-                keys[nk++] = key_of(2 * i + di, 2 * j + dj, 2 * k + dk);
-      }
+  for (size_t o = 0; o < nocc; o++) {
+    const uint32_t i = cell_i(occ[o]), j = cell_j(occ[o]), k = cell_k(occ[o]);
+    for (uint32_t dk = 0; dk < 3; dk++)
+      for (uint32_t dj = 0; dj < 3; dj++)
+        for (uint32_t di = 0; di < 3; di++)
+          if ((di | dj | dk) & 1)
+            keys[nk++] = key_of(2 * i + di, 2 * j + dj, 2 * k + dk);
+  }
   free(occ);
-  qsort(keys + ncoarse, nk - ncoarse, sizeof *keys, cmp_u64);
-  size_t w = ncoarse;
-  for (size_t r = ncoarse; r < nk; r++)
-    if (w == ncoarse || keys[r] != keys[w - 1])
-      keys[w++] = keys[r];
-  nk = w;
+  nk = ncoarse + sort_unique(keys + ncoarse, nk - ncoarse);
 
   float *pos = malloc(nk * 3 * sizeof *pos + 1);
   uint8_t *keep = malloc(nk + 1);

@@ -1,11 +1,14 @@
 /* probes/placement.h — where the global light grid (GLG) puts its probes.
  *
- * A coarse lattice at the level's GLG spacing covers the whole bounds (its corners are
- * always kept, so every point of the level lies inside the probes' hull); cells that hold
- * surfaces get a lattice twice as fine (adaptive: probes are denser near geometry, where
- * lighting changes). Candidates inside solid geometry (most of their probe rays hit back
- * faces) are dropped. Deterministic: candidates are generated and filtered in lattice
- * order. The caller owns out->pos (free with ub_glg_points_free, NULL-safe).
+ * A coarse lattice at the level's GLG spacing, its points kept within a cell of a surface,
+ * plus the 8 corners of the bounds (so every point of the level lies inside the probes'
+ * hull, and empty space far from any surface gets no probes); cells that hold surfaces get
+ * a lattice twice as fine (adaptive: probes are denser near geometry, where lighting
+ * changes). Only occupied cells and their neighbours are stored, so a huge level keeps
+ * its spacing (up to 2^20 cells per axis). Candidates inside solid geometry (most of
+ * their probe rays hit back faces) are dropped. Deterministic: candidates are generated
+ * and filtered in lattice order. The caller owns out->pos (free with ub_glg_points_free,
+ * NULL-safe).
  */
 #ifndef UBAKE_PROBES_PLACEMENT_H
 #define UBAKE_PROBES_PLACEMENT_H

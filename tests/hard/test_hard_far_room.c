@@ -8,10 +8,15 @@
  * point within max(1%, 1.5× the Monte Carlo noise of (a) between two seeds), since its
  * atlas layout (and so its random numbers) differ.
  *
- * KNOWN FAILURE (bake/rt.c ub_rt_epsilon, tests/hard/README.md): sample points and ray
- * origins are offset by max(1e-5·extent, 2^-17·|p|), i.e. 15 cm at 20 km (and 20 cm once
- * the level spans 20 km): the far room comes out 52% (b) and 106% (c) off. With
- * max(1e-7·extent, 1 µm, 2^-22·|p|) it is 0.6% (b), 0.4% per face (c). */
+ * Also (c)'s GLG: the room keeps its probes at the room's spacing and the empty 20 km
+ * around it gets none (probe counts against (b)'s), and interior GLG irradiance against (a).
+ *
+ * Bug 3 (tests/hard/README.md, fixed): sample points and ray origins were offset by
+ * max(1e-5·extent, 2^-17·|p|), i.e. 15 cm at 20 km (20 cm once the level spans 20 km):
+ * the far room came out 52% (b) and 106% (c) off; with max(1e-7·extent, 1 µm, 2^-22·|p|)
+ * (bake/rt.c ub_rt_epsilon) 0.6% (b), 0.4% per face (c). Bug 6 (fixed): the GLG's probes
+ * filled the bounds, 2.1 M of them here, then with the lattice capped at 1024 cells per
+ * axis its spacing widened to 19.5 m (probes/placement.c now keeps occupied cells only). */
 #include "hard_util.h"
 
 static ub_runtime *room_bake(const char *base, const char *params, uint32_t seed,
@@ -58,11 +63,7 @@ int main(void)
   ub_bake_stats s0, s1, s2, sn;
   ub_runtime *r0 = room_bake("room_origin", "", 1, &s0);
   ub_runtime *r1 = room_bake("room_far", "offset=20000,0,20000", 1, &s1);
-  /* glg_spacing=2000: probes/placement.c fills the whole bounding box with the coarse
-   * lattice (capped at 1024 cells per axis), which for this 20 km level is 2.1 M probes and
-   * hours of probe gathering (tests/hard/README.md). The GLG is not what this case checks. */
-  ub_runtime *r2 =
-      room_bake("room_far_marker", "offset=20000,0,20000 marker=1 glg_spacing=2000", 1, &s2);
+  ub_runtime *r2 = room_bake("room_far_marker", "offset=20000,0,20000 marker=1", 1, &s2);
   /* The marker changes the atlas layout, hence every texel's random numbers: (c) differs
    * from (a) by Monte Carlo noise too, measured here as (a) with another seed. */
   ub_runtime *rn = room_bake("room_origin", "", 2, &sn);
@@ -116,6 +117,39 @@ int main(void)
          100 * worstn, s0.bounces, s1.bounces, s2.bounces);
   ASSERT_TRUE(worst1 <= 0.01);
   ASSERT_TRUE(face1 <= 0.01);
+  /* GLG (bug 6): the 20 km level's GLG holds the room's probes at the room's spacing and
+   * none in the empty space between room and marker. A lattice over the whole bounds
+   * gave 2.1 M probes; one capped at 1024 cells per axis widened the spacing to 19.5 m and
+   * left the room black in the GLG (interior irradiance 0). Irradiance at 27 interior
+   * points, 6 normals each: (b) vs (a), the same lattice 20 km away, point by point within
+   * 2% (float precision of the GLG far out); (c) vs (a), lattices at the same spacing but
+   * aligned to other bounds (in a 4 m room a 2 m lattice's alignment moves single points by
+   * up to ~2x), the mean within 15%. */
+  double gworst1 = 0.0, gsum0 = 0.0, gsum2 = 0.0;
+  for (int i = 0; i < 27; i++)
+    for (int f = 0; f < 6; f++) {
+      float p[3] = {size[0] * (0.25f + 0.25f * (float)(i % 3)),
+                    size[1] * (0.25f + 0.25f * (float)(i / 3 % 3)),
+                    size[2] * (0.25f + 0.25f * (float)(i / 9))};
+      float nrm[3] = {0, 0, 0};
+      nrm[f / 2] = f & 1 ? -1.0f : 1.0f;
+      float q[3] = {p[0] + off[0], p[1] + off[1], p[2] + off[2]};
+      float g0[3], g1[3], g2[3];
+      ASSERT_OK(ub_runtime_query_glg(r0, p, nrm, NULL, g0));
+      ASSERT_OK(ub_runtime_query_glg(r1, q, nrm, NULL, g1));
+      ASSERT_OK(ub_runtime_query_glg(r2, q, nrm, NULL, g2));
+      ASSERT_TRUE(g0[1] > 0.0f);
+      gworst1 = fmax(gworst1, fabs(g1[1] - g0[1]) / g0[1]);
+      gsum0 += g0[1], gsum2 += g2[1];
+    }
+  printf("far_room GLG: probes origin %u, far %u, far + marker %u; interior irradiance: (b) vs "
+         "(a) worst point %.3f%%; (c) vs (a) mean %.4f vs %.4f (%+.2f%%)\n",
+         s0.glg_probes, s1.glg_probes, s2.glg_probes, 100 * gworst1, gsum2 / 162, gsum0 / 162,
+         100 * (gsum2 / gsum0 - 1));
+  ASSERT_TRUE(gworst1 <= 0.02);
+  ASSERT_TRUE(fabs(gsum2 / gsum0 - 1) <= 0.15);
+  ASSERT_TRUE(s2.glg_probes >= s1.glg_probes);
+  ASSERT_TRUE(s2.glg_probes <= 2 * s1.glg_probes + 64);
   ASSERT_TRUE(face2 <= 0.01);
   ASSERT_TRUE(worst2 <= fmax(0.01, 1.5 * worstn));
   ub_runtime_free(r0);
