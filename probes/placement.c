@@ -52,6 +52,13 @@ static size_t sort_unique(uint64_t *v, size_t n)
 ub_result ub_glg_place(const ub_scene *scene, const ub_rt *rt, const ub_lightmap *lm,
                        float spacing, const ub_log *log, ub_glg_points *out)
 {
+  return ub_glg_place_ex(scene, rt, lm, spacing, UB_GLG_MAX_OCCUPIED_DEFAULT, log, out);
+}
+
+ub_result ub_glg_place_ex(const ub_scene *scene, const ub_rt *rt, const ub_lightmap *lm,
+                          float spacing, uint32_t max_occupied, const ub_log *log,
+                          ub_glg_points *out)
+{
   memset(out, 0, sizeof *out);
   if (!(spacing > 0.0f))
     spacing = 2.0f;
@@ -62,44 +69,65 @@ ub_result ub_glg_place(const ub_scene *scene, const ub_rt *rt, const ub_lightmap
     lo[a] = scene->bounds_min[a] - pad;
     ext[a] = scene->bounds_max[a] + pad - lo[a];
   }
-  /* Coarse cell counts; widen the spacing if the level is too large for the cap. */
+  /* Coarse cell counts; widen the spacing if the level is too large for the cap, or if it
+   * has more cells holding surfaces than max_occupied (each brings up to 26 fine and 8
+   * coarse candidates: an open terrain at a room's spacing would bring tens of millions). */
   float s = spacing;
   for (int a = 0; a < 3; a++)
     if (ext[a] / s > UB_GLG_MAX_CELLS_AXIS)
       s = ext[a] / UB_GLG_MAX_CELLS_AXIS;
-  if (s != spacing)
-    ub_log_printf(log, UB_LOG_WARNING, "GLG spacing widened from %.3g m to %.3g m (level is %.0f m across)",
-                  spacing, s, fmaxf(ext[0], fmaxf(ext[1], ext[2])));
   float step[3];
-  for (int a = 0; a < 3; a++) {
-    n[a] = (uint32_t)ceilf(ext[a] / s);
-    if (n[a] < 1)
-      n[a] = 1;
-    if (n[a] > UB_GLG_MAX_CELLS_AXIS) /* ext / s rounded up past the cap */
-      n[a] = UB_GLG_MAX_CELLS_AXIS;
-    step[a] = ext[a] / (float)n[a]; /* cells exactly tile the bounds */
-  }
-  /* Occupied coarse cells (any texel position or vertex inside), as a sorted list of
-   * cell keys: a level's few occupied cells cost memory, its empty space none, so a small
-   * room far out in a 20 km level keeps its spacing. */
-  const size_t nsrc = (size_t)lm->texel_count + scene->vertex_count;
-  uint64_t *occ = malloc((nsrc ? nsrc : 1) * sizeof *occ);
-  if (!occ)
-    return UB_ERR_OUT_OF_MEMORY;
-  size_t nocc = 0;
-  for (size_t q = 0; q < nsrc; q++) {
-    const float *p = q < lm->texel_count ? lm->texel_pos + 3 * q
-                                         : scene->positions + 3 * (q - lm->texel_count);
-    uint32_t c[3];
+  uint64_t *occ = NULL;
+  size_t nocc = 0, nocc_first = 0;
+  for (;;) {
     for (int a = 0; a < 3; a++) {
-      int64_t i = (int64_t)floorf((p[a] - lo[a]) / step[a]);
-      c[a] = i < 0 ? 0 : (i >= (int64_t)n[a] ? n[a] - 1 : (uint32_t)i);
+      n[a] = (uint32_t)ceilf(ext[a] / s);
+      if (n[a] < 1)
+        n[a] = 1;
+      if (n[a] > UB_GLG_MAX_CELLS_AXIS) /* ext / s rounded up past the cap */
+        n[a] = UB_GLG_MAX_CELLS_AXIS;
+      step[a] = ext[a] / (float)n[a]; /* cells exactly tile the bounds */
     }
-    const uint64_t key = cell_key(c[0], c[1], c[2]);
-    if (nocc == 0 || occ[nocc - 1] != key) /* neighbouring texels share cells */
-      occ[nocc++] = key;
+    /* Occupied coarse cells (any texel position or vertex inside), as a sorted list of
+     * cell keys: a level's few occupied cells cost memory, its empty space none, so a
+     * small room far out in a 20 km level keeps its spacing. */
+    const size_t nsrc = (size_t)lm->texel_count + scene->vertex_count;
+    occ = malloc((nsrc ? nsrc : 1) * sizeof *occ);
+    if (!occ)
+      return UB_ERR_OUT_OF_MEMORY;
+    nocc = 0;
+    for (size_t q = 0; q < nsrc; q++) {
+      const float *p = q < lm->texel_count ? lm->texel_pos + 3 * q
+                                           : scene->positions + 3 * (q - lm->texel_count);
+      uint32_t c[3];
+      for (int a = 0; a < 3; a++) {
+        int64_t i = (int64_t)floorf((p[a] - lo[a]) / step[a]);
+        c[a] = i < 0 ? 0 : (i >= (int64_t)n[a] ? n[a] - 1 : (uint32_t)i);
+      }
+      const uint64_t key = cell_key(c[0], c[1], c[2]);
+      if (nocc == 0 || occ[nocc - 1] != key) /* neighbouring texels share cells */
+        occ[nocc++] = key;
+    }
+    nocc = sort_unique(occ, nocc);
+    if (!nocc_first)
+      nocc_first = nocc;
+    if (max_occupied == 0 || nocc <= max_occupied)
+      break;
+    /* surfaces: occupied cells go as 1/s²; a little more, so one step usually does */
+    s *= 1.05f * sqrtf((float)nocc / (float)max_occupied);
+    free(occ);
   }
-  nocc = sort_unique(occ, nocc);
+  if (s != spacing) {
+    if (nocc_first > nocc)
+      ub_log_printf(log, UB_LOG_WARNING,
+                    "GLG spacing widened from %.3g m to %.3g m (%zu cells hold surfaces at "
+                    "%.3g m, more than the %u allowed; now %zu)",
+                    spacing, s, nocc_first, spacing, max_occupied, nocc);
+    else
+      ub_log_printf(log, UB_LOG_WARNING,
+                    "GLG spacing widened from %.3g m to %.3g m (level is %.0f m across)",
+                    spacing, s, fmaxf(ext[0], fmaxf(ext[1], ext[2])));
+  }
   /* Coarse points only where they can matter: corners of cells within one cell of a
    * surface, plus the bounds' 8 corners (the hull). Empty space far from any surface gets
    * no probes. In the order of a scan of the lattice (k, then j, then i). */

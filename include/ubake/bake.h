@@ -40,6 +40,8 @@ typedef struct ub_bake_options {
   uint32_t gather_rays;   /* 0 = from quality: rays per receiver per bounce */
   float texel_size;       /* 0 = from the level (metres per texel) */
   float glg_spacing;      /* 0 = from the level (metres between coarse GLG probes) */
+  uint32_t glg_max_cells; /* 0 = 262,144: cells at the GLG spacing holding surfaces that the
+                             placement takes before it widens the spacing (a warning) */
   int plan_all;           /* 1: force every effect on, no culling (to check the plan) */
   int plan_only;          /* 1: stop after printing the plan; write nothing */
   double target_error;    /* > 0: adaptive sampling to this relative standard error per

@@ -9,7 +9,8 @@
  * atlas layout (and so its random numbers) differ.
  *
  * Also (c)'s GLG: the room keeps its probes at the room's spacing and the empty 20 km
- * around it gets none (probe counts against (b)'s), and interior GLG irradiance against (a).
+ * around it gets none (probe counts against (b)'s), and interior GLG irradiance against (a);
+ * and (d): (a) with a budget of 8 cells holding surfaces (ub_bake_options.glg_max_cells).
  *
  * Bug 3 (tests/hard/README.md, fixed): sample points and ray origins were offset by
  * max(1e-5·extent, 2^-17·|p|), i.e. 15 cm at 20 km (20 cm once the level spans 20 km):
@@ -19,8 +20,8 @@
  * axis its spacing widened to 19.5 m (probes/placement.c now keeps occupied cells only). */
 #include "hard_util.h"
 
-static ub_runtime *room_bake(const char *base, const char *params, uint32_t seed,
-                             ub_bake_stats *st)
+static ub_runtime *room_bake_ex(const char *base, const char *params, uint32_t seed,
+                                uint32_t glg_max_cells, ub_bake_stats *st)
 {
   char gltf[1100];
   if (!hard_genlevel("room", base, params, gltf, sizeof gltf))
@@ -28,10 +29,17 @@ static ub_runtime *room_bake(const char *base, const char *params, uint32_t seed
   ub_bake_options o;
   hard_options(&o, UB_QUALITY_FAST, -1, 0.25f);
   o.seed = seed;
+  o.glg_max_cells = glg_max_cells;
   char dir[1200];
   snprintf(dir, sizeof dir, "%s/seed%u", hard_out, seed);
   o.out_dir = dir;
   return hard_bake(gltf, &o, st);
+}
+
+static ub_runtime *room_bake(const char *base, const char *params, uint32_t seed,
+                             ub_bake_stats *st)
+{
+  return room_bake_ex(base, params, seed, 0, st);
 }
 
 static void texel_sanity(const ub_runtime *rt, const char *what)
@@ -150,6 +158,29 @@ int main(void)
   ASSERT_TRUE(fabs(gsum2 / gsum0 - 1) <= 0.15);
   ASSERT_TRUE(s2.glg_probes >= s1.glg_probes);
   ASSERT_TRUE(s2.glg_probes <= 2 * s1.glg_probes + 64);
+  /* (d) the room with a budget of 8 cells holding surfaces (ub_bake_options.glg_max_cells;
+   * an open terrain meets the default's 262,144): the spacing widens until they fit, the
+   * GLG keeps fewer probes, the lightmap is untouched, the GLG still lights the room. */
+  ub_bake_stats s3;
+  ub_runtime *r3 = room_bake_ex("room_origin_budget", "", 1, 8, &s3);
+  ASSERT_TRUE(r3 != NULL);
+  if (r3) {
+    double gsum3 = 0.0;
+    for (int f = 0; f < 6; f++) {
+      const float p[3] = {2.0f, 1.5f, 2.0f};
+      float nrm[3] = {0, 0, 0}, g3[3];
+      nrm[f / 2] = f & 1 ? -1.0f : 1.0f;
+      ASSERT_OK(ub_runtime_query_glg(r3, p, nrm, NULL, g3));
+      ASSERT_TRUE(isfinite(g3[1]) && g3[1] >= 0.0f);
+      gsum3 += g3[1];
+    }
+    printf("far_room GLG budget of 8 cells: %u probes (%u without), texels %u (%u), room centre "
+           "mean %.4f\n", s3.glg_probes, s0.glg_probes, s3.texels, s0.texels, gsum3 / 6);
+    ASSERT_TRUE(s3.glg_probes < s0.glg_probes);
+    ASSERT_TRUE(s3.texels == s0.texels);
+    ASSERT_TRUE(gsum3 > 0.0);
+    ub_runtime_free(r3);
+  }
   ASSERT_TRUE(face2 <= 0.01);
   ASSERT_TRUE(worst2 <= fmax(0.01, 1.5 * worstn));
   ub_runtime_free(r0);
