@@ -240,9 +240,9 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   stage_begin(&sc, "probes");
   if (opt->glg_spacing > 0.0f)
     scene->glg_spacing = opt->glg_spacing;
-  r = ub_glg_place_ex(scene, rt, lm, scene->glg_spacing,
-                      opt->glg_max_cells ? opt->glg_max_cells : UB_GLG_MAX_OCCUPIED_DEFAULT,
-                      log, &gp);
+  r = ub_glg_place(scene, rt, lm, scene->glg_spacing,
+                   opt->glg_max_cells ? opt->glg_max_cells : UB_GLG_MAX_OCCUPIED_DEFAULT, log,
+                   &gp);
   if (r != UB_OK)
     goto fail;
   scene->glg_spacing = gp.spacing; /* widened or not: what the report says */

@@ -50,14 +50,8 @@ static size_t sort_unique(uint64_t *v, size_t n)
 }
 
 ub_result ub_glg_place(const ub_scene *scene, const ub_rt *rt, const ub_lightmap *lm,
-                       float spacing, const ub_log *log, ub_glg_points *out)
-{
-  return ub_glg_place_ex(scene, rt, lm, spacing, UB_GLG_MAX_OCCUPIED_DEFAULT, log, out);
-}
-
-ub_result ub_glg_place_ex(const ub_scene *scene, const ub_rt *rt, const ub_lightmap *lm,
-                          float spacing, uint32_t max_occupied, const ub_log *log,
-                          ub_glg_points *out)
+                       float spacing, uint32_t max_occupied, const ub_log *log,
+                       ub_glg_points *out)
 {
   memset(out, 0, sizeof *out);
   if (!(spacing > 0.0f))
@@ -77,7 +71,13 @@ ub_result ub_glg_place_ex(const ub_scene *scene, const ub_rt *rt, const ub_light
     if (ext[a] / s > UB_GLG_MAX_CELLS_AXIS)
       s = ext[a] / UB_GLG_MAX_CELLS_AXIS;
   float step[3];
-  uint64_t *occ = NULL;
+  /* Occupied coarse cells (any texel position or vertex inside), as a sorted list of cell
+   * keys: a level's few occupied cells cost memory, its empty space none, so a small room
+   * far out in a 20 km level keeps its spacing. */
+  const size_t nsrc = (size_t)lm->texel_count + scene->vertex_count;
+  uint64_t *occ = malloc((nsrc ? nsrc : 1) * sizeof *occ);
+  if (!occ)
+    return UB_ERR_OUT_OF_MEMORY;
   size_t nocc = 0, nocc_first = 0;
   for (;;) {
     for (int a = 0; a < 3; a++) {
@@ -88,13 +88,6 @@ ub_result ub_glg_place_ex(const ub_scene *scene, const ub_rt *rt, const ub_light
         n[a] = UB_GLG_MAX_CELLS_AXIS;
       step[a] = ext[a] / (float)n[a]; /* cells exactly tile the bounds */
     }
-    /* Occupied coarse cells (any texel position or vertex inside), as a sorted list of
-     * cell keys: a level's few occupied cells cost memory, its empty space none, so a
-     * small room far out in a 20 km level keeps its spacing. */
-    const size_t nsrc = (size_t)lm->texel_count + scene->vertex_count;
-    occ = malloc((nsrc ? nsrc : 1) * sizeof *occ);
-    if (!occ)
-      return UB_ERR_OUT_OF_MEMORY;
     nocc = 0;
     for (size_t q = 0; q < nsrc; q++) {
       const float *p = q < lm->texel_count ? lm->texel_pos + 3 * q
@@ -115,7 +108,6 @@ ub_result ub_glg_place_ex(const ub_scene *scene, const ub_rt *rt, const ub_light
       break;
     /* surfaces: occupied cells go as 1/s²; a little more, so one step usually does */
     s *= 1.05f * sqrtf((float)nocc / (float)max_occupied);
-    free(occ);
   }
   if (s != spacing) {
     if (nocc_first > nocc)
@@ -176,8 +168,8 @@ ub_result ub_glg_place_ex(const ub_scene *scene, const ub_rt *rt, const ub_light
   for (size_t q = 0; q < nc; q++)
     keys[q] = key_of(2 * cell_i(cand[q]), 2 * cell_j(cand[q]), 2 * cell_k(cand[q]));
   free(cand);
+  const size_t ncoarse = nc;
   nk = nc;
-  size_t ncoarse = nk;
   for (size_t o = 0; o < nocc; o++) {
     const uint32_t i = cell_i(occ[o]), j = cell_j(occ[o]), k = cell_k(occ[o]);
     for (uint32_t dk = 0; dk < 3; dk++)

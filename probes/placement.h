@@ -27,16 +27,14 @@ typedef struct ub_glg_points {
 } ub_glg_points;
 
 /* spacing: metres between coarse probes (> 0). Surfaces are taken from the lightmap
- * texels (every lightmapped surface) and the triangles' vertices. */
-ub_result ub_glg_place(const ub_scene *scene, const ub_rt *rt, const ub_lightmap *lm,
-                       float spacing, const ub_log *log, ub_glg_points *out);
-/* The same with a bound on the cells (at the spacing) that hold surfaces: with more, the
- * spacing widens until they fit, with a warning (0: no bound). ub_glg_place uses
- * UB_GLG_MAX_OCCUPIED_DEFAULT (9× the full ESTATE-scale level's 27,909). */
+ * texels (every lightmapped surface) and the triangles' vertices. max_occupied bounds the
+ * cells (at the spacing) that hold surfaces: with more, the spacing widens until they fit,
+ * with a warning (0: no bound; the bake passes ub_bake_options.glg_max_cells, by default
+ * UB_GLG_MAX_OCCUPIED_DEFAULT, 9× the full ESTATE-scale level's 27,909). */
 #define UB_GLG_MAX_OCCUPIED_DEFAULT 262144u
-ub_result ub_glg_place_ex(const ub_scene *scene, const ub_rt *rt, const ub_lightmap *lm,
-                          float spacing, uint32_t max_occupied, const ub_log *log,
-                          ub_glg_points *out);
+ub_result ub_glg_place(const ub_scene *scene, const ub_rt *rt, const ub_lightmap *lm,
+                       float spacing, uint32_t max_occupied, const ub_log *log,
+                       ub_glg_points *out);
 void ub_glg_points_free(ub_glg_points *pts);
 
 #endif
