@@ -900,6 +900,45 @@ ub_result ub_renderer_render(const ub_renderer *r, const ub_render_params *p,
   return UB_OK;
 }
 
+ub_result ub_renderer_view(const ub_renderer *r, const ub_render_params *p, uint32_t grid,
+                           ub_render_view *out, const ub_log *log)
+{
+  assert(r && p && out);
+  ub_result res = ub_render_params_check(p, r->bf->dls_count, log);
+  if (res != UB_OK)
+    return res;
+  if (grid < 2 || grid > 1024) {
+    ub_log_printf(log, UB_LOG_ERROR, "view grid %u is not within 2..1024", grid);
+    return UB_ERR_INVALID_ARGUMENT;
+  }
+  cam_frame cf;
+  camera_frame(p, &cf);
+  uint64_t front = 0, back = 0, miss = 0;
+  for (uint32_t y = 0; y < grid; y++)
+    for (uint32_t x = 0; x < grid; x++) {
+      float u = (2.0f * ((float)x + 0.5f) / (float)grid - 1.0f) * cf.half_w;
+      float v = (1.0f - 2.0f * ((float)y + 0.5f) / (float)grid) * cf.half_h;
+      float d[3], dn[3];
+      for (int a = 0; a < 3; a++)
+        d[a] = cf.f[a] + u * cf.right[a] + v * cf.up[a];
+      ub_bvh_hit h;
+      if (!normalise3(d, dn) || !ub_bvh_intersect(r->bvh, p->eye, dn, INFINITY, &h)) {
+        miss++;
+        continue;
+      }
+      /* the shading's test (shade): a front face is one the ray meets against its normal */
+      if (dot3(&r->tri_normal[(size_t)h.tri * 3], dn) < 0.0f)
+        front++;
+      else
+        back++;
+    }
+  double n = (double)grid * grid;
+  out->front = (float)(front / n);
+  out->back = (float)(back / n);
+  out->miss = (float)(miss / n);
+  return UB_OK;
+}
+
 /* ---- tone map ------------------------------------------------------------------------ */
 
 static int cmp_float(const void *a, const void *b)

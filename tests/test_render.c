@@ -391,6 +391,67 @@ static void test_cornell(void)
     ASSERT_OK(ub_renderer_render(ren, &q, 0, q.height, img2, &g_log));
     ASSERT_TRUE(image_clean(img2, (size_t)q.width * q.height));
   }
+  /* What the camera sees (ub_renderer_view, the CLI's warning): from inside the box,
+   * front faces everywhere; from outside it (a closed box with inward faces), its back
+   * faces in the middle of the view and nothing around them; facing a wall from 1 mm
+   * behind it, back faces alone. The fractions match a per-pixel count of the same rays. */
+  {
+    ub_render_view vw;
+    ASSERT_OK(ub_renderer_view(ren, &p, 32, &vw, &g_log));
+    printf("  view inside: front %.3f back %.3f miss %.3f\n", vw.front, vw.back, vw.miss);
+    ASSERT_TRUE(vw.front == 1.0f && vw.back == 0.0f && vw.miss == 0.0f);
+    ub_render_params q = p;
+    q.width = q.height = 32; /* the view's lattice is this image's pixel centres */
+    const float out_eye[3] = {0.0f, 1.0f, 5.0f}, out_tgt[3] = {0.0f, 1.0f, 0.0f};
+    memcpy(q.eye, out_eye, sizeof out_eye);
+    memcpy(q.target, out_tgt, sizeof out_tgt);
+    q.fovy_degrees = 40.0f;
+    ASSERT_OK(ub_renderer_view(ren, &q, 32, &vw, &g_log));
+    int nf = 0, nb = 0, nm = 0;
+    for (uint32_t y = 0; y < 32; y++)
+      for (uint32_t x = 0; x < 32; x++) {
+        float d[3];
+        pixel_ray(&q, x, y, d);
+        ub_bvh_hit h;
+        if (!ub_bvh_intersect(ub_renderer_bvh(ren), q.eye, d, INFINITY, &h)) {
+          nm++;
+          continue;
+        }
+        const float *v0 = &bf->positions[bf->indices[h.tri * 3] * 3],
+                    *v1 = &bf->positions[bf->indices[h.tri * 3 + 1] * 3],
+                    *v2 = &bf->positions[bf->indices[h.tri * 3 + 2] * 3];
+        float e1[3], e2[3];
+        for (int k = 0; k < 3; k++) {
+          e1[k] = v1[k] - v0[k];
+          e2[k] = v2[k] - v0[k];
+        }
+        float c0 = e1[1] * e2[2] - e1[2] * e2[1], c1 = e1[2] * e2[0] - e1[0] * e2[2],
+              c2 = e1[0] * e2[1] - e1[1] * e2[0];
+        if (c0 * d[0] + c1 * d[1] + c2 * d[2] < 0.0f)
+          nf++;
+        else
+          nb++;
+      }
+    printf("  view outside: front %.3f back %.3f miss %.3f (per pixel: %d %d %d of 1024)\n",
+           vw.front, vw.back, vw.miss, nf, nb, nm);
+    ASSERT_TRUE(vw.front < 0.5f && vw.back > 0.3f && vw.miss > 0.1f);
+    ASSERT_TRUE(fabsf(vw.front + vw.back + vw.miss - 1.0f) < 1e-6f);
+    ASSERT_TRUE(abs(nf - (int)lroundf(vw.front * 1024)) <= 2 &&
+                abs(nb - (int)lroundf(vw.back * 1024)) <= 2 &&
+                abs(nm - (int)lroundf(vw.miss * 1024)) <= 2);
+    const float wall_eye[3] = {0.0f, 1.0f, -1.001f}, wall_tgt[3] = {0.0f, 1.0f, 0.0f};
+    memcpy(q.eye, wall_eye, sizeof wall_eye);
+    memcpy(q.target, wall_tgt, sizeof wall_tgt);
+    q.fovy_degrees = 1.0f;
+    ASSERT_OK(ub_renderer_view(ren, &q, 8, &vw, &g_log));
+    printf("  view behind the back wall: front %.3f back %.3f miss %.3f\n", vw.front, vw.back,
+           vw.miss);
+    ASSERT_TRUE(vw.back == 1.0f);
+    int verr = 0;
+    ub_log vl = {count_log, &verr};
+    ASSERT_TRUE(ub_renderer_view(ren, &q, 1, &vw, &vl) == UB_ERR_INVALID_ARGUMENT && verr == 1);
+  }
+
   /* Bad cameras: errors with a message, nothing written. */
   int errors = 0;
   ub_log cl = {count_log, &errors};

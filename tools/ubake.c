@@ -971,7 +971,9 @@ static const char *RENDER_HELP =
     "          [--door NAME=T ...] [--object NAME=on|off|V ...] [--records half|8bit]\n"
     "Renders the level from a camera as the run-time shows it: lightmaps on lightmapped\n"
     "geometry, the global light grid on the rest, plus the run-time direct light of the\n"
-    "primary lights (with shadows), under the given state. Back faces are black.\n"
+    "primary lights (with shadows), under the given state. Back faces are black; a\n"
+    "warning names what the camera sees when under half of the view meets front faces\n"
+    "(a camera in a wall or outside the level), or says so when every pixel is black.\n"
     "  --camera ...        eye X,Y,Z, target X,Y,Z (metres, Y up), vertical field of view\n"
     "                      in degrees (7 numbers)\n"
     "  --size WxH          image size in pixels (default 960x540)\n"
@@ -1143,6 +1145,15 @@ static int cmd_render(int argc, char **argv)
     }
   }
   double t_render = now_s() - t2;
+  /* A view that is mostly black for reasons other than light (a camera in a wall, outside
+   * the level, looking away from it) gets a warning naming what the camera sees. */
+  ub_render_view view = {1.0f, 0.0f, 0.0f};
+  size_t lit = 0;
+  if (!render_failed) {
+    render_failed = ub_renderer_view(ren, &rp, 32, &view, &log) != UB_OK;
+    for (size_t i = 0; i < npix * 3; i++)
+      lit += rgb[i] > 0.0f;
+  }
   float ev_used = ev;
   r = render_failed ? UB_ERR_INVALID_ARGUMENT
                     : ub_render_tonemap(rgb, rp.width, rp.height, auto_exposure, ev, srgb, &ev_used);
@@ -1176,6 +1187,18 @@ static int cmd_render(int argc, char **argv)
   }
   printf("rendered %s: %ux%u, %u ray(s)/pixel, exposure %.2f EV (%s)\n", out_png, rp.width,
          rp.height, rp.samples * rp.samples, ev_used, auto_exposure ? "auto" : "fixed");
+  if (view.front < 0.5f)
+    fprintf(stderr,
+            "ubake: warning: %s: only %.0f%% of the view meets front faces (%.0f%% back "
+            "faces, rendered black; %.0f%% nothing): is the camera at (%g, %g, %g) inside a "
+            "wall, outside the level or looking away from it?\n",
+            out_png, 100.0 * view.front, 100.0 * view.back, 100.0 * view.miss, rp.eye[0],
+            rp.eye[1], rp.eye[2]);
+  else if (!lit)
+    fprintf(stderr,
+            "ubake: warning: %s: every pixel is black: no light reaches the surfaces the "
+            "camera sees in this state\n",
+            out_png);
   printf("load %.2f s, BVH %.3f s (%u triangles, %u nodes, depth %u), render %.3f s\n", t_load,
          t_bvh, triangles, nodes, depth, t_render);
   return 0;

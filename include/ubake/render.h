@@ -94,6 +94,19 @@ ub_result ub_renderer_render(const ub_renderer *r, const ub_render_params *param
                              uint32_t row_begin, uint32_t row_end, float *out_rgb,
                              const ub_log *log);
 
+/* What the camera sees, for telling a black image's cause: of a grid × grid lattice of
+ * primary rays over the image (pixel-centre rays of a grid × grid image with the same
+ * field of view and aspect), the fractions that hit a front face, a back face (rendered
+ * black, as the baker reflects nothing there) and nothing. They sum to 1. A camera inside
+ * a wall or outside a closed level sees mostly back faces. grid: 2..1024 (32 is 1024
+ * rays, well under a millisecond on a game level). Errors as ub_renderer_render
+ * (params; a grid out of range: UB_ERR_INVALID_ARGUMENT), nothing written. */
+typedef struct ub_render_view {
+  float front, back, miss;
+} ub_render_view;
+ub_result ub_renderer_view(const ub_renderer *r, const ub_render_params *params, uint32_t grid,
+                           ub_render_view *out_view, const ub_log *log);
+
 /* Checks params as ub_renderer_render() does (log: the message, may be NULL). */
 ub_result ub_render_params_check(const ub_render_params *params, uint32_t dls_count,
                                  const ub_log *log);
