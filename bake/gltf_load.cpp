@@ -11,6 +11,7 @@
  * succeeds, so a failure produces exactly one log line.
  */
 #include "ubake/scene.h"
+#include "ubake/bakefile.h" /* the record name field tag names must fit */
 
 #include <tiny_gltf.h>
 #include <stb_image.h>
@@ -28,6 +29,8 @@
 #include <new>
 #include <string>
 #include <vector>
+
+#include <sys/stat.h>
 
 namespace {
 
@@ -302,6 +305,8 @@ private:
   void read_scene_settings(int scene_idx);
   Tags node_tags(int idx, const Tags &parent);
   std::string tag_string(int idx, const std::string &key, const tinygltf::Value &v);
+  std::string tag_name(int idx, const std::string &key, const tinygltf::Value &v);
+  void check_tag_references();
   float tag_positive(const std::string &where, const std::string &key,
                      const tinygltf::Value &v);
   Mat4 local_matrix(int idx) const;
@@ -399,6 +404,13 @@ void Loader::parse_file()
   FILE *f = fopen(path_.c_str(), "rb");
   if (!f)
     fail(UB_ERR_IO, "cannot open: %s", strerror(errno));
+  struct stat st;
+  if (fstat(fileno(f), &st) == 0 && !S_ISREG(st.st_mode)) {
+    fclose(f); /* a device or a pipe: /dev/zero would be read until 4 GB */
+    if (S_ISDIR(st.st_mode))
+      fail(UB_ERR_IO, "cannot read: %s", strerror(EISDIR));
+    fail(UB_ERR_IO, "not a regular file (a device, pipe or socket)");
+  }
   std::vector<unsigned char> bytes;
   unsigned char chunk[1 << 16];
   size_t n;
@@ -487,6 +499,19 @@ std::string Loader::tag_string(int idx, const std::string &key, const tinygltf::
   return v.Get<std::string>();
 }
 
+/* tag_string for the name of a set, door or object: the .ubk's records (and the game at run
+ * time) name them with at most this many bytes; a longer name would be cut, and two names
+ * sharing their first bytes would collide. */
+std::string Loader::tag_name(int idx, const std::string &key, const tinygltf::Value &v)
+{
+  std::string s = tag_string(idx, key, v);
+  const size_t max_name = sizeof(ub_bakefile_record::name) - 1;
+  if (s.size() > max_name)
+    fail(UB_ERR_INVALID_DATA, "%s: %s %s is %zu bytes long; names are at most %zu",
+         node_label(idx).c_str(), key.c_str(), describe(v).c_str(), s.size(), max_name);
+  return s;
+}
+
 float Loader::tag_positive(const std::string &where, const std::string &key,
                            const tinygltf::Value &v)
 {
@@ -517,7 +542,7 @@ Tags Loader::node_tags(int idx, const Tags &parent)
         fail(UB_ERR_INVALID_DATA, "%s: ubake_light must be \"static\" or \"primary\", got %s",
              node_label(idx).c_str(), describe(v).c_str());
     } else if (key == "ubake_dls") {
-      t.dls = dls_.intern(tag_string(idx, key, v));
+      t.dls = dls_.intern(tag_name(idx, key, v));
     } else if (key == "ubake_receiver") {
       std::string s = v.IsString() ? v.Get<std::string>() : std::string();
       t.receiver_tagged = true;
@@ -532,13 +557,13 @@ Tags Loader::node_tags(int idx, const Tags &parent)
              "%s: ubake_receiver must be \"lightmap\", \"llg\" or \"none\", got %s",
              node_label(idx).c_str(), describe(v).c_str());
     } else if (key == "ubake_door") {
-      t.door = doors_.intern(tag_string(idx, key, v));
+      t.door = doors_.intern(tag_name(idx, key, v));
     } else if (key == "ubake_door_open") {
-      t.door_open = doors_.intern(tag_string(idx, key, v));
+      t.door_open = doors_.intern(tag_name(idx, key, v));
     } else if (key == "ubake_combine") {
       t.combine = tag_string(idx, key, v);
     } else if (key == "ubake_semidynamic") {
-      t.semidynamic = objects_.intern(tag_string(idx, key, v));
+      t.semidynamic = objects_.intern(tag_name(idx, key, v));
     } else if (key == "ubake_texel_size") {
       t.texel_size = tag_positive(node_label(idx), key, v);
     } else {
@@ -1464,9 +1489,56 @@ void Loader::load()
   traverse(scene);
   finish_triangles();
   build_materials();
+  check_tag_references();
   if (fixed_normals_)
     warn("%u vertex normals were zero or collapsed by their node transform; replaced by "
          "geometric normals", fixed_normals_);
+}
+
+/* Tags that name something the level does not have are typos as a rule: each one gets a
+ * warning naming the node (the plan lists what it skips, on stdout, among other lines).
+ * - ubake_combine on a node that is not (under) a door's closed leaf: ignored;
+ * - a ubake_combine name that is neither a dynamic light set nor a door: skipped;
+ * - a door with an open leaf (ubake_door_open) but no closed leaf (ubake_door): not baked. */
+void Loader::check_tag_references()
+{
+  for (const NodeOut &no : nodes_) {
+    if (no.tags.combine.empty())
+      continue;
+    if (no.tags.door < 0) {
+      warn("node \"%s\": ubake_combine on a node that is not a door's closed leaf "
+           "(ubake_door) is ignored", clean(no.name, 64).c_str());
+      continue;
+    }
+    const std::string &list = no.tags.combine; /* as plan.c reads it */
+    size_t p = 0;
+    while (p < list.size()) {
+      while (p < list.size() && (list[p] == ',' || list[p] == ' '))
+        p++;
+      size_t e = list.find(',', p);
+      if (e == std::string::npos)
+        e = list.size();
+      size_t len = e - p;
+      while (len && list[p + len - 1] == ' ')
+        len--;
+      std::string name = list.substr(p, len);
+      p = e;
+      if (!name.empty() && !dls_.index.count(name) && !doors_.index.count(name))
+        warn("node \"%s\": ubake_combine names \"%s\", which is neither a dynamic light set "
+             "nor a door: skipped", clean(no.name, 64).c_str(), clean(name, 64).c_str());
+    }
+  }
+  std::vector<char> closed(doors_.names.size(), 0), open(doors_.names.size(), 0);
+  for (const NodeOut &no : nodes_) {
+    if (no.tags.door >= 0 && no.triangle_count)
+      closed[(size_t)no.tags.door] = 1;
+    if (no.tags.door_open >= 0 && no.triangle_count)
+      open[(size_t)no.tags.door_open] = 1;
+  }
+  for (size_t d = 0; d < doors_.names.size(); d++)
+    if (open[d] && !closed[d])
+      warn("door \"%s\" has an open leaf (ubake_door_open) but no closed leaf (ubake_door) "
+           "with triangles: it is not baked", clean(doors_.names[d], 64).c_str());
 }
 
 char *dup_string(const std::string &s)

@@ -463,6 +463,87 @@ static void test_tags(void)
   ub_scene_free(s);
 }
 
+/* tags.gltf's text with `from` replaced by `to` (once; NULL when from is not there). */
+static char *tags_variant(const char *from, const char *to)
+{
+  FILE *f = fopen(data_path("tags.gltf"), "rb");
+  if (!f)
+    return NULL;
+  static char text[65536];
+  size_t n = fread(text, 1, sizeof text - 1, f);
+  fclose(f);
+  text[n] = '\0';
+  char *at = strstr(text, from);
+  if (!at)
+    return NULL;
+  size_t lf = strlen(from), lt = strlen(to);
+  char *out = malloc(n - lf + lt + 1);
+  if (!out)
+    return NULL;
+  memcpy(out, text, (size_t)(at - text));
+  memcpy(out + (at - text), to, lt);
+  strcpy(out + (at - text) + lt, at + lf);
+  return out;
+}
+
+/* Loads a tags.gltf variant from memory: the result, its messages in *cap. */
+static ub_result load_variant(const char *from, const char *to, capture *cap)
+{
+  memset(cap, 0, sizeof *cap);
+  char *text = tags_variant(from, to);
+  ASSERT_TRUE(text != NULL);
+  if (!text)
+    return UB_ERR_IO;
+  ub_log log = {capture_fn, cap};
+  ub_scene *s = NULL;
+  ub_result r = ub_scene_load_memory(text, strlen(text), "variant.gltf", &log, &s);
+  ub_scene_free(s);
+  free(text);
+  return r;
+}
+
+/* Names of sets, doors and objects fit the .ubk's 63 bytes or the load fails naming the
+ * node; tags naming what the level lacks warn, naming the node. */
+static void test_tag_names(void)
+{
+  capture cap;
+  char name[80], to[128];
+  memset(name, 'x', 63);
+  name[63] = '\0';
+  snprintf(to, sizeof to, "\"ubake_dls\": \"%s\"", name);
+  ASSERT_TRUE(load_variant("\"ubake_dls\": \"sunset\"", to, &cap) == UB_OK);
+  strcat(name, "y"); /* 64 bytes */
+  snprintf(to, sizeof to, "\"ubake_dls\": \"%s\"", name);
+  ASSERT_TRUE(load_variant("\"ubake_dls\": \"sunset\"", to, &cap) == UB_ERR_INVALID_DATA);
+  printf("  64-byte set name: %s\n", cap.error);
+  ASSERT_TRUE(strstr(cap.error, "'sun'") && strstr(cap.error, "64 bytes") &&
+              strstr(cap.error, "at most 63"));
+  snprintf(to, sizeof to, "\"ubake_door_open\": \"%s\"", name);
+  ASSERT_TRUE(load_variant("\"ubake_door_open\": \"d1\"", to, &cap) == UB_ERR_INVALID_DATA);
+  ASSERT_TRUE(strstr(cap.error, "'floor_open'") && strstr(cap.error, "ubake_door_open"));
+  snprintf(to, sizeof to, "\"ubake_semidynamic\": \"%s\"", name);
+  ASSERT_TRUE(load_variant("\"ubake_semidynamic\": \"crate\"", to, &cap) ==
+              UB_ERR_INVALID_DATA);
+  ASSERT_TRUE(strstr(cap.error, "'group'") && strstr(cap.error, "ubake_semidynamic"));
+
+  /* tags.gltf itself warns 3 times (test_tags); each variant adds one warning */
+  ASSERT_TRUE(load_variant("\"ubake_door\": \"d1\",",
+                           "\"ubake_door\": \"d1\", \"ubake_combine\": \"hall, nope\",", &cap) ==
+              UB_OK);
+  printf("  combine with an unknown name: %d warnings\n", cap.warnings);
+  ASSERT_TRUE(cap.warnings == 4 && strstr(cap.warn_all, "node \"floor\": ubake_combine names "
+                                                        "\"nope\", which is neither"));
+  ASSERT_TRUE(strstr(cap.warn_all, "\"hall\"") == NULL); /* a set: fine */
+  ASSERT_TRUE(load_variant("\"ubake_light\": \"primary\",",
+                           "\"ubake_light\": \"primary\", \"ubake_combine\": \"d1\",", &cap) ==
+              UB_OK);
+  ASSERT_TRUE(cap.warnings == 4 &&
+              strstr(cap.warn_all, "node \"lamp\": ubake_combine on a node that is not a door"));
+  ASSERT_TRUE(load_variant("\"ubake_door\": \"d1\",", "\"ubake_door\": \"d2\",", &cap) == UB_OK);
+  ASSERT_TRUE(cap.warnings == 4 && strstr(cap.warn_all, "door \"d1\" has an open leaf") &&
+              strstr(cap.warn_all, "not baked"));
+}
+
 /* ---- textures: linear mean of sRGB texels; missing image → warning, mean 1 ---- */
 static const double kSrgb128 = 0.21586050011389926; /* sRGB 128/255 in linear */
 
@@ -638,6 +719,8 @@ static void test_bad_inputs(void)
   ASSERT_TRUE(s == NULL);
   /* a directory is not a level */
   expect_failure(g_data, UB_ERR_IO, "cannot read");
+  /* nor is a device: refused before reading (/dev/zero was read until the 4 GB cap) */
+  expect_failure("/dev/zero", UB_ERR_IO, "not a regular file");
   /* caller bugs and NULL-safety */
   ASSERT_TRUE(ub_scene_load(NULL, NULL, &s) == UB_ERR_INVALID_ARGUMENT);
   ASSERT_TRUE(ub_scene_load(data_path("hierarchy.gltf"), NULL, NULL) == UB_ERR_INVALID_ARGUMENT);
@@ -653,6 +736,7 @@ int main(void)
   find_data_dir();
   test_hierarchy();
   test_tags();
+  test_tag_names();
   test_textures();
   test_glb();
   test_bad_inputs();
