@@ -1550,8 +1550,11 @@ const char *ub_runtime_dls_name(const ub_runtime *rt, uint32_t set)
 ub_result ub_runtime_set_dls(ub_runtime *rt, uint32_t set, const float rgb[3])
 {
   assert(rt && rgb);
-  if (set >= rt->bf->dls_count || !isfinite(rgb[0]) || !isfinite(rgb[1]) || !isfinite(rgb[2]))
+  if (set >= rt->bf->dls_count)
     return UB_ERR_INVALID_ARGUMENT;
+  for (int c = 0; c < 3; c++) /* (NaN fails the comparison) */
+    if (!(fabsf(rgb[c]) <= UB_RUNTIME_MAX_WEIGHT))
+      return UB_ERR_INVALID_ARGUMENT;
   return set_value(rt, set, rgb);
 }
 

@@ -343,8 +343,30 @@ int main(void)
   if (rt) {
     ASSERT_TRUE(ub_runtime_dls_count(rt) == 2);
     ASSERT_TRUE(ub_runtime_dls_find(rt, "nope") == -1);
-    const float bad[3] = {NAN, 0, 0};
+    const float bad[3] = {NAN, 0, 0}, huge[3] = {1, 1, 1.01f * UB_RUNTIME_MAX_WEIGHT},
+                most[3] = {UB_RUNTIME_MAX_WEIGHT, 0, 0}, one[3] = {1, 1, 1};
     ASSERT_TRUE(ub_runtime_set_dls(rt, 0, bad) == UB_ERR_INVALID_ARGUMENT);
+    ASSERT_TRUE(ub_runtime_set_dls(rt, 0, huge) == UB_ERR_INVALID_ARGUMENT);
+    ASSERT_TRUE(ub_runtime_set_dls(rt, 2, one) == UB_ERR_INVALID_ARGUMENT);
+    /* the largest weight: the GLG answers its product like the lightmap (the probe store
+     * zeroed channels past its range, 1e30 read 0 there) */
+    {
+      const float p[3] = {0.0f, 1.0f, 0.0f}, n[3] = {0.0f, 1.0f, 0.0f};
+      float g1[3], gm[3], l1[3], lm[3];
+      ASSERT_OK(ub_runtime_set_dls(rt, 0, one));
+      ASSERT_OK(ub_runtime_update(rt, NULL));
+      ASSERT_OK(ub_runtime_query_glg(rt, p, n, NULL, g1));
+      ASSERT_OK(ub_runtime_query_lightmap(rt, p, n, l1, NULL));
+      ASSERT_OK(ub_runtime_set_dls(rt, 0, most));
+      ASSERT_OK(ub_runtime_update(rt, NULL));
+      ASSERT_OK(ub_runtime_query_glg(rt, p, n, NULL, gm));
+      ASSERT_OK(ub_runtime_query_lightmap(rt, p, n, lm, NULL));
+      printf("weight 1e6 at (0,1,0): GLG red %.4g (x%.4g), lightmap red %.4g (x%.4g)\n", gm[0],
+             gm[0] / g1[0], lm[0], lm[0] / l1[0]);
+      ASSERT_TRUE(gm[0] > 1e4 * g1[0] && lm[0] > 1e4 * l1[0]);
+      ASSERT_OK(ub_runtime_set_dls(rt, 0, one));
+      ASSERT_OK(ub_runtime_update(rt, NULL));
+    }
     test_info(st.ubk_path, rt, "");
     test_linearity(rt);
     test_toggle(rt);

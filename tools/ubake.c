@@ -61,6 +61,26 @@ static int usage_error(const char *cmd, const char *msg)
   return 1;
 }
 
+/* An argument starting with '-' that no branch took: an unknown option, or (no value
+ * after it) perhaps a known one missing its value. */
+static int bad_option(const char *cmd, const char *opt, const char *next)
+{
+  char msg[320];
+  if (next)
+    snprintf(msg, sizeof msg, "unknown option '%.200s'", opt);
+  else
+    snprintf(msg, sizeof msg, "option '%.200s' lacks its value, or is unknown", opt);
+  return usage_error(cmd, msg);
+}
+
+/* A second file where the command takes one. */
+static int second_file(const char *cmd, const char *first, const char *second)
+{
+  char msg[600];
+  snprintf(msg, sizeof msg, "one file at a time: '%.250s' and '%.250s' given", first, second);
+  return usage_error(cmd, msg);
+}
+
 static int parse_vec3(const char *s, float out[3])
 {
   char *end;
@@ -116,11 +136,18 @@ static int parse_state_arg(const char *cmd, const char *a, const char *v, cli_st
              : !strcmp(a, "--object") ? CLI_OBJECT : -1;
   if (kind < 0 || !v)
     return 0;
-  static const char *forms[] = {"--dls takes NAME=W or NAME=R,G,B (W >= 0)",
+  static const char *forms[] = {"--dls takes NAME=W or NAME=R,G,B (0 <= W <= 1e6)",
                                 "--door takes NAME=T with T in [0, 1] (0 closed, 1 open)",
                                 "--object takes NAME=on, NAME=off or NAME=W with W in [0, 1]"};
   const char *eq = strchr(v, '=');
-  if (!eq || eq == v || (size_t)(eq - v) >= sizeof st->name[0] || st->count >= UB_CLI_MAX_STATE) {
+  if (eq && (size_t)(eq - v) >= sizeof st->name[0]) {
+    char msg[200];
+    snprintf(msg, sizeof msg, "%s: name '%.40s...' is %zu bytes; names are at most %zu", a, v,
+             (size_t)(eq - v), sizeof st->name[0] - 1);
+    usage_error(cmd, msg);
+    return -1;
+  }
+  if (!eq || eq == v || st->count >= UB_CLI_MAX_STATE) {
     usage_error(cmd, forms[kind]);
     return -1;
   }
@@ -138,7 +165,9 @@ static int parse_state_arg(const char *cmd, const char *a, const char *v, cli_st
   } else {
     ok = kind == CLI_DLS && parse_vec3(eq + 1, rgb);
   }
-  ok = ok && rgb[0] >= 0.0f && rgb[1] >= 0.0f && rgb[2] >= 0.0f;
+  ok = ok && rgb[0] >= 0.0f && rgb[1] >= 0.0f && rgb[2] >= 0.0f &&
+       rgb[0] <= UB_RUNTIME_MAX_WEIGHT && rgb[1] <= UB_RUNTIME_MAX_WEIGHT &&
+       rgb[2] <= UB_RUNTIME_MAX_WEIGHT;
   if (!ok) {
     usage_error(cmd, forms[kind]);
     return -1;
@@ -360,7 +389,7 @@ static int cmd_bake(int argc, char **argv)
         return usage_error("bake", "--plan takes auto or all");
       i++;
     } else if (a[0] == '-') {
-      return usage_error("bake", "unknown option or missing value");
+      return bad_option("bake", a, v);
     } else if (!level) {
       level = a;
     } else {
@@ -506,6 +535,23 @@ static int info_memory(const char *path, info_notes *notes, unsigned flags,
   return 0;
 }
 
+/* s as a JSON string on stdout: quotes, backslashes and control bytes escaped (names come
+ * from the level's tags and may hold any of them). */
+static void json_print_str(const char *s)
+{
+  putchar('"');
+  for (; *s; s++) {
+    unsigned char c = (unsigned char)*s;
+    if (c == '"' || c == '\\')
+      printf("\\%c", c);
+    else if (c < 0x20 || c == 0x7f)
+      printf("\\u%04x", c);
+    else
+      putchar(c);
+  }
+  putchar('"');
+}
+
 static int cmd_info(int argc, char **argv)
 {
   const char *path = NULL;
@@ -531,7 +577,9 @@ static int cmd_info(int argc, char **argv)
     } else if (!strcmp(argv[i], "--no-base-ahd")) {
       load_flags |= UB_RUNTIME_NO_BASE_AHD;
     } else if (argv[i][0] == '-') {
-      return usage_error("info", "unknown option");
+      return bad_option("info", argv[i], "");
+    } else if (path) {
+      return second_file("info", path, argv[i]);
     } else {
       path = argv[i];
     }
@@ -586,9 +634,11 @@ static int cmd_info(int argc, char **argv)
   if (llg_shared)
     llg_bytes += 40ULL * bf->llg_count;
   if (json) {
-    printf("{\"level\": \"%s\", \"bytes\": %lld, \"seed\": %u, \"bounces\": %u, "
+    printf("{\"level\": ");
+    json_print_str(bf->level_name);
+    printf(", \"bytes\": %lld, \"seed\": %u, \"bounces\": %u, "
            "\"vertices\": %u, \"triangles\": %u, \"atlases\": [",
-           bf->level_name, bytes, bf->seed, bf->bounces, bf->vertex_count, bf->triangle_count);
+           bytes, bf->seed, bf->bounces, bf->vertex_count, bf->triangle_count);
     for (uint32_t a = 0; a < bf->atlas_count; a++)
       printf("%s{\"width\": %u, \"height\": %u}", a ? ", " : "", bf->atlases[a].width,
              bf->atlases[a].height);
@@ -599,19 +649,23 @@ static int cmd_info(int argc, char **argv)
            (unsigned long long)total, (unsigned long long)covered,
            (unsigned long long)dilated, bf->glg_probe_count, bf->glg_tet_count,
            bf->glg_plane_count, glg_bytes, bf->llg_count, llg_probes, llg_vertices, llg_bytes);
-    for (uint32_t d = 0; d < bf->dls_count; d++)
-      printf("%s{\"name\": \"%s\", \"lights\": %u, \"texels\": %u, \"probes\": %u, "
+    for (uint32_t d = 0; d < bf->dls_count; d++) {
+      printf("%s{\"name\": ", d ? ", " : "");
+      json_print_str(bf->dls[d].name);
+      printf(", \"lights\": %u, \"texels\": %u, \"probes\": %u, "
              "\"llg_probes\": %u, \"bytes\": %llu}",
-             d ? ", " : "", bf->dls[d].name, bf->dls[d].light_count, bf->dls[d].texel_count,
-             bf->dls[d].probe_count, bf->dls[d].llg_probe_count, record_bytes(&bf->dls[d]));
+             bf->dls[d].light_count, bf->dls[d].texel_count, bf->dls[d].probe_count,
+             bf->dls[d].llg_probe_count, record_bytes(&bf->dls[d]));
+    }
     printf("], \"elements\": [");
     for (uint32_t e = 0; e < bf->elem_count; e++) {
       const ub_bakefile_record *rc = &bf->elems[e];
-      printf("%s{\"name\": \"%s\", \"kind\": \"%s\", \"parents\": [%d, %d], "
+      printf("%s{\"name\": ", e ? ", " : "");
+      json_print_str(rc->name);
+      printf(", \"kind\": \"%s\", \"parents\": [%d, %d], "
              "\"texels\": %u, \"probes\": %u, \"llg_probes\": %u, \"bytes\": %llu}",
-             e ? ", " : "", rc->name, element_kind_name(rc->kind), (int)rc->parent[0],
-             (int)rc->parent[1], rc->texel_count, rc->probe_count, rc->llg_probe_count,
-             record_bytes(rc));
+             element_kind_name(rc->kind), (int)rc->parent[0], (int)rc->parent[1],
+             rc->texel_count, rc->probe_count, rc->llg_probe_count, record_bytes(rc));
     }
     printf("]");
     if (memory)
@@ -733,7 +787,9 @@ static int cmd_query(int argc, char **argv)
         return 1;
       i++;
     } else if (a[0] == '-') {
-      return usage_error("query", "unknown option or missing value");
+      return bad_option("query", a, v);
+    } else if (path) {
+      return second_file("query", path, a);
     } else {
       path = a;
     }
@@ -862,7 +918,9 @@ static int cmd_reference(int argc, char **argv)
         return 1;
       i++;
     } else if (a[0] == '-') {
-      return usage_error("reference", "unknown option or missing value");
+      return bad_option("reference", a, v);
+    } else if (level) {
+      return second_file("reference", level, a);
     } else {
       level = a;
     }
@@ -1064,7 +1122,9 @@ static int cmd_render(int argc, char **argv)
       }
       i++;
     } else if (a[0] == '-') {
-      return usage_error("render", "unknown option or missing value");
+      return bad_option("render", a, v);
+    } else if (path) {
+      return second_file("render", path, a);
     } else {
       path = a;
     }
@@ -1169,20 +1229,24 @@ static int cmd_render(int argc, char **argv)
   }
   size_t plen = strlen(out_png);
   char *tmp = malloc(plen + 5);
-  int wrote = 0;
+  int wrote = 0, err = ENOMEM; /* the cause, kept before remove() can change errno */
   if (tmp) {
     memcpy(tmp, out_png, plen);
     memcpy(tmp + plen, ".tmp", 5);
+    errno = 0;
     wrote = stbi_write_png(tmp, (int)rp.width, (int)rp.height, 3, srgb, (int)rp.width * 3) != 0;
-    if (wrote && rename(tmp, out_png) != 0)
+    err = errno ? errno : EIO;
+    if (wrote && rename(tmp, out_png) != 0) {
+      err = errno;
       wrote = 0;
+    }
     if (!wrote)
       remove(tmp);
   }
   free(tmp);
   free(srgb);
   if (!wrote) {
-    fprintf(stderr, "ubake: %s: cannot write the PNG (%s)\n", out_png, strerror(errno));
+    fprintf(stderr, "ubake: %s: cannot write the PNG (%s)\n", out_png, strerror(err));
     return 1;
   }
   printf("rendered %s: %ux%u, %u ray(s)/pixel, exposure %.2f EV (%s)\n", out_png, rp.width,

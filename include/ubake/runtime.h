@@ -255,6 +255,11 @@ ub_result ub_runtime_query_llg_ex(const ub_runtime *rt, const float p[3], const 
 uint32_t ub_runtime_dls_count(const ub_runtime *rt);
 int32_t ub_runtime_dls_find(const ub_runtime *rt, const char *name); /* -1 if absent */
 const char *ub_runtime_dls_name(const ub_runtime *rt, uint32_t set);
+/* UB_ERR_INVALID_ARGUMENT (nothing changes) for a set out of range or a channel that is
+ * not finite or beyond ±UB_RUNTIME_MAX_WEIGHT: a million times a set's baked light is
+ * past any light a level holds, and the GLG's probe store keeps values within a range
+ * (a channel beyond it would read 0 there, while the lightmap read the product). */
+#define UB_RUNTIME_MAX_WEIGHT 1e6f
 ub_result ub_runtime_set_dls(ub_runtime *rt, uint32_t set, const float rgb[3]);
 /* A set's weight from its lights' strengths (each 0 = shot out … 1 = as baked): their
  * mean (UberBake §3.1). */
