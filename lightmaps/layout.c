@@ -1121,6 +1121,29 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
     lm->tri_chart[t] = -1;
   }
 
+  /* The texels the surfaces ask for, before any atlas is made: past UB_LM_MAX_TEXELS the
+   * texel size is a mistake (or the level needs splitting), not something to allocate. */
+  {
+    double want = 0.0, area = 0.0, ts_min = INFINITY;
+    for (uint32_t t = 0; t < nt; t++) {
+      if (c.tri_kind[t] < 0)
+        continue;
+      double ts = ub_lm_texel_size(&c, t, default_texel_size);
+      want += c.tri_area[t] / (ts * ts);
+      area += c.tri_area[t];
+      ts_min = ts < ts_min ? ts : ts_min;
+    }
+    if (want > UB_LM_MAX_TEXELS) {
+      ub_log_printf(log, UB_LOG_ERROR,
+                    "%s: lightmap: %.4g m² of lightmapped surfaces at texel sizes down to %g m "
+                    "(--texel-size, ubake_texel_size) ask for %.3g texels, more than the "
+                    "limit of %.3g: use a larger texel size", s->path ? s->path : "level",
+                    area, ts_min, want, UB_LM_MAX_TEXELS);
+      res = UB_ERR_INVALID_ARGUMENT;
+      goto fail;
+    }
+  }
+
   /* 2. authored atlas (atlas 0 when present) */
   uint32_t auth_res = 0, uv_clamped = 0;
   if (n_auth) {

@@ -18,6 +18,11 @@
 
 #define UB_TEXEL_SAMPLES 4
 #define UB_ATLAS_MAX_SIZE 4096
+/* Texels the lightmapped surfaces may ask for (their area over the texel size squared,
+ * summed): 64 Mi, ~25× the ESTATE-scale level. A bake holds a few hundred bytes a texel
+ * (~20-30 GB here), so beyond it a typo in --texel-size or ubake_texel_size (1e-4 for
+ * 1e-1) would run out of memory after minutes instead of being told at once. */
+#define UB_LM_MAX_TEXELS (64.0 * 1024 * 1024)
 
 typedef struct ub_atlas {
   uint32_t width, height;   /* texels */
