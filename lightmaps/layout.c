@@ -145,6 +145,15 @@ typedef struct lm_atlas_work {
   uint8_t *overlap;       /* w × h */
 } lm_atlas_work;
 
+/* The name of triangle t's glTF node (for messages). */
+static const char *tri_node_name(const ub_scene *s, uint32_t t)
+{
+  if (!s->tri_node || t >= s->triangle_count || s->tri_node[t] >= s->node_count)
+    return "?";
+  const char *n = s->nodes[s->tri_node[t]].name;
+  return n && *n ? n : "(unnamed)";
+}
+
 static void tri_texel_bbox(const lm_rtri *r, uint32_t w, uint32_t h, int64_t *x0, int64_t *x1,
                            int64_t *y0, int64_t *y1)
 {
@@ -1269,10 +1278,15 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
       r->dpdy[q] = (float)((E2[q] * e1x - E1[q] * e2x) * r->inv_det);
     }
   }
-  if (uv_degenerate)
+  if (uv_degenerate) {
+    uint32_t t0 = 0;
+    while (t0 + 1 < nt && !(lm->tri_atlas[t0] >= 0 && rtri[t0].inv_det == 0.0))
+      t0++;
     ub_log_printf(log, UB_LOG_WARNING,
-                  "lightmap: %u triangles with zero lightmap-UV area get no texels",
-                  uv_degenerate);
+                  "lightmap: %u triangles with zero lightmap-UV area get no texels (the first: "
+                  "triangle %u of node '%s')",
+                  uv_degenerate, t0, tri_node_name(s, t0));
+  }
 
   /* per-atlas triangle lists (ascending) and tile bins */
   for (uint32_t t = 0; t < nt; t++)
@@ -1332,10 +1346,23 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
   }
   lm->texel_count = (uint32_t)total_texels;
   lm->overlap_texels = (uint32_t)overlaps;
-  if (overlaps)
+  if (overlaps) {
+    /* the first such texel's owner names one of the surfaces */
+    uint32_t fa = 0, fx = 0, fy = 0;
+    int32_t own = -1;
+    for (uint32_t a = 0; a < lm->atlas_count && own < 0; a++)
+      for (size_t i = 0; i < (size_t)aw[a].w * aw[a].h; i++)
+        if (aw[a].owner[i] >= 0 && aw[a].overlap[i]) {
+          own = aw[a].owner[i];
+          fa = a, fx = (uint32_t)(i % aw[a].w), fy = (uint32_t)(i / aw[a].w);
+          break;
+        }
     ub_log_printf(log, UB_LOG_WARNING,
-                  "lightmap: %llu texels claimed by overlapping UVs of different surfaces",
-                  (unsigned long long)overlaps);
+                  "lightmap: %llu texels claimed by overlapping UVs of different surfaces (the "
+                  "first: atlas %u texel (%u, %u), node '%s' and another)",
+                  (unsigned long long)overlaps, fa, fx, fy,
+                  own >= 0 ? tri_node_name(s, (uint32_t)own) : "?");
+  }
   if (!alloc_texels(lm)) {
     res = UB_ERR_OUT_OF_MEMORY;
     goto fail;

@@ -60,6 +60,14 @@ awk '{ if (!($1 > 1e3)) exit 1 }' "$tmpdir/q.out" || fail "weight 1e6 read $(cat
 expect long_name 1 "names are at most 63" -- query "$ubk" --at 0,1,0 --normal 0,1,0 \
   --dls "$(printf 'n%.0s' $(seq 70))=1"
 
+# Lightmap warnings name a node: tests/data/uv_zero_area.gltf (a cornell box with
+# TEXCOORD_1) has the floor's two triangles at zero UV area.
+src="${UB_SOURCE:-$(cd "$(dirname "$0")/.." && pwd)}"
+"$UBAKE" bake "$src/tests/data/uv_zero_area.gltf" -o "$tmpdir/uvz" --plan-only --threads 1 \
+  --no-progress >/dev/null 2>"$tmpdir/uvz.err" || fail "uv_zero_area: plan failed: $(cat "$tmpdir/uvz.err")"
+grep -qF "2 triangles with zero lightmap-UV area get no texels (the first: triangle 0 of node 'floor')" \
+  "$tmpdir/uvz.err" || fail "uv_zero_area: the warning names no node: $(cat "$tmpdir/uvz.err")"
+
 # info --json: the names escaped (a quote, a backslash, a tab as \u0009).
 "$UBAKE" info "$ubk" --json >"$tmpdir/info.json" 2>"$tmpdir/info.err" || fail "info --json failed"
 grep -qF '"name": "hall \"A\" \\ x\u0009y"' "$tmpdir/info.json" ||
