@@ -269,6 +269,42 @@ bool mem_write_file(std::string *err, const std::string &, const std::vector<uns
   return false;
 }
 
+/* Filesystem callbacks for a level on disk: tinygltf's own say "File not found" for a
+ * buffer or image that is there but cannot be read (permissions); these tell which. */
+bool disk_file_exists(const std::string &path, void *)
+{
+  struct stat st;
+  return stat(path.c_str(), &st) == 0;
+}
+bool disk_read_file(std::vector<unsigned char> *out, std::string *err, const std::string &path,
+                    void *)
+{
+  FILE *f = fopen(path.c_str(), "rb");
+  struct stat st;
+  if (f && fstat(fileno(f), &st) == 0 && !S_ISREG(st.st_mode)) {
+    fclose(f);
+    if (err)
+      *err += "not a regular file";
+    return false;
+  }
+  if (!f) {
+    if (err)
+      *err += strerror(errno);
+    return false;
+  }
+  out->clear();
+  unsigned char chunk[1 << 16];
+  size_t n;
+  while ((n = fread(chunk, 1, sizeof chunk, f)) > 0)
+    out->insert(out->end(), chunk, chunk + n);
+  bool bad = ferror(f) != 0;
+  int e = errno;
+  fclose(f);
+  if (bad && err)
+    *err += strerror(e);
+  return !bad;
+}
+
 class Loader {
 public:
   /* data == NULL: read the file at path; else parse data[0..size) and use path as the
@@ -446,6 +482,10 @@ void Loader::parse_bytes(const unsigned char *data, size_t size, const std::stri
     tinygltf::FsCallbacks fs = {mem_file_exists, mem_expand_path, mem_read_file,
                                 mem_write_file, nullptr};
     gltf.SetFsCallbacks(fs);
+  } else {
+    tinygltf::FsCallbacks fs = {disk_file_exists, &tinygltf::ExpandFilePath, disk_read_file,
+                                &tinygltf::WriteWholeFile, nullptr};
+    gltf.SetFsCallbacks(fs);
   }
   std::string err, warn_text;
   bool ok;
@@ -467,7 +507,8 @@ void Loader::parse_bytes(const unsigned char *data, size_t size, const std::stri
     bool io = err.find("File not found") != std::string::npos ||
               err.find("File read error") != std::string::npos;
     fail(io ? UB_ERR_IO : UB_ERR_INVALID_DATA, "%s: %s",
-         is_glb ? "invalid glTF binary" : "invalid glTF", e.c_str());
+         io ? "cannot read a file it refers to" : is_glb ? "invalid glTF binary" : "invalid glTF",
+         e.c_str());
   }
   (void)warn_text; /* image problems are reported by texture_mean(), per material */
 

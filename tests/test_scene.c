@@ -721,6 +721,26 @@ static void test_bad_inputs(void)
   expect_failure(g_data, UB_ERR_IO, "cannot read");
   /* nor is a device: refused before reading (/dev/zero was read until the 4 GB cap) */
   expect_failure("/dev/zero", UB_ERR_IO, "not a regular file");
+  /* a buffer file missing: an I/O error naming it, not "invalid glTF" */
+  {
+    char dir[] = "/tmp/ubake_test_scene_XXXXXX", path[128];
+    ASSERT_TRUE(mkdtemp(dir) != NULL);
+    snprintf(path, sizeof path, "%s/uv_zero_area.gltf", dir);
+    FILE *in = fopen(data_path("uv_zero_area.gltf"), "rb"), *out = fopen(path, "wb");
+    ASSERT_TRUE(in && out);
+    char buf[4096];
+    size_t n;
+    while (in && out && (n = fread(buf, 1, sizeof buf, in)) > 0)
+      fwrite(buf, 1, n, out);
+    if (in)
+      fclose(in);
+    if (out)
+      fclose(out);
+    expect_failure(path, UB_ERR_IO, "cannot read a file it refers to: File not found : "
+                                    "uv_zero_area.bin");
+    unlink(path);
+    rmdir(dir);
+  }
   /* caller bugs and NULL-safety */
   ASSERT_TRUE(ub_scene_load(NULL, NULL, &s) == UB_ERR_INVALID_ARGUMENT);
   ASSERT_TRUE(ub_scene_load(data_path("hierarchy.gltf"), NULL, NULL) == UB_ERR_INVALID_ARGUMENT);
