@@ -41,9 +41,7 @@ const float kDefaultGlgSpacing = 2.0f;  /* metres between GLG probes */
 const double kDegenerateRel = 1e-6;
 /* ...or when that altitude is below what float rounding of its coordinates can produce. */
 const double kDegenerateUlps = 8.0;
-/* World coordinates beyond this (metres: 10,000 km, where float spacing is 1 m) are
- * rejected: products of such coordinates (extents, cross products) overflow float. */
-const double kMaxCoordinate = 1e7;
+const double kMaxCoordinate = UB_SCENE_MAX_COORDINATE; /* ubake/scene.h */
 /* TEXCOORD_1 may stray this far outside [0,1] (rounding) and is clamped silently. */
 const double kUvSlack = 1e-3;
 const size_t kMaxWarnings = 20;

@@ -25,6 +25,10 @@
 /* Paths per block: the unit of work and of determinism. Never derive it from the thread
  * count. */
 #define UB_REF_BLOCK 1024u
+/* Blocks traced per round: their statistics are merged in block order before the next
+ * round, so memory stays bounded for any spp (a left fold in block order either way: the
+ * same bits as merging them all at the end). */
+#define UB_REF_ROUND_BLOCKS 4096u
 /* Shadow rays buffered before a flush (per thread). */
 #define UB_REF_SHADOW_CAP 4096u
 /* Russian roulette starts at vertices after this many bounces (unlimited mode only). */
@@ -411,10 +415,23 @@ static ub_result reference_run(const ub_scene *scene, const ub_rt *rt, const ub_
     ub_log_printf(log, UB_LOG_ERROR, "reference: receiver position is not finite");
     return UB_ERR_INVALID_ARGUMENT;
   }
+  for (int i = 0; i < 3; i++)
+    if (fabs((double)params->position[i]) > UB_REFERENCE_MAX_COORDINATE) {
+      ub_log_printf(log, UB_LOG_ERROR,
+                    "reference: receiver position (%g, %g, %g) is beyond the coordinate "
+                    "limit of %g m", params->position[0], params->position[1],
+                    params->position[2], UB_REFERENCE_MAX_COORDINATE);
+      return UB_ERR_INVALID_ARGUMENT;
+    }
   float nlen = sqrtf(dot3(params->normal, params->normal));
   if (!finite3(params->normal) || !isfinite(nlen) || !(nlen > 1e-12f)) {
     ub_log_printf(log, UB_LOG_ERROR, "reference: receiver normal (%g, %g, %g) is zero or not finite",
                   params->normal[0], params->normal[1], params->normal[2]);
+    return UB_ERR_INVALID_ARGUMENT;
+  }
+  if (params->spp > UB_REFERENCE_MAX_SPP) {
+    ub_log_printf(log, UB_LOG_ERROR, "reference: %u paths asked for, the limit is %u (2^30)",
+                  params->spp, UB_REFERENCE_MAX_SPP);
     return UB_ERR_INVALID_ARGUMENT;
   }
 
@@ -487,8 +504,9 @@ static ub_result reference_run(const ub_scene *scene, const ub_rt *rt, const ub_
   }
   c.em = em;
 
-  uint32_t n_blocks = (c.spp + UB_REF_BLOCK - 1) / UB_REF_BLOCK;
-  ref_stats *block_stats = calloc(n_blocks, sizeof *block_stats);
+  uint32_t n_blocks = c.spp / UB_REF_BLOCK + (c.spp % UB_REF_BLOCK != 0);
+  uint32_t round_cap = n_blocks < UB_REF_ROUND_BLOCKS ? n_blocks : UB_REF_ROUND_BLOCKS;
+  ref_stats *block_stats = calloc(round_cap, sizeof *block_stats);
   if (!block_stats) {
     ub_emitters_free(own_em);
     free(light_weight);
@@ -498,6 +516,7 @@ static ub_result reference_run(const ub_scene *scene, const ub_rt *rt, const ub_
 
   int oom = 0;
   uint64_t rays = 0, nonfinite = 0;
+  ref_stats total = {0};
   int nt = params->threads > 0 ? params->threads : omp_get_max_threads();
   if ((uint32_t)nt > n_blocks)
     nt = (int)n_blocks;
@@ -507,19 +526,25 @@ static ub_result reference_run(const ub_scene *scene, const ub_rt *rt, const ub_
     ref_scratch *s = malloc(sizeof *s);
     if (!s)
       oom = 1;
-    /* Every thread must reach the loop's implicit barrier; a thread without scratch
-     * takes no blocks and the whole call fails below. */
+    /* Every thread must reach each round's barriers (the loop's and the merge's); a
+     * thread without scratch takes no blocks and the whole call fails below. */
+    for (uint32_t b0 = 0; b0 < n_blocks; b0 += UB_REF_ROUND_BLOCKS) {
+      uint32_t nb = n_blocks - b0 < UB_REF_ROUND_BLOCKS ? n_blocks - b0 : UB_REF_ROUND_BLOCKS;
 #pragma omp for schedule(dynamic, 1)
-    for (uint32_t b = 0; b < n_blocks; b++) {
-      if (!s)
-        continue;
-      uint32_t first = b * UB_REF_BLOCK;
-      uint32_t count = c.spp - first < UB_REF_BLOCK ? c.spp - first : UB_REF_BLOCK;
-      s->rays_traced = 0;
-      s->nonfinite = 0;
-      run_block(&c, s, first, count, block_stats + b);
-      rays += s->rays_traced;
-      nonfinite += s->nonfinite;
+      for (uint32_t j = 0; j < nb; j++) {
+        if (!s)
+          continue;
+        uint32_t first = (b0 + j) * UB_REF_BLOCK;
+        uint32_t count = c.spp - first < UB_REF_BLOCK ? c.spp - first : UB_REF_BLOCK;
+        s->rays_traced = 0;
+        s->nonfinite = 0;
+        run_block(&c, s, first, count, block_stats + j);
+        rays += s->rays_traced;
+        nonfinite += s->nonfinite;
+      }
+#pragma omp single
+      for (uint32_t j = 0; j < nb; j++)
+        stats_merge(&total, block_stats + j, dims);
     }
     free(s);
   }
@@ -529,9 +554,6 @@ static ub_result reference_run(const ub_scene *scene, const ub_rt *rt, const ub_
   if (oom) {
     result = UB_ERR_OUT_OF_MEMORY;
   } else {
-    ref_stats total = {0};
-    for (uint32_t b = 0; b < n_blocks; b++)
-      stats_merge(&total, block_stats + b, dims);
     int overflow = 0;
     for (int k = 0; k < dims; k++) {
       double var = total.n > 1.0 ? total.m2[k] / (total.n - 1.0) : 0.0;

@@ -35,12 +35,18 @@
 #include "ubake/scene.h"
 
 #define UB_REFERENCE_DEFAULT_SPP 4096u
+/* Most paths per call (2^30: hours of tracing at one point); more is rejected. */
+#define UB_REFERENCE_MAX_SPP (1u << 30)
 #define UB_REFERENCE_UNLIMITED UINT32_MAX
+/* Largest |coordinate| of a receiver position, metres: the level loader's limit for
+ * vertices and lights (ubake/scene.h). */
+#define UB_REFERENCE_MAX_COORDINATE UB_SCENE_MAX_COORDINATE
 
 typedef struct ub_reference_params {
-  float position[3];       /* world, metres; on (or near) a surface, or in free space */
+  float position[3];       /* world, metres, each |x| <= UB_REFERENCE_MAX_COORDINATE; on
+                            * (or near) a surface, or in free space */
   float normal[3];         /* irradiance is for this orientation; normalised here, must be non-zero */
-  uint32_t spp;            /* paths (0 = default 4096) */
+  uint32_t spp;            /* paths (0 = default 4096), at most UB_REFERENCE_MAX_SPP */
   uint32_t seed;
   uint32_t max_bounces;    /* diffuse bounces after the receiver; UB_REFERENCE_UNLIMITED = Russian roulette */
   const float *dls_weight; /* NULL = every dynamic light set at weight 1; else scene->dls_count × 3 RGB */
@@ -57,9 +63,11 @@ void ub_reference_params_init(ub_reference_params *out_params);
  * takes no mask: an emissive triangle left out of rt would still be sampled.) out_rgb: W/m²; out_stderr: per-channel standard error of
  * the mean (sample standard deviation of the path estimates / sqrt(spp); 0 when spp = 1).
  * Non-finite path estimates are dropped (counted as 0) and reported as one warning.
- * Errors: UB_ERR_INVALID_ARGUMENT for a non-finite position, a zero/non-finite normal or
- * a non-finite DLS weight; UB_ERR_INVALID_DATA for a light whose dls index is
- * out of range; UB_ERR_OUT_OF_MEMORY. On error the outputs are left untouched. */
+ * Errors: UB_ERR_INVALID_ARGUMENT for a non-finite position or one with a coordinate
+ * beyond ±UB_REFERENCE_MAX_COORDINATE, a zero/non-finite normal, spp above
+ * UB_REFERENCE_MAX_SPP or a non-finite DLS weight; UB_ERR_INVALID_DATA for a light whose
+ * dls index is out of range; UB_ERR_OUT_OF_MEMORY. On error the outputs are left
+ * untouched. */
 ub_result ub_reference_irradiance(const ub_scene *scene, const ub_rt *rt,
                                   const ub_emitters *em, const ub_reference_params *params,
                                   float out_rgb[3], float out_stderr[3], const ub_log *log);

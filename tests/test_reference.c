@@ -798,6 +798,69 @@ static void test_nonfinite(void)
   fixture_close(&f);
 }
 
+/* Limits: a receiver beyond the level loader's coordinate limit (Embree aborted on 2e18;
+ * up to 1e18 gave 0) and more paths than UB_REFERENCE_MAX_SPP (UINT32_MAX - 4 once wrapped
+ * the block count to 0: E = 0, s.e. 0) are errors with one message; a point at the limit
+ * and a count past one round of blocks trace normally. */
+static void count_errors(void *user, ub_log_level level, const char *msg)
+{
+  if (level == UB_LOG_ERROR)
+    ++*(int *)user;
+  fprintf(stderr, "[%s] %s\n", level == UB_LOG_ERROR ? "error" : "note", msg);
+}
+
+static void test_limits(void)
+{
+  printf("limits: far receivers, path counts\n");
+  const float L[3] = {0.5f, 1.0f, 2.0f};
+  ub_scene s;
+  fixture f;
+  scene_init(&s);
+  uint32_t black = add_material(&s, 0, 0, 0, 0, 0, 0);
+  add_hsquare(&s, 0, 0, 1000.0f, 0.0f, 1, black);
+  s.has_sky = 1;
+  memcpy(s.sky, L, sizeof s.sky);
+  fixture_open(&f, &s);
+  int errors = 0;
+  ub_log counting = {count_errors, &errors};
+  static const float far[][3] = {{2e18f, 0, 0}, {0, -1e18f, 0}, {0, 0, 1.5e7f}};
+  for (int k = 0; k < 3; k++) {
+    ub_reference_params p = ref_params(far[k][0], far[k][1], far[k][2], 0, 1, 0, 64, 1);
+    float out[3] = {-7, -7, -7}, se[3] = {-7, -7, -7}, sh[27] = {-7};
+    errors = 0;
+    ASSERT_TRUE(ub_reference_irradiance(f.s, f.rt, f.em, &p, out, se, &counting) ==
+                UB_ERR_INVALID_ARGUMENT);
+    ASSERT_TRUE(ub_reference_radiance_sh(f.s, f.rt, f.em, &p, sh, out, se, &counting) ==
+                UB_ERR_INVALID_ARGUMENT);
+    ASSERT_TRUE(errors == 2);
+    ASSERT_TRUE(out[0] == -7.0f && se[0] == -7.0f && sh[0] == -7.0f);
+  }
+  ub_reference_params p = ref_params(-1e7f, 1.0f, 0, 0, 1, 0, 64, 1);
+  float out[3], se[3];
+  ASSERT_OK(ub_reference_irradiance(f.s, f.rt, f.em, &p, out, se, &test_log));
+
+  static const uint32_t too_many[] = {UB_REFERENCE_MAX_SPP + 1u, UINT32_MAX - 4u, UINT32_MAX};
+  for (int k = 0; k < 3; k++) {
+    p = ref_params(0, 1.0f, 0, 0, 1, 0, too_many[k], 1);
+    out[0] = se[0] = -7.0f;
+    errors = 0;
+    ASSERT_TRUE(ub_reference_irradiance(f.s, f.rt, f.em, &p, out, se, &counting) ==
+                UB_ERR_INVALID_ARGUMENT);
+    ASSERT_TRUE(errors == 1 && out[0] == -7.0f && se[0] == -7.0f);
+  }
+
+  /* 6 Mi paths, more than one round of blocks: a horizontal receiver 1 cm over the black
+   * plane sees the sky through exactly half its cosine lobe, so each path gives π·L or 0:
+   * E = π·L/2 and s.e. = π·L/(2·sqrt(spp)), which fails if a round is lost. */
+  const uint32_t spp = 6u << 20;
+  est e = run_full(&f, 0, 0.01f, 0, 1, 0, 0, spp, 3, UNL, NULL, 0);
+  double want[3] = {M_PI * L[0] / 2, M_PI * L[1] / 2, M_PI * L[2] / 2};
+  check("6 Mi paths, horizontal over a black plane", &e, want, 4.0, 1e-4);
+  for (int c = 0; c < 3; c++)
+    ASSERT_NEAR(e.se[c], want[c] / sqrt((double)spp), 0.0, 0.01);
+  fixture_close(&f);
+}
+
 int main(void)
 {
   test_point_light();
@@ -812,5 +875,6 @@ int main(void)
   test_determinism_and_speed();
   test_invalid();
   test_nonfinite();
+  test_limits();
   TEST_MAIN_END();
 }

@@ -1309,7 +1309,7 @@ int ub_cli_sweep(int argc, char **argv)
         SW_USAGE("--points takes 1..100000");
       i++;
     } else if (!strcmp(a, "--ref-spp") && v) {
-      if (!sw_parse_uint(v, 1, 1L << 30, &spp))
+      if (!sw_parse_uint(v, 1, UB_REFERENCE_MAX_SPP, &spp))
         SW_USAGE("--ref-spp takes 1..2^30");
       i++;
     } else if (!strcmp(a, "--converged-rays") && v) {

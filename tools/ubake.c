@@ -99,6 +99,17 @@ static int parse_vec3(const char *s, float out[3])
   return *end == '\0';
 }
 
+/* A point in the level: X,Y,Z within the loader's coordinate limit (ubake/scene.h). */
+static int parse_point(const char *s, float out[3])
+{
+  if (!parse_vec3(s, out))
+    return 0;
+  for (int i = 0; i < 3; i++)
+    if (!(fabsf(out[i]) <= UB_SCENE_MAX_COORDINATE))
+      return 0;
+  return 1;
+}
+
 static int parse_uint(const char *s, long max, long *out)
 {
   char *end;
@@ -769,8 +780,8 @@ static int cmd_query(int argc, char **argv)
       fputs(QUERY_HELP, stdout);
       return 0;
     } else if (!strcmp(a, "--at") && v) {
-      if (!parse_vec3(v, at))
-        return usage_error("query", "--at takes X,Y,Z");
+      if (!parse_point(v, at))
+        return usage_error("query", "--at takes X,Y,Z, each within +-1e7 m");
       have_at = 1;
       i++;
     } else if (!strcmp(a, "--normal") && v) {
@@ -884,8 +895,8 @@ static int cmd_reference(int argc, char **argv)
     } else if (!strcmp(a, "--sh")) {
       want_sh = 1;
     } else if (!strcmp(a, "--at") && v) {
-      if (!parse_vec3(v, rp.position))
-        return usage_error("reference", "--at takes X,Y,Z");
+      if (!parse_point(v, rp.position))
+        return usage_error("reference", "--at takes X,Y,Z, each within +-1e7 m");
       have_at = 1;
       i++;
     } else if (!strcmp(a, "--normal") && v) {
@@ -894,7 +905,7 @@ static int cmd_reference(int argc, char **argv)
       have_n = 1;
       i++;
     } else if (!strcmp(a, "--spp") && v) {
-      if (!parse_uint(v, 1L << 30, &n) || n < 1)
+      if (!parse_uint(v, UB_REFERENCE_MAX_SPP, &n) || n < 1)
         return usage_error("reference", "--spp takes 1..2^30");
       rp.spp = (uint32_t)n;
       i++;

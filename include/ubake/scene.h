@@ -22,6 +22,12 @@
 extern "C" {
 #endif
 
+/* World coordinates beyond ±this (metres: 10,000 km, where float spacing is 1 m) are
+ * rejected by the loader (vertices, lights) and by what takes points in the level
+ * (reference paths, queries): products of such coordinates (extents, cross products)
+ * overflow float, and from ~1.8e18 Embree rejects the rays outright. */
+#define UB_SCENE_MAX_COORDINATE 1e7
+
 typedef enum ub_light_type {
   UB_LIGHT_POINT = 0,
   UB_LIGHT_SPOT,
