@@ -111,6 +111,14 @@ rows=$(grep -c '^[0-9]' "$tmpdir/run/g.txt" 2>/dev/null)
 grep -q "point(s) within their golden errors" "$tmpdir/run/stdout2" ||
   fail "golden run: no pass line"
 echo "golden: $rows points written and checked"
+# A golden file listing a point the level does not give: not a pass.
+{ cat "$tmpdir/run/g.txt"; echo "250 0.001 0.001"; } >"$tmpdir/run/g_extra.txt"
+(cd "$tmpdir/run" && "$UBAKE" regress "$door" "${fast[@]}" -o extra --golden g_extra.txt \
+  >stdout4 2>stderr4)
+status=$?
+[ "$status" -eq 1 ] || fail "extra golden point: exit status $status, expected 1"
+grep -q "g_extra.txt: golden point 250 was not measured" "$tmpdir/run/stderr4" ||
+  fail "extra golden point: $(cat "$tmpdir/run/stderr4")"
 
 # A golden file that cannot be put in place at the end (the path is a folder): exit 1,
 # the path named, no PATH.tmp left, the folder untouched.

@@ -380,6 +380,12 @@ int ub_cli_regress(int argc, char **argv)
       goto done;
     }
     uint32_t p0 = np;
+    if (np == MAX_POINTS) { /* a golden file numbers the points: none may go missing */
+      fprintf(stderr, "ubake regress: %s: more than %u points: door '%s' and the ones after "
+              "it are not measured\n", level, MAX_POINTS, s->door_names[d]);
+      status = 1;
+      goto done;
+    }
     np += door_points(s, rt_state[0], d, pts + np, MAX_POINTS - np);
     for (int state = 0; state < 2; state++) {
       if (el >= 0) {
@@ -436,6 +442,12 @@ int ub_cli_regress(int argc, char **argv)
       }
     }
   }
+  for (uint32_t i = np; golden && i < MAX_POINTS; i++)
+    if (gold.have[i]) { /* the level gives fewer points than the file knows */
+      fprintf(stderr, "ubake regress: %s: golden point %u was not measured (this level gives "
+              "%u points)\n", golden, i, np);
+      status = 1;
+    }
   if (wf && ref_failed) {
     fprintf(stderr, "ubake regress: %s: golden file not written: a reference failed\n",
             write_golden);
