@@ -16,6 +16,7 @@
 #include "bake/dls.h"
 #include "bake/geomstate.h"
 #include "bake/lights.h"
+#include "bake/outdir.h"
 #include "bake/output.h"
 #include "bake/pass.h"
 #include "bake/plan.h"
@@ -123,16 +124,6 @@ static void stage_end(stage_clock *sc, const char *fmt, ...)
   ub_log_printf(sc->log, UB_LOG_INFO, "[%-9s] %6.2f s  %s", name, dt, msg);
 }
 
-static void level_name_of(const char *path, char *out, size_t cap)
-{
-  const char *base = strrchr(path, '/');
-  base = base ? base + 1 : path;
-  snprintf(out, cap, "%s", base);
-  char *dot = strrchr(out, '.');
-  if (dot && dot != out)
-    *dot = '\0';
-}
-
 ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, const ub_log *log,
                         ub_bake_stats *out_stats)
 {
@@ -142,7 +133,6 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   stage_clock sc = {&stats, log, 0.0};
   if (opt->threads > 0)
     omp_set_num_threads(opt->threads);
-  level_name_of(level_path, stats.level_name, sizeof stats.level_name);
 
   ub_scene *scene = NULL;
   ub_rt *rt = NULL;
@@ -167,7 +157,19 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   uint32_t elem_count = 0;
   uint32_t *orig_material = NULL;   /* materials before closed leaves turned black */
   uint8_t *base_mask = NULL;
+  ub_output *out = NULL;
   ub_result r;
+
+  /* The level's name and the output folder first: a bad one fails now, not after the bake
+   * (the staging folder is made here; ub_output_close removes it whatever happens). */
+  r = ub_outdir_level_name(level_path, log, stats.level_name, sizeof stats.level_name);
+  if (r != UB_OK)
+    goto fail;
+  if (!opt->plan_only) {
+    r = ub_output_open(stats.level_name, opt, log, &out);
+    if (r != UB_OK)
+      goto fail;
+  }
 
   /* load */
   stage_begin(&sc, "load");
@@ -448,7 +450,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   stats.peak_rss_kb = ub_peak_rss_kb();
   stats.total_seconds = now_seconds() - t_start;
   ub_glg_bake glg = {tm, base.probe_sh, &leak};
-  r = ub_output_write(scene, lm, &glg, &llg, base.llg_sh, dls, &dstats, elems, elem_count,
+  r = ub_output_write(out, scene, lm, &glg, &llg, base.llg_sh, dls, &dstats, elems, elem_count,
                       orig_material, &plan, &base, opt, &stats, log);
   if (r != UB_OK)
     goto fail;
@@ -457,6 +459,7 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   stats.peak_rss_kb = ub_peak_rss_kb();
 
 fail:
+  ub_output_close(out);
   ub_pass_result_free(&base);
   ub_pass_cache_free(pass_cache);
   ub_dls_records_free(elems, elem_count);

@@ -1,6 +1,8 @@
 /* Encode + write: atlases (dilated SH, AHD EXR, PNG preview), the .ubk and the report.
- * Everything is written into a staging folder inside the output folder and renamed into
- * place only when all of it succeeded, so a failed bake leaves no partial outputs. */
+ * Every file is written at the staged path its output folder (bake/outdir.c) gives it and
+ * renamed into place only when all of them succeeded, so a failed bake leaves no partial
+ * outputs. The folders are made when the bake starts (ub_output_open), so a bad output
+ * folder fails before hours of work, not after. */
 #include "bake/output.h"
 
 #include <errno.h>
@@ -8,53 +10,58 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
-#include <unistd.h>
 
+#include "bake/outdir.h"
 #include "lightmaps/image.h"
 #include "ubake/ahd.h"
 #include "ubake/bakefile.h"
 
 #define UB_DILATE_RINGS 4
-#define UB_MAX_OUTPUTS 256
 
-typedef struct out_files {
-  char staged[UB_MAX_OUTPUTS][1024];
-  char final[UB_MAX_OUTPUTS][1024];
-  uint32_t count;
-} out_files;
+/* The output folder of one bake (bake/outdir.h); the write stage fills it. The options'
+ * paths are checked here, where ub_bake_options and ub_bake_stats are known; outdir takes
+ * them checked. */
+struct ub_output {
+  ub_outdir *dir;
+};
 
-static int add_file(out_files *f, const char *staging, const char *dir, const char *name)
+ub_result ub_output_open(const char *level_name, const ub_bake_options *opt, const ub_log *log,
+                         ub_output **out)
 {
-  if (f->count >= UB_MAX_OUTPUTS)
-    return 0;
-  int a = snprintf(f->staged[f->count], sizeof f->staged[0], "%s/%s", staging, name);
-  int b = snprintf(f->final[f->count], sizeof f->final[0], "%s/%s", dir, name);
-  if (a < 0 || b < 0 || (size_t)a >= sizeof f->staged[0] || (size_t)b >= sizeof f->final[0])
-    return 0;
-  f->count++;
-  return 1;
+  *out = NULL;
+  const char *dir = opt->out_dir ? opt->out_dir : ".";
+  if (!*dir) {
+    ub_log_printf(log, UB_LOG_ERROR, "output folder \"\": an empty path");
+    return UB_ERR_INVALID_ARGUMENT;
+  }
+  if (opt->json_path && !*opt->json_path) {
+    ub_log_printf(log, UB_LOG_ERROR, "report path \"\" (--json): an empty path");
+    return UB_ERR_INVALID_ARGUMENT;
+  }
+  /* The bake's stats hold the .ubk's path: it must fit there. */
+  if (strlen(dir) + strlen(level_name) + 6 > sizeof ((ub_bake_stats *)0)->ubk_path) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s: output path too long (over %zu bytes)", dir,
+                  sizeof ((ub_bake_stats *)0)->ubk_path - 1);
+    return UB_ERR_INVALID_ARGUMENT;
+  }
+  ub_output *o = calloc(1, sizeof *o);
+  if (!o)
+    return UB_ERR_OUT_OF_MEMORY;
+  ub_result r = ub_outdir_open(dir, level_name, opt->json_path, log, &o->dir);
+  if (r != UB_OK) {
+    free(o);
+    return r;
+  }
+  *out = o;
+  return UB_OK;
 }
 
-static ub_result mkdir_p(const char *dir, const ub_log *log)
+void ub_output_close(ub_output *o)
 {
-  char buf[1024];
-  snprintf(buf, sizeof buf, "%s", dir);
-  for (char *p = buf + 1; *p; p++) {
-    if (*p != '/')
-      continue;
-    *p = '\0';
-    if (mkdir(buf, 0777) != 0 && errno != EEXIST) {
-      ub_log_printf(log, UB_LOG_ERROR, "%s: cannot create folder: %s", buf, strerror(errno));
-      return UB_ERR_IO;
-    }
-    *p = '/';
-  }
-  if (mkdir(buf, 0777) != 0 && errno != EEXIST) {
-    ub_log_printf(log, UB_LOG_ERROR, "%s: cannot create folder: %s", buf, strerror(errno));
-    return UB_ERR_IO;
-  }
-  return UB_OK;
+  if (!o)
+    return;
+  ub_outdir_close(o->dir);
+  free(o);
 }
 
 static void json_str(FILE *f, const char *s)
@@ -446,13 +453,6 @@ static ub_result encode_atlas(const ub_lightmap *lm, const ub_pass_result *base,
   return UB_OK;
 }
 
-static void remove_staging(out_files *files, const char *staging)
-{
-  for (uint32_t i = 0; i < files->count; i++)
-    unlink(files->staged[i]);
-  rmdir(staging);
-}
-
 /* The LLG models as the .ubk stores them (arrays owned by the caller's bakefile). */
 static ub_result fill_llgs(const ub_scene *scene, const ub_llg_set *llg, const float *llg_sh,
                            ub_bakefile *bf)
@@ -534,34 +534,27 @@ static ub_result tri_roles(const ub_scene *s, const ub_bakefile_record *elems, u
   return UB_OK;
 }
 
-ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub_glg_bake *glg,
-                          const ub_llg_set *llg, const float *llg_sh,
+ub_result ub_output_write(ub_output *o, const ub_scene *scene, const ub_lightmap *lm,
+                          const ub_glg_bake *glg, const ub_llg_set *llg, const float *llg_sh,
                           ub_bakefile_record *dls, const ub_dls_stats *dstats,
                           ub_bakefile_record *elems, uint32_t elem_count,
                           const uint32_t *tri_material, const ub_plan *plan,
                           const ub_pass_result *base, const ub_bake_options *opt,
-                          ub_bake_stats *stats, const ub_log *log)
+                          ub_bake_stats *stats, const ub_log *user_log)
 {
-  const char *dir = opt->out_dir ? opt->out_dir : ".";
-  ub_result r = mkdir_p(dir, log);
+  ub_outdir *od = o->dir;
+  ub_outdir_log fl;
+  ub_outdir_wrap_log(od, user_log, &fl);
+  const ub_log *log = &fl.log;
+  const char *name = ub_outdir_name(od);
+  const char *path = NULL; /* the staged path of the file being written */
+  ub_result r = ub_outdir_reserve(od, 4 * lm->atlas_count + 2);
   if (r != UB_OK)
     return r;
-  char staging[1024];
-  snprintf(staging, sizeof staging, "%s/.%s.staging-%ld", dir, stats->level_name,
-           (long)getpid());
-  if (mkdir(staging, 0777) != 0) {
-    ub_log_printf(log, UB_LOG_ERROR, "%s: cannot create folder: %s", staging, strerror(errno));
-    return UB_ERR_IO;
-  }
-  out_files *files = calloc(1, sizeof *files); /* 0.5 MB of names: not on the stack */
-  if (!files) {
-    rmdir(staging);
-    return UB_ERR_OUT_OF_MEMORY;
-  }
 
   ub_bakefile bf;
   memset(&bf, 0, sizeof bf);
-  snprintf(bf.level_name, sizeof bf.level_name, "%s", stats->level_name);
+  snprintf(bf.level_name, sizeof bf.level_name, "%s", name);
   bf.seed = opt->seed;
   bf.bounces = base->bounces;
   bf.vertex_count = scene->vertex_count;
@@ -636,25 +629,21 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
   }
   for (uint32_t a = 0; r == UB_OK && a < lm->atlas_count; a++) {
     float *exr = NULL, *rel = NULL;
-    char name[256];
+    char fname[256];
     r = error_atlas(lm, base, e_tx, floor_e, a, &exr, &rel);
     if (r == UB_OK) {
-      snprintf(name, sizeof name, "%s_error%u.exr", stats->level_name, a);
-      if (!add_file(files, staging, dir, name))
-        r = UB_ERR_INVALID_ARGUMENT;
-      else
-        r = ub_image_write_exr(files->staged[files->count - 1], lm->atlases[a].width,
-                               lm->atlases[a].height, UB_ERR_EXR_CHANNELS, err_channel_names,
-                               exr, log);
+      snprintf(fname, sizeof fname, "%s_error%u.exr", name, a);
+      r = ub_outdir_add(od, fname, &path, NULL);
+      if (r == UB_OK)
+        r = ub_image_write_exr(path, lm->atlases[a].width, lm->atlases[a].height,
+                               UB_ERR_EXR_CHANNELS, err_channel_names, exr, log);
     }
     if (r == UB_OK) {
-      snprintf(name, sizeof name, "%s_error%u.png", stats->level_name, a);
-      if (!add_file(files, staging, dir, name))
-        r = UB_ERR_INVALID_ARGUMENT;
-      else
-        r = ub_image_write_png_false_colour(files->staged[files->count - 1],
-                                            lm->atlases[a].width, lm->atlases[a].height, rel,
-                                            UB_ERR_PNG_MIN, UB_ERR_PNG_MAX, log);
+      snprintf(fname, sizeof fname, "%s_error%u.png", name, a);
+      r = ub_outdir_add(od, fname, &path, NULL);
+      if (r == UB_OK)
+        r = ub_image_write_png_false_colour(path, lm->atlases[a].width, lm->atlases[a].height,
+                                            rel, UB_ERR_PNG_MIN, UB_ERR_PNG_MAX, log);
     }
     free(exr);
     free(rel);
@@ -667,23 +656,20 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
   for (uint32_t a = 0; a < lm->atlas_count; a++) {
     float *ahd = NULL, *irr = NULL;
     r = encode_atlas(lm, base, a, &bf.atlases[a], &ahd, &irr);
-    char name[256];
+    char fname[256];
     if (r == UB_OK) {
-      snprintf(name, sizeof name, "%s_lm%u.exr", stats->level_name, a);
-      if (!add_file(files, staging, dir, name))
-        r = UB_ERR_INVALID_ARGUMENT;
-      else
-        r = ub_image_write_exr(files->staged[files->count - 1], lm->atlases[a].width,
-                             lm->atlases[a].height, UB_AHD_EXR_CHANNELS,
-                             ub_ahd_exr_channel_names, ahd, log);
+      snprintf(fname, sizeof fname, "%s_lm%u.exr", name, a);
+      r = ub_outdir_add(od, fname, &path, NULL);
+      if (r == UB_OK)
+        r = ub_image_write_exr(path, lm->atlases[a].width, lm->atlases[a].height,
+                               UB_AHD_EXR_CHANNELS, ub_ahd_exr_channel_names, ahd, log);
     }
     if (r == UB_OK) {
-      snprintf(name, sizeof name, "%s_lm%u.png", stats->level_name, a);
-      if (!add_file(files, staging, dir, name))
-        r = UB_ERR_INVALID_ARGUMENT;
-      else
-        r = ub_image_write_png_preview(files->staged[files->count - 1], lm->atlases[a].width,
-                                     lm->atlases[a].height, irr, 1.0f, log);
+      snprintf(fname, sizeof fname, "%s_lm%u.png", name, a);
+      r = ub_outdir_add(od, fname, &path, NULL);
+      if (r == UB_OK)
+        r = ub_image_write_png_preview(path, lm->atlases[a].width, lm->atlases[a].height, irr,
+                                       1.0f, log);
     }
     free(ahd);
     free(irr);
@@ -691,49 +677,31 @@ ub_result ub_output_write(const ub_scene *scene, const ub_lightmap *lm, const ub
       goto done;
   }
 
-  char name[256];
-  snprintf(name, sizeof name, "%s.ubk", stats->level_name);
-  if (!add_file(files, staging, dir, name)) {
-    ub_log_printf(log, UB_LOG_ERROR, "%s: output path too long", dir);
-    r = UB_ERR_INVALID_ARGUMENT;
+  char fname[256];
+  snprintf(fname, sizeof fname, "%s.ubk", name);
+  const char *ubk_final = NULL;
+  r = ub_outdir_add(od, fname, &path, &ubk_final);
+  if (r != UB_OK)
     goto done;
-  }
   uint64_t half_clamped = 0;
-  r = ub_bakefile_write_ex(&bf, files->staged[files->count - 1], log, &half_clamped);
+  r = ub_bakefile_write_ex(&bf, path, log, &half_clamped);
   stats->clamped_values += half_clamped; /* reported with the baker's own clamps */
   if (r != UB_OK)
     goto done;
-  snprintf(stats->ubk_path, sizeof stats->ubk_path, "%s", files->final[files->count - 1]);
+  snprintf(stats->ubk_path, sizeof stats->ubk_path, "%s", ubk_final);
 
   /* The report last: it records the time and memory of everything before it. */
-  char report_final[1024];
-  if (opt->json_path)
-    snprintf(report_final, sizeof report_final, "%s", opt->json_path);
-  else
-    snprintf(report_final, sizeof report_final, "%s/%s.report.json", dir, stats->level_name);
-  if (!add_file(files, staging, dir, "report.json")) {
-    r = UB_ERR_INVALID_ARGUMENT;
+  snprintf(fname, sizeof fname, "%s.report.json", name);
+  r = ub_outdir_add_report(od, fname, &path);
+  if (r != UB_OK)
     goto done;
-  }
-  snprintf(files->final[files->count - 1], sizeof files->final[0], "%s", report_final);
-  r = write_report(files->staged[files->count - 1], scene, lm, plan, base, &bf, llg, dstats, opt,
-                   stats,
-                   log);
+  r = write_report(path, scene, lm, plan, base, &bf, llg, dstats, opt, stats, log);
   if (r != UB_OK)
     goto done;
 
-  for (uint32_t i = 0; i < files->count; i++) {
-    if (rename(files->staged[i], files->final[i]) != 0) {
-      ub_log_printf(log, UB_LOG_ERROR, "%s: cannot move into place: %s", files->final[i],
-                    strerror(errno));
-      r = UB_ERR_IO;
-      goto done;
-    }
-  }
+  r = ub_outdir_commit(od, lm->atlas_count, log);
 done:
-  /* Renamed files are gone from staging already; this removes what a failure left. */
-  remove_staging(files, staging);
-  free(files);
+  /* What a failure left in the staging folder goes in ub_output_close. */
   if (bf.atlases)
     for (uint32_t a = 0; a < bf.atlas_count; a++) {
       free(bf.atlases[a].sh);

@@ -19,6 +19,7 @@
 
 #include "bake/fsutil.h"
 #include "bake/lights.h"
+#include "bake/outdir.h"
 #include "bake/reference.h"
 #include "bake/rt.h"
 #include "ubake/bake.h"
@@ -180,16 +181,6 @@ static int sw_file_exists(const char *path)
 {
   struct stat sb;
   return stat(path, &sb) == 0 && S_ISREG(sb.st_mode);
-}
-
-static void sw_level_name(const char *path, char *out, size_t cap)
-{
-  const char *base = strrchr(path, '/');
-  base = base ? base + 1 : path;
-  snprintf(out, cap, "%s", base);
-  char *dot = strrchr(out, '.');
-  if (dot && dot != out)
-    *dot = '\0';
 }
 
 static int sw_parse_uint(const char *s, long min, long max, long *out)
@@ -1123,7 +1114,6 @@ static int sw_run(sweep *s)
     fprintf(stderr, "ubake: %s: cannot create: %s\n", bakes, strerror(errno));
     return 0;
   }
-  sw_level_name(s->level, s->name, sizeof s->name);
   s->texel0 = s->scene->texel_size > 0.0f ? s->scene->texel_size : 0.25f;
   s->glg0 = s->scene->glg_spacing > 0.0f ? s->scene->glg_spacing : 2.0f;
   sw_build_ladder(s);
@@ -1355,11 +1345,14 @@ int ub_cli_sweep(int argc, char **argv)
   s.points = points > 0 ? (int)points : s.quick ? 32 : 64;
   s.ref_spp = spp > 0 ? (uint32_t)spp : s.quick ? 16384u : 65536u;
   s.converged_rays = conv >= 0 ? (uint32_t)conv : s.quick ? 1024u : 4096u;
+  /* NAME as the bake names its files (DIR/NAME.ubk, where sw_run looks for them): a name
+   * too long for the .ubk fails here, before any folder is made. */
+  ub_log name_log = {sw_log, &s};
+  if (ub_outdir_level_name(s.level, &name_log, s.name, sizeof s.name) != UB_OK)
+    return 1;
   char defdir[1024];
   if (!s.out_dir) {
-    char name[64];
-    sw_level_name(s.level, name, sizeof name);
-    snprintf(defdir, sizeof defdir, "out/sweep/%s", name);
+    snprintf(defdir, sizeof defdir, "out/sweep/%s", s.name);
     s.out_dir = defdir;
   }
   int ok = sw_run(&s);

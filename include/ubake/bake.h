@@ -35,8 +35,22 @@ typedef struct ub_bake_options {
   int bounces;            /* indirect bounces; -1 = until a bounce adds < 0.5% energy */
   int threads;            /* 0 = all cores */
   uint32_t seed;
-  const char *out_dir;    /* created if missing */
-  const char *json_path;  /* report path; NULL = DIR/NAME.report.json */
+  const char *out_dir;    /* DIR of DIR/NAME.ubk, NAME_lm<i>.exr, ...; NULL = ".". NAME is
+                             the level's file name without its extension, at most 63 bytes
+                             (a longer one is refused). Checked and created (with missing
+                             parents) when the bake starts, before the first stage (not with
+                             plan_only). Files are written into DIR/.NAME.staging-PID and
+                             renamed into place only when all of them are: a failed or
+                             cancelled bake leaves nothing (nor does one SIGINT or SIGTERM
+                             stops, where their action is the default): the staging folder
+                             and the empty folders it created are removed; earlier files in
+                             DIR stay. A bake killed outright leaves its staging folder;
+                             the next bake of NAME into DIR removes it. */
+  const char *json_path;  /* report path; NULL = DIR/NAME.report.json. Its folder must
+                             exist: checked (a temporary file is made next to it) when the
+                             bake starts, before the first stage; the report is renamed into
+                             place only when the bake succeeds, and a failed bake removes the
+                             temporary file */
   uint32_t gather_rays;   /* 0 = from quality: rays per receiver per bounce */
   float texel_size;       /* 0 = from the level (metres per texel) */
   float glg_spacing;      /* 0 = from the level (metres between coarse GLG probes) */
