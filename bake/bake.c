@@ -131,6 +131,10 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   memset(&stats, 0, sizeof stats);
   double t_start = now_seconds();
   stage_clock sc = {&stats, log, 0.0};
+  /* opt->threads for this bake's parallel regions; the caller's default comes back after
+   * (omp_set_num_threads is the calling thread's setting: a tool running references or
+   * another bake afterwards would otherwise inherit it) */
+  const int caller_threads = omp_get_max_threads();
   if (opt->threads > 0)
     omp_set_num_threads(opt->threads);
 
@@ -478,5 +482,6 @@ fail:
   ub_scene_free(scene);
   if (out_stats)
     *out_stats = stats;
+  omp_set_num_threads(caller_threads);
   return r;
 }

@@ -3,6 +3,7 @@
  * Levels come from the generator (UB_BUILD/levels). On failure each case prints the
  * measured numbers; the baked outputs stay in UB_BUILD/test_out/ for inspection. */
 #include <math.h>
+#include <omp.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -482,7 +483,10 @@ static int read_all(const char *path, unsigned char **out, size_t *out_n)
 static void test_determinism(void)
 {
   char a[1024], b[1024];
+  const int threads0 = omp_get_max_threads();
   ub_runtime *r1 = bake("cornell", "det_t1", UB_QUALITY_DRAFT, 2, 1, 0.0f, a, sizeof a);
+  /* a bake's thread count is its own: the caller's default comes back */
+  ASSERT_TRUE(omp_get_max_threads() == threads0);
   ub_runtime *r2 = bake("cornell", "det_t2", UB_QUALITY_DRAFT, 2, 2, 0.0f, b, sizeof b);
   ASSERT_TRUE(r1 && r2);
   unsigned char *da = NULL, *db = NULL;
