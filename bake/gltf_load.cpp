@@ -1029,9 +1029,10 @@ void Loader::add_light(int node_idx, int li, const Mat4 &world, const Tags &tags
          l.range);
   for (int i = 0; i < 3; i++)
     o.intensity[i] = (float)(color[i] * l.intensity);
-  if (!std::isfinite(o.intensity[0]) || !std::isfinite(o.intensity[1]) ||
-      !std::isfinite(o.intensity[2]))
-    fail(UB_ERR_INVALID_DATA, "%s: color x intensity overflows", label.c_str());
+  for (int i = 0; i < 3; i++)
+    if (!(o.intensity[i] <= UB_SCENE_MAX_INTENSITY))
+      fail(UB_ERR_INVALID_DATA, "%s: color x intensity %g is beyond the limit of %g",
+           label.c_str(), color[i] * l.intensity, UB_SCENE_MAX_INTENSITY);
   o.range = (float)l.range;
   o.cos_inner = 1.0f;
   o.cos_outer = -1.0f;
@@ -1498,8 +1499,10 @@ void Loader::build_materials()
       texture_mean(gm.emissiveTexture.index, what, emean);
     for (int c = 0; c < 3; c++) {
       mo.emission[c] = (float)(em[c] * strength * emean[c]);
-      if (!std::isfinite(mo.emission[c]))
-        fail(UB_ERR_INVALID_DATA, "%s: emission overflows", what.c_str());
+      if (!(mo.emission[c] <= UB_SCENE_MAX_INTENSITY))
+        fail(UB_ERR_INVALID_DATA, "%s: emission %g (emissiveFactor x emissiveStrength) is "
+             "beyond the limit of %g", what.c_str(), em[c] * strength * emean[c],
+             UB_SCENE_MAX_INTENSITY);
     }
     mats_.push_back(mo);
   }

@@ -1181,7 +1181,8 @@ ub_result ub_bakefile_write_ex(const ub_bakefile *bf, const char *path, const ub
   }
   if (w->clamped && log)
     ub_log_printf(log, UB_LOG_WARNING, "%s: %llu half value(s) beyond the half range clamped "
-                  "to +-%g (LLG probes or self-inter-reflection)", path,
+                  "to +-%g (LLG probes or self-inter-reflection, or light beyond what "
+                  "a level holds)", path,
                   (unsigned long long)w->clamped, (double)UB_HALF_MAX);
   if (out_clamped)
     *out_clamped = w->clamped;

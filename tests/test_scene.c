@@ -526,6 +526,17 @@ static void test_tag_names(void)
               UB_ERR_INVALID_DATA);
   ASSERT_TRUE(strstr(cap.error, "'group'") && strstr(cap.error, "ubake_semidynamic"));
 
+  /* light and emission beyond UB_SCENE_MAX_INTENSITY: refused, naming the light or the
+   * material and the limit (1e38 W/sr loaded, then clamped 34,542 halves of the .ubk) */
+  ASSERT_TRUE(load_variant("\"intensity\": 10,", "\"intensity\": 1e21,", &cap) ==
+              UB_ERR_INVALID_DATA);
+  printf("  a light of 1e21: %s\n", cap.error);
+  ASSERT_TRUE(strstr(cap.error, "beyond the limit of 1e+20") != NULL);
+  ASSERT_TRUE(load_variant("\"intensity\": 10,", "\"intensity\": 1e19,", &cap) == UB_OK);
+  ASSERT_TRUE(load_variant("\"emissiveStrength\": 5", "\"emissiveStrength\": 1e21", &cap) ==
+              UB_ERR_INVALID_DATA);
+  ASSERT_TRUE(strstr(cap.error, "emission") && strstr(cap.error, "beyond the limit"));
+
   /* tags.gltf itself warns 3 times (test_tags); each variant adds one warning */
   ASSERT_TRUE(load_variant("\"ubake_door\": \"d1\",",
                            "\"ubake_door\": \"d1\", \"ubake_combine\": \"hall, nope\",", &cap) ==

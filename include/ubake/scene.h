@@ -27,6 +27,11 @@ extern "C" {
  * (reference paths, queries): products of such coordinates (extents, cross products)
  * overflow float, and from ~1.8e18 Embree rejects the rays outright. */
 #define UB_SCENE_MAX_COORDINATE 1e7
+/* A light's colour × intensity (W/sr for point and spot lights, W/m² for directional) and
+ * a material's emission, per channel, beyond this are rejected: a million times the sun
+ * at a metre still fits, while the bake's sums of such values over many paths would leave
+ * the range the .ubk stores (halves times a power of two up to 2^100), and be clamped. */
+#define UB_SCENE_MAX_INTENSITY 1e20
 
 typedef enum ub_light_type {
   UB_LIGHT_POINT = 0,
