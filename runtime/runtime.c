@@ -97,6 +97,9 @@ struct ub_runtime {
    * the caller set (RGB), applied what the blends use (see runtime.h). */
   uint32_t elem_total;
   float *value, *applied;  /* elem_total × 3 */
+  float *updated;          /* elem_total: value[3e] as of the last update (begun), which
+                              ub_runtime_triangle_shown reads: the geometry a door or object
+                              shows changes with its lighting, at the update */
   /* LLG probes of all models in order (when records touch them): blended here, and the
    * touched probes copied back into each model's grid, which queries read. */
   float *llg_base, *llg_cur;
@@ -150,10 +153,29 @@ typedef struct rt_job {
   uint64_t based;     /* of them, the base's copied (every element at 0) */
   uint32_t runs;      /* runs of them in chg_runs */
   int runs_full;      /* some did not fit */
+  int done;           /* run (ub_runtime_update_end runs the ones that were not) */
   double seconds[3];  /* lightmap, GLG, LLG */
 } rt_job;
 
 static const float ub_rt_luma[3] = {0.2126f, 0.7152f, 0.0722f};
+
+/* A log that puts the file's name before each message (path NULL: passes them as they
+ * are), counting the errors. */
+typedef struct named_log {
+  const ub_log *to;
+  const char *path;
+  int errors;
+} named_log;
+
+static void named_log_fn(void *user, ub_log_level level, const char *message)
+{
+  named_log *nl = user;
+  nl->errors += level == UB_LOG_ERROR;
+  if (nl->path)
+    ub_log_printf(nl->to, level, "%s: %s", nl->path, message);
+  else
+    ub_log_printf(nl->to, level, "%s", message);
+}
 
 /* Slot (within its atlas) of covered pixel i of atlas a. */
 static inline uint64_t slot_of(const ub_runtime *rt, uint32_t a, size_t i)
@@ -580,6 +602,7 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt->llg_rec);
   free(rt->value);
   free(rt->applied);
+  free(rt->updated);
   free(rt->llg_base);
   free(rt->lm_base);
   free(rt->lm_tbase);
@@ -1079,8 +1102,10 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   rt->llg_rec = calloc(n, sizeof *rt->llg_rec);
   rt->value = calloc((size_t)n * 3, sizeof *rt->value);
   rt->applied = calloc((size_t)n * 3, sizeof *rt->applied);
+  rt->updated = calloc(n ? n : 1, sizeof *rt->updated);
   rt->llg_first = calloc((size_t)bf->llg_count + 1, sizeof *rt->llg_first);
   if (!rt->lm_rec || !rt->glg_rec || !rt->llg_rec || !rt->value || !rt->applied ||
+      !rt->updated ||
       !rt->llg_first || !base_rows_packed(rt)) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return UB_ERR_OUT_OF_MEMORY;
@@ -1299,6 +1324,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     float v = kind == UB_ELEMENT_DOOR ? 0.0f : 1.0f;
     float rgb[3] = {v, v, v};
     memcpy(rt->value + 3 * (size_t)e, rgb, sizeof rgb);
+    rt->updated[e] = v;
   }
   for (uint32_t e = 0; e < n && r == UB_OK; e++)
     r = push_applied(rt, e);
@@ -1484,9 +1510,20 @@ ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags
      * (windowing all of kaos's 35,822 probes took ~0.1 s at load). */
     gd.compact = 1;
     gd.small_walk = (rt->load_flags & UB_RUNTIME_GLG_SMALL_WALK) != 0;
-    r = ub_glg_init(&rt->glg, &gd, log);
+    /* the GLG's messages name the file; what it finds wrong with the file's tetrahedra is
+     * invalid data (its INVALID_ARGUMENT is a caller's desc), and it says so */
+    named_log nl = {log, path, 0};
+    const ub_log glog = {named_log_fn, &nl};
+    r = ub_glg_init(&rt->glg, &gd, &glog);
     rt->has_glg = r == UB_OK;
     if (r != UB_OK) {
+      if (r == UB_ERR_INVALID_ARGUMENT)
+        r = UB_ERR_INVALID_DATA;
+      if (!nl.errors)
+        ub_log_printf(log, UB_LOG_ERROR, "%s: section GLGP: %s", path,
+                      r == UB_ERR_OUT_OF_MEMORY ? "out of memory for the probe grid"
+                                                : "the probe grid cannot be used "
+                                                  "(its probes span no volume)");
       ub_runtime_free(rt);
       return r;
     }
@@ -1504,8 +1541,13 @@ ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags
     }
   }
   if (bf->dls_count || bf->elem_count) {
-    r = setup_elements(rt, path, log);
+    named_log cl = {log, NULL, 0}; /* its messages name the file; some failures had none */
+    const ub_log clog = {named_log_fn, &cl};
+    r = setup_elements(rt, path, &clog);
     if (r != UB_OK) {
+      if (!cl.errors)
+        ub_log_printf(log, UB_LOG_ERROR, "%s: %s preparing dynamic elements", path,
+                      ub_result_string(r));
       ub_runtime_free(rt);
       return r;
     }
@@ -1550,7 +1592,7 @@ const char *ub_runtime_dls_name(const ub_runtime *rt, uint32_t set)
 ub_result ub_runtime_set_dls(ub_runtime *rt, uint32_t set, const float rgb[3])
 {
   assert(rt && rgb);
-  if (set >= rt->bf->dls_count)
+  if (set >= rt->bf->dls_count || rt->job_count) /* (job_count: an update begun) */
     return UB_ERR_INVALID_ARGUMENT;
   for (int c = 0; c < 3; c++) /* (NaN fails the comparison) */
     if (!(fabsf(rgb[c]) <= UB_RUNTIME_MAX_WEIGHT))
@@ -1590,7 +1632,7 @@ ub_result ub_runtime_set_element(ub_runtime *rt, uint32_t element, float value)
 {
   assert(rt);
   if (element >= rt->bf->elem_count || rt->bf->elems[element].kind == UB_ELEMENT_COMBO ||
-      !isfinite(value) || value < 0.0f || value > 1.0f)
+      !isfinite(value) || value < 0.0f || value > 1.0f || rt->job_count)
     return UB_ERR_INVALID_ARGUMENT;
   const float rgb[3] = {value, value, value};
   return set_value(rt, rt->bf->dls_count + element, rgb);
@@ -1612,10 +1654,10 @@ int ub_runtime_triangle_shown(const ub_runtime *rt, uint32_t t)
   const ub_bakefile *bf = rt->bf;
   if (!bf->tri_role || t >= bf->triangle_count || !bf->tri_role[t])
     return 1;
-  uint32_t role = bf->tri_role[t] >> 24;
-  float v;
-  if (ub_runtime_element_value(rt, bf->tri_role[t] & 0xFFFFFFu, &v) != UB_OK)
+  uint32_t role = bf->tri_role[t] >> 24, el = bf->tri_role[t] & 0xFFFFFFu;
+  if (el >= bf->elem_count || bf->elems[el].kind == UB_ELEMENT_COMBO || !rt->updated)
     return role != UB_TRI_ROLE_DOOR_OPEN; /* as baked */
+  const float v = rt->updated[bf->dls_count + el]; /* as of the last update */
   if (role == UB_TRI_ROLE_DOOR_CLOSED)
     return v < 0.5f;
   return v >= 0.5f;
@@ -1830,6 +1872,8 @@ static ub_result update_begin_ex(ub_runtime *rt, uint32_t max_jobs, int all, uin
     rt->chg_at[j] = ub_blend_part_first(rt->lm_blend, j, max_jobs) + j;
   memset(rt->jobs, 0, (size_t)max_jobs * sizeof *rt->jobs);
   llg_chg_clear(rt);
+  for (uint32_t e = 0; rt->updated && e < rt->elem_total; e++)
+    rt->updated[e] = rt->value[3 * (size_t)e];
   rt->job_count = max_jobs;
   *out_jobs = max_jobs;
   return UB_OK;
@@ -1837,8 +1881,11 @@ static ub_result update_begin_ex(ub_runtime *rt, uint32_t max_jobs, int all, uin
 
 void ub_runtime_update_job(ub_runtime *rt, uint32_t job)
 {
-  assert(rt && job < rt->job_count);
+  assert(rt);
+  if (job >= rt->job_count) /* no update begun, or not one of its jobs: nothing to do */
+    return;
   rt_job *jb = &rt->jobs[job];
+  jb->done = 1;
   const uint32_t parts = rt->job_count;
   /* the whole job, the last texels' encode (touched_flush) included, in the blend's mode:
    * which texels end a job depends on the split, their bits must not */
@@ -1877,6 +1924,16 @@ void ub_runtime_update_end(ub_runtime *rt, ub_runtime_update_stats *out_stats)
   assert(rt);
   ub_runtime_update_stats st;
   memset(&st, 0, sizeof st);
+  if (!rt->job_count) { /* no update begun: the last one's changes stay listed */
+    if (out_stats)
+      *out_stats = st;
+    return;
+  }
+  /* a job the caller did not run: run here, or its receivers would keep the old state
+   * (and, their weights now applied, never be blended again) */
+  for (uint32_t j = 0; j < rt->job_count; j++)
+    if (!rt->jobs[j].done)
+      ub_runtime_update_job(rt, j);
   rt->chg_all = 0;
   for (uint32_t j = 0; j < rt->job_count; j++) {
     const rt_job *jb = &rt->jobs[j];

@@ -234,12 +234,14 @@ done
 
 # --- messages of the write stage name the final paths -----------------------------------
 mkdir -p "$lv/hot"
-cp "$UB_BUILD/levels/hallway.bin" "$lv/hot/"
-# one lamp at 1e38: LLG SH values beyond the half range, a warning naming the .ubk
-sed '0,/"intensity": *[^,}]*/s//"intensity": 1e38/' "$UB_BUILD/levels/hallway.gltf" >"$lv/hot/hallway.gltf"
-bake "$lv/hot/hallway.gltf" -o "$w/hot" "${B[@]}"
+cp "$UB_BUILD/levels/estate_small.bin" "$lv/hot/"
+# every lamp at 1e12 W/sr (under UB_SCENE_MAX_INTENSITY): the LLG probes' SH (stored as
+# halves without a scale) beyond the half range, a warning naming the .ubk
+sed 's/"intensity": *[0-9.e+-]*/"intensity": 1e12/g' "$UB_BUILD/levels/estate_small.gltf" \
+  >"$lv/hot/estate_small.gltf"
+bake "$lv/hot/estate_small.gltf" -o "$w/hot" "${B[@]}" --bounces 1
 [ "$status" -eq 0 ] || fail "hot lamp: exit status $status: $(cat "$w/stderr")"
-grep -qF "$w/hot/hallway.ubk: " "$w/stderr" || fail "hot lamp: no warning naming $w/hot/hallway.ubk: $(cat "$w/stderr")"
+grep -qF "$w/hot/estate_small.ubk: " "$w/stderr" || fail "hot lamp: no warning naming $w/hot/estate_small.ubk: $(cat "$w/stderr")"
 grep -q staging "$w/stderr" && fail "hot lamp: a message names the staging folder: $(grep staging "$w/stderr")"
 no_leftovers "all bakes" "$w"
 

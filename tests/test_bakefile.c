@@ -933,6 +933,36 @@ static void test_writer_errors(void)
   ub_bakefile_free(bf);
 }
 
+/* A bake file the reader takes but whose probe grid the run-time cannot use: one error
+ * naming the file, UB_ERR_INVALID_DATA (the GLG's own INVALID_ARGUMENT, its messages
+ * without the file's name, or none at all before). */
+static void test_runtime_bad_glg(void)
+{
+  char p[512];
+  path_in_tmp(p, sizeof p, "bad_glg.ubk");
+  for (int k = 0; k < 2; k++) {
+    ub_bakefile *bf = make_sample();
+    if (k == 0) /* every probe at one point: no volume */
+      memset(bf->glg_positions, 0, (size_t)bf->glg_probe_count * 3 * sizeof(float));
+    else /* tet 0 names tet 1 its neighbour, tet 1 does not name it back */
+      bf->glg_neigh[7] = -1;
+    capture cap = {{0}, 0};
+    ub_log log = {capture_fn, &cap};
+    ASSERT_OK(ub_bakefile_write(bf, p, &log));
+    ub_bakefile_free(bf);
+    ub_bakefile *back = NULL;
+    ASSERT_OK(ub_bakefile_read(p, &log, &back));
+    ub_bakefile_free(back);
+    cap.errors = 0;
+    ub_runtime *rt = NULL;
+    ub_result r = ub_runtime_load(p, &log, &rt);
+    printf("  run-time on a bad probe grid (%s): %s: %s\n", k ? "one-sided neighbours" : "one point",
+           ub_result_string(r), cap.last);
+    ASSERT_TRUE(r == UB_ERR_INVALID_DATA && rt == NULL && cap.errors == 1);
+    ASSERT_TRUE(strstr(cap.last, p) != NULL);
+  }
+}
+
 static void test_runtime(void)
 {
   const float L[3] = {1.0f, 0.5f, 0.25f};
@@ -1256,6 +1286,7 @@ int main(void)
   test_hostile();
   test_writer_errors();
   test_runtime();
+  test_runtime_bad_glg();
   test_bright_sections();
   test_record_halves();
   const char *corpus = getenv("UB_WRITE_FUZZ_CORPUS");

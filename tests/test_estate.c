@@ -862,6 +862,40 @@ static void check_jobs(const char *ubk)
      * LLG models */
     bad_q += ub_runtime_changed_texel_count(ra) != sa.texels_reencoded || !same_changes(ra, rb);
   }
+  /* Misuse of the protocol is harmless: sets and updates refused while begun; a job index
+   * out of range ignored; a job not run is run by end (the state is still the plain
+   * update's); an end without begin keeps the last changes listed. */
+  {
+    const float half3[3] = {0.5f, 0.5f, 0.5f};
+    ASSERT_OK(ub_runtime_set_dls(ra, 0, half3));
+    ASSERT_OK(ub_runtime_set_dls(rb, 0, half3));
+    ub_runtime_update_stats sa, sb;
+    ASSERT_OK(ub_runtime_update(ra, &sa));
+    ASSERT_OK(ub_runtime_update_begin(rb, 3, &jobs));
+    ASSERT_TRUE(ub_runtime_set_dls(rb, 1, half3) == UB_ERR_INVALID_ARGUMENT);
+    ASSERT_TRUE(ub_runtime_update(rb, NULL) == UB_ERR_INVALID_ARGUMENT);
+    ub_runtime_update_job(rb, 7); /* ignored */
+    ub_runtime_update_job(rb, 1); /* jobs 0 and 2 not run */
+    ub_runtime_update_end(rb, &sb);
+    snap a, b;
+    take(ra, &a);
+    take(rb, &b);
+    const size_t miss = diff(&a, &b);
+    const uint64_t n = ub_runtime_changed_texel_count(rb);
+    ub_runtime_update_end(rb, &sb); /* no update begun */
+    ub_runtime_update_job(rb, 0);   /* ignored */
+    printf("jobs misused (a set and an update while begun refused, job 7 of 3 ignored, jobs 0 "
+           "and 2 left to end): %zu SH values differ from the plain update; a stray end left "
+           "%llu of %llu changed texels listed, texels_reencoded %llu\n", miss,
+           (unsigned long long)ub_runtime_changed_texel_count(rb), (unsigned long long)n,
+           (unsigned long long)sb.texels_reencoded);
+    ASSERT_TRUE(miss == 0 && sa.texels_reencoded == n && n > 0 && same_changes(ra, rb));
+    ASSERT_TRUE(ub_runtime_changed_texel_count(rb) == n && sb.texels_reencoded == 0);
+    free(a.tex);
+    free(a.glg);
+    free(b.tex);
+    free(b.glg);
+  }
   printf("jobs (2, 3, 5 on threads, every other state with FTZ/DAZ set on them) vs plain "
          "updates, 9 states: %zu SH values, %zu decoded query sets (AHD at 3000 points, every "
          "texel's AHD, the changed-texel lists and LLG models), %zu stats differ (want 0)\n", bad, bad_q, bad_stats);

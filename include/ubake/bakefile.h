@@ -33,7 +33,9 @@ typedef struct ub_bakefile_atlas {
   float *sh;
   /* width × height: 0 = empty, 1 = covered by a surface, 2 = dilated padding. */
   uint8_t *coverage;
-  /* width × height × 3: unit surface normal per covered texel (0 elsewhere). */
+  /* width × height × 3: unit surface normal per covered texel, a padding texel's that of
+   * the texel it was dilated from, 0 for empty ones (FORMAT.md). NULL in the run-time's
+   * copy (ub_runtime_bakefile): it keeps them as halves (ub_runtime_texel_normal). */
   float *normal;
   /* Section TXLK (NULL = none): width × height link bytes, UB_LINK_X / UB_LINK_Y
    * (runtime/texel_links.h) set where the texel and its +x / +y neighbour are separated by
@@ -193,8 +195,9 @@ ub_result ub_bakefile_read_memory(const void *data, size_t size, const char *nam
 void ub_bakefile_free(ub_bakefile *bf);
 /* Σ W·H over the atlases: the pixel numbering of records' texel indices. */
 uint64_t ub_bakefile_atlas_pixels(const ub_bakefile *bf);
-/* The stored normal (3 floats, not normalised; 0 for empty and padding pixels) of global
- * atlas pixel p in that numbering, or NULL when p is out of range. */
+/* The stored normal (3 floats, not normalised; a padding pixel's source texel's, 0 for
+ * empty pixels) of global atlas pixel p in that numbering, or NULL when p is out of range
+ * or the atlas holds no normals (the run-time's copy: ub_runtime_texel_normal). */
 const float *ub_bakefile_pixel_normal(const ub_bakefile *bf, uint64_t p);
 /* LLG probes of all models: the numbering of records' llg_probe_index. */
 uint64_t ub_bakefile_llg_probes(const ub_bakefile *bf);

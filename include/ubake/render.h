@@ -68,7 +68,8 @@ typedef struct ub_render_params {
   float target[3];      /* a point the camera looks at, ≠ eye; Y is up */
   float fovy_degrees;   /* vertical field of view, in (0, 180); typical: 60 */
   uint32_t width, height; /* image size, pixels, each 1..16384; typical 960 × 540 */
-  uint32_t samples;     /* rays per pixel along each axis (n × n grid); 0 or 1: one ray */
+  uint32_t samples;     /* rays per pixel along each axis (n × n grid), at most 16; 0 or
+                           1: one ray */
   /* RGB weight of each dynamic light set (bakefile dls_count × 3) applied to the direct
    * light of its primary lights; NULL = every set at weight 1. Lights in no set: 1. */
   const float *dls_weights;
@@ -77,7 +78,10 @@ typedef struct ub_render_params {
 /* Sets eye (0,0,0), target (0,0,-1), 60°, 960 × 540, one sample, all sets at 1. */
 void ub_render_params_default(ub_render_params *out_params);
 
-/* Builds the BVH of rt's triangles. log: messages during this call only. */
+/* Builds the BVH of rt's triangles shown in its current state (ub_runtime_triangle_shown:
+ * door leaves and objects as of the last update). It keeps them: after an update that
+ * moved a door or showed or hid an object, create the renderer again (the hidden leaf
+ * would render black, the new one not at all). log: messages during this call only. */
 ub_result ub_renderer_create(const ub_runtime *rt, const ub_log *log, ub_renderer **out);
 void ub_renderer_free(ub_renderer *r);
 const ub_bvh *ub_renderer_bvh(const ub_renderer *r);
@@ -118,6 +122,8 @@ ub_result ub_render_params_check(const ub_render_params *params, uint32_t dls_co
  * and the sRGB transfer. If auto_exposure, exposure_ev is ignored and chosen so that the
  * 95th percentile of the luminance of the lit pixels (> 0) lands at a fixed mid-high
  * grey; *out_ev (may be NULL) receives the EV used. Non-finite pixels become black. */
+/* UB_ERR_INVALID_ARGUMENT for a non-finite exposure_ev (without auto_exposure),
+ * UB_ERR_OUT_OF_MEMORY (auto exposure's sort); nothing written then. */
 ub_result ub_render_tonemap(const float *rgb, uint32_t width, uint32_t height,
                             int auto_exposure, float exposure_ev, uint8_t *out_srgb,
                             float *out_ev);

@@ -209,16 +209,19 @@ int ub_runtime_llg_changed(const ub_runtime *rt, uint32_t model);
  * written (fewer than max at the end). Cost: the runs before start, then one texel each. */
 size_t ub_runtime_changed_texels(const ub_runtime *rt, uint64_t start, size_t max,
                                  ub_runtime_texel_change *out);
-
 /* Irradiance (W/m², ≥ 0) from the global light grid at any point p for unit normal n:
  * tetrahedral interpolation of the probes' SH L2 with leak planes, windowed, convolved.
  * inout_tet_cache: a caller-owned cache (start at UB_GLG_NO_CACHE; one per moving object
- * or thread), or NULL. UB_ERR_NOT_BAKED when the file has no GLG. */
+ * or thread), or NULL. UB_ERR_NOT_BAKED when the file has no GLG, UB_ERR_INVALID_ARGUMENT
+ * for a non-finite p (outputs untouched; ub_glg_query itself answers at the cached tet's
+ * centroid). Unlike the lightmap and LLG queries, a zero or non-finite n is not an error:
+ * it gives the mean irradiance π·Y00·L00 over all normals (ubake/glg.h). */
 ub_result ub_runtime_query_glg(const ub_runtime *rt, const float p[3], const float n[3],
                                uint32_t *inout_tet_cache, float out_rgb[3]);
 /* The same through a moving object's cursor (ubake/glg.h: its tet and that tet's four
  * probes' windowed rows, so consecutive queries in one tet skip decoding the probes; the
- * same bits). Initialise it with ub_glg_cursor_init; one per object or thread. */
+ * same bits and the same errors). Initialise it with ub_glg_cursor_init; one per object
+ * or thread. */
 struct ub_glg_cursor;
 ub_result ub_runtime_query_glg_cursor(const ub_runtime *rt, const float p[3], const float n[3],
                                       struct ub_glg_cursor *cursor, float out_rgb[3]);
@@ -255,10 +258,11 @@ ub_result ub_runtime_query_llg_ex(const ub_runtime *rt, const float p[3], const 
 uint32_t ub_runtime_dls_count(const ub_runtime *rt);
 int32_t ub_runtime_dls_find(const ub_runtime *rt, const char *name); /* -1 if absent */
 const char *ub_runtime_dls_name(const ub_runtime *rt, uint32_t set);
-/* UB_ERR_INVALID_ARGUMENT (nothing changes) for a set out of range or a channel that is
- * not finite or beyond ±UB_RUNTIME_MAX_WEIGHT: a million times a set's baked light is
- * past any light a level holds, and the GLG's probe store keeps values within a range
- * (a channel beyond it would read 0 there, while the lightmap read the product). */
+/* UB_ERR_INVALID_ARGUMENT (nothing changes) while a job-split update is begun, for a set
+ * out of range or a channel that is not finite or beyond ±UB_RUNTIME_MAX_WEIGHT: a
+ * million times a set's baked light is past any light a level holds, and the GLG's probe
+ * store keeps values within a range (a channel beyond it would read 0 there, while the
+ * lightmap read the product). */
 #define UB_RUNTIME_MAX_WEIGHT 1e6f
 ub_result ub_runtime_set_dls(ub_runtime *rt, uint32_t set, const float rgb[3]);
 /* A set's weight from its lights' strengths (each 0 = shot out … 1 = as baked): their
@@ -288,14 +292,19 @@ int32_t ub_runtime_element_find(const ub_runtime *rt, ub_element_kind kind, cons
 const char *ub_runtime_element_name(const ub_runtime *rt, uint32_t element);
 ub_element_kind ub_runtime_element_kind(const ub_runtime *rt, uint32_t element);
 /* Sets a door's t or an object's v (finite, in [0, 1]). UB_ERR_INVALID_ARGUMENT for an
- * element out of range, a combination (its weight follows its parents) or a bad value. */
+ * element out of range, a combination (its weight follows its parents), a bad value or
+ * while a job-split update is begun (nothing changes). */
 ub_result ub_runtime_set_element(ub_runtime *rt, uint32_t element, float value);
 /* The value last set (door t, object v; the default before any set). For combinations and
  * out-of-range elements: UB_ERR_INVALID_ARGUMENT, out untouched. */
 ub_result ub_runtime_element_value(const ub_runtime *rt, uint32_t element, float *out_value);
-/* Whether triangle t of the file's geometry is present in the current state (section
- * TRIR: a closed door leaf while t < 1/2, an open-pose leaf from 1/2, an object while
- * v ≥ 1/2; every other triangle always). */
+/* Whether triangle t of the file's geometry is present in the state of the last update
+ * (section TRIR: a closed door leaf while t < 1/2, an open-pose leaf from 1/2, an object
+ * while v ≥ 1/2; every other triangle always). Like the lighting, a door's or object's
+ * geometry changes at the update, not at ub_runtime_set_element: the lightmap queries
+ * (which skip hidden triangles) and what a game draws stay in step with the lightmaps. A
+ * ub_renderer (ubake/render.h) keeps the triangles shown when it was created: create it
+ * again after an update that moved a door or an object. */
 int ub_runtime_triangle_shown(const ub_runtime *rt, uint32_t triangle);
 float ub_runtime_door_fraction(float hinge_angle_radians);
 
@@ -343,7 +352,12 @@ ub_result ub_runtime_keep_state(ub_runtime *rt);
  * time or not (each job sets the floating-point mode it needs on its thread and restores
  * it); then ub_runtime_update_end(). A receiver's operations do not depend on where the
  * cuts fall: every texel and probe gets the same bits as with ub_runtime_update()
- * (which is begin(1) + job 0 + end), whatever the job count. Between begin and end nothing else may use rt (no set, query or update).
+ * (which is begin(1) + job 0 + end), whatever the job count. Between begin and end nothing
+ * else may use rt (no query; a set, update, begin or keep_state is refused with
+ * UB_ERR_INVALID_ARGUMENT). Misuse is harmless: a job index out of range or without a
+ * begun update is ignored; ub_runtime_update_end runs any job that was not run (so no
+ * receiver is left in the old state) and, with no update begun, changes nothing (the last
+ * update's changed texels stay listed) and zeroes *out_stats.
  * Stats: the jobs' counts added; seconds_* the longest job's time in that part.
  * Errors (nothing started, the changes stay pending): UB_ERR_INVALID_ARGUMENT (max_jobs
  * 0 or above UB_RUNTIME_MAX_JOBS, or an update begun and not ended), UB_ERR_OUT_OF_MEMORY (the jobs' scratch, made once
