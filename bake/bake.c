@@ -48,6 +48,17 @@ const char *ub_quality_name(ub_quality q)
   return "?";
 }
 
+int ub_quality_from_name(const char *name, ub_quality *out)
+{
+  static const ub_quality all[] = {UB_QUALITY_DRAFT, UB_QUALITY_FAST, UB_QUALITY_HIGH};
+  for (size_t i = 0; name && i < sizeof all / sizeof all[0]; i++)
+    if (!strcmp(name, ub_quality_name(all[i]))) {
+      *out = all[i];
+      return 1;
+    }
+  return 0;
+}
+
 static double now_seconds(void)
 {
   struct timespec ts;

@@ -245,6 +245,22 @@ static void pixel_ray(const ub_render_params *p, uint32_t x, uint32_t y, float o
     out_d[k] = (float)(d[k] / sqrt(l));
 }
 
+/* Triangle tri's corner-order normal (not normalised). */
+static void tri_cross(const ub_bakefile *bf, uint32_t tri, float out[3])
+{
+  const float *v0 = &bf->positions[bf->indices[tri * 3] * 3],
+              *v1 = &bf->positions[bf->indices[tri * 3 + 1] * 3],
+              *v2 = &bf->positions[bf->indices[tri * 3 + 2] * 3];
+  float e1[3], e2[3];
+  for (int k = 0; k < 3; k++) {
+    e1[k] = v1[k] - v0[k];
+    e2[k] = v2[k] - v0[k];
+  }
+  out[0] = e1[1] * e2[2] - e1[2] * e2[1];
+  out[1] = e1[2] * e2[0] - e1[0] * e2[2];
+  out[2] = e1[0] * e2[1] - e1[1] * e2[0];
+}
+
 static double luma(const float *c)
 {
   return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
@@ -341,15 +357,10 @@ static void test_cornell(void)
     const float *v0 = &bf->positions[bf->indices[h.tri * 3] * 3],
                 *v1 = &bf->positions[bf->indices[h.tri * 3 + 1] * 3],
                 *v2 = &bf->positions[bf->indices[h.tri * 3 + 2] * 3];
-    float e1[3], e2[3], nn[3], q[3], e[3];
-    for (int k = 0; k < 3; k++) {
-      e1[k] = v1[k] - v0[k];
-      e2[k] = v2[k] - v0[k];
+    float nn[3], q[3], e[3];
+    for (int k = 0; k < 3; k++)
       q[k] = b0 * v0[k] + h.b1 * v1[k] + h.b2 * v2[k];
-    }
-    nn[0] = e1[1] * e2[2] - e1[2] * e2[1];
-    nn[1] = e1[2] * e2[0] - e1[0] * e2[2];
-    nn[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    tri_cross(bf, h.tri, nn);
     if (nn[0] * d[0] + nn[1] * d[1] + nn[2] * d[2] >= 0.0f)
       continue; /* back face */
     if (ub_runtime_query_lightmap(rt, q, nn, e, NULL) != UB_OK)
@@ -417,17 +428,9 @@ static void test_cornell(void)
           nm++;
           continue;
         }
-        const float *v0 = &bf->positions[bf->indices[h.tri * 3] * 3],
-                    *v1 = &bf->positions[bf->indices[h.tri * 3 + 1] * 3],
-                    *v2 = &bf->positions[bf->indices[h.tri * 3 + 2] * 3];
-        float e1[3], e2[3];
-        for (int k = 0; k < 3; k++) {
-          e1[k] = v1[k] - v0[k];
-          e2[k] = v2[k] - v0[k];
-        }
-        float c0 = e1[1] * e2[2] - e1[2] * e2[1], c1 = e1[2] * e2[0] - e1[0] * e2[2],
-              c2 = e1[0] * e2[1] - e1[1] * e2[0];
-        if (c0 * d[0] + c1 * d[1] + c2 * d[2] < 0.0f)
+        float c[3];
+        tri_cross(bf, h.tri, c);
+        if (c[0] * d[0] + c[1] * d[1] + c[2] * d[2] < 0.0f)
           nf++;
         else
           nb++;

@@ -255,13 +255,7 @@ int ub_cli_regress(int argc, char **argv)
     if (!strcmp(a, "-o")) {
       dir = v;
     } else if (!strcmp(a, "--quality")) {
-      if (!strcmp(v, "draft"))
-        opt.quality = UB_QUALITY_DRAFT;
-      else if (!strcmp(v, "fast"))
-        opt.quality = UB_QUALITY_FAST;
-      else if (!strcmp(v, "high"))
-        opt.quality = UB_QUALITY_HIGH;
-      else
+      if (!ub_quality_from_name(v, &opt.quality))
         return regress_usage("--quality %s: takes draft, fast or high", v);
     } else if (!strcmp(a, "--spp")) {
       if (!parse_count(v, 1, UB_REFERENCE_MAX_SPP, &n))

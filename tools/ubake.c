@@ -323,13 +323,7 @@ static int cmd_bake(int argc, char **argv)
       opt.out_dir = v;
       i++;
     } else if (!strcmp(a, "--quality") && v) {
-      if (!strcmp(v, "draft"))
-        opt.quality = UB_QUALITY_DRAFT;
-      else if (!strcmp(v, "fast"))
-        opt.quality = UB_QUALITY_FAST;
-      else if (!strcmp(v, "high"))
-        opt.quality = UB_QUALITY_HIGH;
-      else
+      if (!ub_quality_from_name(v, &opt.quality))
         return usage_error("bake", "--quality takes draft, fast or high");
       i++;
     } else if (!strcmp(a, "--bounces") && v) {

@@ -112,6 +112,8 @@ typedef struct ub_bake_stats {
 
 void ub_bake_options_default(ub_bake_options *out_options);
 const char *ub_quality_name(ub_quality q);
+/* The quality named "draft", "fast" or "high" into *out: 1, or 0 (out untouched). */
+int ub_quality_from_name(const char *name, ub_quality *out);
 
 ub_result ub_bake_level(const char *level_path, const ub_bake_options *options,
                         const ub_log *log, ub_bake_stats *out_stats);
