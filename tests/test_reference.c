@@ -362,18 +362,24 @@ static void test_directional_light(void)
   fixture_close(&f);
 }
 
+/* A black square of half size `half` at y = 0 facing up under a constant sky L, opened. */
+static void sky_over_black(ub_scene *s, fixture *f, float half, const float L[3])
+{
+  scene_init(s);
+  uint32_t black = add_material(s, 0, 0, 0, 0, 0, 0);
+  add_hsquare(s, 0, 0, half, 0.0f, 1, black);
+  s->has_sky = 1;
+  memcpy(s->sky, L, sizeof s->sky);
+  fixture_open(f, s);
+}
+
 static void test_sky(void)
 {
   printf("constant sky\n");
   const float L[3] = {0.5f, 1.0f, 2.0f};
   ub_scene s;
-  scene_init(&s);
-  uint32_t black = add_material(&s, 0, 0, 0, 0, 0, 0);
-  add_hsquare(&s, 0, 0, 10.0f, 0.0f, 1, black);
-  s.has_sky = 1;
-  memcpy(s.sky, L, sizeof s.sky);
   fixture f;
-  fixture_open(&f, &s);
+  sky_over_black(&s, &f, 10.0f, L);
   double want[3] = {M_PI * L[0], M_PI * L[1], M_PI * L[2]};
   est e = run(&f, 1.0f, 0.0f, -2.0f, 0, 1, 0, 4096, UNL);
   check("albedo-0 plane, receiver facing up", &e, want, 3.0, 0.01);
@@ -815,12 +821,7 @@ static void test_limits(void)
   const float L[3] = {0.5f, 1.0f, 2.0f};
   ub_scene s;
   fixture f;
-  scene_init(&s);
-  uint32_t black = add_material(&s, 0, 0, 0, 0, 0, 0);
-  add_hsquare(&s, 0, 0, 1000.0f, 0.0f, 1, black);
-  s.has_sky = 1;
-  memcpy(s.sky, L, sizeof s.sky);
-  fixture_open(&f, &s);
+  sky_over_black(&s, &f, 1000.0f, L);
   int errors = 0;
   ub_log counting = {count_errors, &errors};
   static const float far[][3] = {{2e18f, 0, 0}, {0, -1e18f, 0}, {0, 0, 1.5e7f}};
