@@ -26,11 +26,14 @@
 #include <cstdlib>
 #include <cstring>
 #include <map>
+#include <set>
 #include <new>
 #include <string>
 #include <vector>
 
+#include <fcntl.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 namespace {
 
@@ -267,6 +270,39 @@ bool mem_write_file(std::string *err, const std::string &, const std::vector<uns
   return false;
 }
 
+/* path opened for reading if it is a regular file, else NULL and *why (cannot open: …;
+ * cannot read: Is a directory; not a regular file). Opened without blocking, then checked:
+ * a FIFO with no writer would block fopen, /dev/zero be read until 4 GB. */
+FILE *open_regular(const std::string &path, std::string *why)
+{
+  int fd = open(path.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+  if (fd < 0) {
+    *why = std::string("cannot open: ") + strerror(errno);
+    return nullptr;
+  }
+  struct stat st;
+  if (fstat(fd, &st) != 0) {
+    *why = std::string("cannot read: ") + strerror(errno);
+    close(fd);
+    return nullptr;
+  }
+  if (!S_ISREG(st.st_mode)) {
+    *why = S_ISDIR(st.st_mode) ? std::string("cannot read: ") + strerror(EISDIR)
+                               : std::string("not a regular file (a device, pipe or socket)");
+    close(fd);
+    return nullptr;
+  }
+  int fl = fcntl(fd, F_GETFL);
+  if (fl != -1)
+    fcntl(fd, F_SETFL, fl & ~O_NONBLOCK);
+  FILE *f = fdopen(fd, "rb");
+  if (!f) {
+    *why = std::string("cannot open: ") + strerror(errno);
+    close(fd);
+  }
+  return f;
+}
+
 /* Filesystem callbacks for a level on disk: tinygltf's own say "File not found" for a
  * buffer or image that is there but cannot be read (permissions); these tell which. */
 bool disk_file_exists(const std::string &path, void *)
@@ -277,17 +313,11 @@ bool disk_file_exists(const std::string &path, void *)
 bool disk_read_file(std::vector<unsigned char> *out, std::string *err, const std::string &path,
                     void *)
 {
-  FILE *f = fopen(path.c_str(), "rb");
-  struct stat st;
-  if (f && fstat(fileno(f), &st) == 0 && !S_ISREG(st.st_mode)) {
-    fclose(f);
-    if (err)
-      *err += "not a regular file";
-    return false;
-  }
+  std::string why;
+  FILE *f = open_regular(path, &why);
   if (!f) {
     if (err)
-      *err += strerror(errno);
+      *err += why;
     return false;
   }
   out->clear();
@@ -435,16 +465,10 @@ void Loader::parse_file()
     parse_bytes(mem_data_, mem_size_, std::string(), true);
     return;
   }
-  FILE *f = fopen(path_.c_str(), "rb");
+  std::string why;
+  FILE *f = open_regular(path_, &why);
   if (!f)
-    fail(UB_ERR_IO, "cannot open: %s", strerror(errno));
-  struct stat st;
-  if (fstat(fileno(f), &st) == 0 && !S_ISREG(st.st_mode)) {
-    fclose(f); /* a device or a pipe: /dev/zero would be read until 4 GB */
-    if (S_ISDIR(st.st_mode))
-      fail(UB_ERR_IO, "cannot read: %s", strerror(EISDIR));
-    fail(UB_ERR_IO, "not a regular file (a device, pipe or socket)");
-  }
+    fail(UB_ERR_IO, "%s", why.c_str());
   std::vector<unsigned char> bytes;
   unsigned char chunk[1 << 16];
   size_t n;
@@ -1544,12 +1568,19 @@ void Loader::load()
  * - a door with an open leaf (ubake_door_open) but no closed leaf (ubake_door): not baked. */
 void Loader::check_tag_references()
 {
+  /* tags are inherited: a group's typo reaches each of its meshes; warned about once */
+  std::set<std::string> said;
+  auto warn_once = [&](const std::string &key, const std::string &text) {
+    if (said.insert(key).second)
+      warn("%s", text.c_str());
+  };
   for (const NodeOut &no : nodes_) {
     if (no.tags.combine.empty())
       continue;
     if (no.tags.door < 0) {
-      warn("node \"%s\": ubake_combine on a node that is not a door's closed leaf "
-           "(ubake_door) is ignored", clean(no.name, 64).c_str());
+      warn_once("off-door " + no.tags.combine,
+                "node \"" + clean(no.name, 64) + "\": ubake_combine on a node that is not a "
+                "door's closed leaf (ubake_door) is ignored");
       continue;
     }
     const std::string &list = no.tags.combine; /* as plan.c reads it */
@@ -1566,8 +1597,10 @@ void Loader::check_tag_references()
       std::string name = list.substr(p, len);
       p = e;
       if (!name.empty() && !dls_.index.count(name) && !doors_.index.count(name))
-        warn("node \"%s\": ubake_combine names \"%s\", which is neither a dynamic light set "
-             "nor a door: skipped", clean(no.name, 64).c_str(), clean(name, 64).c_str());
+        warn_once("unknown " + name,
+                  "node \"" + clean(no.name, 64) + "\": ubake_combine names \"" +
+                      clean(name, 64) + "\", which is neither a dynamic light set nor a door: "
+                      "skipped");
     }
   }
   std::vector<char> closed(doors_.names.size(), 0), open(doors_.names.size(), 0);

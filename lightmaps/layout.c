@@ -1133,15 +1133,18 @@ ub_result ub_lightmap_build(const ub_scene *scene, const ub_rt *rt, float defaul
   /* The texels the surfaces ask for, before any atlas is made: past UB_LM_MAX_TEXELS the
    * texel size is a mistake (or the level needs splitting), not something to allocate. */
   {
-    double want = 0.0, area = 0.0, ts_min = INFINITY;
+    double want = 0.0, want_auth = 0.0, area = 0.0, ts_min = INFINITY;
     for (uint32_t t = 0; t < nt; t++) {
       if (c.tri_kind[t] < 0)
         continue;
       double ts = ub_lm_texel_size(&c, t, default_texel_size);
-      want += c.tri_area[t] / (ts * ts);
+      *(c.tri_kind[t] == 0 ? &want_auth : &want) += c.tri_area[t] / (ts * ts);
       area += c.tri_area[t];
       ts_min = ts < ts_min ? ts : ts_min;
     }
+    /* the level's own UVs get one atlas, at most UB_ATLAS_MAX_SIZE² texels (step 2) */
+    const double auth_max = (double)UB_ATLAS_MAX_SIZE * UB_ATLAS_MAX_SIZE;
+    want += want_auth < auth_max ? want_auth : auth_max;
     if (want > UB_LM_MAX_TEXELS) {
       ub_log_printf(log, UB_LOG_ERROR,
                     "%s: lightmap: %.4g m² of lightmapped surfaces at texel sizes down to %g m "

@@ -41,7 +41,8 @@ ubk="$tmpdir/b/hw.ubk"
 # Options: the unknown one named, a known one missing its value named.
 expect bake_unknown 1 "'--qualty'" -- bake "$tmpdir/hw.gltf" -o "$tmpdir/x" --qualty draft
 expect bake_novalue 1 "option '--quality' lacks its value" -- bake "$tmpdir/hw.gltf" -o "$tmpdir/x" --quality
-expect info_unknown 1 "unknown option '--jsn'" -- info "$ubk" --jsn
+expect info_unknown 1 "unknown option '--jsn'" -- info --jsn "$ubk"
+expect info_novalue 1 "option '--records' lacks its value" -- info "$ubk" --memory --records
 expect render_novalue 1 "'--size'" -- render "$ubk" --camera 0,1,0,0,1,1,60 -o "$tmpdir/r.png" --size
 expect query_unknown 1 "'--nrm'" -- query "$ubk" --at 0,1,0 --nrm 0,1,0
 expect reference_unknown 1 "'--sp'" -- reference "$tmpdir/hw.gltf" --at 0,1,0 --normal 0,1,0 --sp 4

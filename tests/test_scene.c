@@ -545,6 +545,13 @@ static void test_tag_names(void)
   ASSERT_TRUE(cap.warnings == 4 && strstr(cap.warn_all, "node \"floor\": ubake_combine names "
                                                         "\"nope\", which is neither"));
   ASSERT_TRUE(strstr(cap.warn_all, "\"hall\"") == NULL); /* a set: fine */
+  /* on a group: its mesh node inherits the tag and is named (a group of N meshes warns
+   * once: check_tag_references says each typo once) */
+  ASSERT_TRUE(load_variant("\"ubake_semidynamic\": \"crate\",",
+                           "\"ubake_semidynamic\": \"crate\", \"ubake_combine\": \"d1\",", &cap) ==
+              UB_OK);
+  ASSERT_TRUE(cap.warnings == 4 &&
+              strstr(cap.warn_all, "node \"crate_part\": ubake_combine on a node that is not a door"));
   ASSERT_TRUE(load_variant("\"ubake_light\": \"primary\",",
                            "\"ubake_light\": \"primary\", \"ubake_combine\": \"d1\",", &cap) ==
               UB_OK);
@@ -730,8 +737,18 @@ static void test_bad_inputs(void)
   ASSERT_TRUE(s == NULL);
   /* a directory is not a level */
   expect_failure(g_data, UB_ERR_IO, "cannot read");
-  /* nor is a device: refused before reading (/dev/zero was read until the 4 GB cap) */
+  /* nor is a device: refused before reading (/dev/zero was read until the 4 GB cap), nor a
+   * FIFO (with no writer, opening it blocked) */
   expect_failure("/dev/zero", UB_ERR_IO, "not a regular file");
+  {
+    char dir[] = "/tmp/ubake_test_scene_XXXXXX", fifo[128];
+    ASSERT_TRUE(mkdtemp(dir) != NULL);
+    snprintf(fifo, sizeof fifo, "%s/level.gltf", dir);
+    ASSERT_TRUE(mkfifo(fifo, 0600) == 0);
+    expect_failure(fifo, UB_ERR_IO, "not a regular file");
+    unlink(fifo);
+    rmdir(dir);
+  }
   /* a buffer file missing: an I/O error naming it, not "invalid glTF" */
   {
     char dir[] = "/tmp/ubake_test_scene_XXXXXX", path[128];

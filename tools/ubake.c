@@ -582,7 +582,7 @@ static int cmd_info(int argc, char **argv)
     } else if (!strcmp(argv[i], "--no-base-ahd")) {
       load_flags |= UB_RUNTIME_NO_BASE_AHD;
     } else if (argv[i][0] == '-') {
-      return bad_option("info", argv[i], "");
+      return bad_option("info", argv[i], i + 1 < argc ? argv[i + 1] : NULL);
     } else if (path) {
       return second_file("info", path, argv[i]);
     } else {
