@@ -40,7 +40,7 @@ test-sanitize: deps
 	cmake --build build-asan -j $(JOBS)
 	@# Any ASan/UBSan report fails its test (-fno-sanitize-recover=all, halt_on_error).
 	@# The whole suite, slow label included (what CI runs). Built at -O1 (CMakeLists.txt), the
-	@# tests' OpenMP waits passive: 66 tests in 443 s on this 2-core machine (2026-12-05;
+	@# tests' OpenMP waits passive: 70 tests in 388-480 s on this 2-core machine (2026-12-05;
 	@# 873 s at -O0 with spinning waits), ~9 min with the build.
 	@# SANITIZE_CTEST_ARGS="-LE slow" leaves the slow ones out for a quicker local run.
 	cd build-asan && ASAN_OPTIONS=detect_leaks=1:halt_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 ctest --output-on-failure -j $(JOBS) --timeout 1800 $(SANITIZE_CTEST_ARGS)
