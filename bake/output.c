@@ -10,6 +10,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 #include "bake/outdir.h"
 #include "lightmaps/image.h"
@@ -24,6 +25,44 @@
 struct ub_output {
   ub_outdir *dir;
 };
+
+/* Whether json_path names a file the bake itself writes into dir (NAME.ubk, NAME_lm<i> or
+ * NAME_error<i> .exr/.png): the same folder (device and inode, once both exist) and one of
+ * those names. NAME.report.json itself is fine: --json then only says the default. */
+static int json_is_an_output(const char *json_path, const char *dir, const char *name)
+{
+  const char *slash = strrchr(json_path, '/');
+  const char *base = slash ? slash + 1 : json_path;
+  char jdir[1024];
+  if (slash)
+    snprintf(jdir, sizeof jdir, "%.*s", (int)(slash - json_path) ? (int)(slash - json_path) : 1,
+             json_path);
+  else
+    snprintf(jdir, sizeof jdir, ".");
+  struct stat a, b;
+  if (stat(jdir, &a) != 0 || stat(dir, &b) != 0 || a.st_dev != b.st_dev || a.st_ino != b.st_ino)
+    return 0;
+  size_t n = strlen(name);
+  if (strncmp(base, name, n) != 0)
+    return 0;
+  const char *rest = base + n;
+  if (!strcmp(rest, ".ubk"))
+    return 1;
+  static const char *kinds[2] = {"_lm", "_error"};
+  for (int k = 0; k < 2; k++) {
+    size_t kl = strlen(kinds[k]);
+    if (strncmp(rest, kinds[k], kl) != 0)
+      continue;
+    const char *d = rest + kl;
+    if (*d < '0' || *d > '9')
+      continue;
+    while (*d >= '0' && *d <= '9')
+      d++;
+    if (!strcmp(d, ".exr") || !strcmp(d, ".png"))
+      return 1;
+  }
+  return 0;
+}
 
 ub_result ub_output_open(const char *level_name, const ub_bake_options *opt, const ub_log *log,
                          ub_output **out)
@@ -48,6 +87,12 @@ ub_result ub_output_open(const char *level_name, const ub_bake_options *opt, con
   if (!o)
     return UB_ERR_OUT_OF_MEMORY;
   ub_result r = ub_outdir_open(dir, level_name, opt->json_path, log, &o->dir);
+  if (r == UB_OK && opt->json_path && json_is_an_output(opt->json_path, dir, level_name)) {
+    ub_log_printf(log, UB_LOG_ERROR, "%s (--json): the report would replace one of the "
+                  "bake's own files in %s", opt->json_path, dir);
+    ub_outdir_close(o->dir);
+    r = UB_ERR_INVALID_ARGUMENT;
+  }
   if (r != UB_OK) {
     free(o);
     return r;

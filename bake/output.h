@@ -35,8 +35,9 @@ typedef struct ub_output ub_output;
  * folders of NAME whose process is gone (an info line each), and with opt->json_path
  * creates the report's temporary file next to it (DIR_J/.BASE.tmp-PID), so that every
  * step of the write stage that can fail is known to work before the bake's first stage.
- * On failure: one error message naming the folder (or --json path) and the cause, nothing
- * left behind, *out = NULL. */
+ * A --json path naming one of the bake's own files in the output folder (NAME.ubk,
+ * NAME_lm<i>, NAME_error<i>) is refused. On failure: one error message naming the folder
+ * (or --json path) and the cause, nothing left behind, *out = NULL. */
 ub_result ub_output_open(const char *level_name, const ub_bake_options *opt, const ub_log *log,
                          ub_output **out);
 

@@ -82,6 +82,14 @@ fails_early "--json into a missing folder" "$w/nodir/r.json" "$lv/cornell.gltf" 
   fail "--json into a missing folder: the earlier bake in DIR changed"
 fails_early "--json naming a folder" "$w/j2" "$lv/cornell.gltf" -o "$w/j3" --json "$w/j2" "${B[@]}"
 [ -e "$w/j3" ] && fail "--json naming a folder: the output folder it made is left: $(ls -a "$w/j3")"
+# Onto one of the bake's own files (the .ubk, an atlas, by another spelling of DIR): refused
+# at the start, the earlier bake in DIR untouched.
+fails_early "--json onto the .ubk" "$w/j2/cornell.ubk" "$lv/cornell.gltf" -o "$w/j2" \
+  --json "$w/j2/cornell.ubk" "${B[@]}"
+fails_early "--json onto an atlas" "$w/j2/../j2/cornell_lm0.png" "$lv/cornell.gltf" -o "$w/j2" \
+  --json "$w/j2/../j2/cornell_lm0.png" "${B[@]}"
+[ "$before" = "$(cd "$w/j2" && ls -Ail --time-style=full-iso)" ] ||
+  fail "--json onto the bake's own files: the earlier bake in DIR changed"
 # Into another folder of the same file system: there, and nothing else left.
 mkdir -p "$w/jr"
 bake "$lv/cornell.gltf" -o "$w/j4" --json "$w/jr/r.json" "${B[@]}"
