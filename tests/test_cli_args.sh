@@ -2,18 +2,7 @@
 # option, the files), `info --json` escapes the names a level gives, and a weight past
 # UB_RUNTIME_MAX_WEIGHT is refused instead of read as 0 by the GLG.
 # Env (set by CTest): UBAKE = the ubake program, UB_BUILD = the build tree (its levels/).
-set -u
-
-: "${UBAKE:?UBAKE must point to the ubake program}"
-build="${UB_BUILD:?UB_BUILD must point to the build tree}"
-tmpdir="$(mktemp -d "${TMPDIR:-/tmp}/ubake_cli_args.XXXXXX")"
-trap 'rm -rf "$tmpdir"' EXIT
-
-failures=0
-fail() {
-  echo "FAIL: $*" >&2
-  failures=$((failures + 1))
-}
+. "$(dirname "$0")/cli_lib.sh" cli_args
 
 # expect NAME STATUS NEEDLE -- ARGS...: ubake ARGS exits with STATUS and stderr holds NEEDLE
 expect() {
@@ -75,8 +64,4 @@ grep -qF '"name": "hall \"A\" \\ x\u0009y"' "$tmpdir/info.json" ||
   fail "info --json: the set's name is not escaped: $(grep -o '"dls": \[[^]]*' "$tmpdir/info.json" | head -c 300)"
 grep -q "$(printf '\t')" "$tmpdir/info.json" && fail "info --json holds a raw tab"
 
-if [ "$failures" -ne 0 ]; then
-  echo "$failures failure(s)" >&2
-  exit 1
-fi
-echo "all argument checks passed"
+finish "all argument checks passed"

@@ -4,22 +4,11 @@
 # rename; --threads reaching the bake; and `ubake reference` refusing a point beyond the
 # level loader's coordinate limit (it used to abort in Embree).
 # Env (set by CTest): UBAKE = the ubake program, UB_BUILD = the build tree (its levels/).
-set -u
-
-: "${UBAKE:?UBAKE must point to the ubake program}"
-build="${UB_BUILD:?UB_BUILD must point to the build tree}"
-tmpdir="$(mktemp -d "${TMPDIR:-/tmp}/ubake_regress_cli.XXXXXX")"
-trap 'rm -rf "$tmpdir"' EXIT
+. "$(dirname "$0")/cli_lib.sh" regress_cli
 door="$build/levels/door_small.gltf"
 box="$build/levels/cornell.gltf"
 # Cheapest settings that still bake and trace: about a second per full run.
 fast=(--threads 1 --spp 16 --texel-size 1)
-
-failures=0
-fail() {
-  echo "FAIL: $*" >&2
-  failures=$((failures + 1))
-}
 
 # one_line NAME FILE: FILE holds exactly one line.
 one_line() {
@@ -152,8 +141,4 @@ ref far_1e18 1 0,-1e18,0
 ref far_2e7 1 0,0,2e7
 ref at_limit 0 -1e7,1,0
 
-if [ "$failures" -ne 0 ]; then
-  echo "$failures failure(s)" >&2
-  exit 1
-fi
-echo "all regress CLI checks passed"
+finish "all regress CLI checks passed"

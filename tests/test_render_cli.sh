@@ -2,18 +2,7 @@
 # a warning (and still the PNG) when the camera sees back faces or nothing, exit status 1
 # and no PNG for a bad camera or an unknown set.
 # Env (set by CTest): UBAKE = the ubake program, UB_BUILD = the build tree (its levels/).
-set -u
-
-: "${UBAKE:?UBAKE must point to the ubake program}"
-build="${UB_BUILD:?UB_BUILD must point to the build tree}"
-tmpdir="$(mktemp -d "${TMPDIR:-/tmp}/ubake_render_cli.XXXXXX")"
-trap 'rm -rf "$tmpdir"' EXIT
-
-failures=0
-fail() {
-  echo "FAIL: $*" >&2
-  failures=$((failures + 1))
-}
+. "$(dirname "$0")/cli_lib.sh" render_cli
 
 # The PNG's width and height (IHDR, big-endian at bytes 16..23) as "WxH".
 png_size() {
@@ -63,8 +52,4 @@ grep -qF "no_such_set" "$tmpdir/no_set.err" || fail "no_set: the message does no
 [ -e "$tmpdir/no_set.png" ] && fail "no_set: a PNG was written"
 ls "$tmpdir" | grep -q '\.tmp$' && fail "a temporary PNG was left behind"
 
-if [ "$failures" -ne 0 ]; then
-  echo "$failures failure(s)" >&2
-  exit 1
-fi
-echo "all render CLI checks passed"
+finish "all render CLI checks passed"
