@@ -109,7 +109,7 @@ void ub_output_close(ub_output *o)
   free(o);
 }
 
-static void json_str(FILE *f, const char *s)
+void ub_json_write_str(FILE *f, const char *s)
 {
   fputc('"', f);
   for (; s && *s; s++) {
@@ -248,9 +248,9 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
     return UB_ERR_IO;
   }
   fprintf(f, "{\n  \"level\": ");
-  json_str(f, scene->path);
+  ub_json_write_str(f, scene->path);
   fprintf(f, ",\n  \"name\": ");
-  json_str(f, st->level_name);
+  ub_json_write_str(f, st->level_name);
   fprintf(f, ",\n  \"quality\": \"%s\",\n  \"seed\": %u,\n  \"threads\": %d,\n",
           ub_quality_name(opt->quality), opt->seed, opt->threads);
   fprintf(f, "  \"scene\": {\"triangles\": %u, \"degenerate_triangles\": %u, \"materials\": %u, "
@@ -278,7 +278,7 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
     fprintf(f, ", {\"name\": ");
     char nm[80];
     snprintf(nm, sizeof nm, "dls %s", scene->dls_names[d]);
-    json_str(f, nm);
+    ub_json_write_str(f, nm);
     fprintf(f, ", \"estimated_rays\": %.0f, \"estimated_seconds\": %.3f, \"skipped\": %s",
             plan->dls_est_rays[d], plan->dls_est_seconds[d],
             plan->dls_est_rays[d] > 0 ? "false" : "true");
@@ -297,9 +297,9 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
     snprintf(nm, sizeof nm, "combination door %s x %s", scene->door_names[plan->combos[k].door],
              plan->combos[k].name);
     fprintf(f, ", {\"name\": ");
-    json_str(f, nm);
+    ub_json_write_str(f, nm);
     fprintf(f, ", \"baked\": %s, \"why\": ", plan->combos[k].baked ? "true" : "false");
-    json_str(f, plan->combos[k].why);
+    ub_json_write_str(f, plan->combos[k].why);
     fprintf(f, "}");
   }
   fprintf(f, "],\n");
@@ -321,7 +321,7 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
               : 1.0);
   for (uint32_t d = 0; d < bf->dls_count; d++) {
     fprintf(f, "%s{\"name\": ", d ? ", " : "");
-    json_str(f, bf->dls[d].name);
+    ub_json_write_str(f, bf->dls[d].name);
     fprintf(f, ", \"lights\": %u, \"texel_pixels\": %u, \"probes\": %u}",
             bf->dls[d].light_count, bf->dls[d].texel_count, bf->dls[d].probe_count);
   }
@@ -330,12 +330,12 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
     const ub_light *L = &scene->lights[l];
     static const char *types[] = {"point", "spot", "directional"};
     fprintf(f, "%s\n      {\"index\": %u, \"node\": ", l ? "," : "", l);
-    json_str(f, L->node >= 0 && (uint32_t)L->node < scene->node_count
+    ub_json_write_str(f, L->node >= 0 && (uint32_t)L->node < scene->node_count
                     ? scene->nodes[L->node].name
                     : "");
     fprintf(f, ", \"type\": \"%s\", \"class\": \"%s\", \"status\": ", types[L->type],
             L->cls == UB_LIGHT_PRIMARY ? "primary" : "static");
-    json_str(f, ub_light_skip_reason((ub_light_skip)plan->light_skip[l]));
+    ub_json_write_str(f, ub_light_skip_reason((ub_light_skip)plan->light_skip[l]));
     fputc('}', f);
   }
   fprintf(f, "\n    ]\n  },\n");
@@ -356,7 +356,7 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
   for (uint32_t n = 0, k = 0; n < scene->node_count; n++)
     if (scene->nodes[n].receiver_source == UB_RECEIVER_AUTO) {
       fprintf(f, "%s", k++ ? ", " : "");
-      json_str(f, scene->nodes[n].name);
+      ub_json_write_str(f, scene->nodes[n].name);
     }
   fprintf(f, "]},\n");
   fprintf(f, "  \"bounces\": %u,\n  \"bounce_energy\": [", st->bounces);
@@ -371,7 +371,7 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
   fprintf(f, "  \"stages\": [");
   for (uint32_t s = 0; s < st->stage_count; s++) {
     fprintf(f, "%s{\"name\": ", s ? ", " : "");
-    json_str(f, st->stage_name[s]);
+    ub_json_write_str(f, st->stage_name[s]);
     fprintf(f, ", \"seconds\": %.4f}", st->stage_seconds[s]);
   }
   double rps = st->gather_seconds > 0

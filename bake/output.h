@@ -14,6 +14,8 @@
 #ifndef UBAKE_BAKE_OUTPUT_H
 #define UBAKE_BAKE_OUTPUT_H
 
+#include <stdio.h>
+
 #include "bake/pass.h"
 #include "bake/dls.h"
 #include "bake/plan.h"
@@ -29,6 +31,10 @@ typedef struct ub_glg_bake {
 } ub_glg_bake;
 
 typedef struct ub_output ub_output;
+
+/* s as a JSON string to f: quoted, with quotes, backslashes and control bytes escaped (the
+ * report's and `ubake info --json`'s names come from the level's tags). NULL: "". */
+void ub_json_write_str(FILE *f, const char *s);
 
 /* Prepares the output of a bake of level_name (DIR/NAME.*; at most 63 bytes, no '/'):
  * creates opt->out_dir ("." when NULL) and the staging folder, removes stale staging

@@ -540,23 +540,6 @@ static int info_memory(const char *path, info_notes *notes, unsigned flags,
   return 0;
 }
 
-/* s as a JSON string on stdout: quotes, backslashes and control bytes escaped (names come
- * from the level's tags and may hold any of them). */
-static void json_print_str(const char *s)
-{
-  putchar('"');
-  for (; *s; s++) {
-    unsigned char c = (unsigned char)*s;
-    if (c == '"' || c == '\\')
-      printf("\\%c", c);
-    else if (c < 0x20 || c == 0x7f)
-      printf("\\u%04x", c);
-    else
-      putchar(c);
-  }
-  putchar('"');
-}
-
 static int cmd_info(int argc, char **argv)
 {
   const char *path = NULL;
@@ -640,7 +623,7 @@ static int cmd_info(int argc, char **argv)
     llg_bytes += 40ULL * bf->llg_count;
   if (json) {
     printf("{\"level\": ");
-    json_print_str(bf->level_name);
+    ub_json_write_str(stdout, bf->level_name);
     printf(", \"bytes\": %lld, \"seed\": %u, \"bounces\": %u, "
            "\"vertices\": %u, \"triangles\": %u, \"atlases\": [",
            bytes, bf->seed, bf->bounces, bf->vertex_count, bf->triangle_count);
@@ -656,7 +639,7 @@ static int cmd_info(int argc, char **argv)
            bf->glg_plane_count, glg_bytes, bf->llg_count, llg_probes, llg_vertices, llg_bytes);
     for (uint32_t d = 0; d < bf->dls_count; d++) {
       printf("%s{\"name\": ", d ? ", " : "");
-      json_print_str(bf->dls[d].name);
+      ub_json_write_str(stdout, bf->dls[d].name);
       printf(", \"lights\": %u, \"texels\": %u, \"probes\": %u, "
              "\"llg_probes\": %u, \"bytes\": %llu}",
              bf->dls[d].light_count, bf->dls[d].texel_count, bf->dls[d].probe_count,
@@ -666,7 +649,7 @@ static int cmd_info(int argc, char **argv)
     for (uint32_t e = 0; e < bf->elem_count; e++) {
       const ub_bakefile_record *rc = &bf->elems[e];
       printf("%s{\"name\": ", e ? ", " : "");
-      json_print_str(rc->name);
+      ub_json_write_str(stdout, rc->name);
       printf(", \"kind\": \"%s\", \"parents\": [%d, %d], "
              "\"texels\": %u, \"probes\": %u, \"llg_probes\": %u, \"bytes\": %llu}",
              element_kind_name(rc->kind), (int)rc->parent[0], (int)rc->parent[1],
