@@ -1583,20 +1583,11 @@ void Loader::check_tag_references()
                 "door's closed leaf (ubake_door) is ignored");
       continue;
     }
-    const std::string &list = no.tags.combine; /* as plan.c reads it */
-    size_t p = 0;
-    while (p < list.size()) {
-      while (p < list.size() && (list[p] == ',' || list[p] == ' '))
-        p++;
-      size_t e = list.find(',', p);
-      if (e == std::string::npos)
-        e = list.size();
-      size_t len = e - p;
-      while (len && list[p + len - 1] == ' ')
-        len--;
-      std::string name = list.substr(p, len);
-      p = e;
-      if (!name.empty() && !dls_.index.count(name) && !doors_.index.count(name))
+    const std::string &list = no.tags.combine; /* as the plan reads it */
+    size_t pos = 0, at, len;
+    while (ub_combine_next(list.c_str(), &pos, &at, &len)) {
+      std::string name = list.substr(at, len);
+      if (!dls_.index.count(name) && !doors_.index.count(name))
         warn_once("unknown " + name,
                   "node \"" + clean(no.name, 64) + "\": ubake_combine names \"" +
                       clean(name, 64) + "\", which is neither a dynamic light set nor a door: "

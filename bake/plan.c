@@ -228,20 +228,10 @@ static ub_result plan_combos(const ub_scene *s, const uint8_t *set_reaches, ub_p
     const ub_node *nd = &s->nodes[n];
     if (nd->door < 0 || !nd->combine)
       continue;
-    const char *p = nd->combine;
-    while (*p) {
-      while (*p == ',' || *p == ' ')
-        p++;
-      size_t len = strcspn(p, ",");
-      while (len && p[len - 1] == ' ')
-        len--;
-      if (!len)
-        break;
+    size_t pos = 0, at, len;
+    while (ub_combine_next(nd->combine, &pos, &at, &len)) {
       char name[64];
-      snprintf(name, sizeof name, "%.*s", (int)(len < 63 ? len : 63), p);
-      p += len;
-      while (*p && *p != ',')
-        p++;
+      snprintf(name, sizeof name, "%.*s", (int)(len < 63 ? len : 63), nd->combine + at);
       int dup = 0;
       for (uint32_t k = 0; k < out->combo_count; k++)
         dup |= out->combos[k].door == (uint32_t)nd->door && !strcmp(out->combos[k].name, name);

@@ -4,6 +4,7 @@
 
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
 
 static void free_names(char **names, uint32_t count)
 {
@@ -76,4 +77,21 @@ double ub_scene_area(const ub_scene *scene)
     sum += 0.5 * sqrt(x * x + y * y + z * z);
   }
   return sum;
+}
+
+int ub_combine_next(const char *list, size_t *pos, size_t *start, size_t *len)
+{
+  const char *p = list + *pos;
+  while (*p == ',' || *p == ' ')
+    p++;
+  size_t n = strcspn(p, ",");
+  size_t m = n;
+  while (m && p[m - 1] == ' ')
+    m--;
+  if (!m)
+    return 0;
+  *start = (size_t)(p - list);
+  *len = m;
+  *pos = *start + n;
+  return 1;
 }

@@ -162,6 +162,12 @@ float ub_scene_extent(const ub_scene *scene);
 /* Sum of triangle areas (m²). */
 double ub_scene_area(const ub_scene *scene);
 
+/* The next name of a ubake_combine list (ub_node.combine: names between commas, the blanks
+ * around them dropped) from list[*pos] on: 1 with the name at list[*start .. *start + *len)
+ * (*len ≥ 1) and *pos past it, 0 when no name is left. Start with *pos = 0. The one reading
+ * of the list, for the plan and for the loader's checks. */
+int ub_combine_next(const char *list, size_t *pos, size_t *start, size_t *len);
+
 #ifdef __cplusplus
 }
 #endif
