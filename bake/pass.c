@@ -455,7 +455,8 @@ static void shadow_flush(pass_ctx *c, const recv_set *rs, uint32_t r0, ub_ray *r
     if (rs->acc_iz)
       for (int ch = 0; ch < 3; ch++)
         rs->acc_iz[3 * (size_t)r + ch] += (double)sr->e[ch] * sr->cos;
-    sh_accum(rs->acc_sh + (size_t)rs->nsh * 3 * r, rs->nsh, sr->dir, sr->e, 1.0);
+    if (rs->acc_sh)
+      sh_accum(rs->acc_sh + (size_t)rs->nsh * 3 * r, rs->nsh, sr->dir, sr->e, 1.0);
   }
   free(rays);
   free(rec);
@@ -1741,7 +1742,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
-    double *sh = rs->acc_sh + (size_t)rs->nsh * 3 * r;
+    double *sh = rs->acc_sh ? rs->acc_sh + (size_t)rs->nsh * 3 * r : NULL;
     double *iz = rs->acc_iz ? rs->acc_iz + 3 * (size_t)r : NULL;
     double *src = rs->acc_src ? rs->acc_src + 3 * (size_t)r : NULL;
     double *src_np = rs->acc_src_np ? rs->acc_src_np + 3 * (size_t)r : NULL;
@@ -1873,7 +1874,8 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
             src_np[ch] += L[ch] * cs * wt;
         }
       double wsh = nrm ? ub_texel_sh_weight(wt, N) : wt; /* UB_SH_COS_FLOOR */
-      sh_accum(sh, rs->nsh, ray->dir, L, wsh);
+      if (sh)
+        sh_accum(sh, rs->nsh, ray->dir, L, wsh);
       if (sh_np)
         sh_accum(sh_np, rs->nsh, ray->dir, L, wsh);
       if (contrib) {
@@ -2427,6 +2429,13 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   const size_t B_SH = ((size_t)T * 12 + 1) * sizeof(double), B_IZ = ((size_t)T * 3 + 1) * sizeof(double),
                B_T = ((size_t)T + 1) * sizeof(double), B_PSH = ((size_t)P * 27 + 1) * sizeof(double),
                B_P = ((size_t)P + 1) * sizeof(double);
+  /* The running totals (sh_total, iz_total, probe_total, llg_total) feed the store, the
+   * adaptive rounds and the bounce auto-stop. A pass with none of them (a DLS influence
+   * pass: no_store, a fixed bounce count) neither writes nor reads them, nor the texels'
+   * SH (tx->acc_sh, which only sh_total sums): at ESTATE scale ~220 B a texel and 216 B a
+   * probe were written, summed and zeroed per pass for nothing. The measures it keeps
+   * come from the bounce accumulators (I_z, probe SH), so the same bits. */
+  const int totals = !d->no_store || d->bounces < 0 || d->target_error > 0.0;
   double *sh_total = scr_take(scache, SCR_SH_TOTAL, B_SH);
   double *iz_total = scr_take(scache, SCR_IZ_TOTAL, B_IZ);
   double *probe_total = scr_take(scache, SCR_PROBE_TOTAL, B_PSH);
@@ -2453,7 +2462,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   tx->ray_shift = d->texel_ray_shift;
   tx->id_base = 0;
   tx->rt = d->rt;
-  tx->acc_sh = scr_take(scache, SCR_ACC_SH, B_SH);
+  tx->acc_sh = totals ? scr_take(scache, SCR_ACC_SH, B_SH) : NULL; /* NULL: not summed */
   tx->acc_iz = scr_take(scache, SCR_ACC_IZ, B_IZ);
   tx->acc_src = scr_take(scache, SCR_ACC_SRC, B_IZ);
   tx->acc_src_np = scr_take(scache, SCR_ACC_SRC_NP, B_IZ);
@@ -2555,6 +2564,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
    * bias, not noise). */
   /* Without them (no_error_estimate) these stay NULL and every use below is skipped. */
   const int est = !d->no_error_estimate || d->target_error > 0.0;
+  /* The stop rule's per-texel counts: needed to stop (auto bounces) or to log them. */
+  const int stop_counts = totals && (d->bounces < 0 || log != NULL);
   float *rel2 = NULL;
   double *var_tx = NULL, *var_pr = NULL;
   if (est) {
@@ -2571,7 +2582,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   pr->acc_sh = scr_take(scache, SCR_PR_ACC_SH, B_PSH);
   c.img = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *c.img);
   c.emitter_of = malloc((size_t)(s->triangle_count ? s->triangle_count : 1) * sizeof(int32_t));
-  int oom = !sh_total || !iz_total || !tx->acc_sh || !tx->acc_iz || !tx->acc_src ||
+  int oom = !sh_total || !iz_total || (totals && !tx->acc_sh) || !tx->acc_iz || !tx->acc_src ||
             !tl_ok || !c.light_on ||
             !tx->acc_src_np || !c.img ||
             !c.emitter_of || !pr->acc_sh || !probe_total || !out->texel_direct ||
@@ -2660,14 +2671,17 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
 #pragma omp parallel for schedule(static)
   for (uint32_t i = 0; i < nact; i++) {
     size_t t = ACT(i);
-    memcpy(sh_total + 12 * t, tx->acc_sh + 12 * t, 12 * sizeof(double));
-    memcpy(iz_total + 3 * t, tx->acc_iz + 3 * t, 3 * sizeof(double));
+    if (totals) {
+      memcpy(sh_total + 12 * t, tx->acc_sh + 12 * t, 12 * sizeof(double));
+      memcpy(iz_total + 3 * t, tx->acc_iz + 3 * t, 3 * sizeof(double));
+    }
     out->texel_direct[t] = (float)lum3d(tx->acc_src + 3 * t);
   }
 #pragma omp parallel for schedule(static)
   for (uint32_t i = 0; i < npact; i++) {
     size_t q = PACT(i);
-    memcpy(probe_total + 27 * q, pr->acc_sh + 27 * q, 27 * sizeof(double));
+    if (totals)
+      memcpy(probe_total + 27 * q, pr->acc_sh + 27 * q, 27 * sizeof(double));
     out->probe_direct[q] = (float)(M_PI * UB_Y0 * lum3d(pr->acc_sh + 27 * q));
   }
   /* With next-event estimation, bounce 1 reads only the non-punctual part of bounce 0. */
@@ -2683,7 +2697,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     size_t q = LACT(i);
     out->llg_direct[q] = (float)(M_PI * UB_Y0 * lum3d(lg->acc_sh + 27 * q));
     for (size_t j = 27 * q; j < 27 * q + 27; j++) {
-      llg_total[j] = lg->acc_sh[j];
+      if (totals)
+        llg_total[j] = lg->acc_sh[j];
       c.llg_prev[j] = (float)(c.nee ? lg->acc_sh_np[j] : lg->acc_sh[j]);
     }
   }
@@ -2720,7 +2735,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
 #pragma omp parallel for schedule(static)
     for (uint32_t i = 0; i < nact; i++) {
       size_t t = ACT(i);
-      memset(tx->acc_sh + 12 * t, 0, 12 * sizeof(double));
+      if (tx->acc_sh)
+        memset(tx->acc_sh + 12 * t, 0, 12 * sizeof(double));
       memset(tx->acc_iz + 3 * t, 0, 3 * sizeof(double));
       if (est)
         tx->acc_var[t] = tx->acc_pvar[t] = 0.0;
@@ -2756,7 +2772,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
         if (g == t || g >= T)
           continue;
         memcpy(tx->acc_iz + 3 * (size_t)t, tx->acc_iz + 3 * (size_t)g, 3 * sizeof(double));
-        memcpy(tx->acc_sh + 12 * (size_t)t, tx->acc_sh + 12 * (size_t)g, 12 * sizeof(double));
+        if (tx->acc_sh) /* the SH rows feed sh_total alone */
+          memcpy(tx->acc_sh + 12 * (size_t)t, tx->acc_sh + 12 * (size_t)g, 12 * sizeof(double));
         if (est) {
           tx->acc_var[t] = tx->acc_var[g];
           tx->acc_pvar[t] = tx->acc_pvar[g];
@@ -2777,10 +2794,12 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
 #pragma omp parallel for schedule(static)
     for (uint32_t i = 0; i < nact; i++) {
       size_t t = ACT(i);
-      for (size_t j = 12 * t; j < 12 * t + 12; j++)
-        sh_total[j] += tx->acc_sh[j];
-      for (size_t j = 3 * t; j < 3 * t + 3; j++)
-        iz_total[j] += tx->acc_iz[j];
+      if (totals) {
+        for (size_t j = 12 * t; j < 12 * t + 12; j++)
+          sh_total[j] += tx->acc_sh[j];
+        for (size_t j = 3 * t; j < 3 * t + 3; j++)
+          iz_total[j] += tx->acc_iz[j];
+      }
       if (est)
         var_tx[t] += tx->acc_var[t] + tx->acc_pvar[t];
       out->texel_indirect[t] += (float)lum3d(tx->acc_iz + 3 * t);
@@ -2791,8 +2810,9 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
 #pragma omp parallel for schedule(static)
     for (uint32_t i = 0; i < npact; i++) {
       size_t q = PACT(i);
-      for (size_t j = 27 * q; j < 27 * q + 27; j++)
-        probe_total[j] += pr->acc_sh[j];
+      if (totals)
+        for (size_t j = 27 * q; j < 27 * q + 27; j++)
+          probe_total[j] += pr->acc_sh[j];
       if (est)
         var_pr[q] += pr->acc_var[q] + pr->acc_pvar[q];
       out->probe_indirect[q] += (float)(M_PI * UB_Y0 * lum3d(pr->acc_sh + 27 * q));
@@ -2800,8 +2820,9 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
 #pragma omp parallel for schedule(static)
     for (uint32_t i = 0; i < nlact; i++) {
       size_t q = LACT(i);
-      for (size_t j = 27 * q; j < 27 * q + 27; j++)
-        llg_total[j] += lg->acc_sh[j];
+      if (totals)
+        for (size_t j = 27 * q; j < 27 * q + 27; j++)
+          llg_total[j] += lg->acc_sh[j];
       out->llg_indirect[q] += (float)(M_PI * UB_Y0 * lum3d(lg->acc_sh + 27 * q));
     }
     bounce_shifts(tx, tx->acc_iz, 3);
@@ -2815,11 +2836,11 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     /* Texels below 0.1% of the mean (a dark room next to a lit one: leak-level light)
      * have nothing to converge to. */
     double mean_sum = 0.0;
-    for (uint32_t i = 0; i < nact; i++)
+    for (uint32_t i = 0; stop_counts && i < nact; i++)
       mean_sum += lum3d(iz_total + 3 * (size_t)ACT(i));
     mean_sum /= T ? T : 1;
     uint64_t gaining = 0, lit = 0;
-    for (uint32_t i = 0; i < nact; i++) {
+    for (uint32_t i = 0; stop_counts && i < nact; i++) {
       uint32_t t = ACT(i);
       double add = lum3d(tx->acc_iz + 3 * (size_t)t), sum = lum3d(iz_total + 3 * (size_t)t);
       if (sum > 1e-3 * mean_sum) {
@@ -2829,7 +2850,8 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
     }
     int local_done = gaining <= (uint64_t)(UB_STOP_TEXEL_SHARE * (double)lit);
     /* Both halves of the stop rule, so a log shows which one holds the bounces. */
-    ub_log_printf(log, UB_LOG_INFO,
+    if (stop_counts) /* else they were not counted (and log is NULL in such passes) */
+      ub_log_printf(log, UB_LOG_INFO,
                   "  bounce %u: +%.3f%% energy; %.2f%% of lit texels gained > %.2g%% of "
                   "their own light",
                   b, total_energy > 0 ? 100.0 * e / total_energy : 0.0,
@@ -2990,8 +3012,8 @@ done:
   /* Scratch back to the cache, zeroed at act / pact (freed after a failure: what was
    * written is not known). */
   ub_pass_cache *give = res == UB_OK ? scache : NULL;
-  scr_give(give, SCR_SH_TOTAL, sh_total, B_SH, act, nact, 12 * sizeof(double));
-  scr_give(give, SCR_IZ_TOTAL, iz_total, B_IZ, act, nact, 3 * sizeof(double));
+  scr_give(give, SCR_SH_TOTAL, sh_total, B_SH, act, totals ? nact : 0, 12 * sizeof(double));
+  scr_give(give, SCR_IZ_TOTAL, iz_total, B_IZ, act, totals ? nact : 0, 3 * sizeof(double));
   scr_give(give, SCR_ACC_SH, tx->acc_sh, B_SH, act, nact, 12 * sizeof(double));
   scr_give(give, SCR_ACC_IZ, tx->acc_iz, B_IZ, act, nact, 3 * sizeof(double));
   scr_give(give, SCR_ACC_SRC, tx->acc_src, B_IZ, act, nact, 3 * sizeof(double));
@@ -3000,7 +3022,7 @@ done:
   scr_give(give, SCR_ACC_PVAR, tx->acc_pvar, B_T, act, nact, sizeof(double));
   scr_give(give, SCR_REL2, rel2, ((size_t)T + 1) * sizeof(float), act, nact, sizeof(float));
   scr_give(give, SCR_VAR_TX, var_tx, B_T, act, nact, sizeof(double));
-  scr_give(give, SCR_PROBE_TOTAL, probe_total, B_PSH, pact, npact, 27 * sizeof(double));
+  scr_give(give, SCR_PROBE_TOTAL, probe_total, B_PSH, pact, totals ? npact : 0, 27 * sizeof(double));
   scr_give(give, SCR_PR_ACC_SH, pr->acc_sh, B_PSH, pact, npact, 27 * sizeof(double));
   scr_give(give, SCR_PR_ACC_VAR, pr->acc_var, B_P, pact, npact, sizeof(double));
   scr_give(give, SCR_PR_ACC_PVAR, pr->acc_pvar, B_P, pact, npact, sizeof(double));
@@ -3053,7 +3075,7 @@ done:
     free(c.sets[k].bshift);
     free(c.sets[k].peak);
   }
-  scr_give(lgive, SCR_LLG_TOTAL, llg_total, B_LSH, lact, nlact, 27 * sizeof(double));
+  scr_give(lgive, SCR_LLG_TOTAL, llg_total, B_LSH, lact, totals ? nlact : 0, 27 * sizeof(double));
   if (give && c.llg_prev) /* written at lact and the invalid probes: zeroed whole */
     memset(c.llg_prev, 0, (size_t)LP * 27 * sizeof(float));
   scr_give(give, SCR_LLG_PREV, c.llg_prev, (size_t)LP * 27 * sizeof(float), NULL, 0, 0);
