@@ -574,6 +574,34 @@ static int32_t cand_at(const ub_atlas *at, const uint8_t *is_cand, int64_t x, in
   return g >= 0 && is_cand[g] ? g : -1;
 }
 
+/* The keep rule's estimate at texel t (a candidate with is_cand set): the mean of est over
+ * t and its candidate atlas neighbours on the same surface (the 8 around it, donor_ok).
+ * The influence pass's indirect comes from a few rays at one gather per ~2×2 texels, so a
+ * texel whose gather missed a faint source reads 0 where its neighbours read it: culled
+ * on its own estimate, it left a hole in the set's record (q3dm6ish with three sets, draft:
+ * 107 culled texels at over 10× the threshold in a dense bake, one at 75×). The mean over
+ * the neighbourhood averages several gathers; light that reaches a surface at all is
+ * seldom missed by all of them. */
+static double keep_estimate(const ub_scene *s, const ub_lightmap *lm, const uint8_t *is_cand,
+                            const float *est, uint32_t t)
+{
+  const ub_atlas *at = &lm->atlases[lm->texel_atlas[t]];
+  int64_t x = lm->texel_xy[2 * t], y = lm->texel_xy[2 * t + 1];
+  double sum = est[t];
+  uint32_t n = 1;
+  for (int dy = -1; dy <= 1; dy++)
+    for (int dx = -1; dx <= 1; dx++) {
+      if (!dx && !dy)
+        continue;
+      int32_t g = cand_at(at, is_cand, x + dx, y + dy);
+      if (g >= 0 && donor_ok(s, lm, t, (uint32_t)g)) {
+        sum += est[g];
+        n++;
+      }
+    }
+  return sum / n;
+}
+
 /* Sparse gathers for an influence pass over the candidates ct[0..n) (ascending, so row
  * by row within an atlas): a candidate takes the bounce light of a gathering candidate
  * already decided next to it (left, up, up-left, up-right, in that order) when donor_ok;
@@ -803,7 +831,10 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
                                            : NULL;
   uint32_t *gat = plan->influence_sparse ? malloc(((size_t)lm->texel_count + 1) * sizeof *gat)
                                          : NULL;
-  uint8_t *is_cand = plan->influence_sparse ? calloc((size_t)lm->texel_count + 1, 1) : NULL;
+  uint8_t *is_cand = plan->influence_sparse || plan->influence_culling
+                        ? calloc((size_t)lm->texel_count + 1, 1)
+                        : NULL;
+  uint8_t *tsel = plan->influence_culling ? malloc((size_t)lm->texel_count + 1) : NULL;
   uint32_t *cp = malloc(((size_t)base->probe_count + 1) * sizeof *cp);
   uint32_t *cl = malloc(((size_t)nlp + 1) * sizeof *cl);
   int llg_sparse = plan->influence_sparse && nlp > 0;
@@ -825,7 +856,9 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
   float *est = malloc(((size_t)lm->texel_count + 1) * sizeof *est);
   if (!recs || !enabled || !kt || !kp || !kl || !ct || !cp || !cl || !est ||
       (scaled && (!tsh || !psh || !lsh)) ||
-      (plan->influence_sparse && (!donor || !gat || !is_cand)) ||
+      (plan->influence_sparse && (!donor || !gat)) ||
+      ((plan->influence_sparse || plan->influence_culling) && !is_cand) ||
+      (plan->influence_culling && !tsel) ||
       (llg_sparse && (!ldonor || !lgat || !lcand))) {
     free(est);
     free(tsh);
@@ -837,6 +870,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     free(donor);
     free(gat);
     free(is_cand);
+    free(tsel);
     free(recs);
     free(enabled);
     free(kt);
@@ -1071,6 +1105,8 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     }
     const double frac = full_tail ? UB_DLS_INFLUENCE_FRACTION : UB_DLS_INFLUENCE_FRACTION_EXACT;
     double thr = lit ? frac * ind_sum / lit : 0.0;
+    const double frac_t = full_tail ? UB_DLS_INFLUENCE_FRACTION : UB_DLS_TEXEL_FRACTION_EXACT;
+    const double thr_t = lit ? frac_t * ind_sum / lit : 0.0; /* texels (keep_estimate) */
     /* Probes: the same tail on their (DC) indirect, no per-probe bounce split: the
      * level's share of bounce NB in the first NB (no tail: factor 1). */
     double ind_e = 0.0;
@@ -1079,10 +1115,31 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
     double ptail = 1.0 + (ind_e > 0.0 ? tail * inf.bounce_energy[NB] / ind_e : 0.0);
     uint32_t nkt = 0, nkp = 0, nkl = 0;
     /* --plan all keeps every receiver (no culling), to measure what culling drops. */
-    for (uint32_t i = 0; i < ncand_t; i++) {
-      uint32_t t = cand_t ? cand_t[i] : i;
-      if (!plan->influence_culling || inf.texel_direct[t] > 0.0f || est[t] > thr)
-        kt[nkt++] = t;
+    /* a texel whose own estimate is below the threshold is kept when its neighbourhood's
+     * mean is above it (keep_estimate); tsel: one byte per candidate */
+    if (plan->influence_culling) {
+      for (uint32_t i = 0; i < ncand_t; i++)
+        is_cand[cand_t ? cand_t[i] : i] = 1;
+      /* decided on every thread (each reads only est, is_cand and the lightmap), then
+       * listed in order */
+#pragma omp parallel for schedule(dynamic, 4096)
+      for (uint32_t i = 0; i < ncand_t; i++) {
+        uint32_t t = cand_t ? cand_t[i] : i;
+        if (inf.texel_direct[t] > 0.0f || est[t] > thr_t ||
+            keep_estimate(s, lm, is_cand, est, t) > thr_t)
+          tsel[i] = 1;
+        else
+          tsel[i] = 0;
+      }
+      for (uint32_t i = 0; i < ncand_t; i++) {
+        uint32_t t = cand_t ? cand_t[i] : i;
+        if (tsel[i])
+          kt[nkt++] = t;
+        is_cand[t] = 0;
+      }
+    } else {
+      for (uint32_t i = 0; i < ncand_t; i++)
+        kt[nkt++] = cand_t ? cand_t[i] : i;
     }
     for (uint32_t i = 0; i < ncand_p; i++) {
       uint32_t q = cand_p ? cand_p[i] : i;
@@ -1268,6 +1325,7 @@ ub_result ub_dls_bake(const ub_pass_desc *base, const ub_plan *plan, const ub_lo
   free(donor);
   free(gat);
   free(is_cand);
+  free(tsel);
   free(pg.head);
   free(pg.next);
   free(pgat);

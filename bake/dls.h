@@ -31,6 +31,14 @@
  * more kept texels and 1.4% more full-pass rays at ESTATE full scale (the added receivers
  * are faint: scaled rays give them few). */
 #define UB_DLS_INFLUENCE_FRACTION_EXACT 0.004
+/* The same for texels: they are kept on their neighbourhood's estimate as well (bake/dls.c
+ * keep_estimate), which averages several of the influence pass's gathers, so a texel's
+ * culling is decided on a steadier figure than a probe's and the threshold can be higher
+ * for the same light dropped. estate_small at 2 bounces (tests/test_plan.c dls_culling,
+ * 2026-12-05), texel record pixels over the 16 sets / the worst set's light dropped: its
+ * own estimate at 0.4%: 59,841 / 0.62%; with the neighbourhood at 0.4%: 64,206 / 0.32%,
+ * at 0.6%: 62,033 / 0.44%, at 0.8%: 59,339 / 0.59%. */
+#define UB_DLS_TEXEL_FRACTION_EXACT 0.008
 /* Full passes with scaled rays (ub_plan.dls_scaled_rays): a receiver gathers with at
  * least 2^-UB_DLS_RAY_SHIFT_MAX of the rays. A faint receiver's light can come from rare
  * bright hits (a lit wall seen through a doorway), and one such hit weighs 2^shift times
