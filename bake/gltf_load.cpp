@@ -310,27 +310,42 @@ bool disk_file_exists(const std::string &path, void *)
   struct stat st;
   return stat(path.c_str(), &st) == 0;
 }
+/* The bytes of the regular file at path into *out, stopping past max bytes. 0: read;
+ * 1: cannot open it (*why as open_regular says); 2: a read failed (*why: its strerror);
+ * 3: larger than max. */
+enum { kReadOk = 0, kReadOpen, kReadError, kReadTooLarge };
+int read_regular(const std::string &path, size_t max, std::vector<unsigned char> *out,
+                 std::string *why)
+{
+  FILE *f = open_regular(path, why);
+  if (!f)
+    return kReadOpen;
+  out->clear();
+  unsigned char chunk[1 << 16];
+  size_t n;
+  while ((n = fread(chunk, 1, sizeof chunk, f)) > 0) {
+    out->insert(out->end(), chunk, chunk + n);
+    if (out->size() > max) {
+      fclose(f);
+      return kReadTooLarge;
+    }
+  }
+  bool bad = ferror(f) != 0;
+  int e = errno;
+  fclose(f);
+  if (bad)
+    *why = strerror(e);
+  return bad ? kReadError : kReadOk;
+}
+
 bool disk_read_file(std::vector<unsigned char> *out, std::string *err, const std::string &path,
                     void *)
 {
   std::string why;
-  FILE *f = open_regular(path, &why);
-  if (!f) {
-    if (err)
-      *err += why;
-    return false;
-  }
-  out->clear();
-  unsigned char chunk[1 << 16];
-  size_t n;
-  while ((n = fread(chunk, 1, sizeof chunk, f)) > 0)
-    out->insert(out->end(), chunk, chunk + n);
-  bool bad = ferror(f) != 0;
-  int e = errno;
-  fclose(f);
-  if (bad && err)
-    *err += strerror(e);
-  return !bad;
+  int r = read_regular(path, SIZE_MAX, out, &why);
+  if (r != kReadOk && err)
+    *err += why;
+  return r == kReadOk;
 }
 
 class Loader {
@@ -466,24 +481,15 @@ void Loader::parse_file()
     return;
   }
   std::string why;
-  FILE *f = open_regular(path_, &why);
-  if (!f)
-    fail(UB_ERR_IO, "%s", why.c_str());
   std::vector<unsigned char> bytes;
-  unsigned char chunk[1 << 16];
-  size_t n;
-  while ((n = fread(chunk, 1, sizeof chunk, f)) > 0) {
-    bytes.insert(bytes.end(), chunk, chunk + n);
-    if (bytes.size() > 0xFFFFFFF0u) {
-      fclose(f);
-      fail(UB_ERR_INVALID_DATA, "file is larger than 4 GB");
-    }
+  switch (read_regular(path_, 0xFFFFFFF0u, &bytes, &why)) {
+  case kReadOpen:
+    fail(UB_ERR_IO, "%s", why.c_str());
+  case kReadError:
+    fail(UB_ERR_IO, "cannot read: %s", why.c_str());
+  case kReadTooLarge:
+    fail(UB_ERR_INVALID_DATA, "file is larger than 4 GB");
   }
-  bool read_error = ferror(f) != 0;
-  int read_errno = errno;
-  fclose(f);
-  if (read_error)
-    fail(UB_ERR_IO, "cannot read: %s", strerror(read_errno));
 
   std::string base_dir;
   size_t slash = path_.find_last_of('/');

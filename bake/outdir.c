@@ -94,13 +94,19 @@ static void remove_temporaries(ub_outdir *o)
       rmdir(o->created[i]);
 }
 
-static void kill_self(int sig)
+/* sig back to its default action. Async-signal-safe. */
+static void default_action(int sig)
 {
   struct sigaction dfl;
   memset(&dfl, 0, sizeof dfl);
   dfl.sa_handler = SIG_DFL;
   sigemptyset(&dfl.sa_mask);
   sigaction(sig, &dfl, NULL);
+}
+
+static void kill_self(int sig)
+{
+  default_action(sig);
   raise(sig); /* delivered as the handler returns: "killed by signal", as without us */
 }
 
@@ -151,13 +157,9 @@ static void release_signals(ub_outdir *o)
 {
   if (!o->signal_owner)
     return;
-  struct sigaction dfl;
-  memset(&dfl, 0, sizeof dfl);
-  dfl.sa_handler = SIG_DFL;
-  sigemptyset(&dfl.sa_mask);
   for (int k = 0; k < 2; k++)
     if (o->installed[k])
-      sigaction(sig_nums[k], &dfl, NULL);
+      default_action(sig_nums[k]);
   atomic_store(&sig_owner, NULL);
   while (atomic_load(&sig_running)) /* a handler in another thread is about to kill us */
     sched_yield();
@@ -176,19 +178,7 @@ static void deliver_pending(ub_outdir *o)
 
 /* ---- folders and names ----------------------------------------------------------------- */
 
-/* "a/b" (malloc); NULL when out of memory. */
-static char *path_join(const char *a, const char *b)
-{
-  size_t na = strlen(a), nb = strlen(b);
-  char *p = malloc(na + nb + 2);
-  if (p) {
-    memcpy(p, a, na);
-    p[na] = '/';
-    memcpy(p + na + 1, b, nb + 1);
-  }
-  return p;
-}
-
+/* The formatted path (malloc; "%s/%s" joins two); NULL when out of memory. */
 static char *path_printf(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 static char *path_printf(const char *fmt, ...)
 {
@@ -286,7 +276,7 @@ static void remove_stale(const char *dir, const char *prefix, int folders, int o
       continue;
     if (pid == (long)getpid() ? !own_gone : !(kill((pid_t)pid, 0) != 0 && errno == ESRCH))
       continue; /* alive (or not ours to judge: EPERM means it exists) */
-    char *path = path_join(dir, e->d_name);
+    char *path = path_printf("%s/%s", dir, e->d_name);
     struct stat st;
     if (path && lstat(path, &st) == 0 && (folders ? S_ISDIR(st.st_mode) : S_ISREG(st.st_mode))) {
       if ((folders ? ub_remove_dir(path) : unlink(path)) == 0)
@@ -456,8 +446,8 @@ static int add_file(ub_outdir *o, const char *name, const char *staged, const ch
   unsigned n = atomic_load(&o->file_count);
   assert(n < o->file_cap);
   out_file *f = &o->files[n];
-  f->staged = staged ? strdup(staged) : path_join(o->staging, name);
-  f->final = final ? strdup(final) : path_join(o->dir, name);
+  f->staged = staged ? strdup(staged) : path_printf("%s/%s", o->staging, name);
+  f->final = final ? strdup(final) : path_printf("%s/%s", o->dir, name);
   if (!f->staged || !f->final) {
     free(f->staged);
     free(f->final);
@@ -575,7 +565,7 @@ static void remove_stale_atlases(const ub_outdir *o, uint32_t atlas_count, const
   while ((e = readdir(d)) != NULL) {
     if (!stale_atlas_file(e->d_name, o->name, atlas_count))
       continue;
-    char *path = path_join(o->dir, e->d_name);
+    char *path = path_printf("%s/%s", o->dir, e->d_name);
     struct stat st;
     if (path && lstat(path, &st) == 0 && S_ISREG(st.st_mode)) {
       if (unlink(path) == 0) {
