@@ -738,6 +738,15 @@ static void camera_frame(const ub_render_params *p, cam_frame *out)
   out->half_w = out->half_h * (float)p->width / (float)p->height;
 }
 
+/* The (unnormalised) direction through image point (px, py), both in [0, 1] from the
+ * top-left corner. */
+static void camera_dir(const cam_frame *cf, float px, float py, float out[3])
+{
+  float u = (2.0f * px - 1.0f) * cf->half_w, v = (1.0f - 2.0f * py) * cf->half_h;
+  for (int a = 0; a < 3; a++)
+    out[a] = cf->f[a] + u * cf->right[a] + v * cf->up[a];
+}
+
 /* Run-time direct light (irradiance, W/m²) of light l at p with unit normal n; 0 when the
  * light is behind, outside its cone or range. Same model as the baker (bake/lights.c). */
 static int light_incident(const ub_bakefile_light *l, const float p[3], float out_dir[3],
@@ -879,10 +888,8 @@ ub_result ub_renderer_render(const ub_renderer *r, const ub_render_params *p,
         for (uint32_t sx = 0; sx < ns; sx++) {
           float px = ((float)xpix + ((float)sx + 0.5f) * inv_ns) / (float)p->width;
           float py = ((float)y + ((float)sy + 0.5f) * inv_ns) / (float)p->height;
-          float u = (2.0f * px - 1.0f) * cf.half_w, v = (1.0f - 2.0f * py) * cf.half_h;
           float d[3];
-          for (int a = 0; a < 3; a++)
-            d[a] = cf.f[a] + u * cf.right[a] + v * cf.up[a];
+          camera_dir(&cf, px, py, d);
           float dn[3], c[3];
           if (!normalise3(d, dn))
             continue;
@@ -916,11 +923,8 @@ ub_result ub_renderer_view(const ub_renderer *r, const ub_render_params *p, uint
   uint64_t front = 0, back = 0, miss = 0;
   for (uint32_t y = 0; y < grid; y++)
     for (uint32_t x = 0; x < grid; x++) {
-      float u = (2.0f * ((float)x + 0.5f) / (float)grid - 1.0f) * cf.half_w;
-      float v = (1.0f - 2.0f * ((float)y + 0.5f) / (float)grid) * cf.half_h;
       float d[3], dn[3];
-      for (int a = 0; a < 3; a++)
-        d[a] = cf.f[a] + u * cf.right[a] + v * cf.up[a];
+      camera_dir(&cf, ((float)x + 0.5f) / (float)grid, ((float)y + 0.5f) / (float)grid, d);
       ub_bvh_hit h;
       if (!normalise3(d, dn) || !ub_bvh_intersect(r->bvh, p->eye, dn, INFINITY, &h)) {
         miss++;
