@@ -160,6 +160,7 @@ struct ub_blend {
    * order (as obase), float; NULL: none */
   float *refrows;
   int base_report; /* ub_blend_set_base_report */
+  uint32_t receiver_cost; /* ub_blend_set_receiver_cost */
   size_t engine_bytes, record_bytes;
 };
 
@@ -1373,11 +1374,35 @@ static int cmp_u32(const void *a, const void *b)
   return (x > y) - (x < y);
 }
 
-/* A group's share of an update's work, for splitting it into parts: its rows (base and
- * members' record rows) plus a constant for its tables and call. */
-static uint64_t group_cost(const blend_group *g)
+/* A group's cost in an update, for splitting the update into parts of equal cost: an
+ * estimate in units of about a CPU cycle, fitted to the per-group times of the full
+ * ESTATE level's updates (this machine's TSC; every set changed, and every set toggled
+ * with the others on, within ±15% per overlap count). Per receiver: 2 a row read (its
+ * base row and its members' record rows, or, from its all-ones sums when update_begin
+ * found at most BLEND_FEW elements away from ω1, the float sum, two rows, and at most
+ * that many members' rows, whichever ones_cheaper would pick), 4 more a member stream
+ * beyond 6 (many streams at once read slower), and the caller's work
+ * (ub_blend_set_receiver_cost); per group 300 (its tables, the call, the callback).
+ * Only where the parts are cut depends on it, never a receiver's bits. The count before
+ * (rows alone, 16 a group) cut a hall set's toggle off into jobs of 0.69 and 2.34 ms (now
+ * 1.54 and 1.46; a room set's 0.16 and 0.19, now 0.18 and 0.17; the jobs run one after
+ * the other, full ESTATE, 2026-12-05): a hall toggle's ~20 k groups of few receivers each
+ * cost 150-550 cycles apiece besides their rows, and a hall group of 16 members counted
+ * 17 rows where its all-ones sum reads 2-3. */
+#define BLEND_COST_GROUP 300u
+/* n1: the elements away from ω1 when update_begin listed them (b->few), else
+ * UINT32_MAX (the all-ones sums are then not counted: a group's plain rows are fewer);
+ * rc: ub_blend_set_receiver_cost's. */
+static inline uint64_t group_cost(const blend_group *g, uint64_t n1, uint64_t rc)
 {
-  return (uint64_t)g->receivers * ((g->k_mode & ~GROUP_LIST) + 1u) + 16u;
+  const uint64_t gk = g->k_mode & ~GROUP_LIST;
+  uint64_t rows = gk + 1u, streams = gk;
+  if (g->ones_row != ONES_NONE && 2u + n1 < rows) {
+    rows = 2u + n1;
+    streams = n1;
+  }
+  return (uint64_t)g->receivers * (2u * rows + (streams > 6u ? 4u * (streams - 6u) : 0u) + rc) +
+         BLEND_COST_GROUP;
 }
 
 void ub_blend_update_begin(ub_blend *b, int all)
@@ -1444,9 +1469,10 @@ void ub_blend_update_begin(ub_blend *b, int all)
           b->few_e[l][b->few_n[l]++] = e;
       }
   }
+  const uint64_t n1 = b->few ? b->few_n[1] : UINT32_MAX, rc = b->receiver_cost;
   b->wcost[0] = 0;
   for (uint32_t i = 0; i < n; i++)
-    b->wcost[i + 1] = b->wcost[i] + group_cost(&b->groups[b->work[i]]);
+    b->wcost[i + 1] = b->wcost[i] + group_cost(&b->groups[b->work[i]], n1, rc);
 }
 
 /* Where part p of `parts` starts: work item *item, receiver position *pos in its group.
@@ -1477,8 +1503,10 @@ static void part_bound(const ub_blend *b, uint32_t p, uint32_t parts, uint32_t *
   const uint32_t i = lo - 1; /* wcost[0] = 0 ≤ goal < wcost[n]·parts */
   const blend_group *g = &b->groups[b->work[i]];
   const uint64_t off = (goal - b->wcost[i] * parts) / parts;
-  const uint64_t per = (g->k_mode & ~GROUP_LIST) + 1u;
-  const uint64_t q = off <= 16 ? 0 : (off - 16) / per;
+  /* the group's cost per receiver as update_begin counted it (its share less the
+   * constant; a group has at least one receiver) */
+  const uint64_t per = (b->wcost[i + 1] - b->wcost[i] - BLEND_COST_GROUP) / g->receivers;
+  const uint64_t q = off <= BLEND_COST_GROUP ? 0 : (off - BLEND_COST_GROUP) / per;
   if (q >= g->receivers) {
     *item = i + 1;
   } else {
@@ -1713,6 +1741,12 @@ void ub_blend_set_base_report(ub_blend *b, int on)
 {
   assert(b);
   b->base_report = on != 0;
+}
+
+void ub_blend_set_receiver_cost(ub_blend *b, uint32_t cost)
+{
+  assert(b);
+  b->receiver_cost = cost < 1000 ? cost : 1000;
 }
 
 ub_result ub_blend_set_reference(ub_blend *b)

@@ -346,6 +346,11 @@ ub_result ub_blend_set_reference_rows(ub_blend *b, const float *out_values);
  * rows, whatever the other weights. Turning a set off is then a copy wherever no other
  * set overlaps it. Updates with out_values are unchanged. Off by default. */
 void ub_blend_set_base_report(ub_blend *b, int on);
+/* The caller's work per receiver an update hands it (e.g. the run-time's AHD encode of a
+ * texel), in the units update_begin counts the blend's own work in (about a CPU cycle: a
+ * record row read is 2; at most 1000; 0 by default), when it splits the work into parts
+ * of equal cost. Only where the parts are cut depends on it, never a receiver's bits. */
+void ub_blend_set_receiver_cost(ub_blend *b, uint32_t cost);
 /* 1 while a weight changed since the last update (ub_blend_set_reference refuses then);
  * 0 from ub_blend_update_begin on, before its parts have run too. */
 int ub_blend_pending(const ub_blend *b);

@@ -1243,6 +1243,10 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   /* Base rows in half too (UB_BLEND_BASE_HALF): the touched texels' as the untouched ones'
    * (lm_static); the probes' are the file's halves, kept exactly. */
   bd.flags = UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF | rec_flags;
+  /* each texel an update hands over is encoded to AHD (lm_touched): about 12 of the
+   * blend's cost units, 6 record rows (full ESTATE's per-group times: 14 cycles a texel
+   * besides 2 a row read), counted when an update is split into jobs */
+  ub_blend_set_receiver_cost(rt->lm_blend, 12);
   free(rt->lm_tbase);
   rt->lm_tbase = NULL;
   if (rt->has_glg) {

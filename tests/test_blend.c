@@ -2027,6 +2027,53 @@ static void test_parts_one_group(void)
   rep_free(&p);
 }
 
+/* Parts of equal cost read about equal bytes when all-ones sums serve some groups: element
+ * 0 covers every receiver, elements 1-11 the first half (a group of 12 members, kept as
+ * an all-ones sum) and element 0 is tinted with the others at ω1. A receiver of the big
+ * group then reads its float sum and one record row (72 B), one of the other its base
+ * and one row (48 B). Counting every member's row (13 against 2) put the cut far into the
+ * small group's side: one part read about twice the other's bytes. */
+static void test_parts_balance(void)
+{
+  const uint32_t R = 20000, S = 12, E = 12;
+  uint8_t *cover[E];
+  for (uint32_t e = 0; e < E; e++) {
+    cover[e] = malloc(R);
+    for (uint32_t r = 0; r < R; r++)
+      cover[e][r] = e == 0 || r < R / 2;
+  }
+  rep p;
+  rep_init(&p, R, S, E, UB_BLEND_FLOAT16, cover);
+  for (uint32_t e = 0; e < E; e++)
+    free(cover[e]);
+  ub_blend_desc d = rep_desc(&p, "balance");
+  d.flags = UB_BLEND_OWN_BASE | UB_BLEND_BASE_HALF | UB_BLEND_ONES_SUM;
+  float *out = malloc(sizeof(float) * R * S);
+  ub_blend *b = NULL;
+  ASSERT_OK(ub_blend_create(&d, NULL, out, &b));
+  if (!b)
+    return;
+  ASSERT_OK(ub_blend_reserve_parts(b, 2));
+  for (uint32_t e = 0; e < E; e++) /* every element at 1: the load state */
+    ASSERT_OK(ub_blend_set_weight(b, e, (const float[3]){1.0f, 1.0f, 1.0f}));
+  ub_blend_update(b, NULL, NULL, out, NULL);
+  ASSERT_OK(ub_blend_set_weight(b, 0, (const float[3]){0.5f, 0.25f, 2.0f}));
+  ub_blend_update_begin(b, 0);
+  ub_blend_stats st[2];
+  for (uint32_t q = 0; q < 2; q++)
+    ub_blend_update_part(b, q, 2, NULL, NULL, out, &st[q]);
+  const double lo = (double)(st[0].bytes_read < st[1].bytes_read ? st[0].bytes_read : st[1].bytes_read);
+  const double hi = (double)(st[0].bytes_read > st[1].bytes_read ? st[0].bytes_read : st[1].bytes_read);
+  printf("parts balance: 2 parts read %llu and %llu bytes (%llu and %llu receivers)\n",
+         (unsigned long long)st[0].bytes_read, (unsigned long long)st[1].bytes_read,
+         (unsigned long long)st[0].receivers, (unsigned long long)st[1].receivers);
+  ASSERT_TRUE(st[0].receivers + st[1].receivers == R);
+  ASSERT_TRUE(hi <= 1.1 * lo);
+  ub_blend_free(b);
+  free(out);
+  rep_free(&p);
+}
+
 /* ---- ub_blend_create_ex: values handed back as they are copied ------------------------ */
 
 typedef struct done_log {
@@ -2111,6 +2158,7 @@ int main(void)
   test_parts(20000, 12, 40, UB_BLEND_FLOAT16);
   test_parts(6000, 27, 30, UB_BLEND_FLOAT32);
   test_parts_one_group();
+  test_parts_balance();
   test_base_half(20000, 12, 30, UB_BLEND_FLOAT16);
   test_base_half(5000, 27, 20, UB_BLEND_FLOAT32);
   test_q8(20000, 12, 30, UB_BLEND_FLOAT16);
