@@ -1377,7 +1377,7 @@ static int cmp_u32(const void *a, const void *b)
 /* A group's cost in an update, for splitting the update into parts of equal cost: an
  * estimate in units of about a CPU cycle, fitted to the per-group times of the full
  * ESTATE level's updates (this machine's TSC; every set changed, and every set toggled
- * with the others on, within ±15% per overlap count). Per receiver: 2 a row read (its
+ * with the others on, within ±17% per overlap count). Per receiver: 2 a row read (its
  * base row and its members' record rows, or, from its all-ones sums when update_begin
  * found at most BLEND_FEW elements away from ω1, the float sum, two rows, and at most
  * that many members' rows, whichever ones_cheaper would pick), 4 more a member stream
