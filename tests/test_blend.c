@@ -2062,8 +2062,8 @@ static void test_parts_balance(void)
   ub_blend_stats st[2];
   for (uint32_t q = 0; q < 2; q++)
     ub_blend_update_part(b, q, 2, NULL, NULL, out, &st[q]);
-  const double lo = (double)(st[0].bytes_read < st[1].bytes_read ? st[0].bytes_read : st[1].bytes_read);
-  const double hi = (double)(st[0].bytes_read > st[1].bytes_read ? st[0].bytes_read : st[1].bytes_read);
+  const double a = (double)st[0].bytes_read, c = (double)st[1].bytes_read;
+  const double lo = a < c ? a : c, hi = a < c ? c : a;
   printf("parts balance: 2 parts read %llu and %llu bytes (%llu and %llu receivers)\n",
          (unsigned long long)st[0].bytes_read, (unsigned long long)st[1].bytes_read,
          (unsigned long long)st[0].receivers, (unsigned long long)st[1].receivers);
