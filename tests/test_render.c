@@ -548,17 +548,9 @@ static void test_primary_direct(void)
         q[k] = p.eye[k] + h.t * d[k];
       /* Hallway surfaces are axis aligned: the normal facing the camera, by the largest
        * component of the ray, is the axis along which q sits on a face. */
-      const float *v0 = &bf->positions[bf->indices[h.tri * 3] * 3],
-                  *v1 = &bf->positions[bf->indices[h.tri * 3 + 1] * 3],
-                  *v2 = &bf->positions[bf->indices[h.tri * 3 + 2] * 3];
-      double e1[3], e2[3], nn[3];
-      for (int k = 0; k < 3; k++) {
-        e1[k] = v1[k] - v0[k];
-        e2[k] = v2[k] - v0[k];
-      }
-      nn[0] = e1[1] * e2[2] - e1[2] * e2[1];
-      nn[1] = e1[2] * e2[0] - e1[0] * e2[2];
-      nn[2] = e1[0] * e2[1] - e1[1] * e2[0];
+      float nf[3];
+      tri_cross(bf, h.tri, nf);
+      const double nn[3] = {nf[0], nf[1], nf[2]};
       double nl = sqrt(nn[0] * nn[0] + nn[1] * nn[1] + nn[2] * nn[2]);
       if (nn[0] * d[0] + nn[1] * d[1] + nn[2] * d[2] >= 0.0)
         continue;
