@@ -1391,7 +1391,7 @@ static int cmp_u32(const void *a, const void *b)
  * 17 rows where its all-ones sum reads 2-3. */
 #define BLEND_COST_GROUP 300u
 /* n1: the elements away from ω1 when update_begin listed them (b->few), else
- * UINT32_MAX (the all-ones sums are then not counted: a group's plain rows are fewer);
+ * UINT32_MAX (too many to tell which groups hold them: every group counts its plain rows);
  * rc: ub_blend_set_receiver_cost's. */
 static inline uint64_t group_cost(const blend_group *g, uint64_t n1, uint64_t rc)
 {
