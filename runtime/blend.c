@@ -640,7 +640,10 @@ BLEND_AVX_INLINE __m128 avx_load4(const char *src, size_t j, const int half)
  * lines asked into L1 crowd it. Full ESTATE, all 132 sets changed, in one process
  * alternating per update (2026-12-04): 21.1-21.8 → 19.6-20.0 ms best; distances 256-576
  * values the same; the 8-bit rows' decode ahead did not gain (kept at T0); toggles the
- * same (hall off 2.71 vs 2.69 ms). */
+ * same (hall off 2.71 vs 2.69 ms). A unit of one texel (12 values) asks once per member
+ * before its row: the all-sets update's 21,851 one-texel groups (of 37,578) had asked
+ * nothing ahead; 17.75 → 17.09 and 26.07 → 24.86 ms (median of 50, the same process
+ * alternating, 2026-12-05; toggles the same). */
 #define BLEND_PF_VALUES 384
 
 /* Base values j.. as float: floats, or (hb) halves times the scale (exact). */
@@ -667,6 +670,9 @@ BLEND_AVX_INLINE void avx_flat(float *restrict o, const char *restrict bs,
                                const int hb, const __m256 sc, const int pf)
 {
   size_t j = 0;
+  if (pf && nf < 24) /* a lone texel row: the loop below, which asks ahead, does not run */
+    for (uint32_t m = 0; m < k; m++)
+      _mm_prefetch(src[m] + BLEND_PF_VALUES * (half ? 2 : 4), _MM_HINT_T1);
   for (; j + 24 <= nf; j += 24) {
     __m256 a0 = avx_base8(bs, j, hb, sc), a1 = avx_base8(bs, j + 8, hb, sc),
            a2 = avx_base8(bs, j + 16, hb, sc);
