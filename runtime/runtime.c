@@ -796,6 +796,224 @@ static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs,
   return UB_OK;
 }
 
+/* UB_RUNTIME_MERGE_GROUPS: texels whose combination of texel records is rare (held by at
+ * most MERGE_MAX_RECEIVERS texels: a group of that few in the lightmap blend) join a
+ * more common combination that holds theirs and at most MERGE_MAX_ADDED records more,
+ * fewest added first, then the most texels: each added record gets a row of zeros for
+ * them. Their values stay the same (base + Σ ω·row gains terms ω·0 = ±0), their texels
+ * sit in that combination's group, and the blend visits a few thousand groups instead of
+ * tens of thousands of one or two texels, each of which cost ~250-500 cycles besides its
+ * rows (tables, kernel call, one read per member stream; full ESTATE: 32,700 of its
+ * 37,578 groups hold at most 4 texels). The price: the zero rows' bytes, and an update
+ * that changes only an added record re-encodes those texels too (to their values, up to
+ * float rounding: which sum a group takes depends on its members' weights).
+ * Needs the records' receivers as global slots (records_prepare), before tch_bits;
+ * *out_padded: the zero rows added. */
+#define MERGE_MAX_RECEIVERS 4u
+#define MERGE_MAX_ADDED 6u
+
+typedef struct merge_combo {
+  uint32_t rep;   /* a slot holding it: its records are lst[off[rep]..off[rep + 1]) */
+  uint32_t count; /* slots holding it */
+  uint32_t into;  /* the combination it joins, or UINT32_MAX */
+} merge_combo;
+
+/* Whether the ascending list a[0..na) is inside the ascending list b[0..nb). */
+static int list_within(const uint32_t *a, uint32_t na, const uint32_t *b, uint32_t nb)
+{
+  uint32_t j = 0;
+  for (uint32_t i = 0; i < na; i++) {
+    while (j < nb && b[j] < a[i])
+      j++;
+    if (j == nb || b[j] != a[i])
+      return 0;
+    j++;
+  }
+  return 1;
+}
+
+static uint64_t list_hash(const uint32_t *l, uint32_t k)
+{
+  uint64_t h = UINT64_C(0x243f6a8885a308d3) ^ k;
+  for (uint32_t i = 0; i < k; i++) {
+    h = (h ^ (l[i] + UINT64_C(0x9e3779b97f4a7c15))) * UINT64_C(0xff51afd7ed558ccd);
+    h ^= h >> 32;
+  }
+  return h;
+}
+
+/* The records slot s (of combination c) gains: those of the combination it joins that
+ * are not in its own. Each such record e gets cur[e]++, and with rec, slot s at its
+ * receivers[cur[e]] first. Returns their count. */
+static uint32_t merge_added(const uint32_t *lst, const uint32_t *off, const merge_combo *cb,
+                            uint32_t c, uint32_t s, uint32_t *cur, ub_blend_record *rec)
+{
+  if (c == UINT32_MAX || cb[c].into == UINT32_MAX)
+    return 0;
+  const uint32_t q = cb[cb[c].into].rep, *l = lst + off[s], k = off[s + 1] - off[s];
+  uint32_t n = 0;
+  for (uint32_t i = off[q], j = 0; i < off[q + 1]; i++) {
+    while (j < k && l[j] < lst[i])
+      j++;
+    if (j == k || l[j] != lst[i]) {
+      const uint32_t e = lst[i];
+      if (rec)
+        ((uint32_t *)(uintptr_t)rec[e].receivers)[cur[e]] = s;
+      cur[e]++;
+      n++;
+    }
+  }
+  return n;
+}
+
+static ub_result merge_small_groups(ub_runtime *rt, uint64_t *out_padded)
+{
+  const uint32_t n = rt->elem_total;
+  const uint64_t slots = rt->slot_first[rt->bf->atlas_count];
+  ub_blend_record *rec = rt->lm_rec;
+  *out_padded = 0;
+  uint64_t entries = 0;
+  for (uint32_t e = 0; e < n; e++)
+    entries += rec[e].count;
+  if (!entries || slots >= UINT32_MAX / 2 || entries >= UINT32_MAX / 2)
+    return UB_OK; /* nothing to merge, or beyond the 32-bit tables below: as without */
+  size_t cap = 16;
+  while (cap < 2 * (size_t)slots)
+    cap *= 2;
+  uint32_t *off = calloc((size_t)slots + 1, sizeof *off);
+  uint32_t *fill = calloc((size_t)slots + 1, sizeof *fill);
+  uint32_t *lst = malloc((size_t)entries * sizeof *lst);
+  uint32_t *tab = malloc(cap * sizeof *tab);
+  merge_combo *cb = malloc((size_t)slots * sizeof *cb);
+  uint32_t *eoff = calloc((size_t)n + 1, sizeof *eoff);
+  uint32_t *extra = calloc((size_t)n + 1, sizeof *extra);
+  uint32_t *ecb = NULL, *nidx = NULL;
+  ub_result r = UB_ERR_OUT_OF_MEMORY;
+  if (!off || !fill || !lst || !tab || !cb || !eoff || !extra)
+    goto done;
+  /* each slot's records, ascending (filled in id order) */
+  for (uint32_t e = 0; e < n; e++)
+    for (uint32_t i = 0; i < rec[e].count; i++)
+      off[rec[e].receivers[i] + 1]++;
+  for (uint64_t s = 0; s < slots; s++)
+    off[s + 1] += off[s];
+  for (uint32_t e = 0; e < n; e++)
+    for (uint32_t i = 0; i < rec[e].count; i++) {
+      const uint32_t s = rec[e].receivers[i];
+      lst[off[s] + fill[s]++] = e;
+    }
+  /* the combinations (exact: equal lists), fill[s] becomes slot s's */
+  memset(tab, 0xff, cap * sizeof *tab);
+  uint32_t ncb = 0;
+  for (uint32_t s = 0; s < slots; s++) {
+    const uint32_t k = off[s + 1] - off[s];
+    fill[s] = UINT32_MAX;
+    if (!k)
+      continue;
+    for (size_t i = list_hash(lst + off[s], k) & (cap - 1);; i = (i + 1) & (cap - 1)) {
+      const uint32_t c = tab[i];
+      if (c == UINT32_MAX) {
+        tab[i] = ncb;
+        cb[ncb] = (merge_combo){s, 1, UINT32_MAX};
+        fill[s] = ncb++;
+        break;
+      }
+      const uint32_t q = cb[c].rep;
+      if (off[q + 1] - off[q] == k && !memcmp(lst + off[q], lst + off[s], k * sizeof *lst)) {
+        cb[c].count++;
+        fill[s] = c;
+        break;
+      }
+    }
+  }
+  /* per record, the common combinations holding it */
+  for (uint32_t c = 0; c < ncb; c++)
+    if (cb[c].count > MERGE_MAX_RECEIVERS)
+      for (uint32_t i = off[cb[c].rep]; i < off[cb[c].rep + 1]; i++)
+        eoff[lst[i] + 1]++;
+  for (uint32_t e = 0; e < n; e++)
+    eoff[e + 1] += eoff[e];
+  ecb = malloc(((size_t)eoff[n] + 1) * sizeof *ecb);
+  if (!ecb)
+    goto done;
+  for (uint32_t c = 0; c < ncb; c++)
+    if (cb[c].count > MERGE_MAX_RECEIVERS)
+      for (uint32_t i = off[cb[c].rep]; i < off[cb[c].rep + 1]; i++)
+        ecb[eoff[lst[i]] + extra[lst[i]]++] = c;
+  memset(extra, 0, ((size_t)n + 1) * sizeof *extra);
+  /* each rare combination's target: among the common ones holding its least common record */
+  for (uint32_t c = 0; c < ncb; c++) {
+    if (cb[c].count > MERGE_MAX_RECEIVERS)
+      continue;
+    const uint32_t *l = lst + off[cb[c].rep], k = off[cb[c].rep + 1] - off[cb[c].rep];
+    uint32_t e0 = l[0];
+    for (uint32_t i = 1; i < k; i++)
+      if (eoff[l[i] + 1] - eoff[l[i]] < eoff[e0 + 1] - eoff[e0])
+        e0 = l[i];
+    uint32_t best = UINT32_MAX, bd = MERGE_MAX_ADDED, bn = 0; /* d = bd: more texels than bn */
+    for (uint32_t j = eoff[e0]; j < eoff[e0 + 1]; j++) {
+      const uint32_t h = ecb[j], q = cb[h].rep, kh = off[q + 1] - off[q];
+      if (kh <= k || kh - k > bd || (kh - k == bd && cb[h].count <= bn))
+        continue;
+      if (list_within(l, k, lst + off[q], kh)) {
+        best = h;
+        bd = kh - k;
+        bn = cb[h].count;
+      }
+    }
+    cb[c].into = best;
+  }
+  /* the zero rows: per record, its added slots */
+  uint64_t added = 0;
+  for (uint32_t s = 0; s < slots; s++)
+    added += merge_added(lst, off, cb, fill[s], s, extra, NULL);
+  r = UB_OK;
+  if (!added)
+    goto done;
+  r = UB_ERR_OUT_OF_MEMORY;
+  nidx = malloc((size_t)(entries + added) * sizeof *nidx);
+  if (!nidx)
+    goto done;
+  for (uint32_t e = 0; e < n; e++) { /* rows first: a failure leaves every count as it was */
+    if (!extra[e])
+      continue;
+    const size_t nv = (size_t)(rec[e].count + extra[e]) * UB_SH1_FLOATS;
+    uint16_t *v = realloc((void *)(uintptr_t)rec[e].values, nv * sizeof *v);
+    if (!v)
+      goto done;
+    memset(v + (size_t)rec[e].count * UB_SH1_FLOATS, 0,
+           (size_t)extra[e] * UB_SH1_FLOATS * sizeof *v); /* +0.0 halves */
+    rec[e].values = v;
+  }
+  uint64_t at = 0;
+  for (uint32_t e = 0; e < n; e++) {
+    memcpy(nidx + at, rec[e].receivers, (size_t)rec[e].count * sizeof *nidx);
+    rec[e].receivers = nidx + at;
+    at += (uint64_t)rec[e].count + extra[e];
+    extra[e] = rec[e].count; /* the write cursor */
+  }
+  for (uint32_t s = 0; s < slots; s++)
+    merge_added(lst, off, cb, fill[s], s, extra, rec);
+  for (uint32_t e = 0; e < n; e++)
+    rec[e].count = extra[e];
+  free(rt->lm_idx);
+  rt->lm_idx = nidx;
+  nidx = NULL;
+  *out_padded = added;
+  r = UB_OK;
+done:
+  free(off);
+  free(fill);
+  free(lst);
+  free(tab);
+  free(cb);
+  free(eoff);
+  free(extra);
+  free(ecb);
+  free(nidx);
+  return r;
+}
+
 typedef struct rank_key {
   uint64_t mask[2]; /* the combination's 128 highest-priority records, bit 63 - p of word 0
                      * for priority p < 64, of word 1 for p - 64 */
@@ -1126,6 +1344,13 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     r = records_prepare(rt, 1, rt->glg_rec, &rt->glg_scale);
   if (r == UB_OK)
     r = records_prepare(rt, 2, rt->llg_rec, &rt->llg_scale);
+  uint64_t padded = 0;
+  if (r == UB_OK && (rt->load_flags & UB_RUNTIME_MERGE_GROUPS)) {
+    r = merge_small_groups(rt, &padded);
+    if (r == UB_OK)
+      ub_log_printf(log, UB_LOG_INFO, "%s: %llu zero rows merge rare texel groups", path,
+                    (unsigned long long)padded);
+  }
   if (r != UB_OK) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return r;
@@ -1450,7 +1675,7 @@ ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags
   assert(path && out);
   if (flags & ~(unsigned)(UB_RUNTIME_RECORDS_8BIT | UB_RUNTIME_PLAIN_SUMS |
                           UB_RUNTIME_KEEP_STATE | UB_RUNTIME_GLG_SMALL_WALK |
-                          UB_RUNTIME_NO_BASE_AHD)) {
+                          UB_RUNTIME_NO_BASE_AHD | UB_RUNTIME_MERGE_GROUPS)) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: unknown load flags 0x%x", path, flags);
     return UB_ERR_INVALID_ARGUMENT;
   }

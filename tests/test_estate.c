@@ -457,19 +457,50 @@ static void check_records_8bit(const char *ubk, const ub_bakefile *bf)
   ub_runtime_free(r8);
 }
 
+/* The values of a and b beyond the float rounding of two ways of summing the same rows;
+ * *worst: the texels' largest difference over their tolerance. */
+static size_t over_rounding(const snap *a, const snap *b, double *worst)
+{
+  double emax = 0.0;
+  size_t bad = 0;
+  *worst = 0.0;
+  for (size_t i = 0; i < 3 * a->ntex; i++)
+    emax = fabs(b->tex[i]) > emax ? fabs(b->tex[i]) : emax;
+  for (size_t i = 0; i < 3 * a->ntex; i++) {
+    /* float rounding of ~k + 2 sums of terms up to the texel's all-on value, then the AHD
+     * encode's (terms ~10× I_z): 1e-5 of the value and 1e-6 of the largest */
+    double d = fabs((double)a->tex[i] - b->tex[i]), tol = 1e-5 * fabs(b->tex[i]) + 1e-6 * emax;
+    bad += !(d <= tol);
+    *worst = d / tol > *worst ? d / tol : *worst;
+  }
+  for (size_t i = 0; i < a->nglg; i++) {
+    double d = fabs((double)a->glg[i] - b->glg[i]);
+    double tol = 1.0 / 1024.0 * (fabs(a->glg[i]) + fabs(b->glg[i])) + 1e-6 * emax;
+    bad += !(d <= tol);
+  }
+  return bad;
+}
+
+/* ubk loaded by default (*ro) and with flags (*rf); 0, both freed, unless both loaded. */
+static int load_two(const char *ubk, unsigned flags, ub_runtime **ro, ub_runtime **rf)
+{
+  ASSERT_OK(ub_runtime_load_ex(ubk, NULL, 0, ro));
+  ASSERT_OK(ub_runtime_load_ex(ubk, NULL, flags, rf));
+  if (*ro && *rf)
+    return 1;
+  ub_runtime_free(*ro);
+  ub_runtime_free(*rf);
+  return 0;
+}
+
 /* The all-ones sums (default) against UB_RUNTIME_PLAIN_SUMS, most sets on, some off or
  * tinted: texels along their normals and GLG raw probes agree to float rounding (the two
  * sum the same rows in another order), and the sums cost what ub_runtime_memory says. */
 static void check_plain_sums(const char *ubk)
 {
   ub_runtime *ro = NULL, *rp = NULL;
-  ASSERT_OK(ub_runtime_load_ex(ubk, NULL, 0, &ro));
-  ASSERT_OK(ub_runtime_load_ex(ubk, NULL, UB_RUNTIME_PLAIN_SUMS, &rp));
-  if (!ro || !rp) {
-    ub_runtime_free(ro);
-    ub_runtime_free(rp);
+  if (!load_two(ubk, UB_RUNTIME_PLAIN_SUMS, &ro, &rp))
     return;
-  }
   for (uint32_t d = 0; d < ub_runtime_dls_count(ro); d++) {
     const float w[3] = {d % 3 == 1 ? 0.0f : 1.0f, 1.0f, d % 5 == 2 ? 0.6f : 1.0f};
     ASSERT_OK(ub_runtime_set_dls(ro, d, w));
@@ -480,22 +511,8 @@ static void check_plain_sums(const char *ubk)
   snap so, sp;
   take(ro, &so);
   take(rp, &sp);
-  double emax = 0.0, worst = 0.0;
-  size_t differ = diff(&so, &sp), bad = 0;
-  for (size_t i = 0; i < 3 * so.ntex; i++)
-    emax = fabs(sp.tex[i]) > emax ? fabs(sp.tex[i]) : emax;
-  for (size_t i = 0; i < 3 * so.ntex; i++) {
-    /* float rounding of ~k + 2 sums of terms up to the texel's all-on value, then the AHD
-     * encode's (terms ~10× I_z): 1e-5 of the value and 1e-6 of the largest */
-    double d = fabs((double)so.tex[i] - sp.tex[i]), tol = 1e-5 * fabs(sp.tex[i]) + 1e-6 * emax;
-    bad += !(d <= tol);
-    worst = d / tol > worst ? d / tol : worst;
-  }
-  for (size_t i = 0; i < so.nglg; i++) {
-    double d = fabs((double)so.glg[i] - sp.glg[i]);
-    double tol = 1.0 / 1024.0 * (fabs(so.glg[i]) + fabs(sp.glg[i])) + 1e-6 * emax;
-    bad += !(d <= tol);
-  }
+  double worst = 0.0;
+  size_t differ = diff(&so, &sp), bad = over_rounding(&so, &sp, &worst);
   ub_runtime_memory mo, mp;
   ub_runtime_memory_usage(ro, &mo);
   ub_runtime_memory_usage(rp, &mp);
@@ -509,6 +526,105 @@ static void check_plain_sums(const char *ubk)
   free(sp.glg);
   ub_runtime_free(ro);
   ub_runtime_free(rp);
+}
+
+/* How many texels rb's last update listed as changed (*nb) and how many of ra's list it
+ * lacks. */
+static uint64_t changes_missing(const ub_runtime *ra, const ub_runtime *rb, uint64_t *nb)
+{
+  const ub_bakefile *f = ub_runtime_bakefile(ra);
+  size_t off[65], npx = 0;
+  for (uint32_t a = 0; a < f->atlas_count && a < 64; a++) {
+    off[a] = npx;
+    npx += (size_t)f->atlases[a].width * f->atlases[a].height;
+  }
+  const uint64_t na = ub_runtime_changed_texel_count(ra);
+  *nb = ub_runtime_changed_texel_count(rb);
+  uint8_t *in_b = calloc(npx + 1, 1);
+  ub_runtime_texel_change *c = malloc((size_t)(na > *nb ? na : *nb) * sizeof *c + 1);
+  uint64_t missing = na + 1;
+  if (in_b && c && f->atlas_count <= 64 && ub_runtime_changed_texels(rb, 0, *nb, c) == *nb) {
+    for (uint64_t i = 0; i < *nb; i++)
+      in_b[off[c[i].atlas] + (size_t)c[i].y * f->atlases[c[i].atlas].width + c[i].x] = 1;
+    if (ub_runtime_changed_texels(ra, 0, na, c) == na) {
+      missing = 0;
+      for (uint64_t i = 0; i < na; i++)
+        missing += !in_b[off[c[i].atlas] + (size_t)c[i].y * f->atlases[c[i].atlas].width + c[i].x];
+    }
+  }
+  free(in_b);
+  free(c);
+  return missing;
+}
+
+/* UB_RUNTIME_MERGE_GROUPS against the default: texels of rare combinations join common
+ * ones' groups through zero rows, so an all-sets update visits fewer groups; every state
+ * (all sets at 0.5, then each set off and back on with the others on) agrees to float
+ * rounding (a merged group may take its all-ones sums where the small one summed its rows),
+ * and each toggle lists every texel the default lists, plus those of the groups it joined. */
+static void check_merge_groups(const char *ubk)
+{
+  ub_runtime *ro = NULL, *rm = NULL;
+  if (!load_two(ubk, UB_RUNTIME_MERGE_GROUPS, &ro, &rm))
+    return;
+  ub_runtime_update_stats so, sm;
+  set_all(ro, 0.5f);
+  set_all(rm, 0.5f);
+  const float half[3] = {0.5f, 0.25f, 0.5f}, one[3] = {1.0f, 1.0f, 1.0f}, off[3] = {0, 0, 0};
+  const uint32_t nd = ub_runtime_dls_count(ro);
+  for (uint32_t d = 0; d < nd; d++) {
+    ASSERT_OK(ub_runtime_set_dls(ro, d, half));
+    ASSERT_OK(ub_runtime_set_dls(rm, d, half));
+  }
+  ASSERT_OK(ub_runtime_update(ro, &so));
+  ASSERT_OK(ub_runtime_update(rm, &sm));
+  printf("merged groups: an all-sets update visits %u groups (%u without)\n", sm.groups,
+         so.groups);
+  ASSERT_TRUE(sm.groups < so.groups && sm.groups > 0);
+  size_t bad = 0, states = 0;
+  uint64_t missing = 0, listed_o = 0, listed_m = 0;
+  double worst = 0.0;
+  for (uint32_t d = 0; d <= 2 * nd; d++) {
+    if (d > 0) { /* set (d - 1) / 2 off, then back on */
+      const uint32_t e = (d - 1) / 2;
+      ASSERT_OK(ub_runtime_set_dls(ro, e, d % 2 ? off : one));
+      ASSERT_OK(ub_runtime_set_dls(rm, e, d % 2 ? off : one));
+      if (d == 1)
+        for (uint32_t k = 1; k < nd; k++) { /* the others on */
+          ASSERT_OK(ub_runtime_set_dls(ro, k, one));
+          ASSERT_OK(ub_runtime_set_dls(rm, k, one));
+        }
+      ASSERT_OK(ub_runtime_update(ro, &so));
+      ASSERT_OK(ub_runtime_update(rm, &sm));
+      uint64_t nb = 0;
+      missing += changes_missing(ro, rm, &nb);
+      listed_o += ub_runtime_changed_texel_count(ro);
+      listed_m += nb;
+    }
+    snap a, b;
+    take(ro, &a);
+    take(rm, &b);
+    double w = 0.0;
+    bad += over_rounding(&a, &b, &w);
+    worst = w > worst ? w : worst;
+    states++;
+    free(a.tex);
+    free(a.glg);
+    free(b.tex);
+    free(b.glg);
+  }
+  ub_runtime_memory mo, mm;
+  ub_runtime_memory_usage(ro, &mo);
+  ub_runtime_memory_usage(rm, &mm);
+  printf("merged groups: %zu states, %zu values over the rounding tolerance (texels: worst %.2f "
+         "of it); toggles listed %llu texels (%llu without, %llu of those missing); records "
+         "%.2f vs %.2f MiB, blend engines %.2f vs %.2f MiB\n", states, bad, worst,
+         (unsigned long long)listed_m, (unsigned long long)listed_o,
+         (unsigned long long)missing, mm.records / 1048576.0, mo.records / 1048576.0,
+         mm.blend / 1048576.0, mo.blend / 1048576.0);
+  ASSERT_TRUE(bad == 0 && missing == 0 && listed_m >= listed_o);
+  ub_runtime_free(ro);
+  ub_runtime_free(rm);
 }
 
 /* 1 when the last updates of ra and rb changed the same texels (ub_runtime_changed_texels:
@@ -1068,6 +1184,7 @@ int main(void)
     check_blend(st.ubk_path, bf, UB_RUNTIME_RECORDS_8BIT);
     check_records_8bit(st.ubk_path, bf);
     check_plain_sums(st.ubk_path);
+    check_merge_groups(st.ubk_path);
     check_keep_state(st.ubk_path);
     check_base_ahd(st.ubk_path);
     check_jobs(st.ubk_path);
