@@ -73,13 +73,15 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
  * lights the texel (the bits a re-encode gives). UB_RUNTIME_NO_BASE_AHD keeps none: less
  * memory, every such texel re-encoded (README, "Base AHD", gives the measured price). */
 #define UB_RUNTIME_NO_BASE_AHD 16u
-/* UB_RUNTIME_MERGE_GROUPS: texels whose combination of overlapping elements is rare (at
- * most 4 texels share it) get zero rows in up to 6 more elements' lightmap records, so
- * that they join a common combination's overlap group: values unchanged (the added terms
- * are ω·0), far fewer groups for an update to visit (full ESTATE: 37,578 → 6,903), a few
- * MiB more records, and an update that changes only such an added element re-encodes
- * those texels too, to the bits they had (ub_runtime_changed_texels lists them; README,
- * "Merged groups", gives the measured price). */
+/* UB_RUNTIME_MERGE_GROUPS (opt-in): texels whose combination of overlapping elements is
+ * rare (at most 4 texels share it) get zero rows in up to 6 more elements' lightmap
+ * records, so that they join a common combination's overlap group. The added terms are
+ * ω·0: values agree with the default's to float rounding (a merged group may take its
+ * all-ones sums where the small one summed its rows). Far fewer groups for an update to
+ * visit (full ESTATE: 37,578 → 6,903 lightmap groups; 505.1 → 501.1 MiB in all); but an
+ * update that changes only such an added element re-encodes those texels too, to the
+ * values they had, and ub_runtime_changed_texels lists them (full ESTATE: 1.8% more
+ * texels a toggle). README, "Merged groups", gives the measured price. */
 #define UB_RUNTIME_MERGE_GROUPS 32u
 /* ub_runtime_load() with flags (0 or the flags above; UB_ERR_INVALID_ARGUMENT for others). */
 ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags,
