@@ -568,8 +568,6 @@ static void check_merge_groups(const char *ubk)
   if (!load_two(ubk, UB_RUNTIME_MERGE_GROUPS, &ro, &rm))
     return;
   ub_runtime_update_stats so, sm;
-  set_all(ro, 0.5f);
-  set_all(rm, 0.5f);
   const float half[3] = {0.5f, 0.25f, 0.5f}, one[3] = {1.0f, 1.0f, 1.0f}, off[3] = {0, 0, 0};
   const uint32_t nd = ub_runtime_dls_count(ro);
   for (uint32_t d = 0; d < nd; d++) {
