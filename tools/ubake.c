@@ -483,7 +483,8 @@ static int parse_records_arg(const char *cmd, const char *a, const char *v, unsi
 
 static const char *INFO_HELP =
     "usage: ubake info DIR/NAME.ubk [--json] [--memory [--records half|8bit] [--keep-state]\n"
-    "                                                  [--glg-small-walk] [--no-base-ahd]]\n"
+    "                                                  [--glg-small-walk] [--no-base-ahd]\n"
+    "                                                  [--merge-groups]]\n"
     "Prints what the bake file holds: geometry, atlases, texels, bytes.\n"
     "  --json      the same as one JSON object\n"
     "  --memory    also load it in the run-time and print what the run-time holds, by\n"
@@ -496,7 +497,10 @@ static const char *INFO_HELP =
     "                      tet less, slower GLG queries)\n"
     "  --no-base-ahd       without the base state's AHD (UB_RUNTIME_NO_BASE_AHD: 16 B a\n"
     "                      touched texel less; a set turned off then re-encodes the texels\n"
-    "                      no other element lights)\n";
+    "                      no other element lights)\n"
+    "  --merge-groups      with rare overlap combinations merged (UB_RUNTIME_MERGE_GROUPS:\n"
+    "                      zero rows, fewer groups; an update may re-encode unchanged\n"
+    "                      texels)\n";
 
 /* The run-time load's notes for ubake info: errors and warnings go to the CLI's log at
  * once, notes are kept (up to 4 KiB) and printed under the run-time memory line, after
@@ -564,6 +568,8 @@ static int cmd_info(int argc, char **argv)
       load_flags |= UB_RUNTIME_GLG_SMALL_WALK;
     } else if (!strcmp(argv[i], "--no-base-ahd")) {
       load_flags |= UB_RUNTIME_NO_BASE_AHD;
+    } else if (!strcmp(argv[i], "--merge-groups")) {
+      load_flags |= UB_RUNTIME_MERGE_GROUPS;
     } else if (argv[i][0] == '-') {
       return bad_option("info", argv[i], i + 1 < argc ? argv[i + 1] : NULL);
     } else if (path) {
@@ -575,8 +581,8 @@ static int cmd_info(int argc, char **argv)
   if (!path)
     return usage_error("info", "no .ubk given");
   if (load_flags && !memory)
-    return usage_error("info", "--records, --keep-state, --glg-small-walk and --no-base-ahd go "
-                               "with --memory (the run-time's bytes)");
+    return usage_error("info", "--records, --keep-state, --glg-small-walk, --no-base-ahd and "
+                               "--merge-groups go with --memory (the run-time's bytes)");
   /* --json: stdout holds the JSON only (the run-time's load notes were printed before it) */
   cli_log_state ls = {0, json, 0};
   ub_log log = {cli_log, &ls};
