@@ -832,13 +832,19 @@ static int list_within(const uint32_t *a, uint32_t na, const uint32_t *b, uint32
   return 1;
 }
 
+/* A combination's hash h with record e added (records in id order): merge_small_groups'
+ * list hash and rank_touched's per-texel key. */
+static inline uint64_t combo_step(uint64_t h, uint32_t e)
+{
+  h = (h ^ (e + UINT64_C(0x9e3779b97f4a7c15))) * UINT64_C(0xff51afd7ed558ccd);
+  return h ^ (h >> 32);
+}
+
 static uint64_t list_hash(const uint32_t *l, uint32_t k)
 {
   uint64_t h = UINT64_C(0x243f6a8885a308d3) ^ k;
-  for (uint32_t i = 0; i < k; i++) {
-    h = (h ^ (l[i] + UINT64_C(0x9e3779b97f4a7c15))) * UINT64_C(0xff51afd7ed558ccd);
-    h ^= h >> 32;
-  }
+  for (uint32_t i = 0; i < k; i++)
+    h = combo_step(h, l[i]);
   return h;
 }
 
@@ -1081,8 +1087,7 @@ static ub_result rank_touched(ub_runtime *rt)
     const uint32_t p = prio[e];
     for (uint32_t i = 0; i < rt->lm_rec[e].count; i++) {
       uint64_t t = touched_before(rt, rt->lm_rec[e].receivers[i]);
-      uint64_t h = (k[t].key ^ (e + UINT64_C(0x9e3779b97f4a7c15))) * UINT64_C(0xff51afd7ed558ccd);
-      k[t].key = h ^ (h >> 32);
+      k[t].key = combo_step(k[t].key, e);
       if (p < 128)
         k[t].mask[p >> 6] |= UINT64_C(1) << (63 - (p & 63));
     }
