@@ -175,46 +175,39 @@ static void test_plan_vs_all(const char *level_path, const char *tag, ub_quality
  * GLG probes each. hallway (automatic bounces), and estate_small at 2 bounces and 0.4 m
  * texels (its probes' indirect comes from the sparse influence gathers: leaving the
  * non-gathering probes' estimate at zero dropped 100% of its sets' probe light). */
-/* Share of a dense record's light (sorted receivers ib, values vb of stride floats, the
- * light of one: its DC coefficient, green) on receivers the culled record (sorted ia)
- * does not hold. */
-static double dropped_share(const uint32_t *ia, uint32_t na, const uint32_t *ib,
-                            const float *vb, uint32_t nb, uint32_t stride)
+/* What a culled record (sorted receivers ia) leaves out of the dense record of the same
+ * set (sorted receivers ib, values vb of stride floats; a receiver's light: its DC
+ * coefficient, green): the share of the dense record's light on the receivers it drops,
+ * and the holes: dropped receivers brighter than frac × the dense record's mean over its
+ * non-zero ones. */
+typedef struct cull_loss {
+  double share;
+  uint32_t holes;
+} cull_loss;
+
+static cull_loss culled(const uint32_t *ia, uint32_t na, const uint32_t *ib, const float *vb,
+                        uint32_t nb, uint32_t stride, double frac)
 {
   double total = 0.0, dropped = 0.0;
-  uint32_t j = 0;
+  uint32_t lit = 0, j = 0;
   for (uint32_t i = 0; i < nb; i++) {
     double v = fabs(vb[stride * (size_t)i + 1]);
     total += v;
-    while (j < na && ia[j] < ib[i])
-      j++;
-    if (j >= na || ia[j] != ib[i])
-      dropped += v;
+    lit += v > 0.0;
   }
-  return total > 0 ? dropped / total : 0.0;
-}
-
-/* Holes culling leaves in a set's record: receivers of the dense record ib (values vb, the
- * same |DC green| as dropped_share) brighter than frac × its mean over the non-zero ones
- * that the culled record ia does not hold. */
-static uint32_t culled_bright(const uint32_t *ia, uint32_t na, const uint32_t *ib,
-                              const float *vb, uint32_t nb, uint32_t stride, double frac)
-{
-  double sum = 0.0;
-  uint32_t n = 0, holes = 0, j = 0;
+  const double cut = lit ? frac * total / lit : 0.0;
+  cull_loss o = {0.0, 0};
   for (uint32_t i = 0; i < nb; i++) {
     double v = fabs(vb[stride * (size_t)i + 1]);
-    sum += v;
-    n += v > 0.0;
-  }
-  double cut = n ? frac * sum / n : 0.0;
-  for (uint32_t i = 0; i < nb; i++) {
     while (j < na && ia[j] < ib[i])
       j++;
-    if ((j >= na || ia[j] != ib[i]) && fabs(vb[stride * (size_t)i + 1]) > cut)
-      holes++;
+    if (j >= na || ia[j] != ib[i]) {
+      dropped += v;
+      o.holes += v > cut;
+    }
   }
-  return holes;
+  o.share = total > 0 ? dropped / total : 0.0;
+  return o;
 }
 
 static void dls_culling(const char *level, const char *tag, int bounces, float texel_size,
@@ -240,18 +233,18 @@ static void dls_culling(const char *level, const char *tag, int bounces, float t
   uint32_t holes = 0;
   for (uint32_t d = 0; d < fa->dls_count && d < fb->dls_count; d++) {
     const ub_bakefile_record *ra = &fa->dls[d], *rb = &fb->dls[d];
-    holes += culled_bright(ra->texel_index, ra->texel_count, rb->texel_index, rb->texel_sh,
-                           rb->texel_count, 12, 0.1);
-    double share = dropped_share(ra->texel_index, ra->texel_count, rb->texel_index,
-                                 rb->texel_sh, rb->texel_count, 12);
+    const cull_loss tl = culled(ra->texel_index, ra->texel_count, rb->texel_index,
+                                rb->texel_sh, rb->texel_count, 12, 0.1);
+    holes += tl.holes;
+    double share = tl.share;
     /* GLG probes likewise: the influence pass gathers at a sparse subset of them and
      * reads the others' indirect from visible neighbours (bake/dls.c). */
-    double pshare = dropped_share(ra->probe_index, ra->probe_count, rb->probe_index,
-                                  rb->probe_sh, rb->probe_count, 27);
+    double pshare = culled(ra->probe_index, ra->probe_count, rb->probe_index, rb->probe_sh,
+                           rb->probe_count, 27, 0.1).share;
     /* LLG probes too: the influence pass gathers at about one in 8 of a prop's grid and
      * copies that light to the others (bake/dls.c, llg_donors). */
-    double lshare = dropped_share(ra->llg_probe_index, ra->llg_probe_count, rb->llg_probe_index,
-                                  rb->llg_probe_sh, rb->llg_probe_count, 27);
+    double lshare = culled(ra->llg_probe_index, ra->llg_probe_count, rb->llg_probe_index,
+                           rb->llg_probe_sh, rb->llg_probe_count, 27, 0.1).share;
     printf("dls %s: culled record %u pixels vs dense %u; culling drops %.3f%% of the set's "
            "light; probes %u vs %u, dropping %.3f%% of their light; LLG probes %u vs %u, "
            "%.3f%%\n",
