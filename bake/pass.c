@@ -2431,14 +2431,14 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
                B_P = ((size_t)P + 1) * sizeof(double);
   /* The running totals (sh_total, iz_total, probe_total, llg_total) feed the store, the
    * adaptive rounds and the bounce auto-stop. A pass with none of them (a DLS influence
-   * pass: no_store, a fixed bounce count) neither writes nor reads them, nor the texels'
-   * SH (tx->acc_sh, which only sh_total sums): at ESTATE scale ~220 B a texel and 216 B a
+   * pass: no_store, a fixed bounce count) takes none of them (NULL), nor the texels' SH
+   * (tx->acc_sh, which only sh_total sums): at ESTATE scale ~220 B a texel and 216 B a
    * probe were written, summed and zeroed per pass for nothing. The measures it keeps
    * come from the bounce accumulators (I_z, probe SH), so the same bits. */
   const int totals = !d->no_store || d->bounces < 0 || d->target_error > 0.0;
-  double *sh_total = scr_take(scache, SCR_SH_TOTAL, B_SH);
-  double *iz_total = scr_take(scache, SCR_IZ_TOTAL, B_IZ);
-  double *probe_total = scr_take(scache, SCR_PROBE_TOTAL, B_PSH);
+  double *sh_total = totals ? scr_take(scache, SCR_SH_TOTAL, B_SH) : NULL;
+  double *iz_total = totals ? scr_take(scache, SCR_IZ_TOTAL, B_IZ) : NULL;
+  double *probe_total = totals ? scr_take(scache, SCR_PROBE_TOTAL, B_PSH) : NULL;
 #define ACT(i) (act ? act[i] : (i))
 #define PACT(i) (pact ? pact[i] : (i))
 #define LACT(i) (lact ? lact[i] : (i))
@@ -2544,7 +2544,7 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
       }
     }
   }
-  double *llg_total = scr_take(lcache, SCR_LLG_TOTAL, B_LSH);
+  double *llg_total = totals ? scr_take(lcache, SCR_LLG_TOTAL, B_LSH) : NULL;
   out->llg_direct = pool_take(scache, ((size_t)LP + 1) * sizeof(float));
   out->llg_indirect = pool_take(scache, ((size_t)LP + 1) * sizeof(float));
   /* Error estimates: this bounce's variance per texel / GLG probe, and the sum over
@@ -2582,14 +2582,15 @@ ub_result ub_pass_run(const ub_pass_desc *d, const ub_log *log, ub_pass_result *
   pr->acc_sh = scr_take(scache, SCR_PR_ACC_SH, B_PSH);
   c.img = calloc(lm->atlas_count ? lm->atlas_count : 1, sizeof *c.img);
   c.emitter_of = malloc((size_t)(s->triangle_count ? s->triangle_count : 1) * sizeof(int32_t));
-  int oom = !sh_total || !iz_total || (totals && !tx->acc_sh) || !tx->acc_iz || !tx->acc_src ||
+  int oom = (totals && (!sh_total || !iz_total || !tx->acc_sh || !probe_total || !llg_total)) ||
+            !tx->acc_iz || !tx->acc_src ||
             !tl_ok || !c.light_on ||
             !tx->acc_src_np || !c.img ||
-            !c.emitter_of || !pr->acc_sh || !probe_total || !out->texel_direct ||
+            !c.emitter_of || !pr->acc_sh || !out->texel_direct ||
             !out->texel_indirect || (d->keep_bounce_iz && !out->texel_bounce_iz) ||
             (d->outside_bounce_iz && d->outside_bounces && d->texel_subset && !outside) ||
             !out->probe_direct || !out->probe_indirect || !lg->acc_sh ||
-            !lg->acc_sh_np || !llg_total || (LP && !c.llg_prev) || !out->llg_direct ||
+            !lg->acc_sh_np || (LP && !c.llg_prev) || !out->llg_direct ||
             !out->llg_indirect ||
             (est && (!tx->acc_var || !pr->acc_var || !var_tx || !var_pr || !tx->acc_pvar ||
                      !pr->acc_pvar || !rel2));
@@ -3012,8 +3013,8 @@ done:
   /* Scratch back to the cache, zeroed at act / pact (freed after a failure: what was
    * written is not known). */
   ub_pass_cache *give = res == UB_OK ? scache : NULL;
-  scr_give(give, SCR_SH_TOTAL, sh_total, B_SH, act, totals ? nact : 0, 12 * sizeof(double));
-  scr_give(give, SCR_IZ_TOTAL, iz_total, B_IZ, act, totals ? nact : 0, 3 * sizeof(double));
+  scr_give(give, SCR_SH_TOTAL, sh_total, B_SH, act, nact, 12 * sizeof(double));
+  scr_give(give, SCR_IZ_TOTAL, iz_total, B_IZ, act, nact, 3 * sizeof(double));
   scr_give(give, SCR_ACC_SH, tx->acc_sh, B_SH, act, nact, 12 * sizeof(double));
   scr_give(give, SCR_ACC_IZ, tx->acc_iz, B_IZ, act, nact, 3 * sizeof(double));
   scr_give(give, SCR_ACC_SRC, tx->acc_src, B_IZ, act, nact, 3 * sizeof(double));
@@ -3022,7 +3023,7 @@ done:
   scr_give(give, SCR_ACC_PVAR, tx->acc_pvar, B_T, act, nact, sizeof(double));
   scr_give(give, SCR_REL2, rel2, ((size_t)T + 1) * sizeof(float), act, nact, sizeof(float));
   scr_give(give, SCR_VAR_TX, var_tx, B_T, act, nact, sizeof(double));
-  scr_give(give, SCR_PROBE_TOTAL, probe_total, B_PSH, pact, totals ? npact : 0, 27 * sizeof(double));
+  scr_give(give, SCR_PROBE_TOTAL, probe_total, B_PSH, pact, npact, 27 * sizeof(double));
   scr_give(give, SCR_PR_ACC_SH, pr->acc_sh, B_PSH, pact, npact, 27 * sizeof(double));
   scr_give(give, SCR_PR_ACC_VAR, pr->acc_var, B_P, pact, npact, sizeof(double));
   scr_give(give, SCR_PR_ACC_PVAR, pr->acc_pvar, B_P, pact, npact, sizeof(double));
@@ -3075,7 +3076,7 @@ done:
     free(c.sets[k].bshift);
     free(c.sets[k].peak);
   }
-  scr_give(lgive, SCR_LLG_TOTAL, llg_total, B_LSH, lact, totals ? nlact : 0, 27 * sizeof(double));
+  scr_give(lgive, SCR_LLG_TOTAL, llg_total, B_LSH, lact, nlact, 27 * sizeof(double));
   if (give && c.llg_prev) /* written at lact and the invalid probes: zeroed whole */
     memset(c.llg_prev, 0, (size_t)LP * 27 * sizeof(float));
   scr_give(give, SCR_LLG_PREV, c.llg_prev, (size_t)LP * 27 * sizeof(float), NULL, 0, 0);
