@@ -1682,6 +1682,12 @@ int ub_blend_pending(const ub_blend *b)
   return b->dirty_count != 0;
 }
 
+int ub_blend_element_dirty(const ub_blend *b, uint32_t element)
+{
+  assert(b);
+  return element < b->element_count && b->dirty[element];
+}
+
 /* The current weights as the reference (ref, atref); refrows untouched. */
 static ub_result take_reference(ub_blend *b)
 {

@@ -255,6 +255,9 @@ void ub_blend_free(ub_blend *b);
 ub_result ub_blend_set_weight(ub_blend *b, uint32_t element, const float rgb[3]);
 /* The element's current weight (0 for an element out of range). */
 void ub_blend_weight(const ub_blend *b, uint32_t element, float out_rgb[3]);
+/* Whether the element's weight changed since the last ub_blend_update_begin (the next
+ * update recomputes its groups); 0 for an element out of range. */
+int ub_blend_element_dirty(const ub_blend *b, uint32_t element);
 
 /* Recomputes every group holding a dirty element, writes those receivers' rows of
  * out_values (the array given to create; NULL: streaming, then touched is required),
