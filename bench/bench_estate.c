@@ -4,14 +4,14 @@
  *
  *   bench_estate [--scale S] [--full] [--bounces N] [--texel-size M] [--no-extrapolate]
  *                [--param k=v ...] [--ubk FILE.ubk [--repeat N]] [--jobs N] [--records8] [--plain-sums]
- *                [--merge-groups]
+ *                [--separate-groups]
  *
  * --ubk FILE skips generating and baking and measures the run-time on a file already baked
  * (e.g. estate_small, or a full ESTATE bake): records, memory, toggles, all-sets update;
  * --repeat N repeats the toggle loop N times (for a profiler).
  * --records8 loads the run-time with its records in 8 bits (UB_RUNTIME_RECORDS_8BIT);
  * --plain-sums without the all-ones sums (UB_RUNTIME_PLAIN_SUMS); --keep-state,
- * --glg-small-walk, --no-base-ahd, --merge-groups: the load flags of those names.
+ * --glg-small-walk, --no-base-ahd, --separate-groups: the load flags of those names.
  * Toggles are measured with the other sets on, then with them off (each set on and off
  * again: the off fast path).
  * --jobs N (default: the CPUs, at most 8) also measures toggles and the all-sets update
@@ -379,7 +379,7 @@ int main(int argc, char **argv)
       printf("usage: bench_estate [--scale S] [--full] [--bounces N] [--texel-size M]\n"
              "                    [--no-extrapolate] [--param k=v ...]\n"
              "                    [--ubk FILE.ubk [--repeat N]] [--jobs N] [--records8] [--plain-sums]\n"
-             "                    [--keep-state] [--glg-small-walk] [--no-base-ahd] [--merge-groups]\n"
+             "                    [--keep-state] [--glg-small-walk] [--no-base-ahd] [--separate-groups]\n"
              "Generates the ESTATE-scale level (ubake-genlevel estate) at scale S (default 0.05;\n"
              "--full: 1), bakes it at draft (reduced: --bounces 2, --texel-size 0.2 by default;\n"
              "full: the level's settings), loads it in the run-time and toggles its sets;\n"
@@ -391,7 +391,7 @@ int main(int argc, char **argv)
              "--keep-state: the load state kept (UB_RUNTIME_KEEP_STATE);\n"
              "--glg-small-walk: the GLG's small walk (UB_RUNTIME_GLG_SMALL_WALK);\n"
              "--no-base-ahd: no AHD of the base state kept (UB_RUNTIME_NO_BASE_AHD);\n"
-             "--merge-groups: rare combinations' texels in common groups (UB_RUNTIME_MERGE_GROUPS).\n"
+             "--separate-groups: each combination a group of its own (UB_RUNTIME_SEPARATE_GROUPS).\n"
              "UB_BUILD: the build folder (default build).\n");
       return 0;
     } else if (!strcmp(argv[i], "--scale") && i + 1 < argc) {
@@ -429,8 +429,8 @@ int main(int argc, char **argv)
       load_flags |= UB_RUNTIME_GLG_SMALL_WALK;
     } else if (!strcmp(argv[i], "--no-base-ahd")) {
       load_flags |= UB_RUNTIME_NO_BASE_AHD;
-    } else if (!strcmp(argv[i], "--merge-groups")) {
-      load_flags |= UB_RUNTIME_MERGE_GROUPS;
+    } else if (!strcmp(argv[i], "--separate-groups")) {
+      load_flags |= UB_RUNTIME_SEPARATE_GROUPS;
     } else if (!strcmp(argv[i], "--no-extrapolate")) {
       extrapolate = 0;
     } else if (!strcmp(argv[i], "--param") && i + 1 < argc) {
@@ -640,7 +640,7 @@ int main(int argc, char **argv)
   printf("run-time%s%s: load %.2f s, resident +%.1f MB (base + %u sets' records %.1f MB on "
          "disk), %s +%.1f MB\n",
          load_flags & UB_RUNTIME_RECORDS_8BIT ? " (records in 8 bits)" : "",
-         load_flags & UB_RUNTIME_MERGE_GROUPS ? " (rare combinations merged)" : "", tl,
+         load_flags & UB_RUNTIME_SEPARATE_GROUPS ? " (separate groups)" : "", tl,
          (rss1 - rss0) / 1024.0, nd, rec_sum / 1048576.0,
          hwm_reset ? "peak during the load" : "peak since the start (no reset)",
          (hwm1 - rss0) / 1024.0);

@@ -84,9 +84,10 @@ struct ub_runtime {
   uint32_t *tch_slot;      /* touched slots × 1: the global slot of each (the lightmap blend
                               works in touched ranks) */
   uint32_t *lm_idx;        /* during setup: the texel records' receivers as global slots */
-  /* UB_RUNTIME_MERGE_GROUPS: the merged texels (given zero rows), so that an update whose
-   * changed elements are only their added ones leaves them as they are (neither re-encoded
-   * nor listed as changed: the texels an update touches are the default's). pad_bits:
+  /* Merged groups (unless UB_RUNTIME_SEPARATE_GROUPS): the merged texels (given zero
+   * rows), so that an update whose changed elements are only their added ones leaves them
+   * as they are (neither re-encoded nor listed as changed: an update touches the texels it
+   * would with separate groups). pad_bits:
    * ⌈touched / 64⌉ words over the ranks; pad_rank: merged texels before each word; per
    * merged texel (rank order) pad_tid, the combination it joined (its records:
    * pad_el[pad_off[t] .. pad_off[t + 1]), at most 64), and pad_mask, which of those
@@ -167,6 +168,7 @@ typedef struct rt_job {
   uint64_t texels;    /* re-encoded (or copied back from the kept state) */
   uint64_t kept;      /* of them, copied back */
   uint64_t based;     /* of them, the base's copied (every element at 0) */
+  uint64_t left;      /* merged texels computed and left as they were (lm_touched) */
   uint32_t runs;      /* runs of them in chg_runs */
   int runs_full;      /* some did not fit */
   int done;           /* run (ub_runtime_update_end runs the ones that were not) */
@@ -820,17 +822,18 @@ static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs,
   return UB_OK;
 }
 
-/* UB_RUNTIME_MERGE_GROUPS: texels whose combination of texel records is rare (held by at
- * most MERGE_MAX_RECEIVERS texels: a group of that few in the lightmap blend) join a
- * more common combination that holds theirs and at most MERGE_MAX_ADDED records more,
- * fewest added first, then the most texels: each added record gets a row of zeros for
- * them. Their values stay the same (base + Σ ω·row gains terms ω·0 = ±0), their texels
- * sit in that combination's group, and the blend visits a few thousand groups instead of
- * tens of thousands of one or two texels, each of which cost ~250-500 cycles besides its
- * rows (tables, kernel call, one read per member stream; full ESTATE: 32,700 of its
- * 37,578 groups hold at most 4 texels). The price: the zero rows' bytes, and an update
- * that changes only an added record re-encodes those texels too (to their values, up to
- * float rounding: which sum a group takes depends on its members' weights).
+/* Merged groups (unless UB_RUNTIME_SEPARATE_GROUPS): texels whose combination of texel
+ * records is rare (held by at most MERGE_MAX_RECEIVERS texels: a group of that few in the
+ * lightmap blend) join a more common combination that holds theirs and at most
+ * MERGE_MAX_ADDED records more, fewest added first, then the most texels: each added
+ * record gets a row of zeros for them. Their values stay the same (base + Σ ω·row gains
+ * terms ω·0 = ±0, up to float rounding: which sum a group takes depends on its members'
+ * weights), their texels sit in that combination's group, and the blend visits a few
+ * thousand groups instead of tens of thousands of one or two texels, each of which cost
+ * ~250-500 cycles besides its rows (tables, kernel call, one read per member stream; full
+ * ESTATE: 32,700 of its 37,578 groups hold at most 4 texels). The price: the zero rows'
+ * bytes, and an update that changes only an added record computes those texels too (and
+ * leaves them: lm_touched).
  * Needs the records' receivers as global slots (records_prepare), before tch_bits;
  * *out_padded: the zero rows added; the merged slots in rt->pad_tmp (pad_count; NULL
  * when none), the combinations they join in rt->pad_off, pad_el (pad_targets). */
@@ -1507,7 +1510,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   if (r == UB_OK)
     r = records_prepare(rt, 2, rt->llg_rec, &rt->llg_scale);
   uint64_t padded = 0;
-  if (r == UB_OK && (rt->load_flags & UB_RUNTIME_MERGE_GROUPS)) {
+  if (r == UB_OK && !(rt->load_flags & UB_RUNTIME_SEPARATE_GROUPS)) {
     r = merge_small_groups(rt, &padded);
     if (r == UB_OK)
       ub_log_printf(log, UB_LOG_INFO, "%s: %llu zero rows merge rare texel groups", path,
@@ -1841,7 +1844,8 @@ ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags
   assert(path && out);
   if (flags & ~(unsigned)(UB_RUNTIME_RECORDS_8BIT | UB_RUNTIME_PLAIN_SUMS |
                           UB_RUNTIME_KEEP_STATE | UB_RUNTIME_GLG_SMALL_WALK |
-                          UB_RUNTIME_NO_BASE_AHD | UB_RUNTIME_MERGE_GROUPS)) {
+                          UB_RUNTIME_NO_BASE_AHD | UB_RUNTIME_MERGE_GROUPS |
+                          UB_RUNTIME_SEPARATE_GROUPS)) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: unknown load flags 0x%x", path, flags);
     return UB_ERR_INVALID_ARGUMENT;
   }
@@ -2083,6 +2087,7 @@ typedef struct touched_ctx {
   uint64_t texels;
   uint64_t kept;   /* of texels: copied back from the kept state */
   uint64_t based;  /* of texels: the base's copied (UB_BLEND_AT_BASE) */
+  uint64_t left;   /* merged texels left as they were (lm_touched) */
   /* texels with their own normal waiting to be encoded sixteen at a time (the blend hands
    * over pieces of one group's run, which end in fewer than sixteen; their rows live only
    * during the call: copied, so the sixteen are contiguous for the AVX-512 encode) */
@@ -2231,6 +2236,7 @@ static void lm_encode_but(touched_ctx *tc, uint64_t first, uint64_t end, const f
   }
   lm_run(tc, (uint32_t)a, (uint32_t)(end - a));
   tc->texels -= ns;
+  tc->left += ns;
   if (rows == UB_BLEND_AT_REFERENCE)
     tc->kept -= ns;
   else if (rows == UB_BLEND_AT_BASE)
@@ -2239,7 +2245,7 @@ static void lm_encode_but(touched_ctx *tc, uint64_t first, uint64_t end, const f
 
 /* The blend's touched callback: lm_encode, except for merged texels the update leaves
  * (pad_skip, pad_left): the texels an update re-encodes and lists are those whose own
- * elements changed, as without UB_RUNTIME_MERGE_GROUPS. Those are encoded with the rest
+ * elements changed, as with UB_RUNTIME_SEPARATE_GROUPS. Those are encoded with the rest
  * (the sixteen-wide encode stays whole: cutting the pieces at them cost a third of a hall
  * set's toggle on full ESTATE) and their AHD put back. */
 static void lm_touched(void *user, uint32_t first, uint32_t count, const float *rows)
@@ -2411,6 +2417,7 @@ void ub_runtime_update_job(ub_runtime *rt, uint32_t job)
     jb->texels = tc.texels;
     jb->kept = tc.kept;
     jb->based = tc.based;
+    jb->left = tc.left;
     jb->runs = tc.nruns;
     jb->runs_full = tc.full;
     t1 = rt_now();
@@ -2446,7 +2453,7 @@ void ub_runtime_update_end(ub_runtime *rt, ub_runtime_update_stats *out_stats)
   rt->chg_all = 0;
   for (uint32_t j = 0; j < rt->job_count; j++) {
     const rt_job *jb = &rt->jobs[j];
-    st.texels_written += jb->lm.receivers;
+    st.texels_written += jb->lm.receivers - jb->left;
     st.texels_reencoded += jb->texels;
     st.texels_kept += jb->kept;
     st.texels_base += jb->based;

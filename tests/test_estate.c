@@ -557,17 +557,17 @@ static uint64_t changes_missing(const ub_runtime *ra, const ub_runtime *rb, uint
   return missing;
 }
 
-/* UB_RUNTIME_MERGE_GROUPS against the default: texels of rare combinations join common
- * ones' groups through zero rows, so an all-sets update visits fewer groups; every state
- * (all sets at 0.5, then each set off and back on with the others on) agrees to float
- * rounding (a merged group may take its all-ones sums where the small one summed its rows),
- * and each toggle lists exactly the texels the default lists: a merged texel whose own sets
- * did not change is left as it was (before that, a toggle also listed the merged texels
- * holding a zero row of the toggled set). */
+/* Merged groups (the default) against UB_RUNTIME_SEPARATE_GROUPS: texels of rare
+ * combinations join common ones' groups through zero rows, so an all-sets update visits
+ * fewer groups; every state (all sets at 0.5, then each set off and back on with the
+ * others on) agrees to float rounding (a merged group may take its all-ones sums where the
+ * small one summed its rows), and each toggle lists exactly the texels separate groups
+ * list: a merged texel whose own sets did not change is left as it was (session 41's
+ * version also listed the merged texels holding a zero row of the toggled set). */
 static void check_merge_groups(const char *ubk)
 {
   ub_runtime *ro = NULL, *rm = NULL;
-  if (!load_two(ubk, UB_RUNTIME_MERGE_GROUPS, &ro, &rm))
+  if (!load_two(ubk, UB_RUNTIME_SEPARATE_GROUPS, &rm, &ro)) /* rm: the default */
     return;
   ub_runtime_update_stats so, sm;
   const float half[3] = {0.5f, 0.25f, 0.5f}, one[3] = {1.0f, 1.0f, 1.0f}, off[3] = {0, 0, 0};

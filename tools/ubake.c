@@ -484,7 +484,7 @@ static int parse_records_arg(const char *cmd, const char *a, const char *v, unsi
 static const char *INFO_HELP =
     "usage: ubake info DIR/NAME.ubk [--json] [--memory [--records half|8bit] [--keep-state]\n"
     "                                                  [--glg-small-walk] [--no-base-ahd]\n"
-    "                                                  [--merge-groups]]\n"
+    "                                                  [--separate-groups]]\n"
     "Prints what the bake file holds: geometry, atlases, texels, bytes.\n"
     "  --json      the same as one JSON object\n"
     "  --memory    also load it in the run-time and print what the run-time holds, by\n"
@@ -498,9 +498,9 @@ static const char *INFO_HELP =
     "  --no-base-ahd       without the base state's AHD (UB_RUNTIME_NO_BASE_AHD: 16 B a\n"
     "                      touched texel less; a set turned off then re-encodes the texels\n"
     "                      no other element lights)\n"
-    "  --merge-groups      with rare overlap combinations merged (UB_RUNTIME_MERGE_GROUPS:\n"
-    "                      zero rows, fewer groups; an update may re-encode unchanged\n"
-    "                      texels)\n";
+    "  --separate-groups   every overlap combination in a group of its own\n"
+    "                      (UB_RUNTIME_SEPARATE_GROUPS: no zero rows merging rare ones into\n"
+    "                      common ones; more groups, a faster load)\n";
 
 /* The run-time load's notes for ubake info: errors and warnings go to the CLI's log at
  * once, notes are kept (up to 4 KiB) and printed under the run-time memory line, after
@@ -568,8 +568,8 @@ static int cmd_info(int argc, char **argv)
       load_flags |= UB_RUNTIME_GLG_SMALL_WALK;
     } else if (!strcmp(argv[i], "--no-base-ahd")) {
       load_flags |= UB_RUNTIME_NO_BASE_AHD;
-    } else if (!strcmp(argv[i], "--merge-groups")) {
-      load_flags |= UB_RUNTIME_MERGE_GROUPS;
+    } else if (!strcmp(argv[i], "--separate-groups")) {
+      load_flags |= UB_RUNTIME_SEPARATE_GROUPS;
     } else if (argv[i][0] == '-') {
       return bad_option("info", argv[i], i + 1 < argc ? argv[i + 1] : NULL);
     } else if (path) {
@@ -582,7 +582,7 @@ static int cmd_info(int argc, char **argv)
     return usage_error("info", "no .ubk given");
   if (load_flags && !memory)
     return usage_error("info", "--records, --keep-state, --glg-small-walk, --no-base-ahd and "
-                               "--merge-groups go with --memory (the run-time's bytes)");
+                               "--separate-groups go with --memory (the run-time's bytes)");
   /* --json: stdout holds the JSON only (the run-time's load notes were printed before it) */
   cli_log_state ls = {0, json, 0};
   ub_log log = {cli_log, &ls};

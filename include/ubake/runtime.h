@@ -73,16 +73,18 @@ ub_result ub_runtime_load(const char *path, const ub_log *log, ub_runtime **out)
  * lights the texel (the bits a re-encode gives). UB_RUNTIME_NO_BASE_AHD keeps none: less
  * memory, every such texel re-encoded (README, "Base AHD", gives the measured price). */
 #define UB_RUNTIME_NO_BASE_AHD 16u
-/* UB_RUNTIME_MERGE_GROUPS (opt-in): texels whose combination of overlapping elements is
- * rare (at most 4 texels share it) get zero rows in up to 6 more elements' lightmap
- * records, so that they join a common combination's overlap group. The added terms are
- * ω·0: values agree with the default's to float rounding (a merged group may take its
- * all-ones sums where the small one summed its rows). Far fewer groups for an update to
- * visit (full ESTATE: 37,578 → 6,903 lightmap groups; 505.1 → 501.1 MiB in all); but an
- * update that changes only such an added element re-encodes those texels too, to the
- * values they had, and ub_runtime_changed_texels lists them (full ESTATE: 1.8% more
- * texels a toggle). README, "Merged groups", gives the measured price. */
+/* By default texels whose combination of overlapping elements is rare (at most 4 texels
+ * share it) get zero rows in up to 6 more elements' lightmap records, so that they join a
+ * common combination's overlap group: far fewer groups for an update to visit (full
+ * ESTATE: 37,578 → 6,903 lightmap groups; toggles and the all-sets update faster, less
+ * memory). The added terms are ω·0: values agree with separate groups' to float rounding
+ * (a merged group may take its all-ones sums where the small one summed its rows). An
+ * update re-encodes and lists (ub_runtime_changed_texels) only the texels whose own
+ * elements changed, as with separate groups. UB_RUNTIME_SEPARATE_GROUPS gives every
+ * combination its own group (as before 2026-12-05; faster load). README, "Merged groups",
+ * gives the measured price. UB_RUNTIME_MERGE_GROUPS asks for the default (it was opt-in). */
 #define UB_RUNTIME_MERGE_GROUPS 32u
+#define UB_RUNTIME_SEPARATE_GROUPS 64u
 /* ub_runtime_load() with flags (0 or the flags above; UB_ERR_INVALID_ARGUMENT for others). */
 ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags,
                              ub_runtime **out);
@@ -319,6 +321,8 @@ int ub_runtime_triangle_shown(const ub_runtime *rt, uint32_t triangle);
 float ub_runtime_door_fraction(float hinge_angle_radians);
 
 typedef struct ub_runtime_update_stats {
+  /* texels whose state the lightmap blend computed, less the merged texels it left as
+   * they were (UB_RUNTIME_SEPARATE_GROUPS: none are), and of them those re-encoded */
   uint64_t texels_written, texels_reencoded;
   uint64_t texels_kept; /* of texels_reencoded: copied back from the kept state */
   uint64_t texels_base; /* of texels_reencoded: every element at 0, the base's AHD copied
