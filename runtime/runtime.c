@@ -97,6 +97,9 @@ struct ub_runtime {
   struct merge_pad *pad_tmp; /* during setup: the merged texels (merge_small_groups) */
   uint32_t pad_count;      /* merged texels */
   uint32_t pad_targets;    /* the combinations they joined */
+  uint8_t *pad_stay;       /* per merged texel: 1 when the last update that computed it
+                              left it as it was (read only within that update's runs, and
+                              only when that update could leave texels: chg_stay) */
   uint8_t *lm_chg;         /* elem_total: the lightmap weight changed in the update begun */
   int pad_skip;            /* the update begun may leave merged texels (not every group,
                               not every element) */
@@ -148,9 +151,9 @@ struct ub_runtime {
   uint32_t job_cap, job_count;
   /* The texels each job re-encoded, as runs of ranks (first, count) merged where they
    * continue each other: a group's ranks are one run, so job j needs at most as many as
-   * the lightmap blend's part j has groups (ub_blend_part_first), one more, and one more per
-   * merged texel (pad_count): its runs start at pair chg_at[j] = first(j) + j·(1 + pad_count)
-   * of chg_pairs(job_cap) pairs. The last
+   * the lightmap blend's part j has groups (ub_blend_part_first), and one more: its runs
+   * start at pair chg_at[j] = first(j) + j of chg_pairs(job_cap) pairs. A run may hold
+   * merged texels the update left as they were (pad_stay): not changed. The last
    * update's jobs (chg_jobs) stay there for ub_runtime_changed_texels; chg_all when a job
    * ran out of room (not expected): every touched texel then counts as changed. */
   uint32_t *chg_runs;
@@ -158,6 +161,7 @@ struct ub_runtime {
   uint32_t chg_groups, chg_jobs;
   uint64_t chg_texels;
   int chg_all;
+  int chg_stay;       /* the last update may have left merged texels in its runs (pad_skip) */
   uint32_t lit_count;    /* triangles with tri_atlas >= 0 */
   uint32_t *lit_tris;
 };
@@ -617,6 +621,7 @@ void ub_runtime_free(ub_runtime *rt)
   free(rt->pad_off);
   free(rt->pad_el);
   free(rt->lm_chg);
+  free(rt->pad_stay);
   ub_blend_free(rt->lm_blend);
   ub_blend_free(rt->glg_blend);
   ub_blend_free(rt->llg_blend);
@@ -1105,11 +1110,10 @@ done:
 }
 
 /* Pairs of chg_runs for `jobs` jobs: job j's runs are the groups of its part of the
- * lightmap blend, one more (a group cut at the part's start), and with merged texels one
- * more per merged texel (each it leaves cuts its group's run in two). */
+ * lightmap blend and one more (a group cut at the part's start). */
 static size_t chg_pairs(const ub_runtime *rt, uint32_t jobs)
 {
-  return (size_t)rt->chg_groups + (size_t)jobs * (1 + (size_t)rt->pad_count);
+  return (size_t)rt->chg_groups + jobs;
 }
 
 static int merge_pad_cmp(const void *pa, const void *pb)
@@ -1131,7 +1135,9 @@ static ub_result pad_index(ub_runtime *rt)
   rt->pad_tid = malloc((np ? np : 1) * sizeof *rt->pad_tid);
   rt->pad_mask = malloc((np ? np : 1) * sizeof *rt->pad_mask);
   rt->lm_chg = calloc(rt->elem_total ? rt->elem_total : 1, 1);
-  if (!rt->pad_bits || !rt->pad_rank || !rt->pad_tid || !rt->pad_mask || !rt->lm_chg)
+  rt->pad_stay = calloc(np ? np : 1, 1);
+  if (!rt->pad_bits || !rt->pad_rank || !rt->pad_tid || !rt->pad_mask || !rt->lm_chg ||
+      !rt->pad_stay)
     return UB_ERR_OUT_OF_MEMORY;
   for (size_t i = 0; i < np; i++) {
     uint64_t ix = 0;
@@ -2195,6 +2201,14 @@ static void lm_encode(touched_ctx *tc, uint32_t first, uint32_t count, const flo
   tc->texels += count;
 }
 
+/* The index in pad_tid of the first merged texel at or after rank r. */
+static inline uint32_t pad_index_at(const ub_runtime *rt, uint64_t r)
+{
+  const uint64_t w = r >> 6;
+  return rt->pad_rank[w] +
+         (uint32_t)__builtin_popcountll(rt->pad_bits[w] & ((UINT64_C(1) << (r & 63)) - 1));
+}
+
 /* Whether merged texel k (its index in pad_tid) keeps its value in the update begun: its
  * changed elements are all ones it has zero rows in. tc caches the changed records of the
  * last combination asked (the texels of a group share it). */
@@ -2214,16 +2228,13 @@ static int pad_left(touched_ctx *tc, uint32_t k)
 
 /* lm_encode of ranks [first, end) (rows from rank `first`, or a sentinel) but for the
  * ns ranks sk (ascending), whose AHD sv[] had before: put back, or, still waiting in
- * tc's sixteen, sent to tc->sink. Listed in the runs without them. */
+ * tc's sixteen, sent to tc->sink. */
 static void lm_encode_but(touched_ctx *tc, uint64_t first, uint64_t end, const float *rows,
                           const uint64_t *sk, const ub_ahd_packed *sv, uint32_t ns)
 {
   ub_runtime *rt = tc->rt;
   lm_encode(tc, (uint32_t)first, (uint32_t)(end - first), rows);
-  uint64_t a = first;
   for (uint32_t j = 0; j < ns; j++) {
-    lm_run(tc, (uint32_t)a, (uint32_t)(sk[j] - a));
-    a = sk[j] + 1;
     ub_ahd_packed *o = rt->ahd + sk[j];
     int waiting = 0;
     for (uint32_t q = 0; q < tc->np; q++)
@@ -2234,7 +2245,6 @@ static void lm_encode_but(touched_ctx *tc, uint64_t first, uint64_t end, const f
     if (!waiting)
       *o = sv[j];
   }
-  lm_run(tc, (uint32_t)a, (uint32_t)(end - a));
   tc->texels -= ns;
   tc->left += ns;
   if (rows == UB_BLEND_AT_REFERENCE)
@@ -2257,15 +2267,13 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
     lm_encode(tc, first, count, rows);
     return;
   }
+  lm_run(tc, first, count); /* (ub_runtime_changed_texels leaves out the pad_stay ones) */
   const int sentinel = rows == UB_BLEND_AT_REFERENCE || rows == UB_BLEND_AT_BASE;
   const uint64_t end = (uint64_t)first + count;
-  uint64_t i = first, r = first, w0 = first >> 6, sk[64];
+  uint64_t i = first, r = first, sk[64];
   ub_ahd_packed sv[64];
   uint32_t ns = 0;
-  /* the merged texels' index of the first at or after `first` */
-  uint32_t k = rt->pad_rank[w0] +
-               (uint32_t)__builtin_popcountll(rt->pad_bits[w0] &
-                                              ((UINT64_C(1) << (first & 63)) - 1));
+  uint32_t k = pad_index_at(rt, first);
   while (r < end) {
     const uint64_t w = rt->pad_bits[r >> 6] >> (r & 63);
     if (!w) {
@@ -2275,7 +2283,9 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
     r += (uint64_t)__builtin_ctzll(w);
     if (r >= end)
       break;
-    if (pad_left(tc, k)) {
+    const int stay = pad_left(tc, k);
+    tc->rt->pad_stay[k] = (uint8_t)stay; /* (each job its own texels: no two write one) */
+    if (stay) {
       if (ns == 64) { /* (a long piece: in parts) */
         lm_encode_but(tc, i, r, sentinel ? rows : rows + (i - first) * UB_SH1_FLOATS, sk, sv,
                       ns);
@@ -2382,7 +2392,7 @@ static ub_result update_begin_ex(ub_runtime *rt, uint32_t max_jobs, int all, uin
     if (bl[i])
       ub_blend_update_begin(bl[i], all);
   for (uint32_t j = 0; rt->chg_runs && j < max_jobs; j++) /* each job's runs (chg_at) */
-    rt->chg_at[j] = ub_blend_part_first(rt->lm_blend, j, max_jobs) + j * (1 + rt->pad_count);
+    rt->chg_at[j] = ub_blend_part_first(rt->lm_blend, j, max_jobs) + j;
   memset(rt->jobs, 0, (size_t)max_jobs * sizeof *rt->jobs);
   llg_chg_clear(rt);
   for (uint32_t e = 0; rt->updated && e < rt->elem_total; e++)
@@ -2410,8 +2420,7 @@ void ub_runtime_update_job(ub_runtime *rt, uint32_t job)
     tc.rt = rt;
     tc.pad_t = UINT32_MAX;
     tc.runs = rt->chg_runs + (size_t)rt->chg_at[job] * 2;
-    tc.cap = ub_blend_part_first(rt->lm_blend, job + 1, parts) + (job + 1) * (1 + rt->pad_count) -
-             rt->chg_at[job];
+    tc.cap = ub_blend_part_first(rt->lm_blend, job + 1, parts) + job + 1 - rt->chg_at[job];
     ub_blend_update_part(rt->lm_blend, job, parts, lm_touched, &tc, NULL, &jb->lm);
     touched_flush(&tc);
     jb->texels = tc.texels;
@@ -2475,6 +2484,7 @@ void ub_runtime_update_end(ub_runtime *rt, ub_runtime_update_stats *out_stats)
     rt->chg_all |= jb->runs_full;
   }
   rt->chg_jobs = rt->job_count;
+  rt->chg_stay = rt->pad_skip;
   rt->chg_texels = rt->chg_all ? rt->touched : st.texels_reencoded;
   rt->job_count = 0;
   if (out_stats)
@@ -2575,7 +2585,7 @@ void ub_runtime_memory_usage(const ub_runtime *rt, ub_runtime_memory *out)
   if (rt->pad_bits) /* the merged texels' index, the combinations they joined, lm_chg */
     m.lightmap += (size_t)(rt->touched + 63) / 64 * (8 + U) + (size_t)rt->pad_count * (8 + U) +
                   ((size_t)rt->pad_targets + 1 + rt->pad_off[rt->pad_targets]) * U +
-                  rt->elem_total;
+                  rt->elem_total + rt->pad_count;
   if (rt->llg_chg)
     m.llg += bf->llg_count * sizeof *rt->llg_chg;
   if (rt->tch_bits) {
@@ -2775,6 +2785,47 @@ static void changed_texels_run(const ub_runtime *rt, uint64_t first, uint64_t co
   }
 }
 
+/* Changed texels [k0, k0 + m) of run [first, first + count) into out, returning how many
+ * were written: the run's ranks but the merged texels the update left (pad_stay). out
+ * NULL: how many the run has (k0 and m ignored). */
+static uint64_t changed_texels_gaps(const ub_runtime *rt, uint64_t first, uint64_t count,
+                                    uint64_t k0, uint64_t m, ub_runtime_texel_change *out)
+{
+  const uint64_t end = first + count;
+  uint64_t n = 0, seen = 0, r = first, i = first; /* [i, r): no texel left */
+  const int stays = rt->chg_stay; /* (else pad_stay may be a former update's) */
+  uint32_t k = stays ? pad_index_at(rt, first) : 0;
+  for (;;) {
+    uint64_t s = end; /* the next texel left, or end */
+    while (stays && r < end) {
+      const uint64_t w = rt->pad_bits[r >> 6] >> (r & 63);
+      if (!w) {
+        r = (r | 63) + 1;
+        continue;
+      }
+      r += (uint64_t)__builtin_ctzll(w);
+      if (r >= end)
+        break;
+      r++;
+      if (rt->pad_stay[k++]) {
+        s = r - 1;
+        break;
+      }
+    }
+    const uint64_t len = s - i;
+    if (out && seen + len > k0) {
+      const uint64_t a = k0 > seen ? k0 - seen : 0, take = len - a < m - n ? len - a : m - n;
+      changed_texels_run(rt, i + a, take, out + n);
+      n += take;
+    }
+    seen += len;
+    if (s >= end || (out && n >= m))
+      break;
+    i = s + 1;
+  }
+  return out ? n : seen;
+}
+
 size_t ub_runtime_changed_texels(const ub_runtime *rt, uint64_t start, size_t max,
                                  ub_runtime_texel_change *out)
 {
@@ -2787,20 +2838,22 @@ size_t ub_runtime_changed_texels(const ub_runtime *rt, uint64_t start, size_t ma
     }
     return n;
   }
-  uint64_t seen = 0; /* changed texels in the runs before */
+  uint64_t seen = 0; /* changed texels in the runs before (counted up to start) */
   for (uint32_t j = 0; j < rt->chg_jobs && n < max; j++) {
     const uint32_t *runs = rt->chg_runs + (size_t)rt->chg_at[j] * 2;
     for (uint32_t r = 0; r < rt->jobs[j].runs && n < max; r++) {
       const uint64_t first = runs[2 * r], count = runs[2 * r + 1];
-      if (seen + count <= start) {
-        seen += count;
-        continue;
+      uint64_t k0 = 0;
+      if (seen < start) { /* (counted only while skipping to start) */
+        const uint64_t changed = changed_texels_gaps(rt, first, count, 0, 0, NULL);
+        if (seen + changed <= start) {
+          seen += changed;
+          continue;
+        }
+        k0 = start - seen;
+        seen = start;
       }
-      const uint64_t k0 = start > seen ? start - seen : 0;
-      const uint64_t m = count - k0 < max - n ? count - k0 : max - n;
-      changed_texels_run(rt, first + k0, m, out + n);
-      n += (size_t)m;
-      seen += count;
+      n += (size_t)changed_texels_gaps(rt, first, count, k0, max - n, out + n);
     }
   }
   return n;
