@@ -87,11 +87,10 @@ struct ub_runtime {
   /* Merged groups (unless UB_RUNTIME_SEPARATE_GROUPS): the merged texels (given zero
    * rows), so that an update whose changed elements are only their added ones leaves them
    * as they are (neither re-encoded nor listed as changed: an update touches the texels it
-   * would with separate groups). pad_bits:
-   * ⌈touched / 64⌉ words over the ranks; pad_rank: merged texels before each word; per
-   * merged texel (rank order) pad_tid, the combination it joined (its records:
-   * pad_el[pad_off[t] .. pad_off[t + 1]), at most 64), and pad_mask, which of those
-   * records it has zero rows in. NULL: nothing merged. */
+   * would with separate groups). pad_bits: ⌈touched / 64⌉ words over the ranks; pad_rank:
+   * merged texels before each word; per merged texel (rank order) pad_tid, the
+   * combination it joined (its records: pad_el[pad_off[t] .. pad_off[t + 1]), at most 64),
+   * and pad_mask, which of those records it has zero rows in. NULL: nothing merged. */
   uint64_t *pad_bits, *pad_mask;
   uint32_t *pad_rank, *pad_tid, *pad_off, *pad_el;
   struct merge_pad *pad_tmp; /* during setup: the merged texels (merge_small_groups) */
@@ -2209,6 +2208,20 @@ static inline uint32_t pad_index_at(const ub_runtime *rt, uint64_t r)
          (uint32_t)__builtin_popcountll(rt->pad_bits[w] & ((UINT64_C(1) << (r & 63)) - 1));
 }
 
+/* The rank of the first merged texel in [r, end), or end. */
+static inline uint64_t pad_next(const ub_runtime *rt, uint64_t r, uint64_t end)
+{
+  while (r < end) {
+    const uint64_t w = rt->pad_bits[r >> 6] >> (r & 63);
+    if (w) {
+      r += (uint64_t)__builtin_ctzll(w);
+      return r < end ? r : end;
+    }
+    r = (r | 63) + 1;
+  }
+  return end;
+}
+
 /* Whether merged texel k (its index in pad_tid) keeps its value in the update begun: its
  * changed elements are all ones it has zero rows in. tc caches the changed records of the
  * last combination asked (the texels of a group share it). */
@@ -2274,15 +2287,7 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
   ub_ahd_packed sv[64];
   uint32_t ns = 0;
   uint32_t k = pad_index_at(rt, first);
-  while (r < end) {
-    const uint64_t w = rt->pad_bits[r >> 6] >> (r & 63);
-    if (!w) {
-      r = (r | 63) + 1;
-      continue;
-    }
-    r += (uint64_t)__builtin_ctzll(w);
-    if (r >= end)
-      break;
+  for (r = pad_next(rt, r, end); r < end; r = pad_next(rt, r + 1, end), k++) {
     const int stay = pad_left(tc, k);
     tc->rt->pad_stay[k] = (uint8_t)stay; /* (each job its own texels: no two write one) */
     if (stay) {
@@ -2295,8 +2300,6 @@ static void lm_touched(void *user, uint32_t first, uint32_t count, const float *
       sk[ns] = r;
       sv[ns++] = rt->ahd[r];
     }
-    r++;
-    k++;
   }
   lm_encode_but(tc, i, end, sentinel ? rows : rows + (i - first) * UB_SH1_FLOATS, sk, sv, ns);
 }
@@ -2797,20 +2800,13 @@ static uint64_t changed_texels_gaps(const ub_runtime *rt, uint64_t first, uint64
   uint32_t k = stays ? pad_index_at(rt, first) : 0;
   for (;;) {
     uint64_t s = end; /* the next texel left, or end */
-    while (stays && r < end) {
-      const uint64_t w = rt->pad_bits[r >> 6] >> (r & 63);
-      if (!w) {
-        r = (r | 63) + 1;
-        continue;
-      }
-      r += (uint64_t)__builtin_ctzll(w);
-      if (r >= end)
+    while (stays && (r = pad_next(rt, r, end)) < end) {
+      const int stayed = rt->pad_stay[k++];
+      if (stayed) {
+        s = r++;
         break;
+      }
       r++;
-      if (rt->pad_stay[k++]) {
-        s = r - 1;
-        break;
-      }
     }
     const uint64_t len = s - i;
     if (out && seen + len > k0) {

@@ -572,6 +572,20 @@ static int pieces_same(const ub_runtime *rt)
   return same;
 }
 
+/* Updates ro and rm and compares the texels they list: *missing gains those ro lists and
+ * rm does not, *differ 1 when the counts differ or rm's list asked in pieces does.
+ * Returns rm's count. */
+static uint64_t update_two(ub_runtime *ro, ub_runtime *rm, ub_runtime_update_stats *so,
+                           ub_runtime_update_stats *sm, uint64_t *missing, uint64_t *differ)
+{
+  ASSERT_OK(ub_runtime_update(ro, so));
+  ASSERT_OK(ub_runtime_update(rm, sm));
+  uint64_t nb = 0;
+  *missing += changes_missing(ro, rm, &nb);
+  *differ += nb != ub_runtime_changed_texel_count(ro) || !pieces_same(rm);
+  return nb;
+}
+
 /* Merged groups (the default) against UB_RUNTIME_SEPARATE_GROUPS: texels of rare
  * combinations join common ones' groups through zero rows, so an all-sets update visits
  * fewer groups; every state (all sets at 0.5, then each set off and back on with the
@@ -610,13 +624,8 @@ static void check_merge_groups(const char *ubk)
           ASSERT_OK(ub_runtime_set_dls(ro, k, one));
           ASSERT_OK(ub_runtime_set_dls(rm, k, one));
         }
-      ASSERT_OK(ub_runtime_update(ro, &so));
-      ASSERT_OK(ub_runtime_update(rm, &sm));
-      uint64_t nb = 0;
-      missing += changes_missing(ro, rm, &nb);
+      listed_m += update_two(ro, rm, &so, &sm, &missing, &differ);
       listed_o += ub_runtime_changed_texel_count(ro);
-      listed_m += nb;
-      differ += nb != ub_runtime_changed_texel_count(ro) || !pieces_same(rm);
     }
     snap a, b;
     take(ro, &a);
@@ -635,11 +644,7 @@ static void check_merge_groups(const char *ubk)
     ASSERT_OK(ub_runtime_set_dls(ro, d, third));
     ASSERT_OK(ub_runtime_set_dls(rm, d, third));
   }
-  ASSERT_OK(ub_runtime_update(ro, &so));
-  ASSERT_OK(ub_runtime_update(rm, &sm));
-  uint64_t nb = 0;
-  missing += changes_missing(ro, rm, &nb);
-  differ += nb != ub_runtime_changed_texel_count(ro) || !pieces_same(rm);
+  update_two(ro, rm, &so, &sm, &missing, &differ);
   ub_runtime_memory mo, mm;
   ub_runtime_memory_usage(ro, &mo);
   ub_runtime_memory_usage(rm, &mm);
