@@ -2383,14 +2383,13 @@ static ub_result update_begin_ex(ub_runtime *rt, uint32_t max_jobs, int all, uin
         return r;
     }
   /* merged texels may stay as they are unless every group is recomputed or every element
-   * changed (each merged texel then has one of its own among them) */
+   * with texel records changed (each merged texel then has one of its own among them) */
   rt->pad_skip = 0;
-  if (rt->pad_bits && !all) {
-    uint32_t changed = 0;
-    for (uint32_t e = 0; e < rt->elem_total; e++)
-      changed += rt->lm_chg[e] = (uint8_t)ub_blend_element_dirty(rt->lm_blend, e);
-    rt->pad_skip = changed < rt->elem_total;
-  }
+  if (rt->pad_bits && !all)
+    for (uint32_t e = 0; e < rt->elem_total; e++) {
+      rt->lm_chg[e] = (uint8_t)ub_blend_element_dirty(rt->lm_blend, e);
+      rt->pad_skip |= !rt->lm_chg[e] && rt->lm_rec[e].count;
+    }
   for (int i = 0; i < 3; i++)
     if (bl[i])
       ub_blend_update_begin(bl[i], all);
