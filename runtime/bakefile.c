@@ -25,6 +25,7 @@
 #include <immintrin.h>
 #endif
 
+#include "runtime/bigalloc.h"
 #include "runtime/cpu.h"
 #include "runtime/crc32.h"
 #include "runtime/half.h"
@@ -1240,6 +1241,10 @@ static void *tmp_alloc(size_t n)
   void *m = mmap(NULL, len, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
   if (m == MAP_FAILED)
     return NULL;
+#if defined(MADV_HUGEPAGE)
+  if (len >= ((size_t)4 << 20))
+    madvise(m, len, MADV_HUGEPAGE);
+#endif
   memcpy(m, &len, sizeof len);
   return (uint8_t *)m + 64;
 }
@@ -1429,14 +1434,15 @@ static int cur_halves_raw(ubk_cursor *c, uint16_t *out, size_t n)
   return 1;
 }
 
-/* calloc of count × size with the product overflow-checked. */
+/* calloc of count × size with the product overflow-checked (large ones on huge pages:
+ * runtime/bigalloc.h). */
 static void *calloc_array(uint64_t count, size_t size)
 {
   if (count == 0)
     return NULL;
   if (count > SIZE_MAX / size)
     return NULL;
-  return calloc((size_t)count, size);
+  return ub_big_calloc((size_t)count, size);
 }
 
 typedef struct ubk_reader {

@@ -1,6 +1,7 @@
 /* runtime/blend.c — run-time blend engine: base + Σ ω_i·S_i, grouped by combination of
  * overlapping elements (paper §3.3). See runtime/blend.h. */
 #include "runtime/blend.h"
+#include "runtime/bigalloc.h"
 
 #include <assert.h>
 #include <math.h>
@@ -1720,7 +1721,7 @@ ub_result ub_blend_set_reference_rows(ub_blend *b, const float *out_values)
   const size_t S = b->stride;
   int fresh = !b->refrows;
   if (fresh) {
-    b->refrows = malloc((size_t)(b->touched ? b->touched : 1) * S * sizeof(float));
+    b->refrows = ub_big_alloc((size_t)(b->touched ? b->touched : 1) * S * sizeof(float));
     if (!b->refrows)
       return UB_ERR_OUT_OF_MEMORY;
   }
@@ -1814,7 +1815,7 @@ static void *alloc_n(size_t n, size_t size, size_t *acc)
   if (size && n > SIZE_MAX / size)
     return NULL;
   size_t bytes = n * size;
-  void *p = malloc(bytes ? bytes : 1);
+  void *p = ub_big_alloc(bytes);
   if (p && acc)
     *acc += bytes;
   return p;
@@ -1933,7 +1934,7 @@ void ub_blend_free(ub_blend *b)
 
 static void *calloc_n(size_t n, size_t size, size_t *acc)
 {
-  void *p = calloc(n ? n : 1, size ? size : 1);
+  void *p = ub_big_calloc(n, size);
   if (p && acc)
     *acc += n * size;
   return p;

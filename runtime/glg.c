@@ -9,6 +9,7 @@
 #include <string.h>
 #include <threads.h>
 
+#include "runtime/bigalloc.h"
 #include "runtime/cpu.h"
 #include "runtime/half.h"
 #include "ubake/sh.h"
@@ -991,7 +992,7 @@ ub_result ub_glg_enable_lazy(ub_glg *g, float *win, const float *raw)
     return UB_ERR_INVALID_ARGUMENT;
   if (g->stale)
     return UB_OK;
-  _Atomic unsigned char *st = malloc((size_t)g->probe_count + 1);
+  _Atomic unsigned char *st = ub_big_alloc((size_t)g->probe_count + 1);
   if (!st)
     return UB_ERR_OUT_OF_MEMORY;
   for (uint32_t q = 0; q < g->probe_count; q++)
@@ -1866,8 +1867,8 @@ static ub_result build_hull_adjacency(ub_glg *g, const ub_log *log)
   size_t cap = 16;
   while (cap < 6 * (size_t)g->hull_count)
     cap <<= 1;
-  uint64_t *keys = malloc(cap * sizeof *keys);
-  uint32_t *val = malloc(cap * sizeof *val); /* face << 2 | k; GLG_NONE = empty */
+  uint64_t *keys = ub_big_alloc(cap * sizeof *keys);
+  uint32_t *val = ub_big_alloc(cap * sizeof *val); /* face << 2 | k; GLG_NONE = empty */
   if (!keys || !val) {
     free(keys);
     free(val);
@@ -1996,8 +1997,8 @@ static ub_result build_start_grid(ub_glg *g, const float *positions)
     bd[a] = (g->grid_dim[a] + GLG_GRID_BLOCK - 1) / GLG_GRID_BLOCK;
     blocks *= bd[a];
   }
-  uint32_t *centre = malloc(total * sizeof *centre);
-  g->start_grid = malloc(blocks * sizeof(uint32_t) + total * sizeof(int16_t));
+  uint32_t *centre = ub_big_alloc(total * sizeof *centre);
+  g->start_grid = ub_big_alloc(blocks * sizeof(uint32_t) + total * sizeof(int16_t));
   if (!centre || !g->start_grid) {
     free(centre);
     return UB_ERR_OUT_OF_MEMORY;
@@ -2125,8 +2126,8 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
   }
 
   if (d->compact) { /* every probe encoded now, windowed lazily */
-    g->cp_rows = malloc((size_t)d->probe_count * 27 * sizeof *g->cp_rows);
-    g->cp_word = malloc(((size_t)d->probe_count + 1) * sizeof(uint32_t)); /* + generation */
+    g->cp_rows = ub_big_alloc((size_t)d->probe_count * 27 * sizeof *g->cp_rows);
+    g->cp_word = ub_big_alloc(((size_t)d->probe_count + 1) * sizeof(uint32_t)); /* + generation */
     if (!g->cp_rows || !g->cp_word) {
       ub_log_printf(log, UB_LOG_ERROR, "glg: out of memory (%u probes)", d->probe_count);
       ub_glg_release(g);
@@ -2187,8 +2188,8 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
 
   res = UB_ERR_OUT_OF_MEMORY;
   if (d->small_walk) {
-    g->tet_nb = malloc((size_t)d->tet_count * 4 * sizeof *g->tet_nb);
-    g->pos = malloc((size_t)d->probe_count * 3 * sizeof *g->pos);
+    g->tet_nb = ub_big_alloc((size_t)d->tet_count * 4 * sizeof *g->tet_nb);
+    g->pos = ub_big_alloc((size_t)d->probe_count * 3 * sizeof *g->pos);
     if (!g->tet_nb || !g->pos)
       goto fail;
     memcpy(g->pos, d->positions, (size_t)d->probe_count * 3 * sizeof *g->pos);
@@ -2197,8 +2198,8 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
     if (!g->tet_data)
       goto fail;
   }
-  g->tet_flags = calloc(d->tet_count, 1);
-  g->hull = malloc((size_t)hull_count * sizeof *g->hull);
+  g->tet_flags = ub_big_calloc(d->tet_count, 1);
+  g->hull = ub_big_alloc((size_t)hull_count * sizeof *g->hull);
   if (!g->tet_flags || !g->hull)
     goto fail;
   g->hull_count = hull_count;
@@ -2273,8 +2274,8 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
   }
   if (g->ill_tet_count && !g->pos) { /* the badly shaped tets' corners, for tet_corner (the
                                         small walk keeps every probe's position) */
-    g->ill_ids = malloc((size_t)g->ill_tet_count * sizeof *g->ill_ids);
-    g->ill_pos = malloc((size_t)g->ill_tet_count * 12 * sizeof *g->ill_pos);
+    g->ill_ids = ub_big_alloc((size_t)g->ill_tet_count * sizeof *g->ill_ids);
+    g->ill_pos = ub_big_alloc((size_t)g->ill_tet_count * 12 * sizeof *g->ill_pos);
     if (!g->ill_ids || !g->ill_pos) {
       res = UB_ERR_OUT_OF_MEMORY;
       goto fail;
@@ -2291,7 +2292,7 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
   }
   if (g->leak_plane_of) {
     /* Each corner's side of its tet's leak plane (see leak_weights). */
-    g->leak_drop = calloc(d->tet_count, 1);
+    g->leak_drop = ub_big_calloc(d->tet_count, 1);
     if (!g->leak_drop) {
       res = UB_ERR_OUT_OF_MEMORY;
       goto fail;

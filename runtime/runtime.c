@@ -9,6 +9,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "runtime/bigalloc.h"
 #include "runtime/blend.h"
 #include "runtime/fpmode.h"
 #include "runtime/half.h"
@@ -286,11 +287,11 @@ static ub_result build_dilation(ub_runtime *rt, uint32_t a)
 {
   const ub_bakefile_atlas *at = &rt->bf->atlases[a];
   const size_t w = at->width, h = at->height, px = w * h, words = (px + 63) / 64;
-  int32_t *src = malloc((px ? px : 1) * sizeof *src);
-  uint32_t *ring = malloc((px ? px : 1) * sizeof *ring);
-  uint32_t *queue = malloc((px ? px : 1) * sizeof *queue);
-  rt->dil_bits[a] = calloc(words ? words : 1, sizeof **rt->dil_bits);
-  rt->dil_rank[a] = malloc((words ? words : 1) * sizeof **rt->dil_rank);
+  int32_t *src = ub_big_alloc((px ? px : 1) * sizeof *src);
+  uint32_t *ring = ub_big_alloc((px ? px : 1) * sizeof *ring);
+  uint32_t *queue = ub_big_alloc((px ? px : 1) * sizeof *queue);
+  rt->dil_bits[a] = ub_big_calloc(words ? words : 1, sizeof **rt->dil_bits);
+  rt->dil_rank[a] = ub_big_alloc((words ? words : 1) * sizeof **rt->dil_rank);
   ub_result r = UB_ERR_OUT_OF_MEMORY;
   if (!src || !ring || !queue || !rt->dil_bits[a] || !rt->dil_rank[a])
     goto done;
@@ -327,7 +328,7 @@ static ub_result build_dilation(ub_runtime *rt, uint32_t a)
       rt->dil_bits[a][i >> 6] |= UINT64_C(1) << (i & 63);
       nd++;
     }
-  rt->dil_src[a] = malloc((nd ? nd : 1) * sizeof **rt->dil_src);
+  rt->dil_src[a] = ub_big_alloc((nd ? nd : 1) * sizeof **rt->dil_src);
   if (!rt->dil_src[a])
     goto done;
   nd = 0;
@@ -351,20 +352,20 @@ static ub_result build_slots(ub_runtime *rt)
 {
   const ub_bakefile *bf = rt->bf;
   uint32_t na = bf->atlas_count;
-  rt->slot_first = calloc((size_t)na + 1, sizeof *rt->slot_first);
-  rt->cov_bits = calloc(na ? na : 1, sizeof *rt->cov_bits);
-  rt->cov_rank = calloc(na ? na : 1, sizeof *rt->cov_rank);
-  rt->dil_bits = calloc(na ? na : 1, sizeof *rt->dil_bits);
-  rt->dil_rank = calloc(na ? na : 1, sizeof *rt->dil_rank);
-  rt->dil_src = calloc(na ? na : 1, sizeof *rt->dil_src);
+  rt->slot_first = ub_big_calloc((size_t)na + 1, sizeof *rt->slot_first);
+  rt->cov_bits = ub_big_calloc(na ? na : 1, sizeof *rt->cov_bits);
+  rt->cov_rank = ub_big_calloc(na ? na : 1, sizeof *rt->cov_rank);
+  rt->dil_bits = ub_big_calloc(na ? na : 1, sizeof *rt->dil_bits);
+  rt->dil_rank = ub_big_calloc(na ? na : 1, sizeof *rt->dil_rank);
+  rt->dil_src = ub_big_calloc(na ? na : 1, sizeof *rt->dil_src);
   if (!rt->slot_first || !rt->cov_bits || !rt->cov_rank || !rt->dil_bits || !rt->dil_rank ||
       !rt->dil_src)
     return UB_ERR_OUT_OF_MEMORY;
   for (uint32_t a = 0; a < na; a++) {
     const ub_bakefile_atlas *at = &bf->atlases[a];
     size_t px = (size_t)at->width * at->height, words = (px + 63) / 64;
-    rt->cov_bits[a] = calloc(words ? words : 1, sizeof **rt->cov_bits);
-    rt->cov_rank[a] = malloc((words ? words : 1) * sizeof **rt->cov_rank);
+    rt->cov_bits[a] = ub_big_calloc(words ? words : 1, sizeof **rt->cov_bits);
+    rt->cov_rank[a] = ub_big_alloc((words ? words : 1) * sizeof **rt->cov_rank);
     if (!rt->cov_bits[a] || !rt->cov_rank[a])
       return UB_ERR_OUT_OF_MEMORY;
     uint64_t n = 0;
@@ -381,7 +382,7 @@ static ub_result build_slots(ub_runtime *rt)
       return UB_ERR_OUT_OF_MEMORY;
   }
   uint64_t slots = rt->slot_first[na];
-  rt->slot_pixel = malloc((size_t)(slots ? slots : 1) * sizeof *rt->slot_pixel);
+  rt->slot_pixel = ub_big_alloc((size_t)(slots ? slots : 1) * sizeof *rt->slot_pixel);
   if (!rt->slot_pixel)
     return UB_ERR_OUT_OF_MEMORY;
   for (uint32_t a = 0; a < na; a++) {
@@ -435,10 +436,10 @@ static ub_result encode_fallbacks(const ub_bakefile_atlas *at, ub_rt_fallback *o
   memset(out, 0, sizeof *out);
   if (!need)
     return UB_OK;
-  int32_t *src = malloc(texels * sizeof *src);   /* texel whose normal is used, -1 none */
-  uint32_t *queue = malloc(texels * sizeof *queue);
-  out->pixel = malloc(need * sizeof *out->pixel);
-  out->normal = calloc(need * 3, sizeof *out->normal);
+  int32_t *src = ub_big_alloc(texels * sizeof *src);   /* texel whose normal is used, -1 none */
+  uint32_t *queue = ub_big_alloc(texels * sizeof *queue);
+  out->pixel = ub_big_alloc(need * sizeof *out->pixel);
+  out->normal = ub_big_calloc(need * 3, sizeof *out->normal);
   if (!src || !queue || !out->pixel || !out->normal) {
     free(src);
     free(queue);
@@ -767,7 +768,7 @@ static ub_result records_prepare(ub_runtime *rt, int rep, ub_blend_record *recs,
   }
   if (rep == 0) {
     free(rt->lm_idx);
-    rt->lm_idx = malloc((entries ? entries : 1) * sizeof *rt->lm_idx);
+    rt->lm_idx = ub_big_alloc((entries ? entries : 1) * sizeof *rt->lm_idx);
     if (!rt->lm_idx)
       return UB_ERR_OUT_OF_MEMORY;
   }
@@ -929,13 +930,13 @@ static ub_result merge_small_groups(ub_runtime *rt, uint64_t *out_padded)
   size_t cap = 16;
   while (cap < 2 * (size_t)slots)
     cap *= 2;
-  uint32_t *off = calloc((size_t)slots + 1, sizeof *off);
-  uint32_t *fill = calloc((size_t)slots + 1, sizeof *fill);
-  uint32_t *lst = malloc((size_t)entries * sizeof *lst);
-  uint32_t *tab = malloc(cap * sizeof *tab);
-  merge_combo *cb = malloc((size_t)slots * sizeof *cb);
-  uint32_t *eoff = calloc((size_t)n + 1, sizeof *eoff);
-  uint32_t *extra = calloc((size_t)n + 1, sizeof *extra);
+  uint32_t *off = ub_big_calloc((size_t)slots + 1, sizeof *off);
+  uint32_t *fill = ub_big_calloc((size_t)slots + 1, sizeof *fill);
+  uint32_t *lst = ub_big_alloc((size_t)entries * sizeof *lst);
+  uint32_t *tab = ub_big_alloc(cap * sizeof *tab);
+  merge_combo *cb = ub_big_alloc((size_t)slots * sizeof *cb);
+  uint32_t *eoff = ub_big_calloc((size_t)n + 1, sizeof *eoff);
+  uint32_t *extra = ub_big_calloc((size_t)n + 1, sizeof *extra);
   uint32_t *ecb = NULL, *nidx = NULL;
   ub_result r = UB_ERR_OUT_OF_MEMORY;
   if (!off || !fill || !lst || !tab || !cb || !eoff || !extra)
@@ -982,7 +983,7 @@ static ub_result merge_small_groups(ub_runtime *rt, uint64_t *out_padded)
         eoff[lst[i] + 1]++;
   for (uint32_t e = 0; e < n; e++)
     eoff[e + 1] += eoff[e];
-  ecb = malloc(((size_t)eoff[n] + 1) * sizeof *ecb);
+  ecb = ub_big_alloc(((size_t)eoff[n] + 1) * sizeof *ecb);
   if (!ecb)
     goto done;
   for (uint32_t c = 0; c < ncb; c++)
@@ -1021,7 +1022,7 @@ static ub_result merge_small_groups(ub_runtime *rt, uint64_t *out_padded)
   if (!added)
     goto done;
   r = UB_ERR_OUT_OF_MEMORY;
-  nidx = malloc((size_t)(entries + added) * sizeof *nidx);
+  nidx = ub_big_alloc((size_t)(entries + added) * sizeof *nidx);
   if (!nidx)
     goto done;
   for (uint32_t e = 0; e < n; e++) { /* rows first: a failure leaves every count as it was */
@@ -1064,9 +1065,9 @@ static ub_result merge_small_groups(ub_runtime *rt, uint64_t *out_padded)
     }
   for (uint32_t s = 0; s < slots; s++)
     np += fill[s] != UINT32_MAX && cb[fill[s]].into != UINT32_MAX;
-  rt->pad_off = malloc(((size_t)nt + 1) * sizeof *rt->pad_off);
-  rt->pad_el = malloc(((size_t)nel + 1) * sizeof *rt->pad_el);
-  rt->pad_tmp = malloc(((size_t)np + 1) * sizeof *rt->pad_tmp);
+  rt->pad_off = ub_big_alloc(((size_t)nt + 1) * sizeof *rt->pad_off);
+  rt->pad_el = ub_big_alloc(((size_t)nel + 1) * sizeof *rt->pad_el);
+  rt->pad_tmp = ub_big_alloc(((size_t)np + 1) * sizeof *rt->pad_tmp);
   if (!rt->pad_off || !rt->pad_el || !rt->pad_tmp)
     goto done;
   rt->pad_off[0] = 0;
@@ -1129,12 +1130,12 @@ static int merge_pad_cmp(const void *pa, const void *pb)
 static ub_result pad_index(ub_runtime *rt)
 {
   const size_t words = (size_t)(rt->touched + 63) / 64, np = rt->pad_count;
-  rt->pad_bits = calloc(words ? words : 1, sizeof *rt->pad_bits);
-  rt->pad_rank = malloc((words ? words : 1) * sizeof *rt->pad_rank);
-  rt->pad_tid = malloc((np ? np : 1) * sizeof *rt->pad_tid);
-  rt->pad_mask = malloc((np ? np : 1) * sizeof *rt->pad_mask);
-  rt->lm_chg = calloc(rt->elem_total ? rt->elem_total : 1, 1);
-  rt->pad_stay = calloc(np ? np : 1, 1);
+  rt->pad_bits = ub_big_calloc(words ? words : 1, sizeof *rt->pad_bits);
+  rt->pad_rank = ub_big_alloc((words ? words : 1) * sizeof *rt->pad_rank);
+  rt->pad_tid = ub_big_alloc((np ? np : 1) * sizeof *rt->pad_tid);
+  rt->pad_mask = ub_big_alloc((np ? np : 1) * sizeof *rt->pad_mask);
+  rt->lm_chg = ub_big_calloc(rt->elem_total ? rt->elem_total : 1, 1);
+  rt->pad_stay = ub_big_calloc(np ? np : 1, 1);
   if (!rt->pad_bits || !rt->pad_rank || !rt->pad_tid || !rt->pad_mask || !rt->lm_chg ||
       !rt->pad_stay)
     return UB_ERR_OUT_OF_MEMORY;
@@ -1146,9 +1147,9 @@ static ub_result pad_index(ub_runtime *rt)
   }
   qsort(rt->pad_tmp, np, sizeof *rt->pad_tmp, merge_pad_cmp);
   const uint32_t nt = rt->pad_targets;
-  uint32_t *renum = malloc(((size_t)nt + 1) * sizeof *renum);
-  uint32_t *off = malloc(((size_t)nt + 1) * sizeof *off);
-  uint32_t *el = malloc(((size_t)rt->pad_off[nt] + 1) * sizeof *el);
+  uint32_t *renum = ub_big_alloc(((size_t)nt + 1) * sizeof *renum);
+  uint32_t *off = ub_big_alloc(((size_t)nt + 1) * sizeof *off);
+  uint32_t *el = ub_big_alloc(((size_t)rt->pad_off[nt] + 1) * sizeof *el);
   if (!renum || !off || !el) {
     free(renum);
     free(off);
@@ -1228,10 +1229,10 @@ static int rank_prio_cmp(const void *pa, const void *pb)
 static ub_result rank_touched(ub_runtime *rt)
 {
   uint64_t touched = rt->touched;
-  rank_key *k = malloc((size_t)(touched ? touched : 1) * sizeof *k);
-  rank_prio *ord = malloc((size_t)(rt->elem_total ? rt->elem_total : 1) * sizeof *ord);
-  uint32_t *prio = malloc((size_t)(rt->elem_total ? rt->elem_total : 1) * sizeof *prio);
-  rt->tch_grp = malloc((size_t)(touched ? touched : 1) * sizeof *rt->tch_grp);
+  rank_key *k = ub_big_alloc((size_t)(touched ? touched : 1) * sizeof *k);
+  rank_prio *ord = ub_big_alloc((size_t)(rt->elem_total ? rt->elem_total : 1) * sizeof *ord);
+  uint32_t *prio = ub_big_alloc((size_t)(rt->elem_total ? rt->elem_total : 1) * sizeof *prio);
+  rt->tch_grp = ub_big_alloc((size_t)(touched ? touched : 1) * sizeof *rt->tch_grp);
   if (!k || !ord || !prio || !rt->tch_grp) {
     free(k);
     free(ord);
@@ -1306,8 +1307,8 @@ static ub_result sort_record(uint32_t *recv, uint16_t *rows, uint32_t count, uin
     i++;
   if (i >= count)
     return UB_OK;
-  recv_at *o0 = malloc((size_t)count * 2 * sizeof *o0);
-  uint16_t *tmp = malloc((size_t)count * stride * sizeof *tmp);
+  recv_at *o0 = ub_big_alloc((size_t)count * 2 * sizeof *o0);
+  uint16_t *tmp = ub_big_alloc((size_t)count * stride * sizeof *tmp);
   if (!o0 || !tmp) {
     free(o0);
     free(tmp);
@@ -1343,7 +1344,7 @@ static ub_result init_ahd(ub_runtime *rt, int ranked)
 {
   const ub_bakefile *bf = rt->bf;
   uint64_t slots = rt->slot_first[bf->atlas_count];
-  ub_ahd_packed *o = calloc((size_t)(slots ? slots : 1), sizeof *o);
+  ub_ahd_packed *o = ub_big_calloc((size_t)(slots ? slots : 1), sizeof *o);
   if (!o)
     return UB_ERR_OUT_OF_MEMORY;
   const float s = ub_ahd_pack_scale(rt->lm_row_max);
@@ -1371,7 +1372,7 @@ static int base_rows_packed(ub_runtime *rt)
 {
   ub_bakefile *bf = rt->bf;
   uint64_t slots = rt->slot_first[bf->atlas_count];
-  rt->lm_base = malloc((size_t)(slots ? slots : 1) * UB_SH1_FLOATS * sizeof(float));
+  rt->lm_base = ub_big_alloc((size_t)(slots ? slots : 1) * UB_SH1_FLOATS * sizeof(float));
   if (!rt->lm_base)
     return 0;
   for (uint32_t a = 0; a < bf->atlas_count; a++) {
@@ -1397,7 +1398,7 @@ static int base_rows_packed(ub_runtime *rt)
 static int static_rows(ub_runtime *rt)
 {
   uint64_t slots = rt->slot_first[rt->bf->atlas_count], touched = rt->touched;
-  rt->lm_static = malloc((size_t)(slots - touched ? slots - touched : 1) * UB_SH1_FLOATS *
+  rt->lm_static = ub_big_alloc((size_t)(slots - touched ? slots - touched : 1) * UB_SH1_FLOATS *
                          sizeof(uint16_t));
   if (!rt->lm_static)
     return 0;
@@ -1431,8 +1432,8 @@ static int setup_static(ub_runtime *rt)
 {
   uint64_t slots = rt->slot_first[rt->bf->atlas_count];
   size_t words = (size_t)(slots + 63) / 64;
-  rt->tch_bits = calloc(words ? words : 1, sizeof *rt->tch_bits);
-  rt->tch_rank = calloc(words ? words : 1, sizeof *rt->tch_rank);
+  rt->tch_bits = ub_big_calloc(words ? words : 1, sizeof *rt->tch_bits);
+  rt->tch_rank = ub_big_calloc(words ? words : 1, sizeof *rt->tch_rank);
   rt->touched = 0;
   int ok = rt->tch_bits && rt->tch_rank && base_rows_packed(rt) && static_rows(rt);
   free(rt->lm_base);
@@ -1447,7 +1448,7 @@ static int normals_to_half(ub_runtime *rt)
 {
   ub_bakefile *bf = rt->bf;
   const uint64_t slots = rt->slot_first[bf->atlas_count];
-  rt->nrm = malloc((size_t)(slots ? slots : 1) * 3 * sizeof *rt->nrm);
+  rt->nrm = ub_big_alloc((size_t)(slots ? slots : 1) * 3 * sizeof *rt->nrm);
   if (!rt->nrm)
     return 0;
   for (uint32_t a = 0; a < bf->atlas_count; a++)
@@ -1485,13 +1486,13 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   uint32_t n = bf->dls_count + bf->elem_count;
   rt->elem_total = n;
   uint64_t slots = rt->slot_first[bf->atlas_count];
-  rt->lm_rec = calloc(n, sizeof *rt->lm_rec);
-  rt->glg_rec = calloc(n, sizeof *rt->glg_rec);
-  rt->llg_rec = calloc(n, sizeof *rt->llg_rec);
-  rt->value = calloc((size_t)n * 3, sizeof *rt->value);
-  rt->applied = calloc((size_t)n * 3, sizeof *rt->applied);
-  rt->updated = calloc(n ? n : 1, sizeof *rt->updated);
-  rt->llg_first = calloc((size_t)bf->llg_count + 1, sizeof *rt->llg_first);
+  rt->lm_rec = ub_big_calloc(n, sizeof *rt->lm_rec);
+  rt->glg_rec = ub_big_calloc(n, sizeof *rt->glg_rec);
+  rt->llg_rec = ub_big_calloc(n, sizeof *rt->llg_rec);
+  rt->value = ub_big_calloc((size_t)n * 3, sizeof *rt->value);
+  rt->applied = ub_big_calloc((size_t)n * 3, sizeof *rt->applied);
+  rt->updated = ub_big_calloc(n ? n : 1, sizeof *rt->updated);
+  rt->llg_first = ub_big_calloc((size_t)bf->llg_count + 1, sizeof *rt->llg_first);
   if (!rt->lm_rec || !rt->glg_rec || !rt->llg_rec || !rt->value || !rt->applied ||
       !rt->updated ||
       !rt->llg_first || !base_rows_packed(rt)) {
@@ -1528,8 +1529,8 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   /* Touched slots (in some texel record): their base rows go to the lightmap blend, which
    * computes their current state; the others stay in half (lm_static). */
   size_t words = (size_t)(slots + 63) / 64;
-  rt->tch_bits = calloc(words ? words : 1, sizeof *rt->tch_bits);
-  rt->tch_rank = malloc((words ? words : 1) * sizeof *rt->tch_rank);
+  rt->tch_bits = ub_big_calloc(words ? words : 1, sizeof *rt->tch_bits);
+  rt->tch_rank = ub_big_alloc((words ? words : 1) * sizeof *rt->tch_rank);
   if (!rt->tch_bits || !rt->tch_rank) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return UB_ERR_OUT_OF_MEMORY;
@@ -1555,9 +1556,9 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return r;
   }
-  rt->tch_slot = malloc((size_t)(touched ? touched : 1) * sizeof *rt->tch_slot);
-  rt->lm_tbase = malloc((size_t)(touched ? touched : 1) * UB_SH1_FLOATS * sizeof(float));
-  rt->lm_un = malloc((size_t)(touched ? touched : 1) * 3 * sizeof(float));
+  rt->tch_slot = ub_big_alloc((size_t)(touched ? touched : 1) * sizeof *rt->tch_slot);
+  rt->lm_tbase = ub_big_alloc((size_t)(touched ? touched : 1) * UB_SH1_FLOATS * sizeof(float));
+  rt->lm_un = ub_big_alloc((size_t)(touched ? touched : 1) * 3 * sizeof(float));
   if (!rt->tch_slot || !rt->lm_tbase || !rt->lm_un || !static_rows(rt)) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing dynamic elements", path);
     return UB_ERR_OUT_OF_MEMORY;
@@ -1634,8 +1635,8 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
     ub_blend_info in;
     ub_blend_get_info(rt->lm_blend, &in);
     rt->chg_groups = in.group_count;
-    rt->chg_runs = malloc(chg_pairs(rt, rt->job_cap) * 2 * sizeof *rt->chg_runs);
-    rt->chg_at = calloc(rt->job_cap, sizeof *rt->chg_at);
+    rt->chg_runs = ub_big_alloc(chg_pairs(rt, rt->job_cap) * 2 * sizeof *rt->chg_runs);
+    rt->chg_at = ub_big_calloc(rt->job_cap, sizeof *rt->chg_at);
     if (!rt->chg_runs || !rt->chg_at)
       return UB_ERR_OUT_OF_MEMORY;
   }
@@ -1673,8 +1674,8 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
                                                   bf->llgs[m].dims[1] * bf->llgs[m].dims[2];
   uint64_t lp = rt->llg_first[bf->llg_count];
   if (any_llg && lp) {
-    rt->llg_base = malloc((size_t)lp * 27 * sizeof(float));
-    rt->llg_cur = malloc((size_t)lp * 27 * sizeof(float));
+    rt->llg_base = ub_big_alloc((size_t)lp * 27 * sizeof(float));
+    rt->llg_cur = ub_big_alloc((size_t)lp * 27 * sizeof(float));
     if (!rt->llg_base || !rt->llg_cur) {
       ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory preparing LLG records", path);
       return UB_ERR_OUT_OF_MEMORY;
@@ -1692,7 +1693,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
                            &rt->llg_blend);
     if (r != UB_OK)
       return r;
-    rt->llg_chg = calloc(bf->llg_count, sizeof *rt->llg_chg);
+    rt->llg_chg = ub_big_calloc(bf->llg_count, sizeof *rt->llg_chg);
     if (!rt->llg_chg)
       return UB_ERR_OUT_OF_MEMORY;
     free_rec_values(rt->llg_rec, n);
@@ -1773,8 +1774,8 @@ static ub_result take_base_ahd(ub_runtime *rt)
   ub_blend_info in;
   ub_blend_get_info(rt->lm_blend, &in);
   const uint32_t E = in.element_count;
-  float *w = malloc(((size_t)E * 3 + 1) * sizeof *w);
-  rt->ahd_base = malloc((size_t)rt->touched * sizeof *rt->ahd_base);
+  float *w = ub_big_alloc(((size_t)E * 3 + 1) * sizeof *w);
+  rt->ahd_base = ub_big_alloc((size_t)rt->touched * sizeof *rt->ahd_base);
   if (!w || !rt->ahd_base) {
     free(w);
     free(rt->ahd_base);
@@ -1823,7 +1824,7 @@ ub_result ub_runtime_keep_state(ub_runtime *rt)
     return UB_OK; /* no texel an update re-encodes */
   ub_ahd_packed *kept = rt->ahd_kept;
   if (!kept) {
-    kept = malloc((size_t)rt->touched * sizeof *kept);
+    kept = ub_big_alloc((size_t)rt->touched * sizeof *kept);
     if (!kept)
       return UB_ERR_OUT_OF_MEMORY; /* (the LLG probes' state is kept) */
   }
@@ -1859,7 +1860,7 @@ ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags
   ub_result r = ub_bakefile_read_ex(path, log, UB_BAKEFILE_RECORD_HALVES, &bf);
   if (r != UB_OK)
     return r;
-  ub_runtime *rt = calloc(1, sizeof *rt);
+  ub_runtime *rt = ub_big_calloc(1, sizeof *rt);
   if (!rt) {
     ub_bakefile_free(bf);
     ub_log_printf(log, UB_LOG_ERROR, "%s: out of memory", path);
@@ -1867,8 +1868,8 @@ ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags
   }
   rt->bf = bf;
   rt->load_flags = flags;
-  rt->pixel_first = calloc((size_t)bf->atlas_count + 1, sizeof *rt->pixel_first);
-  rt->jobs = calloc(1, sizeof *rt->jobs); /* a plain update's: it cannot run out of memory */
+  rt->pixel_first = ub_big_calloc((size_t)bf->atlas_count + 1, sizeof *rt->pixel_first);
+  rt->jobs = ub_big_calloc(1, sizeof *rt->jobs); /* a plain update's: it cannot run out of memory */
   if (!rt->pixel_first || !rt->jobs)
     goto oom;
   rt->job_cap = 1;
@@ -1878,7 +1879,7 @@ ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags
   if (build_slots(rt) != UB_OK)
     goto oom;
   if (bf->atlas_count) {
-    rt->fallback = calloc(bf->atlas_count, sizeof *rt->fallback);
+    rt->fallback = ub_big_calloc(bf->atlas_count, sizeof *rt->fallback);
     if (!rt->fallback)
       goto oom;
     for (uint32_t a = 0; a < bf->atlas_count; a++)
@@ -1888,7 +1889,7 @@ ub_result ub_runtime_load_ex(const char *path, const ub_log *log, unsigned flags
   for (uint32_t t = 0; t < bf->triangle_count; t++)
     rt->lit_count += bf->tri_atlas[t] >= 0;
   if (rt->lit_count) {
-    rt->lit_tris = malloc((size_t)rt->lit_count * sizeof *rt->lit_tris);
+    rt->lit_tris = ub_big_alloc((size_t)rt->lit_count * sizeof *rt->lit_tris);
     if (!rt->lit_tris)
       goto oom;
     uint32_t k = 0;
