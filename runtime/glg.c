@@ -2194,7 +2194,8 @@ ub_result ub_glg_init(ub_glg *g, const ub_glg_desc *d, const ub_log *log)
       goto fail;
     memcpy(g->pos, d->positions, (size_t)d->probe_count * 3 * sizeof *g->pos);
   } else {
-    g->tet_data = aligned_alloc(64, (size_t)d->tet_count * sizeof *g->tet_data);
+    const size_t tb = (size_t)d->tet_count * sizeof *g->tet_data; /* (big: 2 MiB-aligned) */
+    g->tet_data = tb >= UB_BIG_ALLOC_MIN ? ub_big_alloc(tb) : aligned_alloc(64, tb);
     if (!g->tet_data)
       goto fail;
   }
