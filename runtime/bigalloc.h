@@ -1,8 +1,9 @@
 /* runtime/bigalloc.h — large allocations on transparent huge pages where the system gives
  * them on request (Linux THP in "madvise" mode, Debian's default): one page fault per
- * 2 MiB instead of one per 4 KiB. Loading the full ESTATE file faulted ~580k pages,
- * 3.8 s of system time in a 6.3 s load on the AMD EPYC VM (2026-12-05); with THP for
- * every allocation ("always") the load took 3.5-3.8 s.
+ * 2 MiB instead of one per 4 KiB. `ubake info --memory` on the full ESTATE file faulted
+ * ~580k pages, 3.8 s of system time of its 9.2 s, and the run-time's load took 6.3 s on
+ * the AMD EPYC VM (2026-12-05); with these allocations 3.3-3.7 s (~190k faults), as
+ * with THP for every allocation ("always").
  *
  * ub_big_alloc(n): malloc(n), but from n >= UB_BIG_ALLOC_MIN aligned to 2 MiB and
  * advised MADV_HUGEPAGE; ub_big_calloc(count, size): the same, zeroed, NULL when the
