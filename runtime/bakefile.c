@@ -1242,7 +1242,7 @@ static void *tmp_alloc(size_t n)
   if (m == MAP_FAILED)
     return NULL;
 #if defined(MADV_HUGEPAGE)
-  if (len >= ((size_t)4 << 20))
+  if (len >= UB_BIG_ALLOC_MIN) /* (runtime/bigalloc.h) */
     madvise(m, len, MADV_HUGEPAGE);
 #endif
   memcpy(m, &len, sizeof len);

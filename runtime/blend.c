@@ -1,13 +1,13 @@
 /* runtime/blend.c — run-time blend engine: base + Σ ω_i·S_i, grouped by combination of
  * overlapping elements (paper §3.3). See runtime/blend.h. */
 #include "runtime/blend.h"
-#include "runtime/bigalloc.h"
 
 #include <assert.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
+#include "runtime/bigalloc.h"
 #include "runtime/cpu.h"
 #include "runtime/fpmode.h"
 #include "runtime/half.h"
