@@ -894,14 +894,18 @@ static uint64_t list_hash(const uint32_t *l, uint32_t k)
 
 /* The records slot s (of combination c) gains: those of the combination it joins that
  * are not in its own. Each such record e gets cur[e]++, and with rec, slot s at its
- * receivers[cur[e]] first. Returns their count. */
+ * receivers[cur[e]] first; with mask, bit i for the joined combination's record i (it
+ * holds at most MERGE_MAX_TARGET). Returns their count. */
 static uint32_t merge_added(const uint32_t *lst, const uint32_t *off, const merge_combo *cb,
-                            uint32_t c, uint32_t s, uint32_t *cur, ub_blend_record *rec)
+                            uint32_t c, uint32_t s, uint32_t *cur, ub_blend_record *rec,
+                            uint64_t *mask)
 {
   if (c == UINT32_MAX || cb[c].into == UINT32_MAX)
     return 0;
   const uint32_t q = cb[cb[c].into].rep, *l = lst + off[s], k = off[s + 1] - off[s];
   uint32_t n = 0;
+  if (mask)
+    *mask = 0;
   for (uint32_t i = off[q], j = 0; i < off[q + 1]; i++) {
     while (j < k && l[j] < lst[i])
       j++;
@@ -909,6 +913,8 @@ static uint32_t merge_added(const uint32_t *lst, const uint32_t *off, const merg
       const uint32_t e = lst[i];
       if (rec)
         ((uint32_t *)(uintptr_t)rec[e].receivers)[cur[e]] = s;
+      if (mask)
+        *mask |= UINT64_C(1) << (i - off[q]);
       cur[e]++;
       n++;
     }
@@ -1014,17 +1020,41 @@ static ub_result merge_small_groups(ub_runtime *rt, uint64_t *out_padded)
     }
     cb[c].into = best;
   }
-  /* the zero rows: per record, its added slots */
+  /* the zero rows: per record, its added slots; the slots that gain some (merged) */
   uint64_t added = 0;
-  for (uint32_t s = 0; s < slots; s++)
-    added += merge_added(lst, off, cb, fill[s], s, extra, NULL);
+  uint32_t np = 0;
+  for (uint32_t s = 0; s < slots; s++) {
+    const uint32_t a = merge_added(lst, off, cb, fill[s], s, extra, NULL, NULL);
+    added += a;
+    np += a != 0;
+  }
   r = UB_OK;
   if (!added)
     goto done;
+  /* the combinations merged slots join, numbered in combination order, and their records */
   r = UB_ERR_OUT_OF_MEMORY;
+  uint32_t nt = 0, nel = 0;
+  for (uint32_t c = 0; c < ncb; c++)
+    if (cb[c].into != UINT32_MAX)
+      cb[cb[c].into].id = 1;
+  for (uint32_t c = 0; c < ncb; c++)
+    if (cb[c].id) {
+      cb[c].id = ++nt;
+      nel += off[cb[c].rep + 1] - off[cb[c].rep];
+    }
+  rt->pad_off = ub_big_alloc(((size_t)nt + 1) * sizeof *rt->pad_off);
+  rt->pad_el = ub_big_alloc(((size_t)nel + 1) * sizeof *rt->pad_el);
+  rt->pad_tmp = ub_big_alloc(((size_t)np + 1) * sizeof *rt->pad_tmp);
   nidx = ub_big_alloc((size_t)(entries + added) * sizeof *nidx);
-  if (!nidx)
+  if (!rt->pad_off || !rt->pad_el || !rt->pad_tmp || !nidx)
     goto done;
+  rt->pad_off[0] = 0;
+  for (uint32_t c = 0; c < ncb; c++)
+    if (cb[c].id) {
+      const uint32_t q = cb[c].rep, k = off[q + 1] - off[q], t = cb[c].id - 1;
+      memcpy(rt->pad_el + rt->pad_off[t], lst + off[q], (size_t)k * sizeof *lst);
+      rt->pad_off[t + 1] = rt->pad_off[t] + k;
+    }
   for (uint32_t e = 0; e < n; e++) { /* rows first: a failure leaves every count as it was */
     if (!extra[e])
       continue;
@@ -1043,56 +1073,18 @@ static ub_result merge_small_groups(ub_runtime *rt, uint64_t *out_padded)
     at += (uint64_t)rec[e].count + extra[e];
     extra[e] = rec[e].count; /* the write cursor */
   }
-  for (uint32_t s = 0; s < slots; s++)
-    merge_added(lst, off, cb, fill[s], s, extra, rec);
+  /* the zero rows' receivers, and each merged slot's joined combination and zero rows */
+  for (uint32_t s = 0, j = 0; s < slots; s++) {
+    uint64_t mask;
+    if (merge_added(lst, off, cb, fill[s], s, extra, rec, &mask))
+      rt->pad_tmp[j++] = (merge_pad){mask, s, cb[cb[fill[s]].into].id - 1};
+  }
   for (uint32_t e = 0; e < n; e++)
     rec[e].count = extra[e];
   free(rt->lm_idx);
   rt->lm_idx = nidx;
   nidx = NULL;
   *out_padded = added;
-  /* the merged slots, the combinations they join (numbered in combination order) and
-   * which of those records each has zero rows in */
-  r = UB_ERR_OUT_OF_MEMORY;
-  uint32_t nt = 0, nel = 0, np = 0;
-  for (uint32_t c = 0; c < ncb; c++)
-    if (cb[c].into != UINT32_MAX)
-      cb[cb[c].into].id = 1;
-  for (uint32_t c = 0; c < ncb; c++)
-    if (cb[c].id) {
-      cb[c].id = ++nt;
-      nel += off[cb[c].rep + 1] - off[cb[c].rep];
-    }
-  for (uint32_t s = 0; s < slots; s++)
-    np += fill[s] != UINT32_MAX && cb[fill[s]].into != UINT32_MAX;
-  rt->pad_off = ub_big_alloc(((size_t)nt + 1) * sizeof *rt->pad_off);
-  rt->pad_el = ub_big_alloc(((size_t)nel + 1) * sizeof *rt->pad_el);
-  rt->pad_tmp = ub_big_alloc(((size_t)np + 1) * sizeof *rt->pad_tmp);
-  if (!rt->pad_off || !rt->pad_el || !rt->pad_tmp)
-    goto done;
-  rt->pad_off[0] = 0;
-  for (uint32_t c = 0; c < ncb; c++)
-    if (cb[c].id) {
-      const uint32_t q = cb[c].rep, k = off[q + 1] - off[q], t = cb[c].id - 1;
-      memcpy(rt->pad_el + rt->pad_off[t], lst + off[q], (size_t)k * sizeof *lst);
-      rt->pad_off[t + 1] = rt->pad_off[t] + k;
-    }
-  for (uint32_t s = 0, j = 0; s < slots; s++) {
-    const uint32_t c = fill[s];
-    if (c == UINT32_MAX || cb[c].into == UINT32_MAX)
-      continue;
-    const uint32_t h = cb[c].into, q = cb[h].rep, *l = lst + off[s], k = off[s + 1] - off[s];
-    merge_pad *pd = &rt->pad_tmp[j++];
-    pd->at = s;
-    pd->tid = cb[h].id - 1;
-    pd->mask = 0;
-    for (uint32_t i = off[q], m = 0; i < off[q + 1]; i++) { /* (as merge_added) */
-      while (m < k && l[m] < lst[i])
-        m++;
-      if (m == k || l[m] != lst[i])
-        pd->mask |= UINT64_C(1) << (i - off[q]);
-    }
-  }
   rt->pad_count = np;
   rt->pad_targets = nt;
   r = UB_OK;
