@@ -101,7 +101,9 @@ ub_result ub_emitters_build(const ub_scene *scene, ub_emitters **out_em)
     em->tri = malloc(n * sizeof *em->tri);
     em->cdf = malloc(n * sizeof *em->cdf);
     em->area = malloc(n * sizeof *em->area);
-    if (!em->tri || !em->cdf || !em->area) {
+    em->corner = malloc((size_t)n * 9 * sizeof *em->corner);
+    em->normal = malloc((size_t)n * 3 * sizeof *em->normal);
+    if (!em->tri || !em->cdf || !em->area || !em->corner || !em->normal) {
       ub_emitters_free(em);
       return UB_ERR_OUT_OF_MEMORY;
     }
@@ -123,6 +125,12 @@ ub_result ub_emitters_build(const ub_scene *scene, ub_emitters **out_em)
       float area = 0.5f * sqrtf(cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2]);
       em->tri[k] = t;
       em->area[k] = area;
+      const float *v[3];
+      tri_corners(scene, t, &v[0], &v[1], &v[2]);
+      for (int j = 0; j < 3; j++) {
+        memcpy(em->corner + 9 * (size_t)k + 3 * j, v[j], 3 * sizeof(float));
+        em->normal[3 * (size_t)k + j] = area > 0.0f ? cr[j] / (2.0f * area) : 0.0f;
+      }
       sum += (double)area * lum * M_PI;
       acc[k] = sum;
       k++;
@@ -144,6 +152,8 @@ void ub_emitters_free(ub_emitters *em)
   free(em->tri);
   free(em->cdf);
   free(em->area);
+  free(em->corner);
+  free(em->normal);
   free(em);
 }
 
@@ -151,10 +161,55 @@ void ub_emitters_sample(const ub_emitters *em, const ub_scene *scene, float u0, 
                         float u2, float out_p[3], float out_n[3], float out_le[3],
                         float *out_pdf_area)
 {
+  ub_emitters_sample_cdf(em, em->cdf, scene, u0, u1, u2, out_p, out_n, out_le, out_pdf_area);
+}
+
+const float *ub_emitters_local_cdf(const ub_emitters *em, const float p[3], const float *n,
+                                   float *cdf)
+{
+  const uint32_t E = em->count;
+  if (E > UB_EMITTERS_LOCAL_MAX)
+    return em->cdf;
+  double sum = 0.0;
+  for (uint32_t i = 0; i < E; i++) { /* the local weights, as cumulative sums */
+    const float *v = em->corner + 9 * (size_t)i, *ne = em->normal + 3 * (size_t)i;
+    double w = 0.0;
+    float d[3][3];
+    for (int j = 0; j < 3; j++)
+      for (int k = 0; k < 3; k++)
+        d[j][k] = v[3 * j + k] - p[k]; /* receiver to corner j */
+    const int front = !n || n[0] * d[0][0] + n[1] * d[0][1] + n[2] * d[0][2] > 0.0f ||
+                      n[0] * d[1][0] + n[1] * d[1][1] + n[2] * d[1][2] > 0.0f ||
+                      n[0] * d[2][0] + n[1] * d[2][1] + n[2] * d[2][2] > 0.0f;
+    if (front && ne[0] * d[0][0] + ne[1] * d[0][1] + ne[2] * d[0][2] < 0.0f) {
+      double c2 = 0.0;
+      for (int k = 0; k < 3; k++) {
+        double m = ((double)d[0][k] + d[1][k] + d[2][k]) / 3.0;
+        c2 += m * m;
+      }
+      const double g = (double)em->cdf[i] - (i ? em->cdf[i - 1] : 0.0f);
+      w = g / (c2 > em->area[i] ? c2 : (double)em->area[i]);
+    }
+    sum += w;
+    cdf[i] = (float)sum;
+  }
+  if (!(sum > 0.0) || !isfinite(sum))
+    return em->cdf;
+  const double a = (1.0 - UB_EMITTERS_POWER_SHARE) / sum;
+  for (uint32_t i = 0; i < E; i++) /* mixed with the power shares */
+    cdf[i] = (float)(a * cdf[i] + UB_EMITTERS_POWER_SHARE * em->cdf[i]);
+  cdf[E - 1] = 1.0f;
+  return cdf;
+}
+
+void ub_emitters_sample_cdf(const ub_emitters *em, const float *cdf, const ub_scene *scene,
+                            float u0, float u1, float u2, float out_p[3], float out_n[3],
+                            float out_le[3], float *out_pdf_area)
+{
   assert(em->count > 0);
-  uint32_t lo = ub_cdf_pick(em->cdf, em->count, u0);
-  float prev = lo ? em->cdf[lo - 1] : 0.0f;
-  float p_tri = em->cdf[lo] - prev;
+  uint32_t lo = ub_cdf_pick(cdf, em->count, u0);
+  float prev = lo ? cdf[lo - 1] : 0.0f;
+  float p_tri = cdf[lo] - prev;
   uint32_t t = em->tri[lo];
   const float *a, *b, *c;
   tri_corners(scene, t, &a, &b, &c);

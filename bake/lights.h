@@ -25,19 +25,41 @@ typedef struct ub_emitters {
   uint32_t *tri;     /* emissive triangle indices */
   float *cdf;        /* count: cumulative power, last = 1 */
   float *area;       /* count: m² */
+  float *corner;     /* count × 9: the triangle's corners */
+  float *normal;     /* count × 3: unit normal of the emitting side */
   double total_power; /* Σ area × luminance(emission) × π, W (luminance-weighted) */
 } ub_emitters;
 
 ub_result ub_emitters_build(const ub_scene *scene, ub_emitters **out_em);
 void ub_emitters_free(ub_emitters *em);
 
-/* Samples a point on an emissive triangle with probability ∝ power.
+/* Samples a point on an emissive triangle with probability ∝ power (em->cdf), or by the
+ * cumulative probabilities cdf (count entries, last = 1: ub_emitters_local_cdf).
  * u0 picks the triangle, (u1, u2) the point. out_pdf_area: pdf w.r.t. area (1/m²)
  * for the chosen point (i.e. p(tri) / area(tri)). out_n: unit geometric normal (the
  * emitting side), out_le: emitted radiance. */
 void ub_emitters_sample(const ub_emitters *em, const ub_scene *scene, float u0, float u1,
                         float u2, float out_p[3], float out_n[3], float out_le[3],
                         float *out_pdf_area);
+void ub_emitters_sample_cdf(const ub_emitters *em, const float *cdf, const ub_scene *scene,
+                            float u0, float u1, float u2, float out_p[3], float out_n[3],
+                            float out_le[3], float *out_pdf_area);
+
+/* The emitters' selection probabilities seen from a receiver at p (unit normal n, NULL
+ * for a probe), as cumulative sums into cdf (count floats; returned), or em->cdf when
+ * there are more than UB_EMITTERS_LOCAL_MAX emitters. Power alone picks a level's bright
+ * fixtures for every receiver, so one next to a weak lamp samples that lamp a few times
+ * in a thousand, each sample then weighing hundreds of times its mean: fireflies
+ * (oa_dm4's walls next to its skull lights, 300× between neighbouring texels at draft).
+ * Here an emitter's share is its power over max(d², area) (d: from p to its centroid),
+ * zero where it lies wholly behind the receiver's plane or faces away from p, and at
+ * least UB_EMITTERS_POWER_SHARE of its power share, so every emitter keeps a probability
+ * (the gather rays' MIS weights take the same table: unbiased either way). A pure
+ * function of (p, n). */
+#define UB_EMITTERS_LOCAL_MAX 512u
+#define UB_EMITTERS_POWER_SHARE 0.125f
+const float *ub_emitters_local_cdf(const ub_emitters *em, const float p[3], const float *n,
+                                   float *cdf);
 
 /* Hash-based random numbers (DESIGN §3): a pure function of its inputs. ub_hash4 chains
  * one mixing step per input (lowbias32-style integer mixing, Wellons) from UB_HASH_SEED,

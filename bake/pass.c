@@ -563,6 +563,12 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   /* a near texel's footprint points kept; without memory the sample points stand in */
   float *fp = rs->texels ? malloc((size_t)nnear * 3 * sizeof *fp) : NULL;
   uint32_t *slot = malloc((cap ? cap : 1) * sizeof *slot); /* a ray's light (trace_by_light) */
+  /* the receiver's emitter probabilities (ub_emitters_local_cdf), as gather_block's MIS */
+  float *ebuf = ne ? malloc((size_t)d->emitters->count * sizeof *ebuf) : NULL;
+  if (ne && !ebuf) {
+    atomic_store(&c->cancelled, 2); /* (out of memory: as shadow_alloc) */
+    ne = 0;
+  }
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
@@ -649,12 +655,18 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
       }
     }
     int efirst = 1;
+    const float *ecdf = !ne                   ? NULL
+                        : d->emitters_by_power ? d->emitters->cdf
+                                               : ub_emitters_local_cdf(
+                                                     d->emitters,
+                                                     rs->samples + (size_t)r * rs->spr * 3,
+                                                     nrm, ebuf);
     for (uint32_t k = 0; k < ne; k++) {
       uint32_t h = ub_hash4(c->seed, d->pass_id * 0x10000u + 0x8000u, rs->id_base + r, k);
       float u0 = ub_u01(h), u1 = ub_u01(ub_hash4(h, 1, 0, 0)), u2 = ub_u01(ub_hash4(h, 2, 0, 0));
       const float *p = rs->samples + ((size_t)r * rs->spr + k % rs->spr) * 3;
       float q[3], qn[3], le[3], pdf_area;
-      ub_emitters_sample(d->emitters, s, u0, u1, u2, q, qn, le, &pdf_area);
+      ub_emitters_sample_cdf(d->emitters, ecdf, s, u0, u1, u2, q, qn, le, &pdf_area);
       float w[3] = {q[0] - p[0], q[1] - p[1], q[2] - p[2]};
       float d2 = dot3(w, w);
       if (!(d2 > 0.0f) || !(pdf_area > 0.0f))
@@ -697,6 +709,7 @@ static void direct_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
     }
   }
   free(fp);
+  free(ebuf);
   int traced = slot && trace_by_light(rs->rt, rays, slot, nlights + 1, n, occ);
   shadow_flush(c, rs, r0, rays, rec, occ, n, traced);
   free(slot);
@@ -1738,10 +1751,17 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   /* Per-ray luminance contributions of one receiver, for its variance (stratified_var). */
   double *contrib = rs->acc_var ? malloc((rs->rays + 1) * sizeof *contrib) : NULL;
   prop_read *prop = rs->acc_pvar && c->prev_rel2 ? malloc((rs->rays + 1) * sizeof *prop) : NULL;
+  /* bounce 0: a receiver's emitter probabilities, as direct_block's (on its first hit) */
+  float *ebuf = c->bounce == 0 && ne ? malloc((size_t)ne * sizeof *ebuf) : NULL;
+  if (c->bounce == 0 && ne && !ebuf) {
+    atomic_store(&c->cancelled, 2); /* (out of memory: as shadow_alloc) */
+    ne = 0;
+  }
   uint32_t np = 0;
   for (uint32_t i = 0; i < nr; i++) {
     uint32_t r = rs->index ? rs->index[r0 + i] : r0 + i;
     const float *nrm = rs->normal ? rs->normal + 3 * (size_t)r : NULL;
+    const float *ecdf = NULL;
     double *sh = rs->acc_sh ? rs->acc_sh + (size_t)rs->nsh * 3 * r : NULL;
     double *iz = rs->acc_iz ? rs->acc_iz + 3 * (size_t)r : NULL;
     double *src = rs->acc_src ? rs->acc_src + 3 * (size_t)r : NULL;
@@ -1781,7 +1801,12 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
           /* Emitter seen by a gather ray: balance heuristic against area sampling. */
           const ub_emitters *em = d->emitters;
           int32_t ei = c->emitter_of[h->tri];
-          float p_tri = em->cdf[ei] - (ei ? em->cdf[ei - 1] : 0.0f);
+          if (!ecdf)
+            ecdf = d->emitters_by_power ? em->cdf
+                                        : ub_emitters_local_cdf(
+                                              em, rs->samples + (size_t)r * rs->spr * 3, nrm,
+                                              ebuf);
+          float p_tri = ecdf[ei] - (ei ? ecdf[ei - 1] : 0.0f);
           float en[3];
           tri_normal(s, h->tri, en);
           float ce = -dot3(en, ray->dir);
@@ -1893,6 +1918,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
   }
   free(contrib);
   free(prop);
+  free(ebuf);
   atomic_fetch_add(&c->backface, backface);
   atomic_fetch_add(&c->unlit, unlit);
   atomic_fetch_add(&c->clamped, clamped);

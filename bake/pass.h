@@ -37,6 +37,10 @@ typedef struct ub_pass_desc {
   int sky;                       /* the sky emits */
   uint32_t gather_rays;          /* per receiver per bounce */
   uint32_t emissive_samples;     /* per receiver */
+  int emitters_by_power;         /* 1: emitters picked by power alone, the same for every
+                                    receiver (before 2026-12-06; for tests and benches);
+                                    0: by what each receiver sees of them
+                                    (ub_emitters_local_cdf) */
   uint32_t shadow_samples;       /* per receiver per punctual light, ≤ UB_TEXEL_SAMPLES */
   /* Probe receivers (GLG and LLG probes): points in free space, full-sphere gather,
    * radiance SH L2. They receive every bounce; nothing reads them back. */

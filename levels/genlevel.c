@@ -502,9 +502,10 @@ static void require(int ok, const char *what)
  * quads, two white closed boxes, point light or emissive ceiling patch. */
 static void build_cornell(void)
 {
-    int open = PI_("open"), emissive = PI_("emissive");
-    double I = P("light"), ly = P("light_y"), le = P("le"), ps = P("patch");
-    require(I >= 0 && le >= 0 && ps > 0 && ps < 2 && ly > 0 && ly < 2, "light>=0, le>=0, 0<patch<2, 0<light_y<2");
+    int open = PI_("open"), emissive = PI_("emissive"), lamps = PI_("lamps");
+    double I = P("light"), ly = P("light_y"), le = P("le"), ps = P("patch"), lle = P("lamp_le");
+    require(I >= 0 && le >= 0 && ps > 0 && ps < 2 && ly > 0 && ly < 2 && lamps >= 0 && lamps <= 4 && lle >= 0,
+            "light>=0, le>=0, 0<patch<2, 0<light_y<2, 0<=lamps<=4, lamp_le>=0");
     int white = material("white", 0.73, 0.73, 0.73, 0);
     int red = material("red", 0.63, 0.065, 0.05, 0);
     int green = material("green", 0.14, 0.45, 0.091, 0);
@@ -547,6 +548,22 @@ static void build_cornell(void)
     } else {
         Node *n = light_node("light", LIGHT_POINT, I, 1, 1, 1, v3(0, ly, 0));
         node_extra(n, "ubake_light", "static");
+    }
+    /* Small dim wall lamps low down (0.12 m square, 25 cm up): beside the ceiling patch's
+     * power each is a fixture a power-proportional pick hardly ever chooses (oa_dm4's
+     * skull lights beside its iron crosses). Left, right, back (twice) walls. */
+    if (lamps > 0) {
+        int lm_ = material("wall_lamp", 0.73, 0.73, 0.73, lle);
+        const double a = 0.06, y0 = 0.19, y1 = 0.31;
+        for (int k = 0; k < lamps; k++) {
+            char nm[32];
+            snprintf(nm, sizeof nm, "wall_lamp_%d", k);
+            m = mesh_new(nm, lm_);
+            if (k == 0) add_rect(m, 0, -0.999, v3(0, y0, 0.5 - a), v3(0, y1, 0.5 + a), +1, 1);
+            else if (k == 1) add_rect(m, 0, 0.999, v3(0, y0, -0.5 - a), v3(0, y1, -0.5 + a), -1, 1);
+            else add_rect(m, 2, -0.999, v3((k == 2 ? 0.6 : -0.6) - a, y0, 0), v3((k == 2 ? 0.6 : -0.6) + a, y1, 0), +1, 1);
+            mesh_node(nm, m);
+        }
     }
 }
 
@@ -1334,7 +1351,9 @@ static const LevelDef g_levels[] = {
         { "light", 1, { 4 }, "point light intensity, W/sr (white)" },
         { "light_y", 1, { 1.9 }, "point light height, m (x=z=0)" },
         { "le", 1, { 10 }, "emissive patch radiance, W/(m^2 sr)" },
-        { "patch", 1, { 0.5 }, "emissive patch side, m" } } },
+        { "patch", 1, { 0.5 }, "emissive patch side, m" },
+        { "lamps", 1, { 0 }, "small dim emissive wall lamps (0.12 m square, 25 cm up), 0-4" },
+        { "lamp_le", 1, { 2 }, "their radiance, W/(m^2 sr)" } } },
     { "furnace", "Closed cube furnace: uniform albedo and emission; E = pi*Le*sum_k rho^k.", build_furnace,
       { { "rho", 1, { 0.5 }, "albedo of every face (1 allowed: ubake clamps albedo to 0.999)" },
         { "le", 1, { 1.0 }, "emitted radiance of every face, W/(m^2 sr)" },

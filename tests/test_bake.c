@@ -311,7 +311,7 @@ static void test_glg_furnace(void)
   if (!rt)
     return;
   double expect = M_PI * (1.0 + 0.5 + 0.25 + 0.125);
-  double worst = 0.0;
+  double worst = 0.0, sum = 0.0;
   uint32_t cache = UB_GLG_NO_CACHE;
   for (int i = 0; i < 50; i++) {
     uint32_t h = ub_hash4(77, i, 0, 0);
@@ -327,10 +327,16 @@ static void test_glg_furnace(void)
     double rel = fabs(rgb[1] - expect) / expect;
     if (rel > worst)
       worst = rel;
-    ASSERT_NEAR(rgb[1], expect, 0.0, 0.01);
+    sum += rel;
   }
-  printf("glg furnace: 50 interior points, closed form %.5f, worst deviation %.3f%%\n", expect,
-         100 * worst);
+  /* The probes' noise: 400 random points of this bake at seeds 1-3 gave a mean |deviation|
+   * of 0.23-0.29% and a worst of 0.9-1.4% with emitters picked per receiver, 0.22-0.27%
+   * and 1.0-1.1% by power alone (no bias either way: mean deviations within ±0.03%). */
+  printf("glg furnace: 50 interior points, closed form %.5f, mean deviation %.3f%%, worst "
+         "%.3f%%\n",
+         expect, 100 * sum / 50, 100 * worst);
+  ASSERT_TRUE(sum / 50 < 0.005);
+  ASSERT_TRUE(worst < 0.02);
   ub_runtime_free(rt);
 }
 
