@@ -1581,7 +1581,7 @@ static ub_result setup_elements(ub_runtime *rt, const char *path, const ub_log *
   uint64_t padded = 0;
   if (r == UB_OK && !(rt->load_flags & UB_RUNTIME_SEPARATE_GROUPS)) {
     r = merge_small_groups(rt, &padded);
-    if (r == UB_OK)
+    if (r == UB_OK && padded)
       ub_log_printf(log, UB_LOG_INFO, "%s: %llu zero rows merge rare texel groups", path,
                     (unsigned long long)padded);
   }
