@@ -695,10 +695,10 @@ static uint32_t grid_start(const ub_glg *g, const float p[3])
   uint32_t c[3];
   for (int a = 0; a < 3; a++) {
     float x = (p[a] - g->grid_lo[a]) * g->grid_inv_cell[a];
-    int64_t i = x > 0.0f ? (int64_t)x : 0;
-    if (i >= (int64_t)g->grid_dim[a])
-      i = (int64_t)g->grid_dim[a] - 1;
-    c[a] = (uint32_t)i;
+    /* clamped before the conversion: a point far outside (or x = inf) does not fit an
+     * integer, and converting it is undefined (UBSan's float-cast-overflow) */
+    const float top = (float)g->grid_dim[a] - 1.0f;
+    c[a] = x > 0.0f ? (uint32_t)(x < top ? x : top) : 0;
   }
   const uint32_t bx = (g->grid_dim[0] + GLG_GRID_BLOCK - 1) / GLG_GRID_BLOCK,
                  by = (g->grid_dim[1] + GLG_GRID_BLOCK - 1) / GLG_GRID_BLOCK;

@@ -2897,6 +2897,8 @@ size_t ub_runtime_changed_texels(const ub_runtime *rt, uint64_t start, size_t ma
     }
     return n;
   }
+  if (start >= rt->chg_texels || !rt->chg_at) /* (no lightmap records: no runs kept) */
+    return 0;
   uint64_t seen = 0; /* changed texels in the runs before (counted up to start) */
   for (uint32_t j = 0; j < rt->chg_jobs && n < max; j++) {
     const uint32_t *runs = rt->chg_runs + (size_t)rt->chg_at[j] * 2;

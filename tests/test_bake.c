@@ -337,6 +337,22 @@ static void test_glg_furnace(void)
          expect, 100 * sum / 50, 100 * worst);
   ASSERT_TRUE(sum / 50 < 0.005);
   ASSERT_TRUE(worst < 0.02);
+  /* Points far outside the grid (finite, beyond any integer cell index) or at infinity: a
+   * finite answer or INVALID_ARGUMENT, never undefined behaviour (the sanitizer build's
+   * float-cast-overflow check ran into the cell index's conversion). */
+  const float far[4][3] = {{1e19f, 0, 0}, {0, -1e20f, 0}, {3e38f, 1, 1}, {INFINITY, 0, 0}};
+  for (int i = 0; i < 4; i++) {
+    float rgb[3] = {0, 0, 0}, n[3] = {0, 1, 0};
+    ub_result r = ub_runtime_query_glg(rt, far[i], n, &cache, rgb);
+    ASSERT_TRUE(i < 3 ? r == UB_OK : r == UB_ERR_INVALID_ARGUMENT);
+    ASSERT_TRUE(isfinite(rgb[0]) && isfinite(rgb[1]) && isfinite(rgb[2]));
+  }
+  /* A level without dynamic elements: an update changes nothing, and listing the changed
+   * texels gives none (it read a run table that such a level never allocates). */
+  ub_runtime_texel_change chg[4];
+  ASSERT_OK(ub_runtime_update(rt, NULL));
+  ASSERT_TRUE(ub_runtime_changed_texel_count(rt) == 0);
+  ASSERT_TRUE(ub_runtime_changed_texels(rt, 0, 4, chg) == 0);
   ub_runtime_free(rt);
 }
 
