@@ -460,7 +460,8 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   stage_end(&sc, "%u of %u tets straddle a surface, %u distinct planes (%.2f M rays)", leak.tets,
             tm->tet_count, leak.plane_count, leak.rays * 1e-6);
 
-  /* encode + write */
+  /* encode + write: the time and peak so far go in; the write stage adds its own before
+   * it writes the report, and the bake's totals stay the report's */
   stage_begin(&sc, "write");
   stats.peak_rss_kb = ub_peak_rss_kb();
   stats.total_seconds = now_seconds() - t_start;
@@ -470,8 +471,6 @@ ub_result ub_bake_level(const char *level_path, const ub_bake_options *opt, cons
   if (r != UB_OK)
     goto fail;
   stage_end(&sc, "%s", stats.ubk_path);
-  stats.total_seconds = now_seconds() - t_start;
-  stats.peak_rss_kb = ub_peak_rss_kb();
 
 fail:
   ub_output_close(out);

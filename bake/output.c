@@ -7,10 +7,12 @@
 
 #include <errno.h>
 #include <math.h>
+#include <omp.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <time.h>
 
 #include "bake/outdir.h"
 #include "lightmaps/image.h"
@@ -235,12 +237,21 @@ static ub_result error_atlas(const ub_lightmap *lm, const ub_pass_result *base,
   return UB_OK;
 }
 
+static double now_seconds(void)
+{
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* write_seconds: the write stage so far (this file is its last step), listed with the
+ * stages before it and included in st->total_seconds. */
 static ub_result write_report(const char *path, const ub_scene *scene, const ub_lightmap *lm,
                               const ub_plan *plan, const ub_pass_result *base,
                               const ub_bakefile *bf, const ub_llg_set *llg,
                               const ub_dls_stats *dstats,
                               const ub_bake_options *opt, const ub_bake_stats *st,
-                              const ub_log *log)
+                              double write_seconds, const ub_log *log)
 {
   FILE *f = fopen(path, "w");
   if (!f) {
@@ -252,7 +263,8 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
   fprintf(f, ",\n  \"name\": ");
   ub_json_write_str(f, st->level_name);
   fprintf(f, ",\n  \"quality\": \"%s\",\n  \"seed\": %u,\n  \"threads\": %d,\n",
-          ub_quality_name(opt->quality), opt->seed, opt->threads);
+          ub_quality_name(opt->quality), opt->seed,
+          opt->threads > 0 ? opt->threads : omp_get_max_threads()); /* the count used */
   fprintf(f, "  \"scene\": {\"triangles\": %u, \"degenerate_triangles\": %u, \"materials\": %u, "
              "\"lights\": %u, \"emissive_triangles\": %u, \"nodes\": %u, \"sky\": %s},\n",
           scene->triangle_count, scene->degenerate_count, scene->material_count,
@@ -374,6 +386,8 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
     ub_json_write_str(f, st->stage_name[s]);
     fprintf(f, ", \"seconds\": %.4f}", st->stage_seconds[s]);
   }
+  fprintf(f, "%s{\"name\": \"write\", \"seconds\": %.4f}", st->stage_count ? ", " : "",
+          write_seconds);
   double rps = st->gather_seconds > 0
                    ? (double)(st->rays_gather + st->rays_shadow) / st->gather_seconds
                    : 0.0;
@@ -410,7 +424,9 @@ static ub_result write_report(const char *path, const ub_scene *scene, const ub_
   fprintf(f, "  \"clamped_values\": %llu,\n  \"backface_hits\": %llu,\n  \"unlit_hits\": %llu,\n",
           (unsigned long long)st->clamped_values, (unsigned long long)st->backface_hits,
           (unsigned long long)st->unlit_hits);
-  fprintf(f, "  \"peak_rss_mb\": %.1f\n}\n", st->peak_rss_kb / 1024.0);
+  /* getrusage's KiB: MiB as the command line prints it, and MB (10^6 bytes) */
+  fprintf(f, "  \"peak_rss_mib\": %.1f,\n  \"peak_rss_mb\": %.1f\n}\n", st->peak_rss_kb / 1024.0,
+          st->peak_rss_kb * 1.024e-3);
   int bad = ferror(f);
   if (fclose(f) != 0 || bad) {
     ub_log_printf(log, UB_LOG_ERROR, "%s: write failed", path);
@@ -587,6 +603,8 @@ ub_result ub_output_write(ub_output *o, const ub_scene *scene, const ub_lightmap
                           const ub_pass_result *base, const ub_bake_options *opt,
                           ub_bake_stats *stats, const ub_log *user_log)
 {
+  /* stats->total_seconds is the bake's time up to this stage (bake/bake.c) */
+  const double t_write = now_seconds(), seconds_before = stats->total_seconds;
   ub_outdir *od = o->dir;
   ub_outdir_log fl;
   ub_outdir_wrap_log(od, user_log, &fl);
@@ -735,12 +753,18 @@ ub_result ub_output_write(ub_output *o, const ub_scene *scene, const ub_lightmap
     goto done;
   snprintf(stats->ubk_path, sizeof stats->ubk_path, "%s", ubk_final);
 
-  /* The report last: it records the time and memory of everything before it. */
+  /* The report last: it records the time and memory of everything before it, this stage
+   * included; the bake's totals become these (only the renames into place follow). */
   snprintf(fname, sizeof fname, "%s.report.json", name);
   r = ub_outdir_add_report(od, fname, &path);
   if (r != UB_OK)
     goto done;
-  r = write_report(path, scene, lm, plan, base, &bf, llg, dstats, opt, stats, log);
+  double write_seconds = now_seconds() - t_write;
+  long rss = ub_peak_rss_kb();
+  stats->total_seconds = seconds_before + write_seconds;
+  stats->peak_rss_kb = rss > stats->peak_rss_kb ? rss : stats->peak_rss_kb;
+  r = write_report(path, scene, lm, plan, base, &bf, llg, dstats, opt, stats, write_seconds,
+                   log);
   if (r != UB_OK)
     goto done;
 

@@ -50,7 +50,7 @@ typedef struct bvh_node {
 struct ub_bvh {
   uint32_t node_count, depth, tri_count;
   bvh_node *nodes;
-  float *tri;       /* tri_count × 9 in leaf order: v0, e1 = v1 − v0, e2 = v2 − v0 */
+  float *tri;       /* tri_count × 9 in leaf order: the corners v0, v1, v2 */
   uint32_t *tri_id; /* leaf order → original triangle index */
 };
 
@@ -337,11 +337,9 @@ ub_result ub_bvh_build(const float *positions, uint32_t vertex_count, const uint
         const float *v1 = &positions[(size_t)indices[(size_t)t * 3 + 1] * 3];
         const float *v2 = &positions[(size_t)indices[(size_t)t * 3 + 2] * 3];
         float *o = &bvh->tri[(size_t)leaf_tris * 9];
-        for (int a = 0; a < 3; a++) {
-          o[a] = v0[a];
-          o[3 + a] = v1[a] - v0[a];
-          o[6 + a] = v2[a] - v0[a];
-        }
+        memcpy(o, v0, 3 * sizeof *o);
+        memcpy(o + 3, v1, 3 * sizeof *o);
+        memcpy(o + 6, v2, 3 * sizeof *o);
         bvh->tri_id[leaf_tris++] = t;
       }
       continue;
@@ -389,21 +387,47 @@ void ub_bvh_stats(const ub_bvh *bvh, uint32_t *out_nodes, uint32_t *out_depth)
 
 /* ---- BVH traversal ------------------------------------------------------------------- */
 
+/* A ray with its slab-test reciprocals and the watertight triangle test's frame (Woop,
+ * Benthin and Wald 2013): kz the axis where |d| is largest, kx and ky the others (swapped
+ * when d[kz] < 0 so the winding is kept), and the shear that maps d onto +kz. */
 typedef struct ray_pre {
-  float o[3], d[3], inv[3];
+  float o[3], inv[3];
+  int kx, ky, kz;
+  float sx, sy, sz;
 } ray_pre;
 
-static void ray_prepare(const float org[3], const float dir[3], ray_pre *out)
+/* 0 for a zero direction (no frame: nothing is hit). */
+static int ray_prepare(const float org[3], const float dir[3], ray_pre *out)
 {
   for (int a = 0; a < 3; a++) {
     out->o[a] = org[a];
-    out->d[a] = dir[a];
     float d = dir[a];
     if (!(fabsf(d) >= UB_BVH_TINY_DIR))
       d = d < 0.0f ? -UB_BVH_TINY_DIR : UB_BVH_TINY_DIR;
     out->inv[a] = 1.0f / d;
   }
+  int kz = fabsf(dir[0]) >= fabsf(dir[1]) ? 0 : 1;
+  if (fabsf(dir[2]) > fabsf(dir[kz]))
+    kz = 2;
+  if (dir[kz] == 0.0f)
+    return 0;
+  int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
+  if (dir[kz] < 0.0f) {
+    int k = kx;
+    kx = ky;
+    ky = k;
+  }
+  out->kx = kx;
+  out->ky = ky;
+  out->kz = kz;
+  out->sx = dir[kx] / dir[kz];
+  out->sy = dir[ky] / dir[kz];
+  out->sz = 1.0f / dir[kz];
+  return 1;
 }
+
+/* γ_n = n·u / (1 − n·u), u = 2^-24: the bound on n float roundings (PBR 3rd ed., 3.9.1). */
+#define UB_GAMMA(n) ((n) * 0.5f * FLT_EPSILON / (1.0f - (n) * 0.5f * FLT_EPSILON))
 
 static inline float minf(float a, float b)
 {
@@ -429,32 +453,55 @@ static inline float box_enter(const bvh_node *nd, const ray_pre *r, float tmax)
   return t0 <= t1 ? t0 : INFINITY;
 }
 
-/* Möller–Trumbore on one stored triangle: 1 with t, b1, b2 for a hit in (0, tmax). */
+/* Watertight ray-triangle test (Woop, Benthin and Wald 2013) on one stored triangle: 1 with
+ * t, b1, b2 for a hit in (0, tmax). The corners are moved to the ray's origin and sheared
+ * so the ray runs along +kz; the 2D edge functions of an edge then depend only on its two
+ * corners and the ray, so the two triangles sharing it compute them from the same numbers
+ * (exactly negated, as long as no fused multiply-add contracts one product: the build
+ * targets baseline x86-64) and a ray through the edge hits one of them: no ray slips through
+ * (Moller-Trumbore's edges from v1 - v0 and v2 - v0 round differently in each triangle,
+ * which let camera rays through shared edges: black speckles). An edge function that
+ * comes out 0 in float is recomputed exactly in double, as the paper does. */
 static inline int tri_hit(const float *tri, const ray_pre *r, float tmax, float *out_t,
                           float *out_b1, float *out_b2)
 {
-  const float *v0 = tri, *e1 = tri + 3, *e2 = tri + 6;
-  float p[3], s[3], q[3];
-  cross3(r->d, e2, p);
-  float det = dot3(e1, p);
+  const int kx = r->kx, ky = r->ky, kz = r->kz;
+  const float *pa = tri, *pb = tri + 3, *pc = tri + 6;
+  const float az = pa[kz] - r->o[kz], bz = pb[kz] - r->o[kz], cz = pc[kz] - r->o[kz];
+  const float ax = (pa[kx] - r->o[kx]) - r->sx * az, ay = (pa[ky] - r->o[ky]) - r->sy * az;
+  const float bx = (pb[kx] - r->o[kx]) - r->sx * bz, by = (pb[ky] - r->o[ky]) - r->sy * bz;
+  const float cx = (pc[kx] - r->o[kx]) - r->sx * cz, cy = (pc[ky] - r->o[ky]) - r->sy * cz;
+  float u = cx * by - cy * bx; /* weight of corner 0 (a) */
+  float v = ax * cy - ay * cx; /* corner 1 (b) */
+  float w = bx * ay - by * ax; /* corner 2 (c) */
+  if (u == 0.0f || v == 0.0f || w == 0.0f) {
+    u = (float)((double)cx * by - (double)cy * bx);
+    v = (float)((double)ax * cy - (double)ay * cx);
+    w = (float)((double)bx * ay - (double)by * ax);
+  }
+  if ((u < 0.0f || v < 0.0f || w < 0.0f) && (u > 0.0f || v > 0.0f || w > 0.0f))
+    return 0;
+  float det = u + v + w;
   if (det == 0.0f || !isfinite(det))
     return 0;
+  const float sa = r->sz * az, sb = r->sz * bz, sc = r->sz * cz;
   float inv = 1.0f / det;
-  for (int a = 0; a < 3; a++)
-    s[a] = r->o[a] - v0[a];
-  float u = dot3(s, p) * inv;
-  if (!(u >= 0.0f && u <= 1.0f))
-    return 0;
-  cross3(s, e1, q);
-  float v = dot3(r->d, q) * inv;
-  if (!(v >= 0.0f && u + v <= 1.0f))
-    return 0;
-  float t = dot3(e2, q) * inv;
+  float t = (u * sa + v * sb + w * sc) * inv;
   if (!(t > 0.0f && t < tmax))
     return 0;
+  /* A t within its rounding bound of 0 (Pharr, Jakob and Humphreys, PBR 3rd ed., 3.9.6)
+   * is a ray starting in the triangle's plane (a camera placed on a wall), not a hit. */
+  const float zt = maxf(fabsf(sa), maxf(fabsf(sb), fabsf(sc)));
+  const float xt = maxf(fabsf(ax), maxf(fabsf(bx), fabsf(cx)));
+  const float yt = maxf(fabsf(ay), maxf(fabsf(by), fabsf(cy)));
+  const float et = maxf(fabsf(u), maxf(fabsf(v), fabsf(w)));
+  const float dx = UB_GAMMA(5) * (xt + zt), dy = UB_GAMMA(5) * (yt + zt);
+  const float de = 2.0f * (UB_GAMMA(2) * xt * yt + dy * xt + dx * yt);
+  if (!(t > 3.0f * (UB_GAMMA(3) * et * zt + de * zt + UB_GAMMA(3) * zt * et) * fabsf(inv)))
+    return 0;
   *out_t = t;
-  *out_b1 = u;
-  *out_b2 = v;
+  *out_b1 = v * inv;
+  *out_b2 = w * inv;
   return 1;
 }
 
@@ -468,7 +515,8 @@ static int traverse(const ub_bvh *bvh, const float org[3], const float dir[3], f
     if (!isfinite(org[a]) || !isfinite(dir[a]))
       return 0;
   ray_pre r;
-  ray_prepare(org, dir, &r);
+  if (!ray_prepare(org, dir, &r))
+    return 0;
   float tbest = tmax;
   int found = 0;
   uint32_t stack[UB_BVH_STACK];

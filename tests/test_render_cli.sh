@@ -1,6 +1,7 @@
 # tests/test_render_cli.sh — `ubake render` as an artist runs it: a PNG of the asked size,
 # a warning (and still the PNG) when the camera sees back faces or nothing, exit status 1
-# and no PNG for a bad camera or an unknown set.
+# and no PNG for a bad camera, an unknown set or an -o that is not .png; the load's notes
+# on stderr, stdout only what was written.
 # Env (set by CTest): UBAKE = the ubake program, UB_BUILD = the build tree (its levels/).
 . "$(dirname "$0")/cli_lib.sh" render_cli
 
@@ -50,6 +51,25 @@ grep -q "eye and target" "$tmpdir/same_point.err" || fail "same_point: the messa
 render no_set 1 --camera 0,1,0.95,0,1,-1,70 --dls no_such_set=0
 grep -qF "no_such_set" "$tmpdir/no_set.err" || fail "no_set: the message does not name the set"
 [ -e "$tmpdir/no_set.png" ] && fail "no_set: a PNG was written"
+
+# -o must name a .png (any case): a .jpg is refused before any work, naming the path.
+"$UBAKE" render "$ubk" --camera 0,1,0.95,0,1,-1,70 -o "$tmpdir/shot.jpg" >/dev/null 2>"$tmpdir/jpg.err" &&
+  fail "jpg: an -o ending in .jpg was taken"
+grep -qF "not '$tmpdir/shot.jpg'" "$tmpdir/jpg.err" && grep -qF ".png" "$tmpdir/jpg.err" ||
+  fail "jpg: the message does not name the path and .png: $(cat "$tmpdir/jpg.err")"
+[ -e "$tmpdir/shot.jpg" ] && fail "jpg: a file was written"
+"$UBAKE" render "$ubk" --camera 0,1,0.95,0,1,-1,70 --size 16x8 -o "$tmpdir/upper.PNG" >/dev/null \
+  2>"$tmpdir/upper.err" && [ -f "$tmpdir/upper.PNG" ] || fail "upper: no .PNG written: $(cat "$tmpdir/upper.err")"
+
+# A load with a note (the hallway's merged texel groups): on stderr, not stdout.
+"$UBAKE" bake "$build/levels/hallway.gltf" -o "$tmpdir/hw" --quality draft --bounces 1 \
+  --threads 1 --no-progress >/dev/null 2>&1 || fail "cannot bake the hallway"
+"$UBAKE" render "$tmpdir/hw/hallway.ubk" --camera 0,1,0,0,1,1,60 --size 32x16 -o "$tmpdir/hw.png" \
+  >"$tmpdir/hw.out" 2>"$tmpdir/hw.err" || fail "hallway render failed: $(cat "$tmpdir/hw.err")"
+grep -q "^ubake: note: .*hallway.ubk: " "$tmpdir/hw.err" ||
+  fail "hallway: no load note on stderr (does the hallway's load still print one?): $(cat "$tmpdir/hw.err")"
+grep -v "^rendered \|^load " "$tmpdir/hw.out" | grep -q . &&
+  fail "hallway: stdout holds more than what was written: $(cat "$tmpdir/hw.out")"
 ls "$tmpdir" | grep -q '\.tmp$' && fail "a temporary PNG was left behind"
 
 finish "all render CLI checks passed"

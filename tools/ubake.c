@@ -5,6 +5,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
@@ -22,10 +23,15 @@
 #include "tools/regress.h"
 #include "tools/spread.h"
 #include "tools/sweep.h"
+#include "ubake/glg.h"
+
+/* Where the library's info lines go: stdout (bake's stage lines, info's description),
+ * nowhere, or stderr as notes (query and render: their stdout is for scripts). */
+enum { CLI_INFO_STDOUT = 0, CLI_INFO_DROP = 1, CLI_INFO_STDERR = 2 };
 
 typedef struct cli_log_state {
   int errors;
-  int quiet_info;
+  int info; /* CLI_INFO_* */
   int progress_line_open;
 } cli_log_state;
 
@@ -42,7 +48,9 @@ static void cli_log(void *user, ub_log_level level, const char *msg)
     st->errors++;
   } else if (level == UB_LOG_WARNING) {
     fprintf(stderr, "ubake: warning: %s\n", msg);
-  } else if (!st->quiet_info) {
+  } else if (st->info == CLI_INFO_STDERR) {
+    fprintf(stderr, "ubake: note: %s\n", msg);
+  } else if (st->info == CLI_INFO_STDOUT) {
     printf("%s\n", msg);
     fflush(stdout);
   }
@@ -59,6 +67,15 @@ static int usage_error(const char *cmd, const char *msg)
 {
   fprintf(stderr, "ubake %s: %s (see 'ubake %s --help')\n", cmd, msg, cmd);
   return 1;
+}
+
+/* A bad value v of option opt: "OPT RULE, not 'V'" (quoted, so a typo or what the shell
+ * made of it shows); rule says what opt takes. */
+static int bad_value(const char *cmd, const char *opt, const char *v, const char *rule)
+{
+  char msg[480];
+  snprintf(msg, sizeof msg, "%s %s, not '%.200s'", opt, rule, v);
+  return usage_error(cmd, msg);
 }
 
 /* An argument starting with '-' that no branch took: an unknown option, or (no value
@@ -81,13 +98,27 @@ static int second_file(const char *cmd, const char *first, const char *second)
   return usage_error(cmd, msg);
 }
 
+/* A decimal number at s as strtod reads it (*out_end: after it): no leading space, no
+ * hexadecimal ("0x10"), no inf or nan. One that underflows (1e-310, 1e-400) is read as
+ * the tiny value or 0 it is; one that overflows is refused. */
+static int parse_real(const char *s, char **out_end, double *out)
+{
+  const char *d = s + (*s == '+' || *s == '-');
+  if (!((*d >= '0' && *d <= '9') || *d == '.') || (d[0] == '0' && (d[1] == 'x' || d[1] == 'X')))
+    return 0;
+  double v = strtod(s, out_end);
+  if (*out_end == s || !isfinite(v))
+    return 0;
+  *out = v;
+  return 1;
+}
+
 static int parse_vec3(const char *s, float out[3])
 {
   char *end;
   for (int i = 0; i < 3; i++) {
-    errno = 0;
-    double v = strtod(s, &end);
-    if (end == s || errno || !isfinite(v))
+    double v;
+    if (!parse_real(s, &end, &v))
       return 0;
     out[i] = (float)v;
     if (i < 2) {
@@ -140,39 +171,40 @@ static const char *cli_kind_name(int kind)
 }
 
 /* One state option: a = "--dls"|"--door"|"--object", v its value. Returns 1 when taken,
- * 0 when a is not a state option, -1 (message printed) for a malformed value. */
+ * 0 when a is not a state option, -1 (message printed, quoting v) for a malformed value or
+ * a second value for the same element. Numbers as parse_real reads them: decimal, finite;
+ * W in [0, UB_RUNTIME_MAX_WEIGHT], T and V in [0, 1]. */
 static int parse_state_arg(const char *cmd, const char *a, const char *v, cli_state *st)
 {
   int kind = !strcmp(a, "--dls") ? CLI_DLS : !strcmp(a, "--door") ? CLI_DOOR
              : !strcmp(a, "--object") ? CLI_OBJECT : -1;
   if (kind < 0 || !v)
     return 0;
-  static const char *forms[] = {"--dls takes NAME=W or NAME=R,G,B (0 <= W <= 1e6)",
-                                "--door takes NAME=T with T in [0, 1] (0 closed, 1 open)",
-                                "--object takes NAME=on, NAME=off or NAME=W with W in [0, 1]"};
+  static const char *forms[] = {
+      "takes NAME=W or NAME=R,G,B, W (or each of R,G,B) a decimal number in [0, 1e6]",
+      "takes NAME=T, T a decimal number in [0, 1] (0 closed, 1 open)",
+      "takes NAME=on, NAME=off or NAME=V, V a decimal number in [0, 1]"};
+  char msg[400];
   const char *eq = strchr(v, '=');
   if (eq && (size_t)(eq - v) >= sizeof st->name[0]) {
-    char msg[200];
     snprintf(msg, sizeof msg, "%s: name '%.40s...' is %zu bytes; names are at most %zu", a, v,
              (size_t)(eq - v), sizeof st->name[0] - 1);
     usage_error(cmd, msg);
     return -1;
   }
-  if (!eq || eq == v || st->count >= UB_CLI_MAX_STATE) {
-    usage_error(cmd, forms[kind]);
+  if (!eq || eq == v) {
+    bad_value(cmd, a, v, forms[kind]);
     return -1;
   }
   float rgb[3];
   char *end;
-  errno = 0;
-  double w = strtod(eq + 1, &end);
+  double w;
   int ok = 1;
   if (kind == CLI_OBJECT && (!strcmp(eq + 1, "on") || !strcmp(eq + 1, "off"))) {
     rgb[0] = rgb[1] = rgb[2] = !strcmp(eq + 1, "on") ? 1.0f : 0.0f;
-  } else if (end != eq + 1 && *end == '\0' && !errno && isfinite(w)) {
+  } else if (parse_real(eq + 1, &end, &w) && *end == '\0') {
     rgb[0] = rgb[1] = rgb[2] = (float)w;
-    if (kind != CLI_DLS)
-      ok = w >= 0.0 && w <= 1.0;
+    ok = w >= 0.0 && w <= (kind == CLI_DLS ? UB_RUNTIME_MAX_WEIGHT : 1.0);
   } else {
     ok = kind == CLI_DLS && parse_vec3(eq + 1, rgb);
   }
@@ -180,15 +212,59 @@ static int parse_state_arg(const char *cmd, const char *a, const char *v, cli_st
        rgb[0] <= UB_RUNTIME_MAX_WEIGHT && rgb[1] <= UB_RUNTIME_MAX_WEIGHT &&
        rgb[2] <= UB_RUNTIME_MAX_WEIGHT;
   if (!ok) {
-    usage_error(cmd, forms[kind]);
+    bad_value(cmd, a, v, forms[kind]);
+    return -1;
+  }
+  size_t len = (size_t)(eq - v);
+  for (uint32_t k = 0; k < st->count; k++)
+    if (st->kind[k] == kind && strlen(st->name[k]) == len && !memcmp(st->name[k], v, len)) {
+      snprintf(msg, sizeof msg, "%s '%.200s': %s '%.63s' given twice (one value each)", a, v,
+               cli_kind_name(kind), st->name[k]);
+      usage_error(cmd, msg);
+      return -1;
+    }
+  if (st->count >= UB_CLI_MAX_STATE) {
+    snprintf(msg, sizeof msg, "%s '%.200s': more than %d --dls, --door and --object values", a,
+             v, UB_CLI_MAX_STATE);
+    usage_error(cmd, msg);
     return -1;
   }
   st->kind[st->count] = kind;
-  memcpy(st->name[st->count], v, (size_t)(eq - v));
-  st->name[st->count][eq - v] = '\0';
+  memcpy(st->name[st->count], v, len);
+  st->name[st->count][len] = '\0';
   memcpy(st->rgb[st->count], rgb, sizeof rgb);
   st->count++;
   return 1;
+}
+
+/* The names an unknown one could have been, for its message: "it has none", "it has 3:
+ * 'a', 'b', 'c'" or "it has 25; the first 10: ..." (add them in order, then read text). */
+#define UB_CLI_LIST_NAMES 10
+
+typedef struct name_list {
+  uint32_t count;
+  char names[UB_CLI_LIST_NAMES * 68];
+  char text[UB_CLI_LIST_NAMES * 68 + 64];
+} name_list;
+
+static void name_list_add(name_list *l, const char *name)
+{
+  size_t n = strlen(l->names);
+  if (l->count < UB_CLI_LIST_NAMES)
+    snprintf(l->names + n, sizeof l->names - n, "%s'%.63s'", l->count ? ", " : "", name);
+  l->count++;
+}
+
+static const char *name_list_text(name_list *l)
+{
+  if (!l->count)
+    snprintf(l->text, sizeof l->text, "it has none");
+  else if (l->count <= UB_CLI_LIST_NAMES)
+    snprintf(l->text, sizeof l->text, "it has %u: %s", l->count, l->names);
+  else
+    snprintf(l->text, sizeof l->text, "it has %u; the first %d: %s", l->count,
+             UB_CLI_LIST_NAMES, l->names);
+  return l->text;
 }
 
 /* Applies a state to a loaded run-time (then updates it). 0 on success; prints the
@@ -208,8 +284,18 @@ static int apply_state(ub_runtime *rt, const cli_state *st, const char *path)
       r = idx < 0 ? UB_ERR_INVALID_ARGUMENT : ub_runtime_set_element(rt, (uint32_t)idx, st->rgb[k][0]);
     }
     if (idx < 0) {
-      fprintf(stderr, "ubake: %s: no %s named '%s' in this file\n", path,
-              cli_kind_name(st->kind[k]), st->name[k]);
+      name_list known;
+      memset(&known, 0, sizeof known);
+      if (st->kind[k] == CLI_DLS)
+        for (uint32_t i = 0; i < ub_runtime_dls_count(rt); i++)
+          name_list_add(&known, ub_runtime_dls_name(rt, i));
+      else
+        for (uint32_t i = 0; i < ub_runtime_element_count(rt); i++)
+          if (ub_runtime_element_kind(rt, i) ==
+              (st->kind[k] == CLI_DOOR ? UB_ELEMENT_DOOR : UB_ELEMENT_OBJECT))
+            name_list_add(&known, ub_runtime_element_name(rt, i));
+      fprintf(stderr, "ubake: %s: no %s named '%s' in this file (%s)\n", path,
+              cli_kind_name(st->kind[k]), st->name[k], name_list_text(&known));
       return 1;
     }
     if (r != UB_OK) {
@@ -324,54 +410,54 @@ static int cmd_bake(int argc, char **argv)
       i++;
     } else if (!strcmp(a, "--quality") && v) {
       if (!ub_quality_from_name(v, &opt.quality))
-        return usage_error("bake", "--quality takes draft, fast or high");
+        return bad_value("bake", a, v, "takes draft, fast or high");
       i++;
     } else if (!strcmp(a, "--bounces") && v) {
       if (!parse_uint(v, UB_BAKE_MAX_BOUNCES, &n))
-        return usage_error("bake", "--bounces takes 0..64");
+        return bad_value("bake", a, v, "takes 0..64");
       opt.bounces = (int)n;
       i++;
     } else if (!strcmp(a, "--threads") && v) {
       if (!parse_uint(v, 1024, &n) || n < 1)
-        return usage_error("bake", "--threads takes 1..1024");
+        return bad_value("bake", a, v, "takes 1..1024");
       opt.threads = (int)n;
       i++;
     } else if (!strcmp(a, "--seed") && v) {
       if (!parse_uint(v, 0xFFFFFFFFL, &n))
-        return usage_error("bake", "--seed takes 0..4294967295");
+        return bad_value("bake", a, v, "takes 0..4294967295");
       opt.seed = (uint32_t)n;
       i++;
     } else if (!strcmp(a, "--gather-rays") && v) {
       if (!parse_uint(v, 1 << 20, &n) || n < 1)
-        return usage_error("bake", "--gather-rays takes 1..1048576");
+        return bad_value("bake", a, v, "takes 1..1048576");
       opt.gather_rays = (uint32_t)n;
       i++;
     } else if (!strcmp(a, "--target-error") && v) {
       char *end;
-      double t = strtod(v, &end);
-      if (end == v || *end || !(t > 0.0) || !(t < 1.0))
-        return usage_error("bake", "--target-error takes a relative error in (0, 1), e.g. 0.02");
+      double t;
+      if (!parse_real(v, &end, &t) || *end || !(t > 0.0) || !(t < 1.0))
+        return bad_value("bake", a, v, "takes a relative error in (0, 1), e.g. 0.02");
       opt.target_error = t;
       i++;
     } else if (!strcmp(a, "--door-rays") && v) {
       if (!parse_uint(v, 1 << 20, &n) || n < 1)
-        return usage_error("bake", "--door-rays takes 1..1048576");
+        return bad_value("bake", a, v, "takes 1..1048576");
       opt.door_rays = (uint32_t)n;
       i++;
     } else if (!strcmp(a, "--door-no-guiding")) {
       opt.door_no_guiding = 1;
     } else if (!strcmp(a, "--texel-size") && v) {
       char *end;
-      double t = strtod(v, &end);
-      if (end == v || *end || !(t > 0.0) || !isfinite(t))
-        return usage_error("bake", "--texel-size takes a positive number of metres");
+      double t;
+      if (!parse_real(v, &end, &t) || *end || !(t > 0.0))
+        return bad_value("bake", a, v, "takes a positive number of metres");
       opt.texel_size = (float)t;
       i++;
     } else if (!strcmp(a, "--glg-spacing") && v) {
       char *end;
-      double t = strtod(v, &end);
-      if (end == v || *end || !(t > 0.0) || !isfinite(t))
-        return usage_error("bake", "--glg-spacing takes a positive number of metres");
+      double t;
+      if (!parse_real(v, &end, &t) || *end || !(t > 0.0))
+        return bad_value("bake", a, v, "takes a positive number of metres");
       opt.glg_spacing = (float)t;
       i++;
     } else if (!strcmp(a, "--json") && v) {
@@ -391,7 +477,7 @@ static int cmd_bake(int argc, char **argv)
       if (!strcmp(v, "all"))
         opt.plan_all = 1;
       else if (strcmp(v, "auto"))
-        return usage_error("bake", "--plan takes auto or all");
+        return bad_value("bake", a, v, "takes auto or all");
       i++;
     } else if (a[0] == '-') {
       return bad_option("bake", a, v);
@@ -405,7 +491,7 @@ static int cmd_bake(int argc, char **argv)
     return usage_error("bake", "no level given");
   if (!opt.out_dir && !opt.plan_only)
     return usage_error("bake", "no output folder given (-o DIR)");
-  cli_log_state ls = {0, 0, 0};
+  cli_log_state ls = {0, CLI_INFO_STDOUT, 0};
   ub_log log = {cli_log, &ls};
   progress_state ps = {&ls, isatty(2), progress, now_s(), ""};
   opt.progress = on_progress;
@@ -419,10 +505,12 @@ static int cmd_bake(int argc, char **argv)
     return fail(&ls, r, level);
   if (opt.plan_only)
     return 0;
-  double rps = st.gather_seconds > 0 ? (st.rays_gather + st.rays_shadow) / st.gather_seconds : 0;
-  printf("baked %s: %u texels, %u bounces, %.2f M rays at %.2f M rays/s, %.2f s, peak RSS "
-         "%.1f MB, %llu clamped\n",
-         st.level_name, st.texels, st.bounces, (st.rays_gather + st.rays_shadow) * 1e-6,
+  /* The report's figures (rays.total, seconds, peak_rss_mib), and the base pass's rate */
+  double base_rays = (double)(st.rays_gather + st.rays_shadow);
+  double rps = st.gather_seconds > 0 ? base_rays / st.gather_seconds : 0;
+  printf("baked %s: %u texels, %u bounces, %.2f M rays (base pass %.2f M at %.2f M rays/s), "
+         "%.2f s, peak RSS %.1f MiB, %llu clamped\n",
+         st.level_name, st.texels, st.bounces, st.rays_total * 1e-6, base_rays * 1e-6,
          rps * 1e-6, st.total_seconds, st.peak_rss_kb / 1024.0,
          (unsigned long long)st.clamped_values);
   printf("estimated error: relative s.e. over lit texels mean %.2f%%, p95 %.2f%%",
@@ -468,7 +556,7 @@ static int parse_records_arg(const char *cmd, const char *a, const char *v, unsi
   } else if (!strcmp(v, "8bit")) {
     *flags |= UB_RUNTIME_RECORDS_8BIT;
   } else {
-    usage_error(cmd, "--records takes half or 8bit");
+    bad_value(cmd, a, v, "takes half or 8bit");
     return -1;
   }
   return 1;
@@ -504,9 +592,11 @@ static const char *INFO_HELP =
 
 /* The run-time load's notes for ubake info: errors and warnings go to the CLI's log at
  * once, notes are kept (up to 4 KiB) and printed under the run-time memory line, after
- * the header they used to come before. */
+ * the header they used to come before; with --json (forward) they go to the CLI's log
+ * too, which puts them on stderr. */
 typedef struct info_notes {
   const ub_log *cli;
+  int forward;
   char text[4096];
   size_t len;
 } info_notes;
@@ -514,7 +604,7 @@ typedef struct info_notes {
 static void info_notes_log(void *user, ub_log_level level, const char *msg)
 {
   info_notes *n = user;
-  if (level != UB_LOG_INFO) {
+  if (level != UB_LOG_INFO || n->forward) {
     n->cli->fn(n->cli->user, level, msg);
     return;
   }
@@ -583,13 +673,13 @@ static int cmd_info(int argc, char **argv)
   if (load_flags && !memory)
     return usage_error("info", "--records, --keep-state, --glg-small-walk, --no-base-ahd and "
                                "--separate-groups go with --memory (the run-time's bytes)");
-  /* --json: stdout holds the JSON only (the run-time's load notes were printed before it) */
-  cli_log_state ls = {0, json, 0};
+  /* --json: stdout holds the JSON only; the loads' notes go to stderr */
+  cli_log_state ls = {0, json ? CLI_INFO_STDERR : CLI_INFO_STDOUT, 0};
   ub_log log = {cli_log, &ls};
   /* the run-time first: its load's peak is then its own */
   ub_runtime_memory mem;
   double load_s = 0.0, load_peak = -1.0;
-  info_notes notes = {&log, {0}, 0};
+  info_notes notes = {&log, json, {0}, 0};
   if (memory && info_memory(path, &notes, load_flags, &mem, &load_s, &load_peak))
     return fail(&ls, UB_ERR_INVALID_DATA, path);
   ub_bakefile *bf = NULL;
@@ -733,19 +823,28 @@ static const char *QUERY_HELP =
     "usage: ubake query DIR/NAME.ubk --at X,Y,Z --normal X,Y,Z [--source auto|glg|llg|lightmap]\n"
     "                   [--dls NAME=W|R,G,B ...] [--door NAME=T ...] [--object NAME=on|off ...]\n"
     "                   [--records half|8bit]\n"
-    "Prints the baked irradiance \"R G B\" (W/m², linear) the run-time uses there.\n"
-    "  --dls NAME=W        weight (or RGB tint) of a dynamic light set (default 1: as baked)\n"
+    "Prints the baked irradiance \"R G B\" (W/m², linear) the run-time uses there; notes\n"
+    "(the load's, a point far from what answered) go to stderr.\n"
+    "  --dls NAME=W        weight (or RGB tint) of a dynamic light set (default 1: as baked),\n"
+    "                      decimal numbers in [0, 1e6]; one value per set (also --door,\n"
+    "                      --object)\n"
     "  --door NAME=T       opening fraction of a door, T in [0, 1] (default 0: closed; from\n"
     "                      a hinge angle a: T = 1 - cos a, 1 beyond 90 degrees)\n"
     "  --object NAME=V     on, off, or a visibility in [0, 1] to fade (default on)\n"
     "  --source lightmap   the lightmap of the closest lightmapped surface point the state\n"
-    "                      shows (a note on stderr when a hidden one is closer)\n"
+    "                      shows (a note on stderr when a hidden one is closer, or when it\n"
+    "                      is over 1 m from the point)\n"
     "  --source glg        the global light grid (tetrahedral probes), as a dynamic object\n"
+    "                      (a note on stderr when the point is outside the probes' hull)\n"
     "  --source llg        the local light grid of the LLG model whose box holds the point\n"
     "                      (closest box otherwise), with its self-visibility within 5 cm\n"
     "                      of its surface\n"
     "  --source auto       the default: glg (a point in space)\n"
     RECORDS_HELP;
+
+/* Metres from the query point to the lightmapped surface that answered beyond which the
+ * answer gets a note (a point in the air, or far outside the level). */
+#define UB_CLI_FAR_SURFACE 1.0f
 
 static int cmd_query(int argc, char **argv)
 {
@@ -754,7 +853,8 @@ static int cmd_query(int argc, char **argv)
   static cli_state state;
   state.count = 0;
   float at[3], nrm[3];
-  int have_at = 0, have_n = 0;
+  const char *nrm_arg = NULL;
+  int have_at = 0;
   int k;
   for (int i = 0; i < argc; i++) {
     const char *a = argv[i];
@@ -764,13 +864,13 @@ static int cmd_query(int argc, char **argv)
       return 0;
     } else if (!strcmp(a, "--at") && v) {
       if (!parse_point(v, at))
-        return usage_error("query", "--at takes X,Y,Z, each within +-1e7 m");
+        return bad_value("query", a, v, "takes X,Y,Z, each within +-1e7 m");
       have_at = 1;
       i++;
     } else if (!strcmp(a, "--normal") && v) {
       if (!parse_vec3(v, nrm))
-        return usage_error("query", "--normal takes X,Y,Z");
-      have_n = 1;
+        return bad_value("query", a, v, "takes X,Y,Z");
+      nrm_arg = v;
       i++;
     } else if (!strcmp(a, "--source") && v) {
       source = v;
@@ -788,17 +888,17 @@ static int cmd_query(int argc, char **argv)
       path = a;
     }
   }
-  if (!path || !have_at || !have_n)
+  if (!path || !have_at || !nrm_arg)
     return usage_error("query", "need DIR/NAME.ubk, --at and --normal");
   float len = sqrtf(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
-  if (!(len > 0.0f))
-    return usage_error("query", "--normal must be non-zero");
+  if (!(len > 0.0f) || !isfinite(len))
+    return bad_value("query", "--normal", nrm_arg, "takes a non-zero X,Y,Z");
   for (int i = 0; i < 3; i++)
     nrm[i] /= len;
   if (strcmp(source, "auto") && strcmp(source, "lightmap") && strcmp(source, "glg") &&
       strcmp(source, "llg"))
-    return usage_error("query", "--source takes auto, glg, llg or lightmap");
-  cli_log_state ls = {0, 1, 0}; /* stdout is the answer: no info lines */
+    return bad_value("query", "--source", source, "takes auto, glg, llg or lightmap");
+  cli_log_state ls = {0, CLI_INFO_STDERR, 0}; /* stdout is the answer: notes on stderr */
   ub_log log = {cli_log, &ls};
   ub_runtime *rt = NULL;
   ub_result r = ub_runtime_load_ex(path, &log, load_flags, &rt);
@@ -811,6 +911,9 @@ static int cmd_query(int argc, char **argv)
   float rgb[3];
   ub_runtime_lightmap_hit hit;
   hit.hidden_closer = 0;
+  hit.distance = 0.0f;
+  ub_glg_locate_info glg_at;
+  memset(&glg_at, 0, sizeof glg_at);
   /* auto: a point in space is answered by the GLG, as for a dynamic object. */
   if (!strcmp(source, "lightmap"))
     r = ub_runtime_query_lightmap_ex(rt, at, nrm, rgb, &hit);
@@ -818,6 +921,19 @@ static int cmd_query(int argc, char **argv)
     r = ub_runtime_query_llg(rt, at, nrm, rgb);
   else
     r = ub_runtime_query_glg(rt, at, nrm, NULL, rgb);
+  if (r == UB_OK && strcmp(source, "lightmap") && strcmp(source, "llg")) {
+    float bary[4];
+    ub_glg_locate_ex(ub_runtime_glg(rt), at, NULL, bary, &glg_at);
+  }
+  /* A point far from what answered gets a note: the value is that surface's or the
+   * GLG hull's, not the point's. */
+  if (r == UB_OK && hit.distance > UB_CLI_FAR_SURFACE)
+    fprintf(stderr, "ubake: note: the closest lightmapped surface shown (triangle %u) is %.3g m "
+            "from (%g, %g, %g): the answer is that surface's\n", hit.triangle, hit.distance,
+            at[0], at[1], at[2]);
+  if (r == UB_OK && glg_at.outside)
+    fprintf(stderr, "ubake: note: (%g, %g, %g) is outside the GLG probes' hull: answered at "
+            "the closest point on the hull\n", at[0], at[1], at[2]);
   if (r == UB_OK && hit.hidden_closer) {
     /* The surface nearest the point is hidden in this state: say so, and which surface
      * answered instead. */
@@ -879,32 +995,32 @@ static int cmd_reference(int argc, char **argv)
       want_sh = 1;
     } else if (!strcmp(a, "--at") && v) {
       if (!parse_point(v, rp.position))
-        return usage_error("reference", "--at takes X,Y,Z, each within +-1e7 m");
+        return bad_value("reference", a, v, "takes X,Y,Z, each within +-1e7 m");
       have_at = 1;
       i++;
     } else if (!strcmp(a, "--normal") && v) {
       if (!parse_vec3(v, rp.normal))
-        return usage_error("reference", "--normal takes X,Y,Z");
+        return bad_value("reference", a, v, "takes X,Y,Z");
       have_n = 1;
       i++;
     } else if (!strcmp(a, "--spp") && v) {
       if (!parse_uint(v, UB_REFERENCE_MAX_SPP, &n) || n < 1)
-        return usage_error("reference", "--spp takes 1..2^30");
+        return bad_value("reference", a, v, "takes 1..2^30");
       rp.spp = (uint32_t)n;
       i++;
     } else if (!strcmp(a, "--seed") && v) {
       if (!parse_uint(v, 0xFFFFFFFFL, &n))
-        return usage_error("reference", "--seed takes 0..4294967295");
+        return bad_value("reference", a, v, "takes 0..4294967295");
       rp.seed = (uint32_t)n;
       i++;
     } else if (!strcmp(a, "--bounces") && v) {
       if (!parse_uint(v, 1 << 20, &n))
-        return usage_error("reference", "--bounces takes a count");
+        return bad_value("reference", a, v, "takes a count");
       rp.max_bounces = (uint32_t)n;
       i++;
     } else if (!strcmp(a, "--threads") && v) {
       if (!parse_uint(v, 1024, &n) || n < 1)
-        return usage_error("reference", "--threads takes 1..1024");
+        return bad_value("reference", a, v, "takes 1..1024");
       rp.threads = (int)n;
       i++;
     } else if ((k = parse_state_arg("reference", a, v, &state)) != 0) {
@@ -921,7 +1037,7 @@ static int cmd_reference(int argc, char **argv)
   }
   if (!level || !have_at || !have_n)
     return usage_error("reference", "need LEVEL, --at and --normal");
-  cli_log_state ls = {0, 1, 0};
+  cli_log_state ls = {0, CLI_INFO_DROP, 0};
   ub_log log = {cli_log, &ls};
   ub_scene *scene = NULL;
   ub_rt *rt = NULL;
@@ -956,8 +1072,12 @@ static int cmd_reference(int argc, char **argv)
         break;
     float w = state.rgb[k][0];
     if (d == n) {
-      fprintf(stderr, "ubake: %s: no %s named '%s'\n", level, cli_kind_name(state.kind[k]),
-              state.name[k]);
+      name_list known;
+      memset(&known, 0, sizeof known);
+      for (d = 0; d < n; d++)
+        name_list_add(&known, names[d]);
+      fprintf(stderr, "ubake: %s: no %s named '%s' (%s)\n", level, cli_kind_name(state.kind[k]),
+              state.name[k], name_list_text(&known));
     } else if (state.kind[k] != CLI_DLS && w != 0.0f && w != 1.0f) {
       fprintf(stderr, "ubake: %s: %s '%s': the reference traces the geometry as it is: "
               "only 0 or 1 (closed/open, off/on)\n", level, cli_kind_name(state.kind[k]),
@@ -1026,6 +1146,8 @@ static const char *RENDER_HELP =
     "primary lights (with shadows), under the given state. Back faces are black; a\n"
     "warning names what the camera sees when under half of the view meets front faces\n"
     "(a camera in a wall or outside the level), or says so when every pixel is black.\n"
+    "Warnings and the load's notes go to stderr.\n"
+    "  -o OUT.png          the image (PNG: the path must end in .png)\n"
     "  --camera ...        eye X,Y,Z, target X,Y,Z (metres, Y up), vertical field of view\n"
     "                      in degrees (7 numbers)\n"
     "  --size WxH          image size in pixels (default 960x540)\n"
@@ -1033,7 +1155,8 @@ static const char *RENDER_HELP =
     "                      automatic from the 95th percentile of luminance; the EV used is\n"
     "                      printed, pass it back to compare states at the same exposure)\n"
     "  --samples N         N×N rays per pixel (default 1)\n"
-    "  --dls NAME=W        weight (or R,G,B tint) of a dynamic light set (default 1)\n"
+    "  --dls NAME=W        weight (or R,G,B tint) of a dynamic light set, in [0, 1e6]\n"
+    "                      (default 1); one value per set, door or object\n"
     "  --door NAME=T       opening fraction of a door in [0, 1] (default 0: closed)\n"
     "  --object NAME=V     on, off or a visibility in [0, 1] (default on)\n"
     RECORDS_HELP;
@@ -1061,14 +1184,13 @@ static int cmd_render(int argc, char **argv)
       const char *s = v;
       int ok = 1;
       for (int k = 0; k < 7 && ok; k++) {
-        errno = 0;
-        double x = strtod(s, &end);
-        ok = end != s && !errno && isfinite(x) && (k == 6 ? *end == '\0' : *end == ',');
+        double x = 0.0;
+        ok = parse_real(s, &end, &x) && (k == 6 ? *end == '\0' : *end == ',');
         c[k] = (float)x;
         s = end + 1;
       }
       if (!ok) {
-        return usage_error("render", "--camera takes EX,EY,EZ,TX,TY,TZ,FOVY (7 numbers)");
+        return bad_value("render", a, v, "takes EX,EY,EZ,TX,TY,TZ,FOVY (7 numbers)");
       }
       memcpy(rp.eye, c, sizeof rp.eye);
       memcpy(rp.target, c + 3, sizeof rp.target);
@@ -1088,16 +1210,15 @@ static int cmd_render(int argc, char **argv)
         ok = end != s && *end == '\0' && !errno;
       }
       if (!ok || w < 1 || h < 1 || w > 16384 || h > 16384) {
-        return usage_error("render", "--size takes WxH, each 1..16384");
+        return bad_value("render", a, v, "takes WxH, each 1..16384");
       }
       rp.width = (uint32_t)w;
       rp.height = (uint32_t)h;
       i++;
     } else if (!strcmp(a, "--exposure") && v) {
-      errno = 0;
-      double x = strtod(v, &end);
-      if (end == v || *end || errno || !isfinite(x) || fabs(x) > 64.0) {
-        return usage_error("render", "--exposure takes an EV in [-64, 64]");
+      double x;
+      if (!parse_real(v, &end, &x) || *end || fabs(x) > 64.0) {
+        return bad_value("render", a, v, "takes an EV in [-64, 64]");
       }
       ev = (float)x;
       auto_exposure = 0;
@@ -1105,7 +1226,7 @@ static int cmd_render(int argc, char **argv)
     } else if (!strcmp(a, "--samples") && v) {
       long n;
       if (!parse_uint(v, 16, &n) || n < 1) {
-        return usage_error("render", "--samples takes 1..16");
+        return bad_value("render", a, v, "takes 1..16");
       }
       rp.samples = (uint32_t)n;
       i++;
@@ -1126,7 +1247,11 @@ static int cmd_render(int argc, char **argv)
   if (!path || !have_camera || !out_png) {
     return usage_error("render", "need DIR/NAME.ubk, --camera and -o OUT.png");
   }
-  cli_log_state ls = {0, 0, 0};
+  size_t olen = strlen(out_png);
+  if (olen < 4 || strcasecmp(out_png + olen - 4, ".png") != 0)
+    return bad_value("render", "-o", out_png, "takes a path ending in .png (the image is "
+                     "written as PNG)");
+  cli_log_state ls = {0, CLI_INFO_STDERR, 0}; /* stdout: what was written, for scripts */
   ub_log log = {cli_log, &ls};
   if (ub_render_params_check(&rp, 0, &log) != UB_OK) {
     return 1;
