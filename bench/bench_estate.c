@@ -531,7 +531,7 @@ int main(int argc, char **argv)
     if (bl.inf_s > 0 && bl.full_s > 0)
       printf("  sets' pass: influence %.2f M rays/s, full %.2f M rays/s (ceiling %.2f M closest-hit/s)\n",
              bl.inf_rays / bl.inf_s, bl.full_rays / bl.full_s, hit * 1e-6);
-    printf("  peak RSS %.0f MB, %s: %.1f MB\n", st.peak_rss_kb / 1024.0, st.ubk_path, ubk / 1048576.0);
+    printf("  peak RSS %.0f MiB, %s: %.1f MiB\n", st.peak_rss_kb / 1024.0, st.ubk_path, ubk / 1048576.0);
 
 
   }

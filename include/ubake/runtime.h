@@ -353,8 +353,10 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats);
  * function of its elements' values alone). A set turned off and on again, a door opened
  * and closed, a flickering light: the way back costs a copy. GLG probes are blended
  * lazily by the queries anyway. Call it again to keep another state (one is kept at a
- * time). UB_ERR_INVALID_ARGUMENT (nothing changes) while an element's value changed since
- * the last update or an update is begun and not ended; UB_ERR_OUT_OF_MEMORY (the LLG
+ * time). UB_ERR_INVALID_ARGUMENT (nothing changes) while an element's value was set since
+ * the last update (even back to the value it had: a set with no update after it counts as
+ * a change, and that update re-encodes the element's texels) or an update is begun and not
+ * ended; UB_ERR_OUT_OF_MEMORY (the LLG
  * probes' state may then be kept without the texels': still exact). */
 ub_result ub_runtime_keep_state(ub_runtime *rt);
 
