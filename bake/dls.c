@@ -574,8 +574,27 @@ static int32_t cand_at(const ub_atlas *at, const uint8_t *is_cand, int64_t x, in
   return g >= 0 && is_cand[g] ? g : -1;
 }
 
+/* Texel t's candidate atlas neighbours on the same surface (of the 8 around it,
+ * donor_ok) into out; returns how many. */
+static uint32_t surface_neighbours(const ub_scene *s, const ub_lightmap *lm,
+                                   const uint8_t *is_cand, uint32_t t, uint32_t out[8])
+{
+  const ub_atlas *at = &lm->atlases[lm->texel_atlas[t]];
+  int64_t x = lm->texel_xy[2 * t], y = lm->texel_xy[2 * t + 1];
+  uint32_t n = 0;
+  for (int dy = -1; dy <= 1; dy++)
+    for (int dx = -1; dx <= 1; dx++) {
+      if (!dx && !dy)
+        continue;
+      int32_t g = cand_at(at, is_cand, x + dx, y + dy);
+      if (g >= 0 && donor_ok(s, lm, t, (uint32_t)g))
+        out[n++] = (uint32_t)g;
+    }
+  return n;
+}
+
 /* The keep rule's estimate at texel t (a candidate with is_cand set): the mean of est over
- * t and its candidate atlas neighbours on the same surface (the 8 around it, donor_ok).
+ * t and its candidate atlas neighbours on the same surface (surface_neighbours).
  * The influence pass's indirect comes from a few rays at one gather per ~2×2 texels, so a
  * texel whose gather missed a faint source reads 0 where its neighbours read it: culled
  * on its own estimate, it left a hole in the set's record (q3dm6ish with three sets, draft:
@@ -585,50 +604,30 @@ static int32_t cand_at(const ub_atlas *at, const uint8_t *is_cand, int64_t x, in
 static double keep_estimate(const ub_scene *s, const ub_lightmap *lm, const uint8_t *is_cand,
                             const float *est, uint32_t t)
 {
-  const ub_atlas *at = &lm->atlases[lm->texel_atlas[t]];
-  int64_t x = lm->texel_xy[2 * t], y = lm->texel_xy[2 * t + 1];
+  uint32_t nb[8], n = surface_neighbours(s, lm, is_cand, t, nb);
   double sum = est[t];
-  uint32_t n = 1;
-  for (int dy = -1; dy <= 1; dy++)
-    for (int dx = -1; dx <= 1; dx++) {
-      if (!dx && !dy)
-        continue;
-      int32_t g = cand_at(at, is_cand, x + dx, y + dy);
-      if (g >= 0 && donor_ok(s, lm, t, (uint32_t)g)) {
-        sum += est[g];
-        n++;
-      }
-    }
-  return sum / n;
+  for (uint32_t i = 0; i < n; i++)
+    sum += est[nb[i]];
+  return sum / (n + 1);
 }
 
 /* The keep rule's closing: whether a culled candidate t is surrounded by kept texels,
- * more than half of its candidate atlas neighbours on the same surface (donor_ok), and at
- * least 3 of them, carrying is_cand 2 (kept) rather than 1. keep_estimate averages the
- * gathers around a texel, but where all of them missed a faint source it still reads 0
- * amid kept neighbours: estate_small at 2 bounces, 0.4 m texels left 25 culled texels
- * above a tenth of their set's mean in a dense bake, 11 of them with 5–7 of 8
- * neighbours kept; with this step 15, for records 3.2% larger there. A texel just
- * outside a straight edge of the kept region has at most half (3 of 8), so the region
- * does not grow there; a concave corner (5 of 8) fills. ESTATE at scale 0.12 (draft, 2
- * bounces): records +1.2%, full-pass rays +0.3% (scaled rays make such faint texels
- * cheap). Requiring 3 of 4 instead: 17 holes on estate_small, records +0.5% at 0.12. */
+ * more than half of its candidate atlas neighbours on the same surface, and at least 3 of
+ * them, carrying is_cand 2 (kept) rather than 1. keep_estimate averages the gathers
+ * around a texel, but where all of them missed a faint source it still reads 0 amid kept
+ * neighbours: estate_small at 2 bounces, 0.4 m texels left 25 culled texels above a tenth
+ * of their set's mean in a dense bake, 11 of them with 5–7 of 8 neighbours kept; with this
+ * step 15, for records 3.2% larger there. A texel just outside a straight edge of the kept
+ * region has at most half (3 of 8), so the region does not grow there; a concave corner
+ * (5 of 8) fills. ESTATE at scale 0.12 (draft, 2 bounces): records +1.2%, full-pass rays
+ * +0.3% (scaled rays make such faint texels cheap). Requiring 3 of 4 instead: 17 holes on
+ * estate_small, records +0.5% at 0.12. */
 static int keep_closed(const ub_scene *s, const ub_lightmap *lm, const uint8_t *is_cand,
                        uint32_t t)
 {
-  const ub_atlas *at = &lm->atlases[lm->texel_atlas[t]];
-  int64_t x = lm->texel_xy[2 * t], y = lm->texel_xy[2 * t + 1];
-  uint32_t n = 0, k = 0;
-  for (int dy = -1; dy <= 1; dy++)
-    for (int dx = -1; dx <= 1; dx++) {
-      if (!dx && !dy)
-        continue;
-      int32_t g = cand_at(at, is_cand, x + dx, y + dy);
-      if (g >= 0 && donor_ok(s, lm, t, (uint32_t)g)) {
-        n++;
-        k += is_cand[g] == 2;
-      }
-    }
+  uint32_t nb[8], n = surface_neighbours(s, lm, is_cand, t, nb), k = 0;
+  for (uint32_t i = 0; i < n; i++)
+    k += is_cand[nb[i]] == 2;
   return n >= 3 && 2 * k > n;
 }
 

@@ -53,4 +53,22 @@ static inline int level_open(const char *build, const char *name, level *L)
   return 0;
 }
 
+/* A pass description over L's base state with the tests' usual sampling: 64 gather rays,
+ * 16 emissive and 4 shadow samples, 2 bounces, seed 3, pass 1; en: light_count bytes. */
+static inline void level_desc_init(const level *L, const uint8_t *en, ub_pass_desc *pd)
+{
+  memset(pd, 0, sizeof *pd);
+  pd->scene = L->s;
+  pd->rt = L->rt;
+  pd->emitters = L->em;
+  pd->lightmap = L->lm;
+  pd->light_enabled = en;
+  pd->gather_rays = 64;
+  pd->emissive_samples = 16;
+  pd->shadow_samples = 4;
+  pd->bounces = 2;
+  pd->seed = 3;
+  pd->pass_id = 1;
+}
+
 #endif

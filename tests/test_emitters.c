@@ -27,19 +27,11 @@ static char g_build[512];
 static void desc_init(const level *L, const uint8_t *en, uint32_t seed, int by_power,
                       ub_pass_desc *pd)
 {
-  memset(pd, 0, sizeof *pd);
-  pd->scene = L->s;
-  pd->rt = L->rt;
-  pd->emitters = L->em;
-  pd->lightmap = L->lm;
-  pd->light_enabled = en;
+  level_desc_init(L, en, pd);
   pd->emissive = 1;
   pd->gather_rays = 32;
-  pd->emissive_samples = 16;
-  pd->shadow_samples = 4;
   pd->bounces = 0;
   pd->seed = seed;
-  pd->pass_id = 1;
   pd->emitters_by_power = by_power;
 }
 

@@ -41,18 +41,7 @@ static char g_build[512];
 
 static void desc_init(const level *L, const uint8_t *en, ub_pass_desc *pd)
 {
-  memset(pd, 0, sizeof *pd);
-  pd->scene = L->s;
-  pd->rt = L->rt;
-  pd->emitters = L->em;
-  pd->lightmap = L->lm;
-  pd->light_enabled = en;
-  pd->gather_rays = 64;
-  pd->emissive_samples = 16;
-  pd->shadow_samples = 4;
-  pd->bounces = 2;
-  pd->seed = 3;
-  pd->pass_id = 1;
+  level_desc_init(L, en, pd);
 }
 
 static void test_furnace(void)
