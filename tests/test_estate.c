@@ -811,6 +811,49 @@ static void check_keep_state(const char *ubk)
   ub_runtime_free(rb);
 }
 
+/* A value set and set back before the update is no change: set 0 off and on again, then
+ * (after an update with it off) on and off again: the updates after re-encode no texel,
+ * write no probe and list nothing, keep_state is refused while set 0 is away and allowed
+ * once it is back, and the atlases equal a run-time that went to each state directly. */
+static void check_set_back(const char *ubk)
+{
+  ub_runtime *ra = NULL, *rb = NULL;
+  ASSERT_OK(ub_runtime_load_ex(ubk, NULL, 0, &ra));
+  ASSERT_OK(ub_runtime_load_ex(ubk, NULL, 0, &rb));
+  if (!ra || !rb) {
+    ub_runtime_free(ra);
+    ub_runtime_free(rb);
+    return;
+  }
+  const float one[3] = {1, 1, 1}, zero[3] = {0, 0, 0};
+  ub_runtime_update_stats st;
+  for (int pass = 0; pass < 2; pass++) {
+    const float *at = pass ? zero : one, *away = pass ? one : zero;
+    ASSERT_OK(ub_runtime_set_dls(ra, 0, away));
+    ASSERT_TRUE(ub_runtime_keep_state(ra) == UB_ERR_INVALID_ARGUMENT);
+    ASSERT_OK(ub_runtime_set_dls(ra, 0, at));
+    ASSERT_OK(ub_runtime_keep_state(ra));
+    ASSERT_OK(ub_runtime_update(ra, &st));
+    printf("set back (%s): %llu texels re-encoded, %llu probes, %llu LLG probes written, %llu "
+           "listed\n",
+           pass ? "off, on, off" : "on, off, on", (unsigned long long)st.texels_reencoded,
+           (unsigned long long)st.probes_written, (unsigned long long)st.llg_probes_written,
+           (unsigned long long)ub_runtime_changed_texel_count(ra));
+    ASSERT_TRUE(st.texels_reencoded == 0 && st.probes_written == 0 &&
+                st.llg_probes_written == 0 && ub_runtime_changed_texel_count(ra) == 0);
+    ASSERT_OK(ub_runtime_set_dls(rb, 0, at));
+    ASSERT_OK(ub_runtime_update(rb, NULL));
+    ASSERT_TRUE(same_atlases(ra, rb, ub_runtime_bakefile(ra)));
+    if (!pass) { /* set 0 off for the second pass: a real change */
+      ASSERT_OK(ub_runtime_set_dls(ra, 0, zero));
+      ASSERT_OK(ub_runtime_update(ra, &st));
+      ASSERT_TRUE(st.texels_reencoded > 0);
+    }
+  }
+  ub_runtime_free(ra);
+  ub_runtime_free(rb);
+}
+
 /* The base state's AHD (kept by default) against a run-time without it
  * (UB_RUNTIME_NO_BASE_AHD): 300 random changes, mostly sets off (from all on, then from a
  * state with most sets off, where a set turned off leaves texels no other set lights),
@@ -1218,6 +1261,7 @@ int main(void)
     check_plain_sums(st.ubk_path);
     check_merge_groups(st.ubk_path);
     check_keep_state(st.ubk_path);
+    check_set_back(st.ubk_path);
     check_base_ahd(st.ubk_path);
     check_jobs(st.ubk_path);
     check_glg_threads(st.ubk_path);

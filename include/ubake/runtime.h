@@ -262,7 +262,8 @@ ub_result ub_runtime_query_llg_ex(const ub_runtime *rt, const float p[3], const 
  * lighting used everywhere is base + Σ weight_i · set_i, exact per channel because light
  * transport is linear (a tint keeps colour bleeding). ub_runtime_set_dls() only records
  * the weight; ub_runtime_update() recomputes the receivers of the changed sets (each
- * written once, batched by overlap combination) and re-encodes their AHD texels; their
+ * written once, batched by overlap combination; a set whose weight is back at the last
+ * update's is not changed) and re-encodes their AHD texels; their
  * GLG probes it only marks: the first query that reads such a probe blends it (base + Σ
  * weight·set, the same bits) and windows it, so probes no query reads cost nothing (~0.25–
  * 0.37 µs more for each one read, on the querying thread; queries stay thread safe). Not
@@ -353,10 +354,9 @@ ub_result ub_runtime_update(ub_runtime *rt, ub_runtime_update_stats *out_stats);
  * function of its elements' values alone). A set turned off and on again, a door opened
  * and closed, a flickering light: the way back costs a copy. GLG probes are blended
  * lazily by the queries anyway. Call it again to keep another state (one is kept at a
- * time). UB_ERR_INVALID_ARGUMENT (nothing changes) while an element's value was set since
- * the last update (even back to the value it had: a set with no update after it counts as
- * a change, and that update re-encodes the element's texels) or an update is begun and not
- * ended; UB_ERR_OUT_OF_MEMORY (the LLG
+ * time). UB_ERR_INVALID_ARGUMENT (nothing changes) while an element's value differs from
+ * the last update's (a value set away and back before the update is no change: that
+ * update re-encodes nothing for it) or an update is begun and not ended; UB_ERR_OUT_OF_MEMORY (the LLG
  * probes' state may then be kept without the texels': still exact). */
 ub_result ub_runtime_keep_state(ub_runtime *rt);
 
