@@ -210,19 +210,14 @@ void ub_emitters_sample_cdf(const ub_emitters *em, const float *cdf, const ub_sc
   uint32_t lo = ub_cdf_pick(cdf, em->count, u0);
   float prev = lo ? cdf[lo - 1] : 0.0f;
   float p_tri = cdf[lo] - prev;
-  uint32_t t = em->tri[lo];
-  const float *a, *b, *c;
-  tri_corners(scene, t, &a, &b, &c);
+  const float *a = em->corner + 9 * (size_t)lo, *b = a + 3, *c = a + 6;
   float su = sqrtf(u1);
   float b0 = 1.0f - su, b1 = u2 * su, b2 = 1.0f - b0 - b1;
   for (int i = 0; i < 3; i++)
     out_p[i] = b0 * a[i] + b1 * b[i] + b2 * c[i];
-  float cr[3];
-  tri_cross(scene, t, cr);
-  float len = sqrtf(cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2]);
-  for (int i = 0; i < 3; i++)
-    out_n[i] = len > 0.0f ? cr[i] / len : 0.0f;
-  memcpy(out_le, scene->materials[scene->tri_material[t]].emission, 3 * sizeof(float));
+  memcpy(out_n, em->normal + 3 * (size_t)lo, 3 * sizeof(float));
+  memcpy(out_le, scene->materials[scene->tri_material[em->tri[lo]]].emission,
+         3 * sizeof(float));
   *out_pdf_area = em->area[lo] > 0.0f ? p_tri / em->area[lo] : 0.0f;
 }
 
