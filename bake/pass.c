@@ -1807,9 +1807,7 @@ static void gather_block(pass_ctx *c, const recv_set *rs, uint32_t r0, uint32_t 
                                               em, rs->samples + (size_t)r * rs->spr * 3, nrm,
                                               ebuf);
           float p_tri = ecdf[ei] - (ei ? ecdf[ei - 1] : 0.0f);
-          float en[3];
-          tri_normal(s, h->tri, en);
-          float ce = -dot3(en, ray->dir);
+          float ce = -dot3(em->normal + 3 * (size_t)ei, ray->dir);
           if (ce <= 0.0f)
             continue;
           double pdf_sa = (double)p_tri / em->area[ei] * h->t * h->t / ce;
