@@ -105,7 +105,10 @@ struct ub_blend {
   uint32_t dirty_count;
   float *wupd; /* element_count × 3: each element's weight at the last update that
                 * recomputed its groups (NaN before one): a weight set back to it before
-                * the next update is no change (ub_blend_set_weight) */
+                * the next update is no change (ub_blend_set_weight). Not wlast, which
+                * row queries keep and which starts at the create weights (0): an element
+                * no update has computed must stay a change (test_blend's base report
+                * compares an engine updated at start with one that was not) */
   blend_group *groups;
   uint32_t *members;
   uint32_t *moff;    /* per group member (as members): its first row in values (rows <
